@@ -1,0 +1,113 @@
+"""Figures for training runs and replays (matplotlib, Agg backend, 150 dpi PNG)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+DPI = 150
+
+
+def _save(fig, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def plot_loss(path: Path, losses: Sequence[float], title: str = "") -> Path:
+    """Loss per update (log scale) with a running median."""
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    y = np.asarray(losses, dtype=float)
+    x = np.arange(1, len(y) + 1)
+    ax.plot(x, y, lw=0.6, color="0.6", label="per update")
+    if len(y) >= 10:
+        w = max(5, len(y) // 50)
+        med = np.array([np.median(y[max(0, i - w + 1): i + 1]) for i in range(len(y))])
+        ax.plot(x, med, lw=1.5, color="C0", label=f"running median ({w})")
+    if len(y) and np.all(y[np.isfinite(y)] > 0):
+        ax.set_yscale("log")
+    ax.set_xlabel("update")
+    ax.set_ylabel("loss")
+    ax.set_title(f"BPTSB training loss {title}".strip())
+    ax.legend(frameon=False)
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_lissajous(path: Path, t: np.ndarray, cmp: np.ndarray, target: np.ndarray,
+                   closed: np.ndarray | None = None) -> Path:
+    """CMP trajectory over the target curve, and x(t), y(t)."""
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4), gridspec_kw={"width_ratios": [1, 1.4]})
+    ax = axes[0]
+    ax.plot(target[:, 0], target[:, 1], "k--", lw=1.2, label="target")
+    ax.plot(cmp[:, 0], cmp[:, 1], color="C0", lw=1.0, label="open loop (SWG)")
+    if closed is not None:
+        ax.plot(closed[:, 0], closed[:, 1], color="C3", lw=1.0, alpha=0.8, label="closed loop (FL)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title("CMP trajectory")
+    ax.legend(frameon=False, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=3)
+    ax = axes[1]
+    tt = t - t[0]
+    ax.plot(tt, target[:, 0], "k--", lw=0.8)
+    ax.plot(tt, target[:, 1], "k:", lw=0.8)
+    ax.plot(tt, cmp[:, 0], color="C0", lw=1.0, label="x (open)")
+    ax.plot(tt, cmp[:, 1], color="C1", lw=1.0, label="y (open)")
+    ax.set_xlabel("time since evaluation start [s]")
+    ax.set_ylabel("position [m]")
+    ax.legend(frameon=False, fontsize=8, ncol=2, loc="upper center", bbox_to_anchor=(0.5, -0.15))
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_speed(path: Path, t: np.ndarray, speeds: dict[str, np.ndarray], target: float | None = None) -> Path:
+    """Forward speed (mean x-velocity of all masses) over time for one or more runs."""
+    fig, ax = plt.subplots(figsize=(6.5, 3.5))
+    for i, (label, v) in enumerate(speeds.items()):
+        ax.plot(t, v, lw=1.0, color=f"C{i}", label=label)
+    if target is not None:
+        ax.axhline(target, color="k", ls="--", lw=1, label="target")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("forward speed [m/s]")
+    ax.legend(frameon=False)
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_series(path: Path, series: dict[str, np.ndarray], xlabel: str, ylabel: str, title: str = "",
+                shade: tuple[int, int] | None = None) -> Path:
+    """Several aligned time series (e.g. NARMA input, target and output)."""
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    for i, (label, y) in enumerate(series.items()):
+        ax.plot(np.arange(len(y)), y, lw=1.0, color=f"C{i}", label=label, drawstyle="steps-mid")
+    if shade is not None:
+        ax.axvspan(*shade, color="0.9", zorder=0, label="test samples")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    if title:
+        ax.set_title(title)
+    ax.legend(frameon=False, fontsize=8)
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_spring_lengths(path: Path, t: np.ndarray, lengths: np.ndarray, max_springs: int = 12) -> Path:
+    """Spring lengths (T, E) over time (first ``max_springs`` springs)."""
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for e in range(min(max_springs, lengths.shape[1])):
+        ax.plot(t, lengths[:, e], lw=0.8, label=f"spring {e}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("length [m]")
+    ax.legend(frameon=False, fontsize=6, ncol=4)
+    ax.grid(alpha=0.3)
+    return _save(fig, path)

@@ -1,0 +1,48 @@
+"""`bptsb train`: offline BPTSB training of one experiment config."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+NAME = "train"
+HELP = "Train a brain-body agent with BPTSB from a YAML experiment config (config/*.yaml)."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", help="experiment YAML, e.g. config/lissajous_single.yaml")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a config key (dotted for sections): --set sim_time=20 --set training.lr.k=100")
+    parser.add_argument("--seed", type=int, default=None, help="random seed (overrides the config's)")
+    parser.add_argument("--out", required=True, help="run directory for checkpoint.pt, metrics.json and plots")
+    parser.add_argument("--resume", action="store_true", help="continue the run saved in --out")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.config import ConfigError, load_config
+    from bptsb_ros.training.checkpoint import CheckpointError
+    from bptsb_ros.training.trainer import TrainingDiverged, train
+
+    try:
+        cfg = load_config(args.config, args.overrides, args.seed)
+        result = train(cfg, args.out, resume=args.resume, progress=not args.no_progress)
+    except (ConfigError, CheckpointError, TrainingDiverged) as err:
+        print(f"bptsb train: {err}", file=sys.stderr)
+        return 2
+    m = result.metrics
+    ev = m["evaluation"]
+    losses = m["loss"]
+    summary = {
+        "run_dir": str(result.run_dir),
+        "updates": m["updates"],
+        "first_loss": losses[0] if losses else None,
+        "last_loss": losses[-1] if losses else None,
+        "train_steps_per_second": round(m["train_steps_per_second"] or 0.0, 1),
+        **{k: v for k, v in ev.items() if isinstance(v, (int, float, bool)) and not isinstance(v, list)},
+    }
+    print(json.dumps(summary, indent=2))
+    print(ev.get("paper_reference", ""))
+    print("files: " + ", ".join(str(f) for f in result.files))
+    return 0

@@ -1,0 +1,198 @@
+"""Experiment configuration: YAML files validated into typed models.
+
+Every experiment is one YAML file under ``config/``. Unknown keys and wrong types are errors that
+name the key (``training.lr.k: Input should be a valid number``). Durations are ``sim_time``
+(seconds of simulated time, continuous tasks) and ``epochs`` (episodic tasks), so
+``--set sim_time=20`` or ``--set epochs=2`` shortens any run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+TASKS = ("lissajous", "locomotion", "narma")
+
+
+class ConfigError(ValueError):
+    """A configuration file or override is invalid; the message names the offending key."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class BodyConfig(_Strict):
+    shape: Literal["double_circle", "multiple_circle", "caterpillar"] = "double_circle"
+    nodes: int = Field(25, ge=2, description="number of masses, fixed ones included")
+    size: float = Field(4.0, gt=0, description="diameter of circular bodies [m]")
+    neighbours: int = Field(3, ge=1, description="caterpillar: mass k links to k+1..k+neighbours")
+    dt: float = Field(0.01, gt=0, description="integration time step [s]")
+    integrator: Literal["verlet", "published"] = "verlet"
+    k_init: tuple[float, float] = (1.0, 100.0)
+    d_init: tuple[float, float] = (0.0, 10.0)
+    environment: Literal["none", "locomotion"] = "none"
+    ground_clamp: bool = False
+
+
+class BrainConfig(_Strict):
+    type: Literal["swg", "mlp", "lil"] = "swg"
+    amplitude: float = Field(0.5, description="SWG initial amplitude A")
+    omega: float = Field(6.283185307179586, gt=0, description="SWG angular frequency [rad/s], not trained")
+    hidden: int = Field(128, ge=1, description="MLP hidden width")
+    gain: float = Field(1.0, gt=0, description="MLP Xavier gain")
+
+
+class LearningRates(_Strict):
+    """Per-parameter learning rates (paper, Table 'Learning rates')."""
+
+    k: float = Field(1e4, ge=0)
+    d: float = Field(1e3, ge=0)
+    l: float = Field(1e1, ge=0)  # noqa: E741 - the paper's symbol
+    amplitude: float = Field(1e1, ge=0)
+    phase: float = Field(1e2, ge=0)
+    brain: float = Field(1e-1, ge=0, description="LIL/MLP weights and biases")
+
+
+class TrainingConfig(_Strict):
+    optimizer: Literal["sgd", "adam"] = "sgd"
+    update_steps: int = Field(100, ge=1, description="truncated window length (updateTimeScale) [steps]")
+    lr: LearningRates = LearningRates()
+    adjoint: bool = Field(True, description="hand-derived backward (fast); False uses plain autograd")
+    reject_factor: float = Field(0.0, ge=0, description="reject an update whose loss > factor × recent median (0: off)")
+    reject_patience: int = Field(5, ge=1, description="divide all learning rates by 10 after this many rejections")
+    checkpoint_every: int = Field(0, ge=0, description="updates between checkpoints (0: only at the end)")
+    log_every: int = Field(10, ge=1)
+
+
+class FeedbackConfig(_Strict):
+    """Feedback layer fit (closed loop), for SWG agents."""
+
+    enabled: bool = True
+    state: Literal["spring_length", "position", "velocity", "acceleration"] = "spring_length"
+    noise: float = Field(0.08, ge=0, description="σ of Gaussian noise added to the inputs while fitting")
+    fit_time: float = Field(100.0, gt=0, description="open-loop run used for the fit [s]")
+    criterion: Literal["aic", "gcv"] = "aic"
+
+
+class LissajousConfig(_Strict):
+    alpha: float = 1.0
+    beta: float = 2.0
+    delta: float = 0.0
+    amplitude_fraction: float = Field(0.05, gt=0, description="X = Y = fraction × diameter (paper: 1/20)")
+    eval_periods: int = Field(10, ge=1)
+
+
+class LocomotionConfig(_Strict):
+    target_slope: float = Field(0.004, ge=0, description="v_target(t) = slope × t [m/s per s of training]")
+    warmup_windows: int = Field(100, ge=0, description="windows simulated without updates before training")
+    speed_block: int = Field(100, ge=1, description="steps per block over which speed is averaged")
+    eval_time: float = Field(20.0, gt=0, description="evaluation run [s]")
+
+
+class NarmaConfig(_Strict):
+    order: int = Field(2, ge=1, description="m, the NARMA delay")
+    tau: int = Field(20, ge=1, description="simulation steps per input")
+    n_inputs: int = Field(150, ge=10, description="inputs per episode")
+    washout: int = Field(30, ge=0, description="inputs discarded at the start")
+    train_end: int = Field(120, description="samples washout..train_end-1 train; the rest test")
+    input_scale: float = Field(20.0, gt=0, description="force scale: brain input = scale × u")
+    eval_seed: int = 12345
+
+
+class ExperimentConfig(_Strict):
+    task: Literal["lissajous", "locomotion", "narma"]
+    name: str = ""
+    seed: int = 0
+    dtype: Literal["float32", "float64"] = "float32"
+    sim_time: float = Field(100.0, gt=0, description="simulated training time [s] (continuous tasks)")
+    epochs: int = Field(1, ge=1, description="training episodes (episodic tasks)")
+    body: BodyConfig = BodyConfig()
+    brain: BrainConfig = BrainConfig()
+    training: TrainingConfig = TrainingConfig()
+    feedback: FeedbackConfig = FeedbackConfig()
+    lissajous: LissajousConfig = LissajousConfig()
+    locomotion: LocomotionConfig = LocomotionConfig()
+    narma: NarmaConfig = NarmaConfig()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "ExperimentConfig":
+        if self.task in ("lissajous", "locomotion") and self.brain.type != "swg":
+            raise ValueError(f"task {self.task!r} needs brain.type 'swg', got {self.brain.type!r}")
+        if self.task == "narma" and self.brain.type == "swg":
+            raise ValueError("task 'narma' needs brain.type 'mlp' or 'lil'")
+        if self.task == "locomotion" and self.body.shape != "caterpillar":
+            raise ValueError("task 'locomotion' needs body.shape 'caterpillar'")
+        if self.task != "locomotion" and self.body.shape == "caterpillar":
+            raise ValueError(f"body.shape 'caterpillar' is the locomotion robot, not for task {self.task!r}")
+        n = self.narma
+        if self.task == "narma" and not (n.washout < n.train_end < n.n_inputs):
+            raise ValueError("narma needs washout < train_end < n_inputs")
+        return self
+
+
+def _format_errors(err: ValidationError, source: str) -> str:
+    lines = []
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        msg = e["msg"]
+        if e["type"] == "extra_forbidden":
+            msg = "unknown key"
+        lines.append(f"  {loc}: {msg} (got {e.get('input')!r})")
+    return f"invalid configuration {source}:\n" + "\n".join(lines)
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``a.b=value`` → (["a", "b"], YAML-parsed value)."""
+    if "=" not in text:
+        raise ConfigError(f"override {text!r} must look like key=value (e.g. sim_time=20)")
+    key, raw = text.split("=", 1)
+    path = [p for p in key.strip().split(".") if p]
+    if not path:
+        raise ConfigError(f"override {text!r} has an empty key")
+    return path, yaml.safe_load(raw)
+
+
+def apply_overrides(data: dict, overrides: list[str]) -> dict:
+    """Apply ``--set`` overrides to a raw config mapping (validation happens afterwards)."""
+    for text in overrides:
+        path, value = parse_override(text)
+        node = data
+        for part in path[:-1]:
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"override {text!r}: {part!r} is not a section")
+            node = child
+        node[path[-1]] = value
+    return data
+
+
+def validate(data: dict, source: str = "") -> ExperimentConfig:
+    """Validate a raw mapping; raises ConfigError listing every bad key."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"configuration {source} must be a mapping, got {type(data).__name__}")
+    try:
+        return ExperimentConfig.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(_format_errors(err, source)) from None
+
+
+def load_config(path: str | Path, overrides: list[str] | None = None, seed: int | None = None) -> ExperimentConfig:
+    """Read, override and validate an experiment YAML."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise ConfigError(f"config file {path} is not valid YAML: {err}") from None
+    data = apply_overrides(data, overrides or [])
+    if seed is not None:
+        data["seed"] = seed
+    cfg = validate(data, str(path))
+    if not cfg.name:
+        cfg.name = path.stem
+    return cfg

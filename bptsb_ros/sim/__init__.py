@@ -1,0 +1,1 @@
+"""Offline simulation of trained agents (open and closed loop) and the trajectory file format."""

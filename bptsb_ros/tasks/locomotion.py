@@ -1,0 +1,129 @@
+"""Locomotion (paper, "Locomotion task"): a caterpillar robot (10 masses, 24 springs, all movable)
+with gravity, air drag and a soft exponential ground, driven by an SWG, must move forward (+x).
+
+Speed = x-velocity averaged over all masses; the loss is the MSE between that speed, averaged over
+blocks of ``speed_block`` steps, and a target that grows with training time, v_target = 0.004·t
+(t: simulated seconds since training began). Updates every 200 steps; the robot first runs
+``warmup_windows`` windows without updates (it settles on the ground).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bptsb_ros.body.adjoint import rollout_window
+from bptsb_ros.body.msdn import BodyState
+from bptsb_ros.sim.rollout import Rollout, simulate_closed_loop, simulate_open_loop, swg_rest_lengths
+from bptsb_ros.tasks.base import Task
+
+
+def forward_speed(v: torch.Tensor) -> torch.Tensor:
+    """Mean x-velocity over all (movable) masses: v (..., M, 2) → (...) [m/s]."""
+    return v[..., 0].mean(-1)
+
+
+def mean_speed(rollout: Rollout) -> float:
+    """Average forward speed of the whole run: mean x displacement of all masses / duration [m/s]."""
+    x = rollout.r[:, 0, :, 0].double().mean(-1)
+    return float((x[-1] - x[0]) / (rollout.steps * 1.0))
+
+
+class LocomotionTask(Task):
+    name = "locomotion"
+    paper_reference = (
+        "paper: caterpillar 10 masses / 24 springs, SWG, target speed 0.004·t, update every 200 steps; "
+        "metric: mean forward speed vs target; closed loop succeeds when speed ≥ 0.7 × open-loop speed "
+        "(paper: 8 of 20 agents, 40 %)"
+    )
+
+    def __init__(self, agent, cfg) -> None:
+        super().__init__(agent, cfg)
+        self.window = cfg.training.update_steps
+        self.block = cfg.locomotion.speed_block
+        if self.window % self.block:
+            raise ValueError(
+                f"training.update_steps ({self.window}) must be a multiple of locomotion.speed_block ({self.block})"
+            )
+        body = agent.body
+        self.state: BodyState = body.initial_state(1, rest_length=swg_rest_lengths(body, agent.brain, 0, 1)[0])
+        self.train_start_step: int | None = None
+
+    def num_updates(self) -> int:
+        return max(1, int(round(self.cfg.sim_time / (self.window * self.agent.dt))))
+
+    def prepare(self) -> None:
+        if self.train_start_step is None:
+            self._warm_up()
+
+    def _warm_up(self) -> None:
+        steps = self.cfg.locomotion.warmup_windows * self.window
+        if steps:
+            self.state = simulate_open_loop(self.agent, steps, state=self.state).final
+        self.train_start_step = self.state.step
+
+    def update_loss(self, index: int) -> tuple[torch.Tensor, dict[str, float]]:
+        self.prepare()
+        body, swg = self.agent.body, self.agent.brain
+        k0 = self.state.step
+        rest = swg_rest_lengths(body, swg, k0 + 1, self.window)
+        win = rollout_window(body, self.state, rest, adjoint=self.cfg.training.adjoint)
+        speed = forward_speed(win.v[:, 0]).view(-1, self.block).mean(-1)  # (blocks,)
+        block_end = k0 + self.block * torch.arange(1, speed.shape[0] + 1, dtype=speed.dtype)
+        target = self.cfg.locomotion.target_slope * (block_end - self.train_start_step) * body.dt
+        loss = ((speed - target) ** 2).mean()
+        self.state = win.final.detach()
+        body.check_finite(self.state)
+        return loss, {"speed": float(speed.detach().mean())}
+
+    def target_speed_now(self) -> float:
+        start = self.train_start_step if self.train_start_step is not None else self.state.step
+        return self.cfg.locomotion.target_slope * (self.state.step - start) * self.agent.dt
+
+    def state_dict(self) -> dict[str, Any]:
+        s = self.state
+        return {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step, "train_start": self.train_start_step}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.state = BodyState(state["r"], state["v"], state["a"], state["length"], int(state["step"]))
+        self.train_start_step = state["train_start"]
+
+    def evaluate(self) -> dict[str, Any]:
+        agent = self.agent
+        dt = agent.dt
+        steps = int(round(self.cfg.locomotion.eval_time / dt))
+        roll = simulate_open_loop(agent, steps, state=self.state)
+        open_speed = mean_speed(roll) / dt
+        out: dict[str, Any] = {
+            "metric": "mean_forward_speed",
+            "mean_forward_speed": open_speed,
+            "target_speed_end_of_training": self.target_speed_now(),
+            "eval_time": self.cfg.locomotion.eval_time,
+            "paper_reference": self.paper_reference,
+        }
+        t = np.arange(steps + 1) * dt
+        self._eval = {"t": t, "open": forward_speed(roll.v[:, 0]).double().numpy()}
+        if agent.feedback is not None and getattr(self, "feedback_fitted", False):
+            closed = simulate_closed_loop(agent.body, agent.feedback, steps, state=roll.final)
+            closed_speed = mean_speed(closed) / dt
+            out["closed_loop_speed"] = closed_speed
+            out["closed_over_open"] = closed_speed / open_speed if open_speed else float("nan")
+            out["closed_loop_success"] = bool(open_speed > 0 and closed_speed >= 0.7 * open_speed)
+            self._eval["closed"] = forward_speed(closed.v[:, 0]).double().numpy()
+        return out
+
+    def plots(self, out_dir: Path) -> list[Path]:
+        from bptsb_ros.analysis.plots import plot_speed
+
+        if not hasattr(self, "_eval"):
+            self.evaluate()
+        e = self._eval
+        w = max(1, self.block)
+        smooth = {k: np.convolve(v, np.ones(w) / w, mode="same") for k, v in e.items() if k != "t"}
+        labels = {"open": "open loop (SWG)", "closed": "closed loop (FL)"}
+        path = out_dir / "speed.png"
+        plot_speed(path, e["t"], {labels[k]: v for k, v in smooth.items()}, self.target_speed_now())
+        return [path]

@@ -1,0 +1,1 @@
+"""BPTSB training: optimisers with per-parameter learning rates, the trainer loop, checkpoints."""

@@ -1,0 +1,79 @@
+"""Checkpoints: ``<run_dir>/checkpoint.pt`` holds the resolved config, every module's state_dict, the
+optimiser state and the trainer position, so a run can resume and an agent can be reloaded anywhere
+(offline simulation, the live ROS nodes, replay analysis)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from bptsb_ros.agent import Agent, build_agent
+from bptsb_ros.config import validate
+
+CHECKPOINT = "checkpoint.pt"
+
+
+class CheckpointError(RuntimeError):
+    """A run directory has no readable checkpoint."""
+
+
+def checkpoint_path(run_dir: str | Path) -> Path:
+    path = Path(run_dir)
+    return path if path.suffix == ".pt" else path / CHECKPOINT
+
+
+def save_checkpoint(run_dir: str | Path, agent: Agent, extra: dict[str, Any] | None = None) -> Path:
+    """Write the checkpoint atomically (temp file + rename: a crash never leaves half a file)."""
+    path = checkpoint_path(run_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format": 1,
+        "config": agent.config,
+        "modules": {name: m.state_dict() for name, m in agent.modules().items()},
+        "extra": extra or {},
+    }
+    tmp = path.with_suffix(".pt.tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def read_checkpoint(run_dir: str | Path) -> dict[str, Any]:
+    path = checkpoint_path(run_dir)
+    if not path.is_file():
+        raise CheckpointError(f"no checkpoint at {path} (train one with `bptsb train CONFIG --out RUN_DIR`)")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001 - torch raises many types for a damaged file
+        raise CheckpointError(f"checkpoint {path} is unreadable: {err}") from None
+    if not isinstance(payload, dict) or payload.get("format") != 1:
+        raise CheckpointError(f"{path} is not a bptsb_ros checkpoint")
+    return payload
+
+
+def load_agent(run_dir: str | Path, dtype: torch.dtype | None = None) -> Agent:
+    """Rebuild the agent saved in ``run_dir`` (parameters frozen: requires_grad False).
+
+    ``dtype`` converts the whole agent (e.g. float64 for exact comparisons).
+    """
+    payload = read_checkpoint(run_dir)
+    agent = build_agent(validate(payload["config"], f"in {checkpoint_path(run_dir)}"))
+    for name, module in agent.modules().items():
+        state = payload["modules"].get(name)
+        if state is None:
+            raise CheckpointError(f"checkpoint {checkpoint_path(run_dir)} lacks the {name!r} module")
+        module.load_state_dict(state)
+    if "feedback" not in payload["modules"]:
+        agent.feedback = None
+    for module in agent.modules().values():
+        module.requires_grad_(False)
+        if dtype is not None:
+            module.to(dtype)
+    return agent
+
+
+def feedback_fitted(run_dir: str | Path) -> bool:
+    """True when the checkpoint holds a fitted feedback layer."""
+    return bool(read_checkpoint(run_dir)["extra"].get("feedback_fitted", False))

@@ -1,0 +1,151 @@
+"""The BPTSB training loop: truncated windows, per-parameter learning rates, projection onto
+non-negative body parameters, update rejection, checkpoints, metrics, progress."""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+
+from bptsb_ros.agent import Agent, build_agent
+from bptsb_ros.body.msdn import SimulationDiverged
+from bptsb_ros.brains import SineWaveGenerator
+from bptsb_ros.config import ExperimentConfig, validate
+from bptsb_ros.tasks import get_task
+from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
+from bptsb_ros.training.feedback_fit import fit_feedback
+from bptsb_ros.training.optim import make_optimizer, scale_learning_rates
+
+
+class TrainingDiverged(RuntimeError):
+    """Training stopped because the simulation or the loss diverged."""
+
+
+@dataclass
+class TrainResult:
+    run_dir: Path
+    losses: list[float]
+    metrics: dict[str, Any]
+    files: list[Path] = field(default_factory=list)
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="upd", dynamic_ncols=True, disable=not enabled, file=sys.stderr)
+
+
+def train(
+    cfg: ExperimentConfig,
+    run_dir: str | Path,
+    *,
+    resume: bool = False,
+    progress: bool = True,
+) -> TrainResult:
+    """Train ``cfg``'s agent, writing checkpoint.pt, config.yaml, metrics.json and plots to ``run_dir``."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    agent = build_agent(cfg)
+    task = get_task(cfg.task)(agent, cfg)
+    optimizer = make_optimizer(agent, cfg.training)
+    losses: list[float] = []
+    start = 0
+    rejections = 0
+    if resume:
+        payload = read_checkpoint(run_dir)
+        cfg = validate(payload["config"], str(run_dir))
+        for name, module in agent.modules().items():
+            module.load_state_dict(payload["modules"][name])
+        extra = payload["extra"]
+        optimizer.load_state_dict(extra["optimizer"])
+        task.load_state_dict(extra["task_state"])
+        losses = list(extra["losses"])
+        start = int(extra["update"])
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
+
+    total = task.num_updates()
+    tc = cfg.training
+    task.prepare()
+    t_start = time.perf_counter()
+    sim_steps = 0
+    bar = _progress(total, f"train {cfg.name or cfg.task}", progress)
+    bar.update(start)
+
+    def checkpoint(update: int, **more: Any) -> None:
+        save_checkpoint(run_dir, agent, {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
+                                         "losses": losses, "update": update, **more})
+
+    try:
+        for i in range(start, total):
+            try:
+                loss, _info = task.update_loss(i)
+            except SimulationDiverged as err:
+                checkpoint(i, diverged=str(err))
+                raise TrainingDiverged(f"update {i}: {err}") from None
+            sim_steps += getattr(task, "steps_per_update", tc.update_steps)
+            optimizer.zero_grad(set_to_none=True)
+            value = float(loss.detach())
+            if not math.isfinite(value):
+                checkpoint(i, diverged="non-finite loss")
+                raise TrainingDiverged(f"update {i}: loss is {value}; {_param_ranges(agent)}")
+            loss.backward()
+            grads_ok = all(
+                torch.isfinite(p.grad).all() for g in optimizer.param_groups for p in g["params"] if p.grad is not None
+            )
+            recent = losses[-20:]
+            if not grads_ok or (tc.reject_factor and recent and value > tc.reject_factor * statistics.median(recent)):
+                rejections += 1
+                bar.write(f"update {i}: rejected (loss {value:.3g}, gradients finite: {grads_ok})")
+                if rejections >= tc.reject_patience:
+                    scale_learning_rates(optimizer, 0.1)
+                    rejections = 0
+                    bar.write(f"update {i}: {tc.reject_patience} rejections, learning rates divided by 10")
+                losses.append(value)
+                bar.update(1)
+                continue
+            optimizer.step()
+            agent.body.clamp_parameters_()
+            losses.append(value)
+            bar.update(1)
+            if i % tc.log_every == 0:
+                bar.set_postfix(loss=f"{value:.4g}")
+            if tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0:
+                checkpoint(i + 1)
+    finally:
+        bar.close()
+    elapsed = time.perf_counter() - t_start
+
+    metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": losses,
+                               "updates": len(losses), "train_seconds": elapsed,
+                               "train_steps_per_second": sim_steps / elapsed if elapsed > 0 else None}
+    with torch.no_grad():
+        if isinstance(agent.brain, SineWaveGenerator) and agent.feedback is not None:
+            metrics["feedback_fit"] = fit_feedback(agent, cfg.feedback, getattr(task, "state", None), cfg.seed)
+            task.feedback_fitted = True
+        metrics["evaluation"] = task.evaluate()
+    checkpoint(total, feedback_fitted=getattr(task, "feedback_fitted", False))
+    files = _write_outputs(run_dir, task, metrics)
+    return TrainResult(run_dir, losses, metrics, files)
+
+
+def _write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
+    from bptsb_ros.analysis.plots import plot_loss
+
+    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], metrics["name"])]
+    files += task.plots(run_dir)
+    return files
+
+
+def _param_ranges(agent: Agent) -> str:
+    b = agent.body
+    return ", ".join(f"{n} in [{float(p.min()):.4g}, {float(p.max()):.4g}]" for n, p in (("k", b.k), ("d", b.d), ("l", b.l)))

@@ -1,0 +1,92 @@
+"""BPTSB training on the three shipped experiments (short runs), checkpoints, resume, divergence."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from bptsb_ros.agent import build_agent
+from bptsb_ros.body.msdn import Environment
+from bptsb_ros.config import load_config
+from bptsb_ros.sim.rollout import simulate_open_loop
+from bptsb_ros.training.checkpoint import CheckpointError, load_agent
+from bptsb_ros.training.trainer import TrainingDiverged, train
+
+CONFIG = Path(__file__).resolve().parents[1] / "config"
+
+
+def _early_late(losses, n=10):
+    return float(np.mean(losses[:n])), float(np.mean(losses[-n:]))
+
+
+def test_lissajous_training_lowers_loss_and_saves_everything(tmp_path):
+    cfg = load_config(CONFIG / "lissajous_single.yaml", ["sim_time=150", "feedback.fit_time=20",
+                                                           "lissajous.eval_periods=3"])
+    res = train(cfg, tmp_path / "run", progress=False)
+    early, late = _early_late(res.losses)
+    assert late < 0.5 * early
+    for name in ("checkpoint.pt", "config.yaml", "metrics.json", "loss.png", "lissajous.png"):
+        assert (tmp_path / "run" / name).is_file(), name
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert len(metrics["loss"]) == 150 and metrics["evaluation"]["trajectory_mse"] > 0
+    assert "closed_loop_shift_min_mse" in metrics["evaluation"]
+    agent = load_agent(tmp_path / "run")
+    assert agent.feedback is not None and agent.feedback.weight.abs().sum() > 0
+    assert torch.all(agent.body.k >= 0) and torch.all(agent.body.l >= 0)
+
+
+def test_locomotion_training_lowers_loss(tmp_path):
+    cfg = load_config(CONFIG / "locomotion_forward.yaml", ["sim_time=40", "locomotion.warmup_windows=5",
+                                                             "feedback.fit_time=10", "locomotion.eval_time=4"])
+    res = train(cfg, tmp_path / "run", progress=False)
+    # the target grows with time, so compare the loss with the speed error an idle robot would have
+    ev = res.metrics["evaluation"]
+    assert ev["mean_forward_speed"] > 0.3 * ev["target_speed_end_of_training"]
+
+
+def test_narma_training_lowers_loss(tmp_path):
+    cfg = load_config(CONFIG / "narma.yaml", ["epochs=8", "narma.n_inputs=60", "narma.washout=10",
+                                              "narma.train_end=45"])
+    res = train(cfg, tmp_path / "run", progress=False)
+    assert res.losses[-1] < 0.5 * res.losses[0]
+    assert np.isfinite(res.metrics["evaluation"]["nmse_test"])
+
+
+def test_resume_continues_where_it_stopped(tmp_path):
+    base = ["feedback.enabled=false", "lissajous.eval_periods=1"]
+    full = train(load_config(CONFIG / "lissajous_single.yaml", ["sim_time=6", *base]), tmp_path / "a", progress=False)
+    train(load_config(CONFIG / "lissajous_single.yaml", ["sim_time=3", *base]), tmp_path / "b", progress=False)
+    # extend the half run to the full length and resume it
+    ck = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)
+    ck["config"]["sim_time"] = 6
+    torch.save(ck, tmp_path / "b" / "checkpoint.pt")
+    resumed = train(load_config(CONFIG / "lissajous_single.yaml", ["sim_time=6", *base]), tmp_path / "b",
+                    resume=True, progress=False)
+    assert np.allclose(resumed.losses, full.losses, rtol=1e-5)
+
+
+def test_divergence_is_reported_not_trained_on(tmp_path):
+    cfg = load_config(CONFIG / "lissajous_single.yaml", ["sim_time=20", "training.lr.k=1.0e+12"])
+    with pytest.raises(TrainingDiverged, match=r"(step \d+|loss is)"):
+        train(cfg, tmp_path / "run", progress=False)
+
+
+def test_load_agent_errors(tmp_path):
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        load_agent(tmp_path)
+    (tmp_path / "checkpoint.pt").write_bytes(b"garbage")
+    with pytest.raises(CheckpointError, match="unreadable"):
+        load_agent(tmp_path)
+
+
+def test_paper_locomotion_forces_give_no_traction():
+    """Without the published hard floor, x-momentum obeys dP/dt = −a·P: the robot cannot move."""
+    cfg = load_config(CONFIG / "locomotion_forward.yaml", ["body.ground_clamp=false", "dtype=float64"])
+    agent = build_agent(cfg)
+    assert agent.body.environment == Environment(9.81, 0.1, 10.0, False)
+    roll = simulate_open_loop(agent, 2000)
+    com_x = roll.r[:, 0, :, 0].mean(-1)
+    assert float(com_x.abs().max()) < 1e-9
+    assert float(roll.r[:, 0, :, 1].std()) > 0.1  # it does move, vertically
