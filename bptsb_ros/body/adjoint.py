@@ -101,86 +101,99 @@ class _WindowFunction(torch.autograd.Function):
         ctx.body = body
         ctx.has_ext = has_ext
         ctx.ext_shape = ext.shape
-        ctx.save_for_backward(r0, v0, a0, k, d, rest_lengths, r_out, v_out, a_out)
+        ctx.save_for_backward(r0, v0, a0, k, d, rest_lengths, r_out, v_out, a_out, len_out)
         return r_out, v_out, a_out, len_out
 
     @staticmethod
     def backward(ctx, g_r, g_v, g_a, g_len):  # type: ignore[override]
         body: MSDN = ctx.body
-        r0, v0, a0, k, d, rest_lengths, r_out, v_out, a_out = ctx.saved_tensors
+        r0, v0, a0, k, d, rest_lengths, r_out, v_out, a_out, len_out = ctx.saved_tensors
         dt = body.dt
         half_dt, h = 0.5 * dt, 0.5 * dt * dt
         verlet = body.integrator == "verlet"
         env = body.environment
-        gather, scatter = body.gather, body.scatter  # r_flat @ gather = D r;  f_flat @ scatter = Dᵀ f
-        c = body.fixed_offset
         batch, n_mov = r0.shape[0], r0.shape[1]
         n_springs = k.shape[0]
-
-        def D(y: torch.Tensor) -> torch.Tensor:  # (B, M, 2) -> (B, E, 2)
-            return torch.mm(y.reshape(batch, 2 * n_mov), gather).view(batch, n_springs, 2)
-
-        def Dt(y: torch.Tensor) -> torch.Tensor:  # (B, E, 2) -> (B, M, 2)
-            return torch.mm(y.reshape(batch, 2 * n_springs), scatter).view(batch, n_mov, 2)
-
-        inv_m = (1.0 / body.mass).unsqueeze(-1)  # (M, 1)
+        fm, fe = 2 * n_mov, 2 * n_springs  # flat widths: (B, 2M) masses, (B, 2E) springs
+        gather, scatter = body.gather, body.scatter  # r_flat @ gather = D r;  f_flat @ scatter = Dᵀ f
+        neg_gather = -gather
+        c = body.fixed_offset
+        inv_m = None if body.unit_mass else (1.0 / body.mass).repeat_interleave(2)
         kk, dd = k.unsqueeze(-1), d.unsqueeze(-1)  # (E, 1)
         n_steps = rest_lengths.shape[0]
         per_batch_l = rest_lengths.dim() == 3
+        # Output gradients that are identically zero (e.g. a loss on positions only) are skipped.
+        g_r_steps = g_r.reshape(n_steps, batch, fm).unbind(0) if bool(g_r.any()) else None
+        g_v_steps = g_v.reshape(n_steps, batch, fm).unbind(0) if bool(g_v.any()) else None
+        g_a_steps = g_a.reshape(n_steps, batch, fm).unbind(0) if bool(g_a.any()) else None
+        g_len_steps = g_len.unsqueeze(-1).unbind(0) if bool(g_len.any()) else None
+        r_prev = [r0.reshape(batch, fm), *r_out.reshape(n_steps, batch, fm).unbind(0)]
+        v_prev = [v0.reshape(batch, fm), *v_out.reshape(n_steps, batch, fm).unbind(0)]
+        a_prev = [a0.reshape(batch, fm), *a_out.reshape(n_steps, batch, fm).unbind(0)]
+        lengths = len_out.unsqueeze(-1).unbind(0)  # (B, E, 1) each
+        rests = rest_lengths.unsqueeze(-1).unbind(0)
 
-        lam_r = torch.zeros_like(r0)
-        lam_v = torch.zeros_like(r0)
-        lam_a = torch.zeros_like(r0)
-        acc_k = r0.new_zeros(r0.shape[0], k.shape[0])
-        acc_d = r0.new_zeros(r0.shape[0], k.shape[0])
-        g_rest = torch.zeros_like(rest_lengths)
-        g_ext = r0.new_zeros((n_steps, *r0.shape)) if ctx.has_ext else None
+        lam_r = r0.new_zeros(batch, fm)
+        lam_v = r0.new_zeros(batch, fm)
+        lam_a = r0.new_zeros(batch, fm)
+        acc_k = r0.new_zeros(batch, n_springs, 1)
+        acc_d = r0.new_zeros(batch, n_springs, 2)
+        g_rest = torch.empty_like(rest_lengths)
+        g_ext = r0.new_empty((n_steps, batch, fm)) if ctx.has_ext else None
 
         for i in range(n_steps - 1, -1, -1):
-            if i > 0:
-                r, v, a = r_out[i - 1], v_out[i - 1], a_out[i - 1]
-            else:
-                r, v, a = r0, v0, a0
-            gr_new = g_r[i] + lam_r
-            gv_new = g_v[i] + lam_v
-            ga_new = g_a[i] + lam_a
-            r_new = torch.add(r, v, alpha=dt)  # positions the forces saw (before any ground clamp)
-            if verlet:
-                r_new.add_(a, alpha=h)
-            if env.ground_clamp:
-                below = (r_new[..., 1] < 0).unsqueeze(-1)
-                gr_new = torch.where(below, gr_new * gr_new.new_tensor([1.0, 0.0]), gr_new)
+            gr_new = lam_r if g_r_steps is None else lam_r + g_r_steps[i]
+            gv_new = lam_v if g_v_steps is None else lam_v + g_v_steps[i]
+            ga_new = lam_a if g_a_steps is None else lam_a + g_a_steps[i]
+            r, v = r_prev[i], v_prev[i]
+            if env.ground_clamp:  # forces saw the positions before the clamp: rebuild them
+                r_new = torch.add(r, v, alpha=dt)
+                if verlet:
+                    r_new.add_(a_prev[i], alpha=h)
+                below = (r_new.view(batch, n_mov, 2)[..., 1] < 0).repeat_interleave(2, dim=-1)
+                gr_new = torch.where(below, gr_new * r0.new_tensor([1.0, 0.0]).repeat(n_mov), gr_new)
                 gv_new = torch.where(below, torch.zeros_like(gv_new), gv_new)
+            else:
+                r_new = r_prev[i + 1]
             # v' = v + Δt/2 (a + a')  (published: v' = v + Δt/2 a')
-            ga_tot = torch.add(ga_new, gv_new, alpha=half_dt)
-            gF = ga_tot * inv_m
+            gF = torch.add(ga_new, gv_new, alpha=half_dt)
+            if inv_m is not None:
+                gF = gF * inv_m
             if g_ext is not None:
                 g_ext[i] = gF
-            gv = gv_new - env.air_drag * gF if env.air_drag else gv_new.clone()
-            ga = gv_new * half_dt if verlet else torch.zeros_like(gv_new)
-            x = D(r_new) + c  # (B, E, 2)
-            length = torch.linalg.vector_norm(x, dim=-1, keepdim=True)  # (B, E, 1)
-            rest = rest_lengths[i].unsqueeze(-1)
-            gf = D(gF).neg_()  # (B, E, 2)
+            ga = gv_new * half_dt if verlet else None
+            gv = gv_new if not env.air_drag else torch.add(gv_new, gF, alpha=-env.air_drag)
+            x = torch.mm(r_new, gather).view(batch, n_springs, 2).add_(c)
+            length, rest = lengths[i], rests[i]
+            gf = torch.mm(gF, neg_gather).view(batch, n_springs, 2)
             xg = (x * gf).sum(-1, keepdim=True)  # (B, E, 1)
-            q = 1 - rest / length
-            acc_k += (q * xg).squeeze(-1)
-            acc_d += (D(v) * gf).sum(-1)
-            gl = (-kk * xg / length).squeeze(-1)  # (B, E)
+            xg_over_l = xg / length
+            rest_over_l = rest / length
+            q = 1 - rest_over_l
+            acc_k.addcmul_(q, xg)
+            acc_d.addcmul_(torch.mm(v, gather).view(batch, n_springs, 2), gf)
+            gl = (xg_over_l * kk).neg_().squeeze(-1)  # (B, E)
             g_rest[i] = gl if per_batch_l else gl.sum(0)
-            gx = kk * (q * gf + (rest / length**3) * xg * x) + (g_len[i].unsqueeze(-1) / length) * x
-            gr_prime = gr_new + Dt(gx)
+            gx = (kk * q) * gf
+            coef = (kk * rest_over_l) * xg_over_l / length
+            if g_len_steps is not None:
+                coef = coef + g_len_steps[i] / length
+            gx.addcmul_(coef, x)
+            gr_prime = torch.addmm(gr_new, gx.view(batch, fe), scatter)
             if env.ground_c:
                 cg = env.ground_c
-                gy = -cg * cg * torch.exp(-cg * r_new[..., 1]) * gF[..., 1]
-                gr_prime = gr_prime + torch.stack([torch.zeros_like(gy), gy], dim=-1)
-            gv = gv + Dt(dd * gf)
+                y = r_new.view(batch, n_mov, 2)[..., 1]
+                gy = (-cg * cg) * torch.exp(-cg * y) * gF.view(batch, n_mov, 2)[..., 1]
+                gr_prime = gr_prime + torch.stack([torch.zeros_like(gy), gy], dim=-1).view(batch, fm)
+            lam_v = torch.addmm(gv, (dd * gf).view(batch, fe), scatter).add_(gr_prime, alpha=dt)
+            lam_a = ga.add_(gr_prime, alpha=h) if verlet else torch.zeros_like(gr_prime)
             lam_r = gr_prime
-            lam_v = gv.add_(gr_prime, alpha=dt)
-            lam_a = ga.add_(gr_prime, alpha=h) if verlet else ga
 
-        g_k = acc_k.sum(0)
-        g_d = acc_d.sum(0)
-        if g_ext is not None and len(ctx.ext_shape) == 3:  # ext given as (W, M, 2): broadcast over batch
-            g_ext = g_ext.sum(1)
-        return lam_r, lam_v, lam_a, g_k, g_d, g_rest, g_ext, None
+        g_k = acc_k.sum((0, 2))
+        g_d = acc_d.sum((0, 2))
+        if g_ext is not None:
+            g_ext = g_ext.view(n_steps, batch, n_mov, 2)
+            if len(ctx.ext_shape) == 3:  # ext given as (W, M, 2): broadcast over batch
+                g_ext = g_ext.sum(1)
+        shape = r0.shape
+        return lam_r.view(shape), lam_v.view(shape), lam_a.view(shape), g_k, g_d, g_rest, g_ext, None
