@@ -38,7 +38,8 @@ class Workload:
 
 WORKLOADS = {
     "lissajous": Workload("lissajous", "double_circle", 25, 1, 100, "swg",
-                          description="Lissajous: double-circle 25 masses / 48 springs, SWG, 100-step windows, batch 1"),
+                          description="Lissajous: double-circle 25 masses / 48 springs, SWG, 100-step windows, "
+                                      "batch 1"),
     "narma": Workload("narma", "double_circle", 33, 1, 3000, "mlp",
                       description="expanded NARMA: double-circle 33 masses, MLP forces, 3000-step episode, batch 1"),
     "locomotion": Workload("locomotion", "caterpillar", 10, 20, 200, "swg", "locomotion",
@@ -100,7 +101,7 @@ def _setup(w: Workload, adjoint: bool, dtype: torch.dtype):
 def _measure(w: Workload, adjoint: bool, dtype: torch.dtype, min_seconds: float) -> dict[str, float]:
     torch.set_num_threads(1)
     body, opt, state, run_window = _setup(w, adjoint, dtype)
-    loss, state = run_window(state)  # warm-up
+    loss, _ = run_window(state)  # warm-up
     loss.backward()
 
     def timed(train: bool) -> float:
@@ -184,7 +185,8 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
 
 def workload_table(report: dict[str, Any]) -> str:
     """A Markdown table of the report (for the README)."""
-    rows = ["| workload | batch | forward steps/s | train steps/s (adjoint) | train steps/s (autograd) | peak RSS MiB |",
+    rows = ["| workload | batch | forward steps/s | train steps/s (adjoint) | train steps/s (autograd) "
+            "| peak RSS MiB |",
             "|---|---|---|---|---|---|"]
     for name, e in report["workloads"].items():
         a, g = e["adjoint"], e["autograd"]

@@ -119,7 +119,7 @@ class ExperimentConfig(_Strict):
     narma: NarmaConfig = NarmaConfig()
 
     @model_validator(mode="after")
-    def _consistent(self) -> "ExperimentConfig":
+    def _consistent(self) -> ExperimentConfig:
         if self.task in ("lissajous", "locomotion") and self.brain.type != "swg":
             raise ValueError(f"task {self.task!r} needs brain.type 'swg', got {self.brain.type!r}")
         if self.task == "narma" and self.brain.type == "swg":

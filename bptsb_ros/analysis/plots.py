@@ -43,27 +43,26 @@ def plot_loss(path: Path, losses: Sequence[float], title: str = "") -> Path:
     return _save(fig, path)
 
 
-def plot_lissajous(path: Path, t: np.ndarray, cmp: np.ndarray, target: np.ndarray,
-                   closed: np.ndarray | None = None) -> Path:
-    """CMP trajectory over the target curve, and x(t), y(t)."""
-    fig, axes = plt.subplots(1, 2, figsize=(9, 4), gridspec_kw={"width_ratios": [1, 1.4]})
+def plot_lissajous(path: Path, t: np.ndarray, curves: dict[str, np.ndarray], target: np.ndarray) -> Path:
+    """CMP trajectories (label → (T, 2)) over the target curve (T, 2), and x(t), y(t) of the first curve."""
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4.3), gridspec_kw={"width_ratios": [1, 1.4]})
     ax = axes[0]
     ax.plot(target[:, 0], target[:, 1], "k--", lw=1.2, label="target")
-    ax.plot(cmp[:, 0], cmp[:, 1], color="C0", lw=1.0, label="open loop (SWG)")
-    if closed is not None:
-        ax.plot(closed[:, 0], closed[:, 1], color="C3", lw=1.0, alpha=0.8, label="closed loop (FL)")
+    for i, (label, xy) in enumerate(curves.items()):
+        ax.plot(xy[:, 0], xy[:, 1], color=("C0", "C3", "C2", "C4")[i % 4], lw=1.0, alpha=0.85, label=label)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title("CMP trajectory")
-    ax.legend(frameon=False, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=3)
+    ax.legend(frameon=False, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2)
     ax = axes[1]
+    first_label, first = next(iter(curves.items()))
     tt = t - t[0]
-    ax.plot(tt, target[:, 0], "k--", lw=0.8)
-    ax.plot(tt, target[:, 1], "k:", lw=0.8)
-    ax.plot(tt, cmp[:, 0], color="C0", lw=1.0, label="x (open)")
-    ax.plot(tt, cmp[:, 1], color="C1", lw=1.0, label="y (open)")
-    ax.set_xlabel("time since evaluation start [s]")
+    ax.plot(tt, target[:, 0], "k--", lw=0.8, label="target x")
+    ax.plot(tt, target[:, 1], "k:", lw=0.8, label="target y")
+    ax.plot(tt, first[:, 0], color="C0", lw=1.0, label=f"x, {first_label}")
+    ax.plot(tt, first[:, 1], color="C1", lw=1.0, label=f"y, {first_label}")
+    ax.set_xlabel("time [s]")
     ax.set_ylabel("position [m]")
     ax.legend(frameon=False, fontsize=8, ncol=2, loc="upper center", bbox_to_anchor=(0.5, -0.15))
     ax.grid(alpha=0.3)

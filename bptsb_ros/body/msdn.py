@@ -49,7 +49,7 @@ class BodyState:
     length: torch.Tensor
     step: int = 0
 
-    def detach(self) -> "BodyState":
+    def detach(self) -> BodyState:
         """Same state with gradients cut (truncated BPTT windows carry the state over detached)."""
         return BodyState(self.r.detach(), self.v.detach(), self.a.detach(), self.length.detach(), self.step)
 
@@ -68,7 +68,7 @@ class Environment:
     ground_clamp: bool = False
 
     @staticmethod
-    def locomotion() -> "Environment":
+    def locomotion() -> Environment:
         return Environment(gravity=9.81, air_drag=0.1, ground_c=10.0)
 
 
@@ -222,15 +222,19 @@ class MSDN(nn.Module):
             v = torch.where(below, torch.zeros_like(v), v)
         return BodyState(r, v, a, length, state.step + 1)
 
+    def parameter_ranges(self) -> str:
+        """``k in [lo, hi], d in [..], l in [..]``: for error messages."""
+        named = (("k", self.k), ("d", self.d), ("l", self.l))
+        return ", ".join(f"{n} in [{float(t.detach().min()):.4g}, {float(t.detach().max()):.4g}]" for n, t in named)
+
     def check_finite(self, state: BodyState, limit: float = 1e6) -> None:
         """Raise SimulationDiverged (with the step and parameter ranges) on NaN/inf or |r| > limit."""
         r = state.r.detach()
-        if bool(torch.isfinite(r).all()) and float(r.abs().max()) <= limit:
+        finite = bool(torch.isfinite(r).all() and torch.isfinite(state.v).all() and torch.isfinite(state.a).all())
+        if finite and float(r.abs().max()) <= limit:
             return
-        p = {n: (float(t.detach().min()), float(t.detach().max())) for n, t in (("k", self.k), ("d", self.d), ("l", self.l))}
-        ranges = ", ".join(f"{n} in [{lo:.4g}, {hi:.4g}]" for n, (lo, hi) in p.items())
         raise SimulationDiverged(
             f"simulation diverged at step {state.step} (t = {state.step * self.dt:.2f} s): positions "
-            f"non-finite or beyond {limit:g} m; body parameters {ranges}. Lower the learning rates, "
+            f"non-finite or beyond {limit:g} m; body parameters {self.parameter_ranges()}. Lower the learning rates, "
             "the time step or the input scale."
         )

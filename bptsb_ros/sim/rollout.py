@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from bptsb_ros.agent import Agent, brain_forces
@@ -166,25 +165,3 @@ def _add_wind(body: MSDN, ext: torch.Tensor | None, wind: torch.Tensor | None, s
     force = w[:, None, None, :].expand(steps + 1, 1, body.n_movable, 2)
     return force if ext is None else ext + force
 
-
-def full_trajectory_arrays(body: MSDN, rollout: Rollout, batch_index: int = 0) -> dict[str, np.ndarray]:
-    """One batch member as arrays over ALL masses (fixed ones included), for the npz format.
-
-    Returns positions, velocities, external_force (T+1, N, 2) and rest_length (T+1, E).
-    """
-    b = batch_index
-    n = body.topology.n_masses
-    steps = rollout.r.shape[0]
-    mov = body.movable_index.numpy()
-    positions = np.broadcast_to(body.positions0.numpy(), (steps, n, 2)).copy()
-    positions[:, mov] = rollout.r[:, b].numpy()
-    velocities = np.zeros((steps, n, 2))
-    velocities[:, mov] = rollout.v[:, b].numpy()
-    ext = np.zeros((steps, n, 2))
-    ext[:, mov] = rollout.external_force[:, b].numpy()
-    return {
-        "positions": positions,
-        "velocities": velocities,
-        "external_force": ext,
-        "rest_length": rollout.rest_length[:, b].numpy().astype(np.float64),
-    }

@@ -38,7 +38,7 @@ class Task(ABC):
     def evaluate(self) -> dict[str, Any]:
         """The paper's metric (and related numbers) for the current agent, without gradients."""
 
-    def prepare(self) -> None:
+    def prepare(self) -> None:  # noqa: B027 - optional hook, most tasks need none
         """Work before the first update that is not training (e.g. a warm-up run); idempotent."""
 
     def state_dict(self) -> dict[str, Any]:

@@ -35,6 +35,18 @@ def shift_min_mse(traj: np.ndarray, target_fn, t0: float, dt: float, shifts: int
     return float(min(np.mean((traj - target_fn(t + s * dt)) ** 2) for s in range(shifts + 1)))
 
 
+def windowed_shift_error(traj: np.ndarray, target_fn, t0: float, dt: float, period: int) -> float:
+    """Mean over whole periods of the per-period minimum-over-shifts MSE (the paper's closed-loop error).
+
+    traj: (T, 2) CMP positions at times t0 + k·dt; period: steps per target period.
+    """
+    errs = [shift_min_mse(traj[s:s + period + 1], target_fn, t0 + s * dt, dt, period)
+            for s in range(0, traj.shape[0] - period, period)]
+    if not errs:
+        raise ValueError(f"need more than one period ({period} steps) of trajectory, got {traj.shape[0]} rows")
+    return float(np.mean(errs))
+
+
 class LissajousTask(Task):
     name = "lissajous"
     paper_reference = (
@@ -113,12 +125,7 @@ class LissajousTask(Task):
         return out
 
     def _windowed_shift_error(self, traj: np.ndarray, t0: float, period: int) -> float:
-        """Mean over whole periods of the per-period minimum-over-shifts MSE (paper, closed loop)."""
-        dt = self.agent.body.dt
-        errs = []
-        for start in range(0, traj.shape[0] - period, period):
-            errs.append(shift_min_mse(traj[start:start + period + 1], self.target_np, t0 + start * dt, dt, period))
-        return float(np.mean(errs))
+        return windowed_shift_error(traj, self.target_np, t0, self.agent.body.dt, period)
 
     def plots(self, out_dir: Path) -> list[Path]:
         from bptsb_ros.analysis.plots import plot_lissajous
@@ -127,5 +134,8 @@ class LissajousTask(Task):
             self.evaluate()
         e = self._eval
         path = out_dir / "lissajous.png"
-        plot_lissajous(path, e["t"], e["open"], self.target_np(e["t"]), closed=e.get("closed"))
+        curves = {"open loop (SWG)": e["open"]}
+        if "closed" in e:
+            curves["closed loop (FL), next run"] = e["closed"]
+        plot_lissajous(path, e["t"], curves, self.target_np(e["t"]))
         return [path]

@@ -15,7 +15,7 @@ from typing import Any
 import torch
 import yaml
 
-from bptsb_ros.agent import Agent, build_agent
+from bptsb_ros.agent import build_agent
 from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ExperimentConfig, validate
@@ -96,7 +96,7 @@ def train(
             value = float(loss.detach())
             if not math.isfinite(value):
                 checkpoint(i, diverged="non-finite loss")
-                raise TrainingDiverged(f"update {i}: loss is {value}; {_param_ranges(agent)}")
+                raise TrainingDiverged(f"update {i}: loss is {value}; {agent.body.parameter_ranges()}")
             loss.backward()
             grads_ok = all(
                 torch.isfinite(p.grad).all() for g in optimizer.param_groups for p in g["params"] if p.grad is not None
@@ -145,7 +145,3 @@ def _write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
     files += task.plots(run_dir)
     return files
 
-
-def _param_ranges(agent: Agent) -> str:
-    b = agent.body
-    return ", ".join(f"{n} in [{float(p.min()):.4g}, {float(p.max()):.4g}]" for n, p in (("k", b.k), ("d", b.d), ("l", b.l)))

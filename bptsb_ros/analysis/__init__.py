@@ -1,0 +1,1 @@
+"""Analysis: body renderings, trajectory animations and plots."""

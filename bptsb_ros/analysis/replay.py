@@ -1,0 +1,294 @@
+"""Replay analysis of a recorded live run: rebuild the trajectories from a rosbag2 MCAP bag, compute
+the task's metrics, and compare with the offline simulation of the same agent.
+
+Works on our bags and on any rosbag2 MCAP bag with the loop's topics (``bptsb_ros/ros/TOPICS.md``):
+the body layout comes from the ``body/markers`` topic (spring endpoints, fixed/movable/CMP colours),
+time from the header stamps (sim time of step k = k·dt exactly).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bptsb_ros.bags.errors import BagError
+from bptsb_ros.bags.metadata import read_metadata
+from bptsb_ros.bags.reader import list_topics, read_messages
+from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
+
+LOOPS_CLOSED = ("lissajous_closed", "locomotion_closed")
+
+
+@dataclass
+class BagRun:
+    """A live run read back from a bag. Rows are the recorded steps, in order.
+
+    steps: (T,) step indices; positions: (T, N, 2) [m]; spring_lengths, rest_length: (T, E) [m];
+    springs: (E, 2); fixed: (N,) bool; cmp_index: −1 if none; inputs: {step: u} task inputs;
+    custom: the bag's custom_data (loop, mode, agent).
+    """
+
+    dt: float
+    steps: np.ndarray
+    positions: np.ndarray
+    spring_lengths: np.ndarray | None
+    rest_length: np.ndarray | None
+    springs: np.ndarray
+    fixed: np.ndarray
+    cmp_index: int
+    inputs: dict[int, float] = field(default_factory=dict)
+    custom: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def missing_steps(self) -> list[int]:
+        full = np.arange(self.steps[0], self.steps[-1] + 1)
+        return sorted(set(full.tolist()) - set(self.steps.tolist()))
+
+
+def _stamp_ns(msg: Any) -> int:
+    s = msg.header.stamp
+    return int(s.sec) * NS_PER_S + int(s.nanosec)
+
+
+def _topic(key: str) -> str:
+    return absolute(TOPICS[key].name)
+
+
+def read_run(bag: str | Path, dt: float | None = None) -> BagRun:
+    """Read the body topics of a bag into a :class:`BagRun`."""
+    topics = list_topics(bag)
+    pos_topic = _topic("positions")
+    if pos_topic not in topics:
+        raise BagError(f"bag {bag} has no {pos_topic} topic (geometry_msgs/PoseArray); topics: {', '.join(topics)}")
+    wanted = [t for t in (_topic(k) for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input"))
+              if t in topics]
+    pos: dict[int, np.ndarray] = {}
+    lengths: dict[int, np.ndarray] = {}
+    rests: dict[int, np.ndarray] = {}
+    inputs_ns: dict[int, float] = {}
+    markers = None
+    for topic, _type, _t, msg in read_messages(bag, wanted):
+        if topic == pos_topic:
+            pos[_stamp_ns(msg)] = np.array([(p.position.x, p.position.y) for p in msg.poses])
+        elif topic == _topic("spring_lengths"):
+            lengths[_stamp_ns(msg)] = np.asarray(msg.position, dtype=np.float64)
+        elif topic == _topic("rest_length"):
+            rests[_stamp_ns(msg)] = np.asarray(msg.position, dtype=np.float64)
+        elif topic == _topic("markers") and markers is None:
+            markers = msg
+        elif topic == _topic("task_input") and len(msg.position):
+            inputs_ns[_stamp_ns(msg)] = float(msg.position[0])
+    if not pos:
+        raise BagError(f"bag {bag} has no messages on {pos_topic}")
+    stamps = np.array(sorted(pos))
+    if dt is None:
+        diffs = np.diff(stamps)
+        if not len(diffs):
+            raise BagError(f"bag {bag} holds a single step; pass the time step (--dt)")
+        dt_ns = int(diffs.min())
+    else:
+        dt_ns = int(round(dt * NS_PER_S))
+    steps = stamps // dt_ns
+    positions = np.stack([pos[s] for s in stamps])
+    springs, fixed, cmp = _layout_from_markers(markers, positions)
+    custom = {}
+    try:
+        custom = {str(k): str(v) for k, v in (read_metadata(bag).custom_data or {}).items()}
+    except (BagError, OSError, AttributeError):
+        custom = {}
+
+    def stack(d: dict[int, np.ndarray]) -> np.ndarray | None:
+        return np.stack([d[s] for s in stamps]) if d and all(s in d for s in stamps) else None
+
+    return BagRun(dt_ns / NS_PER_S, steps, positions, stack(lengths), stack(rests), springs, fixed, cmp,
+                  {int(s // dt_ns): u for s, u in inputs_ns.items()}, custom)
+
+
+def _layout_from_markers(markers: Any, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Springs (E, 2), fixed (N,), CMP index from the body marker array.
+
+    Spring endpoints are matched to the mass points of the same MarkerArray (they are copies of them);
+    without markers: no springs, and the masses that never move count as fixed.
+    """
+    n = positions.shape[1]
+    fixed = np.all(np.abs(positions - positions[0]) < 1e-12, axis=(0, 2))
+    springs = np.zeros((0, 2), dtype=np.int64)
+    cmp = -1
+    if markers is None:
+        return springs, fixed, cmp
+    by_ns = {m.ns: m for m in markers.markers}
+    masses, lines = by_ns.get("masses"), by_ns.get("springs")
+    if masses is None or len(masses.points) != n:
+        return springs, fixed, cmp
+    mass_pts = np.array([(p.x, p.y) for p in masses.points])
+    colours = [(c.r, c.g, c.b) for c in masses.colors]
+    fixed = np.array([abs(r - g) < 1e-6 and abs(g - b) < 1e-6 for r, g, b in colours]) if colours else fixed
+    reds = [i for i, (r, g, _b) in enumerate(colours) if r > 0.8 and g < 0.3]
+    cmp = reds[0] if len(reds) == 1 else -1
+    if lines is not None and len(lines.points):
+        pts = np.array([(p.x, p.y) for p in lines.points])
+        idx = np.argmin(np.linalg.norm(pts[:, None, :] - mass_pts[None], axis=-1), axis=1)
+        springs = idx.reshape(-1, 2).astype(np.int64)
+    return springs, fixed, cmp
+
+
+# -- metrics ---------------------------------------------------------------------------------------
+def task_metrics(run: BagRun, task: str, config: dict[str, Any]) -> dict[str, Any]:
+    """The task's metric computed from a run's positions (and inputs for NARMA)."""
+    t = run.steps * run.dt
+    out: dict[str, Any] = {"task": task, "steps": int(len(run.steps)), "first_step": int(run.steps[0]),
+                           "duration_s": float(t[-1] - t[0])}
+    if task == "lissajous":
+        import torch
+
+        from bptsb_ros.tasks.lissajous import lissajous_target, windowed_shift_error
+
+        lc, omega = config.get("lissajous", {}), float(config.get("brain", {}).get("omega", 2 * np.pi))
+        amp = float(lc.get("amplitude_fraction", 0.05)) * float(config.get("body", {}).get("size", 4.0))
+        args = (amp, amp, float(lc.get("alpha", 1)), float(lc.get("beta", 2)), float(lc.get("delta", 0)), omega)
+
+        def target(tt: np.ndarray) -> np.ndarray:
+            return lissajous_target(torch.as_tensor(tt, dtype=torch.float64), *args).numpy()
+
+        if run.cmp_index < 0:
+            raise BagError("the Lissajous metric needs the CMP (from body/markers)")
+        cmp = run.positions[:, run.cmp_index]
+        period = int(round(2 * np.pi / omega / run.dt))
+        out["metric"] = "trajectory_mse_shift_min"
+        out["trajectory_mse"] = float(np.mean((cmp - target(t)) ** 2))
+        out["trajectory_mse_shift_min"] = windowed_shift_error(cmp, target, float(t[0]), run.dt, period)
+        out["_plot"] = {"t": t, "cmp": cmp, "target": target(t)}
+    elif task == "locomotion":
+        x = run.positions[:, :, 0].mean(-1)
+        out["metric"] = "mean_forward_speed"
+        out["mean_forward_speed"] = float((x[-1] - x[0]) / (t[-1] - t[0]))
+        out["_plot"] = {"t": t[1:], "speed": np.diff(x) / run.dt}
+    elif task == "narma":
+        from bptsb_ros.tasks.narma import expanded_narma, nmse
+
+        n = config.get("narma", {})
+        tau, washout = int(n.get("tau", 20)), int(n.get("washout", 30))
+        if run.cmp_index < 0 or not run.inputs:
+            raise BagError("the NARMA metric needs the CMP (body/markers) and the task/input topic")
+        row = {int(s): i for i, s in enumerate(run.steps)}
+        blocks = [j for j in range(len(run.steps)) if (j + 1) * tau in row and (j * tau + 1) in run.inputs]
+        u = np.array([run.inputs[j * tau + 1] for j in blocks])
+        if len(u) <= washout + 2:
+            raise BagError(f"the run holds {len(u)} NARMA inputs; need more than the washout ({washout})")
+        y = expanded_narma(u, int(n.get("order", 2)))
+        out_y = np.array([run.positions[row[(j + 1) * tau], run.cmp_index, 1] for j in blocks])
+        out["metric"] = "nmse_after_washout"
+        out["nmse_after_washout"] = nmse(out_y[washout:], y[washout:])
+        out["_plot"] = {"u": u, "y": y, "out": out_y}
+    return out
+
+
+def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict[int, float]) -> np.ndarray:
+    """(steps+1, N, 2) positions of the offline simulation of the same agent and loop, in float64."""
+    import torch
+
+    from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
+    from bptsb_ros.sim.trajectory import trajectory_from_rollout
+    from bptsb_ros.training.checkpoint import load_agent
+
+    agent = load_agent(agent_dir, dtype=torch.float64)
+    if loop in LOOPS_CLOSED:
+        if agent.feedback is None:
+            raise BagError(f"loop {loop} needs an agent with a fitted feedback layer")
+        roll = simulate_closed_loop(agent.body, agent.feedback, steps)
+    elif loop == "narma":
+        scale = float(agent.config["narma"]["input_scale"])
+        u = torch.tensor([inputs.get(k, inputs.get(max(k, 1), 0.0)) for k in range(steps + 1)], dtype=torch.float64)
+        roll = simulate_open_loop(agent, steps, inputs=u * scale)
+    else:
+        roll = simulate_open_loop(agent, steps)
+    return trajectory_from_rollout(agent.body, roll).positions
+
+
+def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = None, task: str | None = None,
+           loop: str | None = None, gif: bool = True) -> dict[str, Any]:
+    """Analyse a bag; writes metrics.json, plots and an animation to ``out_dir``; returns the metrics."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    config: dict[str, Any] = {}
+    run0 = read_run(bag)
+    agent_dir = agent_dir or (run0.custom.get("agent") if run0.custom.get("agent") not in (None, "fresh") else None)
+    if agent_dir is not None:
+        from bptsb_ros.training.checkpoint import read_checkpoint
+
+        config = read_checkpoint(agent_dir)["config"]
+        run = read_run(bag, dt=float(config["body"]["dt"]))
+    else:
+        run = run0
+    task = task or config.get("task")
+    loop = loop or run.custom.get("loop")
+    metrics: dict[str, Any] = {"bag": str(bag), "agent": str(agent_dir) if agent_dir else None, "loop": loop,
+                               "mode": run.custom.get("mode"), "dt": run.dt, "recorded_steps": int(len(run.steps)),
+                               "missing_steps": len(run.missing_steps)}
+    plots: dict[str, Any] = {}
+    if task:
+        live = task_metrics(run, task, config)
+        plots = live.pop("_plot", {})
+        metrics["live"] = live
+    if agent_dir is not None and loop:
+        last = int(run.steps[-1])
+        off = offline_positions(agent_dir, loop, last, run.inputs)
+        diff = np.abs(off[run.steps] - run.positions)
+        metrics["offline_comparison"] = {"max_abs_position_difference_m": float(diff.max()),
+                                         "steps_compared": int(len(run.steps))}
+        if task:
+            off_run = BagRun(run.dt, run.steps, off[run.steps], None, None, run.springs, run.fixed, run.cmp_index,
+                             run.inputs, run.custom)
+            offline = task_metrics(off_run, task, config)
+            off_plot = offline.pop("_plot", {})
+            metrics["offline"] = offline
+            plots["offline"] = off_plot
+    files = _write(out_dir, run, metrics, plots, task, gif)
+    metrics["files"] = [str(f) for f in files]
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
+    return metrics
+
+
+def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | None, gif: bool) -> list[Path]:
+    from bptsb_ros.analysis import plots as P
+
+    files: list[Path] = [out_dir / "metrics.json"]
+    t = run.steps * run.dt
+    if run.spring_lengths is not None:
+        files.append(P.plot_spring_lengths(out_dir / "spring_lengths.png", t, run.spring_lengths))
+    if task == "lissajous" and "cmp" in plots:
+        off = plots.get("offline", {}).get("cmp")
+        curves = {f"live ({metrics.get('loop') or 'bag'})": plots["cmp"]}
+        if off is not None:
+            curves["offline simulation"] = off
+        files.append(P.plot_lissajous(out_dir / "lissajous.png", plots["t"], curves, plots["target"]))
+    elif task == "locomotion" and "speed" in plots:
+        w = max(1, int(round(1.0 / run.dt)))
+        smooth = {"live": np.convolve(plots["speed"], np.ones(w) / w, mode="same")}
+        if "speed" in plots.get("offline", {}):
+            smooth["offline"] = np.convolve(plots["offline"]["speed"], np.ones(w) / w, mode="same")
+        files.append(P.plot_speed(out_dir / "speed.png", plots["t"], smooth))
+    elif task == "narma" and "u" in plots:
+        files.append(P.plot_series(out_dir / "narma.png", {"input u": plots["u"], "target y": plots["y"],
+                                                          "live output": plots["out"]}, "sample", "value"))
+    if gif and len(run.springs):
+        files.append(_animate(out_dir / "replay.gif", run))
+    return files
+
+
+def _animate(path: Path, run: BagRun) -> Path:
+    from bptsb_ros.analysis.animate import animate_trajectory
+    from bptsb_ros.sim.trajectory import Trajectory
+
+    n, e = run.positions.shape[1], len(run.springs)
+    rest = run.rest_length if run.rest_length is not None else (
+        run.spring_lengths if run.spring_lengths is not None else np.ones((len(run.steps), e)))
+    traj = Trajectory(dt=run.dt, positions=run.positions, velocities=np.zeros_like(run.positions),
+                      springs=run.springs, k=np.zeros(e), d=np.zeros(e), rest_length=rest, fixed=run.fixed,
+                      mass=np.ones(n), external_force=np.zeros_like(run.positions), gravity=np.zeros(2),
+                      cmp_index=run.cmp_index, shape="replay")
+    return animate_trajectory(traj, path, title="replayed bag")

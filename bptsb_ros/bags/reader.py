@@ -1,0 +1,363 @@
+"""Read rosbag2 MCAP bags (a bag directory with ``metadata.yaml``, or a single ``.mcap`` file).
+
+Messages come back as ``(topic, msgtype, timestamp_ns, message)`` with the message deserialized by rclpy from
+its CDR bytes (no ROS graph needed), or as raw bytes with ``raw=True``. :func:`read_arrays` stacks given
+topics into numpy arrays for analysis.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.summary import Summary
+
+from bptsb_ros.bags.errors import BagError
+from bptsb_ros.bags.metadata import METADATA_FILENAME, BagMetadata, TopicInfo, read_metadata
+from bptsb_ros.bags.msgdefs import get_message_class
+from bptsb_ros.bags.qos import qos_profiles_from_value
+
+
+class BagMessage(NamedTuple):
+    """One message: ``timestamp_ns`` is the receive (log) time in ns; ``message`` is an rclpy message or bytes."""
+
+    topic: str
+    msgtype: str
+    timestamp_ns: int
+    message: Any
+
+
+@dataclass
+class TopicSeries:
+    """A topic as arrays: ``t_ns`` (K,) int64 receive times in ns, ``values`` (K, ...) float64, one row a message."""
+
+    topic: str
+    msgtype: str
+    t_ns: np.ndarray
+    values: np.ndarray
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Receive times in seconds relative to the first message, (K,) float64."""
+        return (self.t_ns - self.t_ns[0]) / 1e9 if len(self.t_ns) else np.zeros(0)
+
+
+@dataclass
+class BagInfo:
+    """Summary of a bag, as ``ros2 bag info`` shows it. Times in ns since the Unix epoch, sizes in bytes."""
+
+    path: Path
+    files: list[Path]
+    size_bytes: int
+    storage_identifier: str
+    ros_distro: str
+    start_ns: int
+    end_ns: int
+    message_count: int
+    topics: list[TopicInfo]
+    chunk_count: int
+    chunk_compressions: list[str] = field(default_factory=list)
+    profile: str = ""
+    library: str = ""
+
+    @property
+    def duration_ns(self) -> int:
+        return self.end_ns - self.start_ns
+
+
+def mcap_files(path: str | Path) -> list[Path]:
+    """The MCAP files of a bag: the ones listed in ``metadata.yaml`` of a bag directory, or the file itself."""
+    path = Path(path)
+    if path.is_file():
+        return [path]
+    if not path.exists():
+        raise BagError(f"bag not found: {path}")
+    metadata = read_metadata(path)
+    if metadata.storage_identifier != "mcap":
+        raise BagError(f"{path} uses storage {metadata.storage_identifier!r}; only 'mcap' bags are supported")
+    files = [path / rel for rel in metadata.relative_file_paths]
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise BagError(f"{path}/{METADATA_FILENAME} lists files that do not exist: {', '.join(missing)}")
+    return files
+
+
+class _McapFile:
+    """An open, finalized MCAP file with its summary."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._file = open(path, "rb")  # closed in close()
+        try:
+            self.reader = SeekingReader(self._file)
+            self.header = self.reader.get_header()
+            summary = self.reader.get_summary()
+        except (McapError, ValueError, EOFError, OSError, StopIteration) as exc:
+            self._file.close()
+            raise BagError(
+                f"{path} is not a complete MCAP file ({type(exc).__name__}: {exc}). If the recorder was killed, "
+                f"`bptsb bag recover {path.parent if path.parent.name else path}` restores its complete chunks."
+            ) from None
+        except Exception as exc:  # the mcap parser raises assorted errors on garbage (struct, Unicode, ...)
+            self._file.close()
+            raise BagError(f"{path} is not a valid MCAP file: {type(exc).__name__}: {exc}") from None
+        if summary is None:
+            self._file.close()
+            raise BagError(f"{path} has no summary section; run `bptsb bag recover` on it to index it")
+        self.summary: Summary = summary
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> _McapFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _topics_of(summary: Summary) -> dict[str, str]:
+    return {ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id else "" for ch in summary.channels.values()}
+
+
+def list_topics(path: str | Path) -> dict[str, str]:
+    """Map each topic of a bag to its ``pkg/msg/Type``."""
+    topics: dict[str, str] = {}
+    for file in mcap_files(path):
+        with _McapFile(file) as mf:
+            topics.update(_topics_of(mf.summary))
+    return topics
+
+
+def read_messages(
+    path: str | Path,
+    topics: Iterable[str] | None = None,
+    *,
+    raw: bool = False,
+    start_ns: int | None = None,
+    end_ns: int | None = None,
+) -> Iterator[BagMessage]:
+    """Iterate the messages of a bag in receive-time order.
+
+    :param path: bag directory or ``.mcap`` file.
+    :param topics: topics to read (all when ``None``); a topic the bag does not have raises :class:`BagError`.
+    :param raw: yield the CDR bytes instead of deserialized rclpy messages.
+    :param start_ns: first receive time to include (ns, inclusive).
+    :param end_ns: receive time to stop at (ns, exclusive).
+    """
+    files = mcap_files(path)
+    wanted = None if topics is None else list(dict.fromkeys([topics] if isinstance(topics, str) else topics))
+    if wanted is not None:
+        available = list_topics(path)
+        unknown = [t for t in wanted if t not in available]
+        if unknown:
+            raise BagError(f"topic(s) not in bag {path}: {', '.join(unknown)}; available: {', '.join(available)}")
+    classes: dict[str, type] = {}
+    for file in files:
+        with _McapFile(file) as mf:
+            try:
+                for schema, channel, message in mf.reader.iter_messages(
+                    topics=wanted, starting_at=start_ns, ending_before=end_ns, log_time_order=True
+                ):
+                    yield _decode(schema, channel, message, raw, classes)
+            except BagError:
+                raise
+            except Exception as exc:
+                raise BagError(f"error reading {file}: {type(exc).__name__}: {exc}") from None
+
+
+def _decode(
+    schema: Schema | None, channel: Channel, message: Message, raw: bool, classes: dict[str, type]
+) -> BagMessage:
+    msgtype = schema.name if schema is not None else ""
+    if raw:
+        return BagMessage(channel.topic, msgtype, message.log_time, message.data)
+    if channel.message_encoding != "cdr":
+        raise BagError(f"topic {channel.topic} has message encoding {channel.message_encoding!r}, not 'cdr'")
+    cls = classes.get(msgtype)
+    if cls is None:
+        cls = classes[msgtype] = get_message_class(msgtype)
+    from rclpy.serialization import deserialize_message
+
+    return BagMessage(channel.topic, msgtype, message.log_time, deserialize_message(message.data, cls))
+
+
+# -- arrays ------------------------------------------------------------------------------------------------------
+
+def _multiarray(msg: Any) -> np.ndarray:
+    data = np.asarray(msg.data, dtype=np.float64)
+    dims = [d.size for d in msg.layout.dim]
+    if dims and msg.layout.data_offset == 0 and int(np.prod(dims)) == data.size:
+        return data.reshape(dims)
+    return data
+
+
+def _xyz(p: Any) -> list[float]:
+    return [p.x, p.y, p.z]
+
+
+#: Default message -> array conversions, by message type.
+CONVERTERS: dict[str, Callable[[Any], np.ndarray]] = {
+    **{f"std_msgs/msg/{k}MultiArray": _multiarray for k in (
+        "Float64", "Float32", "Int8", "Int16", "Int32", "Int64", "UInt8", "UInt16", "UInt32", "UInt64", "Byte")},
+    **{f"std_msgs/msg/{k}": (lambda m: np.asarray(m.data, dtype=np.float64)) for k in (
+        "Float64", "Float32", "Int8", "Int16", "Int32", "Int64", "UInt8", "UInt16", "UInt32", "UInt64", "Bool")},
+    "rosgraph_msgs/msg/Clock": lambda m: np.asarray(m.clock.sec + m.clock.nanosec * 1e-9),
+    "geometry_msgs/msg/PoseArray": lambda m: np.asarray([_xyz(p.position) for p in m.poses], dtype=np.float64)
+    .reshape(-1, 3),
+    "geometry_msgs/msg/Point": lambda m: np.asarray(_xyz(m), dtype=np.float64),
+    "geometry_msgs/msg/Vector3": lambda m: np.asarray(_xyz(m), dtype=np.float64),
+    "geometry_msgs/msg/PointStamped": lambda m: np.asarray(_xyz(m.point), dtype=np.float64),
+    "geometry_msgs/msg/Vector3Stamped": lambda m: np.asarray(_xyz(m.vector), dtype=np.float64),
+    "sensor_msgs/msg/JointState": lambda m: np.asarray(m.position, dtype=np.float64),
+}
+
+
+def to_array(msgtype: str, msg: Any) -> np.ndarray:
+    """Convert one message with the default converter of its type (see :data:`CONVERTERS`).
+
+    MultiArrays give their data (reshaped to the layout when it describes it), scalars a 0-d array, PoseArray the
+    positions (n, 3), Point/Vector3 (3,), Clock the time in s, JointState the positions.
+    """
+    try:
+        convert = CONVERTERS[msgtype]
+    except KeyError:
+        raise BagError(f"no default array conversion for {msgtype}; pass converters={{topic: fn}}") from None
+    return convert(msg)
+
+
+def read_arrays(
+    path: str | Path,
+    topics: Iterable[str],
+    *,
+    converters: dict[str, Callable[[Any], np.ndarray]] | None = None,
+) -> dict[str, TopicSeries]:
+    """Read topics into stacked arrays: ``{topic: TopicSeries}`` with ``values`` of shape (K, ...).
+
+    ``converters`` maps a topic to a function ``message -> ndarray`` overriding :func:`to_array`. Every message
+    of a topic must convert to the same shape.
+    """
+    topics = [topics] if isinstance(topics, str) else list(topics)
+    converters = converters or {}
+    rows: dict[str, list[np.ndarray]] = {t: [] for t in topics}
+    times: dict[str, list[int]] = {t: [] for t in topics}
+    types: dict[str, str] = dict.fromkeys(topics, "")
+    for topic, msgtype, t_ns, msg in read_messages(path, topics):
+        convert = converters.get(topic)
+        rows[topic].append(np.asarray(convert(msg) if convert else to_array(msgtype, msg), dtype=np.float64))
+        times[topic].append(t_ns)
+        types[topic] = msgtype
+    result = {}
+    for topic in topics:
+        shapes = {r.shape for r in rows[topic]}
+        if len(shapes) > 1:
+            raise BagError(f"messages on {topic} convert to different shapes {sorted(shapes)}; cannot stack")
+        values = np.stack(rows[topic]) if rows[topic] else np.zeros((0,))
+        result[topic] = TopicSeries(topic, types[topic], np.asarray(times[topic], dtype=np.int64), values)
+    return result
+
+
+# -- info --------------------------------------------------------------------------------------------------------
+
+def bag_info(path: str | Path) -> BagInfo:
+    """Gather what ``ros2 bag info`` shows: from ``metadata.yaml`` for a bag directory, from the MCAP summary
+    for a single file (chunk counts and compression always come from the MCAP summaries)."""
+    path = Path(path)
+    files = mcap_files(path)
+    metadata: BagMetadata | None = read_metadata(path) if path.is_dir() else None
+    chunk_count, compressions, topics = 0, set(), {}
+    start, end, count, profile, library = None, None, 0, "", ""
+    for file in files:
+        with _McapFile(file) as mf:
+            summary, profile, library = mf.summary, mf.header.profile, mf.header.library
+            chunk_count += len(summary.chunk_indexes)
+            compressions.update(ci.compression or "none" for ci in summary.chunk_indexes)
+            stats = summary.statistics
+            if stats is not None and stats.message_count:
+                start = stats.message_start_time if start is None else min(start, stats.message_start_time)
+                end = stats.message_end_time if end is None else max(end, stats.message_end_time)
+                count += stats.message_count
+            for cid, ch in summary.channels.items():
+                info = topics.setdefault(ch.topic, TopicInfo(
+                    name=ch.topic, msgtype=summary.schemas[ch.schema_id].name if ch.schema_id else "",
+                    offered_qos_profiles=qos_profiles_from_value(ch.metadata.get("offered_qos_profiles")),
+                    type_description_hash=ch.metadata.get("topic_type_hash", ""),
+                    serialization_format=ch.message_encoding,
+                ))
+                if stats is not None:
+                    info.message_count += stats.channel_message_counts.get(cid, 0)
+    if metadata is not None:
+        return BagInfo(
+            path=path, files=files, size_bytes=sum(f.stat().st_size for f in files),
+            storage_identifier=metadata.storage_identifier, ros_distro=metadata.ros_distro,
+            start_ns=metadata.starting_time_ns, end_ns=metadata.end_time_ns, message_count=metadata.message_count,
+            topics=metadata.topics, chunk_count=chunk_count, chunk_compressions=sorted(compressions),
+            profile=profile, library=library,
+        )
+    return BagInfo(
+        path=path, files=files, size_bytes=sum(f.stat().st_size for f in files), storage_identifier="mcap",
+        ros_distro=_ros_distro_record(files[0]), start_ns=start or 0, end_ns=end or 0, message_count=count,
+        topics=list(topics.values()),
+        chunk_count=chunk_count, chunk_compressions=sorted(compressions), profile=profile, library=library,
+    )
+
+
+def _ros_distro_record(file: Path) -> str:
+    """``ros_distro`` from the ``rosbag2`` metadata record rosbag2 (and our writer) put in the MCAP file."""
+    with _McapFile(file) as mf:
+        for record in mf.reader.iter_metadata():
+            if record.name == "rosbag2" and "serialized_metadata" in record.metadata:
+                try:
+                    data = yaml.safe_load(record.metadata["serialized_metadata"]) or {}
+                except yaml.YAMLError:
+                    return ""
+                return str(data.get("ros_distro") or "")
+    return ""
+
+
+def _human_size(n: int) -> str:
+    size = float(n)
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if size < 1024 or unit == "GiB":
+            return f"{size:.1f} {unit}" if unit != "B" else f"{n} B"
+        size /= 1024
+    raise AssertionError("unreachable")
+
+
+def _stamp(ns: int) -> str:
+    when = _dt.datetime.fromtimestamp(ns // 1_000_000_000, tz=_dt.UTC)
+    return f"{when:%b %d %Y %H:%M:%S}.{ns % 1_000_000_000:09d} UTC ({ns // 1_000_000_000}.{ns % 1_000_000_000:09d})"
+
+
+def format_info(info: BagInfo) -> str:
+    """Render :class:`BagInfo` the way ``ros2 bag info`` lays it out."""
+    pad = " " * 19
+    lines = [
+        f"Files:             {info.files[0].name}",
+        *[pad + f.name for f in info.files[1:]],
+        f"Bag size:          {_human_size(info.size_bytes)}",
+        f"Storage id:        {info.storage_identifier}",
+        f"ROS Distro:        {info.ros_distro or 'unknown'}",
+        f"Duration:          {info.duration_ns / 1e9:.9f}s",
+        f"Start:             {_stamp(info.start_ns)}",
+        f"End:               {_stamp(info.end_ns)}",
+        f"Messages:          {info.message_count}",
+        f"Chunks:            {info.chunk_count} ({', '.join(info.chunk_compressions) or 'none'})",
+        f"MCAP profile:      {info.profile} ({info.library})",
+    ]
+    width = max((len(t.name) for t in info.topics), default=0)
+    for i, t in enumerate(info.topics):
+        head = "Topic information: " if i == 0 else pad
+        lines.append(f"{head}Topic: {t.name:<{width}} | Type: {t.msgtype} | Count: {t.message_count} | "
+                     f"Serialization Format: {t.serialization_format}")
+    if not info.topics:
+        lines.append("Topic information: (none)")
+    return "\n".join(lines)

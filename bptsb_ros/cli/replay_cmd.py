@@ -1,0 +1,37 @@
+"""`bptsb replay`: analyse a recorded live run."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+NAME = "replay"
+HELP = ("Replay a rosbag2 MCAP bag of a live loop: rebuild the trajectories, compute the task's metrics, compare "
+        "with the offline simulation of the agent, and write metrics.json, plots and an animation.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", help="bag directory (metadata.yaml + .mcap) or a .mcap file")
+    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--agent", default=None, help="run directory of the agent (default: the one named in the bag)")
+    parser.add_argument("--task", choices=("lissajous", "locomotion", "narma"), default=None,
+                        help="task whose metric to compute (default: the agent's)")
+    parser.add_argument("--loop", default=None, help="loop that was run (default: from the bag's custom_data)")
+    parser.add_argument("--no-gif", action="store_true", help="skip the animation")
+
+
+def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.analysis.replay import replay
+    from bptsb_ros.bags.errors import BagError
+    from bptsb_ros.training.checkpoint import CheckpointError
+
+    try:
+        metrics = replay(args.bag, args.out, args.agent, args.task, args.loop, gif=not args.no_gif)
+    except (BagError, CheckpointError, ValueError) as err:
+        print(f"bptsb replay: {err}", file=sys.stderr)
+        return 2
+    shown = {k: v for k, v in metrics.items() if k != "files"}
+    print(json.dumps(shown, indent=2, default=float))
+    print("files: " + ", ".join(metrics["files"]))
+    return 0

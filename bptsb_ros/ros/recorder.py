@@ -1,0 +1,201 @@
+"""Recorder node: records topics to a rosbag2 MCAP bag, like ``ros2 bag record`` (storage ``mcap``).
+
+Run it as ``python -m bptsb_ros.ros.recorder --ros-args -p bag_path:=bags/run1 -p "topics:=[/clock, body/positions]"``
+(or ``bptsb run recorder ...``, ``ros2 run bptsb_ros recorder ...``). Parameters: see
+:data:`bptsb_ros.bags.recording.RECORDER_PARAMS`.
+
+Every ``discovery_period`` it looks at the graph; each selected topic that has a publisher gets a raw subscription
+(serialized CDR bytes, never re-encoded) with the QoS that matches all its publishers (reliable only if all are
+reliable, transient-local only if all are) and a history of ``queue_depth``. The publishers' offered QoS profiles
+and the type hash go into the bag. Each message is stamped with its receive time: the middleware's receive
+timestamp (system clock, ns since the epoch), or the node clock when ``use_sim_time`` is true.
+
+On SIGINT or SIGTERM it stops discovery, keeps taking the messages still in flight until none arrived for
+``drain_quiet`` seconds (at most ``stop_timeout``), then finalizes the bag (summary, indexes, ``metadata.yaml``)
+and exits 0. Killed outright, it leaves the chunks written so far (closed at least every ``flush_period``);
+``bptsb bag recover`` restores them. Log lines ``Recording to ...``, ``Subscribed to <topic> [<type>]`` and, with
+explicit ``topics``, ``All <n> requested topics subscribed`` tell a launcher when it is ready.
+"""
+
+from __future__ import annotations
+
+import functools
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from bptsb_ros.bags.errors import BagError
+from bptsb_ros.bags.msgdefs import get_message_class
+from bptsb_ros.bags.qos import QosProfile
+from bptsb_ros.bags.recording import (
+    RECORDER_PARAMS,
+    RecorderConfig,
+    incompatible_offers,
+    select_topics,
+    subscription_policies,
+)
+from bptsb_ros.bags.writer import BagWriter
+from bptsb_ros.ros.params import ParameterError, declare_parameters
+
+
+class RecorderNode(Node):
+    """Subscribes to the selected topics and writes every message it takes to a :class:`BagWriter`."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("recorder", **kwargs)
+        self.config = RecorderConfig.from_values(declare_parameters(self, RECORDER_PARAMS), self.get_namespace())
+        self._use_sim_time = bool(self.get_parameter("use_sim_time").value)
+        self.writer = BagWriter(
+            self.config.bag_path, chunk_size=self.config.chunk_size, compression=self.config.compression,
+            flush_period_s=self.config.flush_period, custom_data=self.config.custom_data,
+        )
+        self._recorded: dict[str, Any] = {}
+        self._skipped: set[str] = set()
+        self._policies: dict[str, tuple[str, str]] = {}
+        self._publisher_counts: dict[str, int] = {}
+        self._warned: set[str] = set()
+        self.received = 0
+        try:
+            self.get_logger().info(
+                f"Recording to {self.writer.path} ("
+                + (", ".join(self.config.topics) if self.config.topics else "all topics") + ")"
+            )
+            self._discover()
+            self._discovery_timer = self.create_timer(self.config.discovery_period, self._discover)
+            self._flush_timer = self.create_timer(min(self.config.flush_period, 0.5), self.writer.flush_if_due)
+        except BaseException:
+            self.writer.close()
+            raise
+
+    def _discover(self) -> None:
+        for topic, types in select_topics(self.get_topic_names_and_types(), self.config).items():
+            if topic in self._recorded:
+                self._check_new_publishers(topic)
+            elif topic not in self._skipped:
+                self._subscribe(topic, types)
+
+    def _check_new_publishers(self, topic: str) -> None:
+        """Warn once when a publisher that joined later offers less than the subscription requests."""
+        count = self.count_publishers(topic)
+        if count == self._publisher_counts.get(topic) or topic in self._warned:
+            return
+        self._publisher_counts[topic] = count
+        offered = [QosProfile.from_rclpy(p.qos_profile) for p in self.get_publishers_info_by_topic(topic)]
+        requested = self._policies[topic]
+        if incompatible_offers(offered, requested):
+            self.get_logger().warning(
+                f"A publisher on {topic} offers QoS incompatible with the recorder's subscription {requested}; "
+                "its messages are not recorded. Give all publishers of a topic the same reliability/durability."
+            )
+            self._warned.add(topic)
+
+    def _subscribe(self, topic: str, types: list[str]) -> None:
+        if len(types) > 1:
+            self.get_logger().error(f"Not recording {topic}: it has several types {types}")
+            self._skipped.add(topic)
+            return
+        publishers = self.get_publishers_info_by_topic(topic)
+        if not publishers:
+            return  # only subscribers so far: wait for a publisher to learn the offered QoS
+        msgtype = types[0]
+        try:
+            msg_class = get_message_class(msgtype)
+            offered = [QosProfile.from_rclpy(p.qos_profile) for p in publishers]
+            self.writer.add_topic(topic, msgtype, qos_profiles=offered)
+        except BagError as exc:
+            self.get_logger().error(f"Not recording {topic} [{msgtype}]: {exc}")
+            self._skipped.add(topic)
+            return
+        reliability, durability = subscription_policies(offered)
+        self._policies[topic] = (reliability, durability)
+        self._publisher_counts[topic] = len(publishers)
+        depth = self.config.queue_depth
+        qos = QoSProfile(
+            history=QoSHistoryPolicy.KEEP_ALL if depth == 0 else QoSHistoryPolicy.KEEP_LAST,
+            depth=max(depth, 1),
+            reliability=QoSReliabilityPolicy[reliability.upper()],
+            durability=QoSDurabilityPolicy[durability.upper()],
+        )
+        self._recorded[topic] = self.create_subscription(
+            msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True
+        )
+        self.get_logger().info(f"Subscribed to {topic} [{msgtype}] ({reliability}, {durability})")
+        if self.config.topics and all(t in self._recorded for t in self.config.topics):
+            self.get_logger().info(f"All {len(self.config.topics)} requested topics subscribed")
+
+    def _on_message(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
+        if self._use_sim_time:
+            stamp = self.get_clock().now().nanoseconds
+        else:
+            stamp = info.get("received_timestamp") or time.time_ns()
+        self.writer.write(topic, data, stamp, info.get("source_timestamp") or stamp,
+                          info.get("publication_sequence_number") or 0)
+        self.received += 1
+
+    def stop_discovery(self) -> None:
+        """Stop looking for new topics (the stop sequence has begun)."""
+        self._discovery_timer.cancel()
+
+    def close(self) -> None:
+        """Finalize the bag and log what it holds."""
+        missing = [t for t in self.config.topics if t not in self._recorded]
+        if missing:
+            self.get_logger().warning(f"Requested topics never recorded (no publisher seen): {', '.join(missing)}")
+        metadata = self.writer.close()
+        counts = ", ".join(f"{t.name}: {t.message_count}" for t in metadata.topics) or "no topics"
+        self.get_logger().info(f"Bag {self.writer.path} closed: {metadata.message_count} messages ({counts})")
+
+
+def _drain(executor: SingleThreadedExecutor, node: RecorderNode) -> None:
+    """Take in-flight messages until none arrived for ``drain_quiet`` s, or ``stop_timeout`` s have passed."""
+    deadline = time.monotonic() + node.config.stop_timeout
+    last_count, last_change = node.received, time.monotonic()
+    while time.monotonic() < deadline and time.monotonic() - last_change < node.config.drain_quiet:
+        executor.spin_once(timeout_sec=0.02)
+        if node.received != last_count:
+            last_count, last_change = node.received, time.monotonic()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the recorder until SIGINT/SIGTERM; return 0 on a clean stop, 2 for bad parameters."""
+    stop = threading.Event()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    node: RecorderNode | None = None
+    try:
+        try:
+            node = RecorderNode()
+        except (ParameterError, BagError) as exc:
+            print(f"recorder: {exc}", file=sys.stderr)
+            return 2
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        try:
+            while not stop.is_set():
+                executor.spin_once(timeout_sec=0.05)
+            node.stop_discovery()
+            _drain(executor, node)
+        except ExternalShutdownException:
+            pass
+        node.close()
+        return 0
+    finally:
+        if node is not None:
+            if not node.writer.closed:
+                node.writer.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,139 @@
+"""Packaging for bptsb_ros: an ament_python ROS 2 package that also installs with plain pip.
+
+Two install routes must both serve ``ros2 run bptsb_ros <node>``:
+
+* ``colcon build`` runs ``setup.py install --install-scripts $base/lib/bptsb_ros`` (from setup.cfg), so
+  setuptools itself writes the console scripts into ``<prefix>/lib/bptsb_ros``.
+* ``pip install`` builds a wheel; pip writes console scripts into ``<prefix>/bin`` only. For that route
+  :class:`InstallDataWithNodeWrappers` adds one small executable wrapper per node under
+  ``<prefix>/lib/bptsb_ros`` (a wheel data file, from ``scripts/ament_node_wrapper.sh``) that execs the
+  console script pip put in ``<prefix>/bin``.
+
+``pip install -e`` (as ``make venv`` does) goes through :class:`EditableWheelWithDataFiles`, which
+installs the same data files and wrappers. The wrappers are written only when the console scripts do not
+already land in ``lib/bptsb_ros``, so colcon's own scripts are never overwritten, and they are not in the
+static ``data_files`` that colcon reads (its ``--symlink-install`` symlinks those itself).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from glob import glob
+
+from setuptools import Distribution, find_packages, setup
+
+PACKAGE = "bptsb_ros"
+
+# ROS node executables: name -> module whose ``main(args=None)`` runs the node.
+NODES = {
+    "body_sim": "bptsb_ros.ros.body_sim",
+    "swg_brain": "bptsb_ros.ros.swg_brain",
+    "mlp_brain": "bptsb_ros.ros.mlp_brain",
+    "feedback_brain": "bptsb_ros.ros.feedback_brain",
+    "task_input": "bptsb_ros.ros.task_input",
+    "recorder": "bptsb_ros.ros.recorder",
+}
+
+# Template of the pip-route wrapper (@NODE@ = node name); it execs <prefix>/bin/<node>, which is where pip puts
+# the console script for every install scheme (venv, --prefix, --user, Debian's /usr/local).
+WRAPPER_TEMPLATE = os.path.join("scripts", "ament_node_wrapper.sh")
+
+
+# setuptools' own install_data class (its bundled distutils one; there is no setuptools.command.install_data).
+_InstallData = Distribution().get_command_class("install_data")
+
+
+class InstallDataWithNodeWrappers(_InstallData):
+    """``install_data`` that also writes the ament node wrappers when console scripts go elsewhere."""
+
+    def run(self) -> None:
+        super().run()
+        install_cmd = self.get_finalized_command("install")
+        node_dir = os.path.join(self.install_dir, "lib", PACKAGE)
+        scripts_dir = install_cmd.install_scripts
+        if os.path.normpath(os.path.abspath(scripts_dir)) == os.path.normpath(os.path.abspath(node_dir)):
+            return  # colcon route: setuptools already put the real console scripts in lib/bptsb_ros
+        self.mkpath(node_dir)
+        with open(WRAPPER_TEMPLATE, encoding="utf-8") as handle:
+            template = handle.read()
+        for name in NODES:
+            target = os.path.join(node_dir, name)
+            with open(target, "w", encoding="utf-8") as handle:
+                handle.write(template.replace("@NODE@", name))
+            os.chmod(target, os.stat(target).st_mode | stat.S_IXUSR | stat.S_IXGRP | stat.S_IXOTH)
+            self.outfiles.append(target)
+
+
+CMDCLASS: dict[str, type] = {"install_data": InstallDataWithNodeWrappers}
+
+try:
+    _EditableWheel = Distribution().get_command_class("editable_wheel")  # setuptools >= 64 (PEP 660)
+except Exception:  # older setuptools: pip falls back to `setup.py develop`, which colcon also uses
+    _EditableWheel = None
+
+if _EditableWheel is not None:
+
+    class EditableWheelWithDataFiles(_EditableWheel):
+        """``editable_wheel`` that installs ``data_files`` as well.
+
+        setuptools skips them in editable installs (pypa/setuptools#3399: it asks the distribution for
+        ``has_data``, which does not exist), which would leave the venv without the ament index marker,
+        package.xml, launch and config files and the lib/bptsb_ros wrappers.
+        """
+
+        def _run_install(self, category: str) -> None:
+            super()._run_install(category)
+            if category == "data" and self.distribution.has_data_files():
+                self.run_command("install_data")  # a no-op if setuptools already ran it
+
+    CMDCLASS["editable_wheel"] = EditableWheelWithDataFiles
+
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    description="Backpropagation through soft body (BPTSB): differentiable mass-spring-damper bodies and "
+    "their brains, trained offline in torch and run live as ROS 2 nodes recorded to MCAP.",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    python_requires=">=3.11",
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.py"))),
+        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+    ],
+    install_requires=[
+        "torch>=2.1",
+        "numpy",
+        "pyyaml",
+        "matplotlib",
+        "tqdm",
+        "mcap>=1.6",
+        "imageio",
+        "pillow",
+    ],
+    extras_require={
+        # A full ROS 2 Jazzy install provides these through apt; without one they come as wheels.
+        "ros": [
+            "ros-jazzy-rclpy[fastrtps]",
+            "ros-jazzy-common-interfaces",
+        ],
+        "dev": [
+            "pytest>=8",
+            "ruff==0.17.6",
+            "rosbags",
+            "colcon-core",
+            "colcon-ros",
+        ],
+    },
+    zip_safe=False,
+    maintainer="bptsb_ros maintainers",
+    maintainer_email="maintainers@users.noreply.h-seed-4bd205aa.example",
+    license="Apache-2.0",
+    cmdclass=CMDCLASS,
+    entry_points={
+        "console_scripts": ["bptsb = bptsb_ros.cli:main"]
+        + [f"{name} = {module}:main" for name, module in NODES.items()],
+    },
+)

@@ -1,0 +1,75 @@
+"""Test-session environment shared by every test.
+
+At import time (before any test module imports rclpy or torch) this pins DDS discovery to this host and
+gives the session a private ROS domain, so parallel sessions and other machines never see its traffic:
+
+* ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` always; ``ROS_STATIC_PEERS`` is cleared.
+* ``ROS_DOMAIN_ID`` = ``BPTSB_TEST_DOMAIN_ID`` if set, else 100 + pid % 101 (a value in 100..200).
+* ``OMP_NUM_THREADS=1`` and ``MPLBACKEND=Agg`` unless already set (2 shared cores, no display).
+
+Subprocesses started by tests inherit these through ``os.environ``; the ``ros_env`` fixture returns a copy
+for tests that build their own environment.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+DOMAIN_ID_MIN = 100
+DOMAIN_ID_MAX = 200
+
+
+def _session_domain_id() -> int:
+    """Return the ROS domain for this test session: ``BPTSB_TEST_DOMAIN_ID`` or one derived from the pid."""
+    override = os.environ.get("BPTSB_TEST_DOMAIN_ID")
+    if override is None:
+        return DOMAIN_ID_MIN + os.getpid() % (DOMAIN_ID_MAX - DOMAIN_ID_MIN + 1)
+    try:
+        value = int(override)
+    except ValueError:
+        raise pytest.UsageError(f"BPTSB_TEST_DOMAIN_ID must be an integer in 0..232, got {override!r}") from None
+    if not 0 <= value <= 232:
+        raise pytest.UsageError(f"BPTSB_TEST_DOMAIN_ID must be an integer in 0..232, got {value}")
+    return value
+
+
+SESSION_DOMAIN_ID = _session_domain_id()
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.pop("ROS_STATIC_PEERS", None)
+os.environ["ROS_DOMAIN_ID"] = str(SESSION_DOMAIN_ID)
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    return (
+        f"bptsb_ros: python {sys.executable}, ROS_DOMAIN_ID={SESSION_DOMAIN_ID}, "
+        f"ROS_AUTOMATIC_DISCOVERY_RANGE={os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']}"
+    )
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    """The repository root (the directory holding setup.py and package.xml)."""
+    return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def ros_domain_id() -> int:
+    """This session's private ROS domain id (also exported as ``ROS_DOMAIN_ID``)."""
+    return SESSION_DOMAIN_ID
+
+
+@pytest.fixture
+def ros_env() -> dict[str, str]:
+    """A copy of the environment for ROS subprocesses: localhost discovery, this session's domain."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(SESSION_DOMAIN_ID)
+    env.pop("ROS_STATIC_PEERS", None)
+    return env

@@ -1,0 +1,221 @@
+"""The recorder node as a process: SIGINT keeps every published message, SIGKILL leaves recoverable chunks.
+
+Each test runs the recorder and a publisher as subprocesses on localhost-only DDS in a test-private domain.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from bptsb_ros.bags.errors import BagError
+from bptsb_ros.bags.metadata import read_metadata
+from bptsb_ros.bags.qos import QosProfile
+from bptsb_ros.bags.reader import read_messages
+from bptsb_ros.bags.recording import (
+    RECORDER_PARAMS,
+    RecorderConfig,
+    incompatible_offers,
+    select_topics,
+    subscription_policies,
+)
+from bptsb_ros.ros.params import ParameterError, validate_values
+
+REPO = Path(__file__).resolve().parent.parent
+
+# Publishes N messages on two reliable topics (keep-all, so none is overwritten before it is acknowledged) once
+# the recorder's subscriptions have matched, waits for the acknowledgements, prints "acked" and idles.
+PUBLISHER = r"""
+import sys, time
+import rclpy
+from rclpy.duration import Duration
+from rclpy.qos import QoSProfile, QoSHistoryPolicy, QoSReliabilityPolicy
+from geometry_msgs.msg import Pose, PoseArray
+from std_msgs.msg import Float64MultiArray
+n, period = int(sys.argv[1]), float(sys.argv[2])
+rclpy.init()
+node = rclpy.create_node("test_publisher")
+qos = QoSProfile(history=QoSHistoryPolicy.KEEP_ALL, depth=1, reliability=QoSReliabilityPolicy.RELIABLE)
+data = node.create_publisher(Float64MultiArray, "/bagtest/data", qos)
+poses = node.create_publisher(PoseArray, "bagtest/poses", qos)
+deadline = time.monotonic() + 30
+while (data.get_subscription_count() == 0 or poses.get_subscription_count() == 0) and time.monotonic() < deadline:
+    time.sleep(0.02)
+if time.monotonic() >= deadline:
+    sys.exit("recorder never subscribed")
+for i in range(n):
+    data.publish(Float64MultiArray(data=[float(i), 0.5 * i]))
+    p = PoseArray(poses=[Pose()] * 3)
+    p.poses[0].position.x = float(i)
+    poses.publish(p)
+    if period:
+        time.sleep(period)
+ok = data.wait_for_all_acked(Duration(seconds=20)) and poses.wait_for_all_acked(Duration(seconds=20))
+print("acked" if ok else "not acked", flush=True)
+time.sleep(60)
+"""
+
+
+# `bptsb bag recover BAG` as its own process (through the subcommand module, as `bptsb` dispatches it).
+RECOVER = (
+    "import argparse, sys\n"
+    "from bptsb_ros.cli import bag_cmd\n"
+    "parser = argparse.ArgumentParser()\n"
+    "bag_cmd.add_arguments(parser)\n"
+    "sys.exit(bag_cmd.run(parser.parse_args(['recover', sys.argv[1]])))\n"
+)
+
+
+@pytest.fixture
+def env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(120 + os.getpid() % 20)  # this suite's private range 120..139
+    env.pop("ROS_STATIC_PEERS", None)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def _recorder(bag: Path, env: dict[str, str], *extra: str) -> subprocess.Popen[str]:
+    cmd = [sys.executable, "-m", "bptsb_ros.ros.recorder", "--ros-args", "-p", f"bag_path:={bag}",
+           "-p", "topics:=[/bagtest/data, bagtest/poses]", *extra]
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _publish(n: int, period: float, env: dict[str, str]) -> subprocess.Popen[str]:
+    proc = subprocess.Popen([sys.executable, "-c", PUBLISHER, str(n), str(period)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    line = proc.stdout.readline().strip()
+    if line != "acked":
+        proc.kill()
+        pytest.fail(f"publisher: {line} {proc.communicate(timeout=5)[0]}")
+    return proc
+
+
+def _stop(proc: subprocess.Popen[str], sig: int) -> tuple[int, str]:
+    proc.send_signal(sig)
+    try:
+        out, _ = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+        pytest.fail(f"process did not stop on signal {sig}:\n{out}")
+    return proc.returncode, out
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], sig: int) -> None:
+    n = 4000  # one burst: a keep-last-1000 subscription loses part of it before the executor takes it
+    bag = tmp_path / "rec"
+    recorder = _recorder(bag, env)
+    publisher = None
+    try:
+        publisher = _publish(n, 0.0, env)
+        rc, out = _stop(recorder, sig)  # at once: messages may still wait in the reader queue
+    finally:
+        if publisher is not None:
+            publisher.kill()
+            publisher.wait()
+        if recorder.poll() is None:
+            recorder.kill()
+    assert rc == 0, out
+    assert "Subscribed to /bagtest/poses [geometry_msgs/msg/PoseArray]" in out
+    assert "All 2 requested topics subscribed" in out
+    meta = read_metadata(bag)
+    assert {t.name: t.message_count for t in meta.topics} == {"/bagtest/data": n, "/bagtest/poses": n}
+    qos = meta.topics[0].offered_qos_profiles
+    assert len(qos) == 1 and qos[0].reliability == "reliable"
+    data = [m.message.data[0] for m in read_messages(bag, ["/bagtest/data"])]
+    assert data == [float(i) for i in range(n)]
+    times = [m.timestamp_ns for m in read_messages(bag)]
+    assert times == sorted(times) and abs(times[0] - time.time_ns()) < 120e9
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        assert sorted(c.msgcount for c in reader.connections) == [n, n]
+        poses = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages() if c.topic == "/bagtest/poses"]
+    assert [p.poses[0].position.x for p in poses] == [float(i) for i in range(n)]
+
+
+def test_sigkill_leaves_recoverable_chunks(tmp_path: Path, env: dict[str, str]) -> None:
+    n = 200
+    bag = tmp_path / "killed"
+    recorder = _recorder(bag, env, "-p", "flush_period:=0.2", "-p", "chunk_size:=2048")
+    publisher = None
+    try:
+        publisher = _publish(n, 0.001, env)
+        time.sleep(0.6)  # > flush_period: the recorder has closed and written its last chunk by now
+        rc, out = _stop(recorder, signal.SIGKILL)
+    finally:
+        if publisher is not None:
+            publisher.kill()
+            publisher.wait()
+        if recorder.poll() is None:
+            recorder.kill()
+    assert rc == -signal.SIGKILL
+    assert not (bag / "metadata.yaml").exists()
+    with pytest.raises(BagError, match="bptsb bag recover"):
+        list(read_messages(bag))
+    result = subprocess.run([sys.executable, "-c", RECOVER, str(bag)], env=env, capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stderr
+    chunks = re.search(r"recovered (\d+) messages in (\d+) complete chunks", result.stdout)
+    assert chunks is not None and int(chunks[1]) == 2 * n and int(chunks[2]) > 1, result.stdout
+    meta = read_metadata(bag)
+    assert meta.message_count == 2 * n
+    assert [m.message.data[0] for m in read_messages(bag, "/bagtest/data")] == [float(i) for i in range(n)]
+
+
+def test_bad_parameters_exit_with_a_clear_error(tmp_path: Path, env: dict[str, str]) -> None:
+    cmd = [sys.executable, "-m", "bptsb_ros.ros.recorder", "--ros-args", "-p", "compression:=gzip",
+           "-p", f"bag_path:={tmp_path / 'x'}"]
+    result = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and "'compression'" in result.stderr and "gzip" in result.stderr
+    result = subprocess.run(cmd[:3], env=env, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and "'bag_path' is required" in result.stderr
+    existing = tmp_path / "full"
+    existing.mkdir()
+    (existing / "f").write_text("x")
+    result = subprocess.run(cmd[:4] + ["-p", f"bag_path:={existing}"], env=env, capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 2 and "already exists" in result.stderr
+
+
+def _config(**values: object) -> RecorderConfig:
+    return RecorderConfig.from_values(validate_values(RECORDER_PARAMS, {"bag_path": "b", **values}))
+
+
+def test_config_topic_selection_and_qos_rules() -> None:
+    config = _config(topics=["/clock", "body/positions", "/clock"], custom_data=["agent=runs/a", "x=1=2"])
+    assert config.topics == ("/clock", "/body/positions") and config.custom_data == {"agent": "runs/a", "x": "1=2"}
+    namespaced = RecorderConfig.from_values(validate_values(RECORDER_PARAMS, {"bag_path": "b", "topics": ["p"]}), "/ns")
+    assert namespaced.topics == ("/ns/p",)
+    graph = [("/clock", ["rosgraph_msgs/msg/Clock"]), ("/body/positions", ["geometry_msgs/msg/PoseArray"]),
+             ("/rosout", ["rcl_interfaces/msg/Log"]), ("/_hidden/x", ["std_msgs/msg/Empty"])]
+    assert select_topics(graph, config) == {"/clock": ["rosgraph_msgs/msg/Clock"],
+                                            "/body/positions": ["geometry_msgs/msg/PoseArray"]}
+    everything = _config(exclude_topics=["rosout"])
+    assert list(select_topics(graph, everything)) == ["/clock", "/body/positions"]
+    assert list(select_topics(graph, _config(include_hidden_topics=True))) == [t for t, _ in graph]
+    for bad, match in (({"bag_path": " "}, "'bag_path' is required"), ({"topics": ["a b"]}, "not a valid topic"),
+                       ({"custom_data": ["novalue"]}, "key=value"), ({"queue_depth": -1}, "'queue_depth'"),
+                       ({"flush_period": 0.0}, "'flush_period'"), ({"compression": "gzip"}, "'compression'")):
+        with pytest.raises(ParameterError, match=match):
+            _config(**bad)
+    reliable, best_effort = QosProfile(), QosProfile(reliability="best_effort")
+    latched = QosProfile(durability="transient_local")
+    assert subscription_policies([reliable, reliable]) == ("reliable", "volatile")
+    assert subscription_policies([reliable, best_effort]) == ("best_effort", "volatile")
+    assert subscription_policies([latched]) == ("reliable", "transient_local")
+    assert subscription_policies([latched, reliable]) == ("reliable", "volatile")
+    assert incompatible_offers([reliable, best_effort], ("reliable", "volatile")) == [best_effort]
+    assert incompatible_offers([reliable, best_effort], ("best_effort", "volatile")) == []
+    assert incompatible_offers([latched, reliable], ("reliable", "transient_local")) == [reliable]

@@ -1,0 +1,141 @@
+"""`bptsb bag recover`: rebuilding a bag from the complete chunks of a file left by a killed writer."""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import struct
+from pathlib import Path
+
+import pytest
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Float64MultiArray
+
+from bptsb_ros.bags.errors import BagError
+from bptsb_ros.bags.metadata import read_metadata
+from bptsb_ros.bags.reader import read_messages
+from bptsb_ros.bags.recover import recover_bag
+from bptsb_ros.bags.writer import BagWriter
+from bptsb_ros.cli import bag_cmd
+
+T0 = 1_800_000_000_000_000_000
+PER_CHUNK = 7
+CHUNKS = 5
+
+
+@pytest.fixture(scope="module")
+def unfinished(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[int], list[int]]:
+    """A bag whose writer flushed CHUNKS chunks and then 'died' (never closed), with the file size after each
+    flush and the message count at each flush."""
+    path = tmp_path_factory.mktemp("kill") / "run"
+    writer = BagWriter(path, flush_period_s=None, custom_data={"loop": "lissajous_closed"})
+    writer.add_topic("/a", "std_msgs/msg/Float64MultiArray")
+    writer.add_topic("/b", "std_msgs/msg/Float64MultiArray")
+    sizes, counts, i = [], [], 0
+    for _ in range(CHUNKS):
+        for _ in range(PER_CHUNK):
+            writer.write("/a" if i % 2 else "/b", serialize_message(Float64MultiArray(data=[float(i)] * 8)),
+                         T0 + i * 1000, sequence=i)
+            i += 1
+        writer.flush()
+        sizes.append(writer.mcap_path.stat().st_size)
+        counts.append(i)
+    # Half a chunk more that never reaches the disk: the writer is abandoned here, like a SIGKILL.
+    for _ in range(3):
+        writer.write("/a", serialize_message(Float64MultiArray(data=[-1.0])), T0 + i * 1000)
+        i += 1
+    return path, sizes, counts
+
+
+def _copy_truncated(src: Path, dst: Path, size: int, torn: bytes = b"") -> Path:
+    """Copy the first ``size`` bytes of the unfinished file, then ``torn`` (the start of a record never finished)."""
+    dst.mkdir()
+    data = (src / "run_0.mcap").read_bytes()[:size]
+    (dst / "run_0.mcap").write_bytes(data + torn)
+    return dst
+
+
+@pytest.mark.parametrize("cut", [0, 1, 2, 4])
+@pytest.mark.parametrize("torn", [b"", b"\x06", struct.pack("<BQ", 0x06, 5000) + b"\x00" * 28])
+def test_recovers_exactly_the_complete_chunks(unfinished, tmp_path: Path, cut: int, torn: bytes) -> None:
+    src, sizes, counts = unfinished
+    bag = _copy_truncated(src, tmp_path / "bag", sizes[cut], torn)
+    with pytest.raises(BagError, match="bptsb bag recover"):
+        list(read_messages(bag))
+    report = recover_bag(bag)
+    n = counts[cut]
+    assert [f.messages for f in report.files] == [n] and [f.chunks for f in report.files] == [cut + 1]
+    assert "truncated" in report.files[0].stop_reason or "end of file" in report.files[0].stop_reason
+    assert (bag / "run_0.mcap.damaged").stat().st_size == sizes[cut] + len(torn)
+    msgs = list(read_messages(bag))
+    assert [m.timestamp_ns for m in msgs] == [T0 + i * 1000 for i in range(n)]
+    assert [m.message.data[0] for m in msgs] == [float(i) for i in range(n)]
+    meta = read_metadata(bag)
+    assert meta.message_count == n and meta.relative_file_paths == ["run_0.mcap"]
+    assert sum(t.message_count for t in meta.topics) == n and {t.name for t in meta.topics} == {"/a", "/b"}
+    assert meta.custom_data == {"loop": "lissajous_closed"}
+    assert meta.starting_time_ns == T0 and meta.duration_ns == (n - 1) * 1000
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        assert sum(c.msgcount for c in reader.connections) == n
+        assert len(list(reader.messages())) == n
+
+
+def test_corrupt_chunk_stops_recovery_before_it(unfinished, tmp_path: Path) -> None:
+    src, sizes, counts = unfinished
+    bag = _copy_truncated(src, tmp_path / "bag", sizes[-1])
+    data = bytearray((bag / "run_0.mcap").read_bytes())
+    middle = (sizes[2] + sizes[3]) // 2  # inside the 4th chunk's compressed data
+    data[middle:middle + 8] = b"\xff" * 8
+    (bag / "run_0.mcap").write_bytes(bytes(data))
+    report = recover_bag(bag, keep_damaged=False)
+    assert report.files[0].messages == counts[2]
+    assert not (bag / "run_0.mcap.damaged").exists()
+    assert len(list(read_messages(bag))) == counts[2]
+
+
+def test_complete_bag_is_left_alone_and_bad_input(unfinished, tmp_path: Path) -> None:
+    good = tmp_path / "good"
+    with BagWriter(good) as writer:
+        writer.write_message("/c", Float64MultiArray(data=[1.0]), T0)
+    before = (good / "good_0.mcap").read_bytes()
+    report = recover_bag(good)
+    assert report.files[0].complete and report.untouched
+    assert (good / "good_0.mcap").read_bytes() == before
+    (good / "metadata.yaml").unlink()  # killed between finishing the file and writing metadata.yaml
+    assert recover_bag(good).metadata.message_count == 1 and read_metadata(good).topics[0].name == "/c"
+
+    with pytest.raises(BagError, match="bag not found"):
+        recover_bag(tmp_path / "missing")
+    (tmp_path / "nomcap").mkdir()
+    with pytest.raises(BagError, match="no .mcap file"):
+        recover_bag(tmp_path / "nomcap")
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "bad_0.mcap").write_bytes(b"garbage" * 20)
+    with pytest.raises(BagError, match="not an MCAP file"):
+        recover_bag(bad)
+    src, sizes, _ = unfinished
+    header_only = _copy_truncated(src, tmp_path / "header_only", 40)
+    with pytest.raises(BagError, match="nothing to recover"):
+        recover_bag(header_only)
+    assert not list(header_only.glob("*.recovering"))
+
+
+def test_cli_recover_and_info(unfinished, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    src, sizes, counts = unfinished
+    bag = tmp_path / "bag"
+    shutil.copytree(src, bag)
+    parser = argparse.ArgumentParser()
+    bag_cmd.add_arguments(parser)
+    assert bag_cmd.run(parser.parse_args(["info", str(bag)])) == 2
+    assert "bptsb bag recover" in capsys.readouterr().err
+    assert bag_cmd.run(parser.parse_args(["recover", str(bag)])) == 0
+    out = capsys.readouterr().out
+    assert f"recovered {counts[-1]} messages in {CHUNKS} complete chunks" in out
+    assert bag_cmd.run(parser.parse_args(["info", str(bag)])) == 0
+    out = capsys.readouterr().out
+    assert f"Messages:          {counts[-1]}" in out and "Topic: /a" in out
+    assert bag_cmd.run(parser.parse_args(["recover", str(tmp_path / "nope")])) == 2
+    assert "bag not found" in capsys.readouterr().err

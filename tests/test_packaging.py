@@ -1,0 +1,204 @@
+"""The package installs the ament way under both routes: ``colcon build`` and ``pip install`` into a venv.
+
+``ros2 run bptsb_ros <node>`` needs ``<prefix>/lib/bptsb_ros/<node>`` (executable), the package marker in
+``<prefix>/share/ament_index/resource_index/packages/`` and ``<prefix>/share/bptsb_ros/package.xml``;
+``ros2 launch`` needs ``share/bptsb_ros/launch/*.launch.py``; nodes read ``share/bptsb_ros/config/*.yaml``.
+"""
+
+from __future__ import annotations
+
+import filecmp
+import importlib.metadata
+import importlib.util
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = "bptsb_ros"
+NODES = ("body_sim", "swg_brain", "mlp_brain", "feedback_brain", "task_input", "recorder")
+# Top-level entries of the checkout that are not part of the package source.
+NOT_SOURCE = {".git", ".venv", ".ci", "build", "install", "log", "runs", "bags", "tests", "dist",
+              ".pytest_cache", ".ruff_cache", "bench.json"}
+
+
+def _source_files(pattern: str) -> set[str]:
+    return {p.name for p in REPO_ROOT.glob(pattern)}
+
+
+def _ignore_non_source(directory: str, names: list[str]) -> set[str]:
+    ignored = {n for n in names if n == "__pycache__" or n.endswith(".egg-info")}
+    if Path(directory).resolve() == REPO_ROOT:
+        ignored |= NOT_SOURCE.intersection(names)
+    return ignored
+
+
+def _assert_ament_tree(prefix: Path, *, executables: tuple[str, ...]) -> None:
+    """Assert the ament layout under ``prefix`` matches the source tree."""
+    for name in executables:
+        exe = prefix / "lib" / PACKAGE / name
+        assert exe.is_file(), f"missing executable {exe}"
+        assert os.access(exe, os.X_OK), f"{exe} is not executable (mode {exe.stat().st_mode:o})"
+    marker = prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE
+    assert marker.is_file(), f"missing ament index marker {marker}"
+    share = prefix / "share" / PACKAGE
+    assert filecmp.cmp(share / "package.xml", REPO_ROOT / "package.xml", shallow=False), (
+        f"{share / 'package.xml'} differs from the source package.xml (reinstall: make venv)"
+    )
+    for subdir, pattern in (("launch", "*.launch.py"), ("config", "*.yaml")):
+        expected = _source_files(f"{subdir}/{pattern}")
+        assert expected, f"the source tree has no {subdir}/{pattern}"
+        installed = {p.name for p in (share / subdir).glob(pattern)}
+        assert installed == expected, f"{share / subdir}: installed {sorted(installed)}, source {sorted(expected)}"
+
+
+def _package_files(root: Path) -> set[str]:
+    return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts}
+
+
+def _wrapper_text(node: str) -> str:
+    return (REPO_ROOT / "scripts" / "ament_node_wrapper.sh").read_text().replace("@NODE@", node)
+
+
+def _package_prefix_from_index(ament_prefix_path: Path) -> str:
+    """Resolve bptsb_ros through ament_index_python in a clean subprocess with only ``ament_prefix_path``."""
+    env = dict(os.environ, AMENT_PREFIX_PATH=str(ament_prefix_path))
+    code = "from ament_index_python import get_package_prefix; print(get_package_prefix('bptsb_ros'))"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("colcon_core") is None,
+                    reason="colcon-core is not installed (it comes with: pip install -e '.[dev]')")
+def test_colcon_build_produces_the_ament_install_tree(tmp_path: Path) -> None:
+    src = tmp_path / "ws" / "src" / PACKAGE
+    shutil.copytree(REPO_ROOT, src, ignore=_ignore_non_source)
+    ws = tmp_path / "ws"
+    colcon = [sys.executable, "-m", "colcon"] if not (Path(sys.executable).parent / "colcon").exists() \
+        else [str(Path(sys.executable).parent / "colcon")]
+    env = dict(os.environ, COLCON_HOME=str(tmp_path / "colcon_home"))
+    env.pop("COLCON_PREFIX_PATH", None)
+    result = subprocess.run(
+        [*colcon, "--log-base", str(ws / "log"), "build", "--base-paths", str(ws / "src"),
+         "--build-base", str(ws / "build"), "--install-base", str(ws / "install"),
+         "--event-handlers", "console_direct-"],
+        cwd=ws, env=env, capture_output=True, text=True, timeout=300,
+    )
+    assert result.returncode == 0, f"colcon build failed:\n{result.stdout}\n{result.stderr}"
+
+    prefix = ws / "install" / PACKAGE
+    _assert_ament_tree(prefix, executables=(*NODES, "bptsb"))
+    for name in (*NODES, "bptsb"):
+        first_line = (prefix / "lib" / PACKAGE / name).read_text().splitlines()[0]
+        assert first_line.startswith("#!") and "python" in first_line, (
+            f"colcon should install the setuptools console script for {name}, found {first_line!r}"
+        )
+    site = [p for p in prefix.glob(f"lib*/python3*/*-packages/{PACKAGE}") if (p / "cli" / "__init__.py").is_file()]
+    assert len(site) == 1, f"expected the python package once under {prefix}/lib/python3.*/, found {site}"
+    source_files = _package_files(REPO_ROOT / PACKAGE)
+    missing = sorted(source_files - _package_files(site[0]))
+    assert not missing, f"not installed (a directory without __init__.py, or data missing from setup.py): {missing}"
+    assert _package_prefix_from_index(prefix) == str(prefix)
+
+    run_env = dict(os.environ, PYTHONPATH=str(site[0].parent))
+    help_run = subprocess.run([str(prefix / "lib" / PACKAGE / "bptsb"), "--help"], env=run_env,
+                              capture_output=True, text=True, timeout=60)
+    assert help_run.returncode == 0, help_run.stderr
+    assert "usage: bptsb" in help_run.stdout
+
+
+def test_pip_install_registers_the_package_under_the_venv_prefix() -> None:
+    if sys.prefix == sys.base_prefix:
+        pytest.skip("not running from a virtual environment (make venv creates .venv)")
+    site_packages = sysconfig.get_paths()["purelib"]
+    if not any(d.metadata["Name"] == PACKAGE for d in importlib.metadata.distributions(path=[site_packages])):
+        pytest.skip(f"{PACKAGE} is not pip-installed in {sys.prefix} (make venv installs it)")
+    prefix = Path(sys.prefix)
+    _assert_ament_tree(prefix, executables=NODES)
+    for name in NODES:
+        assert (prefix / "lib" / PACKAGE / name).read_text() == _wrapper_text(name)
+        console_script = prefix / "bin" / name
+        assert console_script.is_file() and os.access(console_script, os.X_OK), f"missing {console_script}"
+    assert _package_prefix_from_index(prefix) == str(prefix)
+
+
+def test_setup_py_and_package_xml_agree() -> None:
+    """Name and version are stated twice (setup.py for pip, package.xml for ROS tools): they must match."""
+    import xml.etree.ElementTree as ET
+
+    manifest = ET.parse(REPO_ROOT / "package.xml").getroot()
+    assert manifest.get("format") == "3"
+    assert manifest.findtext("name") == PACKAGE
+    assert manifest.findtext("export/build_type") == "ament_python"
+    setup_text = (REPO_ROOT / "setup.py").read_text()
+    assert f'version="{manifest.findtext("version")}"' in setup_text, "setup.py version differs from package.xml"
+    for node in NODES:
+        assert f'"{node}": "bptsb_ros.ros.{node}"' in setup_text, f"{node} is not an entry point in setup.py"
+
+
+def test_node_wrapper_execs_the_console_script_beside_it(tmp_path: Path) -> None:
+    """The pip-route wrapper in lib/bptsb_ros runs <prefix>/bin/<node> with all arguments, from any cwd."""
+    prefix = tmp_path / "prefix with space"
+    (prefix / "bin").mkdir(parents=True)
+    (prefix / "lib" / PACKAGE).mkdir(parents=True)
+    target = prefix / "bin" / "body_sim"
+    target.write_text('#!/bin/sh\nprintf "%s|" "$0" "$@"\n')
+    target.chmod(0o755)
+    wrapper = prefix / "lib" / PACKAGE / "body_sim"
+    wrapper.write_text(_wrapper_text("body_sim"))
+    wrapper.chmod(0o755)
+
+    out = subprocess.run([str(wrapper), "--ros-args", "-p", "x:=a b"], cwd="/", capture_output=True, text=True,
+                         timeout=30)
+    assert out.returncode == 0, out.stderr
+    argv0, *args = out.stdout.rstrip("|").split("|")
+    assert Path(argv0).resolve() == target.resolve()
+    assert args == ["--ros-args", "-p", "x:=a b"]
+
+
+def _bptsb_command() -> list[str]:
+    script = Path(sys.executable).parent / "bptsb"
+    return [str(script)] if script.exists() else [sys.executable, "-m", "bptsb_ros.cli"]
+
+
+def test_bptsb_help_lists_every_subcommand() -> None:
+    from bptsb_ros.cli import SUBCOMMANDS
+
+    out = subprocess.run([*_bptsb_command(), "--help"], capture_output=True, text=True, timeout=60,
+                         cwd=REPO_ROOT)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("usage: bptsb")
+    for name in SUBCOMMANDS:
+        assert f"    {name} " in out.stdout or f"    {name}\n" in out.stdout, f"{name} missing from:\n{out.stdout}"
+
+
+def test_every_subcommand_explains_itself(capsys: pytest.CaptureFixture[str]) -> None:
+    from bptsb_ros.cli import SUBCOMMANDS, build_parser
+
+    parser = build_parser()
+    for name in SUBCOMMANDS:
+        with pytest.raises(SystemExit) as exit_info:
+            parser.parse_args([name, "--help"])
+        assert exit_info.value.code == 0
+        text = capsys.readouterr().out
+        assert text.startswith(f"usage: bptsb {name}"), text
+        assert len(text.splitlines()) > 3, f"bptsb {name} --help says too little:\n{text}"
+
+
+def test_cli_help_does_not_import_heavy_modules() -> None:
+    code = (
+        "import sys, contextlib, io\n"
+        "from bptsb_ros.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+        "    main(['--help'])\n"
+        "print(sorted(m for m in ('torch', 'rclpy', 'matplotlib') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO_ROOT)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", f"bptsb --help imported {out.stdout.strip()}: import them inside run()"
