@@ -107,6 +107,7 @@ setup(
         "torch>=2.1",
         "numpy",
         "pyyaml",
+        "pydantic>=2",
         "matplotlib",
         "tqdm",
         "mcap>=1.6",
