@@ -40,7 +40,8 @@ def _write_closed_loop_bag(agent_dir: Path, bag: Path, steps: int, drop: int | N
             if k == drop:
                 continue
             t = k * ns
-            lengths = np.linalg.norm(traj.positions[k, topo.springs[:, 0]] - traj.positions[k, topo.springs[:, 1]], axis=1)
+            pos = traj.positions[k]
+            lengths = np.linalg.norm(pos[topo.springs[:, 0]] - pos[topo.springs[:, 1]], axis=1)
             w.write_message("/body/positions", m.pose_array(k, ns, traj.positions[k], "msdn"), t)
             w.write_message("/body/spring_lengths", m.joint_state(k, ns, names, position=lengths), t)
             w.write_message("/body/rest_length", m.joint_state(k, ns, names, position=traj.rest_length[k]), t)

@@ -187,8 +187,13 @@ def task_metrics(run: BagRun, task: str, config: dict[str, Any]) -> dict[str, An
     return out
 
 
-def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict[int, float]) -> np.ndarray:
-    """(steps+1, N, 2) positions of the offline simulation of the same agent and loop, in float64."""
+def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict[int, float],
+                      open_loop_steps: int = 0) -> np.ndarray:
+    """(steps+1, N, 2) positions of the offline simulation of the same agent and loop, in float64.
+
+    Closed loops with ``open_loop_steps`` = W run the SWG for steps 0..W, then the feedback layer (as
+    ``bptsb launch --open-loop-steps W`` does).
+    """
     import torch
 
     from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
@@ -199,6 +204,12 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
     if loop in LOOPS_CLOSED:
         if agent.feedback is None:
             raise BagError(f"loop {loop} needs an agent with a fitted feedback layer")
+        if 0 < open_loop_steps < steps:
+            warm = simulate_open_loop(agent, open_loop_steps)
+            rest = simulate_closed_loop(agent.body, agent.feedback, steps - open_loop_steps, state=warm.final)
+            positions = np.concatenate([trajectory_from_rollout(agent.body, warm).positions,
+                                        trajectory_from_rollout(agent.body, rest).positions[1:]])
+            return positions
         roll = simulate_closed_loop(agent.body, agent.feedback, steps)
     elif loop == "narma":
         scale = float(agent.config["narma"]["input_scale"])
@@ -236,7 +247,7 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
         metrics["live"] = live
     if agent_dir is not None and loop:
         last = int(run.steps[-1])
-        off = offline_positions(agent_dir, loop, last, run.inputs)
+        off = offline_positions(agent_dir, loop, last, run.inputs, int(run.custom.get("open_loop_steps", 0)))
         diff = np.abs(off[run.steps] - run.positions)
         metrics["offline_comparison"] = {"max_abs_position_difference_m": float(diff.max()),
                                          "steps_compared": int(len(run.steps))}

@@ -32,6 +32,15 @@ def expanded_narma(u: np.ndarray, order: int = 2) -> np.ndarray:
     return y[1:]
 
 
+def narma_inputs(seed: int, count: int) -> np.ndarray:
+    """(count,) inputs u ~ U(0, 1) from ``seed``; a longer series from the same seed extends a shorter one.
+
+    The held-out evaluation sequence is ``narma_inputs(narma.eval_seed, narma.n_inputs)``; the live
+    ``task_input`` node streams the same series.
+    """
+    return np.random.default_rng(seed).uniform(0.0, 1.0, count)
+
+
 def nmse(pred: np.ndarray, target: np.ndarray) -> float:
     """Normalised mean squared error: mean((pred − target)²) / var(target)."""
     return float(np.mean((pred - target) ** 2) / np.var(target))
@@ -86,7 +95,7 @@ class NarmaTask(Task):
 
     def evaluate(self) -> dict[str, Any]:
         n = self.cfg.narma
-        u = np.random.default_rng(n.eval_seed).uniform(0.0, 1.0, n.n_inputs)
+        u = narma_inputs(n.eval_seed, n.n_inputs)
         y = expanded_narma(u, n.order)
         out = self.episode(u, grad=False).double().numpy()
         test = slice(n.train_end, n.n_inputs)

@@ -1,0 +1,310 @@
+"""``bptsb launch``: start a whole brain–body loop as separate processes, record it, stop it cleanly."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+from bptsb_ros.launch_loops import LOOPS, format_parameter, loops_help
+
+NAME = "launch"
+HELP = "start a live loop (body_sim + brains [+ recorder]) as separate ROS 2 processes"
+
+PACKAGE_PARENT = Path(__file__).resolve().parents[2]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.epilog = loops_help() + (
+        "\n\nEach node is a process `python -m bptsb_ros.ros.<node> --ros-args ...`; with --bag the recorder runs "
+        "too and is stopped last.\nIn lockstep the run lasts --duration seconds of sim time (body_sim exits after "
+        "the last step); in realtime\n--duration wall seconds. Ctrl-C stops every node (SIGINT, then SIGTERM/SIGKILL "
+        "after --grace). Exit status 0 only if\nevery node exited cleanly. Children get "
+        "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless it is set, and inherit ROS_DOMAIN_ID."
+    )
+    parser.add_argument("loop", choices=sorted(LOOPS), metavar="LOOP", help="loop to run: " + ", ".join(LOOPS))
+    parser.add_argument("--agent", default="", metavar="RUN_DIR",
+                        help="trained agent (run directory); default: a fresh untrained agent of the loop's task")
+    parser.add_argument("--duration", type=float, default=0.0, metavar="SECONDS",
+                        help="run length: sim seconds (lockstep) or wall seconds (realtime); 0 = until Ctrl-C")
+    parser.add_argument("--bag", default="", metavar="DIR", help="record every loop topic to this rosbag2 MCAP bag")
+    parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="timing mode")
+    parser.add_argument("--rate-scale", type=float, default=1.0, help="realtime: sim seconds per wall second")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
+    parser.add_argument("--open-loop-steps", type=int, default=0, metavar="W",
+                        help="closed loops: SWG drives steps 0..W before the feedback layer takes over")
+    parser.add_argument("--param", action="append", default=[], metavar="NODE:NAME:=VALUE",
+                        help="extra ROS parameter for one node, e.g. body_sim:command_timeout:=5 (repeatable)")
+    parser.add_argument("--log-dir", default="", metavar="DIR",
+                        help="node logs and body_summary.json (default: BAG.launch/ or a temporary directory)")
+    parser.add_argument("--grace", type=float, default=10.0, metavar="SECONDS",
+                        help="how long a node may take to stop after SIGINT before SIGTERM, then SIGKILL")
+    parser.add_argument("--timeout", type=float, default=0.0, metavar="SECONDS",
+                        help="wall-clock limit of the whole run, 0 = none; exceeding it is a failure")
+
+
+@dataclass
+class Child:
+    """One node process and its log."""
+
+    name: str
+    argv: list[str]
+    log_path: Path
+    proc: subprocess.Popen | None = None
+    threads: list[threading.Thread] = field(default_factory=list)
+    stop_requested: bool = False
+    killed: str = ""
+
+    @property
+    def code(self) -> int | None:
+        return None if self.proc is None else self.proc.poll()
+
+
+def _pump(stream: IO[bytes], name: str, log: IO[str], lock: threading.Lock) -> None:
+    for raw in iter(stream.readline, b""):
+        line = raw.decode("utf-8", "replace").rstrip("\n")
+        with lock:
+            log.write(line + "\n")
+            log.flush()
+            print(f"[{name}] {line}", file=sys.stderr, flush=True)
+    stream.close()
+
+
+def child_env() -> dict[str, str]:
+    """Environment of the nodes: this one, localhost discovery by default, the package importable."""
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+    env["PYTHONUNBUFFERED"] = "1"
+    paths = [str(PACKAGE_PARENT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
+    env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(paths))
+    return env
+
+
+def node_argv(executable: str, params: dict, extra: list[str]) -> list[str]:
+    argv = [sys.executable, "-m", f"bptsb_ros.ros.{executable}", "--ros-args"]
+    for name, value in params.items():
+        argv += ["-p", format_parameter(name, value)]
+    for item in extra:
+        argv += ["-p", item]
+    return argv
+
+
+def parse_extra(items: list[str], nodes: list[str]) -> dict[str, list[str]]:
+    """``NODE:NAME:=VALUE`` items → {node: ['NAME:=VALUE', ...]}; raises ValueError naming a bad item."""
+    out: dict[str, list[str]] = {n: [] for n in nodes}
+    for item in items:
+        node, sep, rest = item.partition(":")
+        if not sep or ":=" not in rest or not rest.split(":=", 1)[0]:
+            raise ValueError(f"--param {item!r} must look like NODE:NAME:=VALUE")
+        if node not in out:
+            raise ValueError(f"--param {item!r}: node {node!r} is not part of this loop ({', '.join(nodes)})")
+        out[node].append(rest)
+    return out
+
+
+class Launcher:
+    """Starts the children, watches them, stops them in order: body, brains, recorder last."""
+
+    def __init__(self, children: list[Child], body: Child, recorder: Child | None, grace: float) -> None:
+        self.children = children
+        self.body = body
+        self.recorder = recorder
+        self.grace = grace
+        self.lock = threading.Lock()
+        self.failures: list[str] = []
+        self.stop_reason: str | None = None
+
+    def start(self, env: dict[str, str]) -> None:
+        order = ([self.recorder] if self.recorder else []) + [c for c in self.children
+                                                              if c not in (self.body, self.recorder)] + [self.body]
+        for child in order:
+            log = child.log_path.open("w")
+            child.proc = subprocess.Popen(child.argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                          stdin=subprocess.DEVNULL, start_new_session=True)
+            t = threading.Thread(target=_pump, args=(child.proc.stdout, child.name, log, self.lock), daemon=True)
+            t.start()
+            child.threads.append(t)
+
+    def stop(self, child: Child) -> None:
+        """SIGINT, then SIGTERM and SIGKILL after ``grace`` seconds each."""
+        if child.proc is None or child.proc.poll() is not None:
+            return
+        child.stop_requested = True
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            try:
+                child.proc.send_signal(sig)
+            except ProcessLookupError:
+                return
+            try:
+                child.proc.wait(timeout=self.grace)
+                return
+            except subprocess.TimeoutExpired:
+                child.killed = signal.Signals(sig).name
+                self._say(f"{child.name} did not stop within {self.grace:g} s of {child.killed}")
+
+    def stop_all(self) -> None:
+        self.stop(self.body)
+        for child in self.children:
+            if child not in (self.body, self.recorder):
+                self.stop(child)
+        if self.recorder is not None:
+            self.stop(self.recorder)
+
+    def watch(self, *, timeout: float, stop_flag: list[str]) -> None:
+        """Poll until the body exits (it ends the run after --duration), ``timeout`` passes or a signal arrives."""
+        started = time.monotonic()
+        reported: set[str] = set()
+        while True:
+            if stop_flag:
+                self.stop_reason = stop_flag[0]
+                return
+            now = time.monotonic() - started
+            for child in self.children:
+                code = child.code
+                if code is not None and child is not self.body and child.name not in reported:
+                    reported.add(child.name)
+                    self._say(f"{child.name} exited early with code {code}")
+            if self.body.code is not None:
+                self._say(f"body_sim exited with code {self.body.code}; stopping the other nodes")
+                return
+            if timeout and now >= timeout:
+                self.failures.append(f"timed out after {timeout:g} s")
+                self.stop_reason = "timeout"
+                return
+            time.sleep(0.1)
+
+    def _say(self, text: str) -> None:
+        with self.lock:
+            print(f"[launch] {text}", file=sys.stderr, flush=True)
+
+    def results(self) -> list[tuple[str, str]]:
+        """(node, verdict) per child; updates ``failures``."""
+        rows = []
+        for child in self.children:
+            for t in child.threads:
+                t.join(timeout=2.0)
+            code = child.code
+            if child.killed:
+                verdict = f"failed (needed {child.killed})"
+            elif code is not None and child is not self.body and not child.stop_requested:
+                verdict = f"failed (exited on its own before the end, code {code})"
+            elif code == 0:
+                verdict = "ok"
+            elif code is None:
+                verdict = "still running"
+            else:
+                verdict = f"failed (exit {code})"
+            if verdict != "ok":
+                self.failures.append(f"{child.name}: {verdict}")
+            rows.append((child.name, verdict))
+        return rows
+
+
+def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.launch_loops import agent_loop, node_parameters
+
+    loop = LOOPS[args.loop]
+    if loop.needs_agent and not args.agent:
+        print(f"error: loop {loop.name} needs --agent RUN_DIR (a trained agent with a fitted feedback layer)",
+              file=sys.stderr)
+        return 2
+    if args.duration < 0 or args.rate_scale <= 0 or args.grace <= 0:
+        print("error: --duration must be >= 0, --rate-scale and --grace > 0", file=sys.stderr)
+        return 2
+    if args.agent:
+        if not Path(args.agent).exists():
+            print(f"error: --agent {args.agent}: no such run directory", file=sys.stderr)
+            return 2
+        from bptsb_ros.training.checkpoint import CheckpointError
+
+        try:
+            loop = agent_loop(loop, args.agent)
+        except CheckpointError as err:
+            print(f"error: --agent: {err}", file=sys.stderr)
+            return 2
+    if args.bag and Path(args.bag).exists() and any(Path(args.bag).iterdir()):
+        print(f"error: --bag {args.bag} exists and is not empty", file=sys.stderr)
+        return 2
+    nodes = ["body_sim"] + [b.executable for b in loop.brains] + (["recorder"] if args.bag else [])
+    try:
+        extra = parse_extra(args.param, nodes)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    if args.log_dir:
+        log_dir = Path(args.log_dir)
+    elif args.bag:
+        log_dir = Path(str(Path(args.bag)) + ".launch")
+    else:
+        log_dir = Path(tempfile.mkdtemp(prefix=f"bptsb-{loop.name}-"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    summary_path = log_dir / "body_summary.json"
+
+    common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,
+                  rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps)
+    children: list[Child] = []
+    body = Child("body_sim", node_argv("body_sim", node_parameters(loop, "body_sim", summary_path=str(summary_path),
+                                                                   **common), extra["body_sim"]),
+                 log_dir / "body_sim.log")
+    children.append(body)
+    for brain in loop.brains:
+        params = node_parameters(loop, brain.executable, **common)
+        children.append(Child(brain.executable, node_argv(brain.executable, params, extra[brain.executable]),
+                              log_dir / f"{brain.executable}.log"))
+    recorder = None
+    if args.bag:
+        from bptsb_ros.launch_loops import topic_names
+
+        params = {"bag_path": args.bag, "topics": topic_names(loop.topics()),
+                  "custom_data": [f"loop={loop.name}", f"mode={args.mode}", f"agent={args.agent or 'fresh'}",
+                                  f"open_loop_steps={args.open_loop_steps}"]}
+        recorder = Child("recorder", node_argv("recorder", params, extra["recorder"]), log_dir / "recorder.log")
+        children.append(recorder)
+
+    stop_flag: list[str] = []
+
+    def on_signal(signum: int, frame: object) -> None:
+        del frame
+        if stop_flag:  # second Ctrl-C: give up on a clean stop (the finally below kills the nodes)
+            raise KeyboardInterrupt
+        stop_flag.append(signal.Signals(signum).name)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    launcher = Launcher(children, body, recorder, args.grace)
+    domain = os.environ.get("ROS_DOMAIN_ID", "0 (default)")
+    print(f"[launch] {loop.name}: {', '.join(c.name for c in children)}; mode {args.mode}, "
+          f"duration {args.duration:g} s {'sim' if args.mode == 'lockstep' else 'wall'} time, ROS_DOMAIN_ID "
+          f"{domain}; logs in {log_dir}", file=sys.stderr, flush=True)
+    try:
+        launcher.start(child_env())
+        launcher.watch(timeout=args.timeout, stop_flag=stop_flag)
+        if launcher.stop_reason:
+            launcher._say(f"stopping ({launcher.stop_reason})")
+        launcher.stop_all()
+    finally:
+        for child in children:
+            if child.proc is not None and child.proc.poll() is None:
+                child.proc.kill()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    rows = launcher.results()
+    print("[launch] node exit status:", file=sys.stderr)
+    for name, verdict in rows:
+        print(f"[launch]   {name:<15} {verdict}", file=sys.stderr)
+    if summary_path.is_file():
+        print(f"[launch] body summary: {summary_path}", file=sys.stderr)
+    if args.bag:
+        print(f"[launch] bag: {args.bag}", file=sys.stderr)
+    if launcher.failures:
+        print("[launch] FAILED: " + "; ".join(launcher.failures), file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,489 @@
+"""``body_sim``: the soft-body simulator node. A thin adapter: every step is ``MSDN.step``.
+
+It loads a body (trained agent or fresh shape), publishes ``/clock`` (it is the simulator), the body
+state and RViz/Foxglove markers, and integrates the rest-length and force commands of the brains
+(``TOPICS.md`` lists every topic). Two timing modes:
+
+* ``lockstep``: before integrating step k the body publishes ``/clock`` t_k and waits for the
+  commands stamped t_k from every source in ``wait_for``; a live run equals the offline simulation
+  of the same agent.
+* ``realtime``: a wall-clock loop at rate_scale/dt that uses the newest command and reports
+  jitter, deadline misses, command age and latency on ``/diagnostics`` and at shutdown.
+
+Bad commands (wrong length, NaN/inf, stale) are rejected with a log line. A brain that stops sending
+(no command within ``command_timeout``, or its publisher gone) is replaced by the safe command —
+the trained rest lengths and zero force — and the body says so, and says so again when it resumes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseArray, Vector3Stamped
+from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from visualization_msgs.msg import MarkerArray
+
+from bptsb_ros.body.msdn import BodyState, SimulationDiverged
+from bptsb_ros.ros import messages as m
+from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
+from bptsb_ros.ros.lockstep import MODES, CommandChannel, TimingStats
+from bptsb_ros.ros.params import Param, ParameterError, declare_parameters
+from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, run_node
+from bptsb_ros.ros.topics import (
+    COMMAND_SOURCES,
+    DEFAULT_QOS_DEPTH,
+    TOPICS,
+    absolute,
+    dt_to_ns,
+    mass_dof_names,
+    spring_names,
+)
+
+NODE = "body_sim"
+PUBLISHED = ("clock", "positions", "mass_states", "spring_lengths", "rest_length", "external_force", "markers",
+             "diagnostics")
+SUBSCRIBED = ("rest_length_cmd", "force_cmd", "wind")
+
+PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
+    Param("mode", "lockstep", "timing mode: lockstep (deterministic, waits for commands) or realtime "
+          "(wall-clock timer at rate_scale/dt)", "str", choices=MODES),
+    Param("rate_scale", 1.0, "realtime: sim seconds per wall second (1 = real time)", "float", positive=True),
+    Param("duration", 0.0, "sim time to run [s]; the node exits after the last step (0: run until stopped)",
+          "float", minimum=0.0),
+    Param("wall_duration", 0.0, "realtime: wall seconds to run from the first step, then exit (0: no limit)",
+          "float", minimum=0.0),
+    Param("max_steps", 0, "steps to run, overrides duration when > 0 (0: use duration)", "int", minimum=0),
+    Param("wait_for", [], "command sources whose command for step k must arrive before step k is integrated "
+          "in lockstep (realtime: sources watched for silence)", "str_list", choices=tuple(COMMAND_SOURCES)),
+    Param("wait_for_subscribers", [], "startup: 'topic:count' entries; the first step waits until each topic "
+          "has that many subscribers (e.g. the brains and the recorder)", "str_list"),
+    Param("startup_timeout", 30.0, "startup: wall seconds to wait for brains and subscribers before starting "
+          "anyway (silent sources get the safe command)", "float", positive=True),
+    Param("command_timeout", 2.0, "wall seconds without the awaited command before a source counts as silent "
+          "and the safe command is used", "float", positive=True),
+    Param("max_command_age", 0.1, "realtime: oldest usable command [sim s]; older ones are stale", "float",
+          positive=True),
+    Param("final_ack_timeout", 5.0, "at exit, wall seconds to wait until reliable subscribers (the recorder) "
+          "acknowledged every message", "float", minimum=0.0),
+    Param("marker_every", 5, "publish body/markers every this many steps", "int", minimum=1),
+    Param("frame_id", "msdn", "frame of positions and markers (the body plane, metres, y up)", "str"),
+    Param("diagnostics_period", 1.0, "wall seconds between /diagnostics messages", "float", positive=True),
+    Param("summary_path", "", "write the run summary (timing, rejections) as JSON here at exit (empty: don't)",
+          "str"),
+    Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
+) + tuple(Param(f"topics.{key}", TOPICS[key].name, f"topic name of {TOPICS[key].type}", "str")
+          for key in PUBLISHED + SUBSCRIBED)
+
+
+def parse_wait_for_subscribers(entries: list[str]) -> list[tuple[str, int]]:
+    """``['topic:count', ...]`` → [(topic, count)]; raises ParameterError naming the bad entry."""
+    out = []
+    for entry in entries:
+        topic, sep, count = entry.rpartition(":")
+        if not sep or not topic or not count.isdigit() or int(count) < 1:
+            raise ParameterError(f"parameter 'wait_for_subscribers': entry {entry!r} must look like 'topic:count' "
+                                 "with count >= 1")
+        out.append((topic, int(count)))
+    return out
+
+
+class BodySim(Node):
+    """The body simulator node; :meth:`run` integrates until done or stopped and returns the exit code."""
+
+    def __init__(self, stop: StopFlag) -> None:
+        super().__init__(NODE)
+        self.stop = stop
+        p = declare_parameters(self, PARAMS)
+        self.p = p
+        self.wait_subscribers = parse_wait_for_subscribers(p["wait_for_subscribers"])
+        agent, trained = load_source(p)
+        self.agent = agent
+        body = agent.body
+        self.body = body
+        try:
+            self.dt_ns = dt_to_ns(body.dt)
+        except ValueError as err:
+            raise ParameterError(f"parameter 'dt' (or the agent's time step): {err}") from None
+        self.max_steps = p["max_steps"] or (int(round(p["duration"] / body.dt)) if p["duration"] > 0 else 0)
+        topo = body.topology
+        self.movable = body.movable_index.numpy()
+        self.spring_names = spring_names(topo.n_springs)
+        self.dof_names = mass_dof_names(self.movable.tolist())
+        self.base = body.l.detach().clone()
+        self.mass = body.mass.detach().numpy().copy()
+        self.springs = np.asarray(topo.springs)
+        self.fixed = np.asarray(topo.fixed)
+        self.mass_diameter = 0.04 * float(np.ptp(topo.positions, axis=0).max() or 1.0)
+        depth = p["qos_depth"]
+        max_age = max(1, int(math.floor(p["max_command_age"] / body.dt + 1e-9)))
+        self.channels = {
+            "rest_length": CommandChannel("rest_length", topo.n_springs, self.spring_names, p["mode"],
+                                          max_ahead=depth, max_age_steps=max_age),
+            "force": CommandChannel("force", 2 * body.n_movable, self.dof_names, p["mode"],
+                                    max_ahead=depth, max_age_steps=max_age),
+        }
+        self.wait_sources: list[str] = list(dict.fromkeys(p["wait_for"]))
+        self.silent: dict[str, bool] = {s: False for s in self.channels}
+        self.wind: np.ndarray | None = None
+        self.next_step = 0
+        self.stats = TimingStats()
+        self.throttle = Throttle(1.0)
+        self.clock_sent: dict[int, float] = {}
+        self.callbacks = 0
+        self._started = time.monotonic()
+
+        topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED}
+        self.topic_names = topic
+        sq = m.state_qos(depth)
+        self.pubs: dict[str, Publisher] = {
+            "clock": self.create_publisher(Clock, topic["clock"], sq),
+            "positions": self.create_publisher(PoseArray, topic["positions"], sq),
+            "mass_states": self.create_publisher(JointState, topic["mass_states"], sq),
+            "spring_lengths": self.create_publisher(JointState, topic["spring_lengths"], sq),
+            "rest_length": self.create_publisher(JointState, topic["rest_length"], sq),
+            "external_force": self.create_publisher(JointState, topic["external_force"], sq),
+            "markers": self.create_publisher(MarkerArray, topic["markers"], sq),
+            "diagnostics": self.create_publisher(DiagnosticArray, topic["diagnostics"], sq),
+        }
+        self.subs = {
+            "rest_length": self.create_subscription(JointState, topic["rest_length_cmd"],
+                                                    lambda msg: self._on_command("rest_length", msg), sq),
+            "force": self.create_subscription(JointState, topic["force_cmd"],
+                                              lambda msg: self._on_command("force", msg), sq),
+            "wind": self.create_subscription(Vector3Stamped, topic["wind"], self._on_wind, sq),
+        }
+        self.executor_ = SingleThreadedExecutor(context=self.context)
+        self.executor_.add_node(self)
+        self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
+        source = p["agent"] or p["config"] or f"fresh {agent.task} agent (seed {p['seed']})"
+        self.get_logger().info(
+            f"{'trained' if trained else 'untrained'} body from {source}: {topo.name}, {topo.n_masses} masses "
+            f"({body.n_movable} movable), {topo.n_springs} springs, dt {body.dt} s, {p['dtype']}; mode "
+            f"{p['mode']}, {self._length_text()}, waiting for "
+            f"{', '.join(self.wait_sources) or 'no brain'}"
+        )
+
+    def _length_text(self) -> str:
+        parts = [f"{self.max_steps} steps"] if self.max_steps else []
+        if self.p["mode"] == "realtime" and self.p["wall_duration"] > 0:
+            parts.append(f"{self.p['wall_duration']:g} s wall time")
+        return " or ".join(parts) or "until stopped"
+
+    # -- intake ---------------------------------------------------------------------------------
+    def _on_command(self, source: str, msg: JointState) -> None:
+        self.callbacks += 1
+        step = m.step_of(msg.header.stamp, self.dt_ns)
+        values = m.as_array(msg.effort if source == "force" else msg.position)
+        now = time.monotonic()
+        rejection = self.channels[source].offer(step, values, self.next_step, now, list(msg.name))
+        if rejection is not None:
+            self._warn(f"reject:{source}:{rejection.reason}", f"{rejection.message}; not integrated")
+            return
+        sent = self.clock_sent.get(step)
+        if sent is not None:
+            self.stats.latency.append(now - sent)
+        if self.silent[source]:
+            self.silent[source] = False
+            self.get_logger().info(f"{source} commands resumed at step {step}")
+
+    def _on_wind(self, msg: Vector3Stamped) -> None:
+        self.callbacks += 1
+        wind = np.array([msg.vector.x, msg.vector.y], dtype=np.float64)
+        if not np.isfinite(wind).all():
+            self._warn("reject:wind", f"rejected wind {wind.tolist()}: NaN/inf; keeping the previous wind")
+            return
+        self.wind = None if not wind.any() else wind
+        self.get_logger().info(f"wind set to ({wind[0]:g}, {wind[1]:g}) N per movable mass from step "
+                               f"{self.next_step}")
+
+    def _warn(self, key: str, text: str) -> None:
+        emit, held = self.throttle(key)
+        if emit:
+            self.get_logger().warning(text + (f" ({held} similar suppressed)" if held else ""))
+
+    # -- helpers ----------------------------------------------------------------------------------
+    def _spin_for(self, seconds: float) -> None:
+        """Process callbacks for ``seconds`` (at least the ready ones), polling the stop flag."""
+        end = time.monotonic() + seconds
+        self._drain()
+        while not self.stop:
+            remaining = end - time.monotonic()
+            if remaining <= 0:
+                return
+            self.executor_.spin_once(timeout_sec=min(remaining, 0.05))
+
+    def _drain(self) -> None:
+        """Run every callback that is ready now."""
+        while True:
+            before = self.callbacks
+            self.executor_.spin_once(timeout_sec=0.0)
+            if self.callbacks == before:
+                return
+
+    def _subscriber_count(self, topic: str) -> int:
+        for key, pub in self.pubs.items():
+            if absolute(self.topic_names[key], self.get_namespace()) == absolute(topic, self.get_namespace()):
+                return pub.get_subscription_count()
+        return self.count_subscribers(topic)
+
+    def _publish_clock(self, step: int) -> None:
+        self.clock_sent[step] = time.monotonic()
+        self.clock_sent.pop(step - 2 * self.p["qos_depth"], None)
+        self.next_step = step
+        self.pubs["clock"].publish(m.clock_msg(step, self.dt_ns))
+
+    def _command(self, step: int) -> tuple[torch.Tensor, torch.Tensor | None, bool]:
+        """Rest length (E,), external force (M, 2) or None, and whether a safe value replaced a command."""
+        dtype = self.base.dtype
+        safe = False
+        rest_cmd = self.channels["rest_length"].take(step)
+        if rest_cmd is None:
+            rest = self.base
+            safe = "rest_length" in self.wait_sources
+        else:
+            rest = torch.from_numpy(rest_cmd.values).to(dtype)
+            self.stats.age.append(step - rest_cmd.step)
+        force_cmd = self.channels["force"].take(step)
+        force: torch.Tensor | None = None
+        if force_cmd is None:
+            safe = safe or "force" in self.wait_sources
+        else:
+            force = torch.from_numpy(force_cmd.values).to(dtype).view(-1, 2)
+            self.stats.age.append(step - force_cmd.step)
+        if self.wind is not None:
+            wind = torch.from_numpy(self.wind).to(dtype)
+            force = wind.expand(self.body.n_movable, 2) if force is None else force + wind
+        return rest, force, safe
+
+    def _publish_state(self, state: BodyState, rest: torch.Tensor, force: torch.Tensor | None) -> None:
+        k, ns, body = state.step, self.dt_ns, self.body
+        r = state.r[0].numpy()
+        full = body.full_positions(state.r)[0].numpy()
+        length = state.length[0].numpy()
+        rest_np = rest.reshape(-1).numpy()
+        frame = self.p["frame_id"]
+        self.pubs["positions"].publish(m.pose_array(k, ns, full, frame))
+        self.pubs["mass_states"].publish(m.joint_state(
+            k, ns, self.dof_names, position=r.reshape(-1), velocity=state.v[0].numpy().reshape(-1),
+            effort=(state.a[0].numpy() * self.mass[:, None]).reshape(-1), frame_id=frame))
+        self.pubs["spring_lengths"].publish(m.joint_state(k, ns, self.spring_names, position=length))
+        self.pubs["rest_length"].publish(m.joint_state(k, ns, self.spring_names, position=rest_np))
+        f = np.zeros(2 * body.n_movable) if force is None else force.reshape(-1).numpy()
+        self.pubs["external_force"].publish(m.joint_state(k, ns, self.dof_names, effort=f, frame_id=frame))
+        if k % self.p["marker_every"] == 0:
+            strain = length / np.maximum(rest_np, 1e-12) - 1.0
+            self.pubs["markers"].publish(m.body_markers(k, ns, full, self.springs, self.fixed,
+                                                        body.topology.cmp_index, strain, frame, self.mass_diameter))
+
+    def _maybe_diagnostics(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now < self.next_diagnostics:
+            return
+        self.next_diagnostics = now + self.p["diagnostics_period"]
+        summary = self.summary()
+        status = DiagnosticStatus()
+        late = summary["deadline_misses"] or summary["safe_command_steps"] or summary["rejected_total"]
+        status.level = DiagnosticStatus.WARN if late else DiagnosticStatus.OK
+        status.name = f"{self.get_name()}: loop"
+        status.hardware_id = self.body.topology.name
+        status.message = (f"{self.p['mode']}: step {summary['steps']}, {summary['deadline_misses']} deadline misses, "
+                          f"{summary['safe_command_steps']} safe-command steps, {summary['rejected_total']} "
+                          "rejected commands")
+        status.values = [KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v))
+                         for k, v in summary.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = m.stamp(self.stats.steps, self.dt_ns)
+        self.pubs["diagnostics"].publish(msg)
+
+    def summary(self) -> dict[str, Any]:
+        """Run summary: mode, steps, timing statistics and command counts per source."""
+        out: dict[str, Any] = {"mode": self.p["mode"], "dt": self.body.dt, "sim_time": self.stats.steps * self.body.dt}
+        out.update(self.stats.summary())
+        total = 0
+        for name, ch in self.channels.items():
+            for key, value in ch.counts().items():
+                out[f"{name}_{key}"] = value
+                if key.startswith("rejected"):
+                    total += value
+        out["rejected_total"] = total
+        return out
+
+    # -- run --------------------------------------------------------------------------------------
+    def _wait_startup(self) -> None:
+        """Wait until every awaited brain publishes and every listed topic has its subscribers."""
+        deadline = time.monotonic() + self.p["startup_timeout"]
+        while not self.stop:
+            missing = [f"a publisher on {self.subs[s].topic_name}" for s in self.wait_sources
+                       if self.subs[s].get_publisher_count() < 1]
+            missing += [f"{n} subscriber(s) on {t} (have {have})" for t, n in self.wait_subscribers
+                        if (have := self._subscriber_count(t)) < n]
+            if not missing:
+                self.get_logger().info("startup complete: brains and subscribers present; running")
+                return
+            if time.monotonic() > deadline:
+                self.get_logger().warning(f"startup: still missing {'; '.join(missing)} after "
+                                          f"{self.p['startup_timeout']:g} s; starting anyway")
+                return
+            self._spin_for(0.05)
+
+    def _await(self, step: int) -> None:
+        """Lockstep: process callbacks until every non-silent awaited source has its command for ``step``."""
+        deadline = time.monotonic() + self.p["command_timeout"]
+        while not self.stop:
+            self._drain()
+            missing = [s for s in self.wait_sources if not self.silent[s] and not self.channels[s].has(step)]
+            if not missing:
+                return
+            now = time.monotonic()
+            for s in missing:
+                gone = self.subs[s].get_publisher_count() == 0
+                if gone or now >= deadline:
+                    self.silent[s] = True
+                    why = (f"no publisher left on {self.subs[s].topic_name}" if gone else
+                           f"no {s} command for step {step} within {self.p['command_timeout']:g} s")
+                    self.get_logger().error(
+                        f"brain silent: {why}; the body keeps running with the safe command (trained rest "
+                        "lengths, zero force) until commands resume")
+            if now >= deadline or all(self.silent[s] for s in missing):
+                return
+            self.executor_.spin_once(timeout_sec=min(0.05, deadline - now))
+
+    def _integrate(self, state: BodyState | None, step: int) -> BodyState:
+        rest, force, safe = self._command(step)
+        if safe:
+            self.stats.safe_steps += 1
+        with torch.no_grad():
+            if state is None:
+                new = self.body.initial_state(1, rest_length=rest, external_force=force)
+            else:
+                new = self.body.step(state, rest_length=rest, external_force=force)
+        self.body.check_finite(new)
+        self._publish_state(new, rest, force)
+        self.stats.steps = step
+        return new
+
+    def _run_lockstep(self) -> None:
+        period = self.body.dt / self.p["rate_scale"]
+        state: BodyState | None = None
+        step = 0
+        last = time.monotonic()
+        while not self.stop and (self.max_steps == 0 or step <= self.max_steps):
+            self._publish_clock(step)
+            self._await(step)
+            if self.stop:
+                break
+            if any(self.silent[s] for s in self.wait_sources):
+                self._spin_for(max(0.0, last + period - time.monotonic()))  # pace silent running at real time
+            last = time.monotonic()
+            state = self._integrate(state, step)
+            self.stats.compute.append(time.monotonic() - last)
+            self._maybe_diagnostics()
+            step += 1
+
+    def _run_realtime(self) -> None:
+        period = self.body.dt / self.p["rate_scale"]
+        state: BodyState | None = None
+        self._publish_clock(0)
+        start = time.monotonic() + period
+        wall_end = start + self.p["wall_duration"] if self.p["wall_duration"] > 0 else math.inf
+        step = 0
+        while not self.stop and (self.max_steps == 0 or step <= self.max_steps):
+            due = start + step * period
+            if due > wall_end:
+                break
+            self._spin_for(due - time.monotonic())
+            if self.stop:
+                break
+            began = time.monotonic()
+            self.stats.jitter.append(began - due)
+            for s in self.wait_sources:
+                self._watch_realtime(s, step, began)
+            state = self._integrate(state, step)
+            if (self.max_steps == 0 or step < self.max_steps) and start + (step + 1) * period <= wall_end:
+                self._publish_clock(step + 1)
+            done = time.monotonic()
+            self.stats.compute.append(done - began)
+            if done > due + period:
+                self.stats.deadline_misses += 1
+            self._maybe_diagnostics()
+            step += 1
+
+    def _watch_realtime(self, source: str, step: int, now: float) -> None:
+        ch = self.channels[source]
+        last = ch.last_received
+        quiet = last is None or now - last > self.p["command_timeout"]
+        gone = self.subs[source].get_publisher_count() == 0
+        if (quiet or gone) and not self.silent[source] and (last is not None or now > self._started
+                                                               + self.p["command_timeout"]):
+            self.silent[source] = True
+            why = f"no publisher left on {self.subs[source].topic_name}" if gone else (
+                f"no {source} command for {self.p['command_timeout']:g} s")
+            self.get_logger().error(f"brain silent: {why}; the body keeps running with the safe command "
+                                    "(trained rest lengths, zero force) until commands resume")
+        if not ch.has(step) and not self.silent[source]:
+            self._warn(f"stale:{source}", f"no usable {source} command at step {step}: using the safe command")
+
+    def _wait_acked(self, timeout: float) -> None:
+        """Wait (up to ``timeout`` in all) until reliable subscribers acknowledged every message.
+
+        DDS acknowledges on the writer's heartbeat (Fast DDS: every 3 s), so this can take that long.
+        """
+        end = time.monotonic() + timeout
+        for pub in self.pubs.values():
+            if pub.get_subscription_count() == 0:
+                continue
+            left = max(0.0, end - time.monotonic())
+            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                self.get_logger().warning(f"subscribers of {pub.topic_name} did not acknowledge every message "
+                                          f"within {timeout:g} s")
+
+    def run(self) -> int:
+        p = self.p
+        self._wait_startup()
+        self._started = time.monotonic()
+        code = EXIT_OK
+        try:
+            if p["mode"] == "lockstep":
+                self._run_lockstep()
+            else:
+                self._run_realtime()
+        except SimulationDiverged as err:
+            self.get_logger().error(str(err))
+            code = EXIT_FAILURE
+        self._finish("stopped: the simulation diverged" if code else
+                     f"stopped by {self.stop.reason}" if self.stop else "finished")
+        return code
+
+    def _finish(self, why: str) -> None:
+        summary = self.summary()
+        self.get_logger().info(f"{why} after {summary['steps']} steps ({summary['sim_time']:.3f} s sim time); "
+                               "summary: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                                                       for k, v in summary.items()))
+        self._maybe_diagnostics(force=True)
+        self._wait_acked(timeout=self.p["final_ack_timeout"])
+        if self.p["summary_path"]:
+            path = Path(self.p["summary_path"])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps(summary, indent=2) + "\n")
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node; ``args`` are ROS arguments (``--ros-args -p mode:=realtime ...``), default sys.argv."""
+    return run_node(NODE, BodySim, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""Shared skeleton of the brain and task-input nodes: parameters, agent, publishing, spin loop, summary.
+
+A brain is reactive: it answers ``/clock`` ticks or body states with commands stamped at the sim
+time of the step they are in force at (``TOPICS.md``). It runs on sim time (``use_sim_time: true``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+
+from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
+from bptsb_ros.ros.params import Param, ParameterError, declare_parameters
+from bptsb_ros.ros.runtime import EXIT_OK, StopFlag
+from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns
+
+COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
+    Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
+    Param("min_subscribers", 1, "before its first message, wait until the output topic has this many matched "
+          "subscribers (the body, the next brain, the recorder) so that nothing is sent into the void", "int",
+          minimum=0),
+    Param("startup_timeout", 30.0, "wall seconds to wait for min_subscribers before sending anyway", "float",
+          positive=True),
+)
+
+
+def topic_params(keys: Sequence[str]) -> tuple[Param, ...]:
+    """``topics.<key>`` parameters (default names from ``TOPICS``)."""
+    return tuple(Param(f"topics.{key}", TOPICS[key].name, f"topic name of {TOPICS[key].type}", "str")
+                 for key in keys)
+
+
+class BrainNode(Node):
+    """Base class: declares ``COMMON_PARAMS + params``, loads the agent, counts what it publishes."""
+
+    def __init__(self, name: str, stop: StopFlag, params: Sequence[Param]) -> None:
+        super().__init__(name)
+        self.stop = stop
+        self.p: dict[str, Any] = declare_parameters(self, COMMON_PARAMS + tuple(params))
+        self.agent, self.trained = load_source(self.p)
+        try:
+            self.dt_ns = dt_to_ns(self.agent.dt)
+        except ValueError as err:
+            raise ParameterError(f"parameter 'dt' (or the agent's time step): {err}") from None
+        self.depth: int = self.p["qos_depth"]
+        self.sent = 0
+        self.outputs: list[Publisher] = []
+        self.ready: set[Publisher] = set()
+        self.compute: list[float] = []
+        self.executor_ = SingleThreadedExecutor(context=self.context)
+        self.executor_.add_node(self)
+        if not self.get_parameter("use_sim_time").value:
+            self.get_logger().warning("use_sim_time is false: log stamps use wall time, not the body's /clock")
+
+    def source_text(self) -> str:
+        p = self.p
+        return p["agent"] or p["config"] or f"fresh {self.agent.task} agent (seed {p['seed']})"
+
+    def output(self, msg_type: type, topic: str, qos: Any) -> Publisher:
+        """Create a publisher whose messages are waited for (acknowledged) at shutdown."""
+        pub = self.create_publisher(msg_type, topic, qos)
+        self.outputs.append(pub)
+        return pub
+
+    def publish_timed(self, pub: Publisher, msg: Any, started: float) -> None:
+        """Record the compute time since ``started`` (monotonic seconds) and publish.
+
+        The first message of a publisher waits for ``min_subscribers`` matched subscribers (matching
+        runs in the middleware's threads, so polling without spinning is enough).
+        """
+        self.compute.append(time.monotonic() - started)
+        if pub not in self.ready:
+            self._wait_matched(pub)
+            self.ready.add(pub)
+        pub.publish(msg)
+        self.sent += 1
+
+    def _wait_matched(self, pub: Publisher) -> None:
+        need, deadline = self.p["min_subscribers"], time.monotonic() + self.p["startup_timeout"]
+        while pub.get_subscription_count() < need and not self.stop:
+            if time.monotonic() > deadline:
+                self.get_logger().warning(f"{pub.topic_name} has {pub.get_subscription_count()} of {need} "
+                                          f"subscribers after {self.p['startup_timeout']:g} s; sending anyway")
+                return
+            time.sleep(0.005)
+
+    def run(self) -> int:
+        """Spin until SIGINT/SIGTERM, then log a summary and let subscribers acknowledge the last messages."""
+        while not self.stop:
+            self.executor_.spin_once(timeout_sec=0.1)
+        mean = 1e3 * sum(self.compute) / len(self.compute) if self.compute else 0.0
+        worst = 1e3 * max(self.compute) if self.compute else 0.0
+        self.get_logger().info(f"stopped by {self.stop.reason}: published {self.sent} messages, compute mean "
+                               f"{mean:.3f} ms, max {worst:.3f} ms")
+        for pub in self.outputs:
+            pub.wait_for_all_acked(Duration(seconds=1))
+        return EXIT_OK

@@ -1,0 +1,190 @@
+"""Command intake of the body simulator (ROS-free): validation, per-step buffering and selection.
+
+Protocol (see ``TOPICS.md``): the body publishes ``/clock`` = t_k right before it integrates step k;
+every command is stamped with the sim time of the step it is *in force at*. Time-driven brains (SWG,
+task input → MLP) answer ``/clock`` t_k with the command for step k; the feedback brain answers the
+body state of step k−1 with the command for step k.
+
+A :class:`CommandChannel` holds one command kind (rest lengths or forces):
+
+* ``lockstep``: commands are buffered by step; the body takes exactly the command for the step it
+  integrates. A command for a step already integrated is *stale*.
+* ``realtime``: the body takes the newest command; one older than the newest accepted, or older
+  than ``max_age_steps`` when it arrives or is used, is *stale*.
+
+Wrong-length and non-finite commands are rejected in both modes. Rejected commands never reach the
+integrator; :meth:`CommandChannel.offer` returns a :class:`Rejection` so the node can log it.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+Mode = Literal["lockstep", "realtime"]
+MODES: tuple[str, ...] = ("lockstep", "realtime")
+REJECT_REASONS: tuple[str, ...] = ("wrong_length", "wrong_names", "non_finite", "stale", "duplicate", "too_far_ahead")
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """Why a command was rejected: ``reason`` (one of REJECT_REASONS) and a one-line ``message``."""
+
+    reason: str
+    message: str
+
+
+@dataclass
+class Command:
+    """A validated command: the step it is in force at, its values (float64, flat) and arrival time [s, monotonic]."""
+
+    step: int
+    values: np.ndarray
+    received: float
+
+
+@dataclass
+class CommandChannel:
+    """Validated commands of one kind for the body.
+
+    Attributes:
+        name: ``rest_length`` or ``force`` (used in log lines).
+        size: expected number of values (E springs, or 2·M force components).
+        names: expected joint names (an empty name list in a message is accepted too).
+        mode: ``lockstep`` or ``realtime``.
+        max_ahead: lockstep: furthest step ahead of the next one a command may be buffered for.
+        max_age_steps: realtime: oldest usable command, in steps behind the step being integrated.
+    """
+
+    name: str
+    size: int
+    names: list[str]
+    mode: Mode
+    max_ahead: int = 1000
+    max_age_steps: int = 10
+    pending: dict[int, Command] = field(default_factory=dict)
+    latest: Command | None = None
+    accepted: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    last_received: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.size <= 0:
+            raise ValueError(f"channel {self.name}: size must be positive, got {self.size}")
+
+    def offer(self, step: int, values: np.ndarray, next_step: int, now: float,
+              names: list[str] | None = None) -> Rejection | None:
+        """Validate a command for ``step``; store it or return why it was rejected.
+
+        Args:
+            step: step index the command is in force at (from its stamp).
+            values: the command values (any float sequence; converted to float64).
+            next_step: the step the body integrates next (lockstep: the one it waits for).
+            now: arrival time [s] on a monotonic clock.
+            names: joint names carried by the message (None or empty: not checked).
+
+        Returns:
+            None if accepted, else the :class:`Rejection` (also counted).
+        """
+        vals = np.asarray(values, dtype=np.float64).reshape(-1)
+        reason = self._check(step, vals, next_step, names)
+        if reason is not None:
+            return reason
+        cmd = Command(step, vals.copy(), now)
+        self.accepted += 1
+        self.last_received = now
+        if self.mode == "lockstep":
+            self.pending[step] = cmd
+        else:
+            self.latest = cmd
+        return None
+
+    def _check(self, step: int, vals: np.ndarray, next_step: int, names: list[str] | None) -> Rejection | None:
+        what = f"{self.name} command for step {step}"
+        if vals.size != self.size:
+            return self._reject("wrong_length", f"{what}: {vals.size} values, expected {self.size}")
+        if names and list(names) != self.names:
+            return self._reject("wrong_names", f"{what}: joint names do not match the body's ({self.names[0]}, …)")
+        bad = np.flatnonzero(~np.isfinite(vals))
+        if bad.size:
+            return self._reject("non_finite", f"{what}: NaN/inf at index {int(bad[0])} ({bad.size} value(s))")
+        if self.mode == "lockstep":
+            if step < next_step:
+                return self._reject("stale", f"{what} arrived after that step was integrated (next step {next_step})")
+            if step in self.pending:
+                return self._reject("duplicate", f"{what}: a command for that step is already queued")
+            if step > next_step + self.max_ahead:
+                return self._reject("too_far_ahead", f"{what}: more than {self.max_ahead} steps ahead of {next_step}")
+        else:
+            if self.latest is not None and step <= self.latest.step:
+                return self._reject("stale", f"{what}: not newer than the latest ({self.latest.step})")
+            if next_step - step > self.max_age_steps:
+                return self._reject("stale", f"{what}: {next_step - step} steps old (max {self.max_age_steps})")
+        return None
+
+    def _reject(self, reason: str, message: str) -> Rejection:
+        self.rejected[reason] += 1
+        return Rejection(reason, f"rejected {message}")
+
+    def has(self, step: int) -> bool:
+        """Lockstep: a command for ``step`` is queued. Realtime: a usable newest command exists."""
+        if self.mode == "lockstep":
+            return step in self.pending
+        return self.latest is not None and step - self.latest.step <= self.max_age_steps
+
+    def take(self, step: int) -> Command | None:
+        """The command in force at ``step`` (lockstep: removed from the queue, older ones dropped), or None."""
+        if self.mode == "lockstep":
+            cmd = self.pending.pop(step, None)
+            for old in [s for s in self.pending if s < step]:
+                del self.pending[old]
+            return cmd
+        return self.latest if self.has(step) else None
+
+    def counts(self) -> dict[str, int]:
+        """Accepted and rejected counts by reason (every reason present)."""
+        out = {"accepted": self.accepted}
+        out.update({f"rejected_{r}": int(self.rejected[r]) for r in REJECT_REASONS})
+        return out
+
+
+@dataclass
+class TimingStats:
+    """Loop timing of the body: jitter, deadline misses, command age and latency.
+
+    jitter: actual start of a step minus its scheduled wall time [s] (realtime only).
+    deadline miss: a step finished after the next step's scheduled start (realtime only).
+    compute: wall time to integrate and publish one step [s].
+    command age: steps between the step integrated and the stamp of the command used.
+    command latency: wall time from publishing ``/clock`` t_k (or the state that triggers it) to
+    receiving the command for step k [s].
+    """
+
+    jitter: list[float] = field(default_factory=list)
+    compute: list[float] = field(default_factory=list)
+    age: list[int] = field(default_factory=list)
+    latency: list[float] = field(default_factory=list)
+    deadline_misses: int = 0
+    safe_steps: int = 0
+    steps: int = 0
+
+    def summary(self) -> dict[str, float | int]:
+        """Counts and mean/p50/p99/max of each series (milliseconds for times, steps for ages)."""
+        out: dict[str, float | int] = {
+            "steps": self.steps, "deadline_misses": self.deadline_misses, "safe_command_steps": self.safe_steps,
+        }
+        for key, values, scale in (("jitter_ms", self.jitter, 1e3), ("compute_ms", self.compute, 1e3),
+                                   ("command_latency_ms", self.latency, 1e3), ("command_age_steps", self.age, 1.0)):
+            if not values:
+                continue
+            arr = np.asarray(values, dtype=np.float64) * scale
+            out[f"{key}_mean"] = float(arr.mean())
+            out[f"{key}_p50"] = float(np.percentile(arr, 50))
+            out[f"{key}_p99"] = float(np.percentile(arr, 99))
+            out[f"{key}_max"] = float(arr.max())
+        return out

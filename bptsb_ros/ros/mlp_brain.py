@@ -1,0 +1,68 @@
+"""``mlp_brain``: task input → forces on the movable masses, by the agent's MLP or linear input layer.
+
+Each ``task/input`` message u stamped t_k becomes the force command in force at step k,
+``bptsb_ros.agent.brain_forces(agent, input_scale·u)`` — the function the offline simulation and
+NARMA training use (the CMP gets no force). Published as ``brain/force`` (JointState effort, newtons).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import torch
+from sensor_msgs.msg import JointState
+
+from bptsb_ros.agent import brain_forces
+from bptsb_ros.brains import LinearInputLayer, MLPBrain
+from bptsb_ros.ros import messages as m
+from bptsb_ros.ros.brain_node import BrainNode, topic_params
+from bptsb_ros.ros.params import Param, ParameterError
+from bptsb_ros.ros.runtime import StopFlag, run_node
+from bptsb_ros.ros.topics import mass_dof_names
+
+NODE = "mlp_brain"
+PARAMS = (
+    Param("input_scale", 0.0, "brain input = input_scale × u; 0: the agent config's narma.input_scale", "float",
+          minimum=0.0),
+) + topic_params(("task_input", "force_cmd"))
+
+
+class MlpBrain(BrainNode):
+    def __init__(self, stop: StopFlag) -> None:
+        super().__init__(NODE, stop, PARAMS)
+        agent = self.agent
+        if not isinstance(agent.brain, (MLPBrain, LinearInputLayer)):
+            raise ParameterError(f"parameter 'agent': {self.source_text()} has a {type(agent.brain).__name__} brain; "
+                                 "mlp_brain needs an MLP or LIL agent (narma)")
+        self.scale = self.p["input_scale"] or float(agent.config["narma"]["input_scale"])
+        self.n_in = int(agent.brain.layers[0].in_features if isinstance(agent.brain, MLPBrain)
+                        else agent.brain.weight.shape[1])
+        body = agent.body
+        self.names = mass_dof_names(body.movable_index.tolist())
+        self.pub = self.output(JointState, self.p["topics.force_cmd"], m.command_qos(self.depth))
+        self.create_subscription(JointState, self.p["topics.task_input"], self._on_input, m.state_qos(self.depth))
+        self.get_logger().info(f"{type(agent.brain).__name__} of {self.source_text()}: {self.n_in} input(s) × "
+                               f"{self.scale:g} → forces on {body.n_movable} movable masses")
+
+    def _on_input(self, msg: JointState) -> None:
+        started = time.monotonic()
+        step = m.step_of(msg.header.stamp, self.dt_ns)
+        u = torch.from_numpy(m.as_array(msg.position)).to(self.agent.dtype)
+        if u.numel() != self.n_in or not bool(torch.isfinite(u).all()):
+            self.get_logger().warning(f"ignored task input of step {step}: {u.tolist()} (expected {self.n_in} "
+                                      "finite values)")
+            return
+        with torch.no_grad():
+            force = brain_forces(self.agent, u * self.scale)
+        msg_out = m.joint_state(step, self.dt_ns, self.names, effort=force.reshape(-1).double().numpy())
+        self.publish_timed(self.pub, msg_out, started)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node; ``args`` are ROS arguments (``--ros-args -p agent:=runs/x ...``), default sys.argv."""
+    return run_node(NODE, MlpBrain, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

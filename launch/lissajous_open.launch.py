@@ -1,0 +1,16 @@
+"""Lissajous curve, open loop: SWG rest lengths drive a double-circle body.
+
+Nodes: body_sim, swg_brain (+ recorder with bag:=DIR). Same processes and parameters as
+``bptsb launch lissajous_open``; the launch ends when body_sim exits (after duration:=SECONDS).
+
+    ros2 launch bptsb_ros lissajous_open.launch.py duration:=10 mode:=lockstep bag:=bags/run
+
+Arguments: agent, mode (lockstep|realtime), duration, bag, seed, rate_scale, open_loop_steps
+(``ros2 launch bptsb_ros lissajous_open.launch.py --show-args``).
+"""
+
+from bptsb_ros.launch_loops import ros_launch_description
+
+
+def generate_launch_description():
+    return ros_launch_description("lissajous_open")

@@ -1,0 +1,16 @@
+"""caterpillar locomotion, closed loop: the fitted feedback layer drives the body.
+
+Nodes: body_sim, feedback_brain (+ recorder with bag:=DIR). Same processes and parameters as
+``bptsb launch locomotion_closed``; the launch ends when body_sim exits (after duration:=SECONDS).
+
+    ros2 launch bptsb_ros locomotion_closed.launch.py agent:=runs/NAME duration:=10 mode:=lockstep bag:=bags/run
+
+Arguments: agent, mode (lockstep|realtime), duration, bag, seed, rate_scale, open_loop_steps
+(``ros2 launch bptsb_ros locomotion_closed.launch.py --show-args``).
+"""
+
+from bptsb_ros.launch_loops import ros_launch_description
+
+
+def generate_launch_description():
+    return ros_launch_description("locomotion_closed")

@@ -1,0 +1,16 @@
+"""expanded NARMA emulation: streamed input u → MLP (or LIL) forces on the masses.
+
+Nodes: body_sim, task_input, mlp_brain (+ recorder with bag:=DIR). Same processes and parameters as
+``bptsb launch narma``; the launch ends when body_sim exits (after duration:=SECONDS).
+
+    ros2 launch bptsb_ros narma.launch.py duration:=10 mode:=lockstep bag:=bags/run
+
+Arguments: agent, mode (lockstep|realtime), duration, bag, seed, rate_scale, open_loop_steps
+(``ros2 launch bptsb_ros narma.launch.py --show-args``).
+"""
+
+from bptsb_ros.launch_loops import ros_launch_description
+
+
+def generate_launch_description():
+    return ros_launch_description("narma")

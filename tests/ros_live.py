@@ -1,0 +1,144 @@
+"""Helpers of the multi-process live-loop tests (``test_ros_loop.py``, ``test_ros_faults.py``):
+node processes on a test-private ROS domain, an in-test probe node, bag reading, offline references."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def env_for(domain: int) -> dict[str, str]:
+    """Environment of ROS processes of one test: its own domain, discovery on this host only."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_STATIC_PEERS", None)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def bptsb(args: list[str], domain: int, timeout: float = 120) -> subprocess.CompletedProcess:
+    """Run the ``bptsb`` CLI; output (stdout and stderr together) in ``.stdout``."""
+    return subprocess.run([sys.executable, "-m", "bptsb_ros.cli", *args], env=env_for(domain), cwd=REPO,
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=timeout)
+
+
+def start_node(node: str, params: dict[str, Any], domain: int, log: Path) -> subprocess.Popen:
+    """Start ``python -m bptsb_ros.ros.<node> --ros-args -p ...``, output to ``log``."""
+    from bptsb_ros.launch_loops import format_parameter
+
+    argv = [sys.executable, "-m", f"bptsb_ros.ros.{node}", "--ros-args"]
+    for name, value in params.items():
+        argv += ["-p", format_parameter(name, value)]
+    return subprocess.Popen(argv, env=env_for(domain), cwd=REPO, stdout=log.open("w"), stderr=subprocess.STDOUT)
+
+
+def stamp_ns(stamp: Any) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def bag_positions(bag: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps [ns] (K,), positions (K, N, 2)) of ``/body/positions`` in a bag."""
+    from bptsb_ros.bags.reader import read_messages
+
+    stamps, rows = [], []
+    for _, _, _, msg in read_messages(bag, ["/body/positions"]):
+        stamps.append(stamp_ns(msg.header.stamp))
+        rows.append([(p.position.x, p.position.y) for p in msg.poses])
+    return np.array(stamps, dtype=np.int64), np.array(rows, dtype=np.float64)
+
+
+def fresh_agent(task: str, seed: int = 0):
+    """The fresh float64 agent the nodes build from default parameters for ``task``."""
+    from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
+
+    values = {p.name: p.default for p in SOURCE_PARAMS}
+    values.update(task=task, seed=seed)
+    return load_source(values)[0]
+
+
+def save_fitted_agent(run_dir: Path, seed: int = 3) -> None:
+    """A small Lissajous agent (untrained body and SWG) with a feedback layer fitted on 10 s, as a checkpoint."""
+    from bptsb_ros.agent import build_agent
+    from bptsb_ros.config import validate
+    from bptsb_ros.training.checkpoint import save_checkpoint
+    from bptsb_ros.training.feedback_fit import fit_feedback
+
+    cfg = validate({"task": "lissajous", "seed": seed, "dtype": "float64", "feedback": {"fit_time": 10.0}})
+    agent = build_agent(cfg)
+    fit_feedback(agent, cfg.feedback, None, seed)
+    save_checkpoint(run_dir, agent, {"feedback_fitted": True})
+
+
+class Probe:
+    """An rclpy node in the test process on ``domain`` (own context), collecting messages per topic."""
+
+    def __init__(self, domain: int, name: str = "test_probe") -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.messages: dict[str, list[Any]] = {}
+
+    def subscribe(self, msg_type: type, topic: str, qos: Any, callback: Callable[[Any], None] | None = None) -> None:
+        self.messages[topic] = []
+
+        def on_msg(msg: Any) -> None:
+            self.messages[topic].append(msg)
+            if callback is not None:
+                callback(msg)
+
+        self.node.create_subscription(msg_type, topic, on_msg, qos)
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if condition():
+                return True
+            self.executor.spin_once(timeout_sec=0.05)
+        return condition()
+
+    @staticmethod
+    def wait_matched(publishers: list[Any], timeout: float) -> bool:
+        """Wait until every publisher has a matched subscriber (matching needs no spinning)."""
+        end = time.monotonic() + timeout
+        while any(p.get_subscription_count() < 1 for p in publishers):
+            if time.monotonic() > end:
+                return False
+            time.sleep(0.005)
+        return True
+
+    def close(self) -> None:
+        import rclpy
+
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+def stop(proc: subprocess.Popen, timeout: float = 20) -> int:
+    """SIGINT a node process and wait for it; kill it if it does not stop."""
+    import signal
+
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode

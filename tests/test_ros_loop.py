@@ -1,0 +1,152 @@
+"""Whole loops started and stopped by ``bptsb launch`` (separate processes, recorded to a bag):
+lockstep runs equal the offline simulation of the same agent, realtime runs report their timing and
+stop cleanly on Ctrl-C, and a failing node makes the launch fail. ROS domains 140-149."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import torch
+from ros_live import REPO, bag_positions, bptsb, env_for, fresh_agent, save_fitted_agent
+
+DT_NS = 10_000_000
+
+
+def check_every_step(stamps: np.ndarray, steps: int) -> None:
+    assert stamps.tolist() == [k * DT_NS for k in range(steps + 1)], "steps missing, repeated or out of order"
+
+
+def launch_ok(args: list[str], domain: int) -> str:
+    out = bptsb(["launch", *args], domain)
+    assert out.returncode == 0, out.stdout[-4000:]
+    return out.stdout
+
+
+def test_lissajous_open_lockstep_equals_offline(tmp_path):
+    from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.sim.rollout import simulate_open_loop
+
+    bag = tmp_path / "bag"
+    out = launch_ok(["lissajous_open", "--duration", "1", "--bag", str(bag)], 140)
+    for node in ("body_sim", "swg_brain", "recorder"):
+        assert f"{node:<15} ok" in out
+    stamps, pos = bag_positions(bag)
+    check_every_step(stamps, 100)
+    agent = fresh_agent("lissajous")
+    roll = simulate_open_loop(agent, 100)
+    ref = agent.body.full_positions(roll.r[:, 0]).numpy()
+    assert np.abs(pos - ref).max() <= 1e-9
+    rest = np.array([np.asarray(m.position) for *_, m in read_messages(bag, ["/body/rest_length"])])
+    np.testing.assert_allclose(rest, roll.rest_length[:, 0].numpy(), rtol=0, atol=1e-12)
+    counts = {t.name: t.message_count for t in bag_info(bag).topics}
+    assert counts["/clock"] == counts["/brain/rest_length"] == counts["/body/spring_lengths"] == 101
+    summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
+    assert summary["steps"] == 100 and summary["safe_command_steps"] == 0 and summary["rejected_total"] == 0
+
+
+def test_lissajous_closed_loop_equals_offline(tmp_path):
+    """SWG for steps 0..30, then the fitted feedback layer: offline open loop followed by closed loop."""
+    from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
+    from bptsb_ros.training.checkpoint import load_agent
+
+    run = tmp_path / "agent"
+    save_fitted_agent(run)
+    bag = tmp_path / "bag"
+    launch_ok(["lissajous_closed", "--agent", str(run), "--open-loop-steps", "30", "--duration", "1.5",
+               "--bag", str(bag)], 141)
+    stamps, pos = bag_positions(bag)
+    check_every_step(stamps, 150)
+    agent = load_agent(run, dtype=torch.float64)
+    body = agent.body
+    open_part = simulate_open_loop(agent, 30)
+    closed = simulate_closed_loop(body, agent.feedback, 120, state=open_part.final)
+    ref = torch.cat([body.full_positions(open_part.r[:, 0]), body.full_positions(closed.r[1:, 0])]).numpy()
+    assert np.abs(ref - ref[0]).max() > 0.05  # the body really moves
+    assert np.abs(pos - ref).max() <= 1e-9
+
+
+def test_narma_lockstep_equals_offline(tmp_path):
+    from bptsb_ros.ros.task_input import input_index, narma_inputs
+    from bptsb_ros.sim.rollout import simulate_open_loop
+
+    bag = tmp_path / "bag"
+    launch_ok(["narma", "--duration", "1", "--bag", str(bag)], 142)
+    stamps, pos = bag_positions(bag)
+    check_every_step(stamps, 100)
+    agent = fresh_agent("narma")
+    n = agent.config["narma"]
+    u = narma_inputs(n["eval_seed"], n["n_inputs"])
+    inputs = torch.tensor([u[input_index(k, n["tau"])] for k in range(101)], dtype=torch.float64) * n["input_scale"]
+    roll = simulate_open_loop(agent, 100, inputs=inputs)
+    ref = agent.body.full_positions(roll.r[:, 0]).numpy()
+    assert np.abs(ref - ref[0]).max() > 1e-3
+    assert np.abs(pos - ref).max() <= 1e-9
+
+
+def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path):
+    bag = tmp_path / "bag"
+    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--mode", "realtime",
+                             "--duration", "60", "--bag", str(bag)], env=env_for(143), cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    start = time.monotonic()
+    for line in proc.stdout:
+        lines.append(line)
+        if "[body_sim]" in line and "running" in line:
+            break
+        assert time.monotonic() - start < 60, "body_sim never started"
+    time.sleep(1.5)  # ~150 steps at 100 Hz
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    text = "".join(lines) + out
+    assert proc.returncode == 0, text[-4000:]
+    assert "stopping (SIGINT)" in text and "body_sim        ok" in text and "recorder        ok" in text
+    stamps, _ = bag_positions(bag)
+    assert len(stamps) >= 50
+    check_every_step(stamps, len(stamps) - 1)
+    summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
+    assert summary["mode"] == "realtime" and summary["steps"] == len(stamps) - 1
+    for key in ("jitter_ms_p99", "command_latency_ms_p99", "command_age_steps_max", "deadline_misses"):
+        assert key in summary
+    assert summary["jitter_ms_p50"] < 20.0
+
+
+def test_failing_node_fails_the_launch(tmp_path):
+    out = bptsb(["launch", "lissajous_open", "--duration", "0.3", "--log-dir", str(tmp_path),
+                 "--param", "swg_brain:dtype:=float16", "--param", "body_sim:startup_timeout:=1.0"], 144)
+    assert out.returncode == 1, out.stdout[-4000:]
+    assert "parameter 'dtype'" in out.stdout
+    assert "swg_brain       failed (exited on its own before the end, code 2)" in out.stdout
+    assert "body_sim        ok" in out.stdout and "starting anyway" in out.stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["lissajous_closed", "--duration", "1"], "needs --agent"),
+    (["narma", "--param", "swg_brain:x:=1"], "not part of this loop"),
+])
+def test_launch_rejects_bad_arguments(args, message):
+    out = bptsb(["launch", *args], 145)
+    assert out.returncode == 2 and message in out.stdout
+
+
+def test_launch_help_lists_the_loops():
+    out = bptsb(["launch", "--help"], 145)
+    assert out.returncode == 0
+    for loop in ("lissajous_open", "lissajous_closed", "locomotion_open", "locomotion_closed", "narma"):
+        assert loop in out.stdout
+
+
+def test_run_starts_one_node_and_validates_its_parameters(tmp_path):
+    summary = tmp_path / "summary.json"
+    ok = bptsb(["run", "body_sim", "--ros-args", "--params-file", "config/body_sim_params.yaml", "-p", "max_steps:=2",
+                "-p", "final_ack_timeout:=0.0", "-p", f"summary_path:={summary}"], 146)
+    assert ok.returncode == 0, ok.stdout
+    assert json.loads(summary.read_text())["steps"] == 2
+    bad = bptsb(["run", "body_sim", "--ros-args", "-p", "mode:=fast"], 146)
+    assert bad.returncode == 2 and "parameter 'mode': 'fast' not allowed; choose from lockstep, realtime" in bad.stdout

@@ -1,0 +1,142 @@
+"""Fast, single-process tests of the live-loop pieces that need no ROS graph: command validation,
+stamps, parameters, params files, loop wiring, launch files and the topic table."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bptsb_ros.launch_loops import LOOPS, format_parameter, node_parameters, startup_subscribers, topic_names
+from bptsb_ros.ros.lockstep import CommandChannel, TimingStats
+from bptsb_ros.ros.params import Param, ParameterError, validate_values
+from bptsb_ros.ros.topics import TOPICS, dt_to_ns, stamp_to_step, step_to_stamp
+
+REPO = Path(__file__).resolve().parent.parent
+NAMES = [f"spring_{e}" for e in range(4)]
+
+
+def channel(mode: str = "lockstep") -> CommandChannel:
+    return CommandChannel("rest_length", 4, NAMES, mode, max_ahead=10, max_age_steps=3)
+
+
+def off(ch: CommandChannel, *args, **kwargs) -> str | None:
+    rejection = ch.offer(*args, **kwargs)
+    return None if rejection is None else rejection.message
+
+
+def test_lockstep_channel_rejects_bad_commands_and_keeps_good_ones():
+    ch = channel()
+    assert "3 values, expected 4" in off(ch, 5, [1.0, 1.0, 1.0], 5, 0.0)
+    assert "NaN/inf at index 2" in off(ch, 5, [1.0, 1.0, np.nan, 1.0], 5, 0.0)
+    assert "NaN/inf" in off(ch, 5, [1.0, np.inf, 1.0, 1.0], 5, 0.0)
+    assert "joint names" in off(ch, 5, [1.0] * 4, 5, 0.0, names=["a", "b", "c", "d"])
+    assert "after that step was integrated" in off(ch, 4, [1.0] * 4, 5, 0.0)
+    assert not ch.has(5)
+    assert off(ch, 5, [1.0, 2.0, 3.0, 4.0], 5, 0.0, names=NAMES) is None
+    assert "already queued" in off(ch, 5, [9.0] * 4, 5, 0.0)
+    assert off(ch, 7, [7.0] * 4, 5, 0.0, names=[]) is None  # ahead: buffered
+    assert "ahead" in off(ch, 16, [1.0] * 4, 5, 0.0)
+    cmd = ch.take(5)
+    assert cmd is not None and cmd.step == 5 and cmd.values.tolist() == [1.0, 2.0, 3.0, 4.0]
+    assert ch.take(6) is None and ch.take(7).values[0] == 7.0
+    counts = ch.counts()
+    assert counts["accepted"] == 2
+    reasons = ("wrong_length", "non_finite", "wrong_names", "stale", "duplicate", "too_far_ahead")
+    assert [counts[f"rejected_{r}"] for r in reasons] == [1, 2, 1, 1, 1, 1]
+
+
+def test_realtime_channel_uses_newest_and_rejects_old():
+    ch = channel("realtime")
+    assert off(ch, 10, [1.0] * 4, 10, 0.0) is None
+    assert "not newer" in off(ch, 9, [2.0] * 4, 10, 0.0)
+    assert "steps old" in off(ch, 11, [2.0] * 4, 15, 0.0)
+    assert ch.take(12).values[0] == 1.0  # 2 steps old: usable
+    assert ch.take(14) is None  # 4 steps old > max_age_steps = 3
+
+
+def test_timing_summary_units():
+    stats = TimingStats(jitter=[0.001, 0.003], compute=[0.002], age=[0, 2], latency=[0.0005], deadline_misses=1,
+                        steps=2)
+    s = stats.summary()
+    assert s["jitter_ms_mean"] == pytest.approx(2.0) and s["jitter_ms_max"] == pytest.approx(3.0)
+    assert s["command_age_steps_max"] == 2 and s["deadline_misses"] == 1 and s["command_latency_ms_p50"] == 0.5
+
+
+@pytest.mark.parametrize("dt", [0.01, 0.001, 0.0125, 1.0])
+def test_stamps_round_trip_exactly(dt):
+    ns = dt_to_ns(dt)
+    for step in (0, 1, 99, 123_456_789):
+        sec, nanosec = step_to_stamp(step, ns)
+        assert 0 <= nanosec < 10**9 and stamp_to_step(sec, nanosec, ns) == step
+    with pytest.raises(ValueError, match="whole number of nanoseconds"):
+        dt_to_ns(1e-10)
+
+
+def test_parameter_validation_names_the_parameter():
+    specs = [Param("rate", 1.0, "rate [Hz]", "float", positive=True),
+             Param("mode", "a", "mode", "str", choices=("a", "b")),
+             Param("topics", [], "topics", "str_list"), Param("n", 3, "count", "int", minimum=1)]
+    ok = validate_values(specs, {"rate": 2, "topics": None})
+    assert ok == {"rate": 2.0, "mode": "a", "topics": [], "n": 3}
+    for values, pattern in (({"rate": 0.0}, "'rate' must be > 0"), ({"rate": "x"}, "'rate' must be a number"),
+                            ({"mode": "c"}, "'mode'.*choose from a, b"), ({"n": 0}, "'n' must be >= 1"),
+                            ({"n": 1.5}, "'n' must be an integer"), ({"topics": ["a", 1]}, "'topics' must be a list"),
+                            ({"rate": float("nan")}, "'rate' must be finite"), ({"bogus": 1}, "unknown parameter")):
+        with pytest.raises(ParameterError, match=pattern):
+            validate_values(specs, values)
+
+
+def test_params_files_match_the_declared_parameters():
+    from bptsb_ros.ros.param_files import NODES, render
+
+    for node in NODES:
+        path = REPO / "config" / f"{node}_params.yaml"
+        assert path.read_text() == render(node), f"{path} is stale: python -m bptsb_ros.ros.param_files config"
+        import yaml
+
+        params = yaml.safe_load(path.read_text())["/**"]["ros__parameters"]
+        assert params["dtype"] == "float64" and ("use_sim_time" in params) == (node != "body_sim")
+
+
+def test_loop_wiring():
+    assert set(LOOPS) == {"lissajous_open", "lissajous_closed", "locomotion_open", "locomotion_closed", "narma"}
+    narma = LOOPS["narma"]
+    assert topic_names(narma.topics())[-2:] == ["/task/input", "/brain/force"]
+    counts = dict(e.rsplit(":", 1) for e in startup_subscribers(narma, recording=True))
+    # /clock: recorder + task_input trigger + sim-time subscriptions of task_input and mlp_brain
+    assert counts["/clock"] == "4" and counts["/task/input"] == "2" and counts["/brain/force"] == "2"
+    assert counts["/body/positions"] == "1"
+    closed = dict(e.rsplit(":", 1) for e in startup_subscribers(LOOPS["lissajous_closed"], recording=False))
+    assert closed == {"/clock": "2", "/body/spring_lengths": "1", "/brain/rest_length": "1"}
+    body = node_parameters(LOOPS["lissajous_open"], "body_sim", mode="realtime", duration=3.0)
+    assert body["wall_duration"] == 3.0 and "duration" not in body and body["wait_for"] == ["rest_length"]
+    brain = node_parameters(LOOPS["lissajous_open"], "swg_brain", agent="runs/x")
+    assert brain == {"agent": "runs/x", "use_sim_time": True, "min_subscribers": 1}
+    assert node_parameters(narma, "task_input", recording=True)["min_subscribers"] == 2  # mlp_brain, recorder
+    with pytest.raises(ValueError, match="no node 'mlp_brain'"):
+        node_parameters(LOOPS["lissajous_open"], "mlp_brain")
+    assert format_parameter("agent", "123") == "agent:='123'"
+    assert format_parameter("topics", ["/a", "y"]) == "topics:=['/a', 'y']"
+
+
+def test_launch_files_mirror_the_loops():
+    files = sorted((REPO / "launch").glob("*.launch.py"))
+    assert {f.name.removesuffix(".launch.py") for f in files} == set(LOOPS)
+    for f in files:
+        tree = ast.parse(f.read_text())
+        funcs = [n for n in tree.body if isinstance(n, ast.FunctionDef)]
+        assert [fn.name for fn in funcs] == ["generate_launch_description"]
+        calls = [n for n in ast.walk(funcs[0]) if isinstance(n, ast.Call)]
+        loops = [c.args[0].value for c in calls if getattr(c.func, "id", "") == "ros_launch_description"]
+        assert loops == [f.name.removesuffix(".launch.py")]
+
+
+def test_topic_table_documents_every_topic():
+    text = (REPO / "bptsb_ros" / "ros" / "TOPICS.md").read_text()
+    rows = {m.group(1): m.group(2) for m in re.finditer(r"^\| `([^`]+)` \| `([^`]+)` \|", text, re.M)}
+    for topic in TOPICS.values():
+        assert rows.get(topic.name) == topic.type, f"{topic.name} missing or with another type in TOPICS.md"
