@@ -20,7 +20,9 @@ echo "== 2/5 simulate the trained agent offline (float64) with an animation"
 "$BPTSB" simulate --agent "$OUT/agent" --steps 500 --dtype float64 --out "$OUT/offline.npz" --gif "$OUT/offline.gif"
 
 echo "== 3/5 live closed loop through ROS 2 (body_sim + feedback_brain, lockstep), recorded to MCAP"
-"$BPTSB" launch lissajous_closed --agent "$OUT/agent" --duration 5 --mode lockstep --bag "$OUT/bag"
+# The SWG drives the first 2 s (200 steps), then the feedback layer closes the loop (as in the paper).
+"$BPTSB" launch lissajous_closed --agent "$OUT/agent" --duration 10 --open-loop-steps 200 --mode lockstep \
+  --bag "$OUT/bag"
 
 echo "== 4/5 bag info"
 "$BPTSB" bag info "$OUT/bag"

@@ -18,7 +18,7 @@ def _save(fig, path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    fig.savefig(path, dpi=DPI, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -48,8 +48,9 @@ def plot_lissajous(path: Path, t: np.ndarray, curves: dict[str, np.ndarray], tar
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.3), gridspec_kw={"width_ratios": [1, 1.4]})
     ax = axes[0]
     ax.plot(target[:, 0], target[:, 1], "k--", lw=1.2, label="target")
-    for i, (label, xy) in enumerate(curves.items()):
-        ax.plot(xy[:, 0], xy[:, 1], color=("C0", "C3", "C2", "C4")[i % 4], lw=1.0, alpha=0.85, label=label)
+    for i, (label, xy) in enumerate(curves.items()):  # later curves wide and pale underneath: coincident ones show
+        style = {"lw": 1.0, "alpha": 0.9, "zorder": 3} if i == 0 else {"lw": 3.0, "alpha": 0.35, "zorder": 2}
+        ax.plot(xy[:, 0], xy[:, 1], color=("C0", "C3", "C2", "C4")[i % 4], label=label, **style)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")

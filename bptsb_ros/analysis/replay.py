@@ -161,6 +161,10 @@ def task_metrics(run: BagRun, task: str, config: dict[str, Any]) -> dict[str, An
         out["metric"] = "trajectory_mse_shift_min"
         out["trajectory_mse"] = float(np.mean((cmp - target(t)) ** 2))
         out["trajectory_mse_shift_min"] = windowed_shift_error(cmp, target, float(t[0]), run.dt, period)
+        half = len(cmp) // 2  # the second half: past the start-up transient of a run that began at rest
+        if len(cmp) - half > period:
+            out["trajectory_mse_shift_min_second_half"] = windowed_shift_error(
+                cmp[half:], target, float(t[half]), run.dt, period)
         out["_plot"] = {"t": t, "cmp": cmp, "target": target(t)}
     elif task == "locomotion":
         x = run.positions[:, :, 0].mean(-1)
