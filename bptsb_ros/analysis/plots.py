@@ -70,15 +70,24 @@ def plot_lissajous(path: Path, t: np.ndarray, curves: dict[str, np.ndarray], tar
     return _save(fig, path)
 
 
-def plot_speed(path: Path, t: np.ndarray, speeds: dict[str, np.ndarray], target: float | None = None) -> Path:
-    """Forward speed (mean x-velocity of all masses) over time for one or more runs."""
+def moving_average(t: np.ndarray, y: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Centred moving average over ``window`` samples, only where the window fits (no edge artefacts)."""
+    window = max(1, min(window, len(y)))
+    avg = np.convolve(y, np.ones(window) / window, mode="valid")
+    start = (window - 1) // 2
+    return t[start:start + len(avg)], avg
+
+
+def plot_speed(path: Path, t: np.ndarray, speeds: dict[str, np.ndarray], target: float | None = None,
+               window: int = 1) -> Path:
+    """Forward speed (mean x-velocity of all masses) over time, averaged over ``window`` steps."""
     fig, ax = plt.subplots(figsize=(6.5, 3.5))
     for i, (label, v) in enumerate(speeds.items()):
-        ax.plot(t, v, lw=1.0, color=f"C{i}", label=label)
+        ax.plot(*moving_average(t, v, window), lw=1.0, color=f"C{i}", label=label)
     if target is not None:
         ax.axhline(target, color="k", ls="--", lw=1, label="target")
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("forward speed [m/s]")
+    ax.set_ylabel(f"forward speed [m/s]{f', {window}-step average' if window > 1 else ''}")
     ax.legend(frameon=False)
     ax.grid(alpha=0.3)
     return _save(fig, path)

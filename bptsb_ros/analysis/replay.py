@@ -282,11 +282,10 @@ def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | N
             curves["offline simulation"] = off
         files.append(P.plot_lissajous(out_dir / "lissajous.png", plots["t"], curves, plots["target"]))
     elif task == "locomotion" and "speed" in plots:
-        w = max(1, int(round(1.0 / run.dt)))
-        smooth = {"live": np.convolve(plots["speed"], np.ones(w) / w, mode="same")}
+        speeds = {"live": plots["speed"]}
         if "speed" in plots.get("offline", {}):
-            smooth["offline"] = np.convolve(plots["offline"]["speed"], np.ones(w) / w, mode="same")
-        files.append(P.plot_speed(out_dir / "speed.png", plots["t"], smooth))
+            speeds["offline"] = plots["offline"]["speed"]
+        files.append(P.plot_speed(out_dir / "speed.png", plots["t"], speeds, window=max(1, int(round(1.0 / run.dt)))))
     elif task == "narma" and "u" in plots:
         files.append(P.plot_series(out_dir / "narma.png", {"input u": plots["u"], "target y": plots["y"],
                                                           "live output": plots["out"]}, "sample", "value"))

@@ -121,9 +121,8 @@ class LocomotionTask(Task):
         if not hasattr(self, "_eval"):
             self.evaluate()
         e = self._eval
-        w = max(1, self.block)
-        smooth = {k: np.convolve(v, np.ones(w) / w, mode="same") for k, v in e.items() if k != "t"}
-        labels = {"open": "open loop (SWG)", "closed": "closed loop (FL)"}
+        labels = {"open": "open loop (SWG)", "closed": "closed loop (FL), next run"}
         path = out_dir / "speed.png"
-        plot_speed(path, e["t"], {labels[k]: v for k, v in smooth.items()}, self.target_speed_now())
+        plot_speed(path, e["t"], {labels[k]: v for k, v in e.items() if k != "t"}, self.target_speed_now(),
+                   window=self.block)
         return [path]
