@@ -9,7 +9,7 @@ import torch
 
 from bptsb_ros.agent import build_agent
 from bptsb_ros.body.msdn import Environment
-from bptsb_ros.config import load_config
+from bptsb_ros.config import ConfigError, load_config
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.training.checkpoint import CheckpointError, load_agent
 from bptsb_ros.training.trainer import TrainingDiverged, train
@@ -58,13 +58,13 @@ def test_resume_continues_where_it_stopped(tmp_path):
     base = ["feedback.enabled=false", "lissajous.eval_periods=1"]
     full = train(load_config(CONFIG / "lissajous_single.yaml", ["sim_time=6", *base]), tmp_path / "a", progress=False)
     train(load_config(CONFIG / "lissajous_single.yaml", ["sim_time=3", *base]), tmp_path / "b", progress=False)
-    # extend the half run to the full length and resume it
-    ck = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)
-    ck["config"]["sim_time"] = 6
-    torch.save(ck, tmp_path / "b" / "checkpoint.pt")
+    # resuming with a longer sim_time extends the half run to the full length
     resumed = train(load_config(CONFIG / "lissajous_single.yaml", ["sim_time=6", *base]), tmp_path / "b",
                     resume=True, progress=False)
     assert np.allclose(resumed.losses, full.losses, rtol=1e-5)
+    with pytest.raises(ConfigError, match=r"differs from the checkpoint's in training\.lr\.k"):
+        train(load_config(CONFIG / "lissajous_single.yaml", ["sim_time=9", "training.lr.k=1", *base]), tmp_path / "b",
+              resume=True, progress=False)
 
 
 def test_divergence_is_reported_not_trained_on(tmp_path):

@@ -118,7 +118,7 @@ class _WindowFunction(torch.autograd.Function):
         gather, scatter = body.gather, body.scatter  # r_flat @ gather = D r;  f_flat @ scatter = Dᵀ f
         neg_gather = -gather
         c = body.fixed_offset
-        inv_m = None if body.unit_mass else (1.0 / body.mass).repeat_interleave(2)
+        inv_m = (1.0 / body.mass).repeat_interleave(2)  # per flat coordinate (x, y of each mass)
         kk, dd = k.unsqueeze(-1), d.unsqueeze(-1)  # (E, 1)
         n_steps = rest_lengths.shape[0]
         per_batch_l = rest_lengths.dim() == 3
@@ -156,9 +156,7 @@ class _WindowFunction(torch.autograd.Function):
             else:
                 r_new = r_prev[i + 1]
             # v' = v + Δt/2 (a + a')  (published: v' = v + Δt/2 a')
-            gF = torch.add(ga_new, gv_new, alpha=half_dt)
-            if inv_m is not None:
-                gF = gF * inv_m
+            gF = torch.add(ga_new, gv_new, alpha=half_dt).mul_(inv_m)
             if g_ext is not None:
                 g_ext[i] = gF
             ga = gv_new * half_dt if verlet else None

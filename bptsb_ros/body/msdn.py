@@ -118,8 +118,10 @@ class MSDN(nn.Module):
         self.register_buffer("fixed_offset", torch.tensor(fixed_offset, dtype=dtype))
         self.register_buffer("positions0", torch.tensor(topology.positions, dtype=dtype))
         self.register_buffer("movable_index", torch.as_tensor(movable, dtype=torch.long))
-        self.register_buffer("mass", torch.ones(len(movable), dtype=dtype))
-        self.unit_mass = True  # the paper's masses are all 1; set False after editing ``mass``
+        self.register_buffer("mass", torch.ones(len(movable), dtype=dtype))  # the paper: all masses 1 kg
+        # Gravity is constant: its force −m·g·ŷ is built once, not every step.
+        gravity = gravity_force(self.mass, environment.gravity) if environment.gravity else None
+        self.register_buffer("constant_force", gravity, persistent=False)
         g = torch.rand(n_springs, generator=generator, dtype=torch.float64)
         self.k = nn.Parameter((k_init[0] + (k_init[1] - k_init[0]) * g).to(dtype))
         g = torch.rand(n_springs, generator=generator, dtype=torch.float64)
@@ -166,12 +168,10 @@ class MSDN(nn.Module):
         extra = environment_forces(r, v, env.air_drag, env.ground_c)
         if extra is not None:
             force = force + extra
-        if env.gravity:
-            force = force + gravity_force(self.mass, env.gravity)
+        if self.constant_force is not None:
+            force = force + self.constant_force
         if external_force is not None:
             force = force + external_force
-        if self.unit_mass:
-            return force, length
         return force / self.mass.unsqueeze(-1), length
 
     def initial_state(

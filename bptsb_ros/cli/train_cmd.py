@@ -16,7 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override a config key (dotted for sections): --set sim_time=20 --set training.lr.k=100")
     parser.add_argument("--seed", type=int, default=None, help="random seed (overrides the config's)")
     parser.add_argument("--out", required=True, help="run directory for checkpoint.pt, metrics.json and plots")
-    parser.add_argument("--resume", action="store_true", help="continue the run saved in --out")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run saved in --out (same config; a larger sim_time or epochs extends it)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

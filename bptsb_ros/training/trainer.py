@@ -18,7 +18,7 @@ import yaml
 from bptsb_ros.agent import build_agent
 from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
-from bptsb_ros.config import ExperimentConfig, validate
+from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.tasks import get_task
 from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
@@ -62,7 +62,7 @@ def train(
     rejections = 0
     if resume:
         payload = read_checkpoint(run_dir)
-        cfg = validate(payload["config"], str(run_dir))
+        _check_resumable(payload["config"], agent.config, run_dir)
         for name, module in agent.modules().items():
             module.load_state_dict(payload["modules"][name])
         extra = payload["extra"]
@@ -135,6 +135,26 @@ def train(
     checkpoint(total, feedback_fitted=getattr(task, "feedback_fitted", False))
     files = _write_outputs(run_dir, task, metrics)
     return TrainResult(run_dir, losses, metrics, files)
+
+
+#: keys that may differ between a run and its resumption (durations and logging)
+RESUMABLE_CHANGES = {"sim_time", "epochs", "name", "training.checkpoint_every", "training.log_every"}
+
+
+def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        out.update(_flatten(v, f"{key}.") if isinstance(v, dict) else {key: v})
+    return out
+
+
+def _check_resumable(saved: dict, new: dict, run_dir: Path) -> None:
+    """The config given to --resume may extend the run (sim_time, epochs) but not change the experiment."""
+    a, b = _flatten(saved), _flatten(new)
+    changed = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k) and k not in RESUMABLE_CHANGES)
+    if changed:
+        raise ConfigError(f"cannot resume {run_dir}: the config differs from the checkpoint's in {', '.join(changed)}")
 
 
 def _write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
