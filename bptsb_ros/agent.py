@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
@@ -63,7 +63,7 @@ def build_agent(cfg: ExperimentConfig) -> Agent:
     topology = build_shape(b.shape, b.nodes, b.size, b.neighbours)
     env = Environment.locomotion() if b.environment == "locomotion" else Environment()
     if b.ground_clamp:
-        env = Environment(env.gravity, env.air_drag, env.ground_c, ground_clamp=True)
+        env = replace(env, ground_clamp=True)
     body = MSDN(topology, dt=b.dt, integrator=b.integrator, environment=env, k_init=b.k_init,
                 d_init=b.d_init, generator=gen, dtype=dtype)
     br = cfg.brain

@@ -11,7 +11,7 @@ import multiprocessing as mp
 import platform
 import resource
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import torch
@@ -52,14 +52,14 @@ WORKLOADS = {
 
 
 def _setup(w: Workload, adjoint: bool, dtype: torch.dtype):
-    from bptsb_ros.agent import force_inputs
+    from bptsb_ros.agent import Agent, brain_forces, force_inputs
     from bptsb_ros.body.adjoint import rollout_window
     from bptsb_ros.body.msdn import MSDN, Environment
     from bptsb_ros.body.shapes import build_shape
     from bptsb_ros.brains import MLPBrain, SineWaveGenerator
 
     gen = torch.Generator().manual_seed(0)
-    env = Environment(9.81, 0.1, 10.0, ground_clamp=True) if w.environment == "locomotion" else Environment()
+    env = replace(Environment.locomotion(), ground_clamp=True) if w.environment == "locomotion" else Environment()
     body = MSDN(build_shape(w.shape, w.nodes), environment=env, generator=gen, dtype=dtype)
     n_springs, n_mov = body.topology.n_springs, body.n_movable
     params = list(body.parameters())
@@ -85,8 +85,7 @@ def _setup(w: Workload, adjoint: bool, dtype: torch.dtype):
         else:
             rest = body.l.expand(w.window, -1)
             if w.brain == "mlp":
-                forces = torch.zeros(inputs.shape[0], n_mov, 2, dtype=dtype)
-                forces[:, force_inputs(body)] = mlp(inputs).view(inputs.shape[0], -1, 2)
+                forces = brain_forces(Agent({}, body, mlp, None), inputs)
                 ext = forces.repeat_interleave(20, 0).unsqueeze(1)
             else:
                 disp = 0.1 * torch.tanh(mlp(inputs)).view(w.batch, n_mov, 2)

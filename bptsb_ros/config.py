@@ -14,6 +14,8 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from bptsb_ros.body.shapes import build_shape
+
 TASKS = ("lissajous", "locomotion", "narma")
 
 
@@ -131,6 +133,17 @@ class ExperimentConfig(_Strict):
         n = self.narma
         if self.task == "narma" and not (n.washout < n.train_end < n.n_inputs):
             raise ValueError("narma needs washout < train_end < n_inputs")
+        if self.task == "locomotion" and self.training.update_steps % self.locomotion.speed_block:
+            raise ValueError(f"training.update_steps ({self.training.update_steps}) must be a multiple of "
+                             f"locomotion.speed_block ({self.locomotion.speed_block})")
+        b = self.body
+        try:
+            build_shape(b.shape, b.nodes, b.size, b.neighbours)
+        except ValueError as err:
+            raise ValueError(f"body: {err}") from None
+        kinds = ("amplitude", "phase") if self.brain.type == "swg" else ("brain",)
+        if all(getattr(self.training.lr, k) == 0 for k in ("k", "d", "l", *kinds)):
+            raise ValueError("training.lr: every learning rate is zero, nothing would be trained")
         return self
 
 

@@ -53,3 +53,13 @@ def test_missing_and_malformed_files(tmp_path):
     p.write_text("task: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(p)
+
+
+def test_bad_body_window_and_learning_rates_name_the_key():
+    with pytest.raises(ConfigError, match=r"body: double_circle needs an odd number"):
+        validate({"task": "lissajous", "body": {"nodes": 24}})
+    with pytest.raises(ConfigError, match=r"locomotion\.speed_block"):
+        validate({"task": "locomotion", "body": {"shape": "caterpillar", "nodes": 10},
+                  "training": {"update_steps": 150}})
+    with pytest.raises(ConfigError, match="every learning rate is zero"):
+        validate({"task": "lissajous", "training": {"lr": {"k": 0, "d": 0, "l": 0, "amplitude": 0, "phase": 0}}})

@@ -18,7 +18,7 @@ import numpy as np
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import read_metadata
 from bptsb_ros.bags.reader import list_topics, read_messages
-from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
+from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute, dt_to_ns
 
 LOOPS_CLOSED = ("lissajous_closed", "locomotion_closed")
 
@@ -47,6 +47,20 @@ class BagRun:
     def missing_steps(self) -> list[int]:
         full = np.arange(self.steps[0], self.steps[-1] + 1)
         return sorted(set(full.tolist()) - set(self.steps.tolist()))
+
+    def longest_contiguous(self) -> slice:
+        """Rows of the longest run of consecutive steps (metrics need a gap-free time grid)."""
+        breaks = np.flatnonzero(np.diff(self.steps) != 1) + 1
+        bounds = np.concatenate([[0], breaks, [len(self.steps)]])
+        i = int(np.argmax(np.diff(bounds)))
+        return slice(int(bounds[i]), int(bounds[i + 1]))
+
+    def rows(self, sl: slice) -> BagRun:
+        """The same run restricted to rows ``sl``."""
+        lengths = None if self.spring_lengths is None else self.spring_lengths[sl]
+        rest = None if self.rest_length is None else self.rest_length[sl]
+        return BagRun(self.dt, self.steps[sl], self.positions[sl], lengths, rest, self.springs, self.fixed,
+                      self.cmp_index, self.inputs, self.custom)
 
 
 def _stamp_ns(msg: Any) -> int:
@@ -88,24 +102,28 @@ def read_run(bag: str | Path, dt: float | None = None) -> BagRun:
     if dt is None:
         diffs = np.diff(stamps)
         if not len(diffs):
-            raise BagError(f"bag {bag} holds a single step; pass the time step (--dt)")
+            raise BagError(f"bag {bag} holds a single step; give the agent (its config has the time step)")
         dt_ns = int(diffs.min())
     else:
-        dt_ns = int(round(dt * NS_PER_S))
-    steps = stamps // dt_ns
+        dt_ns = dt_to_ns(dt)
+    steps = (stamps + dt_ns // 2) // dt_ns  # nearest step, as ros.topics.stamp_to_step
     positions = np.stack([pos[s] for s in stamps])
     springs, fixed, cmp = _layout_from_markers(markers, positions)
-    custom = {}
-    try:
-        custom = {str(k): str(v) for k, v in (read_metadata(bag).custom_data or {}).items()}
-    except (BagError, OSError, AttributeError):
-        custom = {}
+    custom = bag_custom_data(bag)
 
     def stack(d: dict[int, np.ndarray]) -> np.ndarray | None:
         return np.stack([d[s] for s in stamps]) if d and all(s in d for s in stamps) else None
 
     return BagRun(dt_ns / NS_PER_S, steps, positions, stack(lengths), stack(rests), springs, fixed, cmp,
-                  {int(s // dt_ns): u for s, u in inputs_ns.items()}, custom)
+                  {int((s + dt_ns // 2) // dt_ns): u for s, u in inputs_ns.items()}, custom)
+
+
+def bag_custom_data(bag: str | Path) -> dict[str, str]:
+    """The bag's ``custom_data`` (loop, mode, agent, open_loop_steps from ``bptsb launch``); {} if none."""
+    try:
+        return {str(k): str(v) for k, v in (read_metadata(bag).custom_data or {}).items()}
+    except (BagError, OSError, AttributeError):
+        return {}
 
 
 def _layout_from_markers(markers: Any, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -167,10 +185,12 @@ def task_metrics(run: BagRun, task: str, config: dict[str, Any]) -> dict[str, An
                 cmp[half:], target, float(t[half]), run.dt, period)
         out["_plot"] = {"t": t, "cmp": cmp, "target": target(t)}
     elif task == "locomotion":
-        x = run.positions[:, :, 0].mean(-1)
+        from bptsb_ros.tasks.locomotion import mean_speed
+
         out["metric"] = "mean_forward_speed"
-        out["mean_forward_speed"] = float((x[-1] - x[0]) / (t[-1] - t[0]))
-        out["_plot"] = {"t": t[1:], "speed": np.diff(x) / run.dt}
+        out["mean_forward_speed"] = mean_speed(run.positions[:, :, 0], float(t[-1] - t[0]))
+        x = run.positions[:, :, 0].mean(-1)
+        out["_plot"] = {"t": t[1:], "speed": np.diff(x) / np.diff(t)}
     elif task == "narma":
         from bptsb_ros.tasks.narma import expanded_narma, nmse
 
@@ -179,7 +199,9 @@ def task_metrics(run: BagRun, task: str, config: dict[str, Any]) -> dict[str, An
         if run.cmp_index < 0 or not run.inputs:
             raise BagError("the NARMA metric needs the CMP (body/markers) and the task/input topic")
         row = {int(s): i for i, s in enumerate(run.steps)}
-        blocks = [j for j in range(len(run.steps)) if (j + 1) * tau in row and (j * tau + 1) in run.inputs]
+        blocks = []  # consecutive blocks from the start: NARMA has memory, a gap breaks every later target
+        while (len(blocks) + 1) * tau in row and len(blocks) * tau + 1 in run.inputs:
+            blocks.append(len(blocks))
         u = np.array([run.inputs[j * tau + 1] for j in blocks])
         if len(u) <= washout + 2:
             raise BagError(f"the run holds {len(u)} NARMA inputs; need more than the washout ({washout})")
@@ -202,12 +224,12 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
 
     from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
     from bptsb_ros.sim.trajectory import trajectory_from_rollout
-    from bptsb_ros.training.checkpoint import load_agent
+    from bptsb_ros.training.checkpoint import feedback_fitted, load_agent
 
     agent = load_agent(agent_dir, dtype=torch.float64)
     if loop in LOOPS_CLOSED:
-        if agent.feedback is None:
-            raise BagError(f"loop {loop} needs an agent with a fitted feedback layer")
+        if agent.feedback is None or not feedback_fitted(agent_dir):
+            raise BagError(f"loop {loop} needs an agent with a fitted feedback layer; {agent_dir} has none")
         if 0 < open_loop_steps < steps:
             warm = simulate_open_loop(agent, open_loop_steps)
             rest = simulate_closed_loop(agent.body, agent.feedback, steps - open_loop_steps, state=warm.final)
@@ -217,8 +239,13 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
         roll = simulate_closed_loop(agent.body, agent.feedback, steps)
     elif loop == "narma":
         scale = float(agent.config["narma"]["input_scale"])
-        u = torch.tensor([inputs.get(k, inputs.get(max(k, 1), 0.0)) for k in range(steps + 1)], dtype=torch.float64)
-        roll = simulate_open_loop(agent, steps, inputs=u * scale)
+        if not inputs:
+            raise BagError("the narma loop's offline comparison needs the task/input topic")
+        series, last = [], inputs[min(inputs)]
+        for k in range(steps + 1):  # the input in force at each step; a lost message keeps the previous value
+            last = inputs.get(k, last)
+            series.append(last)
+        roll = simulate_open_loop(agent, steps, inputs=torch.tensor(series, dtype=torch.float64) * scale)
     else:
         roll = simulate_open_loop(agent, steps)
     return trajectory_from_rollout(agent.body, roll).positions
@@ -229,24 +256,26 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
     """Analyse a bag; writes metrics.json, plots and an animation to ``out_dir``; returns the metrics."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    custom = bag_custom_data(bag)
+    if agent_dir is None and custom.get("agent") not in (None, "", "fresh"):
+        agent_dir = custom["agent"]
     config: dict[str, Any] = {}
-    run0 = read_run(bag)
-    agent_dir = agent_dir or (run0.custom.get("agent") if run0.custom.get("agent") not in (None, "fresh") else None)
     if agent_dir is not None:
         from bptsb_ros.training.checkpoint import read_checkpoint
 
         config = read_checkpoint(agent_dir)["config"]
-        run = read_run(bag, dt=float(config["body"]["dt"]))
-    else:
-        run = run0
+    run = read_run(bag, dt=float(config["body"]["dt"]) if config else None)
     task = task or config.get("task")
     loop = loop or run.custom.get("loop")
     metrics: dict[str, Any] = {"bag": str(bag), "agent": str(agent_dir) if agent_dir else None, "loop": loop,
                                "mode": run.custom.get("mode"), "dt": run.dt, "recorded_steps": int(len(run.steps)),
                                "missing_steps": len(run.missing_steps)}
+    segment = run.rows(run.longest_contiguous())
+    if metrics["missing_steps"]:
+        metrics["metric_steps"] = [int(segment.steps[0]), int(segment.steps[-1])]
     plots: dict[str, Any] = {}
     if task:
-        live = task_metrics(run, task, config)
+        live = task_metrics(segment, task, config)
         plots = live.pop("_plot", {})
         metrics["live"] = live
     if agent_dir is not None and loop:
@@ -256,13 +285,12 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
         metrics["offline_comparison"] = {"max_abs_position_difference_m": float(diff.max()),
                                          "steps_compared": int(len(run.steps))}
         if task:
-            off_run = BagRun(run.dt, run.steps, off[run.steps], None, None, run.springs, run.fixed, run.cmp_index,
-                             run.inputs, run.custom)
+            off_run = BagRun(run.dt, segment.steps, off[segment.steps], None, None, run.springs, run.fixed,
+                             run.cmp_index, run.inputs, run.custom)
             offline = task_metrics(off_run, task, config)
-            off_plot = offline.pop("_plot", {})
+            plots["offline"] = offline.pop("_plot", {})
             metrics["offline"] = offline
-            plots["offline"] = off_plot
-    files = _write(out_dir, run, metrics, plots, task, gif)
+    files = _write(out_dir, segment, metrics, plots, task, gif)
     metrics["files"] = [str(f) for f in files]
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
     return metrics

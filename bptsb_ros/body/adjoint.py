@@ -133,6 +133,7 @@ class _WindowFunction(torch.autograd.Function):
         lengths = len_out.unsqueeze(-1).unbind(0)  # (B, E, 1) each
         rests = rest_lengths.unsqueeze(-1).unbind(0)
 
+        y_only = torch.tensor([False, True])  # the clamp overwrites y, not x
         lam_r = r0.new_zeros(batch, fm)
         lam_v = r0.new_zeros(batch, fm)
         lam_a = r0.new_zeros(batch, fm)
@@ -150,9 +151,9 @@ class _WindowFunction(torch.autograd.Function):
                 r_new = torch.add(r, v, alpha=dt)
                 if verlet:
                     r_new.add_(a_prev[i], alpha=h)
-                below = (r_new.view(batch, n_mov, 2)[..., 1] < 0).repeat_interleave(2, dim=-1)
-                gr_new = torch.where(below, gr_new * r0.new_tensor([1.0, 0.0]).repeat(n_mov), gr_new)
-                gv_new = torch.where(below, torch.zeros_like(gv_new), gv_new)
+                below = r_new.view(batch, n_mov, 2)[..., 1:] < 0  # (B, M, 1)
+                gr_new = gr_new.view(batch, n_mov, 2).masked_fill(below & y_only, 0.0).view(batch, fm)
+                gv_new = gv_new.view(batch, n_mov, 2).masked_fill(below, 0.0).view(batch, fm)
             else:
                 r_new = r_prev[i + 1]
             # v' = v + Δt/2 (a + a')  (published: v' = v + Δt/2 a')

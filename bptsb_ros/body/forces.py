@@ -62,14 +62,6 @@ def spring_forces(
     return force.neg_(), length
 
 
-def gravity_force(mass: torch.Tensor, gravity: float) -> torch.Tensor:
-    """(M, 2) constant gravity force −m·g·ŷ [N]; ``gravity`` is the magnitude g ≥ 0 [m/s²].
-
-    The paper writes F = −m·g with g = [0, −9.81], which would push bodies up; gravity pulls down.
-    """
-    return torch.stack([torch.zeros_like(mass), -gravity * mass], dim=-1)
-
-
 def environment_forces(
     r: torch.Tensor, v: torch.Tensor, air_drag: float, ground_c: float
 ) -> torch.Tensor | None:

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from bptsb_ros.body.forces import environment_forces, gravity_force, incidence_operators, spring_forces
+from bptsb_ros.body.forces import environment_forces, incidence_operators, spring_forces
 from bptsb_ros.body.shapes import Topology
 
 Integrator = Literal["verlet", "published"]
@@ -39,7 +39,8 @@ class BodyState:
     """Dynamic state of a batch of bodies (movable masses only).
 
     r, v, a: (B, M, 2) positions [m], velocities [m/s], accelerations [m/s²].
-    length: (B, E) spring lengths at ``r`` [m].
+    length: (B, E) spring lengths the forces of this step saw [m] (at ``r``, or before the ground clamp
+        moved a mass back onto the floor).
     step: number of integration steps taken since t = 0.
     """
 
@@ -119,9 +120,11 @@ class MSDN(nn.Module):
         self.register_buffer("positions0", torch.tensor(topology.positions, dtype=dtype))
         self.register_buffer("movable_index", torch.as_tensor(movable, dtype=torch.long))
         self.register_buffer("mass", torch.ones(len(movable), dtype=dtype))  # the paper: all masses 1 kg
-        # Gravity is constant: its force −m·g·ŷ is built once, not every step.
-        gravity = gravity_force(self.mass, environment.gravity) if environment.gravity else None
-        self.register_buffer("constant_force", gravity, persistent=False)
+        # Gravity is an acceleration [0, −g], independent of the masses.
+        gravity = torch.tensor([0.0, -environment.gravity], dtype=dtype) if environment.gravity else None
+        self.register_buffer("gravity", gravity, persistent=False)
+        # The hard floor as a lower bound per coordinate: y ≥ 0, x free.
+        self.register_buffer("floor", torch.tensor([-float("inf"), 0.0], dtype=dtype), persistent=False)
         g = torch.rand(n_springs, generator=generator, dtype=torch.float64)
         self.k = nn.Parameter((k_init[0] + (k_init[1] - k_init[0]) * g).to(dtype))
         g = torch.rand(n_springs, generator=generator, dtype=torch.float64)
@@ -168,11 +171,10 @@ class MSDN(nn.Module):
         extra = environment_forces(r, v, env.air_drag, env.ground_c)
         if extra is not None:
             force = force + extra
-        if self.constant_force is not None:
-            force = force + self.constant_force
         if external_force is not None:
             force = force + external_force
-        return force / self.mass.unsqueeze(-1), length
+        a = force / self.mass.unsqueeze(-1)
+        return (a if self.gravity is None else a + self.gravity), length
 
     def initial_state(
         self,
@@ -217,9 +219,8 @@ class MSDN(nn.Module):
         else:
             v = torch.add(state.v, a, alpha=0.5 * dt)  # the stale a(t) was zero in the published code
         if self.environment.ground_clamp:
-            below = (r[..., 1] < 0).unsqueeze(-1)
-            r = torch.where(below, r * r.new_tensor([1.0, 0.0]), r)
-            v = torch.where(below, torch.zeros_like(v), v)
+            v = v.masked_fill(r[..., 1:] < 0, 0.0)
+            r = torch.maximum(r, self.floor)
         return BodyState(r, v, a, length, state.step + 1)
 
     def parameter_ranges(self) -> str:

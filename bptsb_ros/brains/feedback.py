@@ -110,7 +110,11 @@ class FeedbackLayer(nn.Module):
 
     def rest_length(self, base: torch.Tensor, state: BodyState) -> torch.Tensor:
         """Rest length (B, E) for the next step from the current state: l·(1 + W·[s, 1])."""
-        return base * (1 + self.signal(state))
+        return self.rest_length_from_features(base, state_features(state, self.state_type))
+
+    def rest_length_from_features(self, base: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        """Rest length (B, E) from state features (B, F) laid out as ``state_features`` does."""
+        return base * (1 + self.signal_from_features(features))
 
     def load_fit(self, weights: np.ndarray) -> None:
         """Copy a (E, F + 1) ridge solution in (undriven rows are zeroed)."""

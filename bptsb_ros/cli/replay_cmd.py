@@ -17,7 +17,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--agent", default=None, help="run directory of the agent (default: the one named in the bag)")
     parser.add_argument("--task", choices=("lissajous", "locomotion", "narma"), default=None,
                         help="task whose metric to compute (default: the agent's)")
-    parser.add_argument("--loop", default=None, help="loop that was run (default: from the bag's custom_data)")
+    from bptsb_ros.launch_loops import LOOPS  # ROS-free: keeps --help fast
+
+    parser.add_argument("--loop", default=None, choices=sorted(LOOPS),
+                        help="loop that was run (default: from the bag's custom_data)")
     parser.add_argument("--no-gif", action="store_true", help="skip the animation")
 
 

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         cfg = load_config(args.config, args.overrides, args.seed)
         result = train(cfg, args.out, resume=args.resume, progress=not args.no_progress)
-    except (ConfigError, CheckpointError, TrainingDiverged) as err:
+    except (ConfigError, CheckpointError, TrainingDiverged, OSError) as err:
         print(f"bptsb train: {err}", file=sys.stderr)
         return 2
     m = result.metrics

@@ -9,7 +9,10 @@ from typing import Any
 import torch
 
 from bptsb_ros.agent import Agent
+from bptsb_ros.body.adjoint import Window, rollout_window
+from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.config import ExperimentConfig
+from bptsb_ros.sim.rollout import swg_rest_lengths
 
 
 class Task(ABC):
@@ -52,3 +55,39 @@ class Task(ABC):
         """Task figures written after training; returns the paths."""
         del out_dir
         return []
+
+
+class SwgWindowTask(Task):
+    """A continuous task driven by an SWG: truncated windows of ``training.update_steps`` steps, the
+    body state carried from window to window (detached), the SWG clock running on."""
+
+    def __init__(self, agent: Agent, cfg: ExperimentConfig) -> None:
+        super().__init__(agent, cfg)
+        self.window = cfg.training.update_steps
+        body = agent.body
+        self.state: BodyState = body.initial_state(1, rest_length=swg_rest_lengths(body, agent.brain, 0, 1)[0]).detach()
+
+    def num_updates(self) -> int:
+        return max(1, int(round(self.cfg.sim_time / (self.window * self.agent.dt))))
+
+    def run_window(self) -> Window:
+        """Simulate the next window with gradients; the carried state advances only if it stayed finite."""
+        body = self.agent.body
+        rest = swg_rest_lengths(body, self.agent.brain, self.state.step + 1, self.window)
+        win = rollout_window(body, self.state, rest, adjoint=self.cfg.training.adjoint)
+        final = win.final.detach()
+        body.check_finite(final)
+        self.state = final
+        return win
+
+    def window_times(self, first_step: int) -> torch.Tensor:
+        """(W,) times [s] of the steps first_step+1 .. first_step+W."""
+        dtype = self.agent.body.l.dtype
+        return torch.arange(first_step + 1, first_step + 1 + self.window, dtype=dtype) * self.agent.dt
+
+    def state_dict(self) -> dict[str, Any]:
+        s = self.state
+        return {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.state = BodyState(state["r"], state["v"], state["a"], state["length"], int(state["step"]))

@@ -14,16 +14,30 @@ from typing import Any
 import numpy as np
 import torch
 
-from bptsb_ros.body.adjoint import rollout_window
-from bptsb_ros.body.msdn import BodyState
-from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop, swg_rest_lengths
-from bptsb_ros.tasks.base import Task
+from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
+from bptsb_ros.tasks.base import SwgWindowTask
 
 
 def lissajous_target(t: torch.Tensor, x_amp: float, y_amp: float, alpha: float, beta: float, delta: float,
                      omega: float) -> torch.Tensor:
     """Target CMP position (T, 2) [m] at times t (T,) [s]."""
     return torch.stack([x_amp * torch.cos(alpha * omega * t), y_amp * torch.sin(beta * omega * t + delta)], dim=-1)
+
+
+def target_from_config(config: dict[str, Any]):
+    """The Lissajous target of an experiment config (dict): (time (T,) [s] as np or torch → (T, 2) [m]), and
+    the period in steps."""
+    lc, brain, body = config["lissajous"], config["brain"], config["body"]
+    amp = float(lc["amplitude_fraction"]) * float(body["size"])
+    omega = float(brain["omega"])
+    args = (amp, amp, float(lc["alpha"]), float(lc["beta"]), float(lc["delta"]), omega)
+
+    def target(t):
+        if isinstance(t, torch.Tensor):
+            return lissajous_target(t, *args)
+        return lissajous_target(torch.as_tensor(t, dtype=torch.float64), *args).numpy()
+
+    return target, int(round(2 * np.pi / omega / float(body["dt"])))
 
 
 def shift_min_mse(traj: np.ndarray, target_fn, t0: float, dt: float, shifts: int) -> float:
@@ -47,7 +61,7 @@ def windowed_shift_error(traj: np.ndarray, target_fn, t0: float, dt: float, peri
     return float(np.mean(errs))
 
 
-class LissajousTask(Task):
+class LissajousTask(SwgWindowTask):
     name = "lissajous"
     paper_reference = (
         "paper: double-circle N_mov=13, SWG, (α,β,δ)=(1,2,0), X=Y=size/20, update every 100 steps; "
@@ -57,58 +71,31 @@ class LissajousTask(Task):
 
     def __init__(self, agent, cfg) -> None:
         super().__init__(agent, cfg)
-        body = agent.body
-        if body.cmp_local < 0:
+        if agent.body.cmp_local < 0:
             raise ValueError("the Lissajous task needs a body with a central mass point")
-        self.window = cfg.training.update_steps
-        lc = cfg.lissajous
-        amp = lc.amplitude_fraction * cfg.body.size
-        self.target_args = (amp, amp, lc.alpha, lc.beta, lc.delta, cfg.brain.omega)
-        self.state: BodyState = body.initial_state(1, rest_length=swg_rest_lengths(body, agent.brain, 0, 1)[0])
-        self.state = self.state.detach()
-
-    def target(self, t: torch.Tensor) -> torch.Tensor:
-        return lissajous_target(t, *self.target_args)
-
-    def target_np(self, t: np.ndarray) -> np.ndarray:
-        return self.target(torch.as_tensor(t, dtype=torch.float64)).numpy()
-
-    def num_updates(self) -> int:
-        return max(1, int(round(self.cfg.sim_time / (self.window * self.agent.dt))))
+        self.target, self.period = target_from_config(agent.config)
 
     def update_loss(self, index: int) -> tuple[torch.Tensor, dict[str, float]]:
-        body, swg = self.agent.body, self.agent.brain
         k0 = self.state.step
-        rest = swg_rest_lengths(body, swg, k0 + 1, self.window)
-        win = rollout_window(body, self.state, rest, adjoint=self.cfg.training.adjoint)
-        t = torch.arange(k0 + 1, k0 + 1 + self.window, dtype=rest.dtype) * body.dt
-        loss = ((win.r[:, 0, body.cmp_local] - self.target(t)) ** 2).mean()
-        self.state = win.final.detach()
-        body.check_finite(self.state)
+        win = self.run_window()
+        loss = ((win.r[:, 0, self.agent.body.cmp_local] - self.target(self.window_times(k0))) ** 2).mean()
         return loss, {}
-
-    def state_dict(self) -> dict[str, Any]:
-        s = self.state
-        return {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.state = BodyState(state["r"], state["v"], state["a"], state["length"], int(state["step"]))
 
     # -- evaluation ------------------------------------------------------------------------------
     def evaluate(self) -> dict[str, Any]:
         agent = self.agent
         body = agent.body
-        period = int(round(2 * np.pi / self.cfg.brain.omega / body.dt))
+        period = self.period
         steps = self.cfg.lissajous.eval_periods * period
         roll = simulate_open_loop(agent, steps, state=self.state)
         cmp = roll.r[:, 0, body.cmp_local].double().numpy()
         t = (self.state.step + np.arange(steps + 1)) * body.dt
-        open_mse = float(np.mean((cmp - self.target_np(t)) ** 2))
+        open_mse = float(np.mean((cmp - self.target(t)) ** 2))
         out: dict[str, Any] = {
             "metric": "trajectory_mse",
             "trajectory_mse": open_mse,
             "trajectory_mse_shift_min": self._windowed_shift_error(cmp, t[0], period),
-            "target_mean_square": float(np.mean(self.target_np(t) ** 2)),
+            "target_mean_square": float(np.mean(self.target(t) ** 2)),
             "eval_steps": steps,
             "paper_reference": self.paper_reference,
         }
@@ -124,7 +111,7 @@ class LissajousTask(Task):
         return out
 
     def _windowed_shift_error(self, traj: np.ndarray, t0: float, period: int) -> float:
-        return windowed_shift_error(traj, self.target_np, t0, self.agent.body.dt, period)
+        return windowed_shift_error(traj, self.target, t0, self.agent.body.dt, period)
 
     def plots(self, out_dir: Path) -> list[Path]:
         from bptsb_ros.analysis.plots import plot_lissajous
@@ -136,5 +123,5 @@ class LissajousTask(Task):
         curves = {"open loop (SWG)": e["open"]}
         if "closed" in e:
             curves["closed loop (FL), next run"] = e["closed"]
-        plot_lissajous(path, e["t"], curves, self.target_np(e["t"]))
+        plot_lissajous(path, e["t"], curves, self.target(e["t"]))
         return [path]

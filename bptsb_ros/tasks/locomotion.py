@@ -15,10 +15,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from bptsb_ros.body.adjoint import rollout_window
-from bptsb_ros.body.msdn import BodyState
-from bptsb_ros.sim.rollout import Rollout, simulate_closed_loop, simulate_open_loop, swg_rest_lengths
-from bptsb_ros.tasks.base import Task
+from bptsb_ros.sim.rollout import Rollout, simulate_closed_loop, simulate_open_loop
+from bptsb_ros.tasks.base import SwgWindowTask
 
 
 def forward_speed(v: torch.Tensor) -> torch.Tensor:
@@ -26,13 +24,18 @@ def forward_speed(v: torch.Tensor) -> torch.Tensor:
     return v[..., 0].mean(-1)
 
 
-def mean_speed(rollout: Rollout) -> float:
-    """Average forward speed of the whole run: mean x displacement of all masses / duration [m/s]."""
-    x = rollout.r[:, 0, :, 0].double().mean(-1)
-    return float((x[-1] - x[0]) / (rollout.steps * 1.0))
+def mean_speed(x: np.ndarray, duration: float) -> float:
+    """Average forward speed [m/s]: x (T, N) positions of all masses over a run of ``duration`` seconds."""
+    centre = np.asarray(x, dtype=np.float64).mean(-1)
+    return float((centre[-1] - centre[0]) / duration)
 
 
-class LocomotionTask(Task):
+def rollout_speed(rollout: Rollout, dt: float) -> float:
+    """Average forward speed [m/s] of batch member 0 of a rollout."""
+    return mean_speed(rollout.r[:, 0, :, 0].double().numpy(), rollout.steps * dt)
+
+
+class LocomotionTask(SwgWindowTask):
     name = "locomotion"
     paper_reference = (
         "paper: caterpillar 10 masses / 24 springs, SWG, target speed 0.004·t, update every 200 steps; "
@@ -42,24 +45,13 @@ class LocomotionTask(Task):
 
     def __init__(self, agent, cfg) -> None:
         super().__init__(agent, cfg)
-        self.window = cfg.training.update_steps
-        self.block = cfg.locomotion.speed_block
-        if self.window % self.block:
-            raise ValueError(
-                f"training.update_steps ({self.window}) must be a multiple of locomotion.speed_block ({self.block})"
-            )
-        body = agent.body
-        self.state: BodyState = body.initial_state(1, rest_length=swg_rest_lengths(body, agent.brain, 0, 1)[0])
+        self.block = cfg.locomotion.speed_block  # divides the window (checked by the config)
         self.train_start_step: int | None = None
 
-    def num_updates(self) -> int:
-        return max(1, int(round(self.cfg.sim_time / (self.window * self.agent.dt))))
-
     def prepare(self) -> None:
-        if self.train_start_step is None:
-            self._warm_up()
-
-    def _warm_up(self) -> None:
+        """Run the warm-up windows (no updates) once, before the first update."""
+        if self.train_start_step is not None:
+            return
         steps = self.cfg.locomotion.warmup_windows * self.window
         if steps:
             self.state = simulate_open_loop(self.agent, steps, state=self.state).final
@@ -67,16 +59,12 @@ class LocomotionTask(Task):
 
     def update_loss(self, index: int) -> tuple[torch.Tensor, dict[str, float]]:
         self.prepare()
-        body, swg = self.agent.body, self.agent.brain
         k0 = self.state.step
-        rest = swg_rest_lengths(body, swg, k0 + 1, self.window)
-        win = rollout_window(body, self.state, rest, adjoint=self.cfg.training.adjoint)
+        win = self.run_window()
         speed = forward_speed(win.v[:, 0]).view(-1, self.block).mean(-1)  # (blocks,)
         block_end = k0 + self.block * torch.arange(1, speed.shape[0] + 1, dtype=speed.dtype)
-        target = self.cfg.locomotion.target_slope * (block_end - self.train_start_step) * body.dt
+        target = self.cfg.locomotion.target_slope * (block_end - self.train_start_step) * self.agent.dt
         loss = ((speed - target) ** 2).mean()
-        self.state = win.final.detach()
-        body.check_finite(self.state)
         return loss, {"speed": float(speed.detach().mean())}
 
     def target_speed_now(self) -> float:
@@ -84,11 +72,10 @@ class LocomotionTask(Task):
         return self.cfg.locomotion.target_slope * (self.state.step - start) * self.agent.dt
 
     def state_dict(self) -> dict[str, Any]:
-        s = self.state
-        return {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step, "train_start": self.train_start_step}
+        return {**super().state_dict(), "train_start": self.train_start_step}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.state = BodyState(state["r"], state["v"], state["a"], state["length"], int(state["step"]))
+        super().load_state_dict(state)
         self.train_start_step = state["train_start"]
 
     def evaluate(self) -> dict[str, Any]:
@@ -96,7 +83,7 @@ class LocomotionTask(Task):
         dt = agent.dt
         steps = int(round(self.cfg.locomotion.eval_time / dt))
         roll = simulate_open_loop(agent, steps, state=self.state)
-        open_speed = mean_speed(roll) / dt
+        open_speed = rollout_speed(roll, dt)
         out: dict[str, Any] = {
             "metric": "mean_forward_speed",
             "mean_forward_speed": open_speed,
@@ -108,7 +95,7 @@ class LocomotionTask(Task):
         self._eval = {"t": t, "open": forward_speed(roll.v[:, 0]).double().numpy()}
         if agent.feedback is not None and getattr(self, "feedback_fitted", False):
             closed = simulate_closed_loop(agent.body, agent.feedback, steps, state=roll.final)
-            closed_speed = mean_speed(closed) / dt
+            closed_speed = rollout_speed(closed, dt)
             out["closed_loop_speed"] = closed_speed
             out["closed_over_open"] = closed_speed / open_speed if open_speed else float("nan")
             out["closed_loop_success"] = bool(open_speed > 0 and closed_speed >= 0.7 * open_speed)

@@ -65,8 +65,6 @@ def load_agent(run_dir: str | Path, dtype: torch.dtype | None = None) -> Agent:
         if state is None:
             raise CheckpointError(f"checkpoint {checkpoint_path(run_dir)} lacks the {name!r} module")
         module.load_state_dict(state)
-    if "feedback" not in payload["modules"]:
-        agent.feedback = None
     for module in agent.modules().values():
         module.requires_grad_(False)
         if dtype is not None:

@@ -12,17 +12,9 @@ import torch
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.brains import SineWaveGenerator, fit_ridge
+from bptsb_ros.brains.feedback import state_features
 from bptsb_ros.config import FeedbackConfig
 from bptsb_ros.sim.rollout import simulate_open_loop
-
-
-def rollout_features(rollout, state_type: str) -> np.ndarray:
-    """(T+1, F) features of batch member 0 of a Rollout (same layout as ``state_features``)."""
-    if state_type == "spring_length":
-        x = rollout.length[:, 0]
-    else:
-        x = {"position": rollout.r, "velocity": rollout.v, "acceleration": rollout.a}[state_type][:, 0].flatten(1)
-    return x.double().numpy()
 
 
 def fit_feedback(agent: Agent, cfg: FeedbackConfig, state: BodyState | None, seed: int) -> dict[str, Any]:
@@ -32,10 +24,13 @@ def fit_feedback(agent: Agent, cfg: FeedbackConfig, state: BodyState | None, see
     body = agent.body
     steps = int(round(cfg.fit_time / body.dt))
     roll = simulate_open_loop(agent, steps, state=state)
-    x = rollout_features(roll, cfg.state)[:-1]  # state at step k ...
-    t = (roll_start(state) + np.arange(1, steps + 1)) * body.dt
+    # every recorded step as one batch row: features of the state at step k ...
+    states = BodyState(roll.r[:-1, 0], roll.v[:-1, 0], roll.a[:-1, 0], roll.length[:-1, 0])
+    x = state_features(states, cfg.state).double().numpy()
+    first = 0 if state is None else state.step
+    t = torch.arange(first + 1, first + steps + 1, dtype=body.l.dtype) * body.dt
     with torch.no_grad():
-        y = agent.brain.signal(torch.as_tensor(t, dtype=body.l.dtype)).double().numpy()  # ... signal at k+1
+        y = agent.brain.signal(t).double().numpy()  # ... and the SWG signal in force at step k+1
     lo, hi = int(0.2 * steps), int(0.8 * steps)
     rng = np.random.default_rng(seed)
     x_fit = x[lo:hi] + cfg.noise * rng.standard_normal(x[lo:hi].shape)
@@ -52,6 +47,3 @@ def fit_feedback(agent: Agent, cfg: FeedbackConfig, state: BodyState | None, see
         "signal_rms": float(np.sqrt(np.mean(y[lo:hi] ** 2))),
     }
 
-
-def roll_start(state: BodyState | None) -> int:
-    return 0 if state is None else state.step

@@ -70,6 +70,7 @@ def train(
         task.load_state_dict(extra["task_state"])
         losses = list(extra["losses"])
         start = int(extra["update"])
+        rejections = int(extra.get("rejections", 0))
     (run_dir / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
 
     total = task.num_updates()
@@ -82,21 +83,26 @@ def train(
 
     def checkpoint(update: int, **more: Any) -> None:
         save_checkpoint(run_dir, agent, {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
-                                         "losses": losses, "update": update, **more})
+                                         "losses": losses, "update": update, "rejections": rejections, **more})
+
+    def diverged(update: int, why: str) -> TrainingDiverged:
+        """Record the failure beside the last good checkpoint (never over it) and build the error."""
+        report = {"update": update, "error": why, "losses": losses, "parameters": agent.body.parameter_ranges()}
+        (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
+        kept = "the last checkpoint is kept" if (run_dir / "checkpoint.pt").is_file() else "no checkpoint was saved"
+        return TrainingDiverged(f"update {update}: {why} ({kept}; details in {run_dir / 'diverged.json'})")
 
     try:
         for i in range(start, total):
             try:
                 loss, _info = task.update_loss(i)
             except SimulationDiverged as err:
-                checkpoint(i, diverged=str(err))
-                raise TrainingDiverged(f"update {i}: {err}") from None
+                raise diverged(i, str(err)) from None
             sim_steps += getattr(task, "steps_per_update", tc.update_steps)
             optimizer.zero_grad(set_to_none=True)
             value = float(loss.detach())
             if not math.isfinite(value):
-                checkpoint(i, diverged="non-finite loss")
-                raise TrainingDiverged(f"update {i}: loss is {value}; {agent.body.parameter_ranges()}")
+                raise diverged(i, f"loss is {value}; {agent.body.parameter_ranges()}")
             loss.backward()
             grads_ok = all(
                 torch.isfinite(p.grad).all() for g in optimizer.param_groups for p in g["params"] if p.grad is not None
