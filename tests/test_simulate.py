@@ -168,22 +168,23 @@ def test_bad_arguments_are_rejected(tmp_path, capsys) -> None:
     assert ".npz" in capsys.readouterr().err
 
 
-def save_agent(tmp_path, config: str, *overrides: str):
-    """A fresh (untrained) agent from a shipped config, saved as a run directory."""
+def save_agent(tmp_path, config: str, *overrides: str, feedback_fitted: bool = False):
+    """A fresh (untrained) agent from a shipped config, saved as a run directory; ``feedback_fitted``
+    marks its (initial) feedback layer as fitted, as ``bptsb train`` does after fitting it."""
     from bptsb_ros.agent import build_agent
     from bptsb_ros.config import load_config
     from bptsb_ros.training.checkpoint import save_checkpoint
 
     cfg = load_config(REPO_ROOT / "config" / config, list(overrides))
     run_dir = tmp_path / cfg.name
-    save_checkpoint(run_dir, build_agent(cfg))
+    save_checkpoint(run_dir, build_agent(cfg), extra={"feedback_fitted": True} if feedback_fitted else None)
     return run_dir
 
 
 def test_swg_agent_open_loop_reintegrates(tmp_path) -> None:
     run_dir = save_agent(tmp_path, "lissajous_single.yaml")
     keys = simulate(tmp_path, "agent", "--agent", str(run_dir), "--steps", "1500", "--perturb", "0.05")
-    assert keys["positions"].shape == (1501, 25, 2)  # run in chunks of 1000 steps, joined without a gap
+    assert keys["positions"].shape == (1501, 25, 2)  # past the divergence-check interval (1000 steps)
     assert np.ptp(keys["rest_length"], axis=0).min() > 0, "the SWG modulates every spring"
     assert_reintegrates(keys)
 
@@ -195,7 +196,7 @@ def test_mlp_agent_and_closed_loop_reintegrate(tmp_path) -> None:
     assert np.abs(force).max() > 0.1 and not force[:, int(keys["cmp_index"])].any()  # no force on the CMP
     assert keys["extra_input"].shape == (201,)
     assert_reintegrates(keys)
-    run_dir = save_agent(tmp_path, "lissajous_single.yaml")
+    run_dir = save_agent(tmp_path, "lissajous_single.yaml", feedback_fitted=True)
     keys = simulate(tmp_path, "closed", "--agent", str(run_dir), "--steps", "200", "--loop", "closed",
                     "--perturb", "0.05", "--wind", "0.3", "0.0")
     assert_reintegrates(keys)
@@ -210,3 +211,36 @@ def test_agent_errors_are_clear(tmp_path, capsys) -> None:
     assert "no feedback layer" in capsys.readouterr().err
     assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--swg-amplitude", "0.2", "--out", out]) == 2
     assert "--shape only" in capsys.readouterr().err
+    run_dir = save_agent(tmp_path, "lissajous_single.yaml")  # feedback layer never fitted
+    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--loop", "closed", "--out", out]) == 2
+    assert "never fitted" in capsys.readouterr().err
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--out", str(blocker / "x.npz")]) == 2
+    assert "cannot write --out" in capsys.readouterr().err
+    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--out", out,
+                         "--gif", str(blocker / "x.gif")]) == 2
+    assert "cannot write --gif" in capsys.readouterr().err
+
+
+def test_narma_agent_input_is_the_held_narma_series(tmp_path) -> None:
+    """``--seed S`` feeds narma_inputs(S, ·) held for τ steps: step 0 and 1..τ carry u_0, jτ+1..(j+1)τ u_j."""
+    import torch
+
+    from bptsb_ros.sim.rollout import held_inputs
+    from bptsb_ros.tasks.narma import narma_inputs
+
+    u = np.array([0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(held_inputs(u, 2, 6), [0.1, 0.1, 0.1, 0.2, 0.2, 0.3, 0.3])
+    np.testing.assert_array_equal(held_inputs(torch.from_numpy(u), 2, 5).numpy(), [0.1, 0.1, 0.1, 0.2, 0.2, 0.3])
+    with pytest.raises(ValueError, match="need 3 inputs"):
+        held_inputs(u[:2], 2, 5)
+    run_dir = save_agent(tmp_path, "narma.yaml")
+    keys = simulate(tmp_path, "narma", "--agent", str(run_dir), "--steps", "50", "--seed", "7")
+    from bptsb_ros.training.checkpoint import read_checkpoint
+
+    narma = read_checkpoint(run_dir)["config"]["narma"]
+    tau, scale = int(narma["tau"]), float(narma["input_scale"])
+    series = narma_inputs(7, 50 // tau + 1)
+    expected = scale * series[np.maximum(np.arange(51) - 1, 0) // tau]
+    np.testing.assert_allclose(keys["extra_input"], expected, rtol=0, atol=1e-12)

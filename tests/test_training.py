@@ -96,3 +96,16 @@ def test_paper_locomotion_forces_give_no_traction():
     com_x = roll.r[:, 0, :, 0].mean(-1)
     assert float(com_x.abs().max()) < 1e-9
     assert float(roll.r[:, 0, :, 1].std()) > 0.1  # it does move, vertically
+
+
+def test_narma_episode_equals_the_offline_rollout_of_the_same_inputs():
+    """Training, offline simulation (and the live task_input node) share one input-hold rule."""
+    from bptsb_ros.sim.rollout import held_inputs
+    from bptsb_ros.tasks.narma import NarmaTask, narma_inputs
+
+    cfg = load_config(CONFIG / "narma.yaml", ["dtype=float64"])
+    agent = build_agent(cfg)
+    u = narma_inputs(3, 30)
+    out = NarmaTask(agent, cfg).episode(u, grad=False)
+    roll = simulate_open_loop(agent, 600, inputs=torch.as_tensor(held_inputs(u, 20, 600)) * 20)
+    assert torch.equal(out, roll.r[20::20, 0, agent.body.cmp_local, 1])

@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 
+from bptsb_ros.cli.common import DEFAULT_NODES
+
 NAME = "render"
 HELP = (
     "Draw a body shape (double_circle, multiple_circle, caterpillar) to an image: fixed masses, movable "
     "masses and the CMP in different colours, springs, mass and spring indices, a legend.\n"
     "Example: bptsb render --shape double_circle --nodes 25 --out body.png"
 )
-DEFAULT_NODES = {"double_circle": 25, "multiple_circle": 17, "caterpillar": 10}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

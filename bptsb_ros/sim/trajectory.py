@@ -1,6 +1,7 @@
 """The trajectory file: one simulated run of one body, self-describing, re-integrable from its keys alone.
 
-A ``.npz`` written by :meth:`Trajectory.save_npz` (``bptsb simulate``) holds these keys. T is the
+A ``.npz`` written by :meth:`Trajectory.save_npz` (``bptsb simulate``, from a
+``bptsb_ros.sim.rollout`` simulation via :func:`trajectory_from_rollout`) holds these keys. T is the
 number of steps, N the number of masses (fixed ones included), E the number of springs. Row t of
 every time series belongs to time t·dt; row 0 is the initial state.
 
@@ -42,7 +43,6 @@ then, with ``ground_clamp``, every movable mass with y < 0 gets y = 0 and v = 0 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -50,9 +50,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    import torch
-
-    from bptsb_ros.body.msdn import MSDN, BodyState
+    from bptsb_ros.body.msdn import MSDN
     from bptsb_ros.sim.rollout import Rollout
 
 FORMAT_VERSION = 1
@@ -102,11 +100,6 @@ class Trajectory:
     @property
     def n_springs(self) -> int:
         return int(self.springs.shape[0])
-
-    @property
-    def times(self) -> np.ndarray:
-        """(T+1,) time of each row [s]."""
-        return np.arange(self.steps + 1) * self.dt
 
     def spring_lengths(self) -> np.ndarray:
         """(T+1, E) spring lengths [m]."""
@@ -220,45 +213,6 @@ def load_npz(path: str | Path) -> Trajectory:
     return traj
 
 
-class TrajectoryRecorder:
-    """Collects the states of one batch row of an :class:`MSDN` run into a :class:`Trajectory`.
-
-    Call :meth:`record` once for the initial state (with l(0), f(0)) and once after every step
-    (with the l(t+1), f(t+1) that step used).
-    """
-
-    def __init__(self, body: MSDN, *, batch_index: int = 0, shape: str | None = None) -> None:
-        self.body = body
-        self.batch_index = batch_index
-        self.shape = shape
-        self._rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = []
-
-    def record(self, state: BodyState, rest_length: torch.Tensor, external_force: torch.Tensor | None) -> None:
-        """Append one row.
-
-        Args:
-            state: the body state at this step.
-            rest_length: (E,) or (B, E) rest length in force at this step [m].
-            external_force: (M, 2) or (B, M, 2) brain + wind force on the movable masses [N], or None.
-        """
-        b = self.batch_index
-        rest = _np(rest_length)
-        force = None if external_force is None else _np(external_force)
-        self._rows.append((
-            _np(state.r[b]), _np(state.v[b]), rest[b] if rest.ndim == 2 else rest,
-            None if force is None else (force[b] if force.ndim == 3 else force),
-        ))
-
-    def trajectory(self, extras: dict[str, np.ndarray] | None = None) -> Trajectory:
-        """The recorded rows as a validated :class:`Trajectory`."""
-        if not self._rows:
-            raise TrajectoryError("no state recorded")
-        r, v, rest, force = zip(*self._rows)
-        zero = np.zeros_like(r[0])
-        return _assemble(self.body, np.stack(r), np.stack(v), np.stack(rest),
-                         np.stack([zero if f is None else f for f in force]), self.shape, extras)
-
-
 def trajectory_from_rollout(body: MSDN, rollout: Rollout, *, batch_index: int = 0, shape: str | None = None,
                             extras: dict[str, np.ndarray] | None = None) -> Trajectory:
     """One batch row of a ``bptsb_ros.sim.rollout.Rollout`` (tensors (T+1, B, …) of the movable masses)
@@ -301,53 +255,3 @@ def _assemble(body: MSDN, r: np.ndarray, v: np.ndarray, rest: np.ndarray, force:
 def _np(t: Any) -> np.ndarray:
     return t.detach().cpu().numpy().copy()
 
-
-def simulate_and_record(
-    body: MSDN,
-    steps: int,
-    *,
-    rest_length_at: Callable[[int], torch.Tensor] | None = None,
-    external_force_at: Callable[[int], torch.Tensor | None] | None = None,
-    displacement: torch.Tensor | None = None,
-    velocity: torch.Tensor | None = None,
-    progress: Callable[[int], None] | None = None,
-    shape: str | None = None,
-) -> Trajectory:
-    """Simulate one body (batch 1) for ``steps`` steps without gradients and record it.
-
-    Args:
-        body: the body; its integrator, environment, dt and dtype are used as they are.
-        steps: number of steps T ≥ 0.
-        rest_length_at: step index t → (E,) rest length in force at step t (default: ``body.l``).
-        external_force_at: step index t → (M, 2) force on the movable masses at step t, or None.
-        displacement, velocity: (1, M, 2) initial displacement [m] and velocity [m/s] of movable masses.
-        progress: called with the number of steps done after each step (progress bars).
-        shape: name stored in the trajectory (default: the topology's name).
-
-    Raises:
-        SimulationDiverged: on NaN/inf or blow-up, naming the step.
-    """
-    import torch
-
-    if steps < 0:
-        raise ValueError(f"steps must be >= 0, got {steps}")
-
-    def rest(t: int) -> torch.Tensor:
-        return body.l if rest_length_at is None else rest_length_at(t)
-
-    def force(t: int) -> torch.Tensor | None:
-        return None if external_force_at is None else external_force_at(t)
-
-    recorder = TrajectoryRecorder(body, shape=shape)
-    with torch.no_grad():
-        state = body.initial_state(1, rest_length=rest(0), external_force=force(0),
-                                   displacement=displacement, velocity=velocity)
-        body.check_finite(state)
-        recorder.record(state, rest(0), force(0))
-        for t in range(1, steps + 1):
-            state = body.step(state, rest_length=rest(t), external_force=force(t))
-            body.check_finite(state)
-            recorder.record(state, rest(t), force(t))
-            if progress is not None:
-                progress(t)
-    return recorder.trajectory()

@@ -19,6 +19,7 @@ import torch
 
 from bptsb_ros.agent import brain_forces
 from bptsb_ros.body.adjoint import rollout_window
+from bptsb_ros.sim.rollout import held_inputs
 from bptsb_ros.tasks.base import Task
 
 
@@ -68,14 +69,12 @@ class NarmaTask(Task):
         """Run one episode from rest for inputs u (K,); returns the CMP y at each block end (K,)."""
         n = self.cfg.narma
         body = self.agent.body
-        dtype = body.l.dtype
-        uu = torch.as_tensor(u, dtype=dtype).unsqueeze(-1) * n.input_scale  # (K, 1)
-        forces = brain_forces(self.agent, uu)  # (K, M, 2)
-        per_step = forces.repeat_interleave(n.tau, dim=0)  # steps 1..K·τ
+        steps = len(u) * n.tau
+        per_step = held_inputs(torch.as_tensor(u, dtype=body.l.dtype), n.tau, steps)  # (steps+1,)
+        forces = brain_forces(self.agent, per_step.unsqueeze(-1) * n.input_scale)  # (steps+1, M, 2)
         state = body.initial_state(1, external_force=forces[0])
-        rest = body.l.expand(per_step.shape[0], -1)
         with torch.set_grad_enabled(grad):
-            win = rollout_window(body, state, rest, per_step, adjoint=self.cfg.training.adjoint)
+            win = rollout_window(body, state, body.l.expand(steps, -1), forces[1:], adjoint=self.cfg.training.adjoint)
         body.check_finite(win.final)
         return win.r[n.tau - 1:: n.tau, 0, body.cmp_local, 1]
 
