@@ -11,16 +11,13 @@ answers the body state; ``mlp_brain`` answers ``task/input``; commands go back t
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
-from bptsb_ros.ros.topics import TOPICS, absolute
+from bptsb_ros.ros.params import ParamValue, yaml_value
+from bptsb_ros.ros.topics import BODY_OUTPUTS, COMMAND_SOURCES, TOPICS, absolute, feedback_state_key
 
-ParamValue = bool | int | float | str | list[str]
-
-#: topics body_sim publishes (keys of ``TOPICS``)
-BODY_TOPICS: tuple[str, ...] = ("clock", "positions", "mass_states", "spring_lengths", "rest_length",
-                                "external_force", "markers", "diagnostics")
-#: command topic of each command source
-SOURCE_TOPIC: dict[str, str] = {"rest_length": "rest_length_cmd", "force": "force_cmd"}
+__all__ = ["LOOPS", "BrainSpec", "Loop", "ParamValue", "agent_loop", "feedback_state_key", "format_parameter",
+           "log_dir_of_bag", "node_parameters", "recorder_parameters", "ros_launch_description", "topic_names"]
 
 
 @dataclass(frozen=True)
@@ -57,14 +54,12 @@ class Loop:
     brains: tuple[BrainSpec, ...]
     wait_for: tuple[str, ...]
     needs_agent: bool = False
-    extra_topics: tuple[str, ...] = ()
 
     def topics(self) -> list[str]:
         """Keys of every topic of the loop (recorded by ``--bag``): body outputs, then brain outputs."""
-        keys = list(BODY_TOPICS)
+        keys = list(BODY_OUTPUTS)
         for brain in self.brains:
             keys += [k for k in brain.publishes if k not in keys]
-        keys += [k for k in self.extra_topics if k not in keys]
         return keys
 
 
@@ -90,17 +85,12 @@ LOOPS: dict[str, Loop] = {
 }
 
 
-def feedback_state_key(state_type: str) -> str:
-    """Topic key the feedback brain reads for a feedback-layer state type."""
-    return "spring_lengths" if state_type == "spring_length" else "mass_states"
-
-
 def with_feedback_state(loop: Loop, state_type: str) -> Loop:
     """The loop with the feedback brain's trigger set for ``state_type`` (spring lengths or mass states)."""
     key = feedback_state_key(state_type)
     brains = tuple(BrainSpec(b.executable, ("clock", key), b.publishes) if b.executable == "feedback_brain" else b
                    for b in loop.brains)
-    return Loop(loop.name, loop.summary, loop.task, brains, loop.wait_for, loop.needs_agent, loop.extra_topics)
+    return Loop(loop.name, loop.summary, loop.task, brains, loop.wait_for, loop.needs_agent)
 
 
 def agent_loop(loop: Loop, agent: str) -> Loop:
@@ -129,14 +119,14 @@ def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True) -
     """
     counts: dict[str, int] = {}
     for key in loop.topics():
-        counts[key] = 1 if recording and key not in loop.extra_topics else 0
+        counts[key] = int(recording)
     for brain in loop.brains:
         for key in brain.triggers:
             counts[key] = counts.get(key, 0) + 1
         if sim_time:
             counts["clock"] += 1
     for source in loop.wait_for:
-        counts[SOURCE_TOPIC[source]] = counts.get(SOURCE_TOPIC[source], 0) + 1
+        counts[COMMAND_SOURCES[source]] = counts.get(COMMAND_SOURCES[source], 0) + 1
     return [f"{absolute(TOPICS[k].name)}:{n}" for k, n in counts.items() if n > 0]
 
 
@@ -146,7 +136,7 @@ def output_subscribers(loop: Loop, executable: str, *, recording: bool) -> int:
     counts = []
     for key in brain.publishes:
         n = int(recording) + sum(key in b.triggers for b in loop.brains)
-        n += sum(SOURCE_TOPIC[s] == key for s in loop.wait_for)
+        n += sum(COMMAND_SOURCES[s] == key for s in loop.wait_for)
         counts.append(n)
     return min(counts)
 
@@ -183,19 +173,27 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
     return params
 
 
+def log_dir_of_bag(bag: str | Path) -> Path:
+    """Where a recorded run keeps its node logs and ``body_summary.json``: ``<bag>.launch`` next to the bag."""
+    return Path(str(Path(bag)) + ".launch")
+
+
+def recorder_parameters(loop: Loop, bag: str, *, mode: str = "lockstep", agent: str = "",
+                        open_loop_steps: int = 0) -> dict[str, ParamValue]:
+    """ROS parameters of the recorder of ``loop``: every loop topic to ``bag``, and the run description in the
+    bag's ``custom_data`` (keys ``loop``, ``mode``, ``agent`` — ``fresh`` without one — and ``open_loop_steps``,
+    which ``bptsb replay`` reads for its offline comparison)."""
+    return {
+        "bag_path": bag,
+        "topics": topic_names(loop.topics()),
+        "custom_data": [f"loop={loop.name}", f"mode={mode}", f"agent={agent or 'fresh'}",
+                        f"open_loop_steps={open_loop_steps}"],
+    }
+
+
 def format_parameter(name: str, value: ParamValue) -> str:
     """``name:=value`` for ``--ros-args -p``: strings single-quoted so YAML keeps them strings."""
-    return f"{name}:={_yaml(value)}"
-
-
-def _yaml(value: ParamValue) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float)):
-        return repr(value)
-    if isinstance(value, list):
-        return "[" + ", ".join(_yaml(v) for v in value) + "]"
-    return "'" + str(value).replace("'", "''") + "'"
+    return f"{name}:={yaml_value(value)}"
 
 
 def loops_help() -> str:
@@ -223,7 +221,8 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
 def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
     """``LaunchDescription`` of a loop for ``ros2 launch bptsb_ros <loop>.launch.py`` (needs launch, launch_ros).
 
-    Same processes and parameters as ``bptsb launch``; the launch shuts down when ``body_sim`` exits.
+    Same processes and parameters as ``bptsb launch``; the launch shuts down when ``body_sim`` exits. With
+    ``bag:=DIR`` the body writes its run summary to ``DIR.launch/body_summary.json``, as ``bptsb launch`` does.
     """
     from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
     from launch.event_handlers import OnProcessExit
@@ -246,10 +245,12 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
             return Node(package="bptsb_ros", executable=executable, name=executable, output="screen",
                         parameters=[params])
 
-        body = node("body_sim", node_parameters(loop, "body_sim", **common))
+        summary_path = str(log_dir_of_bag(v["bag"]) / "body_summary.json") if v["bag"] else ""
+        body = node("body_sim", node_parameters(loop, "body_sim", summary_path=summary_path, **common))
         actions = [body] + [node(b.executable, node_parameters(loop, b.executable, **common)) for b in loop.brains]
         if v["bag"]:
-            actions.append(node("recorder", {"bag_path": v["bag"], "topics": topic_names(loop.topics())}))
+            actions.append(node("recorder", recorder_parameters(loop, v["bag"], mode=v["mode"], agent=v["agent"],
+                                                                open_loop_steps=common["open_loop_steps"])))
         actions.append(RegisterEventHandler(OnProcessExit(
             target_action=body, on_exit=[EmitEvent(event=Shutdown(reason="body_sim finished"))])))
         return actions

@@ -73,3 +73,18 @@ def ros_env() -> dict[str, str]:
     env["ROS_DOMAIN_ID"] = str(SESSION_DOMAIN_ID)
     env.pop("ROS_STATIC_PEERS", None)
     return env
+
+
+#: A second private domain for tests that leave stale DDS participants behind (a SIGKILLed node stays
+#: discoverable until its lease expires, ~20 s), so later tests in the session domain never see them.
+QUARANTINE_DOMAIN_ID = DOMAIN_ID_MIN + (SESSION_DOMAIN_ID - DOMAIN_ID_MIN + 50) % (DOMAIN_ID_MAX - DOMAIN_ID_MIN + 1)
+
+
+@pytest.fixture
+def quarantine_ros() -> tuple[int, dict[str, str]]:
+    """(domain id, subprocess environment) of the quarantine domain."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(QUARANTINE_DOMAIN_ID)
+    env.pop("ROS_STATIC_PEERS", None)
+    return QUARANTINE_DOMAIN_ID, env

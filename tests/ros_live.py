@@ -1,9 +1,11 @@
 """Helpers of the multi-process live-loop tests (``test_ros_loop.py``, ``test_ros_faults.py``):
-node processes on a test-private ROS domain, an in-test probe node, bag reading, offline references."""
+node processes on the test session's private ROS domain (``ros_env`` / ``ros_domain_id`` fixtures of
+``conftest.py``), an in-test probe node, bag reading, offline references."""
 
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -16,10 +18,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 
 
-def env_for(domain: int) -> dict[str, str]:
-    """Environment of ROS processes of one test: its own domain, discovery on this host only."""
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(domain)
+def env_for(ros_env: dict[str, str]) -> dict[str, str]:
+    """Environment of the ROS processes of a test: ``ros_env`` (the session's private domain, discovery on this
+    host only) with the package importable and unbuffered output."""
+    env = dict(ros_env)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.pop("ROS_STATIC_PEERS", None)
     env["PYTHONPATH"] = os.pathsep.join([str(REPO)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
@@ -27,20 +29,40 @@ def env_for(domain: int) -> dict[str, str]:
     return env
 
 
-def bptsb(args: list[str], domain: int, timeout: float = 120) -> subprocess.CompletedProcess:
-    """Run the ``bptsb`` CLI; output (stdout and stderr together) in ``.stdout``."""
-    return subprocess.run([sys.executable, "-m", "bptsb_ros.cli", *args], env=env_for(domain), cwd=REPO,
-                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=timeout)
+def bptsb(args: list[str], ros_env: dict[str, str], timeout: float = 180) -> subprocess.CompletedProcess:
+    """Run the ``bptsb`` CLI; output (stdout and stderr together) in ``.stdout``.
+
+    Past ``timeout`` the CLI gets SIGINT (``bptsb launch`` then stops its nodes in order) and, if it is still
+    running a minute later, SIGKILL; then ``subprocess.TimeoutExpired`` is raised with the output.
+    """
+    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", *args], env=env_for(ros_env), cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, _ = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, _ = proc.communicate()
+        raise subprocess.TimeoutExpired(proc.args, timeout, output=out) from None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out)
 
 
-def start_node(node: str, params: dict[str, Any], domain: int, log: Path) -> subprocess.Popen:
+def start_node(node: str, params: dict[str, Any], ros_env: dict[str, str], log: Path) -> subprocess.Popen:
     """Start ``python -m bptsb_ros.ros.<node> --ros-args -p ...``, output to ``log``."""
     from bptsb_ros.launch_loops import format_parameter
 
     argv = [sys.executable, "-m", f"bptsb_ros.ros.{node}", "--ros-args"]
     for name, value in params.items():
         argv += ["-p", format_parameter(name, value)]
-    return subprocess.Popen(argv, env=env_for(domain), cwd=REPO, stdout=log.open("w"), stderr=subprocess.STDOUT)
+    with log.open("w") as out:  # the child keeps its own copy of the descriptor
+        return subprocess.Popen(argv, env=env_for(ros_env), cwd=REPO, stdout=out, stderr=subprocess.STDOUT)
 
 
 def stamp_ns(stamp: Any) -> int:
@@ -50,11 +72,12 @@ def stamp_ns(stamp: Any) -> int:
 def bag_positions(bag: Path) -> tuple[np.ndarray, np.ndarray]:
     """(stamps [ns] (K,), positions (K, N, 2)) of ``/body/positions`` in a bag."""
     from bptsb_ros.bags.reader import read_messages
+    from bptsb_ros.ros.messages import pose_array_positions
 
     stamps, rows = [], []
     for _, _, _, msg in read_messages(bag, ["/body/positions"]):
         stamps.append(stamp_ns(msg.header.stamp))
-        rows.append([(p.position.x, p.position.y) for p in msg.poses])
+        rows.append(pose_array_positions(msg))
     return np.array(stamps, dtype=np.int64), np.array(rows, dtype=np.float64)
 
 
@@ -81,7 +104,8 @@ def save_fitted_agent(run_dir: Path, seed: int = 3) -> None:
 
 
 class Probe:
-    """An rclpy node in the test process on ``domain`` (own context), collecting messages per topic."""
+    """An rclpy node in the test process on ``domain`` (the ``ros_domain_id`` fixture; own context), collecting
+    messages per topic."""
 
     def __init__(self, domain: int, name: str = "test_probe") -> None:
         import rclpy
@@ -132,8 +156,6 @@ class Probe:
 
 def stop(proc: subprocess.Popen, timeout: float = 20) -> int:
     """SIGINT a node process and wait for it; kill it if it does not stop."""
-    import signal
-
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
         try:

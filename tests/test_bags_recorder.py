@@ -1,6 +1,7 @@
 """The recorder node as a process: SIGINT keeps every published message, SIGKILL leaves recoverable chunks.
 
-Each test runs the recorder and a publisher as subprocesses on localhost-only DDS in a test-private domain.
+Each test runs the recorder and a publisher as subprocesses on localhost-only DDS in the test session's private
+domain (``ros_env`` fixture of conftest.py).
 """
 
 from __future__ import annotations
@@ -74,11 +75,8 @@ RECOVER = (
 
 
 @pytest.fixture
-def env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["ROS_DOMAIN_ID"] = str(120 + os.getpid() % 20)  # this suite's private range 120..139
-    env.pop("ROS_STATIC_PEERS", None)
+def env(ros_env: dict[str, str]) -> dict[str, str]:
+    env = dict(ros_env)  # the session's private domain, localhost discovery
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     env["PYTHONUNBUFFERED"] = "1"
     return env
@@ -98,6 +96,19 @@ def _publish(n: int, period: float, env: dict[str, str]) -> subprocess.Popen[str
         proc.kill()
         pytest.fail(f"publisher: {line} {proc.communicate(timeout=5)[0]}")
     return proc
+
+
+def _wait_until_file_stable(path: Path, quiet: float, limit: float = 10.0) -> None:
+    """Wait until ``path`` exists and its size has not changed for more than ``quiet`` seconds (at most ``limit``)."""
+    end = time.monotonic() + limit
+    size, since = -1, time.monotonic()
+    while time.monotonic() < end:
+        now_size = path.stat().st_size if path.exists() else -1
+        if now_size != size:
+            size, since = now_size, time.monotonic()
+        elif size >= 0 and time.monotonic() - since > quiet:
+            return
+        time.sleep(0.05)
 
 
 def _stop(proc: subprocess.Popen[str], sig: int) -> tuple[int, str]:
@@ -148,11 +159,13 @@ def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], si
 def test_sigkill_leaves_recoverable_chunks(tmp_path: Path, env: dict[str, str]) -> None:
     n = 200
     bag = tmp_path / "killed"
-    recorder = _recorder(bag, env, "-p", "flush_period:=0.2", "-p", "chunk_size:=2048")
+    flush_period = 0.2
+    recorder = _recorder(bag, env, "-p", f"flush_period:={flush_period}", "-p", "chunk_size:=2048")
     publisher = None
     try:
         publisher = _publish(n, 0.001, env)
-        time.sleep(0.6)  # > flush_period: the recorder has closed and written its last chunk by now
+        # the recorder closes and writes its last chunk within flush_period of the last message, also when loaded
+        _wait_until_file_stable(bag / f"{bag.name}_0.mcap", quiet=3 * flush_period)
         rc, out = _stop(recorder, signal.SIGKILL)
     finally:
         if publisher is not None:

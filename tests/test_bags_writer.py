@@ -235,3 +235,26 @@ def test_writer_and_reader_reject_bad_input(bag: Path, tmp_path: Path) -> None:
     (empty / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 9}\n")
     with pytest.raises(BagError, match="malformed rosbag2 metadata"):
         bag_info(empty)
+
+
+def test_bad_writer_options_create_nothing(tmp_path: Path) -> None:
+    for kwargs in ({"compression": "gzip"}, {"chunk_size": 0}):
+        with pytest.raises(BagError):
+            BagWriter(tmp_path / "bad" / "bag", **kwargs)
+        assert not (tmp_path / "bad" / "bag").exists()
+
+
+def test_joint_state_arrays_take_the_filled_field(tmp_path: Path) -> None:
+    from sensor_msgs.msg import JointState
+
+    bag = tmp_path / "js"
+    with BagWriter(bag) as writer:
+        for i in range(3):
+            writer.write_message("/force", JointState(name=["a", "b"], effort=[float(i), -1.0]), 10 + i)
+            writer.write_message("/state", JointState(position=[1.0], velocity=[2.0], effort=[3.0]), 10 + i)
+            writer.write_message("/empty", JointState(name=["a"]), 10 + i)
+    arrays = read_arrays(bag, ["/force", "/state"])
+    assert arrays["/force"].values.tolist() == [[0.0, -1.0], [1.0, -1.0], [2.0, -1.0]]
+    assert arrays["/state"].values.tolist() == [[1.0]] * 3
+    with pytest.raises(BagError, match="no position, velocity or effort"):
+        read_arrays(bag, ["/empty"])

@@ -1,6 +1,7 @@
 """Whole loops started and stopped by ``bptsb launch`` (separate processes, recorded to a bag):
 lockstep runs equal the offline simulation of the same agent, realtime runs report their timing and
-stop cleanly on Ctrl-C, and a failing node makes the launch fail. ROS domains 140-149."""
+stop cleanly on Ctrl-C, and a failing node makes the launch fail. On the session's private ROS domain
+(``ros_env`` fixture); the tests run one after the other."""
 
 from __future__ import annotations
 
@@ -8,12 +9,13 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
 import pytest
 import torch
-from ros_live import REPO, bag_positions, bptsb, env_for, fresh_agent, save_fitted_agent
+from ros_live import REPO, bag_positions, bptsb, env_for, fresh_agent, save_fitted_agent, stop
 
 DT_NS = 10_000_000
 
@@ -22,18 +24,18 @@ def check_every_step(stamps: np.ndarray, steps: int) -> None:
     assert stamps.tolist() == [k * DT_NS for k in range(steps + 1)], "steps missing, repeated or out of order"
 
 
-def launch_ok(args: list[str], domain: int) -> str:
-    out = bptsb(["launch", *args], domain)
+def launch_ok(args: list[str], ros_env: dict[str, str]) -> str:
+    out = bptsb(["launch", *args], ros_env)
     assert out.returncode == 0, out.stdout[-4000:]
     return out.stdout
 
 
-def test_lissajous_open_lockstep_equals_offline(tmp_path):
+def test_lissajous_open_lockstep_equals_offline(tmp_path, ros_env):
     from bptsb_ros.bags.reader import bag_info, read_messages
     from bptsb_ros.sim.rollout import simulate_open_loop
 
     bag = tmp_path / "bag"
-    out = launch_ok(["lissajous_open", "--duration", "1", "--bag", str(bag)], 140)
+    out = launch_ok(["lissajous_open", "--duration", "1", "--bag", str(bag)], ros_env)
     for node in ("body_sim", "swg_brain", "recorder"):
         assert f"{node:<15} ok" in out
     stamps, pos = bag_positions(bag)
@@ -50,7 +52,7 @@ def test_lissajous_open_lockstep_equals_offline(tmp_path):
     assert summary["steps"] == 100 and summary["safe_command_steps"] == 0 and summary["rejected_total"] == 0
 
 
-def test_lissajous_closed_loop_equals_offline(tmp_path):
+def test_lissajous_closed_loop_equals_offline(tmp_path, ros_env):
     """SWG for steps 0..30, then the fitted feedback layer: offline open loop followed by closed loop."""
     from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
     from bptsb_ros.training.checkpoint import load_agent
@@ -59,7 +61,7 @@ def test_lissajous_closed_loop_equals_offline(tmp_path):
     save_fitted_agent(run)
     bag = tmp_path / "bag"
     launch_ok(["lissajous_closed", "--agent", str(run), "--open-loop-steps", "30", "--duration", "1.5",
-               "--bag", str(bag)], 141)
+               "--bag", str(bag)], ros_env)
     stamps, pos = bag_positions(bag)
     check_every_step(stamps, 150)
     agent = load_agent(run, dtype=torch.float64)
@@ -78,40 +80,50 @@ def test_lissajous_closed_loop_equals_offline(tmp_path):
     assert metrics["live"]["trajectory_mse_shift_min"] == pytest.approx(metrics["offline"]["trajectory_mse_shift_min"])
 
 
-def test_narma_lockstep_equals_offline(tmp_path):
-    from bptsb_ros.ros.task_input import input_index, narma_inputs
-    from bptsb_ros.sim.rollout import simulate_open_loop
+def test_narma_lockstep_equals_offline(tmp_path, ros_env):
+    from bptsb_ros.sim.rollout import held_inputs, simulate_open_loop
+    from bptsb_ros.tasks.narma import narma_inputs
 
     bag = tmp_path / "bag"
-    launch_ok(["narma", "--duration", "1", "--bag", str(bag)], 142)
+    launch_ok(["narma", "--duration", "1", "--bag", str(bag)], ros_env)
     stamps, pos = bag_positions(bag)
     check_every_step(stamps, 100)
     agent = fresh_agent("narma")
     n = agent.config["narma"]
     u = narma_inputs(n["eval_seed"], n["n_inputs"])
-    inputs = torch.tensor([u[input_index(k, n["tau"])] for k in range(101)], dtype=torch.float64) * n["input_scale"]
+    inputs = torch.from_numpy(held_inputs(u, n["tau"], 100)).to(torch.float64) * n["input_scale"]
     roll = simulate_open_loop(agent, 100, inputs=inputs)
     ref = agent.body.full_positions(roll.r[:, 0]).numpy()
     assert np.abs(ref - ref[0]).max() > 1e-3
     assert np.abs(pos - ref).max() <= 1e-9
 
 
-def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path):
+def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     bag = tmp_path / "bag"
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--mode", "realtime",
-                             "--duration", "60", "--bag", str(bag)], env=env_for(143), cwd=REPO,
+                             "--duration", "60", "--bag", str(bag)], env=env_for(ros_env), cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
-    start = time.monotonic()
-    for line in proc.stdout:
-        lines.append(line)
-        if "[body_sim]" in line and "running" in line:
-            break
-        assert time.monotonic() - start < 60, "body_sim never started"
-    time.sleep(1.5)  # ~150 steps at 100 Hz
-    proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=60)
-    text = "".join(lines) + out
+
+    def read_output() -> None:  # in a thread, so that waiting for a line never blocks the test past its deadline
+        for line in proc.stdout:
+            lines.append(line)
+
+    reader = threading.Thread(target=read_output, daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not any("[body_sim]" in line and "running" in line for line in list(lines)):
+            assert proc.poll() is None, "launch exited before body_sim started:\n" + "".join(lines)[-4000:]
+            assert time.monotonic() < deadline, "body_sim never started:\n" + "".join(lines)[-4000:]
+            time.sleep(0.05)
+        time.sleep(1.5)  # ~150 steps at 100 Hz
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+        reader.join(timeout=10)
+    finally:
+        stop(proc)  # SIGINT, then SIGKILL: no launcher (nor, through it, node) outlives a failed test
+    text = "".join(lines)
     assert proc.returncode == 0, text[-4000:]
     assert "stopping (SIGINT)" in text and "body_sim        ok" in text and "recorder        ok" in text
     stamps, _ = bag_positions(bag)
@@ -124,9 +136,9 @@ def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path):
     assert summary["jitter_ms_p50"] < 20.0
 
 
-def test_failing_node_fails_the_launch(tmp_path):
+def test_failing_node_fails_the_launch(tmp_path, ros_env):
     out = bptsb(["launch", "lissajous_open", "--duration", "0.3", "--log-dir", str(tmp_path),
-                 "--param", "swg_brain:dtype:=float16", "--param", "body_sim:startup_timeout:=1.0"], 144)
+                 "--param", "swg_brain:dtype:=float16", "--param", "body_sim:startup_timeout:=5.0"], ros_env)
     assert out.returncode == 1, out.stdout[-4000:]
     assert "parameter 'dtype'" in out.stdout
     assert "swg_brain       failed (exited on its own before the end, code 2)" in out.stdout
@@ -137,23 +149,23 @@ def test_failing_node_fails_the_launch(tmp_path):
     (["lissajous_closed", "--duration", "1"], "needs --agent"),
     (["narma", "--param", "swg_brain:x:=1"], "not part of this loop"),
 ])
-def test_launch_rejects_bad_arguments(args, message):
-    out = bptsb(["launch", *args], 145)
+def test_launch_rejects_bad_arguments(args, message, ros_env):
+    out = bptsb(["launch", *args], ros_env)
     assert out.returncode == 2 and message in out.stdout
 
 
-def test_launch_help_lists_the_loops():
-    out = bptsb(["launch", "--help"], 145)
+def test_launch_help_lists_the_loops(ros_env):
+    out = bptsb(["launch", "--help"], ros_env)
     assert out.returncode == 0
     for loop in ("lissajous_open", "lissajous_closed", "locomotion_open", "locomotion_closed", "narma"):
         assert loop in out.stdout
 
 
-def test_run_starts_one_node_and_validates_its_parameters(tmp_path):
+def test_run_starts_one_node_and_validates_its_parameters(tmp_path, ros_env):
     summary = tmp_path / "summary.json"
     ok = bptsb(["run", "body_sim", "--ros-args", "--params-file", "config/body_sim_params.yaml", "-p", "max_steps:=2",
-                "-p", "final_ack_timeout:=0.0", "-p", f"summary_path:={summary}"], 146)
+                "-p", "final_ack_timeout:=0.0", "-p", f"summary_path:={summary}"], ros_env)
     assert ok.returncode == 0, ok.stdout
     assert json.loads(summary.read_text())["steps"] == 2
-    bad = bptsb(["run", "body_sim", "--ros-args", "-p", "mode:=fast"], 146)
+    bad = bptsb(["run", "body_sim", "--ros-args", "-p", "mode:=fast"], ros_env)
     assert bad.returncode == 2 and "parameter 'mode': 'fast' not allowed; choose from lockstep, realtime" in bad.stdout

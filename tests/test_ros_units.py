@@ -140,3 +140,87 @@ def test_topic_table_documents_every_topic():
     rows = {m.group(1): m.group(2) for m in re.finditer(r"^\| `([^`]+)` \| `([^`]+)` \|", text, re.M)}
     for topic in TOPICS.values():
         assert rows.get(topic.name) == topic.type, f"{topic.name} missing or with another type in TOPICS.md"
+
+
+def test_timing_stats_keep_bounded_windows():
+    from bptsb_ros.ros.lockstep import RunningStats
+
+    series = RunningStats([5.0, 1.0, 2.0, 3.0], window=3)
+    assert len(series) == 4 and series.mean == pytest.approx(2.75) and series.max == 5.0
+    assert list(series.recent) == [1.0, 2.0, 3.0] and series.percentile(50) == 2.0  # last 3 samples only
+    stats = TimingStats()
+    for k in range(3 * 10_000):
+        stats.compute.append(k * 1e-6)
+    assert len(stats.compute.recent) == 10_000 and stats.summary()["compute_ms_max"] == pytest.approx(29.999)
+
+
+def test_recorder_parameters_describe_the_run():
+    from bptsb_ros.launch_loops import log_dir_of_bag, recorder_parameters
+
+    params = recorder_parameters(LOOPS["lissajous_closed"], "bags/x", mode="realtime", agent="runs/a",
+                                 open_loop_steps=30)
+    assert params["bag_path"] == "bags/x" and params["topics"] == topic_names(LOOPS["lissajous_closed"].topics())
+    assert params["custom_data"] == ["loop=lissajous_closed", "mode=realtime", "agent=runs/a", "open_loop_steps=30"]
+    assert "agent=fresh" in recorder_parameters(LOOPS["narma"], "b")["custom_data"]
+    assert log_dir_of_bag("bags/x/") == Path("bags/x.launch")
+
+
+def test_launcher_reports_the_signal_that_stopped_a_node(tmp_path):
+    import subprocess
+    import sys
+
+    from bptsb_ros.cli.launch_cmd import Child, Launcher
+
+    code = ("import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); print('ready', flush=True); "
+            "time.sleep(60)")
+    child = Child("stubborn", [sys.executable, "-c", code], tmp_path / "stubborn.log")
+    child.proc = subprocess.Popen(child.argv, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.proc.stdout.readline().strip() == "ready"
+        launcher = Launcher([child], child, None, grace=0.5)
+        launcher.stop(child)
+        assert child.killed == "SIGTERM" and child.code == -15
+    finally:
+        if child.proc.poll() is None:
+            child.proc.kill()
+        child.proc.wait()
+        child.proc.stdout.close()
+
+
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux only")
+def test_launched_nodes_die_with_the_launcher():
+    """A child started with die_with_parent_hook gets SIGTERM when the launcher is killed outright."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    parent = (
+        "import subprocess, sys, time\n"
+        "from bptsb_ros.cli.launch_cmd import die_with_parent_hook\n"
+        "child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'], start_new_session=True,\n"
+        "                         preexec_fn=die_with_parent_hook())\n"
+        "print(child.pid, flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen([sys.executable, "-c", parent], stdout=subprocess.PIPE, text=True, env=env)
+    child = int(proc.stdout.readline())
+    dead = False
+    try:
+        proc.kill()
+        proc.wait()
+        end = time.monotonic() + 10
+        while not dead and time.monotonic() < end:
+            try:
+                with open(f"/proc/{child}/stat") as f:  # a zombie ('Z') waits for init to reap it: dead too
+                    dead = f.read().rsplit(")", 1)[1].split()[0] == "Z"
+            except FileNotFoundError:
+                dead = True
+            time.sleep(0.05)
+        assert dead, "the child outlived its killed parent"
+    finally:
+        proc.stdout.close()
+        if not dead:
+            os.kill(child, signal.SIGKILL)

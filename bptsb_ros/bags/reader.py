@@ -145,7 +145,8 @@ def read_messages(
     start_ns: int | None = None,
     end_ns: int | None = None,
 ) -> Iterator[BagMessage]:
-    """Iterate the messages of a bag in receive-time order.
+    """Iterate the messages of a bag: in receive-time order within each MCAP file, file after file (the files
+    of a bag written by one recorder follow each other in time).
 
     :param path: bag directory or ``.mcap`` file.
     :param topics: topics to read (all when ``None``); a topic the bag does not have raises :class:`BagError`.
@@ -204,6 +205,15 @@ def _xyz(p: Any) -> list[float]:
     return [p.x, p.y, p.z]
 
 
+def _joint_state(msg: Any) -> np.ndarray:
+    """The first non-empty of position, velocity and effort (force commands fill only effort)."""
+    for name in ("position", "velocity", "effort"):
+        values = getattr(msg, name)
+        if len(values):
+            return np.asarray(values, dtype=np.float64)
+    raise BagError("JointState message with no position, velocity or effort values; pass converters={topic: fn}")
+
+
 #: Default message -> array conversions, by message type.
 CONVERTERS: dict[str, Callable[[Any], np.ndarray]] = {
     **{f"std_msgs/msg/{k}MultiArray": _multiarray for k in (
@@ -217,7 +227,7 @@ CONVERTERS: dict[str, Callable[[Any], np.ndarray]] = {
     "geometry_msgs/msg/Vector3": lambda m: np.asarray(_xyz(m), dtype=np.float64),
     "geometry_msgs/msg/PointStamped": lambda m: np.asarray(_xyz(m.point), dtype=np.float64),
     "geometry_msgs/msg/Vector3Stamped": lambda m: np.asarray(_xyz(m.vector), dtype=np.float64),
-    "sensor_msgs/msg/JointState": lambda m: np.asarray(m.position, dtype=np.float64),
+    "sensor_msgs/msg/JointState": _joint_state,
 }
 
 
@@ -225,7 +235,8 @@ def to_array(msgtype: str, msg: Any) -> np.ndarray:
     """Convert one message with the default converter of its type (see :data:`CONVERTERS`).
 
     MultiArrays give their data (reshaped to the layout when it describes it), scalars a 0-d array, PoseArray the
-    positions (n, 3), Point/Vector3 (3,), Clock the time in s, JointState the positions.
+    positions (n, 3), Point/Vector3 (3,), Clock the time in s, JointState the first non-empty of position,
+    velocity and effort (a message with none raises :class:`BagError`; choose a field with ``converters``).
     """
     try:
         convert = CONVERTERS[msgtype]

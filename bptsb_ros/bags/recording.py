@@ -31,10 +31,10 @@ RECORDER_PARAMS: tuple[Param, ...] = (
           positive=True),
     Param("queue_depth", 0, "History depth of each subscription (messages); 0 keeps all, so that a burst the "
           "executor has not taken yet is never overwritten.", "int", minimum=0),
-    Param("drain_quiet", 0.2, "On SIGINT/SIGTERM, keep taking in-flight messages until none arrived for this "
-          "many seconds (bounded by stop_timeout).", "float", positive=True),
-    Param("stop_timeout", 3.0, "Longest time in seconds spent taking in-flight messages after SIGINT/SIGTERM "
-          "before the bag is closed.", "float", positive=True),
+    Param("drain_quiet", 0.2, "On SIGINT/SIGTERM, keep taking in-flight messages until a wait of this many "
+          "seconds brings none (bounded by stop_timeout).", "float", positive=True),
+    Param("stop_timeout", 8.0, "Longest time in seconds spent taking in-flight messages after SIGINT/SIGTERM "
+          "before the bag is closed (below the launcher's default --grace of 10 s).", "float", positive=True),
     Param("custom_data", [], "'key=value' strings stored in custom_data of metadata.yaml.", "str_list"),
 )
 

@@ -49,6 +49,14 @@ def mcap_filename(bag_dir: Path, index: int = 0) -> str:
     return f"{bag_dir.name}_{index}.mcap"
 
 
+def check_stream_options(chunk_size: int, compression: str) -> None:
+    """Raise :class:`BagError` for an unknown ``compression`` or a non-positive ``chunk_size``."""
+    if compression not in COMPRESSIONS:
+        raise BagError(f"unknown chunk compression {compression!r}; choose one of {sorted(COMPRESSIONS)}")
+    if chunk_size <= 0:
+        raise BagError(f"chunk_size must be positive, got {chunk_size}")
+
+
 class McapStream:
     """An MCAP ``ros2``-profile stream of schemas, channels and messages, with per-topic bookkeeping.
 
@@ -58,10 +66,7 @@ class McapStream:
     def __init__(
         self, stream: IO[bytes], *, chunk_size: int, compression: str, custom_data: dict[str, str] | None = None
     ) -> None:
-        if compression not in COMPRESSIONS:
-            raise BagError(f"unknown chunk compression {compression!r}; choose one of {sorted(COMPRESSIONS)}")
-        if chunk_size <= 0:
-            raise BagError(f"chunk_size must be positive, got {chunk_size}")
+        check_stream_options(chunk_size, compression)
         self._stream = stream
         self._writer = Writer(stream, chunk_size=chunk_size, compression=COMPRESSIONS[compression])
         self._writer.start(profile="ros2", library=LIBRARY)
@@ -158,10 +163,20 @@ class BagWriter:
             raise BagError(f"output bag {self.path} already exists and is not an empty directory")
         if flush_period_s is not None and flush_period_s <= 0:
             raise BagError(f"flush_period_s must be positive or None, got {flush_period_s}")
+        check_stream_options(chunk_size, compression)  # before anything is created on disk
+        created = not self.path.exists()
         self.path.mkdir(parents=True, exist_ok=True)
         self.mcap_path = self.path / mcap_filename(self.path)
         self._file = open(self.mcap_path, "wb")  # closed in close()
-        self._mcap = McapStream(self._file, chunk_size=chunk_size, compression=compression, custom_data=custom_data)
+        try:
+            self._mcap = McapStream(self._file, chunk_size=chunk_size, compression=compression,
+                                    custom_data=custom_data)
+        except BaseException:
+            self._file.close()
+            self.mcap_path.unlink(missing_ok=True)
+            if created:
+                self.path.rmdir()
+            raise
         self._flush_period_s = flush_period_s
         self._clock = clock
         self._last_flush = clock()

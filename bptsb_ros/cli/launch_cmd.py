@@ -10,6 +10,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -69,13 +70,47 @@ class Child:
 
 
 def _pump(stream: IO[bytes], name: str, log: IO[str], lock: threading.Lock) -> None:
-    for raw in iter(stream.readline, b""):
-        line = raw.decode("utf-8", "replace").rstrip("\n")
-        with lock:
-            log.write(line + "\n")
-            log.flush()
-            print(f"[{name}] {line}", file=sys.stderr, flush=True)
-    stream.close()
+    """Copy a child's output to its log file and, prefixed, to stderr; close both when the child closes it."""
+    try:
+        for raw in iter(stream.readline, b""):
+            line = raw.decode("utf-8", "replace").rstrip("\n")
+            with lock:
+                log.write(line + "\n")
+                log.flush()
+                print(f"[{name}] {line}", file=sys.stderr, flush=True)
+    finally:
+        stream.close()
+        log.close()
+
+
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def die_with_parent_hook(sig: int = signal.SIGTERM) -> Callable[[], None] | None:
+    """A ``preexec_fn`` that makes a child receive ``sig`` when this process dies (Linux ``PR_SET_PDEATHSIG``).
+
+    The children run in their own sessions (a Ctrl-C in the terminal reaches only the launcher, which stops
+    them in order), so without this a launcher killed outright (SIGKILL, e.g. a test timeout) would leave
+    every node running. SIGTERM makes a node stop cleanly (the recorder closes its bag). The kernel sends the
+    signal when the *thread* that started the child exits: :meth:`Launcher.start` runs in the main thread.
+    Returns None (no hook) where ``prctl`` is unavailable (not Linux).
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+
+        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up here: the hook runs between fork and exec
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+
+    def hook() -> None:
+        prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+        if os.getppid() != parent:  # the launcher died before prctl took effect
+            os._exit(1)
+
+    return hook
 
 
 def child_env() -> dict[str, str]:
@@ -126,30 +161,40 @@ class Launcher:
     def start(self, env: dict[str, str]) -> None:
         order = ([self.recorder] if self.recorder else []) + [c for c in self.children
                                                               if c not in (self.body, self.recorder)] + [self.body]
+        hook = die_with_parent_hook()
         for child in order:
-            log = child.log_path.open("w")
-            child.proc = subprocess.Popen(child.argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                          stdin=subprocess.DEVNULL, start_new_session=True)
+            log = child.log_path.open("w")  # closed by _pump
+            try:
+                child.proc = subprocess.Popen(child.argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                              stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=hook)
+            except BaseException:
+                log.close()
+                raise
             t = threading.Thread(target=_pump, args=(child.proc.stdout, child.name, log, self.lock), daemon=True)
             t.start()
             child.threads.append(t)
 
     def stop(self, child: Child) -> None:
-        """SIGINT, then SIGTERM and SIGKILL after ``grace`` seconds each."""
+        """SIGINT, then SIGTERM and SIGKILL after ``grace`` seconds each.
+
+        ``child.killed`` names the signal that finally stopped it when SIGINT was not enough.
+        """
         if child.proc is None or child.proc.poll() is not None:
             return
         child.stop_requested = True
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            name = signal.Signals(sig).name
             try:
                 child.proc.send_signal(sig)
             except ProcessLookupError:
                 return
+            if sig != signal.SIGINT:
+                child.killed = name
             try:
                 child.proc.wait(timeout=self.grace)
                 return
             except subprocess.TimeoutExpired:
-                child.killed = signal.Signals(sig).name
-                self._say(f"{child.name} did not stop within {self.grace:g} s of {child.killed}")
+                self._say(f"{child.name} did not stop within {self.grace:g} s of {name}")
 
     def stop_all(self) -> None:
         self.stop(self.body)
@@ -210,7 +255,7 @@ class Launcher:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.launch_loops import agent_loop, node_parameters
+    from bptsb_ros.launch_loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
     loop = LOOPS[args.loop]
     if loop.needs_agent and not args.agent:
@@ -243,7 +288,7 @@ def run(args: argparse.Namespace) -> int:
     if args.log_dir:
         log_dir = Path(args.log_dir)
     elif args.bag:
-        log_dir = Path(str(Path(args.bag)) + ".launch")
+        log_dir = log_dir_of_bag(args.bag)
     else:
         log_dir = Path(tempfile.mkdtemp(prefix=f"bptsb-{loop.name}-"))
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -262,11 +307,8 @@ def run(args: argparse.Namespace) -> int:
                               log_dir / f"{brain.executable}.log"))
     recorder = None
     if args.bag:
-        from bptsb_ros.launch_loops import topic_names
-
-        params = {"bag_path": args.bag, "topics": topic_names(loop.topics()),
-                  "custom_data": [f"loop={loop.name}", f"mode={args.mode}", f"agent={args.agent or 'fresh'}",
-                                  f"open_loop_steps={args.open_loop_steps}"]}
+        params = recorder_parameters(loop, args.bag, mode=args.mode, agent=args.agent,
+                                     open_loop_steps=args.open_loop_steps)
         recorder = Child("recorder", node_argv("recorder", params, extra["recorder"]), log_dir / "recorder.log")
         children.append(recorder)
 

@@ -73,12 +73,10 @@ def load_source(values: dict[str, Any]) -> tuple[Agent, bool]:
     Raises:
         ParameterError: naming ``agent``, ``config`` or the shape parameter that is wrong.
     """
-    import torch
-
-    from bptsb_ros.agent import build_agent
+    from bptsb_ros.agent import build_agent, dtype_of
     from bptsb_ros.config import ConfigError, load_config, validate
 
-    dtype = {"float32": torch.float32, "float64": torch.float64}[values["dtype"]]
+    dtype = dtype_of(values["dtype"])
     if values["agent"]:
         from bptsb_ros.training.checkpoint import CheckpointError, load_agent
 

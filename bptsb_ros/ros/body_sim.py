@@ -43,6 +43,8 @@ from bptsb_ros.ros.lockstep import MODES, CommandChannel, TimingStats
 from bptsb_ros.ros.params import Param, ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, run_node
 from bptsb_ros.ros.topics import (
+    BODY_INPUTS,
+    BODY_OUTPUTS,
     COMMAND_SOURCES,
     DEFAULT_QOS_DEPTH,
     TOPICS,
@@ -53,9 +55,8 @@ from bptsb_ros.ros.topics import (
 )
 
 NODE = "body_sim"
-PUBLISHED = ("clock", "positions", "mass_states", "spring_lengths", "rest_length", "external_force", "markers",
-             "diagnostics")
-SUBSCRIBED = ("rest_length_cmd", "force_cmd", "wind")
+PUBLISHED = BODY_OUTPUTS
+SUBSCRIBED = BODY_INPUTS
 
 PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("mode", "lockstep", "timing mode: lockstep (deterministic, waits for commands) or realtime "
@@ -143,7 +144,6 @@ class BodySim(Node):
         self.throttle = Throttle(1.0)
         self.clock_sent: dict[int, float] = {}
         self.callbacks = 0
-        self._started = time.monotonic()
 
         topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED}
         self.topic_names = topic
@@ -205,9 +205,13 @@ class BodySim(Node):
         if not np.isfinite(wind).all():
             self._warn("reject:wind", f"rejected wind {wind.tolist()}: NaN/inf; keeping the previous wind")
             return
+        previous = np.zeros(2) if self.wind is None else self.wind
         self.wind = None if not wind.any() else wind
-        self.get_logger().info(f"wind set to ({wind[0]:g}, {wind[1]:g}) N per movable mass from step "
-                               f"{self.next_step}")
+        if (wind != previous).any():
+            emit, held = self.throttle("wind:set")
+            if emit:
+                self.get_logger().info(f"wind set to ({wind[0]:g}, {wind[1]:g}) N per movable mass from step "
+                                       f"{self.next_step}" + (f" ({held} earlier changes not logged)" if held else ""))
 
     def _warn(self, key: str, text: str) -> None:
         emit, held = self.throttle(key)
@@ -278,7 +282,7 @@ class BodySim(Node):
         self.pubs["positions"].publish(m.pose_array(k, ns, full, frame))
         self.pubs["mass_states"].publish(m.joint_state(
             k, ns, self.dof_names, position=r.reshape(-1), velocity=state.v[0].numpy().reshape(-1),
-            effort=(state.a[0].numpy() * self.mass[:, None]).reshape(-1), frame_id=frame))
+            effort=m.effort_from_acceleration(state.a[0].numpy(), self.mass), frame_id=frame))
         self.pubs["spring_lengths"].publish(m.joint_state(k, ns, self.spring_names, position=length))
         self.pubs["rest_length"].publish(m.joint_state(k, ns, self.spring_names, position=rest_np))
         f = np.zeros(2 * body.n_movable) if force is None else force.reshape(-1).numpy()
@@ -439,21 +443,27 @@ class BodySim(Node):
     def _wait_acked(self, timeout: float) -> None:
         """Wait (up to ``timeout`` in all) until reliable subscribers acknowledged every message.
 
-        DDS acknowledges on the writer's heartbeat (Fast DDS: every 3 s), so this can take that long.
+        The publishers are polled in turn, 10 ms each, until all are acknowledged or the time is up, so one dead
+        subscriber (a killed brain's ``/clock`` reader) cannot use up the time of the others. DDS acknowledges
+        on the writer's heartbeat (Fast DDS: every 3 s), so this can take that long. ``timeout`` 0: no wait.
         """
-        end = time.monotonic() + timeout
-        for pub in self.pubs.values():
-            if pub.get_subscription_count() == 0:
-                continue
-            left = max(0.0, end - time.monotonic())
-            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
-                self.get_logger().warning(f"subscribers of {pub.topic_name} did not acknowledge every message "
-                                          f"within {timeout:g} s")
+        if timeout <= 0:
+            return
+        started = time.monotonic()
+        end = started + timeout
+        poll = Duration(nanoseconds=10_000_000)
+        pending = [pub for pub in self.pubs.values() if pub.get_subscription_count() > 0]
+        while pending and time.monotonic() < end:
+            pending = [pub for pub in pending if not pub.wait_for_all_acked(poll)]
+        if pending:
+            self.get_logger().warning(
+                f"subscribers of {', '.join(pub.topic_name for pub in pending)} did not acknowledge every message "
+                f"within {time.monotonic() - started:.2f} s (final_ack_timeout {timeout:g} s)")
 
     def run(self) -> int:
         p = self.p
         self._wait_startup()
-        self._started = time.monotonic()
+        self._started = time.monotonic()  # start of stepping: realtime silence is counted from here
         code = EXIT_OK
         try:
             if p["mode"] == "lockstep":

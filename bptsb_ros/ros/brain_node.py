@@ -16,8 +16,9 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
+from bptsb_ros.ros.lockstep import RunningStats
 from bptsb_ros.ros.params import Param, ParameterError, declare_parameters
-from bptsb_ros.ros.runtime import EXIT_OK, StopFlag
+from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle
 from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns
 
 COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
@@ -52,7 +53,8 @@ class BrainNode(Node):
         self.sent = 0
         self.outputs: list[Publisher] = []
         self.ready: set[Publisher] = set()
-        self.compute: list[float] = []
+        self.compute = RunningStats()  # seconds per message; bounded memory in long runs
+        self.throttle = Throttle(1.0)
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
         if not self.get_parameter("use_sim_time").value:
@@ -61,6 +63,12 @@ class BrainNode(Node):
     def source_text(self) -> str:
         p = self.p
         return p["agent"] or p["config"] or f"fresh {self.agent.task} agent (seed {p['seed']})"
+
+    def warn(self, key: str, text: str) -> None:
+        """Log a warning at most once a second per ``key`` (bad inputs can arrive at every step)."""
+        emit, held = self.throttle(key)
+        if emit:
+            self.get_logger().warning(text + (f" ({held} similar suppressed)" if held else ""))
 
     def output(self, msg_type: type, topic: str, qos: Any) -> Publisher:
         """Create a publisher whose messages are waited for (acknowledged) at shutdown."""
@@ -94,10 +102,12 @@ class BrainNode(Node):
         """Spin until SIGINT/SIGTERM, then log a summary and let subscribers acknowledge the last messages."""
         while not self.stop:
             self.executor_.spin_once(timeout_sec=0.1)
-        mean = 1e3 * sum(self.compute) / len(self.compute) if self.compute else 0.0
-        worst = 1e3 * max(self.compute) if self.compute else 0.0
+        mean = 1e3 * self.compute.mean
+        worst = 1e3 * self.compute.max if self.compute.count else 0.0
         self.get_logger().info(f"stopped by {self.stop.reason}: published {self.sent} messages, compute mean "
                                f"{mean:.3f} ms, max {worst:.3f} ms")
         for pub in self.outputs:
-            pub.wait_for_all_acked(Duration(seconds=1))
+            if pub.get_subscription_count() and not pub.wait_for_all_acked(Duration(seconds=1)):
+                self.get_logger().warning(f"subscribers of {pub.topic_name} did not acknowledge every message "
+                                          "within 1 s; the last ones may be lost")
         return EXIT_OK

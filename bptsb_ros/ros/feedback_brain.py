@@ -1,8 +1,10 @@
 """``feedback_brain``: the closed loop. Body state at step k → rest lengths in force at step k+1,
-``FeedbackLayer.rest_length(l, s_k)`` = l·(1 + W·[s_k, 1]) with the agent's fitted feedback layer.
+``FeedbackLayer.rest_length_from_features(l, s_k)`` = l·(1 + W·[s_k, 1]) with the agent's fitted feedback layer
+(the function ``FeedbackLayer.rest_length`` applies offline to ``state_features`` of the body state).
 
 The state comes from ``body/spring_lengths`` (state type ``spring_length``, the default) or
-``body/mass_states`` (``position``, ``velocity``, ``acceleration`` = effort / mass). With
+``body/mass_states`` (``position``, ``velocity``, ``acceleration`` = effort / mass, see
+``messages.acceleration_from_effort``). With
 ``open_loop_steps`` = W > 0 the SWG drives steps 0…W (answering ``/clock``) and the feedback layer
 takes over from step W+1 — the paper's transfer from the SWG to the feedback layer, offline
 ``simulate_open_loop(agent, W)`` followed by ``simulate_closed_loop(..., state=final)``. With W = 0
@@ -18,13 +20,12 @@ import torch
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import spring_names
+from bptsb_ros.ros.topics import feedback_state_key, spring_names
 from bptsb_ros.sim.rollout import swg_rest_lengths
 
 NODE = "feedback_brain"
@@ -54,10 +55,10 @@ class FeedbackBrain(BrainNode):
         self.base = body.l.detach()
         self.names = spring_names(body.topology.n_springs)
         self.state_type = agent.feedback.state_type
-        self.mass = body.mass.detach()
+        self.mass = body.mass.detach().double().numpy()  # (M,) movable masses: effort → acceleration
         self.pub = self.output(JointState, p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.create_subscription(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth))
-        state_topic = p["topics.spring_lengths"] if self.state_type == "spring_length" else p["topics.mass_states"]
+        state_topic = p[f"topics.{feedback_state_key(self.state_type)}"]
         self.create_subscription(JointState, state_topic, self._on_state, m.state_qos(self.depth))
         self.get_logger().info(f"feedback layer of {self.source_text()}: state {self.state_type} from {state_topic}, "
                                f"{len(self.names)} springs, open loop for steps 0..{self.open_loop}")
@@ -83,34 +84,30 @@ class FeedbackBrain(BrainNode):
         step = m.step_of(msg.header.stamp, self.dt_ns)
         if step < self.open_loop:
             return
-        state = self._state(msg, step)
-        if state is None:
+        features = self._features(msg, step)
+        if features is None:
             return
         with torch.no_grad():
-            rest = self.agent.feedback.rest_length(self.base, state)
+            rest = self.agent.feedback.rest_length_from_features(self.base, features)
         self._send(step + 1, rest, started)
 
-    def _state(self, msg: JointState, step: int) -> BodyState | None:
-        """The fields of a BodyState the feedback layer reads (others are empty), or None if malformed."""
-        dtype = self.base.dtype
-        empty = torch.empty(0, dtype=dtype)
+    def _features(self, msg: JointState, step: int) -> torch.Tensor | None:
+        """The feedback layer's state features (1, F) from a state message, laid out as ``state_features``:
+        spring lengths (E), or the flattened movable positions, velocities or accelerations (2M); None (and a
+        throttled warning) if the message has the wrong number of values."""
         body = self.agent.body
         if self.state_type == "spring_length":
-            length = torch.from_numpy(m.as_array(msg.position)).to(dtype)
-            if length.numel() != body.topology.n_springs:
-                self.get_logger().warning(f"ignored spring lengths of step {step}: {length.numel()} values")
-                return None
-            return BodyState(empty, empty, empty, length.unsqueeze(0), step)
-        field = {"position": msg.position, "velocity": msg.velocity, "acceleration": msg.effort}[self.state_type]
-        x = torch.from_numpy(m.as_array(field)).to(dtype)
-        if x.numel() != 2 * body.n_movable:
-            self.get_logger().warning(f"ignored mass states of step {step}: {x.numel()} {self.state_type} values")
+            x, expected, what = m.as_array(msg.position), body.topology.n_springs, "spring lengths"
+        else:
+            field = {"position": msg.position, "velocity": msg.velocity, "acceleration": msg.effort}[self.state_type]
+            x, expected, what = m.as_array(field), 2 * body.n_movable, f"mass states ({self.state_type})"
+        if x.size != expected:
+            self.warn(f"bad_state:{self.state_type}", f"ignored {what} of step {step}: {x.size} values, expected "
+                      f"{expected}")
             return None
-        x = x.view(1, -1, 2)
         if self.state_type == "acceleration":
-            return BodyState(empty, empty, x / self.mass.unsqueeze(-1), empty, step)
-        return BodyState(x, empty, empty, empty, step) if self.state_type == "position" else \
-            BodyState(empty, x, empty, empty, step)
+            x = m.acceleration_from_effort(x, self.mass)
+        return torch.from_numpy(x).to(self.base.dtype).unsqueeze(0)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -18,7 +18,9 @@ integrator; :meth:`CommandChannel.offer` returns a :class:`Rejection` so the nod
 
 from __future__ import annotations
 
-from collections import Counter
+import math
+from collections import Counter, deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -153,6 +155,44 @@ class CommandChannel:
         return out
 
 
+#: Number of most recent samples the percentiles (p50, p99) of a timing series are computed over.
+PERCENTILE_WINDOW = 10_000
+
+
+class RunningStats:
+    """A series summarized in bounded memory: count, mean and max over every sample, and the last ``window``
+    samples for percentiles (a realtime run can last for hours; the node summarizes it every second).
+    """
+
+    def __init__(self, values: Iterable[float] = (), window: int = PERCENTILE_WINDOW) -> None:
+        if window < 1:
+            raise ValueError(f"window must be >= 1, got {window}")
+        self.count = 0
+        self.total = 0.0
+        self.max = -math.inf
+        self.recent: deque[float] = deque(maxlen=window)
+        for value in values:
+            self.append(value)
+
+    def append(self, value: float) -> None:
+        value = float(value)
+        self.count += 1
+        self.total += value
+        self.max = max(self.max, value)
+        self.recent.append(value)
+
+    def __len__(self) -> int:
+        return self.count
+
+    @property
+    def mean(self) -> float:
+        return self.total / self.count if self.count else 0.0
+
+    def percentile(self, q: float) -> float:
+        """The ``q``-th percentile of the last ``window`` samples (0.0 when empty)."""
+        return float(np.percentile(np.fromiter(self.recent, dtype=np.float64), q)) if self.recent else 0.0
+
+
 @dataclass
 class TimingStats:
     """Loop timing of the body: jitter, deadline misses, command age and latency.
@@ -161,30 +201,40 @@ class TimingStats:
     deadline miss: a step finished after the next step's scheduled start (realtime only).
     compute: wall time to integrate and publish one step [s].
     command age: steps between the step integrated and the stamp of the command used.
-    command latency: wall time from publishing ``/clock`` t_k (or the state that triggers it) to
-    receiving the command for step k [s].
+    command latency: wall time from publishing ``/clock`` t_k to receiving the command for step k [s],
+    always measured from ``/clock``, also for the feedback brain (triggered by the state of step k−1, published
+    before ``/clock`` t_k): its commands that arrive before ``/clock`` t_k was published are not counted.
+
+    Each series is a :class:`RunningStats` (a list given to the constructor is converted): mean and max cover
+    the whole run, p50 and p99 the last :data:`PERCENTILE_WINDOW` samples.
     """
 
-    jitter: list[float] = field(default_factory=list)
-    compute: list[float] = field(default_factory=list)
-    age: list[int] = field(default_factory=list)
-    latency: list[float] = field(default_factory=list)
+    jitter: RunningStats = field(default_factory=RunningStats)
+    compute: RunningStats = field(default_factory=RunningStats)
+    age: RunningStats = field(default_factory=RunningStats)
+    latency: RunningStats = field(default_factory=RunningStats)
     deadline_misses: int = 0
     safe_steps: int = 0
     steps: int = 0
 
+    def __post_init__(self) -> None:
+        for name in ("jitter", "compute", "age", "latency"):
+            value = getattr(self, name)
+            if not isinstance(value, RunningStats):
+                setattr(self, name, RunningStats(value))
+
     def summary(self) -> dict[str, float | int]:
-        """Counts and mean/p50/p99/max of each series (milliseconds for times, steps for ages)."""
+        """Counts and mean/p50/p99/max of each series (milliseconds for times, steps for ages); the
+        percentiles are over the last :data:`PERCENTILE_WINDOW` samples of a series."""
         out: dict[str, float | int] = {
             "steps": self.steps, "deadline_misses": self.deadline_misses, "safe_command_steps": self.safe_steps,
         }
-        for key, values, scale in (("jitter_ms", self.jitter, 1e3), ("compute_ms", self.compute, 1e3),
+        for key, series, scale in (("jitter_ms", self.jitter, 1e3), ("compute_ms", self.compute, 1e3),
                                    ("command_latency_ms", self.latency, 1e3), ("command_age_steps", self.age, 1.0)):
-            if not values:
+            if not series.count:
                 continue
-            arr = np.asarray(values, dtype=np.float64) * scale
-            out[f"{key}_mean"] = float(arr.mean())
-            out[f"{key}_p50"] = float(np.percentile(arr, 50))
-            out[f"{key}_p99"] = float(np.percentile(arr, 99))
-            out[f"{key}_max"] = float(arr.max())
+            out[f"{key}_mean"] = series.mean * scale
+            out[f"{key}_p50"] = series.percentile(50) * scale
+            out[f"{key}_p99"] = series.percentile(99) * scale
+            out[f"{key}_max"] = series.max * scale
         return out

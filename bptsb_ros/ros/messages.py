@@ -85,6 +85,18 @@ def joint_state(step: int, dt_ns: int, names: list[str], *, position: np.ndarray
     return msg
 
 
+def effort_from_acceleration(a: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """``body/mass_states`` effort [N] of the movable masses: F = m·a, (M, 2) accelerations → flat (2M,)."""
+    return (np.asarray(a, dtype=np.float64).reshape(-1, 2) * np.asarray(mass, dtype=np.float64)[:, None]).reshape(-1)
+
+
+def acceleration_from_effort(effort: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`effort_from_acceleration`: a = F / m, flat (2M,) effort → flat (2M,) accelerations
+    (laid out like the feedback layer's ``acceleration`` features). Exact for the paper's unit masses."""
+    effort = np.asarray(effort, dtype=np.float64).reshape(-1, 2)
+    return (effort / np.asarray(mass, dtype=np.float64)[:, None]).reshape(-1)
+
+
 def pose_array(step: int, dt_ns: int, positions: np.ndarray, frame_id: str) -> PoseArray:
     """PoseArray of mass positions (N, 2) [m] in the body plane (z = 0, identity orientation)."""
     msg = PoseArray()

@@ -50,8 +50,8 @@ class MlpBrain(BrainNode):
         step = m.step_of(msg.header.stamp, self.dt_ns)
         u = torch.from_numpy(m.as_array(msg.position)).to(self.agent.dtype)
         if u.numel() != self.n_in or not bool(torch.isfinite(u).all()):
-            self.get_logger().warning(f"ignored task input of step {step}: {u.tolist()} (expected {self.n_in} "
-                                      "finite values)")
+            self.warn("bad_input", f"ignored task input of step {step}: {u.tolist()} (expected {self.n_in} "
+                      "finite values)")
             return
         with torch.no_grad():
             force = brain_forces(self.agent, u * self.scale)

@@ -147,7 +147,9 @@ def declare_parameters(node: Node, specs: Sequence[Param]) -> dict[str, ParamVal
     return out
 
 
-def _yaml_scalar(value: ParamValue) -> str:
+def yaml_value(value: ParamValue) -> str:
+    """A parameter value as YAML (params files, ``--ros-args -p name:=value``): strings single-quoted so YAML
+    keeps them strings (``'123'``), lists in flow style."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, float):
@@ -155,7 +157,7 @@ def _yaml_scalar(value: ParamValue) -> str:
     if isinstance(value, int):
         return str(value)
     if isinstance(value, list):
-        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+        return "[" + ", ".join(yaml_value(v) for v in value) + "]"
     return "''" if value == "" else "'" + value.replace("'", "''") + "'"
 
 
@@ -175,19 +177,19 @@ def render_params_yaml(node_name: str, specs: Sequence[Param],
     ]
     for name, value, comment in extra:
         lines.append(f"    # {comment}")
-        lines.append(f"    {name}: {_yaml_scalar(value)}")
+        lines.append(f"    {name}: {yaml_value(value)}")
     groups: dict[str, list[Param]] = {}
     for p in specs:
         head = p.name.split(".", 1)[0] if "." in p.name else ""
         groups.setdefault(head, []).append(p)
     for p in groups.get("", []):
         lines.append(f"    # {p.description}" + (f" ({p.constraints()})" if p.constraints() else ""))
-        lines.append(f"    {p.name}: {_yaml_scalar(p.default)}")
+        lines.append(f"    {p.name}: {yaml_value(p.default)}")
     for head, params in groups.items():
         if not head:
             continue
         lines.append(f"    {head}:")
         for p in params:
             lines.append(f"      # {p.description}")
-            lines.append(f"      {p.name.split('.', 1)[1]}: {_yaml_scalar(p.default)}")
+            lines.append(f"      {p.name.split('.', 1)[1]}: {yaml_value(p.default)}")
     return "\n".join(lines) + "\n"

@@ -10,11 +10,12 @@ reliable, transient-local only if all are) and a history of ``queue_depth``. The
 and the type hash go into the bag. Each message is stamped with its receive time: the middleware's receive
 timestamp (system clock, ns since the epoch), or the node clock when ``use_sim_time`` is true.
 
-On SIGINT or SIGTERM it stops discovery, keeps taking the messages still in flight until none arrived for
-``drain_quiet`` seconds (at most ``stop_timeout``), then finalizes the bag (summary, indexes, ``metadata.yaml``)
-and exits 0. Killed outright, it leaves the chunks written so far (closed at least every ``flush_period``);
-``bptsb bag recover`` restores them. Log lines ``Recording to ...``, ``Subscribed to <topic> [<type>]`` and, with
-explicit ``topics``, ``All <n> requested topics subscribed`` tell a launcher when it is ready.
+On SIGINT or SIGTERM it stops discovery and the flush timer, keeps taking the messages still in flight (one
+per executor call) until a wait of ``drain_quiet`` seconds brings none (at most ``stop_timeout`` in all), then
+finalizes the bag (summary, indexes, ``metadata.yaml``) and exits 0. Killed outright, it leaves the chunks written
+so far (closed at least every ``flush_period``); ``bptsb bag recover`` restores them. Log lines
+``Recording to ...``, ``Subscribed to <topic> [<type>]`` and, with explicit ``topics``, ``All <n> requested topics
+subscribed`` tell a launcher when it is ready.
 """
 
 from __future__ import annotations
@@ -140,9 +141,12 @@ class RecorderNode(Node):
                           info.get("publication_sequence_number") or 0)
         self.received += 1
 
-    def stop_discovery(self) -> None:
-        """Stop looking for new topics (the stop sequence has begun)."""
+    def stop_timers(self) -> None:
+        """Stop looking for new topics and stop the flush timer (the stop sequence has begun): from now on the
+        executor only has subscriptions to serve, so an executor call that handled nothing means no message was
+        ready. ``BagWriter.write`` still flushes when ``flush_period`` is due."""
         self._discovery_timer.cancel()
+        self._flush_timer.cancel()
 
     def close(self) -> None:
         """Finalize the bag and log what it holds."""
@@ -155,13 +159,29 @@ class RecorderNode(Node):
 
 
 def _drain(executor: SingleThreadedExecutor, node: RecorderNode) -> None:
-    """Take in-flight messages until none arrived for ``drain_quiet`` s, or ``stop_timeout`` s have passed."""
-    deadline = time.monotonic() + node.config.stop_timeout
-    last_count, last_change = node.received, time.monotonic()
-    while time.monotonic() < deadline and time.monotonic() - last_change < node.config.drain_quiet:
-        executor.spin_once(timeout_sec=0.02)
-        if node.received != last_count:
-            last_count, last_change = node.received, time.monotonic()
+    """Take the messages still in flight after the stop signal.
+
+    ``spin_once`` handles at most one callback, so this loops ``spin_once(timeout_sec=drain_quiet)`` and stops
+    only when a call took no message, i.e. nothing became ready for ``drain_quiet`` seconds however long the
+    backlog is. The timers are cancelled first, so a call that ran a timer never counts as a quiet one.
+    ``stop_timeout`` caps the whole drain (the launcher's --grace is longer).
+    """
+    node.stop_timers()
+    started = time.monotonic()
+    deadline = started + node.config.stop_timeout
+    taken = node.received
+    while True:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            node.get_logger().warning(
+                f"stop_timeout: still taking messages after {node.config.stop_timeout:g} s "
+                f"({node.received - taken} taken since the stop signal); closing the bag, later ones are lost"
+            )
+            return
+        before = node.received
+        executor.spin_once(timeout_sec=min(node.config.drain_quiet, remaining))
+        if node.received == before:
+            return
 
 
 def main(args: list[str] | None = None) -> int:
@@ -181,7 +201,6 @@ def main(args: list[str] | None = None) -> int:
         try:
             while not stop.is_set():
                 executor.spin_once(timeout_sec=0.05)
-            node.stop_discovery()
             _drain(executor, node)
         except ExternalShutdownException:
             pass

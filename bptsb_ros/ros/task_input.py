@@ -1,8 +1,9 @@
 """``task_input``: streams a task's input series on ``task/input``, one value per step.
 
 For NARMA (the only task with an input series) the inputs u_j ~ U(0, 1) come from
-``numpy.random.default_rng(seed)`` as in ``NarmaTask.evaluate``, and are held for τ steps the way
-the offline episode applies them: step 0 and steps 1…τ carry u_0, steps jτ+1…(j+1)τ carry u_j.
+``numpy.random.default_rng(seed)`` as in ``NarmaTask.evaluate``, and are held for τ steps by
+``bptsb_ros.sim.rollout.held_inputs``, the function the offline episodes use: step 0 and steps 1…τ
+carry u_0, steps jτ+1…(j+1)τ carry u_j.
 On each ``/clock`` tick t_k it publishes the raw input in force at step k (dimensionless; the MLP
 brain applies the input scale).
 """
@@ -20,6 +21,7 @@ from bptsb_ros.ros.brain_node import BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.topics import input_names
+from bptsb_ros.sim.rollout import held_inputs
 from bptsb_ros.tasks.narma import narma_inputs
 
 NODE = "task_input"
@@ -28,11 +30,6 @@ PARAMS = (
           "evaluation sequence)", "int", minimum=-1),
     Param("tau", 0, "steps each input is held; 0: the agent config's narma.tau", "int", minimum=0),
 ) + topic_params(("clock", "task_input"))
-
-
-def input_index(step: int, tau: int) -> int:
-    """Index of the input in force at ``step`` (held for ``tau`` steps; step 0 carries input 0)."""
-    return max(step - 1, 0) // tau
 
 
 class TaskInput(BrainNode):
@@ -44,19 +41,24 @@ class TaskInput(BrainNode):
                                  f"{self.agent.task} agent")
         self.seed = self.p["input_seed"] if self.p["input_seed"] >= 0 else int(cfg["narma"]["eval_seed"])
         self.tau = self.p["tau"] or int(cfg["narma"]["tau"])
-        self.series = narma_inputs(self.seed, int(cfg["narma"]["n_inputs"]))
+        self._hold(int(cfg["narma"]["n_inputs"]))
         self.names = input_names(1)
         self.pub = self.output(JointState, self.p["topics.task_input"], m.command_qos(self.depth))
         self.create_subscription(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         self.get_logger().info(f"NARMA input u ~ U(0, 1), seed {self.seed}, held {self.tau} steps")
 
+    def _hold(self, n_inputs: int) -> None:
+        """The first ``n_inputs`` inputs of the series, held: ``self.held[k]`` is the input in force at step k
+        for steps 0..n_inputs·τ (the series is a prefix of any longer one with the same seed)."""
+        self.series = narma_inputs(self.seed, n_inputs)
+        self.held = held_inputs(self.series, self.tau, n_inputs * self.tau)
+
     def _on_clock(self, msg: Clock) -> None:
         started = time.monotonic()
         step = m.step_of(msg.clock, self.dt_ns)
-        j = input_index(step, self.tau)
-        if j >= self.series.size:
-            self.series = narma_inputs(self.seed, max(2 * self.series.size, j + 1))
-        value = self.series[j : j + 1]
+        if step >= self.held.size:
+            self._hold(max(2 * self.series.size, step // self.tau + 1))
+        value = self.held[step : step + 1]
         self.publish_timed(self.pub, m.joint_state(step, self.dt_ns, self.names, position=value), started)
 
 

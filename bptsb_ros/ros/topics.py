@@ -17,34 +17,45 @@ NS_PER_S = 1_000_000_000
 
 @dataclass(frozen=True)
 class Topic:
-    """One topic of the loop: default name, ROS type (``pkg/msg/Name``) and the node that publishes it."""
+    """One topic of the loop: key, default name and ROS type (``pkg/msg/Name``); ``TOPICS.md`` names the
+    publishing node of each."""
 
     key: str
     name: str
     type: str
-    publisher: str
 
 
 TOPICS: dict[str, Topic] = {
     t.key: t
     for t in (
-        Topic("clock", "/clock", "rosgraph_msgs/msg/Clock", "body_sim"),
-        Topic("positions", "body/positions", "geometry_msgs/msg/PoseArray", "body_sim"),
-        Topic("mass_states", "body/mass_states", "sensor_msgs/msg/JointState", "body_sim"),
-        Topic("spring_lengths", "body/spring_lengths", "sensor_msgs/msg/JointState", "body_sim"),
-        Topic("rest_length", "body/rest_length", "sensor_msgs/msg/JointState", "body_sim"),
-        Topic("external_force", "body/external_force", "sensor_msgs/msg/JointState", "body_sim"),
-        Topic("markers", "body/markers", "visualization_msgs/msg/MarkerArray", "body_sim"),
-        Topic("diagnostics", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "body_sim"),
-        Topic("rest_length_cmd", "brain/rest_length", "sensor_msgs/msg/JointState", "swg_brain, feedback_brain"),
-        Topic("force_cmd", "brain/force", "sensor_msgs/msg/JointState", "mlp_brain"),
-        Topic("wind", "env/wind", "geometry_msgs/msg/Vector3Stamped", "(user)"),
-        Topic("task_input", "task/input", "sensor_msgs/msg/JointState", "task_input"),
+        Topic("clock", "/clock", "rosgraph_msgs/msg/Clock"),
+        Topic("positions", "body/positions", "geometry_msgs/msg/PoseArray"),
+        Topic("mass_states", "body/mass_states", "sensor_msgs/msg/JointState"),
+        Topic("spring_lengths", "body/spring_lengths", "sensor_msgs/msg/JointState"),
+        Topic("rest_length", "body/rest_length", "sensor_msgs/msg/JointState"),
+        Topic("external_force", "body/external_force", "sensor_msgs/msg/JointState"),
+        Topic("markers", "body/markers", "visualization_msgs/msg/MarkerArray"),
+        Topic("diagnostics", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
+        Topic("rest_length_cmd", "brain/rest_length", "sensor_msgs/msg/JointState"),
+        Topic("force_cmd", "brain/force", "sensor_msgs/msg/JointState"),
+        Topic("wind", "env/wind", "geometry_msgs/msg/Vector3Stamped"),
+        Topic("task_input", "task/input", "sensor_msgs/msg/JointState"),
     )
 }
 
+#: Keys of the topics ``body_sim`` publishes, and of those it subscribes to.
+BODY_OUTPUTS: tuple[str, ...] = ("clock", "positions", "mass_states", "spring_lengths", "rest_length",
+                                 "external_force", "markers", "diagnostics")
+BODY_INPUTS: tuple[str, ...] = ("rest_length_cmd", "force_cmd", "wind")
+
 #: Command sources the body can wait for in lockstep, by the topic key they arrive on.
 COMMAND_SOURCES: dict[str, str] = {"rest_length": "rest_length_cmd", "force": "force_cmd"}
+
+
+def feedback_state_key(state_type: str) -> str:
+    """Topic key the feedback brain reads for a feedback-layer state type: ``spring_lengths`` for
+    ``spring_length``, else ``mass_states`` (position, velocity, effort)."""
+    return "spring_lengths" if state_type == "spring_length" else "mass_states"
 
 #: Default history depth of every loop topic: 10 s of steps at dt = 0.01 s.
 DEFAULT_QOS_DEPTH = 1000
