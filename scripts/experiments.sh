@@ -18,8 +18,8 @@ import json, sys
 from pathlib import Path
 import numpy as np
 out = Path(sys.argv[1])
-print("| run | command | updates | loss: first 10 → last 10 (mean) | metric | train steps/s |")
-print("|---|---|---|---|---|---|")
+print("| run | command | updates | loss: first 10 → last 10 (mean) | metric |")
+print("|---|---|---|---|---|")
 for name, cmd in [("lissajous", "config/lissajous_single.yaml"), ("locomotion", "config/locomotion_forward.yaml"),
                   ("narma_sgd", "config/narma.yaml --set epochs=300"), ("narma_adam", "config/narma_adam.yaml")]:
     m = json.loads((out / name / "metrics.json").read_text())
@@ -31,5 +31,5 @@ for name, cmd in [("lissajous", "config/lissajous_single.yaml"), ("locomotion", 
     if key == "mean_forward_speed":
         extra = f" (target {ev['target_speed_end_of_training']:.3g})" + extra
     print(f"| {name} | `bptsb train {cmd}` | {m['updates']} | {loss[:10].mean():.3g} → {loss[-10:].mean():.3g} "
-          f"| {key} = {ev[key]:.3g}{extra} | {m['train_steps_per_second']:.0f} |")
+          f"| {key} = {ev[key]:.3g}{extra} |")
 PYEOF
