@@ -40,7 +40,9 @@ class TrainResult:
 def _progress(total: int, desc: str, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit="upd", dynamic_ncols=True, disable=not enabled, file=sys.stderr)
+    interactive = sys.stderr.isatty()  # in a log file, a line every 10 s instead of a live bar
+    return tqdm(total=total, desc=desc, unit="upd", dynamic_ncols=interactive, disable=not enabled, file=sys.stderr,
+                mininterval=0.1 if interactive else 10.0)
 
 
 def train(
