@@ -122,6 +122,15 @@ def _stop(proc: subprocess.Popen[str], sig: int) -> tuple[int, str]:
     return proc.returncode, out
 
 
+
+def _kill_leftovers(*procs: subprocess.Popen | None) -> None:
+    """Kill and reap any test process still running (a failed assertion must not leave DDS participants)."""
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], sig: int) -> None:
     n = 4000  # one burst: a keep-last-1000 subscription loses part of it before the executor takes it
@@ -132,11 +141,7 @@ def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], si
         publisher = _publish(n, 0.0, env)
         rc, out = _stop(recorder, sig)  # at once: messages may still wait in the reader queue
     finally:
-        if publisher is not None:
-            publisher.kill()
-            publisher.wait()
-        if recorder.poll() is None:
-            recorder.kill()
+        _kill_leftovers(publisher, recorder)
     assert rc == 0, out
     assert "Subscribed to /bagtest/poses [geometry_msgs/msg/PoseArray]" in out
     assert "All 2 requested topics subscribed" in out
@@ -168,11 +173,7 @@ def test_sigkill_leaves_recoverable_chunks(tmp_path: Path, env: dict[str, str]) 
         _wait_until_file_stable(bag / f"{bag.name}_0.mcap", quiet=3 * flush_period)
         rc, out = _stop(recorder, signal.SIGKILL)
     finally:
-        if publisher is not None:
-            publisher.kill()
-            publisher.wait()
-        if recorder.poll() is None:
-            recorder.kill()
+        _kill_leftovers(publisher, recorder)
     assert rc == -signal.SIGKILL
     assert not (bag / "metadata.yaml").exists()
     with pytest.raises(BagError, match="bptsb bag recover"):
