@@ -18,6 +18,8 @@ SUBCOMMANDS = (
     "launch",
     "replay",
     "bag",
+    "reproduce",
+    "report",
 )
 
 

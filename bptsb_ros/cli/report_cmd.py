@@ -1,0 +1,27 @@
+"""`bptsb report`: gather every result.json into REPRODUCTION.md."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+NAME = "report"
+HELP = "Gather the result.json of every `bptsb reproduce` run into one Markdown page with figures."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("runs_dir", nargs="?", default="runs/reproduce", help="where to look (default runs/reproduce)")
+    parser.add_argument("--out", default="REPRODUCTION.md", help="the page to write (figures go beside it)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.analysis.report import build_report
+    from bptsb_ros.experiments import ResultError
+
+    try:
+        path = build_report(args.runs_dir, args.out)
+    except (ResultError, OSError) as err:
+        print(f"bptsb report: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}")
+    return 0

@@ -1,0 +1,50 @@
+"""`bptsb reproduce`: run one of the paper's experiments and write its result.json."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+NAME = "reproduce"
+HELP = ("Reproduce one experiment of the paper (--list names them): train, evaluate, compare with the paper's "
+        "numbers and claims; writes DIR/result.json and figures.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("name", nargs="?", help="experiment name (see --list)")
+    parser.add_argument("--list", action="store_true",
+                        help="list every experiment with the paper section it reproduces")
+    parser.add_argument("--scale", choices=("smoke", "short", "paper"), default="short",
+                        help="smoke: seconds (tests); short: minutes on 2 cores; paper: the paper's settings")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--out", default=None, help="run directory (default runs/reproduce/NAME)")
+    parser.add_argument("--force", action="store_true", help="replace an existing result.json in --out")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.config import ConfigError
+    from bptsb_ros.experiments import ExperimentError, experiments, run_experiment
+
+    if args.list:
+        for exp in experiments().values():
+            times = "; ".join(f"{k}: {v}" for k, v in exp.durations.items())
+            print(f"{exp.name:28s} {exp.paper_ref}\n{'':28s} {exp.summary}\n{'':28s} ({times})")
+        return 0
+    if not args.name:
+        print("bptsb reproduce: name an experiment (bptsb reproduce --list)", file=sys.stderr)
+        return 2
+    try:
+        path, result = run_experiment(args.name, scale=args.scale, seed=args.seed, out_dir=args.out,
+                                      force=args.force, progress=not args.no_progress)
+    except (ExperimentError, ConfigError) as err:
+        print(f"bptsb reproduce: {err}", file=sys.stderr)
+        return 2
+    for row in result["rows"]:
+        print(f"{row['system']:28s} {row['metric']:40s} ours {row['ours']!s:>12.12} paper {row['paper']!s:>10.10} "
+              f"{row['unit']}")
+    for claim in result["claims"]:
+        print(f"{'✓' if claim['holds'] else '✗'} {claim['claim']} ({claim['evidence']})")
+    print(json.dumps({"result": str(path), "wall_s": result["wall_s"], "figures": result["figures"]}))
+    return 0

@@ -1,0 +1,31 @@
+"""The paper's experiments, each runnable by name (``bptsb reproduce NAME --scale smoke|short|paper``).
+
+``registry.py`` holds the registry and the runner, ``result.py`` the result.json schema, and each other
+module one experiment (or a family of experiments sharing their training).
+"""
+
+from bptsb_ros.experiments.registry import (
+    Context,
+    Experiment,
+    ExperimentError,
+    experiment,
+    experiments,
+    get_experiment,
+    run_experiment,
+)
+from bptsb_ros.experiments.result import SCALES, ExperimentResult, ResultError, read_result, validate_result
+
+__all__ = [
+    "SCALES",
+    "Context",
+    "Experiment",
+    "ExperimentError",
+    "ExperimentResult",
+    "ResultError",
+    "experiment",
+    "experiments",
+    "get_experiment",
+    "read_result",
+    "run_experiment",
+    "validate_result",
+]

@@ -1,0 +1,152 @@
+"""Every paper experiment that ``bptsb reproduce`` can run, by name.
+
+An experiment is a function ``run(ctx: Context) -> None`` registered with :func:`experiment`. It reads its
+settings for the chosen scale from ``ctx`` (:meth:`Context.pick`), writes its figures into ``ctx.out_dir``
+and records rows, claims and figures on ``ctx.result``. The runner (:func:`run_experiment`) times it and
+writes ``result.json``.
+
+Experiment modules are listed in :data:`MODULES` and imported on first use, so ``--list`` stays fast and
+each module registers itself on import.
+"""
+
+from __future__ import annotations
+
+import importlib
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentResult, Row, write_result
+
+#: modules holding experiments, in the order of the paper
+MODULES: tuple[str, ...] = (
+    "bptsb_ros.experiments.lissajous_closed_loop",
+)
+
+T = TypeVar("T")
+
+
+class ExperimentError(RuntimeError):
+    """An experiment cannot run (unknown name, bad scale, output exists); one line for the user."""
+
+
+@dataclass
+class Context:
+    """What an experiment run gets: the scale, the seed, where to write, and the result to fill."""
+
+    scale: str
+    seed: int
+    out_dir: Path
+    result: ExperimentResult
+    progress: bool = True
+    log: Callable[[str], None] = field(default=lambda msg: print(msg, file=sys.stderr, flush=True))
+
+    def pick(self, *, smoke: T, short: T, paper: T) -> T:
+        """The setting for this run's scale."""
+        return {"smoke": smoke, "short": short, "paper": paper}[self.scale]
+
+    def row(self, system: str, metric: str, unit: str, ours: float | None, paper: float | str | None = None) -> None:
+        self.result.rows.append(Row(system, metric, unit, ours, paper))
+
+    def claim(self, claim: str, holds: bool, evidence: str) -> bool:
+        """Record a paper claim with the computed verdict; returns ``holds``."""
+        self.result.claims.append(Claim(claim, holds, evidence))
+        return bool(holds)
+
+    def figure(self, path: Path) -> Path:
+        """Register a figure written inside ``out_dir``."""
+        self.result.figures.append(str(Path(path).resolve().relative_to(self.out_dir.resolve())))
+        return path
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    paper_ref: str
+    summary: str
+    run: Callable[[Context], None]
+    #: how long each scale takes on the 2-core development machine (measured; text for --list)
+    durations: dict[str, str]
+
+
+_REGISTRY: dict[str, Experiment] = {}
+
+
+def experiment(name: str, *, paper_ref: str, summary: str, durations: dict[str, str]):
+    """Decorator registering ``run(ctx)`` as the paper experiment ``name``."""
+
+    def register(fn: Callable[[Context], None]) -> Callable[[Context], None]:
+        if name in _REGISTRY and _REGISTRY[name].run is not fn:
+            raise ValueError(f"experiment {name!r} registered twice")
+        _REGISTRY[name] = Experiment(name, paper_ref, summary, fn, dict(durations))
+        return fn
+
+    return register
+
+
+def experiments() -> dict[str, Experiment]:
+    """All experiments, in paper order."""
+    for module in MODULES:
+        importlib.import_module(module)
+    return dict(_REGISTRY)
+
+
+def get_experiment(name: str) -> Experiment:
+    found = experiments()
+    if name not in found:
+        raise ExperimentError(f"unknown experiment {name!r}; `bptsb reproduce --list` names them all")
+    return found[name]
+
+
+def _git_commit() -> str | None:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
+                             cwd=Path(__file__).resolve().parent)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
+def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: str | Path | None = None,
+                   force: bool = False, progress: bool = True,
+                   log: Callable[[str], None] | None = None) -> tuple[Path, dict[str, Any]]:
+    """Run one experiment and write ``out_dir/result.json``; returns (its path, its content).
+
+    An existing ``result.json`` is kept unless ``force``; a failed run writes no result.
+    """
+    exp = get_experiment(name)
+    if scale not in SCALES:
+        raise ExperimentError(f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
+    out = Path(out_dir) if out_dir is not None else Path("runs") / "reproduce" / name
+    if (out / RESULT_FILE).exists() and not force:
+        raise ExperimentError(f"{out / RESULT_FILE} exists; choose another --out or pass --force to replace it")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
+    result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed))
+    result.provenance = {
+        "command": f"bptsb reproduce {name} --scale {scale} --seed {seed}",
+        "python": platform.python_version(),
+        "machine": f"{platform.machine()}, {_cpu_count()} cores",
+        "git_commit": _git_commit(),
+    }
+    ctx = Context(scale, int(seed), out, result, progress=progress)
+    if log is not None:
+        ctx.log = log
+    t0 = time.perf_counter()
+    exp.run(ctx)
+    result.wall_s = round(time.perf_counter() - t0, 2)
+    path = write_result(out, result)
+    return path, result.to_json()
+
+
+def _cpu_count() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

@@ -1,0 +1,123 @@
+"""`bptsb reproduce` / `bptsb report`: the result.json schema, the runner, the report page, and a smoke run."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import pytest
+
+from bptsb_ros.analysis.report import build_report
+from bptsb_ros.cli import main
+from bptsb_ros.experiments import ExperimentError, ResultError, read_result, run_experiment, validate_result
+from bptsb_ros.experiments.registry import _REGISTRY, Context, experiment
+from bptsb_ros.experiments.result import Claim
+
+
+def _planted(ctx: Context) -> None:
+    """A toy experiment with known numbers: ours = 2·seed + 1, the claim "ours > paper" with paper = 2."""
+    ours = 2 * ctx.seed + 1
+    ctx.row("toy", "value", "m", ours, 2.0)
+    ctx.claim("ours exceeds the paper's 2", ours > 2, f"ours = {ours}")
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, ours])
+    fig.savefig(ctx.out_dir / "toy.png")
+    plt.close(fig)
+    ctx.figure(ctx.out_dir / "toy.png")
+
+
+@pytest.fixture
+def toy_experiment():
+    experiment("toy-planted", paper_ref="Table 0", summary="planted numbers", durations={"smoke": "0 s"})(_planted)
+    yield "toy-planted"
+    _REGISTRY.pop("toy-planted", None)
+
+
+def test_claim_refuses_anything_but_a_bool():
+    with pytest.raises(ResultError, match="computed bool"):
+        Claim("x", "yes", "e")  # type: ignore[arg-type]
+    assert Claim("x", 1 > 0, "e").holds is True
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d.pop("claims"), "missing key 'claims'"),
+    (lambda d: d.update(scale="huge"), "scale must be one of"),
+    (lambda d: d["claims"][0].update(holds="true"), r"claims\[0\].holds"),
+    (lambda d: d["rows"][0].update(ours="1.0"), r"rows\[0\].ours"),
+    (lambda d: d["figures"].append("/etc/passwd"), "inside the run directory"),
+    (lambda d: d["figures"].append("../x.png"), "inside the run directory"),
+    (lambda d: d.update(seed=True), "seed has the wrong type"),
+])
+def test_schema_rejects_bad_results(mutate, message):
+    good = {"experiment": "e", "paper_ref": "Fig. 1", "scale": "smoke", "seed": 0, "wall_s": 1.0,
+            "rows": [{"system": "s", "metric": "m", "unit": "1", "ours": 1.0, "paper": None}],
+            "claims": [{"claim": "c", "holds": True, "evidence": "e"}], "figures": []}
+    validate_result(good)
+    mutate(good)
+    with pytest.raises(ResultError, match=message):
+        validate_result(good)
+
+
+def test_runner_writes_result_and_never_overwrites(tmp_path, toy_experiment):
+    path, data = run_experiment(toy_experiment, scale="smoke", seed=3, out_dir=tmp_path / "a", progress=False)
+    on_disk = json.loads(path.read_text())
+    assert on_disk == data
+    assert on_disk["rows"] == [{"system": "toy", "metric": "value", "unit": "m", "ours": 7.0, "paper": 2.0}]
+    assert on_disk["claims"][0]["holds"] is True and on_disk["figures"] == ["toy.png"]
+    assert on_disk["seed"] == 3 and on_disk["scale"] == "smoke" and on_disk["wall_s"] >= 0
+    with pytest.raises(ExperimentError, match="exists"):
+        run_experiment(toy_experiment, scale="smoke", seed=0, out_dir=tmp_path / "a", progress=False)
+    _, again = run_experiment(toy_experiment, scale="smoke", seed=0, out_dir=tmp_path / "a", force=True,
+                              progress=False)
+    assert again["claims"][0]["holds"] is False  # ours = 1 < 2
+    with pytest.raises(ExperimentError, match="unknown experiment"):
+        run_experiment("no-such-experiment", out_dir=tmp_path / "b")
+    with pytest.raises(ExperimentError, match="scale"):
+        run_experiment(toy_experiment, scale="large", out_dir=tmp_path / "c")
+
+
+def test_report_page_has_tables_claims_and_figures(tmp_path, toy_experiment):
+    runs = tmp_path / "runs"
+    run_experiment(toy_experiment, scale="smoke", seed=3, out_dir=runs / "held", progress=False)
+    run_experiment(toy_experiment, scale="short", seed=0, out_dir=runs / "failed", progress=False)
+    page = build_report(runs, tmp_path / "docs" / "REPRODUCTION.md")
+    text = page.read_text()
+    assert "| toy | value | 7 | 2 | m |" in text and "| toy | value | 1 | 2 | m |" in text
+    assert "- ✓ ours exceeds the paper's 2 — ours = 7" in text
+    assert "- ✗ ours exceeds the paper's 2 — ours = 1" in text
+    assert "| 1/1 |" in text and "| 0/1 |" in text
+    links = [line[line.index("](") + 2:-1] for line in text.splitlines() if line.startswith("![")]
+    assert len(links) == 2 and all((page.parent / link).is_file() for link in links)
+
+
+def test_report_names_a_broken_result(tmp_path):
+    bad = tmp_path / "runs" / "x" / "result.json"
+    bad.parent.mkdir(parents=True)
+    bad.write_text('{"experiment": "x"}')
+    with pytest.raises(ResultError, match="missing key"):
+        build_report(tmp_path / "runs", tmp_path / "R.md")
+    assert main(["report", str(tmp_path / "runs"), "--out", str(tmp_path / "R.md")]) == 2
+    with pytest.raises(ResultError, match="no result.json"):
+        build_report(tmp_path / "empty", tmp_path / "R.md")
+
+
+def test_every_listed_experiment_is_registered(capsys):
+    assert main(["reproduce", "--list"]) == 0
+    out = capsys.readouterr().out
+    assert "lissajous-closed-loop" in out and "Fig. 4(a)" in out
+
+
+def test_lissajous_closed_loop_smoke(tmp_path):
+    out = tmp_path / "lcl"
+    assert main(["reproduce", "lissajous-closed-loop", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    rows = {(r["system"], r["metric"]): r["ours"] for r in data["rows"]}
+    open_err = rows[("SWG (open loop)", "trajectory MSE, min over shifts")]
+    closed_err = rows[("FL (closed loop)", "trajectory MSE, min over shifts")]
+    assert rows[("FL / SWG", "error ratio")] == pytest.approx(closed_err / open_err)
+    # the "larger" claim is the computed comparison of the two rows
+    assert data["claims"][0]["holds"] == (closed_err > open_err)
+    assert all((out / f).is_file() for f in data["figures"]) and len(data["figures"]) == 2
+    assert main(["reproduce", "lissajous-closed-loop", "--scale", "smoke", "--out", str(out)]) == 2
+    assert Path(out / "agent" / "checkpoint.pt").is_file()
