@@ -11,6 +11,7 @@ SHELL := /bin/bash
 
 PYTHON ?= python3
 PYTEST_ARGS ?=
+MUTATION_ARGS ?=
 TORCH_VERSION := 2.13.0
 VENV := .venv
 VENV_ABS := $(abspath $(VENV))
@@ -32,13 +33,14 @@ export PIP_PROGRESS_BAR := off
 # This machine's pip config names local package indexes that lack most projects; pip warns once per project.
 PIP_FILTER := sed -u -e "/Location 'file:.*' is ignored/d"
 
-.PHONY: help venv test lint demo bench clean distclean
+.PHONY: help venv test lint mutation demo bench clean distclean
 
 help:
 	@echo "make demo       train a small Lissajous agent, simulate it, write plots and an animation"
 	@echo "make test       ruff + pytest (bootstraps .venv on the first run; PYTEST_ARGS='-x -k name' narrows it)"
 	@echo "make venv       create/refresh .venv (torch $(TORCH_VERSION), bptsb_ros[ros,dev])"
 	@echo "make lint       ruff check"
+	@echo "make mutation   apply each listed one-line bug to a temporary copy and check that the tests catch it"
 	@echo "make bench      speed benchmark -> bench.json"
 	@echo "make clean      remove build outputs and caches; make distclean also removes .venv and runs/"
 
@@ -57,6 +59,10 @@ lint: venv
 test: venv
 	$(VENV)/bin/ruff check .
 	$(VPY) -m pytest -ra $(PYTEST_ARGS) tests/
+
+# Mutants and their tests are listed in scripts/mutation_check.py (MUTANTS); exit 1 if one survives.
+mutation: venv
+	$(VPY) scripts/mutation_check.py $(MUTATION_ARGS)
 
 demo: venv
 	bash scripts/demo.sh

@@ -9,6 +9,7 @@ trajectory is the solution of the equations it claims to solve.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +21,20 @@ def load_keys(path: str | Path) -> dict[str, np.ndarray]:
         return {key: data[key] for key in data.files}
 
 
-def total_force(keys: dict[str, np.ndarray], r: np.ndarray, v: np.ndarray, step: int) -> np.ndarray:
-    """(N, 2) total force [N] on every mass at positions r, velocities v, with the rest lengths and
-    external forces in force at ``step``."""
+def spring_lengths(keys: dict[str, np.ndarray], r: np.ndarray) -> np.ndarray:
+    """(E,) length [m] of every spring at positions r (N, 2)."""
+    springs = keys["springs"]
+    return np.sqrt(((r[springs[:, 0]] - r[springs[:, 1]]) ** 2).sum(axis=1))
+
+
+def total_force(keys: dict[str, np.ndarray], r: np.ndarray, v: np.ndarray, step: int,
+                rest: np.ndarray | None = None) -> np.ndarray:
+    """(N, 2) total force [N] on every mass at positions r, velocities v, with the rest lengths (``rest``,
+    default the file's row ``step``) and external forces in force at ``step``."""
     springs = keys["springs"]
     i, j = springs[:, 0], springs[:, 1]
     k, d = keys["k"], keys["d"]
-    rest = keys["rest_length"][step]
+    rest = keys["rest_length"][step] if rest is None else rest
     delta = r[i] - r[j]  # (E, 2)
     dist = np.sqrt((delta**2).sum(axis=1))
     f_ij = -(k * (dist - rest) / dist)[:, None] * delta - d[:, None] * (v[i] - v[j])  # Eq. (1), on mass i
@@ -43,8 +51,14 @@ def total_force(keys: dict[str, np.ndarray], r: np.ndarray, v: np.ndarray, step:
     return force
 
 
-def reintegrate(keys: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+RestLaw = Callable[[np.ndarray], np.ndarray]
+
+
+def reintegrate(keys: dict[str, np.ndarray], rest_law: RestLaw | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Integrate from row 0 of ``positions``/``velocities`` for as many steps as the file holds.
+
+    ``rest_law`` (closed loop) maps the re-integrated positions (N, 2) at step t−1 to the rest lengths (E,)
+    in force at step t, instead of reading them from the file (row 0 still comes from the file).
 
     Returns:
         positions, velocities: (T+1, N, 2) re-integrated [m], [m/s].
@@ -66,7 +80,8 @@ def reintegrate(keys: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
             r_new = r + v * dt + 0.5 * a * dt * dt
         else:
             r_new = r + v * dt
-        a_new = total_force(keys, r_new, v, t) * inv_mass  # velocity-dependent forces see v(t)
+        rest = None if rest_law is None else rest_law(r)
+        a_new = total_force(keys, r_new, v, t, rest) * inv_mass  # velocity-dependent forces see v(t)
         if integrator == "verlet":
             v_new = v + 0.5 * (a + a_new) * dt
         else:

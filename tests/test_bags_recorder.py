@@ -131,6 +131,30 @@ def _kill_leftovers(*procs: subprocess.Popen | None) -> None:
             proc.wait()
 
 
+#: What the test publisher's offer looks like to a recorder, in the rosbag2 v9 form (typed here, not produced by our
+#: code): reliable, volatile, no deadline or lifespan, automatic liveliness without a lease (rmw reports these as
+#: infinite). DDS discovery does not carry history or depth, so rmw reports them as "unknown" and 0, and rosbag2
+#: Jazzy records them so.
+OFFERED = [{"history": "unknown", "depth": 0, "reliability": "reliable", "durability": "volatile",
+            "deadline": {"sec": 9223372036, "nsec": 854775807}, "lifespan": {"sec": 9223372036, "nsec": 854775807},
+            "liveliness": "automatic", "liveliness_lease_duration": {"sec": 9223372036, "nsec": 854775807},
+            "avoid_ros_namespace_conventions": False}]
+
+
+def _assert_raw_offered_qos(bag: Path) -> None:
+    """The whole offered profile of both topics, read from metadata.yaml and the MCAP channels without our reader."""
+    import yaml
+    from mcap.reader import make_reader
+
+    expected = {"/bagtest/data": OFFERED, "/bagtest/poses": OFFERED}
+    raw = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+            for t in raw["topics_with_message_count"]} == expected
+    with open(bag / f"{bag.name}_0.mcap", "rb") as f:
+        channels = make_reader(f).get_summary().channels.values()
+    assert {c.topic: yaml.safe_load(c.metadata["offered_qos_profiles"]) for c in channels} == expected
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], sig: int) -> None:
     n = 4000  # one burst: a keep-last-1000 subscription loses part of it before the executor takes it
@@ -147,8 +171,7 @@ def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], si
     assert "All 2 requested topics subscribed" in out
     meta = read_metadata(bag)
     assert {t.name: t.message_count for t in meta.topics} == {"/bagtest/data": n, "/bagtest/poses": n}
-    qos = meta.topics[0].offered_qos_profiles
-    assert len(qos) == 1 and qos[0].reliability == "reliable"
+    _assert_raw_offered_qos(bag)
     data = [m.message.data[0] for m in read_messages(bag, ["/bagtest/data"])]
     assert data == [float(i) for i in range(n)]
     times = [m.timestamp_ns for m in read_messages(bag)]

@@ -258,3 +258,52 @@ def test_joint_state_arrays_take_the_filled_field(tmp_path: Path) -> None:
     assert arrays["/state"].values.tolist() == [[1.0]] * 3
     with pytest.raises(BagError, match="no position, velocity or effort"):
         read_arrays(bag, ["/empty"])
+
+
+# A whole offered profile as rosbag2 Jazzy writes it (metadata version 9: lower-case policy names, durations as
+# {sec, nsec}), typed here from rosbag2's format, not produced by our code.
+LATCHED_KEEP_ALL = QosProfile(history="keep_all", depth=0, reliability="reliable", durability="transient_local",
+                              deadline_ns=1_500_000_000, lifespan_ns=INFINITE_NS, liveliness="automatic",
+                              liveliness_lease_duration_ns=250_000_000)
+LATCHED_KEEP_ALL_RAW = {
+    "history": "keep_all", "depth": 0, "reliability": "reliable", "durability": "transient_local",
+    "deadline": {"sec": 1, "nsec": 500_000_000}, "lifespan": {"sec": 9223372036, "nsec": 854775807},
+    "liveliness": "automatic", "liveliness_lease_duration": {"sec": 0, "nsec": 250_000_000},
+    "avoid_ros_namespace_conventions": False,
+}
+KEEP_LAST_7_RAW = {
+    "history": "keep_last", "depth": 7, "reliability": "best_effort", "durability": "volatile",
+    "deadline": {"sec": 0, "nsec": 0}, "lifespan": {"sec": 0, "nsec": 0}, "liveliness": "system_default",
+    "liveliness_lease_duration": {"sec": 0, "nsec": 0}, "avoid_ros_namespace_conventions": False,
+}
+
+
+def test_whole_qos_profiles_in_raw_metadata_and_mcap_channels(tmp_path: Path) -> None:
+    """Every field of two offered profiles, read from metadata.yaml and the MCAP channel metadata directly."""
+    bag = tmp_path / "qos"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/latched", "std_msgs/msg/Float64MultiArray",
+                         qos_profiles=[LATCHED_KEEP_ALL, QosProfile(depth=7, reliability="best_effort")])
+        writer.write("/latched", serialize_message(Float64MultiArray(data=[1.0])), T0)
+    raw = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    (topic,) = raw["topics_with_message_count"]
+    assert topic["topic_metadata"]["offered_qos_profiles"] == [LATCHED_KEEP_ALL_RAW, KEEP_LAST_7_RAW]
+    with open(bag / "qos_0.mcap", "rb") as f:
+        (channel,) = make_reader(f).get_summary().channels.values()
+    text = channel.metadata["offered_qos_profiles"]
+    assert isinstance(text, str) and yaml.safe_load(text) == [LATCHED_KEEP_ALL_RAW, KEEP_LAST_7_RAW]
+
+
+def test_qos_from_rclpy_keeps_every_policy() -> None:
+    """A recorder stores what rclpy reports for a publisher: every policy, lower-case, depth as given."""
+    from rclpy.duration import Duration
+    from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolicy, QoSProfile, QoSReliabilityPolicy
+
+    offered = QoSProfile(history=QoSHistoryPolicy.KEEP_ALL, depth=0, reliability=QoSReliabilityPolicy.RELIABLE,
+                         durability=QoSDurabilityPolicy.TRANSIENT_LOCAL, deadline=Duration(seconds=1.5),
+                         lifespan=Duration(nanoseconds=INFINITE_NS), liveliness=QoSLivelinessPolicy.AUTOMATIC,
+                         liveliness_lease_duration=Duration(nanoseconds=250_000_000))
+    assert QosProfile.from_rclpy(offered).to_dict() == LATCHED_KEEP_ALL_RAW
+    keep_last = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=7, reliability=QoSReliabilityPolicy.BEST_EFFORT,
+                           durability=QoSDurabilityPolicy.VOLATILE)
+    assert QosProfile.from_rclpy(keep_last).to_dict() == KEEP_LAST_7_RAW

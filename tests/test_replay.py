@@ -79,3 +79,55 @@ def test_replay_needs_the_body_topics(tmp_path):
         w.write_message("/other", m.clock_msg(1, 10_000_000), 10_000_000)
     with pytest.raises(BagError, match="no /body/positions"):
         read_run(tmp_path / "bag")
+
+
+def _lissajous_target(t: np.ndarray) -> np.ndarray:
+    """The paper's figure-eight for the default config, typed here: X = Y = 4 m / 20, (α, β, δ) = (1, 2, 0), ω = 2π."""
+    return np.stack([0.2 * np.cos(2 * np.pi * t), 0.2 * np.sin(4 * np.pi * t)], axis=-1)
+
+
+def _write_planted_bag(bag: Path, positions: np.ndarray, cmp_index: int = -1, markers: bool = True) -> None:
+    """A bag of given positions (T+1, N, 2) at steps 0..T (dt = 0.01 s); masses 0 and 1 fixed, springs to the last."""
+    ns = dt_to_ns(0.01)
+    n = positions.shape[1]
+    springs = np.array([[i, n - 1] for i in range(n - 1)])
+    fixed = np.arange(n) < 2
+    with BagWriter(bag) as w:
+        for k, pos in enumerate(positions):
+            w.write_message("/body/positions", m.pose_array(k, ns, pos, "msdn"), k * ns)
+            if markers and k % 50 == 0:
+                w.write_message("/body/markers", m.body_markers(k, ns, pos, springs, fixed, cmp_index,
+                                                                np.zeros(len(springs)), "msdn", 0.1), k * ns)
+
+
+def test_replay_lissajous_metric_of_a_planted_run(tmp_path):
+    """A CMP 30 steps behind the target and 0.01 m off in x and y: the best shift (70 steps) leaves exactly
+    1e-4 m² in every period; the unshifted MSE is computed here from the raw positions."""
+    steps = 500
+    t = np.arange(steps + 1) * 0.01
+    cmp = _lissajous_target(t - 0.30) + 0.01
+    positions = np.zeros((steps + 1, 3, 2))
+    positions[:, 0], positions[:, 1] = (-1.0, 0.0), (1.0, 0.0)
+    positions[:, 2] = cmp
+    _write_planted_bag(tmp_path / "bag", positions, cmp_index=2)
+    metrics = replay(tmp_path / "bag", tmp_path / "out", task="lissajous", gif=False)
+    live = metrics["live"]
+    assert metrics["recorded_steps"] == steps + 1 and metrics["missing_steps"] == 0
+    assert live["trajectory_mse"] == pytest.approx(float(np.mean((cmp - _lissajous_target(t)) ** 2)), rel=1e-12)
+    assert live["trajectory_mse"] > 0.01  # unshifted, the delay dominates
+    assert live["trajectory_mse_shift_min"] == pytest.approx(1e-4, rel=1e-9)
+    assert live["trajectory_mse_shift_min_second_half"] == pytest.approx(1e-4, rel=1e-9)
+
+
+def test_replay_locomotion_speed_of_a_planted_walk(tmp_path):
+    steps = 400
+    t = np.arange(steps + 1) * 0.01
+    positions = np.zeros((steps + 1, 4, 2))
+    positions[..., 0] = np.array([0.0, 0.2, 0.4, 0.6]) + 0.25 * t[:, None] + 0.03 * np.sin(2 * np.pi * t)[:, None]
+    positions[..., 1] = 0.1 + 0.02 * np.cos(2 * np.pi * t)[:, None]
+    _write_planted_bag(tmp_path / "bag", positions, markers=False)
+    metrics = replay(tmp_path / "bag", tmp_path / "out", task="locomotion", gif=False)
+    # (mean x at 4 s − mean x at 0) / 4 s from the raw positions: 0.25 m/s (the wobble is back at its start)
+    expected = (positions[-1, :, 0].mean() - positions[0, :, 0].mean()) / 4.0
+    assert expected == pytest.approx(0.25, abs=1e-12)
+    assert metrics["live"]["mean_forward_speed"] == pytest.approx(expected, rel=1e-12)

@@ -1,0 +1,284 @@
+#!/usr/bin/env python3
+"""Mutation check: does the test suite notice when the code is wrong?
+
+Each mutant is a one-line change written as an exact text replacement in one file of the package. For each,
+the script copies the working tree (tracked and untracked, non-ignored files) to a temporary directory, applies
+the replacement there (the working tree itself is never modified, so Ctrl-C is always safe), runs the fast
+tests named for that mutant with ``pytest -x``, and reports the mutant **killed** (a test failed) or
+**survived** (every test passed: the tests cannot see that bug).
+
+Usage (``make mutation`` runs the first form)::
+
+    python scripts/mutation_check.py                 # every mutant; exit 0 only if every one is killed
+    python scripts/mutation_check.py --list          # the mutants and their tests, run nothing
+    python scripts/mutation_check.py -k swg -k qos   # only mutants whose id contains one of the words
+    python scripts/mutation_check.py -k qos --tests tests/test_bags_recorder.py   # which test kills them?
+
+Exit status: 0 all killed, 1 some survived, 2 the check itself could not run (a mutant's target text is not
+found exactly once — update it when the line moves —, the unmutated tests fail, or the copy imports the
+package from elsewhere).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Mutant:
+    """Replace ``old`` (must occur exactly once in ``path``) by ``new``; ``tests`` are pytest node ids/paths."""
+
+    id: str
+    path: str
+    old: str
+    new: str
+    what: str
+    tests: tuple[str, ...]
+
+
+BRAINS = "tests/test_brains.py"
+TASKS = "tests/test_tasks.py"
+BODY = ("tests/test_physics.py", "tests/test_simulate.py")
+RECORDED_QOS = ("tests/test_bags_writer.py", "tests/test_bags_recorder.py::test_stop_signal_keeps_every_message")
+
+MUTANTS: tuple[Mutant, ...] = (
+    # -- issue 13: everything above the body ------------------------------------------------------------
+    Mutant("feedback-sign", "bptsb_ros/brains/feedback.py",
+           "return base * (1 + self.signal_from_features(features))",
+           "return base * (1 - self.signal_from_features(features))",
+           "closed-loop rest length l(1 + W·s) → l(1 − W·s)", (BRAINS,)),
+    Mutant("ridge-noise-x0", "bptsb_ros/training/feedback_fit.py",
+           "x_fit = x[lo:hi] + cfg.noise * rng",
+           "x_fit = x[lo:hi] + 0 * cfg.noise * rng",
+           "ridge input noise ×0", (BRAINS,)),
+    Mutant("ridge-noise-x10", "bptsb_ros/training/feedback_fit.py",
+           "x_fit = x[lo:hi] + cfg.noise * rng",
+           "x_fit = x[lo:hi] + 10 * cfg.noise * rng",
+           "ridge input noise ×10", (BRAINS,)),
+    Mutant("ridge-bias-mean", "bptsb_ros/brains/feedback.py",
+           "bias = y_mean - x_mean @ best_w",
+           "bias = y_mean",
+           "ridge bias replaced by the target mean", (BRAINS,)),
+    Mutant("swg-amplitude-0.9", "bptsb_ros/brains/swg.py",
+           "s = self.amplitude * torch.sin(",
+           "s = 0.9 * self.amplitude * torch.sin(",
+           "SWG amplitude ×0.9", (BRAINS,)),
+    Mutant("swg-cos", "bptsb_ros/brains/swg.py",
+           "self.amplitude * torch.sin(self.omega",
+           "self.amplitude * torch.cos(self.omega",
+           "SWG sin → cos", (BRAINS,)),
+    Mutant("swg-minus-phase", "bptsb_ros/brains/swg.py",
+           "t.unsqueeze(-1) + self.phase)",
+           "t.unsqueeze(-1) - self.phase)",
+           "SWG phase −φ", (BRAINS,)),
+    Mutant("swg-half-omega", "bptsb_ros/brains/swg.py",
+           "torch.sin(self.omega * t.unsqueeze(-1)",
+           "torch.sin(self.omega / 2 * t.unsqueeze(-1)",
+           "SWG ω/2", (BRAINS,)),
+    Mutant("locomotion-no-step", "bptsb_ros/training/trainer.py",
+           "            optimizer.step()\n",
+           "            optimizer.step() if cfg.task != \"locomotion\" else None\n",
+           "optimizer.step() skipped for locomotion",
+           ("tests/test_training.py::test_locomotion_training_lowers_loss",)),
+    Mutant("resume-fp16-velocity", "bptsb_ros/tasks/base.py",
+           'return {"r": s.r, "v": s.v,',
+           'return {"r": s.r, "v": s.v.half().to(s.v.dtype),',
+           "resume checkpoint rounds velocities to fp16",
+           ("tests/test_training.py::test_resume_continues_where_it_stopped",)),
+    Mutant("qos-depth-10", "bptsb_ros/bags/qos.py",
+           "depth=int(profile.depth),",
+           "depth=10,",
+           "recorded QoS depth 10", RECORDED_QOS),
+    Mutant("qos-history-keep-last", "bptsb_ros/bags/qos.py",
+           "history=profile.history.name.lower(),",
+           'history="keep_last",',
+           "recorded QoS history forced to keep_last", RECORDED_QOS),
+    Mutant("qos-durability-upper", "bptsb_ros/bags/qos.py",
+           '"durability": self.durability,',
+           '"durability": self.durability.upper(),',
+           "QoS durability written upper-case", RECORDED_QOS),
+    Mutant("qos-durability-upper-recorded", "bptsb_ros/bags/qos.py",
+           "durability=profile.durability.name.lower(),",
+           "durability=profile.durability.name,",
+           "recorded QoS durability upper-case (rclpy enum name)", RECORDED_QOS),
+    Mutant("replay-shift-min-x2", "bptsb_ros/analysis/replay.py",
+           'out["trajectory_mse_shift_min"] = windowed_shift_error(',
+           'out["trajectory_mse_shift_min"] = 2 * windowed_shift_error(',
+           "replay's trajectory_mse_shift_min ×2",
+           ("tests/test_replay.py::test_replay_lissajous_metric_of_a_planted_run",)),
+    Mutant("narma-0.4", "bptsb_ros/tasks/narma.py",
+           "y[t + 1] = 0.3 * y[t]",
+           "y[t + 1] = 0.4 * y[t]",
+           "NARMA coefficient 0.3 → 0.4", (TASKS,)),
+    Mutant("lissajous-no-beta", "bptsb_ros/tasks/lissajous.py",
+           "torch.sin(beta * omega * t + delta)",
+           "torch.sin(omega * t + delta)",
+           "Lissajous target without β", (TASKS,)),
+    # -- the body (already caught before issue 13; kept so that it stays so) --------------------------------
+    Mutant("body-damping-sign", "bptsb_ros/body/forces.py",
+           "torch.addcmul(coef.unsqueeze(-1) * diff, d.unsqueeze(-1), dv)",
+           "torch.addcmul(coef.unsqueeze(-1) * diff, -d.unsqueeze(-1), dv)",
+           "damping force sign flipped", BODY),
+    Mutant("body-verlet-position-half", "bptsb_ros/body/msdn.py",
+           "r = r.add_(state.a, alpha=0.5 * dt * dt)",
+           "r = r.add_(state.a, alpha=dt * dt)",
+           "½ dropped in the Verlet position update", BODY),
+    Mutant("body-verlet-velocity-half", "bptsb_ros/body/msdn.py",
+           "v = torch.add(state.v, state.a + a, alpha=0.5 * dt)",
+           "v = torch.add(state.v, state.a + a, alpha=dt)",
+           "½ dropped in the Verlet velocity update", BODY),
+    Mutant("body-published-velocity-x2", "bptsb_ros/body/msdn.py",
+           "v = torch.add(state.v, a, alpha=0.5 * dt)",
+           "v = torch.add(state.v, a, alpha=dt)",
+           "published integrator's velocity update ×2", BODY),
+    Mutant("body-ground-half", "bptsb_ros/body/forces.py",
+           "ground_c * torch.exp(-ground_c * y)",
+           "0.5 * ground_c * torch.exp(-ground_c * y)",
+           "soft ground force ×½", BODY),
+    Mutant("body-air-drag-x2", "bptsb_ros/body/forces.py",
+           "out = -air_drag * v",
+           "out = -2 * air_drag * v",
+           "air drag ×2", BODY),
+    Mutant("body-clamp-threshold", "bptsb_ros/body/msdn.py",
+           "v = v.masked_fill(r[..., 1:] < 0, 0.0)",
+           "v = v.masked_fill(r[..., 1:] < -0.01, 0.0)",
+           "ground clamp threshold changed (y < 0 → y < −0.01)", BODY),
+)
+
+
+class CheckError(RuntimeError):
+    """The mutation check itself cannot run (exit status 2)."""
+
+
+def check_targets(mutants: list[Mutant], root: Path) -> None:
+    """Every mutant's target text must occur exactly once in its file; raise naming every one that does not."""
+    problems = []
+    for m in mutants:
+        path = root / m.path
+        if not path.is_file():
+            problems.append(f"{m.id}: file {m.path} does not exist")
+            continue
+        count = path.read_text().count(m.old)
+        if count != 1:
+            problems.append(f"{m.id}: target text {m.old!r} found {count} times in {m.path} (need exactly 1)")
+    if problems:
+        raise CheckError("mutant targets out of date (edit MUTANTS in scripts/mutation_check.py):\n  "
+                         + "\n  ".join(problems))
+
+
+def copy_tree(dest: Path) -> None:
+    """Copy the working tree's tracked and untracked, non-ignored files (uncommitted edits included)."""
+    listing = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=REPO,
+                             check=True, capture_output=True).stdout.decode().split("\0")
+    for rel in filter(None, listing):
+        src = REPO / rel
+        if src.is_file():  # a tracked file deleted in the working tree is skipped
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+
+
+def test_env(root: Path) -> dict[str, str]:
+    """The environment for pytest in the copy: the copy's package first on sys.path, localhost-only DDS."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(root) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.setdefault("AMENT_PREFIX_PATH", str(Path(sys.executable).resolve().parent.parent))
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    return env
+
+
+def run_pytest(root: Path, tests: tuple[str, ...] | list[str], timeout: float) -> tuple[int | None, str, float]:
+    """(exit status or None on timeout, last line of output, seconds) of ``pytest -x -q tests`` in ``root``."""
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "--no-header", *tests]
+    start = time.monotonic()
+    with subprocess.Popen(cmd, cwd=root, env=test_env(root), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                          text=True, start_new_session=True) as proc:
+        try:
+            out, _ = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, 9)
+            proc.communicate()
+            return None, f"timed out after {timeout:.0f} s", time.monotonic() - start
+        except BaseException:  # Ctrl-C: take the test run (and the processes it started) down with us
+            os.killpg(proc.pid, 9)
+            proc.communicate()
+            raise
+    lines = [ln for ln in out.strip().splitlines() if ln.strip()]
+    return proc.returncode, (lines[-1] if lines else ""), time.monotonic() - start
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("-k", dest="select", action="append", default=[],
+                        help="run only mutants whose id contains this word (repeatable)")
+    parser.add_argument("--list", action="store_true", help="list the mutants and their tests, run nothing")
+    parser.add_argument("--tests", nargs="+", metavar="TEST",
+                        help="run these pytest targets instead of each mutant's own (which test kills it?)")
+    parser.add_argument("--no-baseline", action="store_true", help="skip running the tests on the unmutated copy")
+    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per test run (default 600)")
+    args = parser.parse_args(argv)
+
+    mutants = [m for m in MUTANTS if not args.select or any(w in m.id for w in args.select)]
+    if args.tests:
+        mutants = [replace(m, tests=tuple(args.tests)) for m in mutants]
+    if not mutants:
+        print(f"no mutant id contains any of {args.select}", file=sys.stderr)
+        return 2
+    if args.list:
+        for m in mutants:
+            print(f"{m.id:32s} {m.path:36s} {m.what}\n{'':32s} tests: {' '.join(m.tests)}")
+        return 0
+    try:
+        check_targets(mutants, REPO)
+        with tempfile.TemporaryDirectory(prefix="bptsb-mutation-") as tmp:
+            root = Path(tmp) / "repo"
+            copy_tree(root)
+            probe = subprocess.run([sys.executable, "-c", "import bptsb_ros; print(bptsb_ros.__file__)"], cwd=root,
+                                   env=test_env(root), capture_output=True, text=True)
+            if not probe.stdout.strip().startswith(str(root)):
+                raise CheckError(f"the copy imports bptsb_ros from {probe.stdout.strip() or probe.stderr.strip()}, "
+                                 f"not from {root}")
+            if not args.no_baseline:
+                tests = sorted({t for m in mutants for t in m.tests})
+                print(f"baseline: {len(tests)} test targets on the unmutated copy ...", flush=True)
+                code, last, secs = run_pytest(root, tests, args.timeout)
+                if code != 0:
+                    raise CheckError(f"the unmutated tests do not pass ({last}); fix them before checking mutants")
+                print(f"baseline: {last} ({secs:.0f} s)\n", flush=True)
+            results = []
+            for m in mutants:
+                path = root / m.path
+                original = path.read_text()
+                path.write_text(original.replace(m.old, m.new, 1))
+                try:
+                    code, last, secs = run_pytest(root, m.tests, args.timeout)
+                finally:
+                    path.write_text(original)
+                verdict = "survived" if code == 0 else "killed"
+                results.append((m, verdict))
+                why = "timeout" if code is None else last
+                print(f"{verdict:8s}  {m.id:32s} {m.what}  [{why}; {secs:.0f} s]", flush=True)
+    except CheckError as err:
+        print(f"mutation check error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("\ninterrupted; the working tree was never modified", file=sys.stderr)
+        return 130
+    survived = [m.id for m, v in results if v == "survived"]
+    print(f"\n{len(results) - len(survived)} of {len(results)} mutants killed"
+          + (f"; SURVIVED: {', '.join(survived)}" if survived else ""))
+    return 1 if survived else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
