@@ -254,6 +254,24 @@ class Launcher:
         return rows
 
 
+def _bag_target_problem(bag: Path) -> str:
+    """Why ``bag`` cannot receive a new recording ('' when it can): it exists and is not an empty directory,
+    or its parent cannot be created or written (checked before any node starts)."""
+    if bag.exists():
+        if not bag.is_dir():
+            return "exists and is not a directory"
+        if any(bag.iterdir()):
+            return "exists and is not empty"
+    parent = bag.absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        return f"cannot create {parent}: {err.strerror or err}"
+    if not os.access(parent, os.W_OK | os.X_OK) or (bag.is_dir() and not os.access(bag, os.W_OK | os.X_OK)):
+        return f"{bag if bag.is_dir() else parent} is not writable"
+    return ""
+
+
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.launch_loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
@@ -269,16 +287,19 @@ def run(args: argparse.Namespace) -> int:
         if not Path(args.agent).exists():
             print(f"error: --agent {args.agent}: no such run directory", file=sys.stderr)
             return 2
-        from bptsb_ros.training.checkpoint import CheckpointError
+        from bptsb_ros.training.checkpoint import CheckpointError, read_checkpoint
 
         try:
+            read_checkpoint(args.agent)  # data only (weights_only): refused here before any node loads it
             loop = agent_loop(loop, args.agent)
         except CheckpointError as err:
             print(f"error: --agent: {err}", file=sys.stderr)
             return 2
-    if args.bag and Path(args.bag).exists() and any(Path(args.bag).iterdir()):
-        print(f"error: --bag {args.bag} exists and is not empty", file=sys.stderr)
-        return 2
+    if args.bag:
+        problem = _bag_target_problem(Path(args.bag))
+        if problem:
+            print(f"error: --bag {args.bag}: {problem}", file=sys.stderr)
+            return 2
     nodes = ["body_sim"] + [b.executable for b in loop.brains] + (["recorder"] if args.bag else [])
     try:
         extra = parse_extra(args.param, nodes)
@@ -291,7 +312,11 @@ def run(args: argparse.Namespace) -> int:
         log_dir = log_dir_of_bag(args.bag)
     else:
         log_dir = Path(tempfile.mkdtemp(prefix=f"bptsb-{loop.name}-"))
-    log_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        print(f"error: cannot create the log directory {log_dir}: {err.strerror or err}", file=sys.stderr)
+        return 2
     summary_path = log_dir / "body_summary.json"
 
     common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,

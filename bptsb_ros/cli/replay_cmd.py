@@ -14,7 +14,9 @@ HELP = ("Replay a rosbag2 MCAP bag of a live loop: rebuild the trajectories, com
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", help="bag directory (metadata.yaml + .mcap) or a .mcap file")
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--agent", default=None, help="run directory of the agent (default: the one named in the bag)")
+    parser.add_argument("--agent", default=None,
+                        help="run directory of the agent; without it no agent is loaded (a path stored in "
+                        "the bag is only printed, never loaded: bags are untrusted data)")
     parser.add_argument("--task", choices=("lissajous", "locomotion", "narma"), default=None,
                         help="task whose metric to compute (default: the agent's)")
     from bptsb_ros.launch_loops import LOOPS  # ROS-free: keeps --help fast
@@ -34,7 +36,14 @@ def run(args: argparse.Namespace) -> int:
     except (BagError, CheckpointError, ValueError) as err:
         print(f"bptsb replay: {err}", file=sys.stderr)
         return 2
+    except OSError as err:
+        print(f"bptsb replay: cannot write --out {args.out}: {err.strerror or err}", file=sys.stderr)
+        return 2
     shown = {k: v for k, v in metrics.items() if k != "files"}
     print(json.dumps(shown, indent=2, default=float))
     print("files: " + ", ".join(metrics["files"]))
+    if metrics.get("bag_agent"):
+        print(f"the bag names the agent {metrics['bag_agent']!r}; it was not loaded (a bag is untrusted data). "
+              f"To compare with the offline simulation, pass it yourself: --agent {metrics['bag_agent']}",
+              file=sys.stderr)
     return 0
