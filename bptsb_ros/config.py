@@ -4,19 +4,30 @@ Every experiment is one YAML file under ``config/``. Unknown keys and wrong type
 name the key (``training.lr.k: Input should be a valid number``). Durations are ``sim_time``
 (seconds of simulated time, continuous tasks) and ``epochs`` (episodic tasks), so
 ``--set sim_time=20`` or ``--set epochs=2`` shortens any run.
+
+Untrusted input is bounded: a config file is at most ``MAX_CONFIG_BYTES``, its YAML may expand (aliases
+included) to at most ``MAX_YAML_NODES`` nodes, every float must be finite, and error messages echo at most
+``ECHO_CHARS`` characters of an offending value.
 """
 
 from __future__ import annotations
 
+import reprlib
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from bptsb_ros.body.shapes import build_shape
+from bptsb_ros.body.shapes import MAX_MASSES, build_shape
 
 TASKS = ("lissajous", "locomotion", "narma")
+MAX_CONFIG_BYTES = 1 << 20
+"""Largest config file read [bytes]."""
+MAX_YAML_NODES = 10_000
+"""Most YAML nodes a config (or a ``--set`` value) may hold once its aliases are expanded."""
+ECHO_CHARS = 80
+"""Most characters of an offending value an error message repeats."""
 
 
 class ConfigError(ValueError):
@@ -24,20 +35,28 @@ class ConfigError(ValueError):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 class BodyConfig(_Strict):
     shape: Literal["double_circle", "multiple_circle", "caterpillar"] = "double_circle"
-    nodes: int = Field(25, ge=2, description="number of masses, fixed ones included")
-    size: float = Field(4.0, gt=0, description="diameter of circular bodies [m]")
+    nodes: int = Field(25, ge=2, le=MAX_MASSES, description="number of masses, fixed ones included")
+    size: float = Field(4.0, gt=0, le=1000.0, description="diameter of circular bodies [m]")
     neighbours: int = Field(3, ge=1, description="caterpillar: mass k links to k+1..k+neighbours")
-    dt: float = Field(0.01, gt=0, description="integration time step [s]")
+    dt: float = Field(0.01, gt=0, le=1.0, description="integration time step [s]")
     integrator: Literal["verlet", "published"] = "verlet"
     k_init: tuple[float, float] = (1.0, 100.0)
     d_init: tuple[float, float] = (0.0, 10.0)
     environment: Literal["none", "locomotion"] = "none"
     ground_clamp: bool = False
+
+    @model_validator(mode="after")
+    def _ranges(self) -> BodyConfig:
+        for key in ("k_init", "d_init"):
+            lo, hi = getattr(self, key)
+            if not 0 <= lo <= hi:
+                raise ValueError(f"{key} must be a range [low, high] with 0 <= low <= high, got [{lo}, {hi}]")
+        return self
 
 
 class BrainConfig(_Strict):
@@ -147,6 +166,62 @@ class ExperimentConfig(_Strict):
         return self
 
 
+_ECHO = reprlib.Repr()  # keyword arguments to Repr() need Python 3.12
+_ECHO.maxlevel, _ECHO.maxdict, _ECHO.maxlist, _ECHO.maxtuple, _ECHO.maxset = 2, 4, 4, 4, 4
+_ECHO.maxstring = _ECHO.maxother = _ECHO.maxlong = ECHO_CHARS
+
+
+def echo(value: Any) -> str:
+    """``repr`` of a user-supplied value, bounded to about ``ECHO_CHARS`` characters (however deep or large)."""
+    text = _ECHO.repr(value)
+    return text if len(text) <= ECHO_CHARS else text[:ECHO_CHARS - 1] + "…"
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses documents expanding to more than ``MAX_YAML_NODES`` nodes: an alias
+    bomb (a few hundred bytes naming an anchor that names an anchor …) is counted on the node graph, where
+    every alias is one shared node, before anything is built from it."""
+
+    def get_single_node(self):  # noqa: ANN201 - PyYAML's own signature
+        node = super().get_single_node()
+        if node is not None:
+            _check_expansion(node)
+        return node
+
+
+def _check_expansion(root: yaml.Node) -> None:
+    sizes: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, children_done = stack.pop()
+        if id(node) in sizes:
+            continue
+        if isinstance(node, yaml.ScalarNode):
+            sizes[id(node)] = 1
+            continue
+        kids = [k for pair in node.value for k in pair] if isinstance(node, yaml.MappingNode) else list(node.value)
+        if children_done:
+            total = 1 + sum(sizes.get(id(k), 0) for k in kids)
+            if total > MAX_YAML_NODES:
+                raise ConfigError(f"YAML document expands to more than {MAX_YAML_NODES} nodes (alias bomb?)")
+            sizes[id(node)] = total
+        else:
+            stack.append((node, True))
+            stack.extend((k, False) for k in kids if id(k) not in sizes)
+
+
+def safe_yaml(text: str, what: str) -> Any:
+    """Parse untrusted YAML text: bounded in size and in alias expansion; raises ConfigError naming ``what``."""
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{what} is {len(text)} bytes; the limit is {MAX_CONFIG_BYTES}")
+    try:
+        return yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 - a SafeLoader subclass
+    except ConfigError as err:
+        raise ConfigError(f"{what}: {err}") from None
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{what} is not valid YAML: {echo(str(err))[:300]}") from None
+
+
 def _format_errors(err: ValidationError, source: str) -> str:
     lines = []
     for e in err.errors():
@@ -154,19 +229,19 @@ def _format_errors(err: ValidationError, source: str) -> str:
         msg = e["msg"]
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
-        lines.append(f"  {loc}: {msg} (got {e.get('input')!r})")
+        lines.append(f"  {loc}: {msg} (got {echo(e.get('input'))})")
     return f"invalid configuration {source}:\n" + "\n".join(lines)
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
     """``a.b=value`` → (["a", "b"], YAML-parsed value)."""
     if "=" not in text:
-        raise ConfigError(f"override {text!r} must look like key=value (e.g. sim_time=20)")
+        raise ConfigError(f"override {echo(text)} must look like key=value (e.g. sim_time=20)")
     key, raw = text.split("=", 1)
     path = [p for p in key.strip().split(".") if p]
     if not path:
-        raise ConfigError(f"override {text!r} has an empty key")
-    return path, yaml.safe_load(raw)
+        raise ConfigError(f"override {echo(text)} has an empty key")
+    return path, safe_yaml(raw, f"override {echo(key)}")
 
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
@@ -177,7 +252,7 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
         for part in path[:-1]:
             child = node.setdefault(part, {})
             if not isinstance(child, dict):
-                raise ConfigError(f"override {text!r}: {part!r} is not a section")
+                raise ConfigError(f"override {echo(text)}: {echo(part)} is not a section")
             node = child
         node[path[-1]] = value
     return data
@@ -199,9 +274,14 @@ def load_config(path: str | Path, overrides: list[str] | None = None, seed: int 
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as err:
-        raise ConfigError(f"config file {path} is not valid YAML: {err}") from None
+        if path.stat().st_size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"config file {path} is {path.stat().st_size} bytes; the limit is {MAX_CONFIG_BYTES}")
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {path} is not UTF-8 text") from None
+    except OSError as err:
+        raise ConfigError(f"cannot read config file {path}: {err.strerror or err}") from None
+    data = safe_yaml(text, f"config file {path}") or {}
     data = apply_overrides(data, overrides or [])
     if seed is not None:
         data["seed"] = seed

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
+from bptsb_ros.cli.common import finite_float
 from bptsb_ros.launch_loops import LOOPS, format_parameter, loops_help
 
 NAME = "launch"
@@ -34,11 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("loop", choices=sorted(LOOPS), metavar="LOOP", help="loop to run: " + ", ".join(LOOPS))
     parser.add_argument("--agent", default="", metavar="RUN_DIR",
                         help="trained agent (run directory); default: a fresh untrained agent of the loop's task")
-    parser.add_argument("--duration", type=float, default=0.0, metavar="SECONDS",
+    parser.add_argument("--duration", type=finite_float, default=0.0, metavar="SECONDS",
                         help="run length: sim seconds (lockstep) or wall seconds (realtime); 0 = until Ctrl-C")
     parser.add_argument("--bag", default="", metavar="DIR", help="record every loop topic to this rosbag2 MCAP bag")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="timing mode")
-    parser.add_argument("--rate-scale", type=float, default=1.0, help="realtime: sim seconds per wall second")
+    parser.add_argument("--rate-scale", type=finite_float, default=1.0, help="realtime: sim seconds per wall second")
     parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
     parser.add_argument("--open-loop-steps", type=int, default=0, metavar="W",
                         help="closed loops: SWG drives steps 0..W before the feedback layer takes over")
@@ -46,9 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="extra ROS parameter for one node, e.g. body_sim:command_timeout:=5 (repeatable)")
     parser.add_argument("--log-dir", default="", metavar="DIR",
                         help="node logs and body_summary.json (default: BAG.launch/ or a temporary directory)")
-    parser.add_argument("--grace", type=float, default=10.0, metavar="SECONDS",
+    parser.add_argument("--grace", type=finite_float, default=10.0, metavar="SECONDS",
                         help="how long a node may take to stop after SIGINT before SIGTERM, then SIGKILL")
-    parser.add_argument("--timeout", type=float, default=0.0, metavar="SECONDS",
+    parser.add_argument("--timeout", type=finite_float, default=0.0, metavar="SECONDS",
                         help="wall-clock limit of the whole run, 0 = none; exceeding it is a failure")
 
 
@@ -267,8 +268,12 @@ def _bag_target_problem(bag: Path) -> str:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         return f"cannot create {parent}: {err.strerror or err}"
-    if not os.access(parent, os.W_OK | os.X_OK) or (bag.is_dir() and not os.access(bag, os.W_OK | os.X_OK)):
-        return f"{bag if bag.is_dir() else parent} is not writable"
+    where = bag if bag.is_dir() else parent
+    try:  # a real write: permission bits say nothing for root or on a read-only file system
+        with tempfile.TemporaryFile(dir=where):
+            pass
+    except OSError as err:
+        return f"cannot write in {where}: {err.strerror or err}"
     return ""
 
 
