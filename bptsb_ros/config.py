@@ -12,14 +12,13 @@ included) to at most ``MAX_YAML_NODES`` nodes, every float must be finite, and e
 
 from __future__ import annotations
 
-import reprlib
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from bptsb_ros.body.shapes import MAX_MASSES, build_shape
+from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 TASKS = ("lissajous", "locomotion", "narma")
 MAX_CONFIG_BYTES = 1 << 20
@@ -166,60 +165,17 @@ class ExperimentConfig(_Strict):
         return self
 
 
-_ECHO = reprlib.Repr()  # keyword arguments to Repr() need Python 3.12
-_ECHO.maxlevel, _ECHO.maxdict, _ECHO.maxlist, _ECHO.maxtuple, _ECHO.maxset = 2, 4, 4, 4, 4
-_ECHO.maxstring = _ECHO.maxother = _ECHO.maxlong = ECHO_CHARS
-
-
 def echo(value: Any) -> str:
-    """``repr`` of a user-supplied value, bounded to about ``ECHO_CHARS`` characters (however deep or large)."""
-    text = _ECHO.repr(value)
-    return text if len(text) <= ECHO_CHARS else text[:ECHO_CHARS - 1] + "…"
-
-
-class _BoundedLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` that refuses documents expanding to more than ``MAX_YAML_NODES`` nodes: an alias
-    bomb (a few hundred bytes naming an anchor that names an anchor …) is counted on the node graph, where
-    every alias is one shared node, before anything is built from it."""
-
-    def get_single_node(self):  # noqa: ANN201 - PyYAML's own signature
-        node = super().get_single_node()
-        if node is not None:
-            _check_expansion(node)
-        return node
-
-
-def _check_expansion(root: yaml.Node) -> None:
-    sizes: dict[int, int] = {}
-    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
-    while stack:
-        node, children_done = stack.pop()
-        if id(node) in sizes:
-            continue
-        if isinstance(node, yaml.ScalarNode):
-            sizes[id(node)] = 1
-            continue
-        kids = [k for pair in node.value for k in pair] if isinstance(node, yaml.MappingNode) else list(node.value)
-        if children_done:
-            total = 1 + sum(sizes.get(id(k), 0) for k in kids)
-            if total > MAX_YAML_NODES:
-                raise ConfigError(f"YAML document expands to more than {MAX_YAML_NODES} nodes (alias bomb?)")
-            sizes[id(node)] = total
-        else:
-            stack.append((node, True))
-            stack.extend((k, False) for k in kids if id(k) not in sizes)
+    """``repr`` of a user-supplied value, bounded to about ``ECHO_CHARS`` characters."""
+    return bounded_repr(value, ECHO_CHARS)
 
 
 def safe_yaml(text: str, what: str) -> Any:
-    """Parse untrusted YAML text: bounded in size and in alias expansion; raises ConfigError naming ``what``."""
-    if len(text) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{what} is {len(text)} bytes; the limit is {MAX_CONFIG_BYTES}")
+    """Parse untrusted YAML (bounded in size and alias expansion); raises ConfigError naming ``what``."""
     try:
-        return yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 - a SafeLoader subclass
-    except ConfigError as err:
-        raise ConfigError(f"{what}: {err}") from None
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{what} is not valid YAML: {echo(str(err))[:300]}") from None
+        return load_untrusted_yaml(text, what, max_bytes=MAX_CONFIG_BYTES, max_nodes=MAX_YAML_NODES)
+    except UntrustedYamlError as err:
+        raise ConfigError(str(err)) from None
 
 
 def _format_errors(err: ValidationError, source: str) -> str:
