@@ -24,6 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", default=None, choices=sorted(LOOPS),
                         help="loop that was run (default: from the bag's custom_data)")
     parser.add_argument("--no-gif", action="store_true", help="skip the animation")
+    parser.add_argument("--skip-damaged", action="store_true",
+                        help="skip bag chunks that fail their CRC check (with a warning) instead of stopping")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.training.checkpoint import CheckpointError
 
     try:
-        metrics = replay(args.bag, args.out, args.agent, args.task, args.loop, gif=not args.no_gif)
+        metrics = replay(args.bag, args.out, args.agent, args.task, args.loop, gif=not args.no_gif,
+                         skip_damaged=args.skip_damaged)
     except (BagError, CheckpointError, ValueError) as err:
         print(f"bptsb replay: {err}", file=sys.stderr)
         return 2
