@@ -54,6 +54,7 @@ from bptsb_ros.ros.safety import (
     DivergenceRecovery,
     PublisherRule,
     WindIntake,
+    runaway,
 )
 from bptsb_ros.ros.topics import (
     BODY_INPUTS,
@@ -101,7 +102,7 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "str"),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
     Param("max_rest_length", 0.0, "largest accepted rest-length command [m] (rest lengths must be > 0); 0: 10 x "
-          "the largest distance between two masses of the body", "float", minimum=0.0),
+          "the diagonal of the body's bounding box", "float", minimum=0.0),
     Param("max_force", DEFAULT_MAX_FORCE, "largest accepted |component| of a force command [N]", "float",
           positive=True),
     Param("max_wind", DEFAULT_MAX_WIND, "largest accepted |component| of a wind message [N]", "float",
@@ -445,11 +446,12 @@ class BodySim(Node):
             return self.body.step(state, rest_length=rest, external_force=force)
 
     def _divergence(self, state: BodyState) -> str | None:
+        """Why ``state`` is diverged (non-finite, beyond 1e6 m, or about to be: ``safety.runaway``), or None."""
         try:
             self.body.check_finite(state)
         except SimulationDiverged as err:
             return str(err)
-        return None
+        return runaway(state.v.numpy(), state.a.numpy(), self.body.dt)
 
     def _integrate(self, state: BodyState | None, step: int) -> BodyState:
         rest, force, safe = self._command(step)

@@ -35,7 +35,7 @@ ANY_PUBLISHER = "*"
 #: Default limits [N] of a force-command component and of a wind component.
 DEFAULT_MAX_FORCE = 1.0e4
 DEFAULT_MAX_WIND = 1.0e3
-#: The default ``max_rest_length`` is this many times the largest distance between two masses of the layout.
+#: The default ``max_rest_length`` is this many times the layout's size (:func:`body_extent`).
 REST_LENGTH_EXTENT_FACTOR = 10.0
 
 DivergencePolicy = Literal["restore", "stop"]
@@ -43,7 +43,8 @@ DIVERGENCE_POLICIES: tuple[str, ...] = ("restore", "stop")
 
 
 def body_extent(positions: np.ndarray) -> float:
-    """Largest distance between two masses of a layout (N, 2) [m] (the bounding box diagonal bounds it)."""
+    """Size of a layout (N, 2) [m]: the diagonal of its bounding box (at least the largest distance between two
+    masses)."""
     span = np.ptp(np.asarray(positions, dtype=np.float64), axis=0)
     return float(np.hypot(*span)) or 1.0
 
@@ -135,6 +136,18 @@ class WindIntake:
     def counts(self) -> dict[str, int]:
         return {"accepted": self.accepted, "rejected_non_finite": int(self.rejected["non_finite"]),
                 "rejected_out_of_bounds": int(self.rejected["out_of_bounds"])}
+
+
+def runaway(v: np.ndarray, a: np.ndarray, dt: float, limit: float = 1e6) -> str | None:
+    """Why a finite state will leave a ``limit`` [m] box within one step (|v|·dt or |a|·dt² beyond it), or None.
+
+    A command that overwhelms the springs shows up in positions only a step later; judging the state that
+    received it by its velocity and acceleration keeps the last good state good.
+    """
+    speed, accel = float(np.abs(v).max(initial=0.0)), float(np.abs(a).max(initial=0.0))
+    if speed * dt > limit or accel * dt * dt > limit:
+        return f"|v| = {speed:.3g} m/s, |a| = {accel:.3g} m/s² would move a mass beyond {limit:g} m within one step"
+    return None
 
 
 State = TypeVar("State")
