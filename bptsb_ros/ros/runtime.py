@@ -5,6 +5,12 @@ its last diagnostics or wait for its messages to be acknowledged. The nodes ther
 own handlers: the first SIGINT/SIGTERM sets a stop flag that the node's loop polls (at least every
 0.1 s), a second one raises KeyboardInterrupt.
 
+A stop requested while the process is still starting (importing torch and rclpy, loading the agent) is a
+clean stop too: ``bptsb launch`` and ``bptsb run`` start a node with SIGINT/SIGTERM *blocked*
+(:func:`block_stop_signals`), so a signal that arrives during the imports stays pending instead of raising
+KeyboardInterrupt in the middle of them; :func:`install_stop_handlers` unblocks them once the handlers are
+in place, the pending signal sets the stop flag, and the node stops before its first step.
+
 Exit codes: 0 clean (finished or stopped by a signal), 1 runtime failure, 2 bad parameters.
 """
 
@@ -40,8 +46,22 @@ class LiveNode(Protocol):
     def destroy_node(self) -> None: ...
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def block_stop_signals() -> None:
+    """Hold SIGINT/SIGTERM pending (inherited across exec) until :func:`unblock_stop_signals`."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+
+
+def unblock_stop_signals() -> None:
+    """Deliver any SIGINT/SIGTERM held pending by :func:`block_stop_signals` (call once handlers are set)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+
+
 def install_stop_handlers(stop: StopFlag) -> None:
-    """SIGINT/SIGTERM set ``stop``; a second signal raises KeyboardInterrupt."""
+    """SIGINT/SIGTERM set ``stop``; a second signal raises KeyboardInterrupt. A signal held pending during
+    startup is delivered now."""
 
     def handler(signum: int, frame: object) -> None:
         del frame
@@ -49,8 +69,9 @@ def install_stop_handlers(stop: StopFlag) -> None:
             raise KeyboardInterrupt
         stop.set(signal.Signals(signum).name)
 
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, handler)
+    unblock_stop_signals()
 
 
 def run_node(name: str, factory: Callable[[StopFlag], LiveNode], args: list[str] | None = None) -> int:
