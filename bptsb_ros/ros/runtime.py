@@ -5,11 +5,12 @@ its last diagnostics or wait for its messages to be acknowledged. The nodes ther
 own handlers: the first SIGINT/SIGTERM sets a stop flag that the node's loop polls (at least every
 0.1 s), a second one raises KeyboardInterrupt.
 
-A stop requested while the process is still starting (importing torch and rclpy, loading the agent) is a
-clean stop too: ``bptsb launch`` and ``bptsb run`` start a node with SIGINT/SIGTERM *blocked*
-(:func:`block_stop_signals`), so a signal that arrives during the imports stays pending instead of raising
-KeyboardInterrupt in the middle of them; :func:`install_stop_handlers` unblocks them once the handlers are
-in place, the pending signal sets the stop flag, and the node stops before its first step.
+A Ctrl-C while the process is still starting (importing torch and rclpy, loading the agent) is a clean
+stop too: ``bptsb launch`` and ``bptsb run`` start a node with SIGINT *blocked* (:func:`block_interrupt`),
+so a SIGINT that arrives during the imports stays pending instead of raising KeyboardInterrupt in the
+middle of them; :func:`install_stop_handlers` unblocks it once the handlers are in place, the pending
+signal sets the stop flag, and the node stops before its first step. SIGTERM is never blocked: it still
+ends a node that hangs before its handlers exist (the launcher's escalation, ``PR_SET_PDEATHSIG``).
 
 Exit codes: 0 clean (finished or stopped by a signal), 1 runtime failure, 2 bad parameters.
 """
@@ -49,18 +50,18 @@ class LiveNode(Protocol):
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-def block_stop_signals() -> None:
-    """Hold SIGINT/SIGTERM pending (inherited across exec) until :func:`unblock_stop_signals`."""
-    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+def block_interrupt() -> None:
+    """Hold SIGINT pending (the mask is inherited across exec) until :func:`unblock_interrupt`."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
 
 
-def unblock_stop_signals() -> None:
-    """Deliver any SIGINT/SIGTERM held pending by :func:`block_stop_signals` (call once handlers are set)."""
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+def unblock_interrupt() -> None:
+    """Deliver a SIGINT held pending by :func:`block_interrupt` (call once the handlers are set)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def install_stop_handlers(stop: StopFlag) -> None:
-    """SIGINT/SIGTERM set ``stop``; a second signal raises KeyboardInterrupt. A signal held pending during
+    """SIGINT/SIGTERM set ``stop``; a second signal raises KeyboardInterrupt. A SIGINT held pending during
     startup is delivered now."""
 
     def handler(signum: int, frame: object) -> None:
@@ -71,7 +72,7 @@ def install_stop_handlers(stop: StopFlag) -> None:
 
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)
-    unblock_stop_signals()
+    unblock_interrupt()
 
 
 def run_node(name: str, factory: Callable[[StopFlag], LiveNode], args: list[str] | None = None) -> int:
