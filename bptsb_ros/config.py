@@ -4,6 +4,10 @@ Every experiment is one YAML file under ``config/``. Unknown keys and wrong type
 name the key (``training.lr.k: Input should be a valid number``). Durations are ``sim_time``
 (seconds of simulated time, continuous tasks) and ``epochs`` (episodic tasks), so
 ``--set sim_time=20`` or ``--set epochs=2`` shortens any run.
+
+Untrusted input is bounded: a config file is at most ``MAX_CONFIG_BYTES``, its YAML may expand (aliases
+included) to at most ``MAX_YAML_NODES`` nodes, every float must be finite, and error messages echo at most
+``ECHO_CHARS`` characters of an offending value.
 """
 
 from __future__ import annotations
@@ -11,12 +15,18 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from bptsb_ros.body.shapes import build_shape
+from bptsb_ros.body.shapes import MAX_MASSES, build_shape
+from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 TASKS = ("lissajous", "locomotion", "narma")
+MAX_CONFIG_BYTES = 1 << 20
+"""Largest config file read [bytes]."""
+MAX_YAML_NODES = 10_000
+"""Most YAML nodes a config (or a ``--set`` value) may hold once its aliases are expanded."""
+ECHO_CHARS = 80
+"""Most characters of an offending value an error message repeats."""
 
 
 class ConfigError(ValueError):
@@ -24,20 +34,28 @@ class ConfigError(ValueError):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 class BodyConfig(_Strict):
     shape: Literal["double_circle", "multiple_circle", "caterpillar"] = "double_circle"
-    nodes: int = Field(25, ge=2, description="number of masses, fixed ones included")
-    size: float = Field(4.0, gt=0, description="diameter of circular bodies [m]")
+    nodes: int = Field(25, ge=2, le=MAX_MASSES, description="number of masses, fixed ones included")
+    size: float = Field(4.0, gt=0, le=1000.0, description="diameter of circular bodies [m]")
     neighbours: int = Field(3, ge=1, description="caterpillar: mass k links to k+1..k+neighbours")
-    dt: float = Field(0.01, gt=0, description="integration time step [s]")
+    dt: float = Field(0.01, gt=0, le=1.0, description="integration time step [s]")
     integrator: Literal["verlet", "published"] = "verlet"
     k_init: tuple[float, float] = (1.0, 100.0)
     d_init: tuple[float, float] = (0.0, 10.0)
     environment: Literal["none", "locomotion"] = "none"
     ground_clamp: bool = False
+
+    @model_validator(mode="after")
+    def _ranges(self) -> BodyConfig:
+        for key in ("k_init", "d_init"):
+            lo, hi = getattr(self, key)
+            if not 0 <= lo <= hi:
+                raise ValueError(f"{key} must be a range [low, high] with 0 <= low <= high, got [{lo}, {hi}]")
+        return self
 
 
 class BrainConfig(_Strict):
@@ -147,6 +165,19 @@ class ExperimentConfig(_Strict):
         return self
 
 
+def echo(value: Any) -> str:
+    """``repr`` of a user-supplied value, bounded to about ``ECHO_CHARS`` characters."""
+    return bounded_repr(value, ECHO_CHARS)
+
+
+def safe_yaml(text: str, what: str) -> Any:
+    """Parse untrusted YAML (bounded in size and alias expansion); raises ConfigError naming ``what``."""
+    try:
+        return load_untrusted_yaml(text, what, max_bytes=MAX_CONFIG_BYTES, max_nodes=MAX_YAML_NODES)
+    except UntrustedYamlError as err:
+        raise ConfigError(str(err)) from None
+
+
 def _format_errors(err: ValidationError, source: str) -> str:
     lines = []
     for e in err.errors():
@@ -154,19 +185,19 @@ def _format_errors(err: ValidationError, source: str) -> str:
         msg = e["msg"]
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
-        lines.append(f"  {loc}: {msg} (got {e.get('input')!r})")
+        lines.append(f"  {loc}: {msg} (got {echo(e.get('input'))})")
     return f"invalid configuration {source}:\n" + "\n".join(lines)
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
     """``a.b=value`` → (["a", "b"], YAML-parsed value)."""
     if "=" not in text:
-        raise ConfigError(f"override {text!r} must look like key=value (e.g. sim_time=20)")
+        raise ConfigError(f"override {echo(text)} must look like key=value (e.g. sim_time=20)")
     key, raw = text.split("=", 1)
     path = [p for p in key.strip().split(".") if p]
     if not path:
-        raise ConfigError(f"override {text!r} has an empty key")
-    return path, yaml.safe_load(raw)
+        raise ConfigError(f"override {echo(text)} has an empty key")
+    return path, safe_yaml(raw, f"override {echo(key)}")
 
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
@@ -177,7 +208,7 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
         for part in path[:-1]:
             child = node.setdefault(part, {})
             if not isinstance(child, dict):
-                raise ConfigError(f"override {text!r}: {part!r} is not a section")
+                raise ConfigError(f"override {echo(text)}: {echo(part)} is not a section")
             node = child
         node[path[-1]] = value
     return data
@@ -199,9 +230,14 @@ def load_config(path: str | Path, overrides: list[str] | None = None, seed: int 
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as err:
-        raise ConfigError(f"config file {path} is not valid YAML: {err}") from None
+        if path.stat().st_size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"config file {path} is {path.stat().st_size} bytes; the limit is {MAX_CONFIG_BYTES}")
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {path} is not UTF-8 text") from None
+    except OSError as err:
+        raise ConfigError(f"cannot read config file {path}: {err.strerror or err}") from None
+    data = safe_yaml(text, f"config file {path}") or {}
     data = apply_overrides(data, overrides or [])
     if seed is not None:
         data["seed"] = seed

@@ -82,7 +82,7 @@ def test_recovers_exactly_the_complete_chunks(unfinished, tmp_path: Path, cut: i
         assert len(list(reader.messages())) == n
 
 
-def test_corrupt_chunk_stops_recovery_before_it(unfinished, tmp_path: Path) -> None:
+def test_corrupt_chunk_is_dropped_and_every_later_chunk_kept(unfinished, tmp_path: Path) -> None:
     src, sizes, counts = unfinished
     bag = _copy_truncated(src, tmp_path / "bag", sizes[-1])
     data = bytearray((bag / "run_0.mcap").read_bytes())
@@ -90,9 +90,14 @@ def test_corrupt_chunk_stops_recovery_before_it(unfinished, tmp_path: Path) -> N
     data[middle:middle + 8] = b"\xff" * 8
     (bag / "run_0.mcap").write_bytes(bytes(data))
     report = recover_bag(bag, keep_damaged=False)
-    assert report.files[0].messages == counts[2]
+    kept = list(range(counts[2])) + list(range(counts[3], counts[4]))  # chunks 1-3 and 5, not chunk 4
+    assert report.files[0].messages == len(kept) and report.files[0].chunks == CHUNKS - 1
+    [dropped] = report.files[0].dropped
+    assert (dropped.byte_start, dropped.byte_end) == (sizes[2], sizes[3]) and dropped.chunks == 1
+    assert dropped.messages == PER_CHUNK  # counted from the chunk's surviving message index records
+    assert (dropped.after_ns, dropped.before_ns) == (T0 + (counts[2] - 1) * 1000, T0 + counts[3] * 1000)
     assert not (bag / "run_0.mcap.damaged").exists()
-    assert len(list(read_messages(bag))) == counts[2]
+    assert [m.timestamp_ns for m in read_messages(bag)] == [T0 + i * 1000 for i in kept]
 
 
 def test_complete_bag_is_left_alone_and_bad_input(unfinished, tmp_path: Path) -> None:

@@ -61,7 +61,7 @@ def test_replay_rebuilds_the_run_and_matches_offline(agent_dir, tmp_path):
     assert run.cmp_index == agent.body.topology.cmp_index
     assert run.dt == pytest.approx(0.01) and run.missing_steps == []
     assert np.array_equal(run.positions, positions)
-    metrics = replay(tmp_path / "bag", tmp_path / "out", gif=False)  # agent and loop found in custom_data
+    metrics = replay(tmp_path / "bag", tmp_path / "out", agent_dir, gif=False)  # loop found in custom_data
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] == 0.0
     assert metrics["live"]["trajectory_mse_shift_min"] == pytest.approx(metrics["offline"]["trajectory_mse_shift_min"])
     assert (tmp_path / "out" / "metrics.json").is_file() and (tmp_path / "out" / "lissajous.png").is_file()
@@ -69,7 +69,7 @@ def test_replay_rebuilds_the_run_and_matches_offline(agent_dir, tmp_path):
 
 def test_replay_reports_missing_steps(agent_dir, tmp_path):
     _write_closed_loop_bag(agent_dir, tmp_path / "bag", 250, drop=120)
-    metrics = replay(tmp_path / "bag", tmp_path / "out", gif=True)
+    metrics = replay(tmp_path / "bag", tmp_path / "out", agent_dir, gif=True)
     assert metrics["missing_steps"] == 1
     assert (tmp_path / "out" / "replay.gif").is_file()
 

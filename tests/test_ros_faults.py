@@ -65,7 +65,7 @@ def test_bad_commands_are_rejected_and_never_integrated(tmp_path, ros_env, ros_d
     body = start_node("body_sim", {
         "task": "lissajous", "max_steps": 2, "wait_for": ["rest_length", "force"], "command_timeout": 10.0,
         "wait_for_subscribers": ["/clock:1", "/body/rest_length:1", "/body/external_force:1"],
-        "summary_path": str(summary), "final_ack_timeout": 1.0,
+        "summary_path": str(summary), "final_ack_timeout": 1.0, "command_publishers": ["test_probe"],
     }, ros_env, tmp_path / "body.log")
     try:
         assert probe.spin_until(lambda: body.poll() is not None, 60)

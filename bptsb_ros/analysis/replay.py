@@ -8,6 +8,7 @@ time from the header stamps (sim time of step k = k·dt exactly).
 
 from __future__ import annotations
 
+import errno
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,8 +73,8 @@ def _topic(key: str) -> str:
     return absolute(TOPICS[key].name)
 
 
-def read_run(bag: str | Path, dt: float | None = None) -> BagRun:
-    """Read the body topics of a bag into a :class:`BagRun`."""
+def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = False) -> BagRun:
+    """Read the body topics of a bag into a :class:`BagRun` (``skip_damaged``: skip chunks failing their CRC)."""
     topics = list_topics(bag)
     pos_topic = _topic("positions")
     if pos_topic not in topics:
@@ -85,7 +86,7 @@ def read_run(bag: str | Path, dt: float | None = None) -> BagRun:
     rests: dict[int, np.ndarray] = {}
     inputs_ns: dict[int, float] = {}
     markers = None
-    for topic, _type, _t, msg in read_messages(bag, wanted):
+    for topic, _type, _t, msg in read_messages(bag, wanted, skip_damaged=skip_damaged):
         if topic == pos_topic:
             pos[_stamp_ns(msg)] = np.array([(p.position.x, p.position.y) for p in msg.poses])
         elif topic == _topic("spring_lengths"):
@@ -252,22 +253,28 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
 
 
 def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = None, task: str | None = None,
-           loop: str | None = None, gif: bool = True) -> dict[str, Any]:
-    """Analyse a bag; writes metrics.json, plots and an animation to ``out_dir``; returns the metrics."""
+           loop: str | None = None, gif: bool = True, skip_damaged: bool = False) -> dict[str, Any]:
+    """Analyse a bag; writes metrics.json, plots and an animation to ``out_dir``; returns the metrics.
+
+    The agent is loaded only from ``agent_dir``, never from a path read from the bag: a bag is untrusted
+    data. The agent the bag names (its ``custom_data``) is reported as ``bag_agent`` so the user can pass it.
+    """
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise NotADirectoryError(errno.ENOTDIR, "it exists and is not a directory", str(out_dir))
     out_dir.mkdir(parents=True, exist_ok=True)
     custom = bag_custom_data(bag)
-    if agent_dir is None and custom.get("agent") not in (None, "", "fresh"):
-        agent_dir = custom["agent"]
+    named = custom.get("agent") if custom.get("agent") not in (None, "", "fresh") else None
     config: dict[str, Any] = {}
     if agent_dir is not None:
         from bptsb_ros.training.checkpoint import read_checkpoint
 
         config = read_checkpoint(agent_dir)["config"]
-    run = read_run(bag, dt=float(config["body"]["dt"]) if config else None)
+    run = read_run(bag, dt=float(config["body"]["dt"]) if config else None, skip_damaged=skip_damaged)
     task = task or config.get("task")
     loop = loop or run.custom.get("loop")
-    metrics: dict[str, Any] = {"bag": str(bag), "agent": str(agent_dir) if agent_dir else None, "loop": loop,
+    metrics: dict[str, Any] = {"bag": str(bag), "agent": str(agent_dir) if agent_dir else None,
+                               **({"bag_agent": named} if named and agent_dir is None else {}), "loop": loop,
                                "mode": run.custom.get("mode"), "dt": run.dt, "recorded_steps": int(len(run.steps)),
                                "missing_steps": len(run.missing_steps)}
     segment = run.rows(run.longest_contiguous())

@@ -11,10 +11,15 @@ import yaml
 
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.qos import QosProfile, qos_profiles_from_value, qos_profiles_to_list
+from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 METADATA_FILENAME = "metadata.yaml"
 METADATA_VERSION = 9
 ROOT_KEY = "rosbag2_bagfile_information"
+MAX_METADATA_BYTES = 16 << 20
+"""Largest ``metadata.yaml`` read [bytes]."""
+MAX_METADATA_NODES = 1_000_000
+"""Most YAML nodes a ``metadata.yaml`` may expand to (aliases counted at every use)."""
 
 
 @dataclass
@@ -147,7 +152,7 @@ class BagMetadata:
                 version=version,
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
-            raise BagError(f"malformed rosbag2 metadata: missing or bad field {exc!r}") from None
+            raise BagError(f"malformed rosbag2 metadata: missing or bad field {bounded_repr(exc, 120)}") from None
 
 
 def write_metadata(bag_dir: str | Path, metadata: BagMetadata) -> Path:
@@ -170,10 +175,17 @@ def read_metadata(bag_dir: str | Path) -> BagMetadata:
             f"{path} is missing: the recording was not finalized (recorder killed?). "
             f"Run `bptsb bag recover {bag_dir}` to rebuild it from the readable chunks."
         )
+    hint = f"run `bptsb bag recover {bag_dir}` to rebuild it from the .mcap file"
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise BagError(f"{path} is not valid YAML: {exc}") from None
+        data = load_untrusted_yaml(path.read_bytes(), str(path), max_bytes=MAX_METADATA_BYTES,
+                                   max_nodes=MAX_METADATA_NODES)
+    except UntrustedYamlError as exc:
+        raise BagError(f"{exc}; {hint}") from None
+    except OSError as exc:
+        raise BagError(f"cannot read {path}: {exc.strerror or exc}") from None
     if not isinstance(data, dict) or not isinstance(data.get(ROOT_KEY), dict):
-        raise BagError(f"{path} has no '{ROOT_KEY}' mapping; is this a rosbag2 bag?")
-    return BagMetadata.from_dict(data[ROOT_KEY])
+        raise BagError(f"{path} has no '{ROOT_KEY}' mapping (not rosbag2 metadata); {hint}")
+    try:
+        return BagMetadata.from_dict(data[ROOT_KEY])
+    except BagError as exc:
+        raise BagError(f"{path}: {exc}; {hint}") from None

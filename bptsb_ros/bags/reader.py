@@ -1,5 +1,9 @@
 """Read rosbag2 MCAP bags (a bag directory with ``metadata.yaml``, or a single ``.mcap`` file).
 
+Every chunk's CRC is verified before any message is read: a damaged chunk is an error naming the chunk, its
+byte offset and its time range (``bptsb bag recover`` rebuilds the file from the intact chunks), or, with
+``skip_damaged=True`` (``--skip-damaged``), skipped with a warning on stderr.
+
 Messages come back as ``(topic, msgtype, timestamp_ns, message)`` with the message deserialized by rclpy from
 its CDR bytes (no ROS graph needed), or as raw bytes with ``raw=True``. :func:`read_arrays` stacks given
 topics into numpy arrays for analysis.
@@ -8,16 +12,22 @@ topics into numpy arrays for analysis.
 from __future__ import annotations
 
 import datetime as _dt
+import struct
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema
+from mcap.stream_reader import get_chunk_data_stream
 from mcap.summary import Summary
 
 from bptsb_ros.bags.errors import BagError
@@ -67,6 +77,7 @@ class BagInfo:
     chunk_compressions: list[str] = field(default_factory=list)
     profile: str = ""
     library: str = ""
+    damaged_chunks: list[str] = field(default_factory=list)
 
     @property
     def duration_ns(self) -> int:
@@ -90,6 +101,26 @@ def mcap_files(path: str | Path) -> list[Path]:
     return files
 
 
+@dataclass(frozen=True)
+class DamagedChunk:
+    """A chunk whose bytes do not match its CRC (or cannot be read): ``index`` counts from 1 in file order,
+    ``offset`` is its byte offset, ``start_ns``/``end_ns`` the log times of its first and last message."""
+
+    file: Path
+    index: int
+    count: int
+    offset: int
+    start_ns: int
+    end_ns: int
+    reason: str
+    file_start_ns: int = 0
+
+    def describe(self) -> str:
+        rel = f"{(self.start_ns - self.file_start_ns) / 1e9:.6f}–{(self.end_ns - self.file_start_ns) / 1e9:.6f} s"
+        return (f"chunk {self.index} of {self.count} at byte {self.offset} (messages logged {rel} after the start, "
+                f"log times {self.start_ns}–{self.end_ns} ns) is damaged: {self.reason}")
+
+
 class _McapFile:
     """An open, finalized MCAP file with its summary."""
 
@@ -97,7 +128,7 @@ class _McapFile:
         self.path = path
         self._file = open(path, "rb")  # closed in close()
         try:
-            self.reader = SeekingReader(self._file)
+            self.reader = SeekingReader(self._file, validate_crcs=True)
             self.header = self.reader.get_header()
             summary = self.reader.get_summary()
         except (McapError, ValueError, EOFError, OSError, StopIteration) as exc:
@@ -114,6 +145,43 @@ class _McapFile:
             raise BagError(f"{path} has no summary section; run `bptsb bag recover` on it to index it")
         self.summary: Summary = summary
 
+    def damaged_chunks(self) -> list[DamagedChunk]:
+        """Every chunk of the summary whose record cannot be read or whose data fails its CRC."""
+        indexes = sorted(self.summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+        stats = self.summary.statistics
+        file_start = stats.message_start_time if stats is not None and stats.message_count else 0
+        out = []
+        for i, ci in enumerate(indexes, start=1):
+            reason = self._chunk_problem(ci)
+            if reason:
+                out.append(DamagedChunk(self.path, i, len(indexes), ci.chunk_start_offset, ci.message_start_time,
+                                        ci.message_end_time, reason, file_start))
+        return out
+
+    def _chunk_problem(self, ci: ChunkIndex) -> str:
+        try:
+            self._file.seek(ci.chunk_start_offset)
+            head = self._file.read(9)
+            if len(head) < 9:
+                return "the file ends inside it"
+            opcode, length = struct.unpack("<BQ", head)
+            if opcode != Opcode.CHUNK:
+                return f"the chunk index points at a record of opcode 0x{opcode:02x}, not a chunk"
+            body = self._file.read(length)
+            if len(body) < length:
+                return "the file ends inside it"
+            chunk = Chunk.read(ReadDataStream(BytesIO(body)))
+            get_chunk_data_stream(chunk, validate_crc=True)
+        except Exception as exc:  # CRC mismatch, bad compression, malformed fields: the mcap parser's errors vary
+            return f"{type(exc).__name__}: {str(exc)[:160]}"
+        return ""
+
+    def drop_chunks(self, damaged: list[DamagedChunk]) -> bool:
+        """Leave ``damaged`` out of the summary the reader iterates; False when no chunk is left."""
+        offsets = {d.offset for d in damaged}
+        self.summary.chunk_indexes[:] = [c for c in self.summary.chunk_indexes if c.chunk_start_offset not in offsets]
+        return bool(self.summary.chunk_indexes)
+
     def close(self) -> None:
         self._file.close()
 
@@ -122,6 +190,15 @@ class _McapFile:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def damaged_chunk_error(damaged: list[DamagedChunk]) -> BagError:
+    """The error for damaged chunks: names each one and says what to do."""
+    where = damaged[0].file
+    bag = where.parent if where.parent.name else where
+    return BagError(f"{where}: " + "; ".join(d.describe() for d in damaged)
+                    + f". Run `bptsb bag recover {bag}` to rebuild the file from its intact chunks, or read past the "
+                    "damage with --skip-damaged")
 
 
 def _topics_of(summary: Summary) -> dict[str, str]:
@@ -144,6 +221,7 @@ def read_messages(
     raw: bool = False,
     start_ns: int | None = None,
     end_ns: int | None = None,
+    skip_damaged: bool = False,
 ) -> Iterator[BagMessage]:
     """Iterate the messages of a bag: in receive-time order within each MCAP file, file after file (the files
     of a bag written by one recorder follow each other in time).
@@ -153,6 +231,8 @@ def read_messages(
     :param raw: yield the CDR bytes instead of deserialized rclpy messages.
     :param start_ns: first receive time to include (ns, inclusive).
     :param end_ns: receive time to stop at (ns, exclusive).
+    :param skip_damaged: skip chunks that fail their CRC check (with a warning on stderr) instead of raising
+        :class:`BagError` naming them.
     """
     files = mcap_files(path)
     wanted = None if topics is None else list(dict.fromkeys([topics] if isinstance(topics, str) else topics))
@@ -164,6 +244,13 @@ def read_messages(
     classes: dict[str, type] = {}
     for file in files:
         with _McapFile(file) as mf:
+            damaged = mf.damaged_chunks()
+            if damaged and not skip_damaged:
+                raise damaged_chunk_error(damaged)
+            for d in damaged:
+                print(f"warning: {file}: skipping {d.describe()}", file=sys.stderr, flush=True)
+            if damaged and not mf.drop_chunks(damaged):
+                continue
             try:
                 for schema, channel, message in mf.reader.iter_messages(
                     topics=wanted, starting_at=start_ns, ending_before=end_ns, log_time_order=True
@@ -250,6 +337,7 @@ def read_arrays(
     topics: Iterable[str],
     *,
     converters: dict[str, Callable[[Any], np.ndarray]] | None = None,
+    skip_damaged: bool = False,
 ) -> dict[str, TopicSeries]:
     """Read topics into stacked arrays: ``{topic: TopicSeries}`` with ``values`` of shape (K, ...).
 
@@ -261,7 +349,7 @@ def read_arrays(
     rows: dict[str, list[np.ndarray]] = {t: [] for t in topics}
     times: dict[str, list[int]] = {t: [] for t in topics}
     types: dict[str, str] = dict.fromkeys(topics, "")
-    for topic, msgtype, t_ns, msg in read_messages(path, topics):
+    for topic, msgtype, t_ns, msg in read_messages(path, topics, skip_damaged=skip_damaged):
         convert = converters.get(topic)
         rows[topic].append(np.asarray(convert(msg) if convert else to_array(msgtype, msg), dtype=np.float64))
         times[topic].append(t_ns)
@@ -284,12 +372,13 @@ def bag_info(path: str | Path) -> BagInfo:
     path = Path(path)
     files = mcap_files(path)
     metadata: BagMetadata | None = read_metadata(path) if path.is_dir() else None
-    chunk_count, compressions, topics = 0, set(), {}
+    chunk_count, compressions, topics, damaged = 0, set(), {}, []
     start, end, count, profile, library = None, None, 0, "", ""
     for file in files:
         with _McapFile(file) as mf:
             summary, profile, library = mf.summary, mf.header.profile, mf.header.library
             chunk_count += len(summary.chunk_indexes)
+            damaged += [d.describe() for d in mf.damaged_chunks()]
             compressions.update(ci.compression or "none" for ci in summary.chunk_indexes)
             stats = summary.statistics
             if stats is not None and stats.message_count:
@@ -311,13 +400,14 @@ def bag_info(path: str | Path) -> BagInfo:
             storage_identifier=metadata.storage_identifier, ros_distro=metadata.ros_distro,
             start_ns=metadata.starting_time_ns, end_ns=metadata.end_time_ns, message_count=metadata.message_count,
             topics=metadata.topics, chunk_count=chunk_count, chunk_compressions=sorted(compressions),
-            profile=profile, library=library,
+            profile=profile, library=library, damaged_chunks=damaged,
         )
     return BagInfo(
         path=path, files=files, size_bytes=sum(f.stat().st_size for f in files), storage_identifier="mcap",
         ros_distro=_ros_distro_record(files[0]), start_ns=start or 0, end_ns=end or 0, message_count=count,
         topics=list(topics.values()),
         chunk_count=chunk_count, chunk_compressions=sorted(compressions), profile=profile, library=library,
+        damaged_chunks=damaged,
     )
 
 
@@ -371,4 +461,8 @@ def format_info(info: BagInfo) -> str:
                      f"Serialization Format: {t.serialization_format}")
     if not info.topics:
         lines.append("Topic information: (none)")
+    for i, text in enumerate(info.damaged_chunks):
+        lines.append(("DAMAGED:           " if i == 0 else pad) + text)
+    if info.damaged_chunks:
+        lines.append(pad + f"run `bptsb bag recover {info.path}` to rebuild the bag from its intact chunks")
     return "\n".join(lines)

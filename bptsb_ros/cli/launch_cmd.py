@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
+from bptsb_ros.cli.common import finite_float
 from bptsb_ros.launch_loops import LOOPS, format_parameter, loops_help
 
 NAME = "launch"
@@ -34,11 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("loop", choices=sorted(LOOPS), metavar="LOOP", help="loop to run: " + ", ".join(LOOPS))
     parser.add_argument("--agent", default="", metavar="RUN_DIR",
                         help="trained agent (run directory); default: a fresh untrained agent of the loop's task")
-    parser.add_argument("--duration", type=float, default=0.0, metavar="SECONDS",
+    parser.add_argument("--duration", type=finite_float, default=0.0, metavar="SECONDS",
                         help="run length: sim seconds (lockstep) or wall seconds (realtime); 0 = until Ctrl-C")
     parser.add_argument("--bag", default="", metavar="DIR", help="record every loop topic to this rosbag2 MCAP bag")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="timing mode")
-    parser.add_argument("--rate-scale", type=float, default=1.0, help="realtime: sim seconds per wall second")
+    parser.add_argument("--rate-scale", type=finite_float, default=1.0, help="realtime: sim seconds per wall second")
     parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
     parser.add_argument("--open-loop-steps", type=int, default=0, metavar="W",
                         help="closed loops: SWG drives steps 0..W before the feedback layer takes over")
@@ -46,9 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="extra ROS parameter for one node, e.g. body_sim:command_timeout:=5 (repeatable)")
     parser.add_argument("--log-dir", default="", metavar="DIR",
                         help="node logs and body_summary.json (default: BAG.launch/ or a temporary directory)")
-    parser.add_argument("--grace", type=float, default=10.0, metavar="SECONDS",
+    parser.add_argument("--grace", type=finite_float, default=10.0, metavar="SECONDS",
                         help="how long a node may take to stop after SIGINT before SIGTERM, then SIGKILL")
-    parser.add_argument("--timeout", type=float, default=0.0, metavar="SECONDS",
+    parser.add_argument("--timeout", type=finite_float, default=0.0, metavar="SECONDS",
                         help="wall-clock limit of the whole run, 0 = none; exceeding it is a failure")
 
 
@@ -93,19 +94,25 @@ def die_with_parent_hook(sig: int = signal.SIGTERM) -> Callable[[], None] | None
     them in order), so without this a launcher killed outright (SIGKILL, e.g. a test timeout) would leave
     every node running. SIGTERM makes a node stop cleanly (the recorder closes its bag). The kernel sends the
     signal when the *thread* that started the child exits: :meth:`Launcher.start` runs in the main thread.
-    Returns None (no hook) where ``prctl`` is unavailable (not Linux).
+    The hook also starts the child with SIGINT blocked (``ros.runtime.block_interrupt``): a Ctrl-C
+    requested while the node is still importing and loading stays pending until its handlers are in place,
+    so it stops cleanly instead of dying in a KeyboardInterrupt traceback. Where ``prctl`` is unavailable
+    (not Linux) the hook only blocks SIGINT.
     """
+    from bptsb_ros.ros.runtime import block_interrupt  # ROS-free
+
     if not sys.platform.startswith("linux"):
-        return None
+        return block_interrupt
     try:
         import ctypes
 
         prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up here: the hook runs between fork and exec
     except (OSError, AttributeError):
-        return None
+        return block_interrupt
     parent = os.getpid()
 
     def hook() -> None:
+        block_interrupt()  # held pending until the node's handlers are in place (ros/runtime.py)
         prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
         if os.getppid() != parent:  # the launcher died before prctl took effect
             os._exit(1)
@@ -254,6 +261,28 @@ class Launcher:
         return rows
 
 
+def _bag_target_problem(bag: Path) -> str:
+    """Why ``bag`` cannot receive a new recording ('' when it can): it exists and is not an empty directory,
+    or its parent cannot be created or written (checked before any node starts)."""
+    if bag.exists():
+        if not bag.is_dir():
+            return "exists and is not a directory"
+        if any(bag.iterdir()):
+            return "exists and is not empty"
+    parent = bag.absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        return f"cannot create {parent}: {err.strerror or err}"
+    where = bag if bag.is_dir() else parent
+    try:  # a real write: permission bits say nothing for root or on a read-only file system
+        with tempfile.TemporaryFile(dir=where):
+            pass
+    except OSError as err:
+        return f"cannot write in {where}: {err.strerror or err}"
+    return ""
+
+
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.launch_loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
@@ -269,16 +298,19 @@ def run(args: argparse.Namespace) -> int:
         if not Path(args.agent).exists():
             print(f"error: --agent {args.agent}: no such run directory", file=sys.stderr)
             return 2
-        from bptsb_ros.training.checkpoint import CheckpointError
+        from bptsb_ros.training.checkpoint import CheckpointError, read_checkpoint
 
         try:
+            read_checkpoint(args.agent)  # data only (weights_only): refused here before any node loads it
             loop = agent_loop(loop, args.agent)
         except CheckpointError as err:
             print(f"error: --agent: {err}", file=sys.stderr)
             return 2
-    if args.bag and Path(args.bag).exists() and any(Path(args.bag).iterdir()):
-        print(f"error: --bag {args.bag} exists and is not empty", file=sys.stderr)
-        return 2
+    if args.bag:
+        problem = _bag_target_problem(Path(args.bag))
+        if problem:
+            print(f"error: --bag {args.bag}: {problem}", file=sys.stderr)
+            return 2
     nodes = ["body_sim"] + [b.executable for b in loop.brains] + (["recorder"] if args.bag else [])
     try:
         extra = parse_extra(args.param, nodes)
@@ -291,7 +323,11 @@ def run(args: argparse.Namespace) -> int:
         log_dir = log_dir_of_bag(args.bag)
     else:
         log_dir = Path(tempfile.mkdtemp(prefix=f"bptsb-{loop.name}-"))
-    log_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        print(f"error: cannot create the log directory {log_dir}: {err.strerror or err}", file=sys.stderr)
+        return 2
     summary_path = log_dir / "body_summary.json"
 
     common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,

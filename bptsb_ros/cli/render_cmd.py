@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bptsb_ros.cli.common import DEFAULT_NODES
+from bptsb_ros.cli.common import DEFAULT_NODES, finite_float
 
 NAME = "render"
 HELP = (
@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--shape", required=True, choices=sorted(DEFAULT_NODES), help="body shape")
     parser.add_argument("--nodes", type=int, default=None,
                         help="number of masses, fixed ones included (default: 25, 17 or 10 by shape)")
-    parser.add_argument("--size", type=float, default=4.0, help="diameter of circular bodies [m] (default 4)")
+    parser.add_argument("--size", type=finite_float, default=4.0, help="diameter of circular bodies [m] (default 4)")
     parser.add_argument("--neighbours", type=int, default=3,
                         help="caterpillar: each mass connects to the next K masses (default 3)")
     parser.add_argument("--no-spring-labels", action="store_true", help="omit spring indices")

@@ -14,7 +14,9 @@ HELP = ("Replay a rosbag2 MCAP bag of a live loop: rebuild the trajectories, com
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", help="bag directory (metadata.yaml + .mcap) or a .mcap file")
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--agent", default=None, help="run directory of the agent (default: the one named in the bag)")
+    parser.add_argument("--agent", default=None,
+                        help="run directory of the agent; without it no agent is loaded (a path stored in "
+                        "the bag is only printed, never loaded: bags are untrusted data)")
     parser.add_argument("--task", choices=("lissajous", "locomotion", "narma"), default=None,
                         help="task whose metric to compute (default: the agent's)")
     from bptsb_ros.launch_loops import LOOPS  # ROS-free: keeps --help fast
@@ -22,6 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", default=None, choices=sorted(LOOPS),
                         help="loop that was run (default: from the bag's custom_data)")
     parser.add_argument("--no-gif", action="store_true", help="skip the animation")
+    parser.add_argument("--skip-damaged", action="store_true",
+                        help="skip bag chunks that fail their CRC check (with a warning) instead of stopping")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -30,11 +34,19 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.training.checkpoint import CheckpointError
 
     try:
-        metrics = replay(args.bag, args.out, args.agent, args.task, args.loop, gif=not args.no_gif)
+        metrics = replay(args.bag, args.out, args.agent, args.task, args.loop, gif=not args.no_gif,
+                         skip_damaged=args.skip_damaged)
     except (BagError, CheckpointError, ValueError) as err:
         print(f"bptsb replay: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"bptsb replay: cannot write --out {args.out}: {err.strerror or err}", file=sys.stderr)
         return 2
     shown = {k: v for k, v in metrics.items() if k != "files"}
     print(json.dumps(shown, indent=2, default=float))
     print("files: " + ", ".join(metrics["files"]))
+    if metrics.get("bag_agent"):
+        print(f"the bag names the agent {metrics['bag_agent']!r}; it was not loaded (a bag is untrusted data). "
+              f"To compare with the offline simulation, pass it yourself: --agent {metrics['bag_agent']}",
+              file=sys.stderr)
     return 0

@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
-from bptsb_ros.cli.common import DEFAULT_NODES
+from bptsb_ros.cli.common import DEFAULT_NODES, finite_float
 
 if TYPE_CHECKING:
     from bptsb_ros.sim.trajectory import Trajectory
@@ -38,10 +38,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--shape", choices=sorted(DEFAULT_NODES), help="simulate a fresh body of this shape")
     parser.add_argument("--nodes", type=int, default=None,
                         help="--shape: number of masses, fixed ones included (default 25, 17 or 10 by shape)")
-    parser.add_argument("--size", type=float, default=4.0, help="--shape: diameter of circular bodies [m]")
+    parser.add_argument("--size", type=finite_float, default=4.0, help="--shape: diameter of circular bodies [m]")
     parser.add_argument("--neighbours", type=int, default=3, help="--shape caterpillar: springs to the next K masses")
     parser.add_argument("--steps", type=int, required=True, help="number of integration steps T")
-    parser.add_argument("--dt", type=float, default=None, help="time step [s] (default 0.01, or the agent's)")
+    parser.add_argument("--dt", type=finite_float, default=None, help="time step [s] (default 0.01, or the agent's)")
     parser.add_argument("--dtype", choices=("float32", "float64"), default=None,
                         help="floating-point type (default float32, or the agent's)")
     parser.add_argument("--integrator", choices=("verlet", "published"), default=None,
@@ -50,11 +50,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--shape: external physics; auto = locomotion for caterpillar, none otherwise")
     parser.add_argument("--ground-clamp", action="store_true",
                         help="--shape: the published code's hard floor (y < 0 → y = 0, v = 0)")
-    parser.add_argument("--perturb", type=float, default=0.0, metavar="SIGMA",
+    parser.add_argument("--perturb", type=finite_float, default=0.0, metavar="SIGMA",
                         help="displace movable masses at t = 0 by N(0, SIGMA²) per coordinate [m]")
-    parser.add_argument("--swg-amplitude", type=float, default=0.0, metavar="A",
+    parser.add_argument("--swg-amplitude", type=finite_float, default=0.0, metavar="A",
                         help="--shape: modulate every rest length by l·(1 + A sin(2πt + φ)), φ ~ U(0, 2π) from --seed")
-    parser.add_argument("--wind", type=float, nargs=2, default=None, metavar=("FX", "FY"),
+    parser.add_argument("--wind", type=finite_float, nargs=2, default=None, metavar=("FX", "FY"),
                         help="constant force on every movable mass [N]")
     parser.add_argument("--loop", choices=("open", "closed"), default="open",
                         help="--agent: open loop (the trained brain) or closed loop (the fitted feedback layer)")

@@ -18,6 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="run directory for checkpoint.pt, metrics.json and plots")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run saved in --out (same config; a larger sim_time or epochs extends it)")
+    parser.add_argument("--force", action="store_true",
+                        help="train a new run into --out even if it already holds one (its files are replaced)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -26,11 +28,18 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.training.checkpoint import CheckpointError
     from bptsb_ros.training.trainer import TrainingDiverged, train
 
+    if args.resume and args.force:
+        print("bptsb train: --resume and --force exclude each other", file=sys.stderr)
+        return 2
     try:
         cfg = load_config(args.config, args.overrides, args.seed)
-        result = train(cfg, args.out, resume=args.resume, progress=not args.no_progress)
-    except (ConfigError, CheckpointError, TrainingDiverged, OSError) as err:
+        result = train(cfg, args.out, resume=args.resume, overwrite=args.force, progress=not args.no_progress)
+    except (ConfigError, CheckpointError, TrainingDiverged) as err:
         print(f"bptsb train: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        where = f" {err.filename}" if err.filename else ""
+        print(f"bptsb train: cannot write{where}: {err.strerror or err}", file=sys.stderr)
         return 2
     m = result.metrics
     ev = m["evaluation"]

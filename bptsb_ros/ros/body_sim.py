@@ -10,9 +10,13 @@ state and RViz/Foxglove markers, and integrates the rest-length and force comman
 * ``realtime``: a wall-clock loop at rate_scale/dt that uses the newest command and reports
   jitter, deadline misses, command age and latency on ``/diagnostics`` and at shutdown.
 
-Bad commands (wrong length, NaN/inf, stale) are rejected with a log line. A brain that stops sending
-(no command within ``command_timeout``, or its publisher gone) is replaced by the safe command —
-the trained rest lengths and zero force — and the body says so, and says so again when it resumes.
+Bad commands (wrong length, NaN/inf, out of physical bounds, stale, stamped beyond the next step, or sent
+while a node not in ``command_publishers`` publishes on the topic) are rejected with a log line and counted;
+the rules live in ``lockstep`` and ``safety`` (ROS-free). A brain that stops sending (no command within
+``command_timeout``, or its publisher gone) is replaced by the safe command — the trained rest lengths and
+zero force — and the body says so, and says so again when it resumes. A step that diverges anyway is
+handled by ``on_divergence`` (``safety.DivergenceRecovery``): restore the last good state with the safe
+command and go on, or stop cleanly; an ERROR diagnostic is published either way.
 """
 
 from __future__ import annotations
@@ -42,6 +46,17 @@ from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
 from bptsb_ros.ros.lockstep import MODES, CommandChannel, TimingStats
 from bptsb_ros.ros.params import Param, ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, run_node
+from bptsb_ros.ros.safety import (
+    DEFAULT_MAX_FORCE,
+    DEFAULT_MAX_WIND,
+    DIVERGENCE_POLICIES,
+    CommandLimits,
+    DivergenceRecovery,
+    PublisherRule,
+    WindIntake,
+    rest_length_floor,
+    runaway,
+)
 from bptsb_ros.ros.topics import (
     BODY_INPUTS,
     BODY_OUTPUTS,
@@ -55,6 +70,8 @@ from bptsb_ros.ros.topics import (
 )
 
 NODE = "body_sim"
+#: what the ROS graph reports as the node name of an endpoint whose node it has not discovered yet
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 PUBLISHED = BODY_OUTPUTS
 SUBSCRIBED = BODY_INPUTS
 
@@ -85,6 +102,21 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("summary_path", "", "write the run summary (timing, rejections) as JSON here at exit (empty: don't)",
           "str"),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
+    Param("max_rest_length", 0.0, "largest accepted rest-length command [m] (rest lengths must be > 0); 0: 10 x "
+          "the diagonal of the body's bounding box", "float", minimum=0.0),
+    Param("min_rest_length", 0.0, "rest-length commands must be > this [m]; 0: 0, unless the agent's SWG itself "
+          "commands rest lengths <= 0 (amplitude > 1): then its lowest SWG rest length minus one full swing",
+          "float"),
+    Param("max_force", DEFAULT_MAX_FORCE, "largest accepted |component| of a force command [N]", "float",
+          positive=True),
+    Param("max_wind", DEFAULT_MAX_WIND, "largest accepted |component| of a wind message [N]", "float",
+          positive=True),
+    Param("command_publishers", [], "node names ('name' or '/namespace/name') allowed to publish commands; a "
+          "command is rejected while any other node publishes on its topic; empty: this package's brains "
+          "(swg_brain, feedback_brain: rest lengths; mlp_brain: forces); '*': any node", "str_list"),
+    Param("on_divergence", "restore", "when a step diverges: restore (last good state + safe command, go on) or "
+          "stop (end the run cleanly); an ERROR diagnostic is published either way", "str",
+          choices=DIVERGENCE_POLICIES),
 ) + tuple(Param(f"topics.{key}", TOPICS[key].name, f"topic name of {TOPICS[key].type}", "str")
           for key in PUBLISHED + SUBSCRIBED)
 
@@ -130,12 +162,26 @@ class BodySim(Node):
         self.mass_diameter = 0.04 * float(np.ptp(topo.positions, axis=0).max() or 1.0)
         depth = p["qos_depth"]
         max_age = max(1, int(math.floor(p["max_command_age"] / body.dt + 1e-9)))
+        amplitude = getattr(agent.brain, "amplitude", None)
+        floor = p["min_rest_length"] or rest_length_floor(
+            self.base.numpy(), None if amplitude is None else amplitude.detach().double().numpy())
+        try:
+            self.limits = CommandLimits.for_body(np.asarray(topo.positions), p["max_rest_length"], p["max_force"],
+                                                 p["max_wind"], floor)
+        except ValueError as err:
+            raise ParameterError(f"parameters min_rest_length/max_rest_length/max_force/max_wind: {err}") from None
         self.channels = {
-            "rest_length": CommandChannel("rest_length", topo.n_springs, self.spring_names, p["mode"],
-                                          max_ahead=depth, max_age_steps=max_age),
-            "force": CommandChannel("force", 2 * body.n_movable, self.dof_names, p["mode"],
-                                    max_ahead=depth, max_age_steps=max_age),
+            source: CommandChannel(source, size, names, p["mode"], max_age_steps=max_age,
+                                   bounds=lambda values, source=source: self.limits.check(source, values))
+            for source, size, names in (("rest_length", topo.n_springs, self.spring_names),
+                                        ("force", 2 * body.n_movable, self.dof_names))
         }
+        allowed = tuple(p["command_publishers"])
+        self.publisher_rules = {s: PublisherRule(s, allowed) for s in self.channels}
+        self._intruders: dict[str, tuple[int, float, list[str]]] = {}
+        self.wind_intake = WindIntake(self.limits)
+        self.divergence: DivergenceRecovery[BodyState] = DivergenceRecovery(p["on_divergence"])
+        self.diverged_stop = False
         self.wait_sources: list[str] = list(dict.fromkeys(p["wait_for"]))
         self.silent: dict[str, bool] = {s: False for s in self.channels}
         self.wind: np.ndarray | None = None
@@ -173,7 +219,11 @@ class BodySim(Node):
             f"{'trained' if trained else 'untrained'} body from {source}: {topo.name}, {topo.n_masses} masses "
             f"({body.n_movable} movable), {topo.n_springs} springs, dt {body.dt} s, {p['dtype']}; mode "
             f"{p['mode']}, {self._length_text()}, waiting for "
-            f"{', '.join(self.wait_sources) or 'no brain'}"
+            f"{', '.join(self.wait_sources) or 'no brain'}; accepting rest lengths in "
+            f"({self.limits.min_rest_length:g}, {self.limits.max_rest_length:g}] m, |force| <= "
+            f"{self.limits.max_force:g} N, |wind| <= {self.limits.max_wind:g} N, from "
+            f"{', '.join(self.publisher_rules['rest_length'].allowed)} (rest lengths) and "
+            f"{', '.join(self.publisher_rules['force'].allowed)} (forces)"
         )
 
     def _length_text(self) -> str:
@@ -188,7 +238,13 @@ class BodySim(Node):
         step = m.step_of(msg.header.stamp, self.dt_ns)
         values = m.as_array(msg.effort if source == "force" else msg.position)
         now = time.monotonic()
-        rejection = self.channels[source].offer(step, values, self.next_step, now, list(msg.name))
+        intruders = self._untrusted_publishers(source, now)
+        if intruders:
+            rejection = self.channels[source].reject(
+                step, "untrusted_publisher", f"{self.subs[source].topic_name} also has publisher(s) not in "
+                f"command_publishers ({', '.join(intruders)}); its commands are ignored while they publish")
+        else:
+            rejection = self.channels[source].offer(step, values, self.next_step, now, list(msg.name))
         if rejection is not None:
             self._warn(f"reject:{source}:{rejection.reason}", f"{rejection.message}; not integrated")
             return
@@ -199,11 +255,30 @@ class BodySim(Node):
             self.silent[source] = False
             self.get_logger().info(f"{source} commands resumed at step {step}")
 
+    def _untrusted_publishers(self, source: str, now: float) -> list[str]:
+        """Publishers on ``source``'s topic that ``command_publishers`` does not allow; the graph is queried
+        again when the publisher count changes, and at least every 0.5 s."""
+        count = self.subs[source].get_publisher_count()
+        cached = self._intruders.get(source)
+        if cached is None or cached[0] != count or now - cached[1] > 0.5:
+            names = self._publisher_names(source)
+            cached = (count, now if UNKNOWN_NODE not in {n for _, n in names} else -math.inf,
+                      self.publisher_rules[source].untrusted(names))
+            self._intruders[source] = cached
+        return cached[2]
+
+    def _publisher_names(self, source: str) -> list[tuple[str, str]]:
+        """(namespace, node name) of every publisher on ``source``'s command topic (a name DDS has not
+        propagated yet reads ``UNKNOWN_NODE``)."""
+        infos = self.get_publishers_info_by_topic(self.subs[source].topic_name)
+        return [(info.node_namespace, info.node_name) for info in infos]
+
     def _on_wind(self, msg: Vector3Stamped) -> None:
         self.callbacks += 1
         wind = np.array([msg.vector.x, msg.vector.y], dtype=np.float64)
-        if not np.isfinite(wind).all():
-            self._warn("reject:wind", f"rejected wind {wind.tolist()}: NaN/inf; keeping the previous wind")
+        problem = self.wind_intake.offer(wind)
+        if problem:
+            self._warn("reject:wind", f"{problem}; keeping the previous wind")
             return
         previous = np.zeros(2) if self.wind is None else self.wind
         self.wind = None if not wind.any() else wind
@@ -292,20 +367,23 @@ class BodySim(Node):
             self.pubs["markers"].publish(m.body_markers(k, ns, full, self.springs, self.fixed,
                                                         body.topology.cmp_index, strain, frame, self.mass_diameter))
 
-    def _maybe_diagnostics(self, force: bool = False) -> None:
+    def _maybe_diagnostics(self, force: bool = False, error: str = "") -> None:
+        """Publish the loop status every ``diagnostics_period`` (or now when ``force``); ``error``: an ERROR status
+        with that message (a divergence)."""
         now = time.monotonic()
-        if not force and now < self.next_diagnostics:
+        if not force and not error and now < self.next_diagnostics:
             return
         self.next_diagnostics = now + self.p["diagnostics_period"]
         summary = self.summary()
         status = DiagnosticStatus()
         late = summary["deadline_misses"] or summary["safe_command_steps"] or summary["rejected_total"]
-        status.level = DiagnosticStatus.WARN if late else DiagnosticStatus.OK
+        status.level = DiagnosticStatus.ERROR if error else DiagnosticStatus.WARN if late else DiagnosticStatus.OK
         status.name = f"{self.get_name()}: loop"
         status.hardware_id = self.body.topology.name
-        status.message = (f"{self.p['mode']}: step {summary['steps']}, {summary['deadline_misses']} deadline misses, "
-                          f"{summary['safe_command_steps']} safe-command steps, {summary['rejected_total']} "
-                          "rejected commands")
+        status.message = error or (
+            f"{self.p['mode']}: step {summary['steps']}, {summary['deadline_misses']} deadline misses, "
+            f"{summary['safe_command_steps']} safe-command steps, {summary['rejected_total']} rejected commands, "
+            f"{summary['divergences']} divergences")
         status.values = [KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v))
                          for k, v in summary.items()]
         msg = DiagnosticArray(status=[status])
@@ -322,7 +400,12 @@ class BodySim(Node):
                 out[f"{name}_{key}"] = value
                 if key.startswith("rejected"):
                     total += value
+        for key, value in self.wind_intake.counts().items():
+            out[f"wind_{key}"] = value
+            if key.startswith("rejected"):
+                total += value
         out["rejected_total"] = total
+        out["divergences"] = self.divergence.events
         return out
 
     # -- run --------------------------------------------------------------------------------------
@@ -332,6 +415,8 @@ class BodySim(Node):
         while not self.stop:
             missing = [f"a publisher on {self.subs[s].topic_name}" for s in self.wait_sources
                        if self.subs[s].get_publisher_count() < 1]
+            missing += [f"the node names of the publishers on {self.subs[s].topic_name}" for s in self.wait_sources
+                        if any(name == UNKNOWN_NODE for _, name in self._publisher_names(s))]
             missing += [f"{n} subscriber(s) on {t} (have {have})" for t, n in self.wait_subscribers
                         if (have := self._subscriber_count(t)) < n]
             if not missing:
@@ -365,19 +450,55 @@ class BodySim(Node):
                 return
             self.executor_.spin_once(timeout_sec=min(0.05, deadline - now))
 
-    def _integrate(self, state: BodyState | None, step: int) -> BodyState:
-        rest, force, safe = self._command(step)
-        if safe:
-            self.stats.safe_steps += 1
+    def _advance(self, state: BodyState | None, rest: torch.Tensor, force: torch.Tensor | None) -> BodyState:
         with torch.no_grad():
             if state is None:
-                new = self.body.initial_state(1, rest_length=rest, external_force=force)
-            else:
-                new = self.body.step(state, rest_length=rest, external_force=force)
-        self.body.check_finite(new)
+                return self.body.initial_state(1, rest_length=rest, external_force=force)
+            return self.body.step(state, rest_length=rest, external_force=force)
+
+    def _divergence(self, state: BodyState) -> str | None:
+        """Why ``state`` is diverged (non-finite, beyond 1e6 m, or about to be: ``safety.runaway``), or None."""
+        try:
+            self.body.check_finite(state)
+        except SimulationDiverged as err:
+            return str(err)
+        return runaway(state.v.numpy(), state.a.numpy(), self.body.dt)
+
+    def _integrate(self, state: BodyState | None, step: int) -> BodyState:
+        rest, force, safe = self._command(step)
+        new = self._advance(state, rest, force)
+        problem = self._divergence(new)
+        if problem:
+            new, rest, force, safe = self._recover(state, step, problem)
+        if safe:
+            self.stats.safe_steps += 1
         self._publish_state(new, rest, force)
         self.stats.steps = step
         return new
+
+    def _recover(self, state: BodyState | None, step: int,
+                 problem: str) -> tuple[BodyState, torch.Tensor, torch.Tensor | None, bool]:
+        """A diverged step: ``on_divergence`` restores the last good state with the safe command (rest lengths of
+        the agent, no brain force; the wind stays), or the run stops (raises SimulationDiverged)."""
+        rest = self.base
+        force = None
+        if self.wind is not None:
+            force = torch.from_numpy(self.wind).to(rest.dtype).expand(self.body.n_movable, 2)
+
+        def reset() -> BodyState:
+            with torch.no_grad():
+                fresh = self.body.initial_state(1, rest_length=rest)
+            return BodyState(fresh.r, fresh.v, fresh.a, fresh.length, step)
+
+        new, action = self.divergence.recover(step, lambda: self._advance(state, rest, force), reset,
+                                              self._divergence)
+        text = f"step {step} diverged ({problem.split(';')[0]}); {action}"
+        self.get_logger().error(text)
+        self._maybe_diagnostics(error=text)
+        if new is None:
+            self.diverged_stop = True
+            raise SimulationDiverged(text)
+        return new, rest, force, True
 
     def _run_lockstep(self) -> None:
         period = self.body.dt / self.p["rate_scale"]
@@ -471,7 +592,8 @@ class BodySim(Node):
             else:
                 self._run_realtime()
         except SimulationDiverged as err:
-            self.get_logger().error(str(err))
+            if not self.diverged_stop:
+                self.get_logger().error(str(err))
             code = EXIT_FAILURE
         self._finish("stopped: the simulation diverged" if code else
                      f"stopped by {self.stop.reason}" if self.stop else "finished")

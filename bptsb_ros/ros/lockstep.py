@@ -12,7 +12,9 @@ A :class:`CommandChannel` holds one command kind (rest lengths or forces):
 * ``realtime``: the body takes the newest command; one older than the newest accepted, or older
   than ``max_age_steps`` when it arrives or is used, is *stale*.
 
-Wrong-length and non-finite commands are rejected in both modes. Rejected commands never reach the
+Wrong-length, non-finite and out-of-bounds commands (``bounds``, see ``bptsb_ros.ros.safety``) are rejected in
+both modes, and so is a command stamped more than ``max_ahead`` steps after the next step (a node cannot
+claim future steps before the brain answers them). Rejected commands never reach the
 integrator; :meth:`CommandChannel.offer` returns a :class:`Rejection` so the node can log it.
 """
 
@@ -20,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -28,7 +30,8 @@ import numpy as np
 
 Mode = Literal["lockstep", "realtime"]
 MODES: tuple[str, ...] = ("lockstep", "realtime")
-REJECT_REASONS: tuple[str, ...] = ("wrong_length", "wrong_names", "non_finite", "stale", "duplicate", "too_far_ahead")
+REJECT_REASONS: tuple[str, ...] = ("wrong_length", "wrong_names", "non_finite", "out_of_bounds", "stale", "duplicate",
+                                   "too_far_ahead", "untrusted_publisher")
 
 
 @dataclass(frozen=True)
@@ -57,16 +60,18 @@ class CommandChannel:
         size: expected number of values (E springs, or 2·M force components).
         names: expected joint names (an empty name list in a message is accepted too).
         mode: ``lockstep`` or ``realtime``.
-        max_ahead: lockstep: furthest step ahead of the next one a command may be buffered for.
+        max_ahead: furthest step ahead of the next one a command may be stamped for (both modes).
         max_age_steps: realtime: oldest usable command, in steps behind the step being integrated.
+        bounds: physical check of finite values: returns why they are out of bounds, or None.
     """
 
     name: str
     size: int
     names: list[str]
     mode: Mode
-    max_ahead: int = 1000
+    max_ahead: int = 1
     max_age_steps: int = 10
+    bounds: Callable[[np.ndarray], str | None] | None = None
     pending: dict[int, Command] = field(default_factory=dict)
     latest: Command | None = None
     accepted: int = 0
@@ -115,19 +120,26 @@ class CommandChannel:
         bad = np.flatnonzero(~np.isfinite(vals))
         if bad.size:
             return self._reject("non_finite", f"{what}: NaN/inf at index {int(bad[0])} ({bad.size} value(s))")
+        problem = self.bounds(vals) if self.bounds is not None else None
+        if problem:
+            return self._reject("out_of_bounds", f"{what}: {problem}")
+        if step > next_step + self.max_ahead:
+            return self._reject("too_far_ahead", f"{what}: more than {self.max_ahead} step(s) ahead of {next_step}")
         if self.mode == "lockstep":
             if step < next_step:
                 return self._reject("stale", f"{what} arrived after that step was integrated (next step {next_step})")
             if step in self.pending:
                 return self._reject("duplicate", f"{what}: a command for that step is already queued")
-            if step > next_step + self.max_ahead:
-                return self._reject("too_far_ahead", f"{what}: more than {self.max_ahead} steps ahead of {next_step}")
         else:
             if self.latest is not None and step <= self.latest.step:
                 return self._reject("stale", f"{what}: not newer than the latest ({self.latest.step})")
             if next_step - step > self.max_age_steps:
                 return self._reject("stale", f"{what}: {next_step - step} steps old (max {self.max_age_steps})")
         return None
+
+    def reject(self, step: int, reason: str, message: str) -> Rejection:
+        """Reject (and count) a command for ``step`` for a reason found outside the channel (e.g. its sender)."""
+        return self._reject(reason, f"{self.name} command for step {step}: {message}")
 
     def _reject(self, reason: str, message: str) -> Rejection:
         self.rejected[reason] += 1

@@ -45,6 +45,7 @@ from bptsb_ros.bags.recording import (
 )
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.ros.params import ParameterError, declare_parameters
+from bptsb_ros.ros.runtime import unblock_interrupt
 
 
 class RecorderNode(Node):
@@ -189,6 +190,7 @@ def main(args: list[str] | None = None) -> int:
     stop = threading.Event()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    unblock_interrupt()  # a stop requested during startup (held pending by the launcher) arrives now
     node: RecorderNode | None = None
     try:
         try:

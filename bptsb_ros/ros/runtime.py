@@ -5,6 +5,13 @@ its last diagnostics or wait for its messages to be acknowledged. The nodes ther
 own handlers: the first SIGINT/SIGTERM sets a stop flag that the node's loop polls (at least every
 0.1 s), a second one raises KeyboardInterrupt.
 
+A Ctrl-C while the process is still starting (importing torch and rclpy, loading the agent) is a clean
+stop too: ``bptsb launch`` and ``bptsb run`` start a node with SIGINT *blocked* (:func:`block_interrupt`),
+so a SIGINT that arrives during the imports stays pending instead of raising KeyboardInterrupt in the
+middle of them; :func:`install_stop_handlers` unblocks it once the handlers are in place, the pending
+signal sets the stop flag, and the node stops before its first step. SIGTERM is never blocked: it still
+ends a node that hangs before its handlers exist (the launcher's escalation, ``PR_SET_PDEATHSIG``).
+
 Exit codes: 0 clean (finished or stopped by a signal), 1 runtime failure, 2 bad parameters.
 """
 
@@ -40,8 +47,22 @@ class LiveNode(Protocol):
     def destroy_node(self) -> None: ...
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def block_interrupt() -> None:
+    """Hold SIGINT pending (the mask is inherited across exec) until :func:`unblock_interrupt`."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+
+def unblock_interrupt() -> None:
+    """Deliver a SIGINT held pending by :func:`block_interrupt` (call once the handlers are set)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def install_stop_handlers(stop: StopFlag) -> None:
-    """SIGINT/SIGTERM set ``stop``; a second signal raises KeyboardInterrupt."""
+    """SIGINT/SIGTERM set ``stop``; a second signal raises KeyboardInterrupt. A SIGINT held pending during
+    startup is delivered now."""
 
     def handler(signum: int, frame: object) -> None:
         del frame
@@ -49,8 +70,9 @@ def install_stop_handlers(stop: StopFlag) -> None:
             raise KeyboardInterrupt
         stop.set(signal.Signals(signum).name)
 
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, handler)
+    unblock_interrupt()
 
 
 def run_node(name: str, factory: Callable[[StopFlag], LiveNode], args: list[str] | None = None) -> int:

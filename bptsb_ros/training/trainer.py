@@ -3,6 +3,7 @@ non-negative body parameters, update rejection, checkpoints, metrics, progress."
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import statistics
@@ -50,10 +51,33 @@ def train(
     run_dir: str | Path,
     *,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
 ) -> TrainResult:
-    """Train ``cfg``'s agent, writing checkpoint.pt, config.yaml, metrics.json and plots to ``run_dir``."""
+    """Train ``cfg``'s agent, writing checkpoint.pt, config.yaml, metrics.json and plots to ``run_dir``.
+
+    ``run_dir`` must not hold anything yet unless ``resume`` (continue the run saved there; a missing run
+    is an error that creates nothing) or ``overwrite`` (replace it). The checkpoint only ever holds
+    parameters that completed a training window without divergence ("last good"): a checkpoint due
+    after update i is written once window i+1 ran with those parameters, and a run that diverges writes
+    its last good state (also with ``checkpoint_every: 0``) before it stops.
+
+    Raises:
+        ConfigError: ``run_dir`` holds a run (neither ``resume`` nor ``overwrite``), or the config differs
+            from the resumed run's.
+        CheckpointError: ``resume`` without a readable checkpoint.
+        TrainingDiverged: the simulation or the loss diverged.
+    """
     run_dir = Path(run_dir)
+    payload = None
+    if resume:
+        payload = read_checkpoint(run_dir)  # before creating anything: a missing run leaves nothing behind
+    elif run_dir.exists() and not overwrite:
+        if not run_dir.is_dir():
+            raise ConfigError(f"--out {run_dir} exists and is not a directory")
+        if any(run_dir.iterdir()):
+            raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
+                              "replace it with --force, or choose another directory")
     run_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
@@ -62,8 +86,7 @@ def train(
     losses: list[float] = []
     start = 0
     rejections = 0
-    if resume:
-        payload = read_checkpoint(run_dir)
+    if payload is not None:
         _check_resumable(payload["config"], agent.config, run_dir)
         for name, module in agent.modules().items():
             module.load_state_dict(payload["modules"][name])
@@ -87,11 +110,38 @@ def train(
         save_checkpoint(run_dir, agent, {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
                                          "losses": losses, "update": update, "rejections": rejections, **more})
 
+    def snapshot(update: int) -> dict[str, Any]:
+        """Everything a checkpoint at ``update`` holds, copied (later updates change the tensors in place)."""
+        return copy.deepcopy({
+            "modules": {name: m.state_dict() for name, m in agent.modules().items()},
+            "extra": {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(), "losses": losses,
+                      "update": update, "rejections": rejections},
+        })
+
+    # ``pending``: the parameters about to be simulated (not yet known to be good); ``good``: the last ones
+    # that completed a window without divergence; ``due``: ``pending`` is a scheduled checkpoint.
+    pending, good, due = snapshot(start), None, False
+
+    def window_completed() -> None:
+        nonlocal good, due
+        good = pending
+        if due:
+            save_checkpoint(run_dir, agent, good["extra"], modules=good["modules"])
+            due = False
+
     def diverged(update: int, why: str) -> TrainingDiverged:
-        """Record the failure beside the last good checkpoint (never over it) and build the error."""
-        report = {"update": update, "error": why, "losses": losses, "parameters": agent.body.parameter_ranges()}
+        """Write the last good state (parameters that completed a window), record the failure, build the error."""
+        if good is not None:
+            save_checkpoint(run_dir, agent, good["extra"], modules=good["modules"])
+            kept = (f"the last good checkpoint, update {good['extra']['update']}, is kept: parameters that "
+                    "completed a window without diverging")
+        elif (run_dir / "checkpoint.pt").is_file():
+            kept = "the earlier checkpoint is kept"
+        else:
+            kept = "no checkpoint was saved: no window completed"
+        report = {"update": update, "error": why, "losses": losses, "parameters": agent.body.parameter_ranges(),
+                  "last_good_update": None if good is None else good["extra"]["update"]}
         (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
-        kept = "the last checkpoint is kept" if (run_dir / "checkpoint.pt").is_file() else "no checkpoint was saved"
         return TrainingDiverged(f"update {update}: {why} ({kept}; details in {run_dir / 'diverged.json'})")
 
     try:
@@ -105,6 +155,7 @@ def train(
             value = float(loss.detach())
             if not math.isfinite(value):
                 raise diverged(i, f"loss is {value}; {agent.body.parameter_ranges()}")
+            window_completed()
             loss.backward()
             grads_ok = all(
                 torch.isfinite(p.grad).all() for g in optimizer.param_groups for p in g["params"] if p.grad is not None
@@ -119,6 +170,8 @@ def train(
                     bar.write(f"update {i}: {tc.reject_patience} rejections, learning rates divided by 10")
                 losses.append(value)
                 bar.update(1)
+                pending = snapshot(i + 1)
+                due = due or bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
                 continue
             optimizer.step()
             agent.body.clamp_parameters_()
@@ -126,8 +179,8 @@ def train(
             bar.update(1)
             if i % tc.log_every == 0:
                 bar.set_postfix(loss=f"{value:.4g}")
-            if tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0:
-                checkpoint(i + 1)
+            pending = snapshot(i + 1)
+            due = bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
     finally:
         bar.close()
     elapsed = time.perf_counter() - t_start
@@ -135,11 +188,14 @@ def train(
     metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": losses,
                                "updates": len(losses), "train_seconds": elapsed,
                                "train_steps_per_second": sim_steps / elapsed if elapsed > 0 else None}
-    with torch.no_grad():
-        if isinstance(agent.brain, SineWaveGenerator) and agent.feedback is not None:
-            metrics["feedback_fit"] = fit_feedback(agent, cfg.feedback, getattr(task, "state", None), cfg.seed)
-            task.feedback_fitted = True
-        metrics["evaluation"] = task.evaluate()
+    try:
+        with torch.no_grad():
+            if isinstance(agent.brain, SineWaveGenerator) and agent.feedback is not None:
+                metrics["feedback_fit"] = fit_feedback(agent, cfg.feedback, getattr(task, "state", None), cfg.seed)
+                task.feedback_fitted = True
+            metrics["evaluation"] = task.evaluate()
+    except SimulationDiverged as err:  # the final parameters never completed a window: keep the last good ones
+        raise diverged(total, f"evaluation: {err}") from None
     checkpoint(total, feedback_fitted=getattr(task, "feedback_fitted", False))
     files = _write_outputs(run_dir, task, metrics)
     return TrainResult(run_dir, losses, metrics, files)

@@ -1,0 +1,125 @@
+"""Bad input to configs and command-line arguments (issue 6, finding 2): one clear error naming the
+problem, bounded in size, a non-zero exit, and nothing lost or left behind."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from bptsb_ros.cli import main
+from bptsb_ros.config import ECHO_CHARS, ConfigError, load_config
+
+REPO = Path(__file__).resolve().parent.parent
+CONFIG = REPO / "config" / "lissajous_single.yaml"
+TINY = ["--set", "sim_time=1", "--set", "feedback.fit_time=1", "--set", "lissajous.eval_periods=1", "--no-progress"]
+
+
+def _bomb(levels: int) -> str:
+    """A YAML alias bomb: ``levels`` anchors, each a list of nine aliases of the previous one (9**levels leaves)."""
+    lines = ["task: lissajous", "a0: &a0 [x, x, x, x, x, x, x, x, x]"]
+    for i in range(1, levels):
+        lines.append(f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]")
+    return "\n".join(lines) + "\n"
+
+
+def test_alias_bomb_is_refused_with_a_short_message(tmp_path):
+    path = tmp_path / "bomb.yaml"
+    path.write_text(_bomb(6))  # 531,441 leaves from 0.4 kB; the old code echoed all of them in the error
+    assert path.stat().st_size < 600
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert "alias" in str(err.value) and len(str(err.value)) < 400
+
+
+def test_echoed_values_are_truncated(tmp_path):
+    path = tmp_path / "long.yaml"
+    path.write_text("task: lissajous\nbody:\n  shape: " + "x" * 100_000 + "\n")
+    with pytest.raises(ConfigError, match=r"body\.shape") as err:
+        load_config(path)
+    assert len(str(err.value)) < 300 + ECHO_CHARS
+    with pytest.raises(ConfigError) as err:
+        load_config(CONFIG, ["narma.extra=[" + ", ".join(["123456789"] * 5_000) + "]"])
+    assert "narma.extra: unknown key" in str(err.value) and len(str(err.value)) < 300 + ECHO_CHARS
+
+
+@pytest.mark.parametrize("override, key", [
+    ("brain.amplitude=.nan", "brain.amplitude"), ("body.size=.inf", "body.size"),
+    ("training.lr.k=-.inf", "training.lr.k"), ("lissajous.delta=.nan", "lissajous.delta"),
+    ("body.k_init=[1, .inf]", "body.k_init"), ("body.dt=5", "body.dt"),
+])
+def test_every_float_must_be_finite_and_in_range(override, key):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        load_config(CONFIG, [override])
+
+
+def test_body_size_is_bounded(capsys, tmp_path):
+    with pytest.raises(ConfigError, match=r"body\.nodes: Input should be less than or equal to 2001"):
+        load_config(CONFIG, ["body.nodes=1000001"])
+    code = main(["simulate", "--shape", "double_circle", "--nodes", "40001", "--steps", "1",
+                 "--out", str(tmp_path / "x.npz")])
+    err = capsys.readouterr().err
+    assert code == 2 and "40001 masses is more than the maximum of 2001" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("args", [["--perturb", "nan"], ["--wind", "inf", "0"], ["--dt", "nan"], ["--size=-inf"]])
+def test_cli_floats_must_be_finite(args, capsys, tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", "--shape", "double_circle", "--steps", "1", "--out", str(tmp_path / "x.npz"), *args])
+    assert exc.value.code == 2
+    assert "must be a finite number" in capsys.readouterr().err
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_train_never_replaces_a_run_without_force(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["train", str(CONFIG), "--out", str(run), *TINY]) == 0
+    checkpoint = (run / "checkpoint.pt").read_bytes()
+    capsys.readouterr()
+    assert main(["train", str(CONFIG), "--out", str(run), "--seed", "5", *TINY]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {run} already holds a run" in err and "--force" in err
+    assert (run / "checkpoint.pt").read_bytes() == checkpoint  # nothing lost
+    assert main(["train", str(CONFIG), "--out", str(run), "--seed", "5", "--force", *TINY]) == 0
+    assert (run / "checkpoint.pt").read_bytes() != checkpoint
+
+
+def test_resume_of_a_missing_run_leaves_nothing(tmp_path, capsys):
+    run = tmp_path / "missing" / "run"
+    assert main(["train", str(CONFIG), "--out", str(run), "--resume", *TINY]) == 2
+    assert "no checkpoint at" in capsys.readouterr().err
+    assert not run.exists() and not run.parent.exists()
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    return err
+
+
+@pytest.mark.skipif(not os.path.isdir("/sys/kernel"), reason="needs a read-only /sys")
+def test_unwritable_outputs_give_one_line(tmp_path, capsys):
+    a_file = tmp_path / "file"
+    a_file.write_text("keep me")
+    for bag in ("/sys/kernel/bptsb_bag", str(a_file / "bag")):
+        assert main(["launch", "lissajous_open", "--duration", "0.1", "--bag", bag]) == 2
+        assert "error: --bag" in _one_line_error(capsys)
+    bag = tmp_path / "bag"
+    _tiny_bag(bag)
+    for out in ("/sys/kernel/bptsb_replay", str(a_file), str(a_file / "sub")):
+        assert main(["replay", str(bag), "--out", out, "--no-gif"]) == 2
+        assert f"cannot write --out {out}" in _one_line_error(capsys)
+    assert a_file.read_text() == "keep me"
+
+
+def _tiny_bag(bag: Path) -> None:
+    import numpy as np
+
+    from bptsb_ros.bags.writer import BagWriter
+    from bptsb_ros.ros import messages as m
+
+    with BagWriter(bag) as w:
+        for k in range(3):
+            pos = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 0.1 * k]])
+            w.write_message("/body/positions", m.pose_array(k, 10_000_000, pos, "msdn"), k * 10_000_000)

@@ -1,0 +1,100 @@
+"""A hostile publisher on the body's domain (issue 6, finding 3): commands outside physical bounds (rest
+lengths -1 and 1e30, wind 1e30) are rejected and counted; a command that makes the body diverge (a force
+of 1e11 N, let through by a loosened ``max_force``) is survived (last good state + safe command, an ERROR
+diagnostic); a node that is not an allowed publisher can neither take over the body with commands stamped
+ahead nor have any command integrated."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from ros_live import Probe, fresh_agent, start_node, stop
+
+DT_NS = 10_000_000
+STEPS = 8
+
+
+def test_body_survives_hostile_commands(tmp_path, ros_env, ros_domain_id):
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from geometry_msgs.msg import Vector3Stamped
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+
+    from bptsb_ros.ros import messages as m
+    from bptsb_ros.ros.topics import mass_dof_names, spring_names
+
+    agent = fresh_agent("lissajous")
+    base = agent.body.l.numpy()
+    names = spring_names(base.size)
+    dofs = mass_dof_names(agent.body.movable_index.tolist())
+    good = [base * (1 + 0.001 * k) for k in range(STEPS + 1)]
+    evil = base * 1.5
+    brain = Probe(ros_domain_id, "test_brain")
+    intruder: list[Probe] = []
+    cq = m.command_qos(100)
+    rest_pub = brain.node.create_publisher(JointState, "/brain/rest_length", cq)
+    wind_pub = brain.node.create_publisher(Vector3Stamped, "/env/wind", cq)
+    force_pub = brain.node.create_publisher(JointState, "/brain/force", cq)
+
+    def on_clock(msg: Clock) -> None:
+        k = m.step_of(msg.clock, DT_NS)
+        if k == 0:
+            assert Probe.wait_matched([rest_pub, wind_pub, force_pub], 10.0)
+            wind = Vector3Stamped()
+            wind.vector.x = 1e30
+            wind_pub.publish(wind)
+            rest_pub.publish(m.joint_state(0, DT_NS, names, position=-base))  # negative rest lengths
+        if k == 1:
+            rest_pub.publish(m.joint_state(1, DT_NS, names, position=np.full_like(base, 1e30)))
+        if k == 2:  # within the (loosened) force bound, but the body cannot integrate it: the step diverges
+            force_pub.publish(m.joint_state(2, DT_NS, dofs, effort=np.full(len(dofs), 1e11)))
+        if k == 5:  # a node that is not an allowed publisher joins and stamps commands ahead of the brain
+            intruder.append(Probe(ros_domain_id, "intruder"))
+            pub = intruder[0].node.create_publisher(JointState, "/brain/rest_length", cq)
+            assert Probe.wait_matched([pub], 10.0)
+            for ahead in range(5, STEPS + 3):
+                pub.publish(m.joint_state(ahead, DT_NS, names, position=evil))
+        rest_pub.publish(m.joint_state(k, DT_NS, names, position=good[k]))
+
+    sq = m.state_qos(100)
+    brain.subscribe(Clock, "/clock", sq, on_clock)
+    brain.subscribe(JointState, "/body/rest_length", sq)
+    brain.subscribe(DiagnosticArray, "/diagnostics", sq)
+    summary = tmp_path / "summary.json"
+    body = start_node("body_sim", {
+        "task": "lissajous", "max_steps": STEPS, "wait_for": ["rest_length"], "command_timeout": 1.0,
+        "wait_for_subscribers": ["/clock:1", "/body/rest_length:1", "/diagnostics:1"],
+        "summary_path": str(summary), "final_ack_timeout": 1.0, "command_publishers": ["test_brain"],
+        "max_force": 1e12,
+    }, ros_env, tmp_path / "body.log")
+    try:
+        assert brain.spin_until(lambda: body.poll() is not None, 90)
+        brain.spin_until(lambda: len(brain.messages["/body/rest_length"]) >= STEPS + 1, 5)
+    finally:
+        stop(body)
+        brain.close()
+        for probe in intruder:
+            probe.close()
+    log = (tmp_path / "body.log").read_text()
+    assert body.returncode == 0, log
+    for line in ("rejected wind [1e+30, 0.0]: value 1e+30 at index 0 outside [-1000, 1000] N",
+                 "rejected rest_length command for step 0: value -",
+                 "outside (0, 56.5685] m",  # default: 10 × the diagonal of the 4 m × 4 m layout, 40√2
+                 "step 2 diverged", "restored the last good state (step 1) and integrated step 2 with the safe command",
+                 "also has publisher(s) not in command_publishers ("):
+        assert line in log, f"missing log line: {line}\n{log}"
+    applied = np.array([np.asarray(msg.position) for msg in brain.messages["/body/rest_length"]])
+    assert len(applied) == STEPS + 1
+    np.testing.assert_array_equal(applied[:2], good[:2])
+    np.testing.assert_array_equal(applied[2], base)  # the diverged step, redone with the safe command
+    np.testing.assert_array_equal(applied[3:5], good[3:5])
+    assert not any(np.array_equal(row, evil) for row in applied), "an intruder's command was integrated"
+    assert all(np.array_equal(row, good[k]) or np.array_equal(row, base) for k, row in enumerate(applied))
+    errors = [s for msg in brain.messages["/diagnostics"] for s in msg.status if s.level == DiagnosticStatus.ERROR]
+    assert errors and "step 2 diverged" in errors[0].message
+    counts = json.loads(summary.read_text())
+    assert counts["wind_rejected_out_of_bounds"] == 1 and counts["rest_length_rejected_out_of_bounds"] == 2
+    assert counts["divergences"] == 1 and counts["rest_length_rejected_untrusted_publisher"] >= 1
+    assert counts["force_accepted"] == 1
+    assert counts["rejected_total"] >= 4
