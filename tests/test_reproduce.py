@@ -71,6 +71,11 @@ def test_runner_writes_result_and_never_overwrites(tmp_path, toy_experiment):
     _, again = run_experiment(toy_experiment, scale="smoke", seed=0, out_dir=tmp_path / "a", force=True,
                               progress=False)
     assert again["claims"][0]["holds"] is False  # ours = 1 < 2
+    (tmp_path / "used").mkdir()
+    (tmp_path / "used" / "checkpoint.pt").write_bytes(b"an earlier run")
+    with pytest.raises(ExperimentError, match="used exists"):
+        run_experiment(toy_experiment, scale="smoke", out_dir=tmp_path / "used", progress=False)
+    assert (tmp_path / "used" / "checkpoint.pt").read_bytes() == b"an earlier run"
     with pytest.raises(ExperimentError, match="unknown experiment"):
         run_experiment("no-such-experiment", out_dir=tmp_path / "b")
     with pytest.raises(ExperimentError, match="scale"):

@@ -35,7 +35,7 @@ def run(ctx: Context) -> None:
     cfg = packaged_config("lissajous_single", [f"sim_time={sim_time}", f"feedback.fit_time={fit_time}",
                                                f"lissajous.eval_periods={periods}"], seed=ctx.seed)
     ctx.log(f"lissajous-closed-loop: training {sim_time} s of simulated time, seed {ctx.seed}")
-    res = train(cfg, ctx.out_dir / "agent", progress=ctx.progress)
+    res = train(cfg, ctx.out_dir / "agent", overwrite=True, progress=ctx.progress)  # the runner owns out_dir
     ev = res.metrics["evaluation"]
     open_err = float(ev["trajectory_mse_shift_min"])
     closed_err = float(ev["closed_loop_shift_min_mse"])

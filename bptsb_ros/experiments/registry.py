@@ -117,14 +117,15 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
                    log: Callable[[str], None] | None = None) -> tuple[Path, dict[str, Any]]:
     """Run one experiment and write ``out_dir/result.json``; returns (its path, its content).
 
-    An existing ``result.json`` is kept unless ``force``; a failed run writes no result.
+    A non-empty ``out_dir`` (an earlier run) is kept unless ``force``; a failed run writes no result.json.
     """
     exp = get_experiment(name)
     if scale not in SCALES:
         raise ExperimentError(f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
     out = Path(out_dir) if out_dir is not None else Path("runs") / "reproduce" / name
-    if (out / RESULT_FILE).exists() and not force:
-        raise ExperimentError(f"{out / RESULT_FILE} exists; choose another --out or pass --force to replace it")
+    if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+        what = out / RESULT_FILE if (out / RESULT_FILE).exists() else out
+        raise ExperimentError(f"{what} exists; choose another --out or pass --force to replace the run there")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
