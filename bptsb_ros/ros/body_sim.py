@@ -102,7 +102,7 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("summary_path", "", "write the run summary (timing, rejections) as JSON here at exit (empty: don't)",
           "str"),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
-    Param("max_rest_length", 0.0, "largest accepted rest-length command [m] (rest lengths must be > 0); 0: 10 x "
+    Param("max_rest_length", 0.0, "largest accepted rest-length command [m]; 0: 10 x "
           "the diagonal of the body's bounding box", "float", minimum=0.0),
     Param("min_rest_length", 0.0, "rest-length commands must be > this [m]; 0: 0, unless the agent's SWG itself "
           "commands rest lengths <= 0 (amplitude > 1): then its lowest SWG rest length minus one full swing",
