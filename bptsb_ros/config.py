@@ -64,6 +64,9 @@ class TrainingConfig(_Strict):
     update_steps: int = Field(100, ge=1, description="truncated window length (updateTimeScale) [steps]")
     lr: LearningRates = LearningRates()
     adjoint: bool = Field(True, description="hand-derived backward (fast); False uses plain autograd")
+    backend: Literal["numba", "torch"] = Field(
+        "numba", description="body integration: numba (compiled window kernel, fastest on CPU) or torch (the "
+                             "reference; GPU)")
     reject_factor: float = Field(0.0, ge=0, description="reject an update whose loss > factor × recent median (0: off)")
     reject_patience: int = Field(5, ge=1, description="divide all learning rates by 10 after this many rejections")
     checkpoint_every: int = Field(0, ge=0, description="updates between checkpoints (0: only at the end)")

@@ -183,10 +183,10 @@ class AdjointCase:
     displacement is trainable (as an MNIST brain's output); the loss reads r, v, a and the lengths."""
 
     def __init__(self, shape: str = "double_circle", *, integrator: str = "verlet", environment: Environment
-                 | None = None, steps: int = 30, batch: int = 2) -> None:
+                 | None = None, steps: int = 30, batch: int = 2, backend: str = "numba") -> None:
         nodes = 10 if shape == "caterpillar" else 25
         self.body = MSDN(build_shape(shape, nodes), dtype=F64, generator=gen(10), integrator=integrator,
-                         environment=environment or Environment())
+                         environment=environment or Environment(), backend=backend)
         m, e = self.body.n_movable, self.body.topology.n_springs
         self.swg = SineWaveGenerator(e, amplitude=0.3, generator=gen(11), dtype=F64)
         self.lil = LinearInputLayer(1, 2 * m, generator=gen(12), dtype=F64)
@@ -239,9 +239,10 @@ def clamp_counts(case: AdjointCase) -> tuple[int, int, int]:
     return case.steps, body.n_movable, clamped
 
 
+@pytest.mark.parametrize("backend", ["numba", "torch"])
 @pytest.mark.parametrize("case_name", sorted(ADJOINT_CASES))
-def test_adjoint_matches_finite_differences(case_name: str) -> None:
-    case = AdjointCase(**ADJOINT_CASES[case_name])
+def test_adjoint_matches_finite_differences(case_name: str, backend: str) -> None:
+    case = AdjointCase(**ADJOINT_CASES[case_name], backend=backend)
     if case_name == "locomotion_clamp":
         with torch.no_grad():
             _, _, clamped = clamp_counts(case)
@@ -251,15 +252,16 @@ def test_adjoint_matches_finite_differences(case_name: str) -> None:
         assert norm > 1e-8 and err < TOLERANCE, (name, err, norm)
 
 
+@pytest.mark.parametrize("backend", ["numba", "torch"])
 @pytest.mark.parametrize("case_name", sorted(ADJOINT_CASES) + ["ground_clamp"])
-def test_adjoint_equals_autograd(case_name: str) -> None:
+def test_adjoint_equals_autograd(case_name: str, backend: str) -> None:
     if case_name == "ground_clamp":
         env = Environment.locomotion()
         kwargs: dict = dict(shape="caterpillar", environment=Environment(env.gravity, env.air_drag, env.ground_c,
                                                                          ground_clamp=True))
     else:
         kwargs = ADJOINT_CASES[case_name]
-    case = AdjointCase(**kwargs, steps=40)
+    case = AdjointCase(**kwargs, steps=40, backend=backend)
     if case_name == "ground_clamp":
         with torch.no_grad():
             case.displacement[..., 1] -= 0.1  # start the feet below ground so the clamp acts

@@ -261,11 +261,11 @@ def test_ground_clamp_puts_sunk_masses_on_the_floor_before_the_forces() -> None:
     assert bool((sc.v[0, sunk].abs() > 1e-3).all())  # not zeroed after the velocity update
 
 
-def one_mass_on_a_slack_spring(integrator: str, height: float) -> MSDN:
+def one_mass_on_a_slack_spring(integrator: str, height: float, backend: str = "numba") -> MSDN:
     """A movable mass at (0, height) tied to a fixed anchor at (0, 5) by a spring with k = d = 0: the only
     forces are gravity 10 m/s² (−y) and air drag −0.1·v; dt = 0.1 s; the hard floor on."""
     topology = Topology("hand", np.array([[0.0, 5.0], [0.0, height]]), np.array([[0, 1]]), np.array([True, False]), -1)
-    body = MSDN(topology, dt=0.1, integrator=integrator, dtype=F64,
+    body = MSDN(topology, dt=0.1, integrator=integrator, dtype=F64, backend=backend,
                 environment=Environment(gravity=10.0, air_drag=0.1, ground_c=0.0, ground_clamp=True))
     with torch.no_grad():
         body.k.zero_()
@@ -286,10 +286,11 @@ HAND_TWO_STEPS = {
 }
 
 
+@pytest.mark.parametrize("backend", ["numba", "torch"])
 @pytest.mark.parametrize("integrator", sorted(HAND_TWO_STEPS))
-def test_ground_clamp_order_on_a_hand_computed_two_step_example(integrator: str) -> None:
+def test_ground_clamp_order_on_a_hand_computed_two_step_example(integrator: str, backend: str) -> None:
     height, r_hand, v_hand, a_hand = HAND_TWO_STEPS[integrator]
-    body = one_mass_on_a_slack_spring(integrator, height)
+    body = one_mass_on_a_slack_spring(integrator, height, backend)
     with torch.no_grad():
         state = body.initial_state(1, velocity=torch.tensor([[[1.0, 0.0]]], dtype=F64))
         states = [state := body.step(state) for _ in range(2)]
@@ -310,13 +311,14 @@ HAND_JACOBIAN = {
 }
 
 
-@pytest.mark.parametrize("adjoint", [True, False], ids=["adjoint", "autograd"])
+@pytest.mark.parametrize(("backend", "adjoint"), [("numba", True), ("torch", True), ("torch", False)],
+                         ids=["numba-adjoint", "torch-adjoint", "autograd"])
 @pytest.mark.parametrize("integrator", sorted(HAND_JACOBIAN))
-def test_gradient_through_the_clamp_on_the_hand_example(integrator: str, adjoint: bool) -> None:
+def test_gradient_through_the_clamp_on_the_hand_example(integrator: str, backend: str, adjoint: bool) -> None:
     from bptsb_ros.body.adjoint import rollout_window
 
     height = HAND_TWO_STEPS[integrator][0]
-    body = one_mass_on_a_slack_spring(integrator, height)
+    body = one_mass_on_a_slack_spring(integrator, height, backend)
     v0 = torch.tensor([[[1.0, 0.0]]], dtype=F64, requires_grad=True)
     rows = []
     for out in range(4):

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from bptsb_ros.body.msdn import MSDN, BodyState
@@ -60,18 +61,26 @@ def rollout_window(
         rest_lengths: (W, E) or (W, B, E) rest length in force at steps 1..W [m].
         external_forces: (W, B, M, 2) or (W, M, 2) external force at steps 1..W [N], or None.
         adjoint: use the hand-derived backward (default); False records every step with autograd.
+
+    With ``body.backend == "numba"`` (CPU) the window is one compiled call forward and one backward
+    (``body/kernel.py``); with ``torch`` the forward is ``MSDN.step`` and the backward the torch adjoint
+    below. Both are the same equations; tests/test_kernel.py holds them equal.
     """
     n_steps = rest_lengths.shape[0]
     if external_forces is not None and external_forces.shape[0] != n_steps:
         raise ValueError(
             f"external_forces has {external_forces.shape[0]} steps but rest_lengths has {n_steps}"
         )
-    if not adjoint or not torch.is_grad_enabled():
-        return _rollout_autograd(body, state, rest_lengths, external_forces)
     ext = external_forces if external_forces is not None else rest_lengths.new_zeros(0)
-    r, v, a, length = _WindowFunction.apply(
-        state.r, state.v, state.a, body.k, body.d, rest_lengths, ext, body
-    )
+    if body.uses_kernel(state.r, state.v, state.a, rest_lengths, external_forces):  # nothing to differentiate
+        r, v, a, length = body.kernel_window(state.r, state.v, state.a, rest_lengths, external_forces)
+    elif body.backend == "numba" and body.k.device.type == "cpu" and adjoint:
+        r, v, a, length = _KernelWindowFunction.apply(state.r, state.v, state.a, body.k, body.d, rest_lengths, ext,
+                                                      body)
+    elif not adjoint or not torch.is_grad_enabled():
+        return _rollout_autograd(body, state, rest_lengths, external_forces)
+    else:
+        r, v, a, length = _WindowFunction.apply(state.r, state.v, state.a, body.k, body.d, rest_lengths, ext, body)
     final = BodyState(r[-1], v[-1], a[-1], length[-1], state.step + n_steps)
     return Window(r, v, a, length, final)
 
@@ -203,3 +212,60 @@ class _WindowFunction(torch.autograd.Function):
                 g_ext = g_ext.sum(1)
         shape = r0.shape
         return lam_r.view(shape), lam_v.view(shape), lam_a.view(shape), g_k, g_d, g_rest, g_ext, None
+
+
+class _KernelWindowFunction(torch.autograd.Function):
+    """The window as one numba call forward (``MSDN.kernel_window``) and one backward (``kernel.adjoint``)."""
+
+    @staticmethod
+    def forward(ctx, r0, v0, a0, k, d, rest_lengths, ext, body: MSDN):  # type: ignore[override]
+        has_ext = ext.numel() > 0
+        r_out, v_out, a_out, len_out = body.kernel_window(r0, v0, a0, rest_lengths, ext if has_ext else None)
+        ctx.body = body
+        ctx.rest_shape = rest_lengths.shape
+        ctx.ext_shape = ext.shape if has_ext else None
+        ctx.save_for_backward(r0, v0, a0, rest_lengths, r_out, v_out, a_out, len_out)
+        ctx.set_materialize_grads(False)  # an output the loss does not read costs nothing in the backward
+        return r_out, v_out, a_out, len_out
+
+    @staticmethod
+    def backward(ctx, g_r, g_v, g_a, g_len):  # type: ignore[override]
+        from bptsb_ros.body import kernel
+        from bptsb_ros.body.msdn import _as_numpy
+
+        body: MSDN = ctx.body
+        r0, v0, a0, rest_lengths, r_out, v_out, a_out, len_out = ctx.saved_tensors
+        dtype = r0.dtype
+        n_steps, batch, n_mov = r_out.shape[0], r_out.shape[1], r_out.shape[2]
+        n_springs = len_out.shape[2]
+        rest = rest_lengths if rest_lengths.dim() == 3 else rest_lengths.unsqueeze(1)
+        n_ext = 0 if ctx.ext_shape is None else 1
+        # one allocation: λ_r, λ_v, λ_a (B, M, 2), Ḡk, Ḡd (B, E); then Ḡl (W, B, E) and Ḡf_ext (W, B, M, 2)
+        per_body = torch.empty((batch, 6 * n_mov + 2 * n_springs), dtype=dtype)
+        lam_r, lam_v, lam_a, g_k, g_d = per_body.split([2 * n_mov] * 3 + [n_springs] * 2, dim=-1)
+        lam_r, lam_v, lam_a = (x.unflatten(-1, (n_mov, 2)) for x in (lam_r, lam_v, lam_a))
+        per_step = torch.empty((n_steps, batch, n_springs + 2 * n_mov * n_ext), dtype=dtype)
+        g_rest, g_ext = per_step.split([n_springs, 2 * n_mov * n_ext], dim=-1)
+        g_ext = g_ext.unflatten(-1, (n_mov, 2)) if n_ext else g_ext.new_empty((n_steps, 0, n_mov, 2))
+        k, d, offset, mass, coef = body.kernel_constants(dtype)
+
+        # an output the loss does not read has no gradient: the kernel takes a 0-step array for it
+        empty = {3: np.empty((0, 0, 0), dtype=k.dtype), 4: np.empty((0, 0, 0, 0), dtype=k.dtype)}
+        kernel.adjoint(_as_numpy(r0, dtype), _as_numpy(v0, dtype), _as_numpy(a0, dtype), k, d, _as_numpy(rest, dtype),
+                       n_ext, body.spring_i, body.spring_j, offset, mass, coef, body.integrator == "verlet",
+                       bool(body.environment.ground_clamp), r_out.numpy(), v_out.numpy(), a_out.numpy(),
+                       len_out.numpy(), *(empty[4] if g is None else _as_numpy(g, dtype) for g in (g_r, g_v, g_a)),
+                       empty[3] if g_len is None else _as_numpy(g_len, dtype), lam_r.numpy(), lam_v.numpy(),
+                       lam_a.numpy(), g_k.numpy(), g_d.numpy(), g_rest.numpy(), g_ext.numpy())
+        grad_rest = _reduce_to(g_rest, ctx.rest_shape if len(ctx.rest_shape) == 3 else (n_steps, 1, n_springs))
+        grad_ext = None
+        if ctx.ext_shape is not None:
+            shape = ctx.ext_shape if len(ctx.ext_shape) == 4 else (n_steps, 1, n_mov, 2)
+            grad_ext = _reduce_to(g_ext, shape).reshape(ctx.ext_shape)
+        return (lam_r, lam_v, lam_a, g_k.sum(0), g_d.sum(0),
+                grad_rest.reshape(ctx.rest_shape), grad_ext, None)
+
+
+def _reduce_to(grad: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
+    """Sum a per-body gradient (W, B, ...) over the batch axis where the input was shared (size 1)."""
+    return grad.sum(1, keepdim=True) if shape[1] == 1 and grad.shape[1] != 1 else grad

@@ -30,6 +30,10 @@ from bptsb_ros.body.forces import environment_forces, incidence_operators, sprin
 from bptsb_ros.body.shapes import Topology
 
 Integrator = Literal["verlet", "published"]
+#: how the body is integrated: ``numba`` = the compiled window kernel (``body/kernel.py``; CPU), ``torch`` = torch
+#: ops (the reference; also runs on a GPU). Both give the same trajectories and gradients to rounding.
+Backend = Literal["numba", "torch"]
+BACKENDS = ("numba", "torch")
 
 
 class SimulationDiverged(RuntimeError):
@@ -94,10 +98,14 @@ class MSDN(nn.Module):
         d_init: tuple[float, float] = (0.0, 10.0),
         generator: torch.Generator | None = None,
         dtype: torch.dtype = torch.float32,
+        backend: Backend = "numba",
     ) -> None:
         super().__init__()
         if integrator not in ("verlet", "published"):
             raise ValueError(f"integrator must be 'verlet' or 'published', got {integrator!r}")
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be 'numba' or 'torch', got {backend!r}")
+        self.backend: Backend = backend
         if dt <= 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.topology = topology
@@ -115,6 +123,10 @@ class MSDN(nn.Module):
                     fixed_offset[e] += sign * topology.positions[node]
                 else:
                     incidence[e, col[int(node)]] = sign
+        # The window kernel's view of the layout: each spring's movable end indices (−1: a fixed mass).
+        ends = np.array([[col.get(int(n), -1) for n in pair] for pair in topology.springs], dtype=np.int64)
+        self.spring_i = np.ascontiguousarray(ends.reshape(n_springs, 2)[:, 0])
+        self.spring_j = np.ascontiguousarray(ends.reshape(n_springs, 2)[:, 1])
         self.register_buffer("incidence", torch.tensor(incidence, dtype=dtype))
         gather, scatter = incidence_operators(self.incidence)
         self.register_buffer("gather", gather, persistent=False)
@@ -212,6 +224,11 @@ class MSDN(nn.Module):
         """
         dt = self.dt
         l_next = self.l if rest_length is None else rest_length
+        if self.uses_kernel(state.r, state.v, state.a, l_next, external_force):
+            shape = (1, *external_force.shape) if external_force is not None else None
+            r, v, a, length = self.kernel_window(state.r, state.v, state.a, l_next.unsqueeze(0),
+                                                 None if shape is None else external_force.reshape(shape))
+            return BodyState(r[0], v[0], a[0], length[0], state.step + 1)
         verlet = self.integrator == "verlet"
         r = torch.add(state.r, state.v, alpha=dt)
         if verlet:
@@ -226,6 +243,74 @@ class MSDN(nn.Module):
         else:
             v = torch.add(v, a, alpha=0.5 * dt)  # the stale a(t) was zero in the published code
         return BodyState(r, v, a, length, state.step + 1)
+
+    # -- the compiled backend -------------------------------------------------------------------
+    def uses_kernel(self, *tensors: torch.Tensor | None) -> bool:
+        """True when a step or window on these tensors runs in the numba kernel: backend ``numba``, CPU
+        tensors, and no autograd tape wanted through them (differentiable windows go through
+        ``body.adjoint.rollout_window``, whose backward is the kernel's adjoint)."""
+        if self.backend != "numba" or self.k.device.type != "cpu":
+            return False
+        if not torch.is_grad_enabled():
+            return True
+        return not (self.k.requires_grad or self.d.requires_grad
+                    or any(t is not None and t.requires_grad for t in tensors))
+
+    def kernel_window(
+        self,
+        r0: torch.Tensor,
+        v0: torch.Tensor,
+        a0: torch.Tensor,
+        rest_lengths: torch.Tensor,
+        external_forces: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """W steps in one compiled call, without autograd (the numba backend's forward).
+
+        Args:
+            r0, v0, a0: (B, M, 2) start state.  rest_lengths: (W, E) or (W, B', E) with B' ∈ {1, B} [m].
+            external_forces: (W, M, 2) or (W, B', M, 2) [N], or None.
+
+        Returns:
+            r, v, a: (W, B, M, 2) states 1..W; length: (W, B, E) spring lengths the forces saw [m].
+        """
+        from bptsb_ros.body import kernel
+
+        n_steps, batch, dtype = rest_lengths.shape[0], r0.shape[0], r0.dtype
+        rest = _as_numpy(rest_lengths if rest_lengths.dim() == 3 else rest_lengths.unsqueeze(1), dtype)
+        ext = self._kernel_ext(external_forces, n_steps, dtype)
+        out = torch.empty((n_steps, batch, 3 * 2 * r0.shape[1] + self.topology.n_springs), dtype=dtype)
+        r, v, a, length = self._split_window(out, r0.shape[1])
+        k, d, offset, mass, coef = self.kernel_constants(dtype)
+        kernel.forward(_as_numpy(r0, dtype), _as_numpy(v0, dtype), _as_numpy(a0, dtype), k, d, rest, ext,
+                       self.spring_i, self.spring_j, offset, mass, coef, self.integrator == "verlet",
+                       bool(self.environment.ground_clamp), r.numpy(), v.numpy(), a.numpy(), length.numpy())
+        return r, v, a, length
+
+    @staticmethod
+    def _split_window(out: torch.Tensor, n_mov: int) -> tuple[torch.Tensor, ...]:
+        """One (W, B, 6M + E) block → r, v, a (W, B, M, 2) and length (W, B, E): one allocation per window."""
+        r, v, a, length = out.split([2 * n_mov, 2 * n_mov, 2 * n_mov, out.shape[2] - 6 * n_mov], dim=-1)
+        return (*(x.unflatten(-1, (n_mov, 2)) for x in (r, v, a)), length)
+
+    def kernel_constants(self, dtype: torch.dtype) -> tuple[np.ndarray, ...]:
+        """k, d, fixed offsets, masses (numpy views of the live tensors) and the kernels' scalars, in ``dtype``."""
+        from bptsb_ros.body import kernel
+
+        key = (dtype, self.k.data_ptr(), self.d.data_ptr(), self.fixed_offset.data_ptr(), self.mass.data_ptr())
+        if getattr(self, "_kernel_views", (None,))[0] != key:
+            views = tuple(_as_numpy(t, dtype) for t in (self.k, self.d, self.fixed_offset, self.mass))
+            self._kernel_views = (key, views)
+        env = self.environment
+        coef = kernel.coefficients(self.dt, -float(env.gravity), float(env.air_drag), float(env.ground_c),
+                                   _NUMPY[dtype])
+        return (*self._kernel_views[1], coef)
+
+    def _kernel_ext(self, external_forces: torch.Tensor | None, n_steps: int, dtype: torch.dtype) -> np.ndarray:
+        """External forces as the kernel's (W, B', M, 2) array (B' = 0 when there are none)."""
+        if external_forces is None or external_forces.numel() == 0:
+            return np.zeros((n_steps, 0, self.n_movable, 2), dtype=_NUMPY[dtype])
+        ext = external_forces if external_forces.dim() == 4 else external_forces.unsqueeze(1)
+        return _as_numpy(ext, dtype)
 
     def parameter_ranges(self) -> str:
         """``k in [lo, hi], d in [..], l in [..]``: for error messages."""
@@ -243,3 +328,14 @@ class MSDN(nn.Module):
             f"non-finite or beyond {limit:g} m; body parameters {self.parameter_ranges()}. Lower the learning rates, "
             "the time step or the input scale."
         )
+
+
+_NUMPY = {torch.float32: np.float32, torch.float64: np.float64}
+
+
+def _as_numpy(t: torch.Tensor, dtype: torch.dtype) -> np.ndarray:
+    """A C-contiguous numpy view (a copy only when needed) of a CPU tensor, without its autograd history."""
+    t = t.detach()
+    if t.dtype != dtype:
+        raise TypeError(f"the body runs in {dtype}, got a {t.dtype} tensor")
+    return t.contiguous().numpy()
