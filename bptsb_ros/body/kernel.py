@@ -243,6 +243,15 @@ _adjoint_parallel = njit(cache=True, nogil=True, parallel=True)(_adjoint_impl)
 PARALLEL_MIN_BATCH = int(os.environ.get("BPTSB_PARALLEL_MIN_BATCH", "16"))
 
 
+def threads_for(batch: int) -> int:
+    """Threads the kernels use for a window of ``batch`` bodies."""
+    if batch < PARALLEL_MIN_BATCH:
+        return 1
+    import numba
+
+    return min(batch, numba.get_num_threads())
+
+
 def coefficients(dt: float, gravity_y: float, drag: float, ground_c: float, dtype) -> np.ndarray:
     """The kernels' scalars as one array of the simulation's dtype: [Δt, Δt²/2, Δt/2, g_y, drag, c, c², 0]."""
     return np.array([dt, 0.5 * dt * dt, 0.5 * dt, gravity_y, drag, ground_c, ground_c * ground_c, 0.0], dtype=dtype)

@@ -245,6 +245,13 @@ class MSDN(nn.Module):
         return BodyState(r, v, a, length, state.step + 1)
 
     # -- the compiled backend -------------------------------------------------------------------
+    @torch.no_grad()
+    def warm_up(self) -> None:
+        """Run one throwaway step so the numba kernel is loaded from its cache (or compiled) before timing
+        matters (the live node's first step); nothing for the torch backend."""
+        if self.uses_kernel():
+            self.step(self.initial_state(1))
+
     def uses_kernel(self, *tensors: torch.Tensor | None) -> bool:
         """True when a step or window on these tensors runs in the numba kernel: backend ``numba``, CPU
         tensors, and no autograd tape wanted through them (differentiable windows go through

@@ -20,6 +20,7 @@ from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.tasks import get_task
+from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
 from bptsb_ros.training.optim import make_optimizer, scale_learning_rates
@@ -55,9 +56,7 @@ def train(
     """Train ``cfg``'s agent, writing checkpoint.pt, config.yaml, metrics.json and plots to ``run_dir``."""
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    # Every task trains one small body (batch 1): more torch threads only add synchronisation (measured:
-    # 2 CPU-seconds per wall-second at the speed of one core), and the numba kernel runs a batch of 1 serially.
-    torch.set_num_threads(1)
+    threads = configure_threads(1, cfg.training.backend)  # every task trains one small body: one thread
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
     task = get_task(cfg.task)(agent, cfg)
@@ -137,7 +136,7 @@ def train(
 
     metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": losses,
                                "updates": len(losses), "train_seconds": elapsed, "backend": tc.backend,
-                               "torch_threads": torch.get_num_threads(),
+                               "threads": threads,
                                "train_steps_per_second": sim_steps / elapsed if elapsed > 0 else None}
     with torch.no_grad():
         if isinstance(agent.brain, SineWaveGenerator) and agent.feedback is not None:
