@@ -22,7 +22,9 @@ def _early_late(losses, n=10):
 
 
 def test_lissajous_training_lowers_loss_and_saves_everything(tmp_path):
-    cfg = load_config(CONFIG / "lissajous_single.yaml", ["sim_time=150", "feedback.fit_time=20",
+    # 300 updates: at the paper's rates the loss is noisy and its path chaotic (rounding-level differences, e.g.
+    # torch vs numba backend or float32 vs float64, give late/early 0.34-0.59 after 150 updates, 0.33-0.38 here)
+    cfg = load_config(CONFIG / "lissajous_single.yaml", ["sim_time=300", "feedback.fit_time=20",
                                                            "lissajous.eval_periods=3"])
     res = train(cfg, tmp_path / "run", progress=False)
     early, late = _early_late(res.losses)
@@ -30,7 +32,8 @@ def test_lissajous_training_lowers_loss_and_saves_everything(tmp_path):
     for name in ("checkpoint.pt", "config.yaml", "metrics.json", "loss.png", "lissajous.png"):
         assert (tmp_path / "run" / name).is_file(), name
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
-    assert len(metrics["loss"]) == 150 and metrics["evaluation"]["trajectory_mse"] > 0
+    assert len(metrics["loss"]) == 300 and metrics["evaluation"]["trajectory_mse"] > 0
+    assert metrics["backend"] == "numba" and metrics["threads"]["torch"] == 1
     assert "closed_loop_shift_min_mse" in metrics["evaluation"]
     agent = load_agent(tmp_path / "run")
     assert agent.feedback is not None and agent.feedback.weight.abs().sum() > 0
