@@ -151,6 +151,11 @@ def test_one_step_at_a_time_equals_the_window_bit_for_bit(body_name: str) -> Non
 
 
 def test_threads_over_the_batch_equal_one_thread_bit_for_bit(monkeypatch) -> None:
+    # the parallel build caches under its own name (numba's cache key ignores compile options)
+    for serial, parallel in ((kernel._forward_serial, kernel._forward_parallel),
+                             (kernel._adjoint_serial, kernel._adjoint_parallel)):
+        assert parallel.targetoptions.get("parallel") and not serial.targetoptions.get("parallel")
+        assert parallel.py_func.__qualname__ != serial.py_func.__qualname__
     case = Case("caterpillar_clamp", "verlet", "numba", steps=40, batch=kernel.PARALLEL_MIN_BATCH + 3)
     results = []
     for threshold in (10**9, 1):  # serial build, then the parallel one
@@ -181,3 +186,22 @@ def test_kernel_path_is_taken() -> None:
 def test_bad_backend_is_rejected() -> None:
     with pytest.raises(ValueError, match="backend"):
         MSDN(build_shape("double_circle", 25), backend="jax")
+
+
+def test_state_batch_broadcasts_like_torch() -> None:
+    """One start state with per-body forces: both backends broadcast the state over the forces' batch."""
+    out = {}
+    for backend in ("torch", "numba"):
+        case = Case("double_circle_25", "verlet", backend, steps=5, batch=3)
+        body = case.body
+        with torch.no_grad():
+            rest, forces = case.commands()
+            state = body.initial_state(1)
+            for i in range(1, 4):
+                state = body.step(state, rest[i, 0], forces[i])
+        out[backend] = state.r
+    assert out["numba"].shape == (3, case.body.n_movable, 2)
+    assert_rel_close(out["numba"], out["torch"], 1e-12, "r")
+    with pytest.raises(ValueError, match="batch"):
+        with torch.no_grad():
+            body.kernel_window(state.r, state.v, state.a, rest[1:3, :2], None)

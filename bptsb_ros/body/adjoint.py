@@ -240,13 +240,12 @@ class _KernelWindowFunction(torch.autograd.Function):
         n_springs = len_out.shape[2]
         rest = rest_lengths if rest_lengths.dim() == 3 else rest_lengths.unsqueeze(1)
         n_ext = 0 if ctx.ext_shape is None else 1
-        # one allocation: λ_r, λ_v, λ_a (B, M, 2), Ḡk, Ḡd (B, E); then Ḡl (W, B, E) and Ḡf_ext (W, B, M, 2)
-        per_body = torch.empty((batch, 6 * n_mov + 2 * n_springs), dtype=dtype)
-        lam_r, lam_v, lam_a, g_k, g_d = per_body.split([2 * n_mov] * 3 + [n_springs] * 2, dim=-1)
-        lam_r, lam_v, lam_a = (x.unflatten(-1, (n_mov, 2)) for x in (lam_r, lam_v, lam_a))
-        per_step = torch.empty((n_steps, batch, n_springs + 2 * n_mov * n_ext), dtype=dtype)
-        g_rest, g_ext = per_step.split([n_springs, 2 * n_mov * n_ext], dim=-1)
-        g_ext = g_ext.unflatten(-1, (n_mov, 2)) if n_ext else g_ext.new_empty((n_steps, 0, n_mov, 2))
+        # contiguous outputs (strided views cost the kernel ~2× in indexing): λ_r, λ_v, λ_a (B, M, 2), Ḡk, Ḡd
+        # (B, E) per body, Ḡl (W, B, E) and Ḡf_ext (W, B, M, 2) per body and step
+        lam_r, lam_v, lam_a = (torch.empty((batch, n_mov, 2), dtype=dtype) for _ in range(3))
+        g_k, g_d = torch.empty((batch, n_springs), dtype=dtype), torch.empty((batch, n_springs), dtype=dtype)
+        g_rest = torch.empty((n_steps, batch, n_springs), dtype=dtype)
+        g_ext = torch.empty((n_steps, batch if n_ext else 0, n_mov, 2), dtype=dtype)
         k, d, offset, mass, coef = body.kernel_constants(dtype)
 
         # an output the loss does not read has no gradient: the kernel takes a 0-step array for it

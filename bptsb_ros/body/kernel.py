@@ -8,7 +8,9 @@ loops over springs and masses, with no allocation inside the step. The arithmeti
 path's, term by term, so trajectories and gradients agree with it to rounding (float64: ~1e-15
 relative per step; tests/test_kernel.py checks 1e-12 over whole windows).
 
-Conventions (all arrays C-contiguous numpy, float32 or float64, one dtype throughout):
+Conventions (numpy arrays, float32 or float64, one dtype throughout, the scalars included: ``coef``
+from ``coefficients``, so a float32 window computes in float32; C-contiguous, which the compiled
+loops rely on for speed: strided views run ~2× slower):
     r0, v0, a0        (B, M, 2)     start state of the movable masses [m, m/s, m/s²]
     k, d              (E,)          spring constants [N/m], damping [N·s/m]
     rest              (W, Br, E)    rest length in force at steps 1..W [m]; Br = 1 (shared) or B
@@ -16,6 +18,8 @@ Conventions (all arrays C-contiguous numpy, float32 or float64, one dtype throug
     si, sj            (E,) int64    movable index of each spring's ends i, j, or −1 for a fixed mass
     offset            (E, 2)        the fixed masses' part of r_i − r_j [m]
     mass              (M,)          [kg]
+    coef              (8,)          [Δt, Δt²/2, Δt/2, g_y, drag, c, c², 0] (g_y = −g: gravity acceleration)
+    verlet, clamp     bool          integrator (False: published), ground clamp
     r_out, v_out, a_out (W, B, M, 2), len_out (W, B, E): states 1..W and the spring lengths the forces saw
 
 The step (``MSDN.step``): r' = r + Δt v (+ Δt²/2 a, verlet); with the ground clamp every mass with
@@ -27,6 +31,7 @@ from __future__ import annotations
 
 import math
 import os
+import types
 
 import numpy as np
 from numba import njit, prange
@@ -42,6 +47,7 @@ def _forward_impl(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verle
     dt, h, half_dt, gravity_y, drag, ground_c = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5]
     zero = coef[7]
     for b in prange(batch):
+        eb = np.int64(b) if n_ext > 1 else np.int64(0)  # this body's forces (int64: prange's index may be unsigned)
         vc = np.empty((n_mov, 2), dtype=r0.dtype)  # the velocity the forces see (clamped)
         force = np.empty((n_mov, 2), dtype=r0.dtype)
         for t in range(n_steps):
@@ -99,7 +105,6 @@ def _forward_impl(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verle
                 if ground_c != zero:
                     f1 += ground_c * math.exp(-ground_c * rn[m, 1])
                 if n_ext > 0:
-                    eb = 0 if n_ext == 1 else b
                     f0 += ext[t, eb, m, 0]
                     f1 += ext[t, eb, m, 1]
                 an[m, 0] = f0 / mass[m]
@@ -234,13 +239,23 @@ def _adjoint_impl(r0, v0, a0, k, d, rest, n_ext, si, sj, offset, mass, coef, ver
                 lam_a[b, m, c] = ga[m, c]
 
 
+def _renamed(fn, suffix: str):
+    """The same function under another qualified name. numba's on-disk cache is keyed by the function's
+    name and bytecode, not by its compile options: the parallel build needs a name of its own, or it would
+    load (and overwrite) the serial build's cache entries."""
+    copy = types.FunctionType(fn.__code__, fn.__globals__, fn.__name__ + suffix, fn.__defaults__, fn.__closure__)
+    copy.__qualname__ = fn.__qualname__ + suffix
+    copy.__doc__ = fn.__doc__
+    return copy
+
+
 _forward_serial = njit(cache=True, nogil=True)(_forward_impl)
-_forward_parallel = njit(cache=True, nogil=True, parallel=True)(_forward_impl)
+_forward_parallel = njit(cache=True, nogil=True, parallel=True)(_renamed(_forward_impl, "_parallel"))
 _adjoint_serial = njit(cache=True, nogil=True)(_adjoint_impl)
-_adjoint_parallel = njit(cache=True, nogil=True, parallel=True)(_adjoint_impl)
+_adjoint_parallel = njit(cache=True, nogil=True, parallel=True)(_renamed(_adjoint_impl, "_parallel"))
 
 #: batch size from which the bodies of a window are spread over threads (below it one thread is faster)
-PARALLEL_MIN_BATCH = int(os.environ.get("BPTSB_PARALLEL_MIN_BATCH", "16"))
+PARALLEL_MIN_BATCH = int(os.environ.get("BPTSB_PARALLEL_MIN_BATCH", "256"))
 
 
 def threads_for(batch: int) -> int:

@@ -221,6 +221,9 @@ class MSDN(nn.Module):
             state: the state at step t.
             rest_length: (E,) or (B, E) rest length in force at step t+1 (default: ``self.l``).
             external_force: (B, M, 2) or (M, 2) brain + wind force at step t+1 [N], or None.
+
+        With the numba backend and nothing to differentiate (``uses_kernel``) the step is the window
+        kernel run for one step (what ``body_sim`` calls); otherwise the torch ops below.
         """
         dt = self.dt
         l_next = self.l if rest_length is None else rest_length
@@ -282,22 +285,23 @@ class MSDN(nn.Module):
         """
         from bptsb_ros.body import kernel
 
-        n_steps, batch, dtype = rest_lengths.shape[0], r0.shape[0], r0.dtype
+        n_steps, dtype = rest_lengths.shape[0], r0.dtype
         rest = _as_numpy(rest_lengths if rest_lengths.dim() == 3 else rest_lengths.unsqueeze(1), dtype)
         ext = self._kernel_ext(external_forces, n_steps, dtype)
-        out = torch.empty((n_steps, batch, 3 * 2 * r0.shape[1] + self.topology.n_springs), dtype=dtype)
-        r, v, a, length = self._split_window(out, r0.shape[1])
+        batch = max(r0.shape[0], rest.shape[1], ext.shape[1])  # broadcast as the torch ops would
+        for name, n in (("state", r0.shape[0]), ("rest_lengths", rest.shape[1]), ("external_forces", ext.shape[1])):
+            if n not in (0, 1, batch):
+                raise ValueError(f"{name} has batch {n}, the window {batch}: they must match or be 1")
+        if r0.shape[0] != batch:
+            r0, v0, a0 = (x.expand(batch, -1, -1) for x in (r0, v0, a0))
+        r = torch.empty((n_steps, batch, r0.shape[1], 2), dtype=dtype)
+        v, a = torch.empty_like(r), torch.empty_like(r)
+        length = torch.empty((n_steps, batch, self.topology.n_springs), dtype=dtype)
         k, d, offset, mass, coef = self.kernel_constants(dtype)
         kernel.forward(_as_numpy(r0, dtype), _as_numpy(v0, dtype), _as_numpy(a0, dtype), k, d, rest, ext,
                        self.spring_i, self.spring_j, offset, mass, coef, self.integrator == "verlet",
                        bool(self.environment.ground_clamp), r.numpy(), v.numpy(), a.numpy(), length.numpy())
         return r, v, a, length
-
-    @staticmethod
-    def _split_window(out: torch.Tensor, n_mov: int) -> tuple[torch.Tensor, ...]:
-        """One (W, B, 6M + E) block → r, v, a (W, B, M, 2) and length (W, B, E): one allocation per window."""
-        r, v, a, length = out.split([2 * n_mov, 2 * n_mov, 2 * n_mov, out.shape[2] - 6 * n_mov], dim=-1)
-        return (*(x.unflatten(-1, (n_mov, 2)) for x in (r, v, a)), length)
 
     def kernel_constants(self, dtype: torch.dtype) -> tuple[np.ndarray, ...]:
         """k, d, fixed offsets, masses (numpy views of the live tensors) and the kernels' scalars, in ``dtype``."""
