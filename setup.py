@@ -106,7 +106,9 @@ setup(
     ],
     install_requires=[
         "torch>=2.1",
-        "numpy",
+        # the compiled body kernel; numba 0.68 supports numpy < 2.6 (installed: numpy 2.4) and installs from a wheel
+        "numba>=0.68",
+        "numpy<2.6",
         "pyyaml",
         "pydantic>=2",
         "matplotlib",

@@ -65,7 +65,7 @@ def build_agent(cfg: ExperimentConfig) -> Agent:
     if b.ground_clamp:
         env = replace(env, ground_clamp=True)
     body = MSDN(topology, dt=b.dt, integrator=b.integrator, environment=env, k_init=b.k_init,
-                d_init=b.d_init, generator=gen, dtype=dtype)
+                d_init=b.d_init, generator=gen, dtype=dtype, backend=cfg.training.backend)
     br = cfg.brain
     brain: Brain
     if br.type == "swg":

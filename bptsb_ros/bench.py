@@ -1,15 +1,19 @@
 """Benchmarks of the standard workloads: physics steps per second (forward alone; forward + backward
-+ update) and peak memory, each workload in its own process so its peak RSS is its own.
++ update) and peak memory, for both body backends side by side (torch: the reference; numba: the
+compiled window kernel), each measurement in its own process so its peak RSS is its own.
 
-Speed is measured here, never asserted in a timed test.
+Speed is measured here, never asserted in a timed test. The numba kernels' first-call time (compile, or
+loading the on-disk cache) is measured separately and kept out of the steady-state figures.
 """
 
 from __future__ import annotations
 
 import math
 import multiprocessing as mp
+import os
 import platform
 import resource
+import tempfile
 import time
 from dataclasses import dataclass, replace
 from typing import Any
@@ -22,6 +26,9 @@ PUBLISHED = {
     "locomotion": {"as_published": 80, "anomaly_mode_off": 706},
     "narma": {"as_published": 97, "anomaly_mode_off": 707},
 }
+BACKENDS = ("torch", "numba")
+#: the paper's expanded-NARMA schedule: epochs × steps per epoch
+NARMA_PAPER_EPOCHS, NARMA_EPISODE_STEPS = 40_000, 3_000
 
 
 @dataclass(frozen=True)
@@ -34,6 +41,7 @@ class Workload:
     brain: str  # swg | mlp | mnist
     environment: str = "none"
     description: str = ""
+    forward_only: bool = False
 
 
 WORKLOADS = {
@@ -48,10 +56,13 @@ WORKLOADS = {
     "mnist_like": Workload("mnist_like", "double_circle", 33, 100, 200, "mnist",
                            description="MNIST-like: double-circle 33 masses, MLP 784→128→128 initial displacements, "
                                        "batch 100, 200 steps"),
+    "sweep": Workload("sweep", "double_circle", 25, 1000, 100, "swg", forward_only=True,
+                      description="forward-only batched rollouts (perturbation sweeps): double-circle 25, SWG, "
+                                  "batch 1000, 100-step windows"),
 }
 
 
-def _setup(w: Workload, adjoint: bool, dtype: torch.dtype):
+def _setup(w: Workload, adjoint: bool, dtype: torch.dtype, backend: str = "numba"):
     from bptsb_ros.agent import Agent, brain_forces, force_inputs
     from bptsb_ros.body.adjoint import rollout_window
     from bptsb_ros.body.msdn import MSDN, Environment
@@ -60,7 +71,7 @@ def _setup(w: Workload, adjoint: bool, dtype: torch.dtype):
 
     gen = torch.Generator().manual_seed(0)
     env = replace(Environment.locomotion(), ground_clamp=True) if w.environment == "locomotion" else Environment()
-    body = MSDN(build_shape(w.shape, w.nodes), environment=env, generator=gen, dtype=dtype)
+    body = MSDN(build_shape(w.shape, w.nodes), environment=env, generator=gen, dtype=dtype, backend=backend)
     n_springs, n_mov = body.topology.n_springs, body.n_movable
     params = list(body.parameters())
     if w.brain == "swg":
@@ -74,7 +85,11 @@ def _setup(w: Workload, adjoint: bool, dtype: torch.dtype):
         inputs = torch.rand(w.batch if w.brain == "mnist" else w.window // 20, n_in, generator=gen, dtype=dtype)
     opt = torch.optim.SGD(params, lr=1e-9)
     cmp = max(body.cmp_local, 0)
-    state0 = body.initial_state(w.batch).detach()
+    with torch.no_grad():
+        state0 = body.initial_state(w.batch)
+        if w.forward_only:  # a sweep: every body of the batch starts from its own perturbation
+            state0 = body.initial_state(w.batch, displacement=0.05 * torch.randn(
+                w.batch, n_mov, 2, generator=gen, dtype=torch.float64).to(dtype))
 
     def run_window(state):
         k0 = state.step
@@ -97,11 +112,19 @@ def _setup(w: Workload, adjoint: bool, dtype: torch.dtype):
     return body, opt, state0, run_window
 
 
-def _measure(w: Workload, adjoint: bool, dtype: torch.dtype, min_seconds: float) -> dict[str, float]:
-    torch.set_num_threads(1)
-    body, opt, state, run_window = _setup(w, adjoint, dtype)
-    loss, _ = run_window(state)  # warm-up
-    loss.backward()
+def _measure(w: Workload, adjoint: bool, dtype: torch.dtype, min_seconds: float, backend: str) -> dict[str, Any]:
+    from bptsb_ros.threads import configure_threads
+
+    threads = configure_threads(w.batch, backend)
+    body, opt, state, run_window = _setup(w, adjoint, dtype, backend)
+    t0 = time.perf_counter()
+    if w.forward_only:
+        with torch.no_grad():
+            run_window(state)
+    else:
+        loss, _ = run_window(state)
+        loss.backward()
+    first_call = time.perf_counter() - t0  # numba: compile or load the cache; kept out of the figures below
 
     def timed(train: bool) -> float:
         nonlocal state
@@ -122,18 +145,23 @@ def _measure(w: Workload, adjoint: bool, dtype: torch.dtype, min_seconds: float)
             if elapsed >= min_seconds:
                 return steps / elapsed
 
+    out: dict[str, Any] = {"backend": backend, "threads": threads, "first_call_s": round(first_call, 3)}
     forward = timed(False)
-    train = timed(True)
-    return {
-        "forward_steps_per_s": round(forward, 1),
-        "train_steps_per_s": round(train, 1),
-        "train_body_steps_per_s": round(train * w.batch, 1),
-    }
+    out["forward_steps_per_s"] = round(forward, 1)
+    out["forward_body_steps_per_s"] = round(forward * w.batch, 1)
+    if not w.forward_only:
+        train = timed(True)
+        out["train_steps_per_s"] = round(train, 1)
+        out["train_body_steps_per_s"] = round(train * w.batch, 1)
+    return out
 
 
-def _child(conn, w: Workload, adjoint: bool, dtype_name: str, min_seconds: float) -> None:
+def _child(conn, w: Workload, adjoint: bool, dtype_name: str, min_seconds: float, backend: str,
+           numba_cache: str | None) -> None:
     try:
-        out = _measure(w, adjoint, getattr(torch, dtype_name), min_seconds)
+        if numba_cache is not None:  # before numba is imported
+            os.environ["NUMBA_CACHE_DIR"] = numba_cache
+        out = _measure(w, adjoint, getattr(torch, dtype_name), min_seconds, backend)
         out["peak_rss_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
         conn.send(out)
     except Exception as err:  # noqa: BLE001 - report any failure to the parent
@@ -142,24 +170,49 @@ def _child(conn, w: Workload, adjoint: bool, dtype_name: str, min_seconds: float
         conn.close()
 
 
-def measure_isolated(w: Workload, adjoint: bool, dtype: str = "float32", min_seconds: float = 3.0) -> dict[str, Any]:
+def measure_isolated(w: Workload, adjoint: bool, dtype: str = "float32", min_seconds: float = 3.0,
+                     backend: str = "torch", numba_cache: str | None = None) -> dict[str, Any]:
     """Run one measurement in a fresh process (spawn) and return its numbers and peak RSS."""
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(child, w, adjoint, dtype, min_seconds))
+    proc = ctx.Process(target=_child, args=(child, w, adjoint, dtype, min_seconds, backend, numba_cache))
     proc.start()
     child.close()
-    result = parent.recv() if parent.poll(600) else {"error": "timed out"}
+    result = parent.recv() if parent.poll(900) else {"error": "timed out"}
     proc.join(30)
     return result
 
 
+def measure_compile(min_seconds: float) -> dict[str, Any]:
+    """The numba kernels' first call in a fresh process: with an empty cache (compile) and again (cache load).
+
+    Lissajous training (serial kernels, float32) and the batched sweep (parallel forward); the normal cache
+    lives beside the module (``bptsb_ros/body/__pycache__``), reused by every later run.
+    """
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="bptsb-numba-cache-") as cache:
+        for label in ("cold_compile", "cached"):
+            first = {}
+            for name in ("lissajous", "sweep"):
+                r = measure_isolated(WORKLOADS[name], True, min_seconds=min_seconds, backend="numba",
+                                     numba_cache=cache)
+                first[name] = r.get("first_call_s", r.get("error"))
+            out[label] = {"lissajous_train_first_call_s": first["lissajous"],
+                          "sweep_forward_first_call_s": first["sweep"]}
+    return out
+
+
+def _ratio(a: Any, b: Any) -> float | None:
+    return round(a / b, 2) if isinstance(a, (int, float)) and isinstance(b, (int, float)) and b else None
+
+
 def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
-    """All workloads with the adjoint and with plain autograd, plus batch scaling of the Lissajous body."""
+    """All workloads on both backends (torch also with plain autograd), batch scaling, compile time, targets."""
     min_s = 1.0 if quick else 3.0
     report: dict[str, Any] = {
         "machine": {"platform": platform.platform(), "processor": platform.processor(),
-                    "cpu_count": mp.cpu_count(), "torch": torch.__version__, "threads_per_process": 1},
+                    "cpu_count": mp.cpu_count(), "torch": torch.__version__,
+                    "load_average_at_start": list(os.getloadavg())},
         "min_seconds_per_measurement": min_s,
         "published_code_train_steps_per_s": PUBLISHED,
         "workloads": {},
@@ -167,31 +220,66 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
     }
     for name, w in WORKLOADS.items():
         entry: dict[str, Any] = {"description": w.description, "batch": w.batch, "window": w.window}
-        for mode, adj in (("adjoint", True), ("autograd", False)):
-            progress(f"bench {name} ({mode}) ...")
-            entry[mode] = measure_isolated(w, adj, min_seconds=min_s)
+        for backend in BACKENDS:
+            progress(f"bench {name} ({backend}) ...")
+            entry[backend] = measure_isolated(w, True, min_seconds=min_s, backend=backend)
+        if not w.forward_only:
+            progress(f"bench {name} (torch, plain autograd) ...")
+            entry["torch_autograd"] = measure_isolated(w, False, min_seconds=min_s, backend="torch")
+        key = "forward_steps_per_s" if w.forward_only else "train_steps_per_s"
+        entry["numba_over_torch"] = _ratio(entry["numba"].get(key), entry["torch"].get(key))
         report["workloads"][name] = entry
-    batches = (1, 8, 64) if quick else (1, 4, 16, 64, 256)
+    batches = (1, 64) if quick else (1, 16, 64, 256)
     base = WORKLOADS["lissajous"]
     for b in batches:
-        progress(f"bench lissajous batch {b} ...")
-        w = Workload(f"lissajous_b{b}", base.shape, base.nodes, b, base.window, base.brain)
-        report["batch_scaling"][str(b)] = measure_isolated(w, True, min_seconds=min_s)
-    liss = report["workloads"]["lissajous"]["adjoint"].get("train_steps_per_s", math.nan)
-    report["target"] = {"lissajous_train_steps_per_s": 3000, "measured": liss, "met": bool(liss >= 3000)}
+        row = {}
+        for backend in BACKENDS:
+            progress(f"bench lissajous batch {b} ({backend}) ...")
+            w = replace(base, name=f"lissajous_b{b}", batch=b)
+            row[backend] = measure_isolated(w, True, min_seconds=min_s, backend=backend).get("train_body_steps_per_s")
+        row["numba_over_torch"] = _ratio(row["numba"], row["torch"])
+        report["batch_scaling"][str(b)] = row
+    progress("bench numba first-call time (empty cache, then cached) ...")
+    report["numba_first_call"] = measure_compile(min_s)
+    wl = report["workloads"]
+
+    def measured(name: str, backend: str, key: str) -> float:
+        return wl[name][backend].get(key, math.nan)
+
+    narma = {b: measured("narma", b, "train_steps_per_s") for b in BACKENDS}
+    report["narma_paper_schedule"] = {
+        "epochs": NARMA_PAPER_EPOCHS, "steps_per_epoch": NARMA_EPISODE_STEPS,
+        "projected_hours": {b: round(NARMA_PAPER_EPOCHS * NARMA_EPISODE_STEPS / v / 3600, 2) if v else None
+                            for b, v in narma.items()}}
+    targets = {
+        "lissajous_train_steps_per_s": (40_000, measured("lissajous", "numba", "train_steps_per_s")),
+        "narma_train_steps_per_s": (30_000, narma["numba"]),
+        "sweep_forward_body_steps_per_s": (1_000_000, measured("sweep", "numba", "forward_body_steps_per_s")),
+    }
+    report["targets"] = {k: {"target": t, "measured": m, "met": bool(m >= t)} for k, (t, m) in targets.items()}
+    rss = {n: (e["numba"].get("peak_rss_mib", math.nan), e["torch"].get("peak_rss_mib", math.nan))
+           for n, e in wl.items()}
+    report["targets"]["peak_rss_not_above_torch"] = {
+        "per_workload_mib_numba_torch": rss, "met": all(a <= b for a, b in rss.values())}
     return report
 
 
 def workload_table(report: dict[str, Any]) -> str:
-    """A Markdown table of the report (for the README)."""
-    rows = ["| workload | batch | forward steps/s | train steps/s (adjoint) | train steps/s (autograd) "
-            "| peak RSS MiB |",
-            "|---|---|---|---|---|---|"]
+    """A Markdown table of the report (for the README): one row per workload and backend."""
+    rows = ["| workload | batch | backend | forward steps/s | train steps/s | train steps/s (plain autograd) "
+            "| numba / torch | peak RSS MiB |",
+            "|---|---|---|---|---|---|---|---|"]
     for name, e in report["workloads"].items():
-        a, g = e["adjoint"], e["autograd"]
-        rows.append(f"| {name} | {e['batch']} | {a.get('forward_steps_per_s')} | {a.get('train_steps_per_s')} | "
-                    f"{g.get('train_steps_per_s')} | {a.get('peak_rss_mib')} |")
+        for backend in BACKENDS:
+            m = e[backend]
+            autograd = e.get("torch_autograd", {}).get("train_steps_per_s", "–") if backend == "torch" else "–"
+            ratio = e["numba_over_torch"] if backend == "numba" else ""
+            fwd = m.get("forward_steps_per_s", m.get("error"))
+            if e["batch"] > 1 and "forward_body_steps_per_s" in m:
+                fwd = f"{fwd} ({m['forward_body_steps_per_s']:.3g} body-steps/s)"
+            rows.append(f"| {name} | {e['batch']} | {backend} | {fwd} | {m.get('train_steps_per_s', '–')} | "
+                        f"{autograd} | {ratio} | {m.get('peak_rss_mib')} |")
     return "\n".join(rows)
 
 
-__all__ = ["WORKLOADS", "Workload", "measure_isolated", "run_benchmarks", "workload_table"]
+__all__ = ["WORKLOADS", "Workload", "measure_compile", "measure_isolated", "run_benchmarks", "workload_table"]

@@ -82,6 +82,9 @@ class TrainingConfig(_Strict):
     update_steps: int = Field(100, ge=1, description="truncated window length (updateTimeScale) [steps]")
     lr: LearningRates = LearningRates()
     adjoint: bool = Field(True, description="hand-derived backward (fast); False uses plain autograd")
+    backend: Literal["numba", "torch"] = Field(
+        "numba", description="body integration: numba (compiled window kernel, fastest on CPU) or torch (the "
+                             "reference; GPU)")
     reject_factor: float = Field(0.0, ge=0, description="reject an update whose loss > factor × recent median (0: off)")
     reject_patience: int = Field(5, ge=1, description="divide all learning rates by 10 after this many rejections")
     checkpoint_every: int = Field(0, ge=0, description="updates between checkpoints (0: only at the end)")
@@ -110,6 +113,9 @@ class LocomotionConfig(_Strict):
     target_slope: float = Field(0.004, ge=0, description="v_target(t) = slope × t [m/s per s of training]")
     warmup_windows: int = Field(100, ge=0, description="windows simulated without updates before training")
     speed_block: int = Field(100, ge=1, description="steps per block over which speed is averaged")
+    loss_velocity: Literal["after", "before"] = Field(
+        "after", description="speed in the loss from each step's velocity after its update (ours) or before it "
+                             "(the published code)")
     eval_time: float = Field(20.0, gt=0, description="evaluation run [s]")
 
 

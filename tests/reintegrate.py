@@ -80,16 +80,17 @@ def reintegrate(keys: dict[str, np.ndarray], rest_law: RestLaw | None = None) ->
             r_new = r + v * dt + 0.5 * a * dt * dt
         else:
             r_new = r + v * dt
+        if clamp:  # the published code's order: floor right after the position update, before the forces
+            below = (r_new[:, 1] < 0) & movable
+            r_new[below, 1] = 0.0
+            v = v.copy()
+            v[below] = 0.0
         rest = None if rest_law is None else rest_law(r)
-        a_new = total_force(keys, r_new, v, t, rest) * inv_mass  # velocity-dependent forces see v(t)
+        a_new = total_force(keys, r_new, v, t, rest) * inv_mass  # velocity-dependent forces see v(t) (clamped)
         if integrator == "verlet":
             v_new = v + 0.5 * (a + a_new) * dt
         else:
             v_new = v + 0.5 * a_new * dt
-        if clamp:
-            below = (r_new[:, 1] < 0) & movable
-            r_new[below, 1] = 0.0
-            v_new[below] = 0.0
         r, v, a = r_new, v_new, a_new
         out_r.append(r.copy())
         out_v.append(v.copy())

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import pytest
 import torch
@@ -182,10 +183,10 @@ class AdjointCase:
     displacement is trainable (as an MNIST brain's output); the loss reads r, v, a and the lengths."""
 
     def __init__(self, shape: str = "double_circle", *, integrator: str = "verlet", environment: Environment
-                 | None = None, steps: int = 30, batch: int = 2) -> None:
+                 | None = None, steps: int = 30, batch: int = 2, backend: str = "numba") -> None:
         nodes = 10 if shape == "caterpillar" else 25
         self.body = MSDN(build_shape(shape, nodes), dtype=F64, generator=gen(10), integrator=integrator,
-                         environment=environment or Environment())
+                         environment=environment or Environment(), backend=backend)
         m, e = self.body.n_movable, self.body.topology.n_springs
         self.swg = SineWaveGenerator(e, amplitude=0.3, generator=gen(11), dtype=F64)
         self.lil = LinearInputLayer(1, 2 * m, generator=gen(12), dtype=F64)
@@ -221,26 +222,46 @@ ADJOINT_CASES = {
     "double_circle": dict(),
     "published": dict(integrator="published"),
     "locomotion": dict(shape="caterpillar", environment=Environment.locomotion()),
+    "locomotion_clamp": dict(shape="caterpillar", environment=replace(Environment.locomotion(), ground_clamp=True)),
 }
 
 
+def clamp_counts(case: AdjointCase) -> tuple[int, int, int]:
+    """(steps, masses, mass-steps put back on the floor) in the case body's unforced rollout from its
+    displaced start (the feet start on y = 0 and gravity pulls them down)."""
+    body = case.body
+    state = body.initial_state(case.u.shape[1], displacement=case.displacement)
+    clamped = 0
+    for _ in range(case.steps):
+        free = state.r + body.dt * state.v + 0.5 * body.dt**2 * state.a
+        clamped += int((free[..., 1] < 0).sum())
+        state = body.step(state)
+    return case.steps, body.n_movable, clamped
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
 @pytest.mark.parametrize("case_name", sorted(ADJOINT_CASES))
-def test_adjoint_matches_finite_differences(case_name: str) -> None:
-    case = AdjointCase(**ADJOINT_CASES[case_name])
+def test_adjoint_matches_finite_differences(case_name: str, backend: str) -> None:
+    case = AdjointCase(**ADJOINT_CASES[case_name], backend=backend)
+    if case_name == "locomotion_clamp":
+        with torch.no_grad():
+            _, _, clamped = clamp_counts(case)
+        assert clamped > 10, "the floor acts in this case"
     for name, param in case.parameters().items():
         err, norm = fd_relative_error(case.loss, param, coordinates=6, directions=2)
         assert norm > 1e-8 and err < TOLERANCE, (name, err, norm)
 
 
+@pytest.mark.parametrize("backend", ["numba", "torch"])
 @pytest.mark.parametrize("case_name", sorted(ADJOINT_CASES) + ["ground_clamp"])
-def test_adjoint_equals_autograd(case_name: str) -> None:
+def test_adjoint_equals_autograd(case_name: str, backend: str) -> None:
     if case_name == "ground_clamp":
         env = Environment.locomotion()
         kwargs: dict = dict(shape="caterpillar", environment=Environment(env.gravity, env.air_drag, env.ground_c,
                                                                          ground_clamp=True))
     else:
         kwargs = ADJOINT_CASES[case_name]
-    case = AdjointCase(**kwargs, steps=40)
+    case = AdjointCase(**kwargs, steps=40, backend=backend)
     if case_name == "ground_clamp":
         with torch.no_grad():
             case.displacement[..., 1] -= 0.1  # start the feet below ground so the clamp acts

@@ -9,7 +9,9 @@ the live ``body_sim`` node. The step (paper, Methods; supplement Eqs. for a(t+Δ
 
 with a(0) = F(r(0), v(0), l(0), f_ext(0)) / m. ``integrator="published"`` reproduces the authors'
 published code, which restarted the integrator every step so that a(t) was always zero:
-r ← r + vΔt, v ← v + a(r_new, v_old)Δt/2.
+r ← r + vΔt, v ← v + a(r_new, v_old)Δt/2. With ``Environment.ground_clamp`` every movable mass
+that the position update put below y = 0 is set to y = 0 and v(t) = 0 before a(t+Δt) and v(t+Δt)
+are computed (the published code's order), so the forces see the clamped state.
 
 Only movable masses are integrated; fixed masses never move, so their contribution to every spring
 vector is a constant folded into ``fixed_offset``.
@@ -28,6 +30,10 @@ from bptsb_ros.body.forces import environment_forces, incidence_operators, sprin
 from bptsb_ros.body.shapes import Topology
 
 Integrator = Literal["verlet", "published"]
+#: how the body is integrated: ``numba`` = the compiled window kernel (``body/kernel.py``; CPU), ``torch`` = torch
+#: ops (the reference; also runs on a GPU). Both give the same trajectories and gradients to rounding.
+Backend = Literal["numba", "torch"]
+BACKENDS = ("numba", "torch")
 
 
 class SimulationDiverged(RuntimeError):
@@ -39,8 +45,7 @@ class BodyState:
     """Dynamic state of a batch of bodies (movable masses only).
 
     r, v, a: (B, M, 2) positions [m], velocities [m/s], accelerations [m/s²].
-    length: (B, E) spring lengths the forces of this step saw [m] (at ``r``, or before the ground clamp
-        moved a mass back onto the floor).
+    length: (B, E) spring lengths at ``r``, the ones the forces of this step saw [m].
     step: number of integration steps taken since t = 0.
     """
 
@@ -59,7 +64,9 @@ class BodyState:
 class Environment:
     """External physics: gravity magnitude g [m/s², pulls −y], air drag a [N·s/m], ground constant c [1/m].
 
-    ``ground_clamp`` reproduces the published code's hard floor (y < 0 → y = 0, v = 0); the paper
+    ``ground_clamp`` reproduces the published code's hard floor (y < 0 → y = 0, v = 0), in its order:
+    right after the position update, before the forces and the velocity update, so a clamped mass
+    ends the step with v = Δt/2·(a(t) + a(t+Δt)) (``published``: Δt/2·a(t+Δt)), not 0. The paper
     uses the soft ground only, so it is off by default.
     """
 
@@ -91,10 +98,14 @@ class MSDN(nn.Module):
         d_init: tuple[float, float] = (0.0, 10.0),
         generator: torch.Generator | None = None,
         dtype: torch.dtype = torch.float32,
+        backend: Backend = "numba",
     ) -> None:
         super().__init__()
         if integrator not in ("verlet", "published"):
             raise ValueError(f"integrator must be 'verlet' or 'published', got {integrator!r}")
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be 'numba' or 'torch', got {backend!r}")
+        self.backend: Backend = backend
         if dt <= 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.topology = topology
@@ -112,6 +123,10 @@ class MSDN(nn.Module):
                     fixed_offset[e] += sign * topology.positions[node]
                 else:
                     incidence[e, col[int(node)]] = sign
+        # The window kernel's view of the layout: each spring's movable end indices (−1: a fixed mass).
+        ends = np.array([[col.get(int(n), -1) for n in pair] for pair in topology.springs], dtype=np.int64)
+        self.spring_i = np.ascontiguousarray(ends.reshape(n_springs, 2)[:, 0])
+        self.spring_j = np.ascontiguousarray(ends.reshape(n_springs, 2)[:, 1])
         self.register_buffer("incidence", torch.tensor(incidence, dtype=dtype))
         gather, scatter = incidence_operators(self.incidence)
         self.register_buffer("gather", gather, persistent=False)
@@ -206,22 +221,107 @@ class MSDN(nn.Module):
             state: the state at step t.
             rest_length: (E,) or (B, E) rest length in force at step t+1 (default: ``self.l``).
             external_force: (B, M, 2) or (M, 2) brain + wind force at step t+1 [N], or None.
+
+        With the numba backend and nothing to differentiate (``uses_kernel``) the step is the window
+        kernel run for one step (what ``body_sim`` calls); otherwise the torch ops below.
         """
         dt = self.dt
         l_next = self.l if rest_length is None else rest_length
+        if self.uses_kernel(state.r, state.v, state.a, l_next, external_force):
+            shape = (1, *external_force.shape) if external_force is not None else None
+            r, v, a, length = self.kernel_window(state.r, state.v, state.a, l_next.unsqueeze(0),
+                                                 None if shape is None else external_force.reshape(shape))
+            return BodyState(r[0], v[0], a[0], length[0], state.step + 1)
         verlet = self.integrator == "verlet"
         r = torch.add(state.r, state.v, alpha=dt)
         if verlet:
             r = r.add_(state.a, alpha=0.5 * dt * dt)
-        a, length = self.acceleration(r, state.v, l_next, external_force)
-        if verlet:
-            v = torch.add(state.v, state.a + a, alpha=0.5 * dt)
-        else:
-            v = torch.add(state.v, a, alpha=0.5 * dt)  # the stale a(t) was zero in the published code
-        if self.environment.ground_clamp:
+        v = state.v
+        if self.environment.ground_clamp:  # the published order: clamp, then forces and velocity update
             v = v.masked_fill(r[..., 1:] < 0, 0.0)
             r = torch.maximum(r, self.floor)
+        a, length = self.acceleration(r, v, l_next, external_force)
+        if verlet:
+            v = torch.add(v, state.a + a, alpha=0.5 * dt)
+        else:
+            v = torch.add(v, a, alpha=0.5 * dt)  # the stale a(t) was zero in the published code
         return BodyState(r, v, a, length, state.step + 1)
+
+    # -- the compiled backend -------------------------------------------------------------------
+    @torch.no_grad()
+    def warm_up(self) -> None:
+        """Run one throwaway step so the numba kernel is loaded from its cache (or compiled) before timing
+        matters (the live node's first step); nothing for the torch backend."""
+        if self.uses_kernel():
+            self.step(self.initial_state(1))
+
+    def uses_kernel(self, *tensors: torch.Tensor | None) -> bool:
+        """True when a step or window on these tensors runs in the numba kernel: backend ``numba``, CPU
+        tensors, and no autograd tape wanted through them (differentiable windows go through
+        ``body.adjoint.rollout_window``, whose backward is the kernel's adjoint)."""
+        if self.backend != "numba" or self.k.device.type != "cpu":
+            return False
+        if not torch.is_grad_enabled():
+            return True
+        return not (self.k.requires_grad or self.d.requires_grad
+                    or any(t is not None and t.requires_grad for t in tensors))
+
+    def kernel_window(
+        self,
+        r0: torch.Tensor,
+        v0: torch.Tensor,
+        a0: torch.Tensor,
+        rest_lengths: torch.Tensor,
+        external_forces: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """W steps in one compiled call, without autograd (the numba backend's forward).
+
+        Args:
+            r0, v0, a0: (B, M, 2) start state.  rest_lengths: (W, E) or (W, B', E) with B' ∈ {1, B} [m].
+            external_forces: (W, M, 2) or (W, B', M, 2) [N], or None.
+
+        Returns:
+            r, v, a: (W, B, M, 2) states 1..W; length: (W, B, E) spring lengths the forces saw [m].
+        """
+        from bptsb_ros.body import kernel
+
+        n_steps, dtype = rest_lengths.shape[0], r0.dtype
+        rest = _as_numpy(rest_lengths if rest_lengths.dim() == 3 else rest_lengths.unsqueeze(1), dtype)
+        ext = self._kernel_ext(external_forces, n_steps, dtype)
+        batch = max(r0.shape[0], rest.shape[1], ext.shape[1])  # broadcast as the torch ops would
+        for name, n in (("state", r0.shape[0]), ("rest_lengths", rest.shape[1]), ("external_forces", ext.shape[1])):
+            if n not in (0, 1, batch):
+                raise ValueError(f"{name} has batch {n}, the window {batch}: they must match or be 1")
+        if r0.shape[0] != batch:
+            r0, v0, a0 = (x.expand(batch, -1, -1) for x in (r0, v0, a0))
+        r = torch.empty((n_steps, batch, r0.shape[1], 2), dtype=dtype)
+        v, a = torch.empty_like(r), torch.empty_like(r)
+        length = torch.empty((n_steps, batch, self.topology.n_springs), dtype=dtype)
+        k, d, offset, mass, coef = self.kernel_constants(dtype)
+        kernel.forward(_as_numpy(r0, dtype), _as_numpy(v0, dtype), _as_numpy(a0, dtype), k, d, rest, ext,
+                       self.spring_i, self.spring_j, offset, mass, coef, self.integrator == "verlet",
+                       bool(self.environment.ground_clamp), r.numpy(), v.numpy(), a.numpy(), length.numpy())
+        return r, v, a, length
+
+    def kernel_constants(self, dtype: torch.dtype) -> tuple[np.ndarray, ...]:
+        """k, d, fixed offsets, masses (numpy views of the live tensors) and the kernels' scalars, in ``dtype``."""
+        from bptsb_ros.body import kernel
+
+        key = (dtype, self.k.data_ptr(), self.d.data_ptr(), self.fixed_offset.data_ptr(), self.mass.data_ptr())
+        if getattr(self, "_kernel_views", (None,))[0] != key:
+            views = tuple(_as_numpy(t, dtype) for t in (self.k, self.d, self.fixed_offset, self.mass))
+            self._kernel_views = (key, views)
+        env = self.environment
+        coef = kernel.coefficients(self.dt, -float(env.gravity), float(env.air_drag), float(env.ground_c),
+                                   _NUMPY[dtype])
+        return (*self._kernel_views[1], coef)
+
+    def _kernel_ext(self, external_forces: torch.Tensor | None, n_steps: int, dtype: torch.dtype) -> np.ndarray:
+        """External forces as the kernel's (W, B', M, 2) array (B' = 0 when there are none)."""
+        if external_forces is None or external_forces.numel() == 0:
+            return np.zeros((n_steps, 0, self.n_movable, 2), dtype=_NUMPY[dtype])
+        ext = external_forces if external_forces.dim() == 4 else external_forces.unsqueeze(1)
+        return _as_numpy(ext, dtype)
 
     def parameter_ranges(self) -> str:
         """``k in [lo, hi], d in [..], l in [..]``: for error messages."""
@@ -239,3 +339,14 @@ class MSDN(nn.Module):
             f"non-finite or beyond {limit:g} m; body parameters {self.parameter_ranges()}. Lower the learning rates, "
             "the time step or the input scale."
         )
+
+
+_NUMPY = {torch.float32: np.float32, torch.float64: np.float64}
+
+
+def _as_numpy(t: torch.Tensor, dtype: torch.dtype) -> np.ndarray:
+    """A C-contiguous numpy view (a copy only when needed) of a CPU tensor, without its autograd history."""
+    t = t.detach()
+    if t.dtype != dtype:
+        raise TypeError(f"the body runs in {dtype}, got a {t.dtype} tensor")
+    return t.contiguous().numpy()

@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="floating-point type (default float32, or the agent's)")
     parser.add_argument("--integrator", choices=("verlet", "published"), default=None,
                         help="verlet: the paper's velocity Verlet (default); published: the authors' code's update")
+    parser.add_argument("--backend", choices=("numba", "torch"), default=None,
+                        help="numba: the compiled window kernel (default; --agent: the agent's training.backend); "
+                             "torch: torch ops (the reference)")
     parser.add_argument("--environment", choices=("auto", "none", "locomotion"), default="auto",
                         help="--shape: external physics; auto = locomotion for caterpillar, none otherwise")
     parser.add_argument("--ground-clamp", action="store_true",
@@ -141,7 +144,7 @@ def _simulate_shape(args: argparse.Namespace) -> Trajectory:
         environment = dataclasses.replace(environment, ground_clamp=True)
     gen = torch.Generator().manual_seed(args.seed)
     body = MSDN(topology, dt=0.01 if args.dt is None else args.dt, integrator=args.integrator or "verlet",
-                environment=environment, generator=gen, dtype=dtype)
+                environment=environment, generator=gen, dtype=dtype, backend=args.backend or "numba")
     displacement = None
     if args.perturb > 0:
         displacement = (args.perturb * torch.randn(1, body.n_movable, 2, generator=gen, dtype=torch.float64)).to(dtype)
@@ -192,6 +195,8 @@ def _simulate_agent(args: argparse.Namespace) -> Trajectory:
         body.dt = float(args.dt)
     if args.integrator is not None:
         body.integrator = args.integrator
+    if args.backend is not None:
+        body.backend = args.backend
     real = body.l.dtype
     gen = torch.Generator().manual_seed(args.seed)
     displacement = None

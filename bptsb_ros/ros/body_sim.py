@@ -146,6 +146,7 @@ class BodySim(Node):
         self.agent = agent
         body = agent.body
         self.body = body
+        body.warm_up()  # load (or compile) the step kernel now, not in the first timed step
         try:
             self.dt_ns = dt_to_ns(body.dt)
         except ValueError as err:

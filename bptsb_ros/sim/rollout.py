@@ -149,7 +149,55 @@ def simulate_commands(
             batches.append(external_forces.shape[1])
         state = body.initial_state(max(batches), rest_length=rest[0], external_force=None if ext is None else ext[0],
                                    displacement=displacement, velocity=velocity)
+    if body.uses_kernel(state.r):
+        return _run_windows(body, steps, state, rest_lengths, external_forces, check_every, progress)
     return _run(body, steps, state, rest[0], lambda i, _prev: rest[i], ext, check_every, progress)
+
+
+def _run_windows(
+    body: MSDN,
+    steps: int,
+    state: BodyState,
+    rest_lengths: torch.Tensor,
+    external_forces: torch.Tensor | None,
+    check_every: int,
+    progress: Callable[[int], None] | None,
+) -> Rollout:
+    """:func:`_run` for commands known in advance, a window of steps per kernel call (numba backend).
+
+    The kernel computes each step exactly as a one-step call does (``MSDN.step``), so the rows are the
+    same bits as the step-by-step loop's (tests/test_kernel.py); windows end at every progress and
+    divergence-check boundary.
+    """
+    if steps < 0:
+        raise ValueError(f"steps must be >= 0, got {steps}")
+    if check_every < 1:
+        raise ValueError(f"check_every must be >= 1, got {check_every}")
+    rec = _Recorder(steps, state, body.topology.n_springs)
+    rec.put(0, state, rest_lengths[0], None if external_forces is None else external_forces[0])
+    ends = sorted({*range(PROGRESS_EVERY, steps, PROGRESS_EVERY), *range(check_every, steps, check_every), steps})
+    checked, lo = 0, 0
+    for hi in ends:
+        if hi == lo:
+            continue
+        ext = None if external_forces is None else external_forces[lo + 1: hi + 1]
+        r, v, a, length = body.kernel_window(state.r, state.v, state.a, rest_lengths[lo + 1: hi + 1], ext)
+        rec.r[lo + 1: hi + 1], rec.v[lo + 1: hi + 1], rec.a[lo + 1: hi + 1] = r, v, a
+        rec.length[lo + 1: hi + 1] = length
+        rec.rest[lo + 1: hi + 1] = rest_lengths[lo + 1: hi + 1] if rest_lengths.dim() == 3 \
+            else rest_lengths[lo + 1: hi + 1].unsqueeze(1)
+        if ext is not None:
+            rec.ext[lo + 1: hi + 1] = ext
+        state = BodyState(r[-1], v[-1], a[-1], length[-1], state.step + hi - lo)
+        if hi % check_every == 0 or hi == steps:
+            _check_rows(body, rec, checked, hi, state)
+            checked = hi + 1
+        if progress is not None and (hi % PROGRESS_EVERY == 0 or hi == steps):
+            progress(hi)
+        lo = hi
+    if steps == 0:
+        _check_rows(body, rec, 0, 0, state)
+    return rec.result(state)
 
 
 def _run(

@@ -21,6 +21,7 @@ from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.tasks import get_task
+from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
 from bptsb_ros.training.optim import make_optimizer, scale_learning_rates
@@ -79,6 +80,7 @@ def train(
             raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
                               "replace it with --force, or choose another directory")
     run_dir.mkdir(parents=True, exist_ok=True)
+    threads = configure_threads(1, cfg.training.backend)  # every task trains one small body: one thread
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
     task = get_task(cfg.task)(agent, cfg)
@@ -186,7 +188,8 @@ def train(
     elapsed = time.perf_counter() - t_start
 
     metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": losses,
-                               "updates": len(losses), "train_seconds": elapsed,
+                               "updates": len(losses), "train_seconds": elapsed, "backend": tc.backend,
+                               "threads": threads,
                                "train_steps_per_second": sim_steps / elapsed if elapsed > 0 else None}
     try:
         with torch.no_grad():
@@ -201,8 +204,9 @@ def train(
     return TrainResult(run_dir, losses, metrics, files)
 
 
-#: keys that may differ between a run and its resumption (durations and logging)
-RESUMABLE_CHANGES = {"sim_time", "epochs", "name", "training.checkpoint_every", "training.log_every"}
+#: keys that may differ between a run and its resumption (durations, logging, the backend: equal to rounding)
+RESUMABLE_CHANGES = {"sim_time", "epochs", "name", "training.checkpoint_every", "training.log_every",
+                     "training.backend"}
 
 
 def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
