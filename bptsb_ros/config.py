@@ -92,6 +92,9 @@ class LocomotionConfig(_Strict):
     target_slope: float = Field(0.004, ge=0, description="v_target(t) = slope × t [m/s per s of training]")
     warmup_windows: int = Field(100, ge=0, description="windows simulated without updates before training")
     speed_block: int = Field(100, ge=1, description="steps per block over which speed is averaged")
+    loss_velocity: Literal["after", "before"] = Field(
+        "after", description="speed in the loss from each step's velocity after its update (ours) or before it "
+                             "(the published code)")
     eval_time: float = Field(20.0, gt=0, description="evaluation run [s]")
 
 

@@ -66,15 +66,16 @@ def reintegrate(keys: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
             r_new = r + v * dt + 0.5 * a * dt * dt
         else:
             r_new = r + v * dt
-        a_new = total_force(keys, r_new, v, t) * inv_mass  # velocity-dependent forces see v(t)
+        if clamp:  # the published code's order: floor right after the position update, before the forces
+            below = (r_new[:, 1] < 0) & movable
+            r_new[below, 1] = 0.0
+            v = v.copy()
+            v[below] = 0.0
+        a_new = total_force(keys, r_new, v, t) * inv_mass  # velocity-dependent forces see v(t) (clamped)
         if integrator == "verlet":
             v_new = v + 0.5 * (a + a_new) * dt
         else:
             v_new = v + 0.5 * a_new * dt
-        if clamp:
-            below = (r_new[:, 1] < 0) & movable
-            r_new[below, 1] = 0.0
-            v_new[below] = 0.0
         r, v, a = r_new, v_new, a_new
         out_r.append(r.copy())
         out_v.append(v.copy())

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import pytest
 import torch
@@ -221,12 +222,30 @@ ADJOINT_CASES = {
     "double_circle": dict(),
     "published": dict(integrator="published"),
     "locomotion": dict(shape="caterpillar", environment=Environment.locomotion()),
+    "locomotion_clamp": dict(shape="caterpillar", environment=replace(Environment.locomotion(), ground_clamp=True)),
 }
+
+
+def clamp_counts(case: AdjointCase) -> tuple[int, int, int]:
+    """(steps, masses, mass-steps put back on the floor) in the case body's unforced rollout from its
+    displaced start (the feet start on y = 0 and gravity pulls them down)."""
+    body = case.body
+    state = body.initial_state(case.u.shape[1], displacement=case.displacement)
+    clamped = 0
+    for _ in range(case.steps):
+        free = state.r + body.dt * state.v + 0.5 * body.dt**2 * state.a
+        clamped += int((free[..., 1] < 0).sum())
+        state = body.step(state)
+    return case.steps, body.n_movable, clamped
 
 
 @pytest.mark.parametrize("case_name", sorted(ADJOINT_CASES))
 def test_adjoint_matches_finite_differences(case_name: str) -> None:
     case = AdjointCase(**ADJOINT_CASES[case_name])
+    if case_name == "locomotion_clamp":
+        with torch.no_grad():
+            _, _, clamped = clamp_counts(case)
+        assert clamped > 10, "the floor acts in this case"
     for name, param in case.parameters().items():
         err, norm = fd_relative_error(case.loss, param, coordinates=6, directions=2)
         assert norm > 1e-8 and err < TOLERANCE, (name, err, norm)

@@ -233,7 +233,7 @@ def test_initial_acceleration_uses_initial_rest_length_and_force() -> None:
     torch.testing.assert_close(state.a, expected, rtol=0, atol=1e-10)
 
 
-def test_ground_clamp_puts_sunk_masses_on_the_floor_at_rest() -> None:
+def test_ground_clamp_puts_sunk_masses_on_the_floor_before_the_forces() -> None:
     env = Environment.locomotion()
     clamped = make_body("caterpillar", 10, seed=41, environment=Environment(env.gravity, env.air_drag, env.ground_c,
                                                                             ground_clamp=True))
@@ -243,15 +243,88 @@ def test_ground_clamp_puts_sunk_masses_on_the_floor_at_rest() -> None:
     velocity[0, 1::2, 1] = -2.0  # feet (odd masses, on y = 0) pushed into the ground
     velocity[0, :, 0] = 0.5
     with torch.no_grad():
-        sc = clamped.step(clamped.initial_state(1, velocity=velocity))
+        s0 = clamped.initial_state(1, velocity=velocity)
+        sc = clamped.step(s0)
         sf = free.step(free.initial_state(1, velocity=velocity))
     sunk = sf.r[0, :, 1] < 0
     assert int(sunk.sum()) == 5  # the soft ground alone lets the feet sink (the paper)
     assert bool((sc.r[0, :, 1] >= 0).all())
-    assert bool((sc.r[0, sunk, 1] == 0).all()) and bool((sc.v[0, sunk] == 0).all())
+    assert bool((sc.r[0, sunk, 1] == 0).all())
     torch.testing.assert_close(sc.r[0, sunk, 0], sf.r[0, sunk, 0], rtol=0, atol=0)  # x is kept
     torch.testing.assert_close(sc.r[0, ~sunk], sf.r[0, ~sunk], rtol=0, atol=0)
-    torch.testing.assert_close(sc.v[0, ~sunk], sf.v[0, ~sunk], rtol=0, atol=0)
+    # The forces saw the clamped state, v(t) = 0 included: a sunk mass ends with v = Δt/2·(a(t) + a(t+Δt)).
+    with torch.no_grad():
+        v_seen = velocity.masked_fill(sunk.view(1, m, 1), 0.0)
+        a_expected = reference_force(clamped, sc.r, v_seen, clamped.l)
+    torch.testing.assert_close(sc.a, a_expected, rtol=0, atol=1e-10)
+    torch.testing.assert_close(sc.v[0, sunk], 0.5 * clamped.dt * (s0.a[0, sunk] + sc.a[0, sunk]), rtol=0, atol=1e-15)
+    assert bool((sc.v[0, sunk].abs() > 1e-3).all())  # not zeroed after the velocity update
+
+
+def one_mass_on_a_slack_spring(integrator: str, height: float) -> MSDN:
+    """A movable mass at (0, height) tied to a fixed anchor at (0, 5) by a spring with k = d = 0: the only
+    forces are gravity 10 m/s² (−y) and air drag −0.1·v; dt = 0.1 s; the hard floor on."""
+    topology = Topology("hand", np.array([[0.0, 5.0], [0.0, height]]), np.array([[0, 1]]), np.array([True, False]), -1)
+    body = MSDN(topology, dt=0.1, integrator=integrator, dtype=F64,
+                environment=Environment(gravity=10.0, air_drag=0.1, ground_c=0.0, ground_clamp=True))
+    with torch.no_grad():
+        body.k.zero_()
+        body.d.zero_()
+    return body
+
+
+# Worked by hand, v(0) = (1, 0), a = (−0.1·v_x, −10 − 0.1·v_y) away from the floor.
+#   published, y(0) = 0.03: r1 = r0 + v0·dt = (0.1, 0.03); a1 = (−0.1, −10); v1 = v0 + a1·dt/2 = (0.995, −0.5);
+#     r2 = r1 + v1·dt = (0.1995, −0.02) → clamp: r2 = (0.1995, 0), v(t) = 0; a2 = (0, −10) (no drag at v = 0);
+#     v2 = 0 + a2·dt/2 = (0, −0.5).   [clamp after the update: a2 = (−0.0995, −9.95), v2 = (0, 0)]
+#   verlet, y(0) = 0.08: a0 = (−0.1, −10); r1 = r0 + v0·dt + a0·dt²/2 = (0.0995, 0.03); a1 = (−0.1, −10);
+#     v1 = v0 + (a0 + a1)·dt/2 = (0.99, −1.0); r2 = r1 + v1·dt + a1·dt²/2 = (0.198, −0.12) → clamp:
+#     r2 = (0.198, 0), v(t) = 0; a2 = (0, −10); v2 = 0 + (a1 + a2)·dt/2 = (−0.005, −1.0).
+HAND_TWO_STEPS = {
+    "published": (0.03, [[0.1, 0.03], [0.1995, 0.0]], [[0.995, -0.5], [0.0, -0.5]], [[-0.1, -10.0], [0.0, -10.0]]),
+    "verlet": (0.08, [[0.0995, 0.03], [0.198, 0.0]], [[0.99, -1.0], [-0.005, -1.0]], [[-0.1, -10.0], [0.0, -10.0]]),
+}
+
+
+@pytest.mark.parametrize("integrator", sorted(HAND_TWO_STEPS))
+def test_ground_clamp_order_on_a_hand_computed_two_step_example(integrator: str) -> None:
+    height, r_hand, v_hand, a_hand = HAND_TWO_STEPS[integrator]
+    body = one_mass_on_a_slack_spring(integrator, height)
+    with torch.no_grad():
+        state = body.initial_state(1, velocity=torch.tensor([[[1.0, 0.0]]], dtype=F64))
+        states = [state := body.step(state) for _ in range(2)]
+    for t, s in enumerate(states):
+        torch.testing.assert_close(s.r[0, 0], torch.tensor(r_hand[t], dtype=F64), rtol=0, atol=1e-14)
+        torch.testing.assert_close(s.v[0, 0], torch.tensor(v_hand[t], dtype=F64), rtol=0, atol=1e-14)
+        torch.testing.assert_close(s.a[0, 0], torch.tensor(a_hand[t], dtype=F64), rtol=0, atol=1e-14)
+
+
+# d(r2, v2)/d v0 by hand (rows: r2x, r2y, v2x, v2y; columns: v0x, v0y). Everything is linear in v0 here.
+#   published: r2x = v0x·dt + v1x·dt, v1x = v0x(1 − 0.05·0.1) → 0.1 + 0.0995 = 0.1995; r2y = 0 (clamped);
+#     v2 = a2·dt/2 with a2 at v = 0: no dependence.
+#   verlet: r1x = v0x(0.1 − 0.0005) = 0.0995 v0x; v1x = v0x(1 − 0.05·0.2) = 0.99 v0x; a1x = −0.1 v0x;
+#     r2x = 0.0995 + 0.099 − 0.0005 = 0.198; r2y = 0; v2 = (a1 + a2)·dt/2 → ∂v2x/∂v0x = ∂v2y/∂v0y = −0.005.
+HAND_JACOBIAN = {
+    "published": [[0.1995, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]],
+    "verlet": [[0.198, 0.0], [0.0, 0.0], [-0.005, 0.0], [0.0, -0.005]],
+}
+
+
+@pytest.mark.parametrize("adjoint", [True, False], ids=["adjoint", "autograd"])
+@pytest.mark.parametrize("integrator", sorted(HAND_JACOBIAN))
+def test_gradient_through_the_clamp_on_the_hand_example(integrator: str, adjoint: bool) -> None:
+    from bptsb_ros.body.adjoint import rollout_window
+
+    height = HAND_TWO_STEPS[integrator][0]
+    body = one_mass_on_a_slack_spring(integrator, height)
+    v0 = torch.tensor([[[1.0, 0.0]]], dtype=F64, requires_grad=True)
+    rows = []
+    for out in range(4):
+        win = rollout_window(body, body.initial_state(1, velocity=v0), body.l.detach().expand(2, -1), adjoint=adjoint)
+        final = torch.cat([win.final.r[0, 0], win.final.v[0, 0]])
+        rows.append(torch.autograd.grad(final[out], v0)[0].view(2))
+    torch.testing.assert_close(torch.stack(rows), torch.tensor(HAND_JACOBIAN[integrator], dtype=F64),
+                               rtol=0, atol=1e-14)
 
 
 def test_blow_up_raises_with_the_step_and_parameters() -> None:

@@ -15,6 +15,10 @@ f = k q x + d D v, F = −Dᵀ f + f_env + f_ext, a' = F/m, v' = v + Δt(a + a')
     Ḡx = k q Ḡf + k l/L³ x (x·Ḡf) + Ḡ_L x/L                        Ḡr' += Dᵀ Ḡx
     Ḡv += Dᵀ(d Ḡf) − a_drag ḠF     Ḡr'_y += −c² e^{−c r'_y} ḠF_y
     Ḡr = Ḡr'   Ḡv += Δt Ḡr'   Ḡa += h Ḡr'
+
+With the ground clamp (applied to r' and v before the forces, the published order) the forces see the
+clamped r' and v; before the last line Ḡr'_y and Ḡv of every clamped mass are zeroed (their values
+were set, not computed).
 """
 
 from __future__ import annotations
@@ -147,15 +151,14 @@ class _WindowFunction(torch.autograd.Function):
             gv_new = lam_v if g_v_steps is None else lam_v + g_v_steps[i]
             ga_new = lam_a if g_a_steps is None else lam_a + g_a_steps[i]
             r, v = r_prev[i], v_prev[i]
-            if env.ground_clamp:  # forces saw the positions before the clamp: rebuild them
-                r_new = torch.add(r, v, alpha=dt)
+            r_new = r_prev[i + 1]  # the forces saw the clamped positions
+            below = None
+            if env.ground_clamp:  # which masses the clamp moved: rebuild the unclamped update
+                r_free = torch.add(r, v, alpha=dt)
                 if verlet:
-                    r_new.add_(a_prev[i], alpha=h)
-                below = r_new.view(batch, n_mov, 2)[..., 1:] < 0  # (B, M, 1)
-                gr_new = gr_new.view(batch, n_mov, 2).masked_fill(below & y_only, 0.0).view(batch, fm)
-                gv_new = gv_new.view(batch, n_mov, 2).masked_fill(below, 0.0).view(batch, fm)
-            else:
-                r_new = r_prev[i + 1]
+                    r_free.add_(a_prev[i], alpha=h)
+                below = r_free.view(batch, n_mov, 2)[..., 1:] < 0  # (B, M, 1)
+                v = v.view(batch, n_mov, 2).masked_fill(below, 0.0).view(batch, fm)  # the forces saw v clamped
             # v' = v + Δt/2 (a + a')  (published: v' = v + Δt/2 a')
             gF = torch.add(ga_new, gv_new, alpha=half_dt).mul_(inv_m)
             if g_ext is not None:
@@ -184,7 +187,11 @@ class _WindowFunction(torch.autograd.Function):
                 y = r_new.view(batch, n_mov, 2)[..., 1]
                 gy = (-cg * cg) * torch.exp(-cg * y) * gF.view(batch, n_mov, 2)[..., 1]
                 gr_prime = gr_prime + torch.stack([torch.zeros_like(gy), gy], dim=-1).view(batch, fm)
-            lam_v = torch.addmm(gv, (dd * gf).view(batch, fe), scatter).add_(gr_prime, alpha=dt)
+            gv = torch.addmm(gv, (dd * gf).view(batch, fe), scatter)  # adjoint of the clamped v
+            if below is not None:  # through the clamp: y and v of a clamped mass do not depend on the step's inputs
+                gr_prime = gr_prime.view(batch, n_mov, 2).masked_fill(below & y_only, 0.0).view(batch, fm)
+                gv = gv.view(batch, n_mov, 2).masked_fill(below, 0.0).view(batch, fm)
+            lam_v = gv.add_(gr_prime, alpha=dt)
             lam_a = ga.add_(gr_prime, alpha=h) if verlet else torch.zeros_like(gr_prime)
             lam_r = gr_prime
 

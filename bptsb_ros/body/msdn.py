@@ -9,7 +9,9 @@ the live ``body_sim`` node. The step (paper, Methods; supplement Eqs. for a(t+Δ
 
 with a(0) = F(r(0), v(0), l(0), f_ext(0)) / m. ``integrator="published"`` reproduces the authors'
 published code, which restarted the integrator every step so that a(t) was always zero:
-r ← r + vΔt, v ← v + a(r_new, v_old)Δt/2.
+r ← r + vΔt, v ← v + a(r_new, v_old)Δt/2. With ``Environment.ground_clamp`` every movable mass
+that the position update put below y = 0 is set to y = 0 and v(t) = 0 before a(t+Δt) and v(t+Δt)
+are computed (the published code's order), so the forces see the clamped state.
 
 Only movable masses are integrated; fixed masses never move, so their contribution to every spring
 vector is a constant folded into ``fixed_offset``.
@@ -39,8 +41,7 @@ class BodyState:
     """Dynamic state of a batch of bodies (movable masses only).
 
     r, v, a: (B, M, 2) positions [m], velocities [m/s], accelerations [m/s²].
-    length: (B, E) spring lengths the forces of this step saw [m] (at ``r``, or before the ground clamp
-        moved a mass back onto the floor).
+    length: (B, E) spring lengths at ``r``, the ones the forces of this step saw [m].
     step: number of integration steps taken since t = 0.
     """
 
@@ -59,7 +60,9 @@ class BodyState:
 class Environment:
     """External physics: gravity magnitude g [m/s², pulls −y], air drag a [N·s/m], ground constant c [1/m].
 
-    ``ground_clamp`` reproduces the published code's hard floor (y < 0 → y = 0, v = 0); the paper
+    ``ground_clamp`` reproduces the published code's hard floor (y < 0 → y = 0, v = 0), in its order:
+    right after the position update, before the forces and the velocity update, so a clamped mass
+    ends the step with v = Δt/2·(a(t) + a(t+Δt)) (``published``: Δt/2·a(t+Δt)), not 0. The paper
     uses the soft ground only, so it is off by default.
     """
 
@@ -213,14 +216,15 @@ class MSDN(nn.Module):
         r = torch.add(state.r, state.v, alpha=dt)
         if verlet:
             r = r.add_(state.a, alpha=0.5 * dt * dt)
-        a, length = self.acceleration(r, state.v, l_next, external_force)
-        if verlet:
-            v = torch.add(state.v, state.a + a, alpha=0.5 * dt)
-        else:
-            v = torch.add(state.v, a, alpha=0.5 * dt)  # the stale a(t) was zero in the published code
-        if self.environment.ground_clamp:
+        v = state.v
+        if self.environment.ground_clamp:  # the published order: clamp, then forces and velocity update
             v = v.masked_fill(r[..., 1:] < 0, 0.0)
             r = torch.maximum(r, self.floor)
+        a, length = self.acceleration(r, v, l_next, external_force)
+        if verlet:
+            v = torch.add(v, state.a + a, alpha=0.5 * dt)
+        else:
+            v = torch.add(v, a, alpha=0.5 * dt)  # the stale a(t) was zero in the published code
         return BodyState(r, v, a, length, state.step + 1)
 
     def parameter_ranges(self) -> str:

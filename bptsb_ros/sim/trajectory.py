@@ -22,7 +22,7 @@ key                shape             unit   meaning
 ``air_drag``       ()                N·s/m  air drag a: force −a·v on every mass
 ``ground_c``       ()                1/m    soft ground c: force [0, c·exp(−c·y)] on every mass; 0 = none
 ``integrator``     () str            –      ``verlet`` (the paper) or ``published`` (the authors' code)
-``ground_clamp``   () bool           –      hard floor after each step: y < 0 → y = 0 and v = 0
+``ground_clamp``   () bool           –      hard floor after each position update: y < 0 → y = 0, v = 0
 ``cmp_index``      () int            –      index of the centre mass point, −1 if the shape has none
 ``shape``          () str            –      body shape name (``double_circle``, ``caterpillar``, …)
 ``dtype``          () str            –      floating-point type the simulation ran in
@@ -35,10 +35,10 @@ movable masses (springs, ``mass``·``gravity``, −a·v, ground, f),
 
     a(0)   = F(r(0), v(0), l(0), f(0)) / m
     r(t+1) = r(t) + v(t)·dt + a(t)·dt²/2                 (``published``: r(t) + v(t)·dt)
+    with ``ground_clamp``: every movable mass with y(t+1) < 0 gets y(t+1) = 0 and v(t) = 0 (the
+    published code's order: before the forces and the velocity update)
     a(t+1) = F(r(t+1), v(t), l(t+1), f(t+1)) / m        (velocity-dependent forces use v(t))
     v(t+1) = v(t) + (a(t) + a(t+1))·dt/2                 (``published``: v(t) + a(t+1)·dt/2)
-
-then, with ``ground_clamp``, every movable mass with y < 0 gets y = 0 and v = 0 (a(t+1) is kept).
 """
 
 from __future__ import annotations

@@ -5,6 +5,10 @@ Speed = x-velocity averaged over all masses; the loss is the MSE between that sp
 blocks of ``speed_block`` steps, and a target that grows with training time, v_target = 0.004·t
 (t: simulated seconds since training began). Updates every 200 steps; the robot first runs
 ``warmup_windows`` windows without updates (it settles on the ground).
+
+The published code differed in two ways, both available as options: its loss read each step's
+velocity before the velocity update (``locomotion.loss_velocity: before``; ours: ``after``) and its
+target ramp was 0.002·t (``locomotion.target_slope: 0.002``; the paper: 0.004).
 """
 
 from __future__ import annotations
@@ -60,8 +64,12 @@ class LocomotionTask(SwgWindowTask):
     def update_loss(self, index: int) -> tuple[torch.Tensor, dict[str, float]]:
         self.prepare()
         k0 = self.state.step
+        v_start = self.state.v
         win = self.run_window()
-        speed = forward_speed(win.v[:, 0]).view(-1, self.block).mean(-1)  # (blocks,)
+        v = win.v[:, 0]  # (W, M, 2): velocity after the update of steps k0+1 .. k0+W
+        if self.cfg.locomotion.loss_velocity == "before":  # the published code: v before each step's update
+            v = torch.cat([v_start, v[:-1]])
+        speed = forward_speed(v).view(-1, self.block).mean(-1)  # (blocks,)
         block_end = k0 + self.block * torch.arange(1, speed.shape[0] + 1, dtype=speed.dtype)
         target = self.cfg.locomotion.target_slope * (block_end - self.train_start_step) * self.agent.dt
         loss = ((speed - target) ** 2).mean()
