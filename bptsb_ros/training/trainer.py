@@ -51,8 +51,14 @@ def train(
     *,
     resume: bool = False,
     progress: bool = True,
+    init_from: str | Path | None = None,
 ) -> TrainResult:
-    """Train ``cfg``'s agent, writing checkpoint.pt, config.yaml, metrics.json and plots to ``run_dir``."""
+    """Train ``cfg``'s agent, writing checkpoint.pt, config.yaml, metrics.json and plots to ``run_dir``.
+
+    ``init_from``: a trained run directory of the same task and body whose parameters and carried body state
+    this training continues from (additional training, e.g. headwind switching after forward locomotion); the
+    optimiser and the losses start afresh. Ignored when resuming.
+    """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
@@ -73,6 +79,19 @@ def train(
         losses = list(extra["losses"])
         start = int(extra["update"])
         rejections = int(extra.get("rejections", 0))
+    elif init_from is not None:
+        payload = read_checkpoint(init_from)
+        if payload["config"].get("task") != cfg.task:
+            raise ConfigError(f"cannot continue from {init_from}: it trained task {payload['config'].get('task')!r}, "
+                              f"not {cfg.task!r}")
+        try:
+            for name, module in agent.modules().items():
+                if name in payload["modules"]:
+                    module.load_state_dict(payload["modules"][name])
+        except RuntimeError as err:  # shapes differ: another body or brain
+            raise ConfigError(f"cannot continue from {init_from}: its agent differs ({err})") from None
+        if "task_state" in payload["extra"]:
+            task.load_state_dict(payload["extra"]["task_state"])
     (run_dir / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
 
     total = task.num_updates()
