@@ -135,6 +135,8 @@ class BodySim(Node):
                                           max_ahead=depth, max_age_steps=max_age),
             "force": CommandChannel("force", 2 * body.n_movable, self.dof_names, p["mode"],
                                     max_ahead=depth, max_age_steps=max_age),
+            # used when "wind" is in wait_for (a wind_source node): the wind of step k, in lockstep
+            "wind": CommandChannel("wind", 2, ["x", "y"], p["mode"], max_ahead=depth, max_age_steps=max_age),
         }
         self.wait_sources: list[str] = list(dict.fromkeys(p["wait_for"]))
         self.silent: dict[str, bool] = {s: False for s in self.channels}
@@ -200,6 +202,9 @@ class BodySim(Node):
             self.get_logger().info(f"{source} commands resumed at step {step}")
 
     def _on_wind(self, msg: Vector3Stamped) -> None:
+        if "wind" in self.wait_sources:  # a synchronised wind source: stamped per step, like a command
+            self._on_stamped_wind(msg)
+            return
         self.callbacks += 1
         wind = np.array([msg.vector.x, msg.vector.y], dtype=np.float64)
         if not np.isfinite(wind).all():
@@ -212,6 +217,13 @@ class BodySim(Node):
             if emit:
                 self.get_logger().info(f"wind set to ({wind[0]:g}, {wind[1]:g}) N per movable mass from step "
                                        f"{self.next_step}" + (f" ({held} earlier changes not logged)" if held else ""))
+
+    def _on_stamped_wind(self, msg: Vector3Stamped) -> None:
+        self.callbacks += 1
+        step = m.step_of(msg.header.stamp, self.dt_ns)
+        rejection = self.channels["wind"].offer(step, [msg.vector.x, msg.vector.y], self.next_step, time.monotonic())
+        if rejection is not None:
+            self._warn(f"reject:wind:{rejection.reason}", f"{rejection.message}; not applied")
 
     def _warn(self, key: str, text: str) -> None:
         emit, held = self.throttle(key)
@@ -267,6 +279,10 @@ class BodySim(Node):
         else:
             force = torch.from_numpy(force_cmd.values).to(dtype).view(-1, 2)
             self.stats.age.append(step - force_cmd.step)
+        if "wind" in self.wait_sources:  # the wind of this step (kept when it is missing: silent source)
+            wind_cmd = self.channels["wind"].take(step)
+            if wind_cmd is not None:
+                self.wind = wind_cmd.values if wind_cmd.values.any() else None
         if self.wind is not None:
             wind = torch.from_numpy(self.wind).to(dtype)
             force = wind.expand(self.body.n_movable, 2) if force is None else force + wind
