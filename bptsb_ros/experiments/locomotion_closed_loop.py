@@ -41,9 +41,9 @@ def settings_for(ctx: Context) -> tuple[AgentSettings, int]:
     paper_ref="main text 'Autonomous behavior through brain function transfer' (8 of 20 agents); Fig. 4(a)",
     summary="train 20 caterpillar agents forward (sweep jobs), fit each FL (σ 0.2), close the loops; count "
             "closed/open speed ≥ 0.7; variants: SWG→FL transition period, velocity FL",
-    durations={"smoke": "≈ 30 s (2 agents, 4 s of training)",
-               "short": "≈ 12 min with 2 workers (20 agents, 200 s of training each)",
-               "paper": "≈ 30 min with 2 workers, ≈ 1 h in one process (20 agents, 1000 s each)"},
+    durations={"smoke": "≈ 20 s (2 agents, 4 s of training)",
+               "short": "≈ 25 min with 2 workers, ≈ 48 min in one process (20 agents, 200 s of training each)",
+               "paper": "≈ 1½–2 h with 2 workers (20 agents, 1000 s each, ≈ 8–10 min per agent here)"},
 )
 def run(ctx: Context) -> None:
     settings, n_agents = settings_for(ctx)
@@ -93,6 +93,8 @@ def run(ctx: Context) -> None:
                                                                  "handover_ratio", "velocity_fl_ratio")}
                       for s in seeds if f"seed-{s}" in results},
         "job_wall_s": {r["name"]: r["wall_s"] for r in sweep.records},
+        # agents found finished in the shared sweep (trained by an earlier run): wall_s then excludes their training
+        "agents_reused": len(sweep.skipped),
         "notes": " ".join(notes),
     }
 
@@ -127,11 +129,11 @@ def _plot_gaits(path: Path, sweep_dir: Path, seeds: list[int], results: dict, du
             continue
         data = np.load(gait)
         r, springs = data["r"], data["springs"]
-        frames = np.linspace(0, len(r) - 1, min(5, len(r))).astype(int)
+        frames = np.linspace(0, len(r) - 1, min(8, len(r))).astype(int)
         for j, f in enumerate(frames):
             c = cmap(j / max(len(frames) - 1, 1))
             for a, b in springs:
-                ax.plot(r[f, [a, b], 0], r[f, [a, b], 1], color=c, lw=0.5, alpha=0.8)
+                ax.plot(r[f, [a, b], 0], r[f, [a, b], 1], color=c, lw=0.6)
             ax.plot(r[f, :, 0], r[f, :, 1], "o", color=c, ms=1.5)
         mark = "✓" if res["success"] else "✗"
         ax.set_title(f"seed {seed}: {res['open_speed']:.2f} m/s, closed/open {res['ratio']:.2f} {mark}", fontsize=7)
@@ -142,8 +144,8 @@ def _plot_gaits(path: Path, sweep_dir: Path, seeds: list[int], results: dict, du
         ax.axis("off")
     fig.supxlabel("x [m]")
     fig.supylabel("y [m]")
-    fig.suptitle(f"open-loop gaits, {duration:g} s, snapshots dark → light\n(open-loop speed, closed/open, "
-                 "✓ success)", fontsize=9)
+    fig.suptitle(f"open-loop (SWG) gaits: 8 snapshots over {duration:g} s after training, coloured by time "
+                 "(dark → light); title: open-loop speed, closed/open speed, success", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

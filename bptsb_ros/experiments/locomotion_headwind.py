@@ -52,8 +52,8 @@ def phase_speeds(t_block: np.ndarray, v_block: np.ndarray, period: float) -> dic
     paper_ref="supplement 'Behavioral switching' (locomotion), Fig. S(a), (c), (e)",
     summary="forward agent → additional training at v_max/2 under a periodic headwind F = −1; speed under the "
             "switching wind (c) and speed vs F_wind ∈ [−2, 1] (e, one batched simulation)",
-    durations={"smoke": "≈ 20 s", "short": "≈ 4 min (400 s of switching training; forward agent reused)",
-               "paper": "≈ 45 min (10,000 s of switching training)"},
+    durations={"smoke": "≈ 20 s", "short": "≈ 13 min (2,000 s of switching training; forward agent reused)",
+               "paper": "≈ 1 h (10,000 s of switching training)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
@@ -69,7 +69,7 @@ def run(ctx: Context) -> None:
     if not v_max > 0:
         raise RuntimeError(f"the forward agent does not move forward (speed {v_max:.3g} m/s); no target v_max/2")
     target = v_max / 2
-    sim_time = ctx.pick(smoke=4, short=400, paper=10000)
+    sim_time = ctx.pick(smoke=4, short=2000, paper=10000)
     period = ctx.pick(smoke=4.0, short=20.0, paper=20.0)
     eval_periods = ctx.pick(smoke=1, short=3, paper=5)
     sweep_time = ctx.pick(smoke=2.0, short=20.0, paper=50.0)

@@ -64,7 +64,7 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     paper_ref="Fig. 4(b), (c); Methods 'Locomotion task' (perturbation)",
     summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
             "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded",
-    durations={"smoke": "≈ 30 s", "short": "≈ 3 min after locomotion-closed-loop-20 (its agents reused)",
+    durations={"smoke": "≈ 10 s", "short": "≈ 2 min after locomotion-closed-loop-20 (its agents reused)",
                "paper": "≈ 15 min after locomotion-closed-loop-20"},
 )
 def run(ctx: Context) -> None:

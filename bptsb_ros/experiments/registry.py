@@ -139,7 +139,9 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
     result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed))
     result.provenance = {
-        "command": f"bptsb reproduce {name} --scale {scale} --seed {seed}",
+        "command": f"bptsb reproduce {name} --scale {scale} --seed {seed}"
+                   + (f" --scheduler {scheduler}" if scheduler else f" --workers {workers}" if workers is not None
+                      else ""),
         "python": platform.python_version(),
         "machine": f"{platform.machine()}, {_cpu_count()} cores",
         "git_commit": _git_commit(),
