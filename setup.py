@@ -33,6 +33,7 @@ NODES = {
     "feedback_brain": "bptsb_ros.ros.feedback_brain",
     "task_input": "bptsb_ros.ros.task_input",
     "recorder": "bptsb_ros.ros.recorder",
+    "wind_source": "bptsb_ros.ros.wind_source",
 }
 
 # Template of the pip-route wrapper (@NODE@ = node name); it execs <prefix>/bin/<node>, which is where pip puts
@@ -116,6 +117,7 @@ setup(
         "mcap>=1.6",
         "imageio",
         "pillow",
+        "distributed",  # bptsb sweep --scheduler: jobs on a Dask cluster; LocalCluster in the tests
     ],
     extras_require={
         # A full ROS 2 Jazzy install provides these through apt; without one they come as wheels.

@@ -117,6 +117,12 @@ class LocomotionConfig(_Strict):
         "after", description="speed in the loss from each step's velocity after its update (ours) or before it "
                              "(the published code)")
     eval_time: float = Field(20.0, gt=0, description="evaluation run [s]")
+    target_speed: float | None = Field(
+        None, description="constant target speed [m/s] instead of the ramp (headwind switching: v_max / 2)")
+    wind_force: float = Field(0.0, description="F_wind [N]: force along x on every mass while the wind blows "
+                                               "(headwind < 0)")
+    wind_period: float = Field(0.0, ge=0, description="wind cycle [s]: calm for the first half of each period, "
+                                                      "blowing for the second; 0: blows all the time")
 
 
 class NarmaConfig(_Strict):

@@ -67,6 +67,7 @@ SWG = BrainSpec("swg_brain", ("clock",), ("rest_length_cmd",))
 FEEDBACK = BrainSpec("feedback_brain", ("clock", "spring_lengths"), ("rest_length_cmd",))
 TASK_INPUT = BrainSpec("task_input", ("clock",), ("task_input",))
 MLP = BrainSpec("mlp_brain", ("task_input",), ("force_cmd",))
+WIND = BrainSpec("wind_source", ("clock",), ("wind",))
 
 LOOPS: dict[str, Loop] = {
     loop.name: loop
@@ -79,6 +80,9 @@ LOOPS: dict[str, Loop] = {
              "locomotion", (SWG,), ("rest_length",)),
         Loop("locomotion_closed", "caterpillar locomotion, closed loop: the fitted feedback layer drives the body",
              "locomotion", (FEEDBACK,), ("rest_length",), needs_agent=True),
+        Loop("locomotion_headwind", "caterpillar locomotion under a periodic headwind: SWG rest lengths and the "
+             "wind of the agent's locomotion.wind_force / wind_period, both in lockstep", "locomotion",
+             (SWG, WIND), ("rest_length", "wind")),
         Loop("narma", "expanded NARMA emulation: streamed input u → MLP (or LIL) forces on the masses",
              "narma", (TASK_INPUT, MLP), ("force",)),
     )

@@ -80,6 +80,47 @@ def test_lissajous_closed_loop_equals_offline(tmp_path, ros_env):
     assert metrics["live"]["trajectory_mse_shift_min"] == pytest.approx(metrics["offline"]["trajectory_mse_shift_min"])
 
 
+def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
+    """SWG + wind_source in lockstep: the wind switches on at the stated steps and the run equals the offline
+    simulation under the same schedule; replay compares and shades the wind periods."""
+    from bptsb_ros.agent import build_agent
+    from bptsb_ros.analysis.replay import read_run, replay, wind_periods
+    from bptsb_ros.bags.reader import read_messages
+    from bptsb_ros.config import validate
+    from bptsb_ros.sim.rollout import simulate_open_loop
+    from bptsb_ros.training.checkpoint import load_agent, save_checkpoint
+
+    run = tmp_path / "agent"
+    cfg = validate({"task": "locomotion", "seed": 2, "dtype": "float64", "feedback": {"enabled": False},
+                    "brain": {"amplitude": 0.4},
+                    "body": {"shape": "caterpillar", "nodes": 10, "environment": "locomotion", "ground_clamp": True},
+                    "locomotion": {"wind_force": -3.0, "wind_period": 0.4}})
+    save_checkpoint(run, build_agent(cfg))
+    bag = tmp_path / "bag"
+    launch_ok(["locomotion_headwind", "--agent", str(run), "--duration", "1", "--bag", str(bag)], ros_env)
+    stamps, pos = bag_positions(bag)
+    check_every_step(stamps, 100)
+    # the schedule by hand: calm for t mod 0.4 in [0, 0.2), blowing (-3 N) in [0.2, 0.4)
+    expected = np.array([-3.0 if (k % 40) >= 20 else 0.0 for k in range(101)])
+    wind = {int(round((m.header.stamp.sec * 1e9 + m.header.stamp.nanosec) / DT_NS)): m.vector.x
+            for *_, m in read_messages(bag, ["/env/wind"])}
+    assert [wind[k] for k in range(101)] == expected.tolist()
+    agent = load_agent(run, dtype=torch.float64)
+    w = torch.zeros(101, 2, dtype=torch.float64)
+    w[:, 0] = torch.from_numpy(expected)
+    roll = simulate_open_loop(agent, 100, wind=w)
+    ref = agent.body.full_positions(roll.r[:, 0]).numpy()
+    calm = simulate_open_loop(agent, 100)
+    assert np.abs(agent.body.full_positions(calm.r[:, 0]).numpy() - ref).max() > 1e-3  # the wind matters
+    assert np.abs(pos - ref).max() <= 1e-9
+    force = np.array([np.asarray(m.effort) for *_, m in read_messages(bag, ["/body/external_force"])])
+    np.testing.assert_array_equal(force[:, 0], expected)  # x force on mass 0 in force at each step
+    np.testing.assert_allclose(wind_periods(read_run(bag)), [(0.2, 0.4), (0.6, 0.8), (1.0, 1.01)], atol=1e-12)
+    metrics = replay(bag, tmp_path / "replay", gif=False)
+    assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9
+    assert (tmp_path / "replay" / "speed.png").is_file()
+
+
 def test_narma_lockstep_equals_offline(tmp_path, ros_env):
     from bptsb_ros.sim.rollout import held_inputs, simulate_open_loop
     from bptsb_ros.tasks.narma import narma_inputs

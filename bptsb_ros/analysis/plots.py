@@ -79,9 +79,12 @@ def moving_average(t: np.ndarray, y: np.ndarray, window: int) -> tuple[np.ndarra
 
 
 def plot_speed(path: Path, t: np.ndarray, speeds: dict[str, np.ndarray], target: float | None = None,
-               window: int = 1) -> Path:
-    """Forward speed (mean x-velocity of all masses) over time, averaged over ``window`` steps."""
+               window: int = 1, shade: list[tuple[float, float]] | None = None, shade_label: str = "") -> Path:
+    """Forward speed (mean x-velocity of all masses) over time, averaged over ``window`` steps; ``shade``:
+    time intervals [s] drawn as orange bands (e.g. while the wind blows)."""
     fig, ax = plt.subplots(figsize=(6.5, 3.5))
+    for i, (a, b) in enumerate(shade or []):
+        ax.axvspan(a, b, color="orange", alpha=0.25, lw=0, label=shade_label if i == 0 and shade_label else None)
     for i, (label, v) in enumerate(speeds.items()):
         ax.plot(*moving_average(t, v, window), lw=1.0, color=f"C{i}", label=label)
     if target is not None:

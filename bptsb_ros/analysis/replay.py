@@ -30,7 +30,7 @@ class BagRun:
 
     steps: (T,) step indices; positions: (T, N, 2) [m]; spring_lengths, rest_length: (T, E) [m];
     springs: (E, 2); fixed: (N,) bool; cmp_index: −1 if none; inputs: {step: u} task inputs;
-    custom: the bag's custom_data (loop, mode, agent).
+    custom: the bag's custom_data (loop, mode, agent); wind: {step: F_wind x [N]} from ``env/wind``.
     """
 
     dt: float
@@ -43,6 +43,7 @@ class BagRun:
     cmp_index: int
     inputs: dict[int, float] = field(default_factory=dict)
     custom: dict[str, str] = field(default_factory=dict)
+    wind: dict[int, float] = field(default_factory=dict)
 
     @property
     def missing_steps(self) -> list[int]:
@@ -61,7 +62,7 @@ class BagRun:
         lengths = None if self.spring_lengths is None else self.spring_lengths[sl]
         rest = None if self.rest_length is None else self.rest_length[sl]
         return BagRun(self.dt, self.steps[sl], self.positions[sl], lengths, rest, self.springs, self.fixed,
-                      self.cmp_index, self.inputs, self.custom)
+                      self.cmp_index, self.inputs, self.custom, self.wind)
 
 
 def _stamp_ns(msg: Any) -> int:
@@ -79,8 +80,9 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     pos_topic = _topic("positions")
     if pos_topic not in topics:
         raise BagError(f"bag {bag} has no {pos_topic} topic (geometry_msgs/PoseArray); topics: {', '.join(topics)}")
-    wanted = [t for t in (_topic(k) for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input"))
-              if t in topics]
+    wanted = [t for t in (_topic(k) for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input",
+                                              "wind")) if t in topics]
+    wind_ns: dict[int, float] = {}
     pos: dict[int, np.ndarray] = {}
     lengths: dict[int, np.ndarray] = {}
     rests: dict[int, np.ndarray] = {}
@@ -97,6 +99,8 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
             markers = msg
         elif topic == _topic("task_input") and len(msg.position):
             inputs_ns[_stamp_ns(msg)] = float(msg.position[0])
+        elif topic == _topic("wind"):
+            wind_ns[_stamp_ns(msg)] = float(msg.vector.x)
     if not pos:
         raise BagError(f"bag {bag} has no messages on {pos_topic}")
     stamps = np.array(sorted(pos))
@@ -116,7 +120,8 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
         return np.stack([d[s] for s in stamps]) if d and all(s in d for s in stamps) else None
 
     return BagRun(dt_ns / NS_PER_S, steps, positions, stack(lengths), stack(rests), springs, fixed, cmp,
-                  {int((s + dt_ns // 2) // dt_ns): u for s, u in inputs_ns.items()}, custom)
+                  {int((s + dt_ns // 2) // dt_ns): u for s, u in inputs_ns.items()}, custom,
+                  {int((s + dt_ns // 2) // dt_ns): w for s, w in wind_ns.items()})
 
 
 def bag_custom_data(bag: str | Path) -> dict[str, str]:
@@ -247,6 +252,14 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
             last = inputs.get(k, last)
             series.append(last)
         roll = simulate_open_loop(agent, steps, inputs=torch.tensor(series, dtype=torch.float64) * scale)
+    elif loop == "locomotion_headwind":  # the agent's periodic wind, as the wind_source node sends it
+        from bptsb_ros.tasks.locomotion import wind_blowing
+
+        loc = agent.config["locomotion"]
+        on = wind_blowing(np.arange(steps + 1), agent.dt, float(loc["wind_period"]))
+        wind = torch.zeros(steps + 1, 2, dtype=torch.float64)
+        wind[torch.from_numpy(on), 0] = float(loc["wind_force"])
+        roll = simulate_open_loop(agent, steps, wind=wind)
     else:
         roll = simulate_open_loop(agent, steps)
     return trajectory_from_rollout(agent.body, roll).positions
@@ -320,13 +333,33 @@ def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | N
         speeds = {"live": plots["speed"]}
         if "speed" in plots.get("offline", {}):
             speeds["offline"] = plots["offline"]["speed"]
-        files.append(P.plot_speed(out_dir / "speed.png", plots["t"], speeds, window=max(1, int(round(1.0 / run.dt)))))
+        files.append(P.plot_speed(out_dir / "speed.png", plots["t"], speeds, window=max(1, int(round(1.0 / run.dt))),
+                                  shade=wind_periods(run), shade_label="wind blowing"))
     elif task == "narma" and "u" in plots:
         files.append(P.plot_series(out_dir / "narma.png", {"input u": plots["u"], "target y": plots["y"],
                                                           "live output": plots["out"]}, "sample", "value"))
     if gif and len(run.springs):
         files.append(_animate(out_dir / "replay.gif", run))
     return files
+
+
+def wind_periods(run: BagRun) -> list[tuple[float, float]]:
+    """Time intervals [s] in which a non-zero wind was in force (from ``env/wind``), as (start, end) pairs;
+    a wind stamped at step k holds until the next message."""
+    if not run.wind:
+        return []
+    steps = sorted(run.wind)
+    out: list[tuple[float, float]] = []
+    end_step = int(run.steps[-1])
+    for i, k in enumerate(steps):
+        nxt = steps[i + 1] if i + 1 < len(steps) else end_step + 1
+        if run.wind[k] != 0 and nxt > k:
+            a, b = k * run.dt, nxt * run.dt
+            if out and abs(out[-1][1] - a) < 1e-9:
+                out[-1] = (out[-1][0], b)
+            else:
+                out.append((a, b))
+    return out
 
 
 def _animate(path: Path, run: BagRun) -> Path:

@@ -21,11 +21,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, help="run directory (default runs/reproduce/NAME)")
     parser.add_argument("--force", action="store_true", help="replace an existing result.json in --out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None,
+                       help="experiments with independent trainings: local worker processes (default: the CPUs)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="... or the Dask distributed scheduler to run them on (tcp://HOST:8786)")
 
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.config import ConfigError
     from bptsb_ros.experiments import ExperimentError, experiments, run_experiment
+    from bptsb_ros.sweep import SweepError
 
     if args.list:
         for exp in experiments().values():
@@ -37,8 +43,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         path, result = run_experiment(args.name, scale=args.scale, seed=args.seed, out_dir=args.out,
-                                      force=args.force, progress=not args.no_progress)
-    except (ExperimentError, ConfigError) as err:
+                                      force=args.force, progress=not args.no_progress, workers=args.workers,
+                                      scheduler=args.scheduler)
+    except (ExperimentError, ConfigError, SweepError) as err:
         print(f"bptsb reproduce: {err}", file=sys.stderr)
         return 2
     for row in result["rows"]:

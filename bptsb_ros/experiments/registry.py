@@ -26,6 +26,9 @@ from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentR
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.lissajous_closed_loop",
+    "bptsb_ros.experiments.locomotion_closed_loop",
+    "bptsb_ros.experiments.locomotion_perturbation",
+    "bptsb_ros.experiments.locomotion_headwind",
 )
 
 T = TypeVar("T")
@@ -44,6 +47,10 @@ class Context:
     out_dir: Path
     result: ExperimentResult
     progress: bool = True
+    #: where independent trainings run (``bptsb_ros.sweep``): local worker processes (None: the CPUs
+    #: available, 0: in this process) or a Dask scheduler address
+    workers: int | None = None
+    scheduler: str | None = None
     log: Callable[[str], None] = field(default=lambda msg: print(msg, file=sys.stderr, flush=True))
 
     def pick(self, *, smoke: T, short: T, paper: T) -> T:
@@ -114,7 +121,8 @@ def _git_commit() -> str | None:
 
 def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: str | Path | None = None,
                    force: bool = False, progress: bool = True,
-                   log: Callable[[str], None] | None = None) -> tuple[Path, dict[str, Any]]:
+                   log: Callable[[str], None] | None = None, workers: int | None = None,
+                   scheduler: str | None = None) -> tuple[Path, dict[str, Any]]:
     """Run one experiment and write ``out_dir/result.json``; returns (its path, its content).
 
     A non-empty ``out_dir`` (an earlier run) is kept unless ``force``; a failed run writes no result.json.
@@ -132,12 +140,14 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
     result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed))
     result.provenance = {
-        "command": f"bptsb reproduce {name} --scale {scale} --seed {seed}",
+        "command": f"bptsb reproduce {name} --scale {scale} --seed {seed}"
+                   + (f" --scheduler {scheduler}" if scheduler else f" --workers {workers}" if workers is not None
+                      else ""),
         "python": platform.python_version(),
         "machine": f"{platform.machine()}, {_cpu_count()} cores",
         "git_commit": _git_commit(),
     }
-    ctx = Context(scale, int(seed), out, result, progress=progress)
+    ctx = Context(scale, int(seed), out, result, progress=progress, workers=workers, scheduler=scheduler)
     if log is not None:
         ctx.log = log
     t0 = time.perf_counter()

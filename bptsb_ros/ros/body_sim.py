@@ -175,7 +175,10 @@ class BodySim(Node):
             source: CommandChannel(source, size, names, p["mode"], max_age_steps=max_age,
                                    bounds=lambda values, source=source: self.limits.check(source, values))
             for source, size, names in (("rest_length", topo.n_springs, self.spring_names),
-                                        ("force", 2 * body.n_movable, self.dof_names))
+                                        ("force", 2 * body.n_movable, self.dof_names),
+                                        # used when "wind" is in wait_for (a wind_source node): the wind of
+                                        # step k, stamped and synchronised like a command
+                                        ("wind", 2, ["x", "y"]))
         }
         allowed = tuple(p["command_publishers"])
         self.publisher_rules = {s: PublisherRule(s, allowed) for s in self.channels}
@@ -275,6 +278,9 @@ class BodySim(Node):
         return [(info.node_namespace, info.node_name) for info in infos]
 
     def _on_wind(self, msg: Vector3Stamped) -> None:
+        if "wind" in self.wait_sources:  # a synchronised wind source: stamped per step, like a command
+            self._on_stamped_wind(msg)
+            return
         self.callbacks += 1
         wind = np.array([msg.vector.x, msg.vector.y], dtype=np.float64)
         problem = self.wind_intake.offer(wind)
@@ -288,6 +294,20 @@ class BodySim(Node):
             if emit:
                 self.get_logger().info(f"wind set to ({wind[0]:g}, {wind[1]:g}) N per movable mass from step "
                                        f"{self.next_step}" + (f" ({held} earlier changes not logged)" if held else ""))
+
+    def _on_stamped_wind(self, msg: Vector3Stamped) -> None:
+        self.callbacks += 1
+        step = m.step_of(msg.header.stamp, self.dt_ns)
+        now = time.monotonic()
+        intruders = self._untrusted_publishers("wind", now)
+        if intruders:
+            rejection = self.channels["wind"].reject(
+                step, "untrusted_publisher", f"{self.subs['wind'].topic_name} also has publisher(s) not in "
+                f"command_publishers ({', '.join(intruders)}); its wind is ignored while they publish")
+        else:
+            rejection = self.channels["wind"].offer(step, [msg.vector.x, msg.vector.y], self.next_step, now)
+        if rejection is not None:
+            self._warn(f"reject:wind:{rejection.reason}", f"{rejection.message}; not applied")
 
     def _warn(self, key: str, text: str) -> None:
         emit, held = self.throttle(key)
@@ -343,6 +363,10 @@ class BodySim(Node):
         else:
             force = torch.from_numpy(force_cmd.values).to(dtype).view(-1, 2)
             self.stats.age.append(step - force_cmd.step)
+        if "wind" in self.wait_sources:  # the wind of this step (kept when it is missing: silent source)
+            wind_cmd = self.channels["wind"].take(step)
+            if wind_cmd is not None:
+                self.wind = wind_cmd.values if wind_cmd.values.any() else None
         if self.wind is not None:
             wind = torch.from_numpy(self.wind).to(dtype)
             force = wind.expand(self.body.n_movable, 2) if force is None else force + wind

@@ -20,6 +20,7 @@ NODES: dict[str, str] = {
     "feedback_brain": "bptsb_ros.ros.feedback_brain",
     "mlp_brain": "bptsb_ros.ros.mlp_brain",
     "task_input": "bptsb_ros.ros.task_input",
+    "wind_source": "bptsb_ros.ros.wind_source",
 }
 SIM_TIME = ("use_sim_time", True, "brains run on the body's /clock (sim time)")
 

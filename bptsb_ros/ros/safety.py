@@ -30,6 +30,7 @@ import numpy as np
 DEFAULT_PUBLISHERS: dict[str, tuple[str, ...]] = {
     "rest_length": ("swg_brain", "feedback_brain"),
     "force": ("mlp_brain",),
+    "wind": ("wind_source",),  # only when body_sim awaits a synchronised (stamped) wind: wait_for contains wind
 }
 #: ``command_publishers`` entry that accepts commands from any node (not for a shared network).
 ANY_PUBLISHER = "*"

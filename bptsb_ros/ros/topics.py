@@ -49,7 +49,7 @@ BODY_OUTPUTS: tuple[str, ...] = ("clock", "positions", "mass_states", "spring_le
 BODY_INPUTS: tuple[str, ...] = ("rest_length_cmd", "force_cmd", "wind")
 
 #: Command sources the body can wait for in lockstep, by the topic key they arrive on.
-COMMAND_SOURCES: dict[str, str] = {"rest_length": "rest_length_cmd", "force": "force_cmd"}
+COMMAND_SOURCES: dict[str, str] = {"rest_length": "rest_length_cmd", "force": "force_cmd", "wind": "wind"}
 
 
 def feedback_state_key(state_type: str) -> str:

@@ -292,11 +292,17 @@ def simulate_closed_loop(
     displacement: torch.Tensor | None = None,
     check_every: int = 1000,
     progress: Callable[[int], None] | None = None,
+    handover: SineWaveGenerator | None = None,
+    handover_steps: int = 0,
 ) -> Rollout:
     """Closed loop: the rest length at step k+1 is ``feedback.rest_length(body.l, state_k)``.
 
     The start state defaults to rest (base rest lengths, optionally displaced); row 0 records the
     base rest lengths. ``progress`` as in :func:`simulate_open_loop`.
+
+    ``handover``: a transition period from this SWG to the FL (the paper's discussion): over the first
+    ``handover_steps`` steps the control signal is (1 − α)·SWG(t) + α·FL(state), α = i / handover_steps
+    rising linearly from 0 at the start to 1 (SWG clock from ``state.step``); then the FL alone.
     """
     ext = _add_wind(body, None, wind, steps)
     forces = None if ext is None else ext.unbind(0)
@@ -306,8 +312,18 @@ def simulate_closed_loop(
             external_force=None if forces is None else forces[0],
             displacement=displacement,
         )
-    return _run(body, steps, state, body.l.expand_as(state.length),
-                lambda _i, prev: feedback.rest_length(body.l, prev), forces, check_every, progress)
+    if handover is None or handover_steps <= 0:
+        def rest_at(_i: int, prev: BodyState) -> torch.Tensor:
+            return feedback.rest_length(body.l, prev)
+    else:
+        k0 = state.step
+
+        def rest_at(i: int, prev: BodyState) -> torch.Tensor:
+            alpha = min(i / handover_steps, 1.0)
+            t = torch.tensor([(k0 + i) * body.dt], dtype=body.l.dtype)
+            mix = alpha * feedback.signal(prev) + (1 - alpha) * handover.signal(t)
+            return body.l * (1 + mix)
+    return _run(body, steps, state, body.l.expand_as(state.length), rest_at, forces, check_every, progress)
 
 
 def _add_wind(body: MSDN, ext: torch.Tensor | None, wind: torch.Tensor | None, steps: int) -> torch.Tensor | None:

@@ -70,11 +70,17 @@ class SwgWindowTask(Task):
     def num_updates(self) -> int:
         return max(1, int(round(self.cfg.sim_time / (self.window * self.agent.dt))))
 
+    def window_forces(self, first_step: int) -> torch.Tensor | None:
+        """(W, M, 2) external force [N] in force at steps first_step+1 .. first_step+W, or None (default)."""
+        del first_step
+        return None
+
     def run_window(self) -> Window:
         """Simulate the next window with gradients; the carried state advances only if it stayed finite."""
         body = self.agent.body
         rest = swg_rest_lengths(body, self.agent.brain, self.state.step + 1, self.window)
-        win = rollout_window(body, self.state, rest, adjoint=self.cfg.training.adjoint)
+        win = rollout_window(body, self.state, rest, self.window_forces(self.state.step),
+                             adjoint=self.cfg.training.adjoint)
         final = win.final.detach()
         body.check_finite(final)
         self.state = final

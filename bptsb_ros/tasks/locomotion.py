@@ -23,6 +23,16 @@ from bptsb_ros.sim.rollout import Rollout, simulate_closed_loop, simulate_open_l
 from bptsb_ros.tasks.base import SwgWindowTask
 
 
+def wind_blowing(steps: np.ndarray | torch.Tensor, dt: float, period: float) -> np.ndarray:
+    """Whether the periodic wind blows at the given steps: calm for the first half of every ``period`` [s],
+    blowing for the second half (t = step·dt); ``period`` 0: always blowing."""
+    t = np.asarray(steps, dtype=np.float64) * dt
+    if period <= 0:
+        return np.ones(t.shape, dtype=bool)
+    # a half-step margin keeps the switch on the intended step despite rounding of t / period
+    return np.mod(t + 0.5 * dt, period) >= 0.5 * period
+
+
 def forward_speed(v: torch.Tensor) -> torch.Tensor:
     """Mean x-velocity over all (movable) masses: v (..., M, 2) → (...) [m/s]."""
     return v[..., 0].mean(-1)
@@ -71,11 +81,27 @@ class LocomotionTask(SwgWindowTask):
             v = torch.cat([v_start, v[:-1]])
         speed = forward_speed(v).view(-1, self.block).mean(-1)  # (blocks,)
         block_end = k0 + self.block * torch.arange(1, speed.shape[0] + 1, dtype=speed.dtype)
-        target = self.cfg.locomotion.target_slope * (block_end - self.train_start_step) * self.agent.dt
+        if self.cfg.locomotion.target_speed is not None:  # headwind switching: a constant target
+            target = torch.full_like(speed, self.cfg.locomotion.target_speed)
+        else:
+            target = self.cfg.locomotion.target_slope * (block_end - self.train_start_step) * self.agent.dt
         loss = ((speed - target) ** 2).mean()
         return loss, {"speed": float(speed.detach().mean())}
 
+    def window_forces(self, first_step: int) -> torch.Tensor | None:
+        """The periodic wind along x on every mass at steps first_step+1 .. first_step+W (None if no wind)."""
+        loc = self.cfg.locomotion
+        if loc.wind_force == 0:
+            return None
+        body = self.agent.body
+        on = wind_blowing(np.arange(first_step + 1, first_step + 1 + self.window), body.dt, loc.wind_period)
+        force = torch.zeros(self.window, body.n_movable, 2, dtype=body.l.dtype)
+        force[torch.from_numpy(on), :, 0] = loc.wind_force
+        return force
+
     def target_speed_now(self) -> float:
+        if self.cfg.locomotion.target_speed is not None:
+            return self.cfg.locomotion.target_speed
         start = self.train_start_step if self.train_start_step is not None else self.state.step
         return self.cfg.locomotion.target_slope * (self.state.step - start) * self.agent.dt
 

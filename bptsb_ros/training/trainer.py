@@ -54,6 +54,7 @@ def train(
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = True,
+    init_from: str | Path | None = None,
 ) -> TrainResult:
     """Train ``cfg``'s agent, writing checkpoint.pt, config.yaml, metrics.json and plots to ``run_dir``.
 
@@ -62,6 +63,10 @@ def train(
     parameters that completed a training window without divergence ("last good"): a checkpoint due
     after update i is written once window i+1 ran with those parameters, and a run that diverges writes
     its last good state (also with ``checkpoint_every: 0``) before it stops.
+
+    ``init_from``: a trained run directory of the same task and body whose parameters and carried body state
+    this training continues from (additional training, e.g. headwind switching after forward locomotion); the
+    optimiser and the losses start afresh. Ignored when resuming.
 
     Raises:
         ConfigError: ``run_dir`` holds a run (neither ``resume`` nor ``overwrite``), or the config differs
@@ -98,6 +103,19 @@ def train(
         losses = list(extra["losses"])
         start = int(extra["update"])
         rejections = int(extra.get("rejections", 0))
+    elif init_from is not None:
+        payload = read_checkpoint(init_from)
+        if payload["config"].get("task") != cfg.task:
+            raise ConfigError(f"cannot continue from {init_from}: it trained task {payload['config'].get('task')!r}, "
+                              f"not {cfg.task!r}")
+        try:
+            for name, module in agent.modules().items():
+                if name in payload["modules"]:
+                    module.load_state_dict(payload["modules"][name])
+        except RuntimeError as err:  # shapes differ: another body or brain
+            raise ConfigError(f"cannot continue from {init_from}: its agent differs ({err})") from None
+        if "task_state" in payload["extra"]:
+            task.load_state_dict(payload["extra"]["task_state"])
     (run_dir / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
 
     total = task.num_updates()

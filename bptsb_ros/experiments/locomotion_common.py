@@ -1,0 +1,211 @@
+"""What the locomotion population experiments share: the forward-trained agents (one sweep job per seed, in a
+directory every locomotion experiment of the same settings reuses), their closed-loop evaluation with the
+variants the paper's discussion suggests, and a batched simulation for populations of one agent under many
+conditions (perturbations, wind values) that never aborts the batch for one diverging member.
+
+Closed-loop success (paper, main text): closed-loop speed / open-loop speed ≥ :data:`SUCCESS_RATIO`.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from bptsb_ros.agent import Agent
+from bptsb_ros.body.msdn import BodyState
+from bptsb_ros.brains import FeedbackLayer, SineWaveGenerator
+from bptsb_ros.config import FeedbackConfig
+from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
+from bptsb_ros.sweep import Job, SweepResult, run_sweep
+
+#: closed-loop / open-loop speed at or above which a closed loop counts as autonomous locomotion (paper)
+SUCCESS_RATIO = 0.7
+#: the paper's count: 8 of 20 agents succeeded
+PAPER_SUCCESSES, PAPER_AGENTS = 8, 20
+#: steps between stored gait frames
+GAIT_STRIDE = 5
+
+
+@dataclass(frozen=True)
+class AgentSettings:
+    """Forward training and closed-loop evaluation of one locomotion agent.
+
+    sim_time: training [s] (paper 1000); warmup_windows: untrained 200-step windows first (paper 100);
+    fit_time: open-loop run for the FL fit [s] (paper 100, its middle 60 % used); eval_time: open- and
+    closed-loop runs whose speeds are compared [s] (the original closed-loop config: 100);
+    handover_time: the transition variant's blend from SWG to FL [s]; gait_time: stored gait [s].
+    """
+
+    sim_time: float
+    warmup_windows: int = 100
+    fit_time: float = 100.0
+    eval_time: float = 100.0
+    handover_time: float = 5.0
+    gait_time: float = 2.0
+
+    def overrides(self) -> list[str]:
+        return [f"sim_time={self.sim_time}", f"locomotion.warmup_windows={self.warmup_windows}",
+                f"feedback.fit_time={self.fit_time}", f"locomotion.eval_time={self.eval_time}"]
+
+    def key(self) -> str:
+        """Short stable name of these settings (agents of equal settings are shared between experiments)."""
+        text = json.dumps(asdict(self), sort_keys=True)
+        return hashlib.sha1(text.encode()).hexdigest()[:8]
+
+
+def agents_dir(out_dir: Path, settings: AgentSettings) -> Path:
+    """Where the agents of ``settings`` live: beside the experiment directory, shared by the locomotion
+    experiments that run into the same parent (``runs/reproduce/``); a sweep there resumes, so agents trained
+    by one experiment are reused by the next."""
+    return Path(out_dir).resolve().parent / f"_locomotion-agents-{settings.key()}"
+
+
+def train_agents(out_dir: Path, settings: AgentSettings, seeds: list[int], *, workers: int | None,
+                 scheduler: str | None, log) -> SweepResult:
+    """Train (or reuse) one forward agent per seed as sweep jobs; returns the sweep's records."""
+    jobs = [Job(f"seed-{s}", functools.partial(forward_agent_job, settings, s)) for s in seeds]
+    where = agents_dir(out_dir, settings)
+    log(f"locomotion agents: {len(seeds)} seeds in {where} ({scheduler or f'{workers} workers'})")
+    last = [""]
+
+    def show(p) -> None:
+        if p.line() != last[0]:
+            last[0] = p.line()
+            log(p.line())
+
+    return run_sweep(jobs, where, workers=workers, scheduler=scheduler, progress=show)
+
+
+def forward_agent_job(settings: AgentSettings, seed: int, run_dir: Path) -> dict[str, Any]:
+    """Sweep job: train one agent forward, fit its FL (spring lengths, σ 0.2), evaluate open and closed loop
+    (the paper's method) and the two variants; store a short gait. Returns the numbers."""
+    from bptsb_ros.experiments.common import packaged_config
+    from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
+    from bptsb_ros.training.trainer import train
+
+    cfg = packaged_config("locomotion_forward", settings.overrides(), seed=seed)
+    res = train(cfg, run_dir, progress=False)
+    ev = res.metrics["evaluation"]
+    agent = load_agent(run_dir)
+    state = task_state(read_checkpoint(run_dir))
+    dt = agent.dt
+    steps = int(round(settings.eval_time / dt))
+    with torch.no_grad():
+        open_roll = simulate_open_loop(agent, steps, state=state)
+        v_open = centre_speed(open_roll.r[:, 0, :, 0], dt)
+        start = open_roll.final  # every closed loop takes over where the open-loop evaluation ended
+        closed = simulate_closed_loop(agent.body, agent.feedback, steps, state=start)
+        v_closed = centre_speed(closed.r[:, 0, :, 0], dt)
+        hand = int(round(settings.handover_time / dt))
+        handed = simulate_closed_loop(agent.body, agent.feedback, hand + steps, state=start, handover=agent.brain,
+                                      handover_steps=hand)
+        v_hand = centre_speed(handed.r[hand:, 0, :, 0], dt)
+        vel_fl = velocity_feedback(agent, cfg.feedback, state, seed)
+        vel = simulate_closed_loop(agent.body, vel_fl, steps, state=start)
+        v_vel = centre_speed(vel.r[:, 0, :, 0], dt)
+    gait_steps = int(round(settings.gait_time / dt))
+    np.savez_compressed(run_dir / "gait.npz", r=open_roll.r[: gait_steps + 1 : GAIT_STRIDE, 0].double().numpy(),
+                        dt=dt * GAIT_STRIDE, springs=np.asarray(agent.body.topology.springs))
+
+    def ratio(v: float) -> float:
+        return v / v_open if v_open > 0 else float("nan")
+
+    return {
+        "seed": seed, "loss_last": res.losses[-1], "train_seconds": res.metrics["train_seconds"],
+        "open_speed": v_open, "closed_speed": v_closed, "ratio": ratio(v_closed),
+        "success": bool(v_open > 0 and v_closed >= SUCCESS_RATIO * v_open),
+        # the trainer's own evaluation of the same agent (same runs: a cross-check)
+        "trainer_open_speed": ev["mean_forward_speed"], "trainer_ratio": ev.get("closed_over_open"),
+        "handover_speed": v_hand, "handover_ratio": ratio(v_hand),
+        "handover_success": bool(v_open > 0 and v_hand >= SUCCESS_RATIO * v_open),
+        "velocity_fl_speed": v_vel, "velocity_fl_ratio": ratio(v_vel),
+        "velocity_fl_success": bool(v_open > 0 and v_vel >= SUCCESS_RATIO * v_open),
+    }
+
+
+def velocity_feedback(agent: Agent, base: FeedbackConfig, state: BodyState, seed: int) -> FeedbackLayer:
+    """An FL fitted on the mass velocities instead of the spring lengths (same noise, same fit run)."""
+    from bptsb_ros.training.feedback_fit import fit_feedback
+
+    fl = FeedbackLayer(2 * agent.body.n_movable, agent.body.topology.n_springs, state_type="velocity",
+                       dtype=agent.dtype)
+    other = Agent(agent.config, agent.body, agent.brain, fl)
+    fit_feedback(other, base.model_copy(update={"state": "velocity"}), state, seed)
+    return fl
+
+
+def task_state(payload: dict[str, Any]) -> BodyState:
+    """The body state a training ended in, from a checkpoint payload."""
+    s = payload["extra"]["task_state"]
+    return BodyState(s["r"], s["v"], s["a"], s["length"], int(s["step"]))
+
+
+def centre_speed(x: torch.Tensor | np.ndarray, dt: float) -> float:
+    """Mean forward speed [m/s] from x positions (T+1, M) of all masses over T steps of ``dt``."""
+    x = np.asarray(x, dtype=np.float64)
+    centre = x.mean(-1)
+    return float((centre[-1] - centre[0]) / ((x.shape[0] - 1) * dt))
+
+
+@torch.no_grad()
+def batched_centre_x(agent: Agent, state: BodyState, steps: int, *, closed: FeedbackLayer | None = None,
+                     wind_x: torch.Tensor | None = None) -> tuple[np.ndarray, BodyState]:
+    """One batched simulation of ``steps`` steps from ``state`` (B members) → (centre x (steps+1, B) [m], the
+    final state).
+
+    Open loop (the SWG, clock from ``state.step``) unless ``closed`` (the FL drives from the first step);
+    ``wind_x``: (B,) or (steps+1, B) force along x on every mass [N]. Members that diverge become NaN and the
+    others go on (no divergence check aborts the batch).
+    """
+    body = agent.body
+    b = state.r.shape[0]
+    wind = None
+    if wind_x is not None:
+        w = torch.as_tensor(wind_x, dtype=body.l.dtype)
+        w = w.expand(steps + 1, b) if w.dim() == 1 else w
+        wind = torch.zeros(steps + 1, b, body.n_movable, 2, dtype=body.l.dtype)
+        wind[..., 0] = w[:, :, None]
+    swg = agent.brain if isinstance(agent.brain, SineWaveGenerator) else None
+    if closed is None and swg is None:
+        raise ValueError("an open loop needs an SWG agent")
+    out = np.empty((steps + 1, b))
+    out[0] = state.r[..., 0].double().mean(-1).numpy()
+    t = (torch.arange(state.step + 1, state.step + steps + 1, dtype=body.l.dtype) * body.dt)
+    rest_open = swg.rest_length(body.l, t) if closed is None else None
+    for i in range(1, steps + 1):
+        rest = rest_open[i - 1] if closed is None else closed.rest_length(body.l, state)
+        state = body.step(state, rest, None if wind is None else wind[i])
+        out[i] = state.r[..., 0].double().mean(-1).numpy()
+    return out, state
+
+
+def late_speed(x: np.ndarray, dt: float) -> np.ndarray:
+    """Mean forward speed [m/s] over the second half of a run: x (T+1, B) centre positions → (B,); NaN where
+    the member diverged."""
+    half = (x.shape[0] - 1) // 2
+    with np.errstate(invalid="ignore"):
+        return (x[-1] - x[-1 - half]) / (half * dt)
+
+
+def perturbed(agent: Agent, state: BodyState, sigma: torch.Tensor, seeds: torch.Tensor,
+              rest_length: torch.Tensor) -> BodyState:
+    """Copies of a batch-1 ``state``, the positions of every movable mass shifted by N(0, σ²) noise [m].
+
+    sigma, seeds: (B,); member b's noise comes from a generator seeded with seeds[b] (reproducible member by
+    member). Accelerations and spring lengths are recomputed at the shifted positions under ``rest_length``.
+    """
+    body = agent.body
+    m = body.n_movable
+    noise = torch.stack([torch.randn(m, 2, generator=torch.Generator().manual_seed(int(s)), dtype=torch.float64)
+                         for s in seeds.tolist()]).to(body.l.dtype)
+    r = state.r.expand(len(seeds), m, 2) + sigma.to(body.l.dtype)[:, None, None] * noise
+    v = state.v.expand_as(r).clone()
+    a, length = body.acceleration(r, v, rest_length, None)
+    return BodyState(r, v, a, length, state.step)

@@ -1,0 +1,161 @@
+"""Return rates of locomotion after perturbations (paper: Fig. 4(b), (c); Methods "Locomotion task"): the
+positions of the movable masses are shifted by Gaussian noise of standard deviation σ ∈ {0.0, 0.1, …, 1.0} [m],
+100 noise seeds per σ; a return succeeds when the speed afterwards is ≥ 0.7 × the speed before. Open loop (SWG)
+and closed loop (FL), for the agents whose closed loop succeeded in ``locomotion-closed-loop-20`` (their sweep
+is reused when it exists beside this run, trained otherwise).
+
+Per agent and loop type the 11 × 100 perturbed copies are ONE batched simulation. Speed before: the last half
+of a ``before`` run of the loop; speed after: the last half of the ``after`` run that starts at the perturbation
+(time to regain speed, as the paper's successful cases "gradually regained their speed").
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from bptsb_ros.experiments.locomotion_closed_loop import settings_for
+from bptsb_ros.experiments.locomotion_common import (
+    SUCCESS_RATIO,
+    batched_centre_x,
+    late_speed,
+    perturbed,
+    task_state,
+    train_agents,
+)
+from bptsb_ros.experiments.registry import Context, experiment
+
+SIGMAS = tuple(round(0.1 * i, 1) for i in range(11))
+#: |open − closed| return rate, averaged over σ, below which the two count as "almost the same"
+SAME_RATE = 0.15
+
+
+def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before: int, after: int,
+                 noise_seed0: int = 0) -> dict[str, np.ndarray]:
+    """One agent, one loop type (``closed``: its FL, or None for the SWG).
+
+    Runs ``before`` steps (batch 1), then ONE batched run of len(sigmas) × n_noise perturbed copies for ``after``
+    steps. Returns v_before (scalar array), v_after (S, n), success (S, n) and the centre x traces.
+    """
+    body = agent.body
+    dt = body.dt
+    x0, s0 = batched_centre_x(agent, state, before, closed=closed)
+    v_before = late_speed(x0, dt)[0]
+    sig = torch.as_tensor(np.repeat(sigmas, n_noise))
+    seeds = torch.arange(noise_seed0, noise_seed0 + len(sig))
+    if closed is None:
+        t = torch.tensor([s0.step * dt], dtype=body.l.dtype)
+        rest = agent.brain.rest_length(body.l, t)[0]
+    else:
+        rest = closed.rest_length(body.l, s0)[0]
+    start = perturbed(agent, s0, sig, seeds, rest)
+    x1, _ = batched_centre_x(agent, start, after, closed=closed)
+    v_after = late_speed(x1, dt).reshape(len(sigmas), n_noise)
+    with np.errstate(invalid="ignore"):
+        success = np.isfinite(v_after) & (v_after >= SUCCESS_RATIO * v_before) & (v_before > 0)
+    return {"v_before": np.asarray(v_before), "v_after": v_after, "success": success, "x_before": x0[:, 0],
+            "x_after": x1}
+
+
+@experiment(
+    "locomotion-perturbation",
+    paper_ref="Fig. 4(b), (c); Methods 'Locomotion task' (perturbation)",
+    summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
+            "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded",
+    durations={"smoke": "≈ 10 s", "short": "≈ 2 min after locomotion-closed-loop-20 (its agents reused)",
+               "paper": "≈ 15 min after locomotion-closed-loop-20"},
+)
+def run(ctx: Context) -> None:
+    from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
+
+    settings, n_agents = settings_for(ctx)
+    seeds = list(range(ctx.seed, ctx.seed + n_agents))
+    n_noise = ctx.pick(smoke=3, short=100, paper=100)
+    before_s, after_s = ctx.pick(smoke=(1.0, 2.0), short=(10.0, 20.0), paper=(20.0, 80.0))
+    max_agents = ctx.pick(smoke=1, short=8, paper=20)
+    sweep = train_agents(ctx.out_dir, settings, seeds, workers=ctx.workers, scheduler=ctx.scheduler, log=ctx.log)
+    results = sweep.results()
+    ok = [s for s in seeds if f"seed-{s}" in results and results[f"seed-{s}"]["success"]]
+    fallback = not ok
+    if fallback:  # no closed loop succeeded: perturb the best one, and say so
+        ranked = sorted((s for s in seeds if f"seed-{s}" in results),
+                        key=lambda s: -np.nan_to_num(results[f"seed-{s}"]["ratio"], nan=-np.inf))
+        ok = ranked[:1]
+    chosen = ok[:max_agents]
+    sigmas = np.array(SIGMAS)
+    rates = {"open": [], "closed": []}
+    example = {}
+    for s in chosen:
+        run_dir = sweep.out_dir / "jobs" / f"seed-{s}"
+        agent = load_agent(run_dir)
+        state = task_state(read_checkpoint(run_dir))
+        dt = agent.dt
+        for loop, fl in (("open", None), ("closed", agent.feedback)):
+            ctx.log(f"locomotion-perturbation: agent {s}, {loop} loop, {len(sigmas)} σ × {n_noise} seeds batched")
+            out = return_rates(agent, state, fl, sigmas, n_noise, int(round(before_s / dt)), int(round(after_s / dt)))
+            rates[loop].append(out["success"].mean(1))
+            if s == chosen[0]:
+                example[loop] = out
+    mean = {k: np.mean(v, 0) for k, v in rates.items()}
+    for loop, name in (("open", "SWG (open loop)"), ("closed", "FL (closed loop)")):
+        for sg in (0.0, 0.3, 0.5, 1.0):
+            i = int(np.argmin(np.abs(sigmas - sg)))
+            ctx.row(name, f"return rate at σ = {sg:.1f} m", "1", float(mean[loop][i]))
+    low, high = sigmas <= 0.4 + 1e-9, sigmas >= 0.6 - 1e-9
+    for loop in ("open", "closed"):
+        lo_rate, hi_rate = float(mean[loop][low].mean()), float(mean[loop][high].mean())
+        ctx.claim(f"{loop} loop: the return rate falls as σ grows (mean over σ ≥ 0.6 < mean over σ ≤ 0.4)",
+                  hi_rate < lo_rate, f"{hi_rate:.3f} vs {lo_rate:.3f}")
+    gap = float(np.mean(np.abs(mean["open"] - mean["closed"])))
+    ctx.claim(f"return rates of the SWG and the closed loop are almost the same (mean |difference| over σ "
+              f"≤ {SAME_RATE})", gap <= SAME_RATE, f"mean |open − closed| = {gap:.3f}")
+    ctx.figure(_plot(ctx.out_dir / "return_rate.png", sigmas, rates, mean, example, chosen, before_s, dt))
+    ctx.result.details = {
+        "agents": chosen, "successful_agents": [] if fallback else ok, "settings": settings.__dict__,
+        "fallback_best_agent": fallback, "noise_seeds_per_sigma": n_noise, "before_s": before_s, "after_s": after_s,
+        "sigmas": sigmas.tolist(),
+        "return_rate_mean": {k: v.tolist() for k, v in mean.items()},
+        "return_rate_per_agent": {k: [r.tolist() for r in v] for k, v in rates.items()},
+        "notes": ("No agent's closed loop succeeded; the agent with the best closed/open ratio was perturbed instead."
+                  if fallback else ""),
+    }
+
+
+def _plot(path: Path, sigmas, rates, mean, example, chosen, before_s: float, dt: float) -> Path:
+    import matplotlib.pyplot as plt
+
+    from bptsb_ros.analysis.plots import moving_average
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6), gridspec_kw={"width_ratios": [1.3, 1]})
+    colours = {"open": "C0", "closed": "C3"}
+    names = {"open": "SWG (open loop)", "closed": "FL (closed loop)"}
+    for loop in ("open", "closed"):
+        x = example[loop]
+        before = np.diff(x["x_before"]) / dt
+        i = int(np.argmin(np.abs(sigmas - 0.5)))
+        n_noise = x["success"].shape[1]
+        after = np.diff(x["x_after"][:, i * n_noise]) / dt
+        v = np.concatenate([before, after])
+        t = np.arange(1, len(v) + 1) * dt
+        a1.plot(*moving_average(t, v, 100), color=colours[loop], lw=1, label=f"{names[loop]}, σ = 0.5 m, noise seed 0")
+    a1.axvspan(before_s - 0.1, before_s + 0.1, color="orange", alpha=0.5, label="perturbation")
+    a1.set_xlabel("time [s]")
+    a1.set_ylabel("forward speed [m/s], 1 s average")
+    a1.set_title(f"agent {chosen[0]}", fontsize=9)
+    a1.legend(frameon=False, fontsize=7)
+    a1.grid(alpha=0.3)
+    for loop in ("open", "closed"):
+        for r in rates[loop]:
+            a2.plot(sigmas, r, color=colours[loop], lw=0.5, alpha=0.35)
+        a2.plot(sigmas, mean[loop], "o-", color=colours[loop], label=f"{names[loop]}, mean of {len(rates[loop])}")
+    a2.set_xlabel("perturbation σ [m]")
+    a2.set_ylabel("return rate")
+    a2.set_ylim(-0.03, 1.03)
+    a2.legend(frameon=False, fontsize=7)
+    a2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

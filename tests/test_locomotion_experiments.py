@@ -1,0 +1,186 @@
+"""Locomotion population experiments: the wind schedule, the batched simulation against single rollouts, the
+perturbation, the SWG→FL transition, continued training, and one smoke run of each experiment checked against
+recomputations from its own records."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bptsb_ros.agent import build_agent
+from bptsb_ros.config import ConfigError
+from bptsb_ros.experiments import run_experiment
+from bptsb_ros.experiments.common import packaged_config
+from bptsb_ros.experiments.locomotion_closed_loop import _binomial_interval
+from bptsb_ros.experiments.locomotion_common import batched_centre_x, late_speed, perturbed
+from bptsb_ros.experiments.locomotion_headwind import phase_speeds
+from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
+from bptsb_ros.tasks import get_task
+from bptsb_ros.tasks.locomotion import wind_blowing
+
+
+def test_wind_blowing_hand_values():
+    dt, period = 0.01, 2.0  # calm for t in [0, 1), blowing for t in [1, 2), calm again from t = 2
+    steps = np.array([0, 99, 100, 199, 200, 299, 300])
+    assert wind_blowing(steps, dt, period).tolist() == [False, False, True, True, False, False, True]
+    assert wind_blowing(steps, dt, 0.0).all()
+
+
+def test_task_window_forces_follow_the_schedule():
+    cfg = packaged_config("locomotion_headwind", ["locomotion.wind_period=4", "locomotion.wind_force=-1.5"])
+    task = get_task("locomotion")(build_agent(cfg), cfg)
+    force = task.window_forces(100)  # steps 101..300, t = 1.01..3.00 s; wind from t = 2 s (step 200)
+    assert force.shape == (200, 10, 2)
+    blowing = force[:, :, 0].eq(-1.5).all(1)
+    assert blowing.tolist() == [False] * 99 + [True] * 101
+    assert force[:, :, 1].abs().max() == 0 and force[:99].abs().max() == 0
+
+
+def test_phase_speeds_planted():
+    t = np.arange(1.0, 9.0)  # 1 s blocks ending at 1..8 s, period 4 s: calm (1, 2], early (2, 3], late (3, 4]
+    v = np.array([10, 20, 30, 40, 11, 21, 31, 41], dtype=float)
+    assert phase_speeds(t, v, 4.0) == {"calm": 20.5, "windy_early": 30.5, "windy_late": 40.5}
+
+
+def test_binomial_interval_hand_values():
+    # Binomial(20, 0.4): P(X ≤ 3) = 0.016, P(X ≤ 4) = 0.051; P(X ≥ 13) = 0.021, P(X ≥ 12) = 0.057
+    assert _binomial_interval(20, 0.4) == (4, 12)
+    assert _binomial_interval(2, 0.4) == (0, 2)  # P(X = 0) = 0.36, P(X = 2) = 0.16
+
+
+def test_late_speed():
+    dt = 0.01
+    t = np.arange(201) * dt
+    x = np.stack([np.where(t < 1, 0.0, 2.0 * (t - 1)), -t, np.full_like(t, np.nan)], 1)
+    np.testing.assert_allclose(late_speed(x[:, :2], dt), [2.0, -1.0])
+    assert np.isnan(late_speed(x, dt)[2])
+
+
+@pytest.fixture(scope="module")
+def walker():
+    """A fresh locomotion agent, its FL set to small planted weights, and a state after 1 s of open loop."""
+    cfg = packaged_config("locomotion_forward", [], seed=3)
+    agent = build_agent(cfg)
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        agent.feedback.weight.copy_(0.01 * torch.randn(agent.feedback.weight.shape, generator=gen))
+    state = simulate_open_loop(agent, 100).final
+    return agent, state
+
+
+def _expand(state, b):
+    return type(state)(state.r.expand(b, -1, -1), state.v.expand(b, -1, -1), state.a.expand(b, -1, -1),
+                       state.length.expand(b, -1), state.step)
+
+
+def test_batched_simulation_equals_single_rollouts(walker):
+    agent, state = walker
+    winds = torch.tensor([0.0, -1.0, 0.5])
+    x, _ = batched_centre_x(agent, _expand(state, 3), 150, wind_x=winds)
+    for b, w in enumerate(winds.tolist()):
+        single = simulate_open_loop(agent, 150, state=state, wind=torch.tensor([w, 0.0]))
+        np.testing.assert_allclose(x[:, b], single.r[:, 0, :, 0].double().mean(-1).numpy(), atol=2e-5)
+    xc, _ = batched_centre_x(agent, _expand(state, 2), 150, closed=agent.feedback)
+    closed = simulate_closed_loop(agent.body, agent.feedback, 150, state=state)
+    np.testing.assert_allclose(xc[:, 1], closed.r[:, 0, :, 0].double().mean(-1).numpy(), atol=2e-5)
+    assert not np.allclose(x[-1, 0], x[-1, 1])  # the wind matters
+
+
+def test_perturbation_shifts_by_seeded_noise(walker):
+    agent, state = walker
+    rest = agent.body.l.detach()
+    sig = torch.tensor([0.0, 0.5, 0.5])
+    out = perturbed(agent, state, sig, torch.tensor([7, 8, 9]), rest)
+    for b, (s, seed) in enumerate(((0.0, 7), (0.5, 8), (0.5, 9))):
+        noise = torch.randn(10, 2, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+        np.testing.assert_allclose(out.r[b].double(), state.r[0].double() + s * noise, atol=1e-6)
+    torch.testing.assert_close(out.v[1], state.v[0])
+    assert not torch.allclose(out.r[1], out.r[2])
+
+
+def test_handover_blends_swg_into_fl(walker):
+    agent, state = walker
+    body, swg, fl = agent.body, agent.brain, agent.feedback
+    h = 4
+    roll = simulate_closed_loop(body, fl, 6, state=state, handover=swg, handover_steps=h)
+    s = state
+    for i in range(1, 7):  # independent blend: l·(1 + (1 − i/h)·A sin(ω t + φ) + (i/h)·W·[s, 1]), i/h capped at 1
+        alpha = min(i / h, 1.0)
+        t = (state.step + i) * body.dt
+        swg_sig = swg.amplitude * torch.sin(swg.omega * t + swg.phase)
+        feats = torch.cat([s.length, torch.ones(1, 1)], 1)
+        fl_sig = feats @ fl.weight.T
+        rest = body.l * (1 + (1 - alpha) * swg_sig + alpha * fl_sig)
+        s = body.step(s, rest.detach())
+        torch.testing.assert_close(roll.r[i], s.r, atol=1e-6, rtol=0)
+
+
+def test_init_from_continues_a_run(tmp_path):
+    from bptsb_ros.training.checkpoint import load_agent
+    from bptsb_ros.training.trainer import train
+
+    base = ["sim_time=2", "locomotion.warmup_windows=0", "feedback.fit_time=2", "locomotion.eval_time=1"]
+    train(packaged_config("locomotion_forward", base, seed=5), tmp_path / "a", progress=False)
+    tiny = ["sim_time=2", "locomotion.eval_time=1", "training.lr={k: 1.0e-9, d: 1.0e-9, l: 1.0e-9, "
+            "amplitude: 1.0e-9, phase: 1.0e-9}", "locomotion.target_speed=0.1"]
+    train(packaged_config("locomotion_headwind", tiny, seed=1), tmp_path / "b", progress=False,
+          init_from=tmp_path / "a")
+    a, b = load_agent(tmp_path / "a"), load_agent(tmp_path / "b")
+    torch.testing.assert_close(b.body.k, a.body.k, atol=1e-4, rtol=0)
+    torch.testing.assert_close(b.brain.phase, a.brain.phase, atol=1e-6, rtol=0)
+    assert not torch.allclose(build_agent(packaged_config("locomotion_headwind", tiny, seed=1)).body.k, a.body.k)
+    with pytest.raises(ConfigError, match="task 'locomotion'"):
+        train(packaged_config("narma", ["epochs=1"]), tmp_path / "c", progress=False, init_from=tmp_path / "a")
+
+
+def test_smoke_runs_match_their_records(tmp_path):
+    """The three experiments at smoke scale, sharing their agents; every row and claim recomputed."""
+    _, cl = run_experiment("locomotion-closed-loop-20", scale="smoke", out_dir=tmp_path / "cl", progress=False,
+                           workers=0, log=lambda m: None)
+    sweep = json.loads(next(tmp_path.glob("_locomotion-agents-*/sweep.json")).read_text())
+    recs = [r["result"] for r in sweep["records"]]
+    assert len(recs) == 2 and sweep["done"] == 2
+    count = sum(r["open_speed"] > 0 and r["closed_speed"] >= 0.7 * r["open_speed"] for r in recs)
+    rows = {(r["system"], r["metric"]): r for r in cl["rows"]}
+    assert rows[("FL closed loop (paper's method)", "agents with closed/open speed ≥ 0.7")]["ours"] == count
+    assert rows[("FL closed loop (paper's method)", "agents with closed/open speed ≥ 0.7")]["paper"] == 8
+    for r in recs:  # the job's own open and closed runs equal the trainer's evaluation of the same agent
+        assert r["open_speed"] == pytest.approx(r["trainer_open_speed"], rel=1e-6)
+        assert r["ratio"] == pytest.approx(r["trainer_ratio"], rel=1e-6)
+    assert cl["claims"][0]["holds"] == (count > 0)
+    assert {"gaits.png", "closed_open_ratio.png"} <= set(cl["figures"])
+
+    _, pe = run_experiment("locomotion-perturbation", scale="smoke", out_dir=tmp_path / "pe", progress=False,
+                           workers=0, log=lambda m: None)
+    d = pe["details"]
+    assert len(d["sigmas"]) == 11 and d["noise_seeds_per_sigma"] == 3
+    mean = {k: np.array(v) for k, v in d["return_rate_mean"].items()}
+    per_agent = {k: np.array(v) for k, v in d["return_rate_per_agent"].items()}
+    for loop in ("open", "closed"):
+        np.testing.assert_allclose(per_agent[loop].mean(0), mean[loop])
+        assert ((per_agent[loop] * 3) % 1 == 0).all()  # rates are counts out of 3 seeds
+    sig = np.array(d["sigmas"])
+    holds = [c["holds"] for c in pe["claims"]]
+    assert holds[0] == (mean["open"][sig >= 0.6].mean() < mean["open"][sig <= 0.4].mean())
+    assert holds[2] == (np.abs(mean["open"] - mean["closed"]).mean() <= 0.15)
+
+    _, hw = run_experiment("locomotion-headwind", scale="smoke", out_dir=tmp_path / "hw", progress=False,
+                           workers=0, log=lambda m: None)
+    d = hw["details"]
+    forward = next(r for r in recs if r["seed"] == 0)
+    assert d["v_max"] == pytest.approx(forward["open_speed"]) and d["target"] == pytest.approx(d["v_max"] / 2)
+    winds = np.array(d["speed_vs_wind"]["F_wind"])
+    v = np.array([np.nan if u is None else u for u in d["speed_vs_wind"]["switching"]])
+    assert len(winds) == 61 and winds[0] == -2.0 and winds[-1] == 1.0
+    err = np.abs(v - d["target"]) / d["target"]
+    claims = {c["claim"][:30]: c["holds"] for c in hw["claims"]}
+    far = next(h for k, h in claims.items() if k.startswith("the speed is far"))
+    assert far == (np.nanmean(err[winds < -1]) > np.nanmean(err[(winds >= -1) & (winds <= 1)]))
+    ph = d["phase_speeds"]["switching"]
+    drop = next(h for k, h in claims.items() if k.startswith("the speed drops"))
+    assert drop == (ph["windy_early"] < ph["windy_late"]) or math.isnan(ph["windy_early"])
+    assert {"headwind_speed.png", "speed_vs_wind.png"} <= set(hw["figures"])
