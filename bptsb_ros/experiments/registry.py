@@ -45,6 +45,10 @@ class Context:
     result: ExperimentResult
     progress: bool = True
     log: Callable[[str], None] = field(default=lambda msg: print(msg, file=sys.stderr, flush=True))
+    #: the data directory an experiment reads (``--data DIR``), or None: the experiment's own default
+    data_dir: Path | None = None
+    #: the train/test split to use (``--split``; what it means is the experiment's data loader's business)
+    split: str = "auto"
 
     def pick(self, *, smoke: T, short: T, paper: T) -> T:
         """The setting for this run's scale."""
@@ -114,10 +118,12 @@ def _git_commit() -> str | None:
 
 def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: str | Path | None = None,
                    force: bool = False, progress: bool = True,
-                   log: Callable[[str], None] | None = None) -> tuple[Path, dict[str, Any]]:
+                   log: Callable[[str], None] | None = None, data_dir: str | Path | None = None,
+                   split: str = "auto") -> tuple[Path, dict[str, Any]]:
     """Run one experiment and write ``out_dir/result.json``; returns (its path, its content).
 
-    An existing ``result.json`` is kept unless ``force``; a failed run writes no result.
+    ``data_dir`` and ``split`` are passed to experiments that read a data set (MNIST). An existing
+    ``result.json`` is kept unless ``force``; a failed run writes no result.
     """
     exp = get_experiment(name)
     if scale not in SCALES:
@@ -130,13 +136,19 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
     except OSError as err:
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
     result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed))
+    command = f"bptsb reproduce {name} --scale {scale} --seed {seed}"
+    if data_dir is not None:
+        command += f" --data {data_dir}"
+    if split != "auto":
+        command += f" --split {split}"
     result.provenance = {
-        "command": f"bptsb reproduce {name} --scale {scale} --seed {seed}",
+        "command": command,
         "python": platform.python_version(),
         "machine": f"{platform.machine()}, {_cpu_count()} cores",
         "git_commit": _git_commit(),
     }
-    ctx = Context(scale, int(seed), out, result, progress=progress)
+    ctx = Context(scale, int(seed), out, result, progress=progress,
+                  data_dir=None if data_dir is None else Path(data_dir), split=split)
     if log is not None:
         ctx.log = log
     t0 = time.perf_counter()
