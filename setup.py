@@ -96,7 +96,7 @@ setup(
     description="Backpropagation through soft body (BPTSB): differentiable mass-spring-damper bodies and "
     "their brains, trained offline in torch and run live as ROS 2 nodes recorded to MCAP.",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
-    package_data={PACKAGE: ["ros/TOPICS.md"]},
+    package_data={PACKAGE: ["ros/TOPICS.md", "tasks/digit_targets.json"]},
     python_requires=">=3.11",
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
@@ -114,6 +114,7 @@ setup(
         "mcap>=1.6",
         "imageio",
         "pillow",
+        "scikit-learn",
     ],
     extras_require={
         # A full ROS 2 Jazzy install provides these through apt; without one they come as wheels.
