@@ -120,3 +120,25 @@ def reusable_checkpoint(path: Path, meta: dict[str, Any]) -> bool:
     except Exception:  # noqa: BLE001 - an unreadable file is simply not reused
         return False
     return all(extra.get(k) == v for k, v in meta.items())
+
+
+def obtain_drawing_system(ctx: Context, spec, data: Data, *, epochs: int, batch: int, meta: dict[str, Any],
+                          reuse: Path | None = None):
+    """A trained drawing system and its test evaluation: loaded from ``reuse`` when that checkpoint was
+    trained with ``meta``, else trained here (written to ``out_dir/systems``). Returns (system, evaluation,
+    source description)."""
+    from bptsb_ros.tasks.mnist_drawing import evaluate_drawing, load_system
+
+    if reuse is not None and reusable_checkpoint(reuse, meta):
+        system, _ = load_system(reuse)
+        ctx.log(f"reusing the trained system {reuse}")
+        return system, evaluate_drawing(system, data.test_x, data.test_y), f"reused {reuse}"
+    path = ctx.out_dir / "systems" / f"{spec.name}.pt"
+    ctx.log(f"training {spec.name} for {epochs} epochs on {len(data.train_y)} images")
+    res = run_jobs(train_drawing_job, [dict(spec_json=spec.to_json(), seed=ctx.seed, train_x=data.train_x,
+                                            train_y=data.train_y, test_x=data.test_x, test_y=data.test_y,
+                                            epochs=epochs, batch=batch, checkpoint=str(path), meta=meta)],
+                   ctx.log)[0]
+    system, _ = load_system(path)
+    evaluation = {k: res[k] for k in ("errors", "drawings", "brain", "displacement")}
+    return system, evaluation, f"trained here ({res['updates']} updates, {res['train_s']:.0f} s)"

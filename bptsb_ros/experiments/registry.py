@@ -27,6 +27,8 @@ from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentR
 MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.lissajous_closed_loop",
     "bptsb_ros.experiments.mnist_drawing",
+    "bptsb_ros.experiments.mnist_pca",
+    "bptsb_ros.experiments.mnist_labelmap",
 )
 
 T = TypeVar("T")
