@@ -29,6 +29,8 @@ MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.mnist_drawing",
     "bptsb_ros.experiments.mnist_pca",
     "bptsb_ros.experiments.mnist_labelmap",
+    "bptsb_ros.experiments.mnist_specific100",
+    "bptsb_ros.experiments.mnist_readout",
 )
 
 T = TypeVar("T")
