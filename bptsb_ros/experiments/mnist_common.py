@@ -23,6 +23,9 @@ import numpy as np
 from bptsb_ros.data.mnist import Split, load_split
 from bptsb_ros.experiments.registry import Context
 
+#: environment variable capping the worker processes of independent trainings
+WORKERS_ENV = "BPTSB_WORKERS"
+
 
 @dataclass(frozen=True)
 class Data:
@@ -74,9 +77,11 @@ def _init_worker() -> None:
 
 
 def run_jobs(fn: Callable[..., Any], jobs: list[dict[str, Any]], log: Callable[[str], None]) -> list[Any]:
-    """Run independent trainings ``fn(**job)`` in a process pool (one worker per core, at most one per job);
-    results in job order. A single job or a single core runs in this process."""
-    workers = min(len(jobs), len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+    """Run independent trainings ``fn(**job)`` in a process pool (one worker per core, or ``$BPTSB_WORKERS``, at
+    most one per job); results in job order. With one worker the jobs run in this process."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    limit = os.environ.get(WORKERS_ENV)
+    workers = min(len(jobs), int(limit) if limit else cores)
     if workers <= 1:
         _init_worker()
         return [fn(**job) for job in jobs]

@@ -32,7 +32,7 @@ def scale_settings(ctx: Context) -> dict[str, int | None]:
     """Training images, test images and epochs for the run's scale."""
     return {"n_train": ctx.pick(smoke=50, short=None, paper=None),
             "n_test": ctx.pick(smoke=30, short=None, paper=None),
-            "epochs": ctx.pick(smoke=1, short=5, paper=50)}
+            "epochs": ctx.pick(smoke=1, short=3, paper=50)}
 
 
 def nearest_target_accuracy(drawings: np.ndarray, labels: np.ndarray) -> float:

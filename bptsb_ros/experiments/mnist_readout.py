@@ -53,7 +53,7 @@ def run(ctx: Context) -> None:
 
     n_train = ctx.pick(smoke=50, short=None, paper=None)
     n_test = ctx.pick(smoke=30, short=None, paper=None)
-    epochs = ctx.pick(smoke=1, short=3, paper=100)
+    epochs = ctx.pick(smoke=1, short=2, paper=100)
     data = load_data(ctx, n_train, n_test)
     jobs = [dict(shape=shape, nodes=nodes, seed=ctx.seed, train_x=data.train_x, train_y=data.train_y,
                  test_x=data.test_x, test_y=data.test_y, epochs=epochs) for shape, nodes, _, _ in SYSTEMS]
