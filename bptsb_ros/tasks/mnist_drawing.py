@@ -30,6 +30,11 @@ from bptsb_ros.tasks.digits import load_targets, padded_targets
 N_PIXELS = 784
 #: the paper's learning rates for MNIST (supplement table): k, d, l and the LIL/MLP, plain SGD
 PAPER_LR = {"k": 1e4, "d": 1e3, "l": 1.0, "brain": 1.0}
+#: metres of initial displacement per unit of brain output, per brain. The rule: the untrained brain places
+#: the masses ≈ 0.2-0.4 m (size/20-size/10) from rest on MNIST images. The LIL's N(0, 1) weights give outputs
+#: of ≈ 8 (‖x‖ ≈ 9 for an MNIST image), hence 0.05 m (mean |displacement| 0.32 m, multiple-circle 17); the
+#: Xavier MLP's outputs are ≈ 0.2 already, hence 1 (mean |displacement| 0.20 m).
+DISPLACEMENT_SCALE = {"lil": 0.05, "mlp": 1.0}
 
 
 @dataclass(frozen=True)
@@ -41,8 +46,9 @@ class SystemSpec:
     displacement_scale: metres of initial displacement per unit of brain output [m].
     lr: learning rates per parameter kind (k, d, l, brain); optimizer ``sgd`` (the paper) or ``adam``.
 
-    ``displacement_scale`` is ours (the paper does not say how brain outputs become metres): 0.05 m per unit
-    makes the LIL's N(0, 1) initial weights place the masses ≈ 0.4 m (size/10) from rest on MNIST images.
+    ``displacement_scale`` is ours (the paper does not say how brain outputs become metres); by default it is
+    chosen per brain so that both untrained brains place the masses a similar distance from rest on MNIST
+    images (:data:`DISPLACEMENT_SCALE`).
     """
 
     brain: str = "mlp"
@@ -51,7 +57,7 @@ class SystemSpec:
     size: float = 4.0
     hidden: int = 128
     dt: float = 0.01
-    displacement_scale: float = 0.05
+    displacement_scale: float | None = None
     optimizer: str = "sgd"
     lr: dict[str, float] = field(default_factory=lambda: dict(PAPER_LR))
     dtype: str = "float32"
@@ -59,6 +65,8 @@ class SystemSpec:
     def __post_init__(self) -> None:
         if self.brain not in ("lil", "mlp"):
             raise ValueError(f"brain must be 'lil' or 'mlp', got {self.brain!r}")
+        if self.displacement_scale is None:
+            object.__setattr__(self, "displacement_scale", DISPLACEMENT_SCALE[self.brain])
         if self.optimizer not in ("sgd", "adam"):
             raise ValueError(f"optimizer must be 'sgd' or 'adam', got {self.optimizer!r}")
         unknown = set(self.lr) - {"k", "d", "l", "brain"}
