@@ -30,7 +30,7 @@ NODES = 37
     "mnist-labelmap",
     paper_ref="Fig. 2(d)/(e); Methods; supplement 'Label maps'",
     summary="MLP + multiple-circle 37 (17 movable): label maps per placed mass, label-map sizes, joined-to-CMP claim",
-    durations={"smoke": "≈ 15 s", "short": "≈ 3 min (8,000 images, 5 epochs; 15×15 grids)",
+    durations={"smoke": "≈ 10 s", "short": "≈ 3 min (8,000 images, 3 epochs; 15×15 grids)",
                "paper": "≈ 2 h (60,000 images, 50 epochs; 41×41 grids)"},
 )
 def run(ctx: Context) -> None:

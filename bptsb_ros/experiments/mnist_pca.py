@@ -22,7 +22,7 @@ from bptsb_ros.experiments.registry import Context, experiment
     "mnist-pca",
     paper_ref="Fig. 2(c); main text 'Division of functional roles'",
     summary="MLP + multiple-circle 17: brain output vs body output in 2-D PCA, label separation (silhouette, probe)",
-    durations={"smoke": "≈ 10 s", "short": "≈ 1 min (≈ 10 s reusing a short mnist-drawing run)",
+    durations={"smoke": "≈ 15 s", "short": "≈ 1½ min reusing a short mnist-drawing run (≈ 4 min training its own)",
                "paper": "≈ 1 h (60,000 images, 50 epochs) unless a paper-scale mnist-drawing run is reused"},
 )
 def run(ctx: Context) -> None:

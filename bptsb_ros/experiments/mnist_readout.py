@@ -45,8 +45,8 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
     "mnist-readout",
     paper_ref="supplement 'MNIST classification by reading states out' (Table)",
     summary="LIL → body → states every 0.1 s for 1 s → linear readout; only brain vs double/multiple-circle 17/65",
-    durations={"smoke": "≈ 20 s", "short": "≈ 8 min (8,000 images, 3 epochs; 2 processes)",
-               "paper": "≈ 12 h (60,000 images, 100 epochs, 5 systems on 2 cores)"},
+    durations={"smoke": "≈ 5-30 s", "short": "≈ 10 min under load (8,000 images, 2 epochs; 2 processes)",
+               "paper": "≈ 10 h on 2 free cores (60,000 images, 100 epochs, 5 systems)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_curves

@@ -35,8 +35,8 @@ def _short(shape: str) -> str:
     "mnist-specific100",
     paper_ref="supplement 'MNIST classification with specific inputs' (Fig. S: errors, label-map sizes, PCA)",
     summary="100 fixed images (10 per digit) train = test: {LIL, MLP} × four bodies; errors, PCA, label maps",
-    durations={"smoke": "≈ 30 s", "short": "≈ 6 min (150 epochs of 2 batches, 9 systems; 2 processes)",
-               "paper": "≈ 40 min (1,000 epochs; the paper gives no epoch count)"},
+    durations={"smoke": "≈ 25 s", "short": "≈ 22 min under load (150 epochs of 2 batches, 9 systems; 2 processes)",
+               "paper": "≈ 1 h on 2 free cores (1,000 epochs; the paper gives no epoch count)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_best_drawings, plot_error_bars
