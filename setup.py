@@ -97,7 +97,7 @@ setup(
     description="Backpropagation through soft body (BPTSB): differentiable mass-spring-damper bodies and "
     "their brains, trained offline in torch and run live as ROS 2 nodes recorded to MCAP.",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
-    package_data={PACKAGE: ["ros/TOPICS.md"]},
+    package_data={PACKAGE: ["ros/TOPICS.md", "tasks/digit_targets.json"]},
     python_requires=">=3.11",
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
@@ -118,6 +118,7 @@ setup(
         "imageio",
         "pillow",
         "distributed",  # bptsb sweep --scheduler: jobs on a Dask cluster; LocalCluster in the tests
+        "scikit-learn",
     ],
     extras_require={
         # A full ROS 2 Jazzy install provides these through apt; without one they come as wheels.

@@ -21,6 +21,7 @@ SUBCOMMANDS = (
     "reproduce",
     "report",
     "sweep",
+    "data",
 )
 
 

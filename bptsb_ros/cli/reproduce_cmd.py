@@ -20,6 +20,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--out", default=None, help="run directory (default runs/reproduce/NAME)")
     parser.add_argument("--force", action="store_true", help="replace an existing result.json in --out")
+    parser.add_argument("--data", default=None,
+                        help="data directory for experiments that read a data set (MNIST: the IDX files; "
+                             "default $BPTSB_MNIST_DIR)")
+    parser.add_argument("--split", default="auto", choices=("auto", "paper", "test-8k-2k"),
+                        help="MNIST split: paper = 60k train / 10k test; test-8k-2k = the first 8,000 / last "
+                             "2,000 images of the test set; auto (default) = paper when the training files "
+                             "exist, else test-8k-2k")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None,
@@ -30,6 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.config import ConfigError
+    from bptsb_ros.data.mnist import MnistError
     from bptsb_ros.experiments import ExperimentError, experiments, run_experiment
     from bptsb_ros.sweep import SweepError
 
@@ -44,8 +52,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         path, result = run_experiment(args.name, scale=args.scale, seed=args.seed, out_dir=args.out,
                                       force=args.force, progress=not args.no_progress, workers=args.workers,
-                                      scheduler=args.scheduler)
-    except (ExperimentError, ConfigError, SweepError) as err:
+                                      scheduler=args.scheduler, data_dir=args.data, split=args.split)
+    except (ExperimentError, ConfigError, SweepError, MnistError) as err:
         print(f"bptsb reproduce: {err}", file=sys.stderr)
         return 2
     for row in result["rows"]:

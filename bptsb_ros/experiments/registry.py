@@ -26,6 +26,11 @@ from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentR
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.lissajous_closed_loop",
+    "bptsb_ros.experiments.mnist_drawing",
+    "bptsb_ros.experiments.mnist_pca",
+    "bptsb_ros.experiments.mnist_labelmap",
+    "bptsb_ros.experiments.mnist_specific100",
+    "bptsb_ros.experiments.mnist_readout",
     "bptsb_ros.experiments.locomotion_closed_loop",
     "bptsb_ros.experiments.locomotion_perturbation",
     "bptsb_ros.experiments.locomotion_headwind",
@@ -52,6 +57,10 @@ class Context:
     workers: int | None = None
     scheduler: str | None = None
     log: Callable[[str], None] = field(default=lambda msg: print(msg, file=sys.stderr, flush=True))
+    #: the data directory an experiment reads (``--data DIR``), or None: the experiment's own default
+    data_dir: Path | None = None
+    #: the train/test split to use (``--split``; what it means is the experiment's data loader's business)
+    split: str = "auto"
 
     def pick(self, *, smoke: T, short: T, paper: T) -> T:
         """The setting for this run's scale."""
@@ -122,10 +131,13 @@ def _git_commit() -> str | None:
 def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: str | Path | None = None,
                    force: bool = False, progress: bool = True,
                    log: Callable[[str], None] | None = None, workers: int | None = None,
-                   scheduler: str | None = None) -> tuple[Path, dict[str, Any]]:
+                   scheduler: str | None = None, data_dir: str | Path | None = None,
+                   split: str = "auto") -> tuple[Path, dict[str, Any]]:
     """Run one experiment and write ``out_dir/result.json``; returns (its path, its content).
 
-    A non-empty ``out_dir`` (an earlier run) is kept unless ``force``; a failed run writes no result.json.
+    ``workers``/``scheduler`` say where experiments with independent trainings run them (``bptsb_ros.sweep``);
+    ``data_dir`` and ``split`` are passed to experiments that read a data set (MNIST). A non-empty ``out_dir``
+    (an earlier run) is kept unless ``force``; a failed run writes no result.json.
     """
     exp = get_experiment(name)
     if scale not in SCALES:
@@ -139,15 +151,20 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
     except OSError as err:
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
     result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed))
+    command = f"bptsb reproduce {name} --scale {scale} --seed {seed}"
+    if data_dir is not None:
+        command += f" --data {data_dir}"
+    if split != "auto":
+        command += f" --split {split}"
     result.provenance = {
-        "command": f"bptsb reproduce {name} --scale {scale} --seed {seed}"
-                   + (f" --scheduler {scheduler}" if scheduler else f" --workers {workers}" if workers is not None
-                      else ""),
+        "command": command + (f" --scheduler {scheduler}" if scheduler else f" --workers {workers}"
+                              if workers is not None else ""),
         "python": platform.python_version(),
         "machine": f"{platform.machine()}, {_cpu_count()} cores",
         "git_commit": _git_commit(),
     }
-    ctx = Context(scale, int(seed), out, result, progress=progress, workers=workers, scheduler=scheduler)
+    ctx = Context(scale, int(seed), out, result, progress=progress, workers=workers, scheduler=scheduler,
+                  data_dir=None if data_dir is None else Path(data_dir), split=split)
     if log is not None:
         ctx.log = log
     t0 = time.perf_counter()

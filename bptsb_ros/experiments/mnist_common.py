@@ -1,0 +1,149 @@
+"""What the MNIST experiments share: the data (``--data DIR`` / ``$BPTSB_MNIST_DIR``, ``--split``), training
+several systems as independent jobs in a process pool, and the trained drawing systems on disk.
+
+Trained drawing systems are written to ``RUN_DIR/systems/<brain>-<shape>-<nodes>.pt`` (spec + state dicts,
+read back with ``torch.load(weights_only=True)``) with the scale, seed and data split they were trained
+with. ``mnist-pca`` reuses the system of an ``mnist-drawing`` run in ``<its --out>/../mnist-drawing`` (the
+default layout ``runs/reproduce/NAME``) when that system was trained at the same scale, seed and split;
+otherwise it trains its own. Every result records where its system came from.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bptsb_ros.data.mnist import Split, load_split
+from bptsb_ros.experiments.registry import Context
+
+#: environment variable capping the worker processes of independent trainings
+WORKERS_ENV = "BPTSB_WORKERS"
+
+
+@dataclass(frozen=True)
+class Data:
+    """The images an experiment trains and tests on (float32 (n, 784) in [0, 1], int64 labels)."""
+
+    train_x: np.ndarray
+    train_y: np.ndarray
+    test_x: np.ndarray
+    test_y: np.ndarray
+    description: str
+
+    @property
+    def key(self) -> str:
+        """What identifies this data for checkpoint reuse."""
+        return f"{self.description}; n_train {len(self.train_y)}; n_test {len(self.test_y)}"
+
+
+def load_data(ctx: Context, n_train: int | None, n_test: int | None) -> Data:
+    """The split named by ``ctx.split`` from ``ctx.data_dir`` (or ``$BPTSB_MNIST_DIR``), cut to the first
+    ``n_train`` training and ``n_test`` test images (None: all)."""
+    split: Split = load_split(ctx.data_dir, ctx.split)
+    tx, ty = split.train_x[:n_train], split.train_y[:n_train]
+    sx, sy = split.test_x[:n_test], split.test_y[:n_test]
+    desc = split.description
+    if n_train is not None and n_train < len(split.train_y) or n_test is not None and n_test < len(split.test_y):
+        desc += f"; of these the first {len(ty)} training and {len(sy)} test images"
+    ctx.result.provenance["data"] = desc
+    ctx.log(f"MNIST: {desc}")
+    return Data(tx, ty, sx, sy, desc)
+
+
+def specific_images(x: np.ndarray, y: np.ndarray, per_digit: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``per_digit`` images of every digit chosen at random (supplement "with specific inputs": 10 × 10)."""
+    rng = np.random.default_rng(seed)
+    picks = []
+    for d in range(10):
+        idx = np.flatnonzero(y == d)
+        if len(idx) < per_digit:
+            raise ValueError(f"only {len(idx)} training images of digit {d}; need {per_digit}")
+        picks.append(rng.choice(idx, per_digit, replace=False))
+    order = np.concatenate(picks)
+    return x[order], y[order]
+
+
+def _init_worker() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def run_jobs(fn: Callable[..., Any], jobs: list[dict[str, Any]], log: Callable[[str], None]) -> list[Any]:
+    """Run independent trainings ``fn(**job)`` in a process pool (one worker per core, or ``$BPTSB_WORKERS``, at
+    most one per job); results in job order. With one worker the jobs run in this process."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    limit = os.environ.get(WORKERS_ENV)
+    workers = min(len(jobs), int(limit) if limit else cores)
+    if workers <= 1:
+        _init_worker()
+        return [fn(**job) for job in jobs]
+    log(f"{len(jobs)} trainings in a pool of {workers} processes")
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
+        futures = [pool.submit(fn, **job) for job in jobs]
+        return [f.result() for f in futures]
+
+
+def train_drawing_job(spec_json: dict[str, Any], seed: int, train_x: np.ndarray, train_y: np.ndarray,
+                      test_x: np.ndarray, test_y: np.ndarray, epochs: int, batch: int, checkpoint: str,
+                      meta: dict[str, Any]) -> dict[str, Any]:
+    """Train one drawing system, save it, evaluate it on the test images; returns logs and test outputs."""
+    from bptsb_ros.tasks.mnist_drawing import (
+        ImageToBody,
+        SystemSpec,
+        evaluate_drawing,
+        save_system,
+        train_drawing,
+    )
+
+    spec = SystemSpec.from_json(spec_json)
+    system = ImageToBody(spec, seed)
+    log = train_drawing(system, train_x, train_y, epochs=epochs, batch=batch, seed=seed)
+    Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
+    save_system(system, checkpoint, {**meta, "epochs": epochs, "batch": batch, "seed": seed})
+    ev = evaluate_drawing(system, test_x, test_y)
+    return {"name": spec.name, "losses": log.losses, "epoch_losses": log.epoch_losses, "train_s": log.wall_s,
+            "updates": len(log.losses), "checkpoint": checkpoint, **ev}
+
+
+def reusable_checkpoint(path: Path, meta: dict[str, Any]) -> bool:
+    """True when ``path`` holds a system trained with exactly ``meta`` (scale, seed, data, epochs...)."""
+    if not path.is_file():
+        return False
+    from bptsb_ros.tasks.mnist_drawing import load_system
+
+    try:
+        _, extra = load_system(path)
+    except Exception:  # noqa: BLE001 - an unreadable file is simply not reused
+        return False
+    return all(extra.get(k) == v for k, v in meta.items())
+
+
+def obtain_drawing_system(ctx: Context, spec, data: Data, *, epochs: int, batch: int, meta: dict[str, Any],
+                          reuse: Path | None = None):
+    """A trained drawing system and its test evaluation: loaded from ``reuse`` when that checkpoint was
+    trained with ``meta``, else trained here (written to ``out_dir/systems``). Returns (system, evaluation,
+    source description)."""
+    from bptsb_ros.tasks.mnist_drawing import evaluate_drawing, load_system
+
+    if reuse is not None and reusable_checkpoint(reuse, meta):
+        system, _ = load_system(reuse)
+        ctx.log(f"reusing the trained system {reuse}")
+        return system, evaluate_drawing(system, data.test_x, data.test_y), f"reused {reuse}"
+    path = ctx.out_dir / "systems" / f"{spec.name}.pt"
+    ctx.log(f"training {spec.name} for {epochs} epochs on {len(data.train_y)} images")
+    res = run_jobs(train_drawing_job, [dict(spec_json=spec.to_json(), seed=ctx.seed, train_x=data.train_x,
+                                            train_y=data.train_y, test_x=data.test_x, test_y=data.test_y,
+                                            epochs=epochs, batch=batch, checkpoint=str(path), meta=meta)],
+                   ctx.log)[0]
+    system, _ = load_system(path)
+    evaluation = {k: res[k] for k in ("errors", "drawings", "brain", "displacement")}
+    return system, evaluation, f"trained here ({res['updates']} updates, {res['train_s']:.0f} s)"
