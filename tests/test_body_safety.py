@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from bptsb_ros.ros.lockstep import CommandChannel
-from bptsb_ros.ros.safety import CommandLimits, DivergenceRecovery, PublisherRule, WindIntake, body_extent
+from bptsb_ros.ros.safety import (
+    CommandLimits,
+    DivergenceRecovery,
+    PublisherRule,
+    WindIntake,
+    body_extent,
+    rest_length_floor,
+)
 
 LIMITS = CommandLimits(max_rest_length=5.0, max_force=100.0, max_wind=10.0)
 
@@ -85,3 +92,14 @@ def test_divergence_recovery_restores_resets_or_stops():
     assert state is None and "on_divergence: stop" in text and stop.events == 1
     with pytest.raises(ValueError, match="policy"):
         DivergenceRecovery("ignore")
+
+
+def test_rest_length_floor_follows_the_agents_own_swg():
+    rest = np.array([1.0, 2.0])
+    assert rest_length_floor(rest, None) == 0.0
+    assert rest_length_floor(rest, np.array([0.5, -0.9])) == 0.0  # l·(1 − |A|) > 0: commands stay positive
+    # |A| = 1.5 on spring 0: its SWG reaches 1·(1 − 1.5) = −0.5; minus the largest swing max(1·1.5, 2·0.2) = 1.5
+    assert rest_length_floor(rest, np.array([1.5, 0.2])) == -2.0
+    limits = CommandLimits(5.0, min_rest_length=-2.0)
+    assert limits.check("rest_length", np.array([-1.9, 1.0])) is None
+    assert "(-2, 5] m" in limits.check("rest_length", np.array([-2.0, 1.0]))

@@ -52,7 +52,7 @@ def test_body_survives_hostile_commands(tmp_path, ros_env, ros_domain_id):
         if k == 5:  # a node that is not an allowed publisher joins and stamps commands ahead of the brain
             intruder.append(Probe(ros_domain_id, "intruder"))
             pub = intruder[0].node.create_publisher(JointState, "/brain/rest_length", cq)
-            assert Probe.wait_matched([pub], 10.0)
+            assert Probe.wait_matched([pub], 8.0)
             for ahead in range(5, STEPS + 3):
                 pub.publish(m.joint_state(ahead, DT_NS, names, position=evil))
         rest_pub.publish(m.joint_state(k, DT_NS, names, position=good[k]))
@@ -63,7 +63,8 @@ def test_body_survives_hostile_commands(tmp_path, ros_env, ros_domain_id):
     brain.subscribe(DiagnosticArray, "/diagnostics", sq)
     summary = tmp_path / "summary.json"
     body = start_node("body_sim", {
-        "task": "lissajous", "max_steps": STEPS, "wait_for": ["rest_length"], "command_timeout": 1.0,
+        # command_timeout outlasts the intruder's discovery: the brain's step-5 command waits for it (below)
+        "task": "lissajous", "max_steps": STEPS, "wait_for": ["rest_length"], "command_timeout": 8.0,
         "wait_for_subscribers": ["/clock:1", "/body/rest_length:1", "/diagnostics:1"],
         "summary_path": str(summary), "final_ack_timeout": 1.0, "command_publishers": ["test_brain"],
         "max_force": 1e12,

@@ -71,10 +71,10 @@ def test_lissajous_closed_loop_equals_offline(tmp_path, ros_env):
     ref = torch.cat([body.full_positions(open_part.r[:, 0]), body.full_positions(closed.r[1:, 0])]).numpy()
     assert np.abs(ref - ref[0]).max() > 0.05  # the body really moves
     assert np.abs(pos - ref).max() <= 1e-9
-    # replaying the live bag finds agent, loop and warm-up in it and gives the offline metric
+    # replaying the live bag with its agent finds loop and warm-up in it and gives the offline metric
     from bptsb_ros.analysis.replay import replay
 
-    metrics = replay(bag, tmp_path / "replay", gif=False)
+    metrics = replay(bag, tmp_path / "replay", run, gif=False)
     assert metrics["loop"] == "lissajous_closed" and metrics["missing_steps"] == 0
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9
     assert metrics["live"]["trajectory_mse_shift_min"] == pytest.approx(metrics["offline"]["trajectory_mse_shift_min"])

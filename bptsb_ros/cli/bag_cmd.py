@@ -9,9 +9,12 @@ import sys
 NAME = "bag"
 HELP = (
     "Inspect or repair a rosbag2 MCAP bag (a directory with metadata.yaml and <name>_0.mcap, or one .mcap file).\n"
-    "  info BAG      topics, types, message counts, duration, start/end, size, chunks (like `ros2 bag info`)\n"
-    "  recover BAG   rebuild a bag whose recorder was killed: keeps every complete chunk, rewrites the .mcap with\n"
-    "                indexes and summary (the damaged file is kept as <file>.damaged) and writes metadata.yaml\n"
+    "  info BAG      topics, types, message counts, duration, start/end, size, chunks (like `ros2 bag info`);\n"
+    "                lists chunks that fail their CRC check\n"
+    "  recover BAG   rebuild a killed or damaged bag: keeps every intact chunk (resynchronising past damaged\n"
+    "                records), reports what was dropped, rewrites the .mcap with indexes and summary (the\n"
+    "                damaged file is kept as <file>.damaged, .damaged.1, ...: never overwritten) and rebuilds\n"
+    "                a missing, unreadable or inconsistent metadata.yaml\n"
     "Example: bptsb bag info bags/demo"
 )
 
@@ -21,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info = sub.add_parser("info", help="show what a bag holds, like `ros2 bag info`")
     info.add_argument("bag", help="bag directory or .mcap file")
     info.add_argument("--json", action="store_true", help="print the information as JSON")
-    recover = sub.add_parser("recover", help="rebuild a bag left unfinished by a killed recorder")
+    recover = sub.add_parser("recover", help="rebuild a bag left unfinished by a killed recorder or damaged")
     recover.add_argument("bag", help="bag directory (or its .mcap file)")
     recover.add_argument("--delete-damaged", action="store_true",
                          help="delete the damaged original instead of keeping it as <file>.damaged")

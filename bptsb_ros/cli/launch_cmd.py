@@ -94,25 +94,25 @@ def die_with_parent_hook(sig: int = signal.SIGTERM) -> Callable[[], None] | None
     them in order), so without this a launcher killed outright (SIGKILL, e.g. a test timeout) would leave
     every node running. SIGTERM makes a node stop cleanly (the recorder closes its bag). The kernel sends the
     signal when the *thread* that started the child exits: :meth:`Launcher.start` runs in the main thread.
-    The hook also starts the child with SIGINT/SIGTERM blocked (``ros.runtime.block_stop_signals``): a stop
+    The hook also starts the child with SIGINT blocked (``ros.runtime.block_interrupt``): a Ctrl-C
     requested while the node is still importing and loading stays pending until its handlers are in place,
     so it stops cleanly instead of dying in a KeyboardInterrupt traceback. Where ``prctl`` is unavailable
-    (not Linux) the hook only blocks the signals.
+    (not Linux) the hook only blocks SIGINT.
     """
-    from bptsb_ros.ros.runtime import block_stop_signals  # ROS-free
+    from bptsb_ros.ros.runtime import block_interrupt  # ROS-free
 
     if not sys.platform.startswith("linux"):
-        return block_stop_signals
+        return block_interrupt
     try:
         import ctypes
 
         prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up here: the hook runs between fork and exec
     except (OSError, AttributeError):
-        return block_stop_signals
+        return block_interrupt
     parent = os.getpid()
 
     def hook() -> None:
-        block_stop_signals()  # held pending until the node's handlers are in place (ros/runtime.py)
+        block_interrupt()  # held pending until the node's handlers are in place (ros/runtime.py)
         prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
         if os.getppid() != parent:  # the launcher died before prctl took effect
             os._exit(1)

@@ -37,8 +37,8 @@ def run(args: argparse.Namespace) -> int:
     if ros_args and ros_args[0] != "--ros-args":
         print(f"error: arguments after the node name must start with --ros-args, got {ros_args[0]!r}", file=sys.stderr)
         return 2
-    from bptsb_ros.ros.runtime import block_stop_signals
+    from bptsb_ros.ros.runtime import block_interrupt
 
-    block_stop_signals()  # Ctrl-C while the node imports and starts: a clean stop, not a traceback
+    block_interrupt()  # Ctrl-C while the node imports and starts: a clean stop, not a traceback
     module = importlib.import_module(f"bptsb_ros.ros.{args.node}")
     return int(module.main(ros_args))

@@ -4,7 +4,8 @@ Nodes (each a module with ``main(args=None) -> int``, run as ``python -m bptsb_r
 ``bptsb run <node>`` or ``ros2 run bptsb_ros <node>``): ``body_sim``, ``swg_brain``,
 ``feedback_brain``, ``mlp_brain``, ``task_input``, ``recorder``. Shared pieces: ``topics`` (names,
 stamps; ROS-free), ``messages`` (QoS, conversions), ``params`` (declared, validated parameters),
-``lockstep`` (command validation and timing statistics; ROS-free), ``agent_source`` (which agent a
+``lockstep`` (command validation and timing statistics; ROS-free), ``safety`` (command bounds, the
+publisher rule, divergence recovery; ROS-free), ``agent_source`` (which agent a
 node runs), ``brain_node`` and ``runtime`` (node skeleton and process lifecycle). ``TOPICS.md``
 documents every topic. This package imports nothing at import time, so ROS-free modules stay so.
 """

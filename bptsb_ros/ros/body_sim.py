@@ -54,6 +54,7 @@ from bptsb_ros.ros.safety import (
     DivergenceRecovery,
     PublisherRule,
     WindIntake,
+    rest_length_floor,
     runaway,
 )
 from bptsb_ros.ros.topics import (
@@ -107,8 +108,11 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("summary_path", "", "write the run summary (timing, rejections) as JSON here at exit (empty: don't)",
           "str"),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
-    Param("max_rest_length", 0.0, "largest accepted rest-length command [m] (rest lengths must be > 0); 0: 10 x "
+    Param("max_rest_length", 0.0, "largest accepted rest-length command [m]; 0: 10 x "
           "the diagonal of the body's bounding box", "float", minimum=0.0),
+    Param("min_rest_length", 0.0, "rest-length commands must be > this [m]; 0: 0, unless the agent's SWG itself "
+          "commands rest lengths <= 0 (amplitude > 1): then its lowest SWG rest length minus one full swing",
+          "float"),
     Param("max_force", DEFAULT_MAX_FORCE, "largest accepted |component| of a force command [N]", "float",
           positive=True),
     Param("max_wind", DEFAULT_MAX_WIND, "largest accepted |component| of a wind message [N]", "float",
@@ -164,11 +168,14 @@ class BodySim(Node):
         self.mass_diameter = 0.04 * float(np.ptp(topo.positions, axis=0).max() or 1.0)
         depth = p["qos_depth"]
         max_age = max(1, int(math.floor(p["max_command_age"] / body.dt + 1e-9)))
+        amplitude = getattr(agent.brain, "amplitude", None)
+        floor = p["min_rest_length"] or rest_length_floor(
+            self.base.numpy(), None if amplitude is None else amplitude.detach().double().numpy())
         try:
             self.limits = CommandLimits.for_body(np.asarray(topo.positions), p["max_rest_length"], p["max_force"],
-                                                 p["max_wind"])
+                                                 p["max_wind"], floor)
         except ValueError as err:
-            raise ParameterError(f"parameters max_rest_length/max_force/max_wind: {err}") from None
+            raise ParameterError(f"parameters min_rest_length/max_rest_length/max_force/max_wind: {err}") from None
         self.channels = {
             source: CommandChannel(source, size, names, p["mode"], max_age_steps=max_age,
                                    bounds=lambda values, source=source: self.limits.check(source, values))
@@ -223,7 +230,11 @@ class BodySim(Node):
             f"{'trained' if trained else 'untrained'} body from {source}: {topo.name}, {topo.n_masses} masses "
             f"({body.n_movable} movable), {topo.n_springs} springs, dt {body.dt} s, {p['dtype']}; mode "
             f"{p['mode']}, {self._length_text()}, waiting for "
-            f"{', '.join(self.wait_sources) or 'no brain'}"
+            f"{', '.join(self.wait_sources) or 'no brain'}; accepting rest lengths in "
+            f"({self.limits.min_rest_length:g}, {self.limits.max_rest_length:g}] m, |force| <= "
+            f"{self.limits.max_force:g} N, |wind| <= {self.limits.max_wind:g} N, from "
+            f"{', '.join(self.publisher_rules['rest_length'].allowed)} (rest lengths) and "
+            f"{', '.join(self.publisher_rules['force'].allowed)} (forces)"
         )
 
     def _length_text(self) -> str:

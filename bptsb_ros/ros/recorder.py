@@ -49,7 +49,7 @@ from bptsb_ros.bags.recording import (
 )
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.ros.params import ParameterError, declare_parameters
-from bptsb_ros.ros.runtime import exit_process, ignore_stop_signals, unblock_stop_signals
+from bptsb_ros.ros.runtime import exit_process, ignore_stop_signals, unblock_interrupt
 
 
 class RecorderNode(Node):
@@ -202,12 +202,12 @@ def main(args: list[str] | None = None) -> int:
 
     code = check_cli("recorder", sys.argv[1:] if args is None else list(args), RECORDER_PARAMS, __doc__ or "")
     if code is not None:
-        unblock_stop_signals()
+        unblock_interrupt()
         return code
     stop = threading.Event()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    unblock_stop_signals()  # a stop requested during startup (held pending by the launcher) arrives now
+    unblock_interrupt()  # a stop requested during startup (held pending by the launcher) arrives now
     node: RecorderNode | None = None
     code: int | None = None  # set once the recorder has finished (an exception leaves it None and propagates)
     try:

@@ -9,11 +9,12 @@ terminal (a script's ``kill -INT -PGID``, systemd, a supervisor) reaches every n
 ``ros2 launch``, which forwards SIGINT to its children when it is non-interactive: those two copies of one
 request arrive within milliseconds and count as one, so the node still stops cleanly with its summary.
 
-A stop requested while the process is still starting (importing torch and rclpy, loading the agent) is a
-clean stop too: ``bptsb launch`` and ``bptsb run`` start a node with SIGINT/SIGTERM *blocked*
-(:func:`block_stop_signals`), so a signal that arrives during the imports stays pending instead of raising
-KeyboardInterrupt in the middle of them; :func:`install_stop_handlers` unblocks them once the handlers are
-in place, the pending signal sets the stop flag, and the node stops before its first step.
+A Ctrl-C while the process is still starting (importing torch and rclpy, loading the agent) is a clean
+stop too: ``bptsb launch`` and ``bptsb run`` start a node with SIGINT *blocked* (:func:`block_interrupt`),
+so a SIGINT that arrives during the imports stays pending instead of raising KeyboardInterrupt in the
+middle of them; :func:`install_stop_handlers` unblocks it once the handlers are in place, the pending
+signal sets the stop flag, and the node stops before its first step. SIGTERM is never blocked: it still
+ends a node that hangs before its handlers exist (the launcher's escalation, ``PR_SET_PDEATHSIG``).
 
 Exit codes: 0 clean (finished or stopped by a signal), 1 runtime failure, 2 bad parameters.
 """
@@ -77,19 +78,19 @@ class LiveNode(Protocol):
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-def block_stop_signals() -> None:
-    """Hold SIGINT/SIGTERM pending (inherited across exec) until :func:`unblock_stop_signals`."""
-    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+def block_interrupt() -> None:
+    """Hold SIGINT pending (the mask is inherited across exec) until :func:`unblock_interrupt`."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
 
 
-def unblock_stop_signals() -> None:
-    """Deliver any SIGINT/SIGTERM held pending by :func:`block_stop_signals` (call once handlers are set)."""
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+def unblock_interrupt() -> None:
+    """Deliver a SIGINT held pending by :func:`block_interrupt` (call once the handlers are set)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def install_stop_handlers(stop: StopFlag) -> None:
     """SIGINT/SIGTERM set ``stop``; a repeat more than ``DUPLICATE_WINDOW`` s later raises KeyboardInterrupt.
-    A signal held pending during startup is delivered now."""
+    A SIGINT held pending during startup is delivered now."""
 
     def handler(signum: int, frame: object) -> None:
         del frame
@@ -98,7 +99,7 @@ def install_stop_handlers(stop: StopFlag) -> None:
 
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)
-    unblock_stop_signals()
+    unblock_interrupt()
 
 
 def node_help(name: str, params: Sequence[Param], summary: str = "") -> str:
@@ -149,7 +150,7 @@ def run_node(name: str, factory: Callable[[StopFlag], LiveNode], args: list[str]
     argv = sys.argv[1:] if args is None else list(args)
     code = check_cli(name, argv, params, summary)
     if code is not None:
-        unblock_stop_signals()
+        unblock_interrupt()
         return code
 
     import rclpy

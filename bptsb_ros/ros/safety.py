@@ -1,9 +1,10 @@
 """Safety rules of the live body (ROS-free): physical bounds on commands, the rule for who may command the
 body, and recovery when the live simulation diverges anyway. ``body_sim`` calls these; they hold no ROS.
 
-* :class:`CommandLimits` — rest lengths in (0, ``max_rest_length``], every force component and wind
-  component within ±``max_force`` / ±``max_wind`` [N]. A command outside is rejected (``out_of_bounds``),
-  never integrated, and counted like the other rejections (wind included).
+* :class:`CommandLimits` — rest lengths in (``min_rest_length``, ``max_rest_length``] (the lower bound is 0
+  unless the agent's own SWG commands rest lengths <= 0, see :func:`rest_length_floor`), every force
+  component and wind component within ±``max_force`` / ±``max_wind`` [N]. A command outside is rejected
+  (``out_of_bounds``), never integrated, and counted like the other rejections (wind included).
 * :class:`PublisherRule` — commands are accepted only while every publisher on the command topic is a node
   named in ``command_publishers`` (default: this package's brains for that topic). DDS gives a subscriber
   no sender identity per message, so while any other node publishes on the topic, every command on it is
@@ -49,35 +50,53 @@ def body_extent(positions: np.ndarray) -> float:
     return float(np.hypot(*span)) or 1.0
 
 
+def rest_length_floor(rest: np.ndarray, amplitude: np.ndarray | None) -> float:
+    """Default lower bound [m] of rest-length commands for an agent with trained rest lengths ``rest`` (E,) and
+    SWG amplitudes ``amplitude`` (E,) (None: no SWG).
+
+    0 (commands must be positive) unless the SWG itself commands rest lengths <= 0: l·(1 + A sin) reaches
+    l·(1 − |A|) < 0 when |A| > 1, which the paper's model (and BPTSB training) allows. Then the bound is that
+    lowest SWG rest length minus one full swing max(l·|A|), room for the feedback layer that replaces the SWG.
+    """
+    if amplitude is None:
+        return 0.0
+    rest, amp = np.asarray(rest, dtype=np.float64), np.abs(np.asarray(amplitude, dtype=np.float64))
+    lowest = float((rest * (1.0 - amp)).min())
+    return 0.0 if lowest > 0 else lowest - float((rest * amp).max())
+
+
 @dataclass(frozen=True)
 class CommandLimits:
-    """Physical bounds of commands: rest lengths in (0, max_rest_length] [m], |force component| <= max_force [N],
-    |wind component| <= max_wind [N]."""
+    """Physical bounds of commands: rest lengths in (min_rest_length, max_rest_length] [m], |force component| <=
+    max_force [N], |wind component| <= max_wind [N]."""
 
     max_rest_length: float
     max_force: float = DEFAULT_MAX_FORCE
     max_wind: float = DEFAULT_MAX_WIND
+    min_rest_length: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("max_rest_length", "max_force", "max_wind"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {value}")
+        if not (np.isfinite(self.min_rest_length) and self.min_rest_length < self.max_rest_length):
+            raise ValueError(f"min_rest_length must be finite and below max_rest_length, got {self.min_rest_length}")
 
     @classmethod
     def for_body(cls, positions: np.ndarray, max_rest_length: float = 0.0, max_force: float = DEFAULT_MAX_FORCE,
-                 max_wind: float = DEFAULT_MAX_WIND) -> CommandLimits:
+                 max_wind: float = DEFAULT_MAX_WIND, min_rest_length: float = 0.0) -> CommandLimits:
         """Limits for a body with layout ``positions`` (N, 2); ``max_rest_length`` 0 means
         ``REST_LENGTH_EXTENT_FACTOR`` × its extent."""
         limit = max_rest_length or REST_LENGTH_EXTENT_FACTOR * body_extent(positions)
-        return cls(float(limit), float(max_force), float(max_wind))
+        return cls(float(limit), float(max_force), float(max_wind), float(min_rest_length))
 
     def check(self, source: str, values: np.ndarray) -> str | None:
         """Why finite ``values`` of command ``source`` (rest_length, force or wind) are out of bounds, or None."""
         vals = np.asarray(values, dtype=np.float64).reshape(-1)
         if source == "rest_length":
-            bad = np.flatnonzero((vals <= 0) | (vals > self.max_rest_length))
-            bound = f"(0, {self.max_rest_length:g}] m"
+            bad = np.flatnonzero((vals <= self.min_rest_length) | (vals > self.max_rest_length))
+            bound = f"({self.min_rest_length:g}, {self.max_rest_length:g}] m"
         else:
             limit = self.max_force if source == "force" else self.max_wind
             bad = np.flatnonzero(np.abs(vals) > limit)
