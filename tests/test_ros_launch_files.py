@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import time
@@ -202,26 +201,10 @@ def _read_bag(bag: Path):
     return [(m.topic, m.timestamp_ns, m.message) for m in read_messages(bag, ["/body/positions"])]
 
 
-def test_lockstep_bag_log_times_are_sim_time(tmp_path, ros_env):
-    env = _tools_env(ros_env)
-    bag = tmp_path / "bag"
-    out = _run(["ros2", "launch", "bptsb_ros", "lissajous_open.launch.py", "duration:=1", f"bag:={bag}"], env,
-               timeout=180)
-    text = out.stdout + out.stderr
-    assert out.returncode == 0, text[-4000:]
-    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    assert meta["custom_data"]["log_time"] == "sim"
-    rows = _read_bag(bag)
-    assert len(rows) == 101
-    for _, log_time, msg in rows:  # the recorder's clock follows /clock: a step's state is logged at its sim time
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        assert stamp - 10_000_000 <= log_time <= stamp + 10_000_000
-    assert abs(meta["duration"]["nanoseconds"] - 1_000_000_000) <= 20_000_000  # 1 s simulated = 1 s in the bag
-
-
 def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
     """``kill -INT -PGID`` of a non-interactive ``ros2 launch`` (a script, systemd): every node gets SIGINT from
-    the group and again from launch. Every node must stop cleanly: exit 0, the body's summary, a closed bag."""
+    the group and again from launch. Every node must stop cleanly: exit 0, the body's summary, a closed bag.
+    The bag of this lockstep run is on sim time: its log times follow /clock, not the wall clock."""
     env = _tools_env(ros_env)
     bag = tmp_path / "bag"
     log = (tmp_path / "launch.log").open("w")
@@ -253,4 +236,12 @@ def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
         assert f"[INFO] [{node.split('-')[0]}" in text or node in text
         assert "process has finished cleanly [pid" in text
     assert "exit code 1" not in text and (bag / "metadata.yaml").is_file()
-    assert shutil.which("ros2", path=env["PATH"])
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["custom_data"]["log_time"] == "sim"
+    rows = _read_bag(bag)
+    stamps = [msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec for _, _, msg in rows]
+    assert stamps == [10_000_000 * k for k in range(len(stamps))] and len(stamps) > 50
+    for (_, log_time, _), stamp in zip(rows, stamps, strict=True):  # the recorder's clock follows /clock: a state
+        assert abs(log_time - stamp) <= 200_000_000  # is logged near its step's sim time (its /clock subscription
+        # can run a few steps ahead of a backlog on a loaded machine); wall time would be ~1.8e18 ns
+    assert abs(meta["duration"]["nanoseconds"] - stamps[-1]) <= 200_000_000  # the bag lasts the simulated time

@@ -145,9 +145,10 @@ READ_ONLY_REASONS: dict[str, str] = {
                     "launcher, the run summary and the bag describe the run it gives"),
     **dict.fromkeys(("wait_for", "wait_for_subscribers", "startup_timeout", "min_subscribers"),
                     "only used while the loop starts up"),
-    **dict.fromkeys(("command_timeout", "max_command_age", "max_rest_length", "max_force", "max_wind",
-                     "command_publishers", "on_divergence"), "a safety rule: it must hold for the whole run "
-                    "and not be loosened by anyone who can reach the parameter services"),
+    **dict.fromkeys(("command_timeout", "max_command_age", "min_rest_length", "max_rest_length", "max_force",
+                     "max_wind", "command_publishers", "on_divergence"),
+                    "a safety rule: it must hold for the whole run and not be loosened by anyone who can reach the "
+                    "parameter services"),
     **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
     "frame_id": "viewers and the bag expect one frame for the whole run",
     **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale"), "part of the run's definition "
