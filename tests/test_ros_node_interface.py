@@ -284,3 +284,31 @@ def test_brains_default_to_sim_time_and_the_params_files_agree(node, repo_root):
 
     data = yaml.safe_load((repo_root / "config" / f"{node}_params.yaml").read_text())
     assert data["/**"]["ros__parameters"]["use_sim_time"] is USE_SIM_TIME_DEFAULT is True
+
+
+def test_feedback_gain_and_noise_perturb_the_fitted_layer():
+    """``gain`` g and ``noise`` σ of feedback_brain: l·(1 + g·(W·[s + ε, 1])), computed here by hand."""
+    import numpy as np
+    import torch
+
+    from bptsb_ros.brains.feedback import FeedbackLayer
+    from bptsb_ros.ros.feedback_brain import perturbed_rest_length
+
+    layer = FeedbackLayer(3, 2, dtype=torch.float64)
+    w = np.array([[0.1, -0.2, 0.3, 0.05], [0.0, 0.4, -0.1, -0.02]])
+    layer.load_fit(w)
+    layer.requires_grad_(False)  # as the node holds it
+    base = torch.tensor([1.0, 2.0], dtype=torch.float64)
+    s = np.array([0.5, 1.5, -1.0])
+    features = torch.from_numpy(s).unsqueeze(0)
+    signal = w[:, :3] @ s + w[:, 3]
+
+    def rest(gain, noise, seed=0):
+        return perturbed_rest_length(layer, base, features, gain, noise, np.random.default_rng(seed))[0].numpy()
+
+    assert np.allclose(rest(1.0, 0.0), [1.0, 2.0] * (1 + signal), rtol=0, atol=1e-15)
+    assert np.allclose(rest(0.5, 0.0), [1.0, 2.0] * (1 + 0.5 * signal), rtol=0, atol=1e-15)
+    assert np.allclose(rest(0.0, 0.0), [1.0, 2.0], rtol=0, atol=0)
+    eps = 0.3 * np.random.default_rng(7).standard_normal(3)
+    noisy = w[:, :3] @ (s + eps) + w[:, 3]
+    assert np.allclose(rest(2.0, 0.3, seed=7), [1.0, 2.0] * (1 + 2.0 * noisy), rtol=0, atol=1e-14)

@@ -26,6 +26,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
+from bptsb_ros.brains.feedback import FeedbackLayer
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
@@ -99,13 +100,9 @@ class FeedbackBrain(BrainNode):
         features = self._features(msg, step)
         if features is None:
             return
-        if self.p["noise"] > 0:
-            noise = self.rng.standard_normal(features.shape[1]) * self.p["noise"]
-            features = features + torch.from_numpy(noise).to(features.dtype)
         with torch.no_grad():
-            rest = self.agent.feedback.rest_length_from_features(self.base, features)
-            if self.p["gain"] != 1.0:
-                rest = self.base + self.p["gain"] * (rest - self.base)
+            rest = perturbed_rest_length(self.agent.feedback, self.base, features, self.p["gain"], self.p["noise"],
+                                         self.rng)
         self._send(step + 1, rest, started)
 
     def _features(self, msg: JointState, step: int) -> torch.Tensor | None:
@@ -125,6 +122,20 @@ class FeedbackBrain(BrainNode):
         if self.state_type == "acceleration":
             x = m.acceleration_from_effort(x, self.mass)
         return torch.from_numpy(x).to(self.base.dtype).unsqueeze(0)
+
+
+def perturbed_rest_length(layer: FeedbackLayer, base: torch.Tensor, features: torch.Tensor, gain: float,
+                          noise: float, rng: np.random.Generator) -> torch.Tensor:
+    """Rest lengths (1, E) [m] l·(1 + g·W·[s + ε, 1]) with ε ~ N(0, noise²) per feature, drawn from ``rng`` only when
+    ``noise`` > 0; ``gain`` 1 and ``noise`` 0 give ``layer.rest_length_from_features`` exactly.
+
+    Args:
+        base: (E,) trained rest lengths l [m]; features: (1, F) state features s, laid out as ``state_features``.
+    """
+    if noise > 0:
+        features = features + torch.from_numpy(rng.standard_normal(features.shape[1]) * noise).to(features.dtype)
+    rest = layer.rest_length_from_features(base, features)
+    return rest if gain == 1.0 else base + gain * (rest - base)
 
 
 def main(args: list[str] | None = None) -> int:
