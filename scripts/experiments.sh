@@ -9,10 +9,10 @@ BPTSB="${BPTSB:-.venv/bin/bptsb}"
 PY="${PY:-.venv/bin/python}"
 OUT="${1:-runs/experiments}"
 mkdir -p "$OUT"
-"$BPTSB" train config/lissajous_single.yaml --out "$OUT/lissajous" --no-progress
-"$BPTSB" train config/locomotion_forward.yaml --out "$OUT/locomotion" --no-progress
-"$BPTSB" train config/narma.yaml --set epochs=300 --out "$OUT/narma_sgd" --no-progress
-"$BPTSB" train config/narma_adam.yaml --out "$OUT/narma_adam" --no-progress
+"$BPTSB" train config/lissajous_single.yaml --out "$OUT/lissajous" --no-progress --force
+"$BPTSB" train config/locomotion_forward.yaml --out "$OUT/locomotion" --no-progress --force
+"$BPTSB" train config/narma.yaml --set epochs=300 --out "$OUT/narma_sgd" --no-progress --force
+"$BPTSB" train config/narma_adam.yaml --out "$OUT/narma_adam" --no-progress --force
 "$PY" - "$OUT" <<'PYEOF'
 import json, sys
 from pathlib import Path

@@ -99,3 +99,54 @@ def test_body_survives_hostile_commands(tmp_path, ros_env, ros_domain_id):
     assert counts["divergences"] == 1 and counts["rest_length_rejected_untrusted_publisher"] >= 1
     assert counts["force_accepted"] == 1
     assert counts["rejected_total"] >= 4
+
+
+def test_divergence_with_on_divergence_stop_ends_the_run_with_a_finalised_bag(tmp_path, ros_env, ros_domain_id):
+    """``on_divergence: stop``: the body ends the run cleanly at the first diverged step; the recorder still
+    closes the bag, which holds every step up to the divergence and the ERROR status."""
+    import subprocess
+    import sys
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from ros_live import REPO, env_for
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+
+    from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.ros import messages as m
+    from bptsb_ros.ros.topics import mass_dof_names
+
+    dofs = mass_dof_names(fresh_agent("lissajous").body.movable_index.tolist())
+    probe = Probe(ros_domain_id, "mlp_brain")  # an allowed force publisher's name (a forged one, here)
+    force_pub = probe.node.create_publisher(JointState, "/brain/force", m.command_qos(100))
+
+    def on_clock(msg: Clock) -> None:  # like a brain: the force of step k on /clock t_k; 1e11 N from step 20
+        k = m.step_of(msg.clock, DT_NS)
+        force_pub.publish(m.joint_state(k, DT_NS, dofs, effort=np.full(len(dofs), 1e11 if k >= 20 else 0.0)))
+
+    probe.subscribe(Clock, "/clock", m.state_qos(100), on_clock)
+    bag = tmp_path / "bag"
+    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--duration", "2",
+                             "--bag", str(bag), "--param", "body_sim:on_divergence:=stop",
+                             "--param", "body_sim:max_force:=1e12",
+                             "--param", "body_sim:wait_for:=[rest_length, force]", "--timeout", "120"],
+                            env=env_for(ros_env), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert probe.spin_until(lambda: proc.poll() is not None, 150)
+        out = proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        probe.close()
+    assert proc.returncode == 1, out  # the body reports the failure ...
+    assert "stopping the run (on_divergence: stop)" in out and "Traceback" not in out, out
+    assert "recorder        ok" in out and "swg_brain       ok" in out, out  # ... and everything else stopped cleanly
+    summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
+    assert summary["divergences"] == 1 and summary["steps"] == 19 and summary["force_accepted"] >= 21
+    info = bag_info(bag)  # finalised: metadata.yaml and a complete, indexed MCAP file
+    steps = sorted(m.header.stamp.sec * 1_000_000_000 // DT_NS + m.header.stamp.nanosec // DT_NS
+                   for *_, m in read_messages(bag, ["/body/positions"]))
+    assert info.message_count > 0 and steps == list(range(20))  # steps 0..19; step 20 diverged
+    statuses = [s for *_, d in read_messages(bag, ["/diagnostics"]) for s in d.status]
+    assert any(s.level == DiagnosticStatus.ERROR and "step 20 diverged" in s.message for s in statuses)
