@@ -184,11 +184,13 @@ def log_dir_of_bag(bag: str | Path) -> Path:
 
 def recorder_parameters(loop: Loop, bag: str, *, mode: str = "lockstep", agent: str = "",
                         open_loop_steps: int = 0) -> dict[str, ParamValue]:
-    """ROS parameters of the recorder of ``loop``: every loop topic to ``bag``, and the run description in the
+    """ROS parameters of the recorder of ``loop``: every loop topic to ``bag``, log times from ``/clock`` in lockstep
+    (``use_sim_time``: the bag's timeline is sim time; realtime keeps system time), and the run description in the
     bag's ``custom_data`` (keys ``loop``, ``mode``, ``agent`` — ``fresh`` without one — and ``open_loop_steps``,
     which ``bptsb replay`` reads for its offline comparison)."""
     return {
         "bag_path": bag,
+        "use_sim_time": mode == "lockstep",
         "topics": topic_names(loop.topics()),
         "custom_data": [f"loop={loop.name}", f"mode={mode}", f"agent={agent or 'fresh'}",
                         f"open_loop_steps={open_loop_steps}"],
@@ -212,53 +214,206 @@ def loops_help() -> str:
 
 
 LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
-    "agent": ("", "trained agent run directory; empty: a fresh untrained agent of the loop's task"),
+    "agent": ("", "trained agent run directory; empty: a fresh untrained agent of the loop's task (open loops; "
+              "closed loops require it)"),
     "mode": ("lockstep", "timing mode: lockstep or realtime"),
     "duration": ("0", "run length: sim seconds (lockstep) or wall seconds (realtime); 0: until Ctrl-C"),
-    "bag": ("", "record every loop topic to this rosbag2 MCAP bag directory; empty: no recording"),
+    "bag": ("", "record every loop topic to this rosbag2 MCAP bag directory (log times: sim time in lockstep, "
+            "system time in realtime; custom_data log_time says which); empty: no recording"),
     "seed": ("0", "seed of the fresh agent when no agent is given"),
     "rate_scale": ("1.0", "realtime: sim seconds per wall second"),
     "open_loop_steps": ("0", "closed loops: SWG steps before the feedback layer takes over"),
 }
+#: ``agent`` of a loop that needs a trained agent: required (no default), so ``ros2 launch`` refuses to start
+#: without it
+REQUIRED_AGENT = "trained agent run directory (required: the closed loop runs the agent's fitted feedback layer)"
+
+
+class LaunchArgumentError(ValueError):
+    """A launch argument is missing or wrong; the message names it."""
+
+
+def launch_arguments(loop: Loop) -> dict[str, tuple[str | None, str]]:
+    """(default, description) of every launch argument of ``loop``; default None: required."""
+    args: dict[str, tuple[str | None, str]] = dict(LAUNCH_ARGUMENTS)
+    if loop.needs_agent:
+        args["agent"] = (None, REQUIRED_AGENT)
+    return args
+
+
+def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
+    """Check the launch arguments (strings, as ``ros2 launch`` holds them) of ``loop``; return the loop adapted to
+    the agent (:func:`agent_loop`) and the keyword arguments of :func:`node_parameters`.
+
+    Raises LaunchArgumentError naming the argument: a closed loop without ``agent``, an agent without a readable
+    checkpoint (or, for a closed loop, without a fitted feedback layer), a bad mode or number, a ``bag`` that
+    exists and is not empty.
+    """
+    import math
+
+    agent = values.get("agent", "")
+    if loop.needs_agent and not agent:
+        raise LaunchArgumentError(f"{loop.name} needs agent:=RUN_DIR, a trained agent with a fitted feedback layer "
+                                  "(bptsb train fits it)")
+    if values.get("mode", "lockstep") not in ("lockstep", "realtime"):
+        raise LaunchArgumentError(f"mode:={values['mode']}: choose lockstep or realtime")
+
+    def number(name: str, kind: type, ok, rule: str):
+        text = values.get(name, LAUNCH_ARGUMENTS[name][0])
+        try:
+            value = kind(text)
+        except ValueError:
+            raise LaunchArgumentError(f"{name}:={text}: not a number") from None
+        if not (math.isfinite(value) and ok(value)):
+            raise LaunchArgumentError(f"{name}:={text}: must be {rule}")
+        return value
+
+    common = dict(agent=agent, seed=number("seed", int, lambda v: True, "an integer"),
+                  mode=values.get("mode", "lockstep"), duration=number("duration", float, lambda v: v >= 0, ">= 0"),
+                  rate_scale=number("rate_scale", float, lambda v: v > 0, "> 0"),
+                  recording=bool(values.get("bag")),
+                  open_loop_steps=number("open_loop_steps", int, lambda v: v >= 0, ">= 0"))
+    if agent:
+        from bptsb_ros.training.checkpoint import CheckpointError, feedback_fitted
+
+        if not Path(agent).exists():
+            raise LaunchArgumentError(f"agent:={agent}: no such run directory")
+        try:
+            loop = agent_loop(loop, agent)
+            if loop.needs_agent and not feedback_fitted(agent):
+                raise LaunchArgumentError(f"agent:={agent}: its feedback layer was never fitted (bptsb train fits it)")
+        except CheckpointError as err:
+            raise LaunchArgumentError(f"agent:={agent}: {err}") from None
+    if values.get("bag"):
+        from bptsb_ros.cli.launch_cmd import _bag_target_problem
+
+        problem = _bag_target_problem(Path(values["bag"]))
+        if problem:
+            raise LaunchArgumentError(f"bag:={values['bag']}: {problem}")
+    return loop, common
+
+
+def loop_node_parameters(loop_name: str, executable: str, values: dict[str, str]) -> dict[str, ParamValue]:
+    """ROS parameters of one node of a ``ros2 launch`` of ``loop_name`` from the launch arguments ``values``:
+    :func:`node_parameters` or, for ``recorder``, :func:`recorder_parameters`. With ``bag:=DIR`` the body writes its
+    run summary to ``DIR.launch/body_summary.json``, as ``bptsb launch`` does."""
+    loop, common = resolve_arguments(LOOPS[loop_name], values)
+    bag = values.get("bag", "")
+    if executable == "recorder":
+        return recorder_parameters(loop, bag, mode=common["mode"], agent=common["agent"],
+                                   open_loop_steps=common["open_loop_steps"])
+    summary_path = str(log_dir_of_bag(bag) / "body_summary.json") if bag and executable == "body_sim" else ""
+    return node_parameters(loop, executable, summary_path=summary_path, **common)
+
+
+def params_file_text(executable: str, params: dict[str, ParamValue]) -> str:
+    """A ROS 2 params file of one node (``/**: ros__parameters:``); empty lists are left out (the nodes' defaults
+    are empty, and rcl cannot type an empty YAML list)."""
+    lines = ["/**:", "  ros__parameters:"]
+    for name, value in params.items():
+        if value != []:
+            lines.append(f"    {name}: {yaml_value(value)}")
+    return f"# {executable}: written by bptsb_ros.launch_loops from the launch arguments\n" + "\n".join(lines) + "\n"
+
+
+def node_exit_verdict(executable: str, returncode: int, shutting_down: bool) -> str:
+    """What the launch does when a node of the loop exits: ``finished`` (body_sim's clean end of the run: shut the
+    launch down, exit 0), ``stopped`` (a clean exit while the launch shuts down) or a failure message (the launch
+    shuts down and exits non-zero)."""
+    if returncode == 0 and executable == "body_sim":
+        return "finished"
+    if returncode == 0 and shutting_down:
+        return "stopped"
+    if shutting_down:
+        return f"{executable} exited with code {returncode} while the loop was stopping"
+    return (f"{executable} exited with code {returncode} before the end of the run; the loop is broken, "
+            "shutting every node down")
+
+
+#: Seconds a node of a launched loop may take to stop after SIGINT before launch escalates to SIGTERM (launch's
+#: default is 5 s): the recorder may drain for up to its stop_timeout (8 s), the body waits up to final_ack_timeout
+#: (5 s) for the recorder's acknowledgements.
+STOP_GRACE_S = 12
+
+
+class LoopNodeFailed(RuntimeError):
+    """A node of a launched loop failed or ended early: raised inside the launch so that it exits non-zero."""
 
 
 def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
     """``LaunchDescription`` of a loop for ``ros2 launch bptsb_ros <loop>.launch.py`` (needs launch, launch_ros).
 
-    Same processes and parameters as ``bptsb launch``; the launch shuts down when ``body_sim`` exits. With
-    ``bag:=DIR`` the body writes its run summary to ``DIR.launch/body_summary.json``, as ``bptsb launch`` does.
+    The nodes are declared statically (``ros2 launch -p`` and launch introspection list them); their parameters
+    are params files written at launch time from the arguments (:func:`loop_node_parameters`: the same
+    processes and parameters as ``bptsb launch``), and the recorder runs only with ``bag:=DIR``. The arguments are
+    checked first (:func:`resolve_arguments`; closed loops require ``agent``): a bad one stops the launch before
+    any node starts, with the reason and a non-zero exit. When ``body_sim`` ends the run the launch shuts down and
+    exits 0; when any node exits otherwise (a brain that cannot start, a crash, a failed stop) the whole loop is
+    shut down and the launch exits non-zero (:func:`node_exit_verdict`).
     """
+    import tempfile
+
     from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+    from launch.condition import Condition
     from launch.event_handlers import OnProcessExit
     from launch.events import Shutdown
+    from launch.substitution import Substitution
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
 
     from launch import LaunchDescription
 
-    def nodes(context, *args, **kwargs):
+    loop = LOOPS[loop_name]
+    arguments = launch_arguments(loop)
+
+    def values_of(context) -> dict[str, str]:
+        return {name: LaunchConfiguration(name).perform(context) for name in arguments}
+
+    class NodeParamsFile(Substitution):
+        """Path of a params file with one node's parameters, written when the launch performs it."""
+
+        def __init__(self, executable: str) -> None:
+            super().__init__()
+            self.executable = executable
+
+        def describe(self) -> str:
+            return f"<params of {self.executable} in {loop_name}, from the launch arguments>"
+
+        def perform(self, context) -> str:
+            params = loop_node_parameters(loop_name, self.executable, values_of(context))
+            handle, path = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_{self.executable}_", suffix=".yaml")
+            with open(handle, "w") as out:
+                out.write(params_file_text(self.executable, params))
+            return path
+
+    def check(context, *args, **kwargs):
         del args, kwargs
-        v = {name: LaunchConfiguration(name).perform(context) for name in LAUNCH_ARGUMENTS}
-        loop = agent_loop(LOOPS[loop_name], v["agent"])
-        common = dict(agent=v["agent"], seed=int(v["seed"]), mode=v["mode"], duration=float(v["duration"]),
-                      rate_scale=float(v["rate_scale"]), recording=bool(v["bag"]),
-                      open_loop_steps=int(v["open_loop_steps"]))
+        try:
+            resolve_arguments(loop, values_of(context))
+        except LaunchArgumentError as err:
+            raise LaunchArgumentError(f"{loop_name}.launch.py: {err}") from None
 
-        def node(executable: str, params: dict[str, ParamValue]):
-            params = {k: val for k, val in params.items() if val != []}  # launch_ros cannot type empty lists
-            return Node(package="bptsb_ros", executable=executable, name=executable, output="screen",
-                        parameters=[params])
+    def on_exit(executable: str):
+        def handler(event, context):
+            verdict = node_exit_verdict(executable, event.returncode, context.is_shutdown)
+            if verdict == "finished":
+                return [EmitEvent(event=Shutdown(reason="body_sim finished the run"))]
+            if verdict != "stopped":
+                raise LoopNodeFailed(verdict)
+            return None
+        return handler
 
-        summary_path = str(log_dir_of_bag(v["bag"]) / "body_summary.json") if v["bag"] else ""
-        body = node("body_sim", node_parameters(loop, "body_sim", summary_path=summary_path, **common))
-        actions = [body] + [node(b.executable, node_parameters(loop, b.executable, **common)) for b in loop.brains]
-        if v["bag"]:
-            actions.append(node("recorder", recorder_parameters(loop, v["bag"], mode=v["mode"], agent=v["agent"],
-                                                                open_loop_steps=common["open_loop_steps"])))
-        actions.append(RegisterEventHandler(OnProcessExit(
-            target_action=body, on_exit=[EmitEvent(event=Shutdown(reason="body_sim finished"))])))
-        return actions
-
-    arguments = [DeclareLaunchArgument(name, default_value=default, description=text)
-                 for name, (default, text) in LAUNCH_ARGUMENTS.items()]
-    return LaunchDescription([*arguments, OpaqueFunction(function=nodes)])
+    recording = Condition(predicate=lambda context: bool(LaunchConfiguration("bag").perform(context)))
+    executables = ["body_sim"] + [b.executable for b in loop.brains] + ["recorder"]
+    nodes = [Node(package="bptsb_ros", executable=name, name=name, output="screen",
+                  parameters=[NodeParamsFile(name)], condition=recording if name == "recorder" else None,
+                  sigterm_timeout=str(STOP_GRACE_S))
+             for name in executables]
+    return LaunchDescription([
+        *(DeclareLaunchArgument(name, description=text, **({} if default is None else {"default_value": default}))
+          for name, (default, text) in arguments.items()),
+        OpaqueFunction(function=check),
+        *nodes,
+        *(RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit(name)))
+          for node, name in zip(nodes, executables, strict=True)),
+    ])

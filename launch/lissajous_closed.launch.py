@@ -1,11 +1,13 @@
 """Lissajous curve, closed loop: the fitted feedback layer turns spring lengths into rest lengths.
 
 Nodes: body_sim, feedback_brain (+ recorder with bag:=DIR). Same processes and parameters as
-``bptsb launch lissajous_closed``; the launch ends when body_sim exits (after duration:=SECONDS).
+``bptsb launch lissajous_closed``; the launch ends (exit 0) when body_sim finishes (after duration:=SECONDS), and
+shuts every node down and exits non-zero when any other node exits.
 
     ros2 launch bptsb_ros lissajous_closed.launch.py agent:=runs/NAME duration:=10 mode:=lockstep bag:=bags/run
 
-Arguments: agent, mode (lockstep|realtime), duration, bag, seed, rate_scale, open_loop_steps
+Arguments: agent (required: a trained agent with a fitted feedback layer), mode (lockstep|realtime), duration,
+bag, seed, rate_scale, open_loop_steps
 (``ros2 launch bptsb_ros lissajous_closed.launch.py --show-args``).
 """
 

@@ -1,7 +1,8 @@
 """Lissajous curve, open loop: SWG rest lengths drive a double-circle body.
 
 Nodes: body_sim, swg_brain (+ recorder with bag:=DIR). Same processes and parameters as
-``bptsb launch lissajous_open``; the launch ends when body_sim exits (after duration:=SECONDS).
+``bptsb launch lissajous_open``; the launch ends (exit 0) when body_sim finishes (after duration:=SECONDS), and
+shuts every node down and exits non-zero when any other node exits.
 
     ros2 launch bptsb_ros lissajous_open.launch.py duration:=10 mode:=lockstep bag:=bags/run
 

@@ -1,7 +1,8 @@
 """expanded NARMA emulation: streamed input u → MLP (or LIL) forces on the masses.
 
 Nodes: body_sim, task_input, mlp_brain (+ recorder with bag:=DIR). Same processes and parameters as
-``bptsb launch narma``; the launch ends when body_sim exits (after duration:=SECONDS).
+``bptsb launch narma``; the launch ends (exit 0) when body_sim finishes (after duration:=SECONDS), and
+shuts every node down and exits non-zero when any other node exits.
 
     ros2 launch bptsb_ros narma.launch.py duration:=10 mode:=lockstep bag:=bags/run
 

@@ -183,7 +183,8 @@ def test_failing_node_fails_the_launch(tmp_path, ros_env):
     assert out.returncode == 1, out.stdout[-4000:]
     assert "parameter 'dtype'" in out.stdout
     assert "swg_brain       failed (exited on its own before the end, code 2)" in out.stdout
-    assert "body_sim        ok" in out.stdout and "starting anyway" in out.stdout
+    assert "stopping (swg_brain exited early with code 2; the loop is broken)" in out.stdout
+    assert "body_sim        ok" in out.stdout
 
 
 @pytest.mark.parametrize("args, message", [

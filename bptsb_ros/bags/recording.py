@@ -12,7 +12,7 @@ from typing import Any
 
 from bptsb_ros.bags.qos import QosProfile
 from bptsb_ros.bags.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_PERIOD_S
-from bptsb_ros.ros.params import Param, ParameterError
+from bptsb_ros.ros.params import LOG_LEVEL, Param, ParameterError
 
 RECORDER_PARAMS: tuple[Param, ...] = (
     Param("bag_path", "", "Output bag directory (created; must not exist or be empty). Required.", "str"),
@@ -35,7 +35,9 @@ RECORDER_PARAMS: tuple[Param, ...] = (
           "seconds brings none (bounded by stop_timeout).", "float", positive=True),
     Param("stop_timeout", 8.0, "Longest time in seconds spent taking in-flight messages after SIGINT/SIGTERM "
           "before the bag is closed (below the launcher's default --grace of 10 s).", "float", positive=True),
-    Param("custom_data", [], "'key=value' strings stored in custom_data of metadata.yaml.", "str_list"),
+    Param("custom_data", [], "'key=value' strings stored in custom_data of metadata.yaml (the recorder adds "
+          "log_time: sim or system).", "str_list"),
+    LOG_LEVEL,
 )
 
 

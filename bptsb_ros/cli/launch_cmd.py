@@ -212,9 +212,10 @@ class Launcher:
             self.stop(self.recorder)
 
     def watch(self, *, timeout: float, stop_flag: list[str]) -> None:
-        """Poll until the body exits (it ends the run after --duration), ``timeout`` passes or a signal arrives."""
+        """Poll until the body exits (it ends the run after --duration), another node exits (the loop is broken:
+        every node is stopped and the launch fails, as the launch files do), ``timeout`` passes or a signal
+        arrives."""
         started = time.monotonic()
-        reported: set[str] = set()
         while True:
             if stop_flag:
                 self.stop_reason = stop_flag[0]
@@ -222,9 +223,9 @@ class Launcher:
             now = time.monotonic() - started
             for child in self.children:
                 code = child.code
-                if code is not None and child is not self.body and child.name not in reported:
-                    reported.add(child.name)
-                    self._say(f"{child.name} exited early with code {code}")
+                if code is not None and child is not self.body:
+                    self.stop_reason = f"{child.name} exited early with code {code}; the loop is broken"
+                    return
             if self.body.code is not None:
                 self._say(f"body_sim exited with code {self.body.code}; stopping the other nodes")
                 return

@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "nodes:\n" + "\n".join(f"  {name:<15} {text}" for name, text in NODES.items())
         + "\n\nexamples:\n"
         "  bptsb run body_sim --ros-args --params-file config/body_sim_params.yaml -p mode:=realtime\n"
-        "  bptsb run swg_brain --ros-args -p agent:=runs/lissajous -p use_sim_time:=true\n"
+        "  bptsb run swg_brain --ros-args -p agent:=runs/lissajous   (brains run on sim time by default)\n"
         "Parameters of a node: its config/<node>_params.yaml lists every one with a description."
     )
     parser.add_argument("node", choices=sorted(NODES), metavar="NODE", help="node to run: " + ", ".join(NODES))

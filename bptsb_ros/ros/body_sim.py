@@ -44,7 +44,7 @@ from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
 from bptsb_ros.ros.lockstep import MODES, CommandChannel, TimingStats
-from bptsb_ros.ros.params import Param, ParameterError, declare_parameters
+from bptsb_ros.ros.params import LOG_LEVEL, Param, ParameterError, ParamValue, declare_parameters
 from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, run_node
 from bptsb_ros.ros.safety import (
     DEFAULT_MAX_FORCE,
@@ -78,7 +78,8 @@ SUBSCRIBED = BODY_INPUTS
 PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("mode", "lockstep", "timing mode: lockstep (deterministic, waits for commands) or realtime "
           "(wall-clock timer at rate_scale/dt)", "str", choices=MODES),
-    Param("rate_scale", 1.0, "realtime: sim seconds per wall second (1 = real time)", "float", positive=True),
+    Param("rate_scale", 1.0, "realtime: sim seconds per wall second (1 = real time); lockstep: pace of steps "
+          "integrated with the safe command while a brain is silent", "float", positive=True, dynamic=True),
     Param("duration", 0.0, "sim time to run [s]; the node exits after the last step (0: run until stopped)",
           "float", minimum=0.0),
     Param("wall_duration", 0.0, "realtime: wall seconds to run from the first step, then exit (0: no limit)",
@@ -96,9 +97,14 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           positive=True),
     Param("final_ack_timeout", 5.0, "at exit, wall seconds to wait until reliable subscribers (the recorder) "
           "acknowledged every message", "float", minimum=0.0),
-    Param("marker_every", 5, "publish body/markers every this many steps", "int", minimum=1),
+    Param("marker_every", 5, "publish body/markers every this many steps", "int", minimum=1, dynamic=True),
     Param("frame_id", "msdn", "frame of positions and markers (the body plane, metres, y up)", "str"),
-    Param("diagnostics_period", 1.0, "wall seconds between /diagnostics messages", "float", positive=True),
+    Param("diagnostics_period", 1.0, "wall seconds between /diagnostics messages", "float", positive=True,
+          dynamic=True),
+    Param("wind", [0.0, 0.0], "constant wind force (x, y) [N] on every movable mass from the next step on, within "
+          "max_wind; a message on env/wind replaces it (realtime, or lockstep runs that are not compared offline)",
+          "float_list", size=2, dynamic=True),
+    LOG_LEVEL,
     Param("summary_path", "", "write the run summary (timing, rejections) as JSON here at exit (empty: don't)",
           "str"),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
@@ -139,7 +145,7 @@ class BodySim(Node):
     def __init__(self, stop: StopFlag) -> None:
         super().__init__(NODE)
         self.stop = stop
-        p = declare_parameters(self, PARAMS)
+        p = declare_parameters(self, PARAMS, on_change=self._on_parameter)
         self.p = p
         self.wait_subscribers = parse_wait_for_subscribers(p["wait_for_subscribers"])
         agent, trained = load_source(p)
@@ -189,6 +195,11 @@ class BodySim(Node):
         self.wait_sources: list[str] = list(dict.fromkeys(p["wait_for"]))
         self.silent: dict[str, bool] = {s: False for s in self.channels}
         self.wind: np.ndarray | None = None
+        if any(p["wind"]):
+            problem = self.limits.check("wind", np.asarray(p["wind"]))
+            if problem:
+                raise ParameterError(f"parameter 'wind': {problem}")
+            self.wind = np.asarray(p["wind"], dtype=np.float64)
         self.next_step = 0
         self.stats = TimingStats()
         self.throttle = Throttle(1.0)
@@ -287,6 +298,10 @@ class BodySim(Node):
         if problem:
             self._warn("reject:wind", f"{problem}; keeping the previous wind")
             return
+        self._set_wind(wind)
+
+    def _set_wind(self, wind: np.ndarray) -> None:
+        """Apply an accepted wind (x, y) [N] from the next step on (a message or the ``wind`` parameter)."""
         previous = np.zeros(2) if self.wind is None else self.wind
         self.wind = None if not wind.any() else wind
         if (wind != previous).any():
@@ -308,6 +323,15 @@ class BodySim(Node):
             rejection = self.channels["wind"].offer(step, [msg.vector.x, msg.vector.y], self.next_step, now)
         if rejection is not None:
             self._warn(f"reject:wind:{rejection.reason}", f"{rejection.message}; not applied")
+    def _on_parameter(self, name: str, value: ParamValue) -> None:
+        """A live parameter change (validated by its spec); raises ParameterError to refuse it. ``rate_scale``,
+        ``marker_every``, ``diagnostics_period`` and ``log_level`` are read where they are used."""
+        if name == "wind":
+            wind = np.asarray(value, dtype=np.float64)
+            problem = self.wind_intake.offer(wind)
+            if problem:
+                raise ParameterError(f"parameter 'wind': {problem}")
+            self._set_wind(wind)
 
     def _warn(self, key: str, text: str) -> None:
         emit, held = self.throttle(key)
@@ -525,8 +549,11 @@ class BodySim(Node):
             raise SimulationDiverged(text)
         return new, rest, force, True
 
+    def _period(self) -> float:
+        """Wall seconds per step: dt / rate_scale (``rate_scale`` can change live)."""
+        return self.body.dt / self.p["rate_scale"]
+
     def _run_lockstep(self) -> None:
-        period = self.body.dt / self.p["rate_scale"]
         state: BodyState | None = None
         step = 0
         last = time.monotonic()
@@ -535,8 +562,8 @@ class BodySim(Node):
             self._await(step)
             if self.stop:
                 break
-            if any(self.silent[s] for s in self.wait_sources):
-                self._spin_for(max(0.0, last + period - time.monotonic()))  # pace silent running at real time
+            if any(self.silent[s] for s in self.wait_sources):  # pace silent running at rate_scale
+                self._spin_for(max(0.0, last + self._period() - time.monotonic()))
             last = time.monotonic()
             state = self._integrate(state, step)
             self.stats.compute.append(time.monotonic() - last)
@@ -544,13 +571,15 @@ class BodySim(Node):
             step += 1
 
     def _run_realtime(self) -> None:
-        period = self.body.dt / self.p["rate_scale"]
+        period = self._period()
         state: BodyState | None = None
         self._publish_clock(0)
         start = time.monotonic() + period
         wall_end = start + self.p["wall_duration"] if self.p["wall_duration"] > 0 else math.inf
         step = 0
         while not self.stop and (self.max_steps == 0 or step <= self.max_steps):
+            if self._period() != period:  # rate_scale changed live: keep this step's due time, new pace after it
+                start, period = start + step * (period - self._period()), self._period()
             due = start + step * period
             if due > wall_end:
                 break
@@ -626,9 +655,8 @@ class BodySim(Node):
 
     def _finish(self, why: str) -> None:
         summary = self.summary()
-        self.get_logger().info(f"{why} after {summary['steps']} steps ({summary['sim_time']:.3f} s sim time); "
-                               "summary: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                                                       for k, v in summary.items()))
+        self.get_logger().info(f"{why} after {summary['steps']} steps ({summary['sim_time']:.3f} s sim time)\n"
+                               + summary_text(summary))
         self._maybe_diagnostics(force=True)
         self._wait_acked(timeout=self.p["final_ack_timeout"])
         if self.p["summary_path"]:
@@ -637,9 +665,41 @@ class BodySim(Node):
             path.write_text(json.dumps(summary, indent=2) + "\n")
 
 
+def summary_text(summary: dict[str, Any]) -> str:
+    """The run summary as a few readable lines: one per group of :data:`SUMMARY_GROUPS` (timing series, commands
+    by source, wind), the rest on a first "run" line; floats with 4 significant digits. Rejection counters that are
+    0 are left out (``rejected=0`` when all of a group are; the JSON summary keeps every counter); every other
+    key appears exactly once."""
+    def fmt(value: Any) -> str:
+        return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+    lines: dict[str, list[str]] = {"run": []}
+    quiet: set[str] = set()
+    for key, value in summary.items():
+        prefix = next((pre for pre in SUMMARY_GROUPS if key.startswith(pre)), "")
+        label = SUMMARY_GROUPS[prefix] if prefix else "run"
+        item = key[len(prefix):]
+        lines.setdefault(label, [])
+        if prefix and item.startswith("rejected_") and value == 0:
+            quiet.add(label)
+            continue
+        lines[label].append(f"{item}={fmt(value)}")
+    for label in quiet:
+        if not any(item.startswith("rejected_") for item in lines[label]):
+            lines[label].append("rejected=0")
+    width = max(map(len, lines))
+    return "\n".join(f"  {label:<{width}}  {', '.join(items)}" for label, items in lines.items() if items)
+
+
+#: summary key prefix -> line label of :func:`summary_text`
+SUMMARY_GROUPS = {"jitter_ms_": "jitter [ms]", "compute_ms_": "compute [ms]",
+                  "command_latency_ms_": "command latency [ms]", "command_age_steps_": "command age [steps]",
+                  "rest_length_": "rest-length commands", "force_": "force commands", "wind_": "wind"}
+
+
 def main(args: list[str] | None = None) -> int:
     """Run the node; ``args`` are ROS arguments (``--ros-args -p mode:=realtime ...``), default sys.argv."""
-    return run_node(NODE, BodySim, args)
+    return run_node(NODE, BodySim, args, params=PARAMS, summary=__doc__ or "")
 
 
 if __name__ == "__main__":

@@ -1,7 +1,9 @@
 """Shared skeleton of the brain and task-input nodes: parameters, agent, publishing, spin loop, summary.
 
 A brain is reactive: it answers ``/clock`` ticks or body states with commands stamped at the sim
-time of the step they are in force at (``TOPICS.md``). It runs on sim time (``use_sim_time: true``).
+time of the step they are in force at (``TOPICS.md``). It runs on sim time: ``use_sim_time`` defaults to
+true for every brain (its log stamps and node clock follow the body's ``/clock``); ``-p use_sim_time:=false``
+still sets it off. The commands themselves never depend on it: every step comes from a message stamp.
 """
 
 from __future__ import annotations
@@ -13,11 +15,12 @@ from typing import Any
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
 from bptsb_ros.ros.lockstep import RunningStats
-from bptsb_ros.ros.params import Param, ParameterError, declare_parameters
+from bptsb_ros.ros.params import LOG_LEVEL, OnChange, Param, ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle
 from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns
 
@@ -28,7 +31,10 @@ COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           minimum=0),
     Param("startup_timeout", 30.0, "wall seconds to wait for min_subscribers before sending anyway", "float",
           positive=True),
+    LOG_LEVEL,
 )
+#: ``use_sim_time`` of a brain unless given (rclpy's own default, false, is wrong for a node driven by /clock)
+USE_SIM_TIME_DEFAULT = True
 
 
 def topic_params(keys: Sequence[str]) -> tuple[Param, ...]:
@@ -40,10 +46,12 @@ def topic_params(keys: Sequence[str]) -> tuple[Param, ...]:
 class BrainNode(Node):
     """Base class: declares ``COMMON_PARAMS + params``, loads the agent, counts what it publishes."""
 
-    def __init__(self, name: str, stop: StopFlag, params: Sequence[Param]) -> None:
+    def __init__(self, name: str, stop: StopFlag, params: Sequence[Param], on_change: OnChange | None = None) -> None:
         super().__init__(name)
+        if "use_sim_time" not in self._parameter_overrides:  # not given by -p or a params file
+            self.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, USE_SIM_TIME_DEFAULT)])
         self.stop = stop
-        self.p: dict[str, Any] = declare_parameters(self, COMMON_PARAMS + tuple(params))
+        self.p: dict[str, Any] = declare_parameters(self, COMMON_PARAMS + tuple(params), on_change)
         self.agent, self.trained = load_source(self.p)
         try:
             self.dt_ns = dt_to_ns(self.agent.dt)
@@ -58,7 +66,7 @@ class BrainNode(Node):
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
         if not self.get_parameter("use_sim_time").value:
-            self.get_logger().warning("use_sim_time is false: log stamps use wall time, not the body's /clock")
+            self.get_logger().info("use_sim_time is false (set): log stamps use wall time, not the body's /clock")
 
     def source_text(self) -> str:
         p = self.p

@@ -9,6 +9,10 @@ The state comes from ``body/spring_lengths`` (state type ``spring_length``, the 
 takes over from step W+1 — the paper's transfer from the SWG to the feedback layer, offline
 ``simulate_open_loop(agent, W)`` followed by ``simulate_closed_loop(..., state=final)``. With W = 0
 the loop starts from rest: the command for step 0 is the trained rest length.
+
+Two live parameters perturb the loop (``ros2 param set /feedback_brain gain 0.5``): ``gain`` g scales the
+feedback, l·(1 + g·W·[s_k, 1]) (1: as fitted), and ``noise`` σ adds Gaussian noise N(0, σ²) to every state
+feature before the layer (seeded by ``noise_seed``). At their defaults the commands equal the offline loop's.
 """
 
 from __future__ import annotations
@@ -16,13 +20,15 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
 import torch
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
+from bptsb_ros.brains.feedback import FeedbackLayer
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.brain_node import BrainNode, topic_params
+from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.topics import feedback_state_key, spring_names
@@ -32,6 +38,11 @@ NODE = "feedback_brain"
 PARAMS = (
     Param("open_loop_steps", 0, "steps 0..W driven by the agent's SWG before the feedback layer takes over "
           "(0: closed loop from rest)", "int", minimum=0),
+    Param("gain", 1.0, "feedback gain g: rest lengths l·(1 + g·W·[s, 1]) (1: the fitted layer, 0: the trained rest "
+          "lengths)", "float", minimum=0.0, maximum=10.0, dynamic=True),
+    Param("noise", 0.0, "σ of Gaussian noise added to every state feature before the feedback layer, in the "
+          "state's unit (m, m/s or m/s²); 0: none", "float", minimum=0.0, dynamic=True),
+    Param("noise_seed", 0, "seed of the feedback noise", "int", minimum=0),
 ) + topic_params(("clock", "spring_lengths", "mass_states", "rest_length_cmd"))
 
 
@@ -56,12 +67,14 @@ class FeedbackBrain(BrainNode):
         self.names = spring_names(body.topology.n_springs)
         self.state_type = agent.feedback.state_type
         self.mass = body.mass.detach().double().numpy()  # (M,) movable masses: effort → acceleration
+        self.rng = np.random.default_rng(p["noise_seed"])
         self.pub = self.output(JointState, p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.create_subscription(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         state_topic = p[f"topics.{feedback_state_key(self.state_type)}"]
         self.create_subscription(JointState, state_topic, self._on_state, m.state_qos(self.depth))
         self.get_logger().info(f"feedback layer of {self.source_text()}: state {self.state_type} from {state_topic}, "
-                               f"{len(self.names)} springs, open loop for steps 0..{self.open_loop}")
+                               f"{len(self.names)} springs, open loop for steps 0..{self.open_loop}, gain "
+                               f"{p['gain']:g}, noise σ {p['noise']:g}")
 
     def _send(self, step: int, rest: torch.Tensor, started: float) -> None:
         msg = m.joint_state(step, self.dt_ns, self.names, position=rest.reshape(-1).double().numpy())
@@ -88,7 +101,8 @@ class FeedbackBrain(BrainNode):
         if features is None:
             return
         with torch.no_grad():
-            rest = self.agent.feedback.rest_length_from_features(self.base, features)
+            rest = perturbed_rest_length(self.agent.feedback, self.base, features, self.p["gain"], self.p["noise"],
+                                         self.rng)
         self._send(step + 1, rest, started)
 
     def _features(self, msg: JointState, step: int) -> torch.Tensor | None:
@@ -110,9 +124,23 @@ class FeedbackBrain(BrainNode):
         return torch.from_numpy(x).to(self.base.dtype).unsqueeze(0)
 
 
+def perturbed_rest_length(layer: FeedbackLayer, base: torch.Tensor, features: torch.Tensor, gain: float,
+                          noise: float, rng: np.random.Generator) -> torch.Tensor:
+    """Rest lengths (1, E) [m] l·(1 + g·W·[s + ε, 1]) with ε ~ N(0, noise²) per feature, drawn from ``rng`` only when
+    ``noise`` > 0; ``gain`` 1 and ``noise`` 0 give ``layer.rest_length_from_features`` exactly.
+
+    Args:
+        base: (E,) trained rest lengths l [m]; features: (1, F) state features s, laid out as ``state_features``.
+    """
+    if noise > 0:
+        features = features + torch.from_numpy(rng.standard_normal(features.shape[1]) * noise).to(features.dtype)
+    rest = layer.rest_length_from_features(base, features)
+    return rest if gain == 1.0 else base + gain * (rest - base)
+
+
 def main(args: list[str] | None = None) -> int:
     """Run the node; ``args`` are ROS arguments (``--ros-args -p agent:=runs/x ...``), default sys.argv."""
-    return run_node(NODE, FeedbackBrain, args)
+    return run_node(NODE, FeedbackBrain, args, params=COMMON_PARAMS + PARAMS, summary=__doc__ or "")
 
 
 if __name__ == "__main__":

@@ -23,20 +23,25 @@ from bptsb_ros.ros.topics import stamp_to_step, step_to_stamp
 def state_qos(depth: int) -> QoSProfile:
     """Body outputs and every subscription of the loop: reliable, volatile, keep-last ``depth``.
 
-    Subscriptions are volatile so that any reliable publisher connects (a transient-local one too).
+    Volatile: a late joiner (``ros2 topic echo``, a viewer, a second recorder) receives what is published after it
+    joined, never a backlog of states that are no longer current. ``depth`` (default 1000 = 10 s of steps) is the
+    reliable retransmission window and the subscription queue: a reliable subscriber that falls behind by up to
+    ``depth`` messages (the recorder on a loaded machine) still gets every one.
     """
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
 
 
 def command_qos(depth: int) -> QoSProfile:
-    """Publishers of commands and task input: reliable, transient-local, keep-last ``depth``.
+    """Publishers of commands and task input: reliable, volatile, keep-last ``depth`` — the same as
+    :func:`state_qos`.
 
-    Transient-local lets a transient-local subscriber (the recorder requests it when every publisher
-    offers it) that matched a moment late still receive the first commands.
+    Not transient-local: a command is in force for one step, so a late joiner must not be handed up to ``depth``
+    old ones (``ros2 topic echo brain/rest_length`` would start with ~10 s of stale commands and report lost
+    messages). Nothing is lost at startup without it: a brain sends its first command only once its output has
+    ``min_subscribers`` matched subscribers (the body, the next brain, the recorder).
     """
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    return state_qos(depth)
 
 
 def stamp(step: int, dt_ns: int) -> Time:

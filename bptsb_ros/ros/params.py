@@ -1,26 +1,34 @@
 """Declared, described and validated ROS parameters for the live nodes.
 
 Each node lists its parameters as :class:`Param` specs. :func:`declare_parameters` declares them on the
-node (with a ``ParameterDescriptor`` carrying the description and constraints, read-only), reads the
-values given by ``--ros-args -p`` or ``--params-file`` and validates them, raising
-:class:`ParameterError` naming the parameter. :func:`render_params_yaml` writes the defaults in the
-standard ``/**: ros__parameters:`` layout (the files under ``config/``).
+node (with a ``ParameterDescriptor`` carrying the description and constraints), reads the values given by
+``--ros-args -p`` or ``--params-file`` and validates them, raising :class:`ParameterError` naming the
+parameter. :func:`render_params_yaml` writes the defaults in the standard ``/**: ros__parameters:`` layout
+(the files under ``config/``).
+
+**Live parameters.** A parameter with ``dynamic=True`` can be changed while the node runs
+(``ros2 param set /body_sim rate_scale 2.0``): a parameter callback validates the new value with the same
+rules (a bad one is refused with the reason, the old value stays), lets the node apply it, and updates the
+values dict the node reads. Every other parameter is read-only; the reason is part of its description
+(``ros2 param describe``), from :data:`READ_ONLY_REASONS`. :data:`LOG_LEVEL` (every node) sets the node's
+logger level live.
 
 The module itself is ROS-free; rclpy is imported only inside :func:`declare_parameters`.
 """
 
 from __future__ import annotations
 
+import array
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
     from rclpy.node import Node
 
-Kind = Literal["bool", "int", "float", "str", "str_list"]
-ParamValue = bool | int | float | str | list[str]
+Kind = Literal["bool", "int", "float", "str", "str_list", "float_list"]
+ParamValue = bool | int | float | str | list[str] | list[float]
 
 
 class ParameterError(ValueError):
@@ -39,6 +47,8 @@ class Param:
         choices: allowed values (str or str_list items).
         minimum, maximum: inclusive numeric bounds (int/float).
         positive: numeric value must be > 0.
+        dynamic: may be changed while the node runs (``ros2 param set``); otherwise read-only.
+        size: float_list: required number of values.
     """
 
     name: str
@@ -49,6 +59,8 @@ class Param:
     minimum: float | None = None
     maximum: float | None = None
     positive: bool = False
+    dynamic: bool = False
+    size: int | None = None
 
     def constraints(self) -> str:
         """Human-readable constraints (``ParameterDescriptor.additional_constraints``)."""
@@ -61,11 +73,18 @@ class Param:
             parts.append(f">= {self.minimum:g}")
         if self.maximum is not None:
             parts.append(f"<= {self.maximum:g}")
+        if self.size is not None:
+            parts.append(f"{self.size} values")
         return "; ".join(parts)
 
     def validate(self, value: Any) -> ParamValue:
         """Coerce ``value`` to this parameter's kind and check it; raise ParameterError naming the parameter."""
         v = _coerce(self, value)
+        if self.kind == "float_list":
+            if self.size is not None and len(v) != self.size:
+                raise ParameterError(f"parameter '{self.name}' must have {self.size} values, got {len(v)}")
+            if not all(math.isfinite(x) for x in v):
+                raise ParameterError(f"parameter '{self.name}' must be finite, got {v}")
         if self.kind in ("int", "float"):
             if not math.isfinite(v):
                 raise ParameterError(f"parameter '{self.name}' must be finite, got {v}")
@@ -105,9 +124,68 @@ def _coerce(spec: Param, value: Any) -> ParamValue:
             return []  # ROS reports an empty list as NOT_SET or an empty byte array
         if isinstance(value, Sequence) and not isinstance(value, str) and all(isinstance(x, str) for x in value):
             return list(value)
+    elif kind == "float_list":
+        if isinstance(value, (array.array, Sequence)) and not isinstance(value, (str, bytes)) and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+            return [float(x) for x in value]
     expected = {"bool": "a bool", "int": "an integer", "float": "a number", "str": "a string",
-                "str_list": "a list of strings"}[kind]
+                "str_list": "a list of strings", "float_list": "a list of numbers"}[kind]
     raise ParameterError(f"parameter '{name}' must be {expected}, got {value!r} ({type(value).__name__})")
+
+
+#: Why a read-only parameter cannot change while the node runs, by name, or by prefix for ``prefix.*``.
+READ_ONLY_REASONS: dict[str, str] = {
+    **dict.fromkeys(("agent", "config", "task", "shape", "nodes", "size", "dt", "integrator", "brain_type", "seed",
+                     "dtype"), "the agent (body and brain) is built from it once, at startup, and every node of "
+                    "the loop must hold the same one"),
+    "topics.*": "publishers and subscriptions are created at startup (remap with -r from:=to instead)",
+    "qos_depth": "QoS is fixed when the publishers and subscriptions are created",
+    "mode": "the timing loop (lockstep or realtime) is chosen at startup",
+    **dict.fromkeys(("duration", "wall_duration", "max_steps"), "the run length is fixed at startup: the "
+                    "launcher, the run summary and the bag describe the run it gives"),
+    **dict.fromkeys(("wait_for", "wait_for_subscribers", "startup_timeout", "min_subscribers"),
+                    "only used while the loop starts up"),
+    **dict.fromkeys(("command_timeout", "max_command_age", "min_rest_length", "max_rest_length", "max_force",
+                     "max_wind", "command_publishers", "on_divergence"),
+                    "a safety rule: it must hold for the whole run and not be loosened by anyone who can reach the "
+                    "parameter services"),
+    **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
+    "frame_id": "viewers and the bag expect one frame for the whole run",
+    **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale"), "part of the run's definition "
+                    "that the offline comparison of the bag (bptsb replay) reproduces"),
+    "noise_seed": "the noise generator is seeded once, so that a run with noise can be repeated",
+    **dict.fromkeys(("bag_path", "chunk_size", "compression", "custom_data"), "the bag is opened with it at "
+                    "startup"),
+    **dict.fromkeys(("topics", "exclude_topics", "include_hidden_topics", "discovery_period", "queue_depth"),
+                    "the topic selection and subscriptions are set up at startup, so the bag holds one consistent "
+                    "set"),
+    **dict.fromkeys(("flush_period", "drain_quiet", "stop_timeout"), "part of the recorder's guarantee of what "
+                    "survives a kill or a stop; fixed for the whole recording"),
+}
+#: Reason of a read-only parameter missing from :data:`READ_ONLY_REASONS`.
+DEFAULT_READ_ONLY_REASON = "read once, when the node starts"
+
+#: Logger level of a node, live (every node declares it).
+LOG_LEVEL = Param("log_level", "", "logger level of this node: debug, info, warn or error (debug shows per-message "
+                  "and per-topic lines); empty: as set by --ros-args --log-level (default info)", "str",
+                  choices=("", "debug", "info", "warn", "error"), dynamic=True)
+
+
+def read_only_reason(p: Param) -> str:
+    """Why ``p`` is read-only ('' for a dynamic parameter)."""
+    if p.dynamic:
+        return ""
+    if p.name in READ_ONLY_REASONS:
+        return READ_ONLY_REASONS[p.name]
+    head = p.name.split(".", 1)[0]
+    return READ_ONLY_REASONS.get(f"{head}.*", DEFAULT_READ_ONLY_REASON)
+
+
+def describe(p: Param) -> str:
+    """The description ``ros2 param describe`` shows: the text, then whether and why it can change live."""
+    if p.dynamic:
+        return f"{p.description} [dynamic: ros2 param set applies it while the node runs]"
+    return f"{p.description} [read-only: {read_only_reason(p)}]"
 
 
 def check_specs(specs: Sequence[Param]) -> None:
@@ -129,21 +207,91 @@ def validate_values(specs: Sequence[Param], values: dict[str, Any]) -> dict[str,
     return {p.name: p.validate(values.get(p.name, p.default)) for p in specs}
 
 
-def declare_parameters(node: Node, specs: Sequence[Param]) -> dict[str, ParamValue]:
-    """Declare ``specs`` on ``node`` (read-only, dynamically typed so ``2`` works for a float) and validate.
+#: Applies a live change: called with (name, validated value) before the value is committed; raising
+#: ParameterError refuses the change with that message.
+OnChange = Callable[[str, ParamValue], None]
+
+
+def apply_changes(specs: Sequence[Param], values: dict[str, ParamValue], changes: Sequence[tuple[str, Any]],
+                  on_change: OnChange | None = None) -> str:
+    """Validate and apply live changes (name, raw value) to ``values``: '' when all were applied, else the reason
+    the whole set was refused (nothing is applied then, except by an ``on_change`` that already ran).
+
+    Parameters not in ``specs`` (``use_sim_time``, ...) are left to ROS. A read-only one is refused (ROS refuses
+    it before this runs; the check keeps this function safe on its own).
+    """
+    by_name = {p.name: p for p in specs}
+    checked: list[tuple[str, ParamValue]] = []
+    for name, raw in changes:
+        spec = by_name.get(name)
+        if spec is None:
+            continue
+        if not spec.dynamic:
+            return f"parameter '{name}' is read-only: {read_only_reason(spec)}"
+        try:
+            checked.append((name, spec.validate(raw)))
+        except ParameterError as err:
+            return str(err)
+    try:
+        for name, value in checked:
+            if on_change is not None:
+                on_change(name, value)
+    except ParameterError as err:
+        return str(err)
+    for name, value in checked:
+        values[name] = value
+    return ""
+
+
+def set_log_level(node: Node, level: str) -> None:
+    """Set ``node``'s logger level ('' leaves it as --log-level set it)."""
+    if not level:
+        return
+    from rclpy.logging import LoggingSeverity
+
+    node.get_logger().set_level({"debug": LoggingSeverity.DEBUG, "info": LoggingSeverity.INFO,
+                                 "warn": LoggingSeverity.WARN, "error": LoggingSeverity.ERROR}[level])
+
+
+def declare_parameters(node: Node, specs: Sequence[Param], on_change: OnChange | None = None) -> dict[str, ParamValue]:
+    """Declare ``specs`` on ``node`` (dynamically typed so ``2`` works for a float) and validate.
+
+    Parameters with ``dynamic=True`` may be set while the node runs: a parameter callback validates them
+    (:func:`apply_changes`), calls ``on_change`` and updates the returned dict, which the node keeps reading;
+    the others are read-only. ``log_level`` (if among ``specs``) is applied here, at startup and when set.
 
     Returns the validated values by name. Raises ParameterError naming the first bad parameter.
     """
-    from rcl_interfaces.msg import ParameterDescriptor
+    from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 
     out: dict[str, ParamValue] = {}
     for p in specs:
         descriptor = ParameterDescriptor(
-            name=p.name, description=p.description, additional_constraints=p.constraints(),
-            read_only=True, dynamic_typing=True,
+            name=p.name, description=describe(p), additional_constraints=p.constraints(),
+            read_only=not p.dynamic, dynamic_typing=True,
         )
         node.declare_parameter(p.name, p.default, descriptor)
         out[p.name] = p.validate(node.get_parameter(p.name).value)
+    if "log_level" in out:
+        set_log_level(node, str(out["log_level"]))
+
+    def changed(name: str, value: ParamValue) -> None:
+        if on_change is not None:
+            on_change(name, value)
+        if name == "log_level":
+            set_log_level(node, str(value))
+
+    def callback(params: list) -> SetParametersResult:
+        reason = apply_changes(specs, out, [(q.name, q.value) for q in params], changed)
+        if reason:
+            node.get_logger().warning(f"refused parameter change: {reason}")
+            return SetParametersResult(successful=False, reason=reason)
+        for q in params:
+            if q.name in out:
+                node.get_logger().info(f"parameter {q.name} set to {yaml_value(out[q.name])}")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(callback)
     return out
 
 
@@ -172,6 +320,8 @@ def render_params_yaml(node_name: str, specs: Sequence[Param],
         f"# Parameters of the {node_name} node (defaults). Use with",
         f"#   bptsb run {node_name} --ros-args --params-file config/{node_name}_params.yaml",
         "# or in a launch file; override single values with --ros-args -p name:=value.",
+        "# [dynamic] ones can also be changed while the node runs (ros2 param set); the others are read-only",
+        "# (ros2 param describe says why).",
         "/**:",
         "  ros__parameters:",
     ]
@@ -183,13 +333,14 @@ def render_params_yaml(node_name: str, specs: Sequence[Param],
         head = p.name.split(".", 1)[0] if "." in p.name else ""
         groups.setdefault(head, []).append(p)
     for p in groups.get("", []):
-        lines.append(f"    # {p.description}" + (f" ({p.constraints()})" if p.constraints() else ""))
+        lines.append(f"    # {p.description}" + (f" ({p.constraints()})" if p.constraints() else "")
+                     + (" [dynamic]" if p.dynamic else ""))
         lines.append(f"    {p.name}: {yaml_value(p.default)}")
     for head, params in groups.items():
         if not head:
             continue
         lines.append(f"    {head}:")
         for p in params:
-            lines.append(f"      # {p.description}")
+            lines.append(f"      # {p.description}" + (" [dynamic]" if p.dynamic else ""))
             lines.append(f"      {p.name.split('.', 1)[1]}: {yaml_value(p.default)}")
     return "\n".join(lines) + "\n"

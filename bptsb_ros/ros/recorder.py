@@ -8,14 +8,17 @@ Every ``discovery_period`` it looks at the graph; each selected topic that has a
 (serialized CDR bytes, never re-encoded) with the QoS that matches all its publishers (reliable only if all are
 reliable, transient-local only if all are) and a history of ``queue_depth``. The publishers' offered QoS profiles
 and the type hash go into the bag. Each message is stamped with its receive time: the middleware's receive
-timestamp (system clock, ns since the epoch), or the node clock when ``use_sim_time`` is true.
+timestamp (system clock, ns since the epoch), or, when ``use_sim_time`` is true (``ros2 bag record
+--use-sim-time``; the launchers set it for lockstep runs), the node clock, which follows ``/clock``: the bag's
+timeline is then sim time, so a 10 s lockstep run lasts 10 s in ``ros2 bag info``, ``ros2 bag play`` and
+Foxglove however long it took. ``custom_data`` key ``log_time`` says which: ``sim`` or ``system``.
 
 On SIGINT or SIGTERM it stops discovery and the flush timer, keeps taking the messages still in flight (one
 per executor call) until a wait of ``drain_quiet`` seconds brings none (at most ``stop_timeout`` in all), then
 finalizes the bag (summary, indexes, ``metadata.yaml``) and exits 0. Killed outright, it leaves the chunks written
 so far (closed at least every ``flush_period``); ``bptsb bag recover`` restores them. Log lines
-``Recording to ...``, ``Subscribed to <topic> [<type>]`` and, with explicit ``topics``, ``All <n> requested topics
-subscribed`` tell a launcher when it is ready.
+``Recording to ...`` and, with explicit ``topics``, ``All <n> requested topics subscribed`` tell a launcher when it
+is ready; one ``Subscribed to <topic> [<type>]`` line per topic is logged at DEBUG (``-p log_level:=debug``).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import time
 from typing import Any
 
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
@@ -45,7 +49,7 @@ from bptsb_ros.bags.recording import (
 )
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.ros.params import ParameterError, declare_parameters
-from bptsb_ros.ros.runtime import unblock_interrupt
+from bptsb_ros.ros.runtime import exit_process, ignore_stop_signals, unblock_interrupt
 
 
 class RecorderNode(Node):
@@ -55,9 +59,10 @@ class RecorderNode(Node):
         super().__init__("recorder", **kwargs)
         self.config = RecorderConfig.from_values(declare_parameters(self, RECORDER_PARAMS), self.get_namespace())
         self._use_sim_time = bool(self.get_parameter("use_sim_time").value)
+        custom_data = {**self.config.custom_data, "log_time": "sim" if self._use_sim_time else "system"}
         self.writer = BagWriter(
             self.config.bag_path, chunk_size=self.config.chunk_size, compression=self.config.compression,
-            flush_period_s=self.config.flush_period, custom_data=self.config.custom_data,
+            flush_period_s=self.config.flush_period, custom_data=custom_data,
         )
         self._recorded: dict[str, Any] = {}
         self._skipped: set[str] = set()
@@ -68,11 +73,16 @@ class RecorderNode(Node):
         try:
             self.get_logger().info(
                 f"Recording to {self.writer.path} ("
-                + (", ".join(self.config.topics) if self.config.topics else "all topics") + ")"
+                + (f"{len(self.config.topics)} topics" if self.config.topics else "all topics")
+                + f"; log times: {'sim time from /clock' if self._use_sim_time else 'system time'})"
             )
             self._discover()
-            self._discovery_timer = self.create_timer(self.config.discovery_period, self._discover)
-            self._flush_timer = self.create_timer(min(self.config.flush_period, 0.5), self.writer.flush_if_due)
+            # steady-clock timers: on sim time the node clock stands still until the first /clock, and the body
+            # publishes that only once the recorder has subscribed
+            steady = Clock(clock_type=ClockType.STEADY_TIME)
+            self._discovery_timer = self.create_timer(self.config.discovery_period, self._discover, clock=steady)
+            self._flush_timer = self.create_timer(min(self.config.flush_period, 0.5), self.writer.flush_if_due,
+                                                  clock=steady)
         except BaseException:
             self.writer.close()
             raise
@@ -129,7 +139,7 @@ class RecorderNode(Node):
         self._recorded[topic] = self.create_subscription(
             msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True
         )
-        self.get_logger().info(f"Subscribed to {topic} [{msgtype}] ({reliability}, {durability})")
+        self.get_logger().debug(f"Subscribed to {topic} [{msgtype}] ({reliability}, {durability})")
         if self.config.topics and all(t in self._recorded for t in self.config.topics):
             self.get_logger().info(f"All {len(self.config.topics)} requested topics subscribed")
 
@@ -155,8 +165,8 @@ class RecorderNode(Node):
         if missing:
             self.get_logger().warning(f"Requested topics never recorded (no publisher seen): {', '.join(missing)}")
         metadata = self.writer.close()
-        counts = ", ".join(f"{t.name}: {t.message_count}" for t in metadata.topics) or "no topics"
-        self.get_logger().info(f"Bag {self.writer.path} closed: {metadata.message_count} messages ({counts})")
+        counts = "".join(f"\n  {t.message_count:>8}  {t.name}" for t in metadata.topics) or " (no topics)"
+        self.get_logger().info(f"Bag {self.writer.path} closed: {metadata.message_count} messages{counts}")
 
 
 def _drain(executor: SingleThreadedExecutor, node: RecorderNode) -> None:
@@ -186,18 +196,27 @@ def _drain(executor: SingleThreadedExecutor, node: RecorderNode) -> None:
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the recorder until SIGINT/SIGTERM; return 0 on a clean stop, 2 for bad parameters."""
+    """Run the recorder until SIGINT/SIGTERM; return 0 on a clean stop, 2 for bad parameters or arguments
+    (``--help`` lists the parameters)."""
+    from bptsb_ros.ros.runtime import check_cli
+
+    code = check_cli("recorder", sys.argv[1:] if args is None else list(args), RECORDER_PARAMS, __doc__ or "")
+    if code is not None:
+        unblock_interrupt()
+        return code
     stop = threading.Event()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     unblock_interrupt()  # a stop requested during startup (held pending by the launcher) arrives now
     node: RecorderNode | None = None
+    code: int | None = None  # set once the recorder has finished (an exception leaves it None and propagates)
     try:
         try:
             node = RecorderNode()
         except (ParameterError, BagError) as exc:
             print(f"recorder: {exc}", file=sys.stderr)
-            return 2
+            code = 2
+            return code
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         try:
@@ -207,16 +226,19 @@ def main(args: list[str] | None = None) -> int:
         except ExternalShutdownException:
             pass
         node.close()
-        return 0
+        code = 0
+        return code
     finally:
+        ignore_stop_signals()  # stopping already: a late SIGINT/SIGTERM must not kill the cleanup
         if node is not None:
             if not node.writer.closed:
                 node.writer.close()
             node.destroy_node()
         rclpy.try_shutdown()
+        if args is None and code is not None:  # run as a program: exit at once (see runtime.exit_process)
+            exit_process(code)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -17,7 +17,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.brain_node import BrainNode, topic_params
+from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.topics import input_names
@@ -64,7 +64,7 @@ class TaskInput(BrainNode):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node; ``args`` are ROS arguments (``--ros-args -p agent:=runs/x ...``), default sys.argv."""
-    return run_node(NODE, TaskInput, args)
+    return run_node(NODE, TaskInput, args, params=COMMON_PARAMS + PARAMS, summary=__doc__ or "")
 
 
 if __name__ == "__main__":
