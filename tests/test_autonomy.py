@@ -1,0 +1,153 @@
+"""Autonomy experiments (issue 10): batched populations, the error and success criteria, FFT frequency
+detection, bifurcation maxima, periodicity, wind schedules, and the smoke runs of the experiments."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bptsb_ros.agent import build_agent
+from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, periodicity
+from bptsb_ros.cli import main
+from bptsb_ros.experiments import read_result
+from bptsb_ros.experiments.common import packaged_config
+from bptsb_ros.sim.population import run_population
+from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
+from bptsb_ros.tasks.lissajous import returned, windowed_shift_error, windowed_shift_error_batch
+from bptsb_ros.tasks.lissajous_switching import Curve, wind_schedule
+
+
+# -- the paper's error and success criterion ---------------------------------------------------------------
+def test_batched_shift_error_equals_the_scalar_one_and_vanishes_on_a_shifted_target():
+    rng = np.random.default_rng(1)
+    period, n = 20, 75
+    traj = rng.normal(size=(n, 3, 2))
+    target_fn = lambda t: np.stack([np.cos(2 * np.pi * t), np.sin(4 * np.pi * t)], -1)  # noqa: E731
+    dt, t0 = 0.05, 0.3
+    t = t0 + dt * np.arange(n + period)
+    batch = windowed_shift_error_batch(traj, target_fn(t), period)
+    for b in range(3):
+        assert batch[b] == pytest.approx(windowed_shift_error(traj[:, b], target_fn, t0, dt, period), rel=1e-12)
+    # a trajectory that is the target delayed by 7 steps has zero error (the shift absorbs the delay)
+    delayed = target_fn(t[:n] + 7 * dt)[:, None, :]
+    assert windowed_shift_error_batch(delayed, target_fn(t), period)[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_return_criterion_is_half_open_and_fails_diverged_rows():
+    e = np.array([0.5, 1.99, 2.0, 3.0, np.nan])
+    assert returned(e, 1.0).tolist() == [True, True, False, False, False]
+
+
+# -- dynamics descriptors on planted signals ---------------------------------------------------------------
+def test_dominant_frequency_finds_planted_sinusoids_and_their_swap():
+    dt = 0.01
+    t = np.arange(2000) * dt  # 20 s: bin width 0.05 Hz
+    x = 0.2 * np.cos(2 * np.pi * 1.0 * t) + 0.05 * np.sin(2 * np.pi * 3.0 * t) + 0.7
+    y = 0.2 * np.sin(2 * np.pi * 2.0 * t + 0.4)
+    f = dominant_frequency(np.stack([x, y], -1), dt)
+    assert f == pytest.approx([1.0, 2.0], abs=0.01)
+    f_off_bin = dominant_frequency(np.sin(2 * np.pi * 1.37 * t), dt)
+    assert float(f_off_bin) == pytest.approx(1.37, abs=0.01)  # between bins: interpolated
+
+
+def test_local_maxima_and_periodicity_on_planted_orbits():
+    t = np.arange(4000) * 0.01
+    period1 = np.sin(2 * np.pi * t)
+    period2 = np.sin(2 * np.pi * t) + 0.5 * np.sin(np.pi * t)  # repeats every 2 s only
+    quasi = np.sin(2 * np.pi * t) + 0.5 * np.sin(2 * np.pi * math.sqrt(2) * t)
+    maxima = local_maxima(np.stack([period1, period2], 1))
+    assert np.allclose(maxima[0], 1.0, atol=1e-3) and len(maxima[0]) == 40
+    assert len(np.unique(np.round(maxima[1], 6))) == 2  # two distinct peaks per 2-s orbit
+    traj = np.stack([period1, period2, quasi], 1)[:, :, None]
+    assert periodicity(traj, 100, max_multiple=8).tolist() == [1, 2, 0]
+
+
+# -- wind schedules ---------------------------------------------------------------------------------------
+def test_wind_schedule_switches_at_the_stated_phase():
+    rng = np.random.default_rng(0)
+    period = 100
+    fixed = wind_schedule(5000, period, rng, hold_periods=(2, 4), timing="fixed")
+    switches = np.flatnonzero(np.diff(fixed)) + 1
+    assert switches.size > 5 and np.all(switches % period == 0)
+    gaps = np.diff(np.concatenate([[0], switches]))
+    assert gaps.min() >= 2 * period and gaps.max() <= 4 * period
+    rand = wind_schedule(20000, period, np.random.default_rng(1), hold_periods=(2, 4), timing="random")
+    phases = (np.flatnonzero(np.diff(rand)) + 1) % period
+    assert len(set(phases.tolist())) > 10  # random n in [0, 99]
+    given = wind_schedule(3000, period, rng, hold_periods=(3, 3), timing=37)
+    assert (np.flatnonzero(np.diff(given)) + 1).tolist()[:2] == [337, 637]
+    assert set(np.unique(rand).tolist()) == {0.0, 1.0}
+
+
+def test_curve_targets_are_the_lissajous_formulas():
+    c = Curve(2, 1, math.pi / 2)
+    t = np.array([0.0, 0.125, 0.25])
+    xy = c.target(t, 0.2, 2 * math.pi, shift_x=0.05)
+    expect = np.stack([0.2 * np.cos(2 * 2 * np.pi * t) + 0.05, 0.2 * np.sin(2 * np.pi * t + np.pi / 2)], -1)
+    assert np.allclose(xy, expect)
+
+
+# -- populations: one batched run equals the single-run code paths ---------------------------------------
+@pytest.fixture(scope="module")
+def agent64():
+    cfg = packaged_config("lissajous_single", ["dtype=float64"], seed=3)
+    agent = build_agent(cfg)
+    with torch.no_grad():
+        agent.feedback.weight.normal_(0, 0.02, generator=torch.Generator().manual_seed(0))
+    return agent
+
+
+def test_population_equals_simulate_open_and_closed_loop(agent64):
+    body = agent64.body
+    disp = 0.05 * torch.randn(3, body.n_movable, 2, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    steps = 150
+    ref = simulate_open_loop(agent64, steps, displacement=disp)
+    rest0 = agent64.brain.rest_length(body.l, torch.zeros(1, dtype=torch.float64))[0]
+    state0 = body.initial_state(3, rest_length=rest0, displacement=disp)
+    pop = run_population(body, steps, state0, swg=agent64.brain, track=(0, body.cmp_local))
+    assert torch.equal(pop.tracked[:, :, 1], ref.r[:, :, body.cmp_local])
+    assert torch.equal(pop.tracked[:, :, 0], ref.r[:, :, 0])
+    wind = torch.tensor([0.3, 0.0], dtype=torch.float64)
+    refc = simulate_closed_loop(body, agent64.feedback, steps, displacement=disp, wind=wind)
+    s0 = body.initial_state(3, displacement=disp, external_force=wind.expand(body.n_movable, 2))
+    popc = run_population(body, steps, s0, feedback=agent64.feedback, wind=lambda i: wind)  # per-step form
+    assert torch.equal(popc.tracked[:, :, 0], refc.r[:, :, body.cmp_local])
+    assert not bool(popc.diverged.any())
+
+
+def test_population_flags_a_blown_up_row_and_keeps_the_others(agent64):
+    body = agent64.body
+    disp = torch.zeros(2, body.n_movable, 2, dtype=torch.float64)
+    disp[1, 0, 0] = 1e3  # far beyond the limit: row 1 "blows up" at the first check
+    s0 = body.initial_state(2, displacement=disp)
+    pop = run_population(body, 100, s0, swg=agent64.brain, check_every=10)
+    assert pop.diverged.tolist() == [False, True] and int(pop.diverged_at[1]) == 10
+    assert torch.isnan(pop.tracked[1:, 1]).all() and torch.isfinite(pop.tracked[:, 0]).all()
+    alone = run_population(body, 100, body.initial_state(1), swg=agent64.brain)
+    assert torch.equal(alone.tracked[:, 0], pop.tracked[:, 0])
+
+
+# -- the experiments at smoke scale --------------------------------------------------------------------------
+def test_lissajous_perturbation_smoke(tmp_path):
+    out = tmp_path / "pert"
+    assert main(["reproduce", "lissajous-perturbation", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d = data["details"]
+    seeds = d["seeds_per_sigma"]
+    e_open, e_closed = np.array(d["errors_open"], dtype=float), np.array(d["errors_closed"], dtype=float)
+    assert e_open.shape == (11, seeds) and e_closed.shape == (11, seeds)
+    assert np.allclose(e_open[0], e_open[0, 0]) and np.allclose(e_closed[0], e_closed[0, 0])  # σ = 0: identical
+    rows = {r["system"]: r["ours"] for r in data["rows"] if r["metric"] == "return rate"}
+    for j, sigma in enumerate(np.arange(11) / 10):
+        # independent recomputation: fraction of finite errors below twice the unperturbed one
+        expect_open = np.mean([e == e and e < 2 * e_open[0, 0] for e in e_open[j]])
+        expect_closed = np.mean([e == e and e < 2 * e_closed[0, 0] for e in e_closed[j]])
+        assert rows[f"SWG (open loop), σ = {sigma:.1f}"] == pytest.approx(expect_open)
+        assert rows[f"FL (closed loop), σ = {sigma:.1f}"] == pytest.approx(expect_closed)
+    gap = max(abs(rows[f"SWG (open loop), σ = {s:.1f}"] - rows[f"FL (closed loop), σ = {s:.1f}"])
+              for s in np.arange(11) / 10)
+    assert data["claims"][1]["holds"] == (gap <= 0.2)
+    assert all((out / f).is_file() for f in data["figures"])
