@@ -151,3 +151,54 @@ def test_lissajous_perturbation_smoke(tmp_path):
               for s in np.arange(11) / 10)
     assert data["claims"][1]["holds"] == (gap <= 0.2)
     assert all((out / f).is_file() for f in data["figures"])
+
+
+def _rows(data: dict) -> dict[tuple[str, str], float]:
+    return {(r["system"], r["metric"]): r["ours"] for r in data["rows"]}
+
+
+def test_lissajous_switching_smoke(tmp_path):
+    out = tmp_path / "sw"
+    assert main(["reproduce", "lissajous-switching", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    rows = _rows(data)
+    seg = data["details"]["test_run"]["segments"]
+    fx0, fy0 = rows[("CMP, before (no wind)", "dominant frequency x")], rows[("CMP, before (no wind)",
+                                                                              "dominant frequency y")]
+    fx1, fy1 = rows[("CMP, wind", "dominant frequency x")], rows[("CMP, wind", "dominant frequency y")]
+    swapped = abs(fx0 - fy1) <= 0.1 and abs(fy0 - fx1) <= 0.1 and abs(fx0 - fy0) >= 0.5
+    drawn = all(s["nmse"] < 0.1 for s in seg.values())
+    assert [c["holds"] for c in data["claims"][:2]] == [drawn, swapped]
+    assert len(data["figures"]) == 2 and all((out / f).is_file() for f in data["figures"])
+    assert (out / "switching" / "checkpoint.pt").is_file()
+
+
+def test_lissajous_bifurcation_smoke(tmp_path):
+    out = tmp_path / "bif"
+    assert main(["reproduce", "lissajous-bifurcation", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d, rows = data["details"], _rows(data)
+    winds, per = np.array(d["winds"]), np.array(d["period_multiple"])
+    assert len(winds) == 61 and winds[0] == -1.0 and winds[-1] == 2.0 and np.allclose(np.diff(winds), 0.05)
+    assert rows[("F_wind grid", "values with a period-1 orbit (1 s)")] == np.sum(per == 1)
+    assert data["claims"][1]["holds"] == bool(np.sum(per > 1) + np.sum(per == 0) > 0)
+    assert len(d["maxima_x"]) == 61 and all(len(m) > 0 for m in d["maxima_x"])
+
+
+def test_lissajous_timing_smoke(tmp_path):
+    out = tmp_path / "tim"
+    assert main(["reproduce", "lissajous-timing", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d, rows = data["details"], _rows(data)
+    for name in ("fixed", "random"):
+        to_ref = np.array([np.inf if v is None else v for v in d[f"{name}_to_reference"]])
+        assert to_ref[0] == 0.0  # the n = 0 row is the reference
+        assert rows[(f"{name} timing", "n converging to the trained trajectory")] == np.sum(to_ref < 0.01)
+    fails = np.array([np.inf if v is None else v for v in d["fixed_to_reference"]]) >= 0.01
+    longest, cur = 0, 0
+    for f in fails:
+        cur = cur + 1 if f else 0
+        longest = max(longest, cur)
+    assert rows[("fixed timing", "longest band of failing n")] == longest
+    assert data["claims"][1]["holds"] == (longest >= 5)
+    assert (out / "fixed" / "checkpoint.pt").is_file() and (out / "random" / "checkpoint.pt").is_file()

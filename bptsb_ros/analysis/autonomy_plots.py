@@ -48,3 +48,112 @@ def plot_perturbation(path: Path, sigmas: np.ndarray, rates: dict[str, np.ndarra
     ax.grid(alpha=0.3)
     ax.legend(frameon=False, fontsize=8)
     return _save(fig, path)
+
+
+def _wind_background(ax, t: np.ndarray, wind: np.ndarray) -> None:
+    """Shade time spans blue (F_wind = 0) and orange (F_wind = 1)."""
+    edges = np.flatnonzero(np.diff(wind)) + 1
+    bounds = np.concatenate([[0], edges, [len(wind) - 1]])
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        ax.axvspan(t[a], t[b], color=WIND_COLOURS[int(wind[a] > 0.5)], alpha=0.12, lw=0)
+
+
+def plot_switching_curves(path: Path, cmp: np.ndarray, target: np.ndarray, wind: np.ndarray,
+                          segments: dict[str, tuple[int, int]]) -> Path:
+    """(a) the drawn curve in each wind segment over its target. cmp, target: (T, 2); wind: (T,);
+    segments: label → (first, end) rows after the transient."""
+    fig, axes = plt.subplots(1, len(segments), figsize=(4 * len(segments), 4.2))
+    for ax, (label, (a, b)) in zip(np.atleast_1d(axes), segments.items(), strict=True):
+        colour = WIND_COLOURS[int(wind[a] > 0.5)]
+        ax.plot(target[a:b, 0], target[a:b, 1], "k--", lw=1.2, label="target")
+        ax.plot(cmp[a:b, 0], cmp[a:b, 1], color=colour, lw=1.0, label="CMP")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(f"{label}: F_wind = {int(wind[a] > 0.5)} N")
+        ax.set_xlabel("x [m]")
+        ax.legend(frameon=False, fontsize=8, loc="upper right")
+    np.atleast_1d(axes)[0].set_ylabel("y [m]")
+    fig.suptitle("(a) drawn curves with and without wind (after a transient)")
+    return _save(fig, path)
+
+
+def plot_switching_dynamics(path: Path, t: np.ndarray, r: np.ndarray, wind: np.ndarray, cmp: int) -> Path:
+    """(b) x(t) and y(t) of every movable mass around a switch (CMP red), background by wind. r: (T, M, 2)."""
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    for c, ax in enumerate(axes):
+        _wind_background(ax, t, wind)
+        centred = r[:, :, c] - r[:, :, c].mean(0)
+        for m in range(r.shape[1]):
+            if m != cmp:
+                ax.plot(t, centred[:, m], color="0.55", lw=0.6)
+        ax.plot(t, centred[:, cmp], color="red", lw=1.4, label="CMP")
+        ax.set_ylabel(f"{'xy'[c]} − mean [m]")
+        ax.grid(alpha=0.3)
+    axes[0].plot([], [], color="0.55", lw=0.6, label="other movable masses")
+    axes[0].legend(frameon=False, fontsize=8, ncol=2, loc="upper left")
+    axes[1].set_xlabel("time [s] (blue: F_wind = 0, orange: F_wind = 1)")
+    axes[0].set_title("(b) each movable mass before and after the wind switches on")
+    return _save(fig, path)
+
+
+def plot_bifurcation(path: Path, winds: np.ndarray, max_x: list[np.ndarray], max_y: list[np.ndarray],
+                     cmp: np.ndarray, show: list[float], period: np.ndarray) -> Path:
+    """(d) local maxima of the CMP's x and y per F_wind, trajectories at ``show`` values on top.
+    cmp: (T, len(winds), 2) after the transient; period: (len(winds),) orbit period multiple (0 aperiodic)."""
+    fig = plt.figure(figsize=(11, 7.5))
+    grid = fig.add_gridspec(3, len(show), height_ratios=[1.0, 1.3, 1.3])
+    for j, f in enumerate(show):
+        ax = fig.add_subplot(grid[0, j])
+        b = int(np.argmin(np.abs(winds - f)))
+        xy = cmp[:, b]
+        ax.plot(xy[:, 0], xy[:, 1], lw=0.5, color=WIND_COLOURS.get(int(round(f)), "0.3") if f in (0.0, 1.0) else "0.3")
+        ax.set_title(f"F = {winds[b]:.2f}\n" + (f"period {period[b]}" if period[b] > 0 else
+                                                ("aperiodic" if period[b] == 0 else "diverged")), fontsize=8)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    for row, (maxima, name) in enumerate(((max_x, "x"), (max_y, "y")), start=1):
+        ax = fig.add_subplot(grid[row, :])
+        for f, c in ((0.0, 0), (1.0, 1)):
+            ax.axvspan(f - 0.025, f + 0.025, color=WIND_COLOURS[c], alpha=0.25, lw=0)
+        xs = np.concatenate([np.full(len(m), w) for w, m in zip(winds, maxima, strict=True)])
+        ys = np.concatenate(maxima) if maxima else np.array([])
+        ax.scatter(xs, ys, s=2, color="k", alpha=0.5, lw=0)
+        ax.set_ylabel(f"maxima of CMP {name} [m]")
+        ax.grid(alpha=0.3)
+        if row == 2:
+            ax.set_xlabel("F_wind [N] (blue, orange: the trained values 0 and 1)")
+    fig.suptitle("(d) bifurcation diagram of the switching agent")
+    return _save(fig, path)
+
+
+def plot_timing(path: Path, runs: dict[str, dict], *, period: int, target: Callable[[np.ndarray, float], np.ndarray],
+                shifts: dict[str, float]) -> Path:
+    """Switch timing: per system, which n converge, and the CMP of a converging and a failing n."""
+    fig, axes = plt.subplots(2, 3, figsize=(12, 6.5), gridspec_kw={"width_ratios": [1.6, 1, 1]})
+    for row, (name, res) in enumerate(runs.items()):
+        ax = axes[row, 0]
+        conv = res["converged"]
+        ax.bar(res["n"], np.where(conv, 1, 0), color=np.where(conv, "tab:orange", "tab:purple"), width=1.0)
+        ax.set_ylim(0, 1.1)
+        ax.set_yticks([0, 1], ["no", "yes"])
+        ax.set_ylabel(f"{name} timing:\nconverges?")
+        ax.set_xlabel("switch phase n (t_wind = t0 + (2π/ω)·n/100)")
+        t = res["t"][-period - 1:]
+        tgt = target(t, shifts[name])
+        fails = np.flatnonzero(~conv)
+        examples = [(0, "n = 0 (trained)")]
+        if fails.size:
+            examples.append((int(fails[len(fails) // 2]), "fails"))
+        else:
+            examples.append((50, "n = 50"))
+        for ax, (n, label) in zip(axes[row, 1:], examples, strict=True):
+            xy = res["cmp"][-3 * period - 1:, n]
+            ax.plot(tgt[:, 0], tgt[:, 1], "k--", lw=1.0, label="(1,3,0) target")
+            ax.plot(xy[:, 0], xy[:, 1], color="tab:orange" if conv[n] else "tab:purple", lw=0.8, label="CMP")
+            ax.set_title(f"{name}: n = {n} ({label})", fontsize=9)
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.set_xlabel("x [m]")
+            ax.set_ylabel("y [m]")
+            ax.legend(frameon=False, fontsize=7)
+    fig.suptitle("Switching timing: wind switched on at t0 + (2π/ω)·n/100; last 3 periods")
+    return _save(fig, path)

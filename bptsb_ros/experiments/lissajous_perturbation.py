@@ -25,7 +25,7 @@ import time
 import numpy as np
 import torch
 
-from bptsb_ros.experiments.lissajous_agents import TrainedAgent, displaced, train_single_curve
+from bptsb_ros.experiments.lissajous_agents import TrainedAgent, displaced, single_threaded, train_single_curve
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.sim.population import run_population
 from bptsb_ros.tasks.lissajous import RETURN_RATIO, returned, windowed_shift_error_batch
@@ -99,6 +99,7 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
     durations={"smoke": "≈ 20 s", "short": "≈ 4 min (1,000 s training; 11 × 100 rows, 50 periods)",
                "paper": "≈ 12 min (2,000 s training; 11 × 100 rows, 300 periods)"},
 )
+@single_threaded
 def run(ctx: Context) -> None:
     sim_time = ctx.pick(smoke=10, short=1000, paper=2000)
     seeds = ctx.pick(smoke=6, short=100, paper=100)

@@ -27,6 +27,7 @@ from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentR
 MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.lissajous_closed_loop",
     "bptsb_ros.experiments.lissajous_perturbation",
+    "bptsb_ros.experiments.lissajous_switching",
 )
 
 T = TypeVar("T")
