@@ -157,3 +157,26 @@ def plot_timing(path: Path, runs: dict[str, dict], *, period: int, target: Calla
             ax.legend(frameon=False, fontsize=7)
     fig.suptitle("Switching timing: wind switched on at t0 + (2π/ω)·n/100; last 3 periods")
     return _save(fig, path)
+
+
+def plot_scheme_ratios(path: Path, curves: list[str], seeds: list[int], ratio2: np.ndarray, ratio3: np.ndarray,
+                       paper2: np.ndarray, paper3: np.ndarray) -> Path:
+    """The supplement's table as annotated matrices: E_after / E_before per curve (rows) and seed (columns),
+    ours beside the paper's; improved cells (< 1) green and bold."""
+    fig, axes = plt.subplots(2, 2, figsize=(11, 2.2 + 1.1 * len(curves)))
+    panels = ((ratio2, "scheme 2, ours"), (paper2, "scheme 2, paper"), (ratio3, "scheme 3, ours"),
+              (paper3, "scheme 3, paper"))
+    for ax, (mat, title) in zip(axes.ravel(), panels, strict=True):
+        mat = np.asarray(mat, dtype=float)
+        cols = seeds if "ours" in title else list(range(mat.shape[1]))
+        ax.imshow(np.where(mat < 1, 0.0, 1.0), cmap="RdYlGn_r", vmin=-1.5, vmax=2.5, aspect="auto")
+        for i in range(mat.shape[0]):
+            for j in range(mat.shape[1]):
+                v = mat[i, j]
+                ax.text(j, i, "diverged" if not np.isfinite(v) else f"{v:.2f}", ha="center", va="center",
+                        fontweight="bold" if v < 1 else "normal", fontsize=9)
+        ax.set_xticks(range(mat.shape[1]), [str(c) for c in cols])
+        ax.set_yticks(range(mat.shape[0]), curves)
+        ax.set_xlabel("seed")
+        ax.set_title(f"{title}: E_after / E_before", fontsize=10)
+    return _save(fig, path)

@@ -28,6 +28,7 @@ MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.lissajous_closed_loop",
     "bptsb_ros.experiments.lissajous_perturbation",
     "bptsb_ros.experiments.lissajous_switching",
+    "bptsb_ros.experiments.closed_loop_schemes",
 )
 
 T = TypeVar("T")
