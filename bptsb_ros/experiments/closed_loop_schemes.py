@@ -49,7 +49,7 @@ def closed_loop_error(trained: TrainedAgent, state, curve: Curve, periods: int) 
 
 
 def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_time: float, add_time: float,
-               eval_periods: int) -> dict:
+               eval_periods: int, scheme1_time: float) -> dict:
     """One (curve, seed): preliminary training, E_before, schemes 2 and 3 (then closed), scheme 1 from scratch."""
     import torch
 
@@ -81,7 +81,7 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     cfg = packaged_config("lissajous_single", [f"lissajous.alpha={c.alpha}", f"lissajous.beta={c.beta}",
                                                f"lissajous.delta={c.delta}"], seed=seed)
     fresh = build_agent(cfg)
-    res1 = train_scheme1(fresh, target, max(1, int(round(pre_time / (pre.period * pre.agent.dt)))), seed=seed)
+    res1 = train_scheme1(fresh, target, max(1, int(round(scheme1_time / (pre.period * pre.agent.dt)))), seed=seed)
     out["scheme1"] = float("nan") if res1.diverged is not None else closed_loop_error(
         TrainedAgent(fresh, res1.state, {}, pre.run_dir), res1.state, c, eval_periods)
     out["scheme1_loss_first_last"] = [res1.losses[0], res1.losses[-1]] if res1.losses else None
@@ -105,9 +105,10 @@ def run(ctx: Context) -> None:
     pre_time = ctx.pick(smoke=5, short=200, paper=2000)
     add_time = ctx.pick(smoke=3, short=100, paper=1000)
     eval_periods = ctx.pick(smoke=2, short=10, paper=10)
+    scheme1_time = ctx.pick(smoke=3, short=100, paper=2000)
     grid = [(ci, s) for ci in range(n_curves) for s in range(ctx.seed, ctx.seed + seeds)]
     jobs = [(str(ctx.out_dir / f"curve{ci}_seed{s}"), (CURVES[ci].alpha, CURVES[ci].beta, CURVES[ci].delta), s,
-             pre_time, add_time, eval_periods) for ci, s in grid]
+             pre_time, add_time, eval_periods, scheme1_time) for ci, s in grid]
     ctx.log(f"closed-loop-schemes: {len(jobs)} jobs (preliminary {pre_time} s, schemes {add_time} s)")
     results = run_jobs(scheme_job, jobs, workers=ctx.pick(smoke=1, short=2, paper=2),
                        names=[f"curve {CURVES[ci]} seed {s}" for ci, s in grid])
@@ -146,7 +147,7 @@ def run(ctx: Context) -> None:
     ctx.result.details = {"seeds": list(range(ctx.seed, ctx.seed + seeds)),
                           "curves": [str(c) for c in CURVES[:n_curves]],
                           "preliminary_sim_time_s": pre_time, "scheme_sim_time_s": add_time,
-                          "scheme1_sim_time_s": pre_time, "eval_periods": eval_periods,
+                          "scheme1_sim_time_s": scheme1_time, "eval_periods": eval_periods,
                           "errors": table, "target_mean_square": ms, "ratio_scheme2": ratio2, "ratio_scheme3": ratio3,
                           "jobs": results, "fl_learning_rate": "1.0 (schemes 1, 2; not in the paper)",
                           "scheme1_fl_init": "W ~ N(0, 0.1²)", "scheme3_fit": "ridge (AIC) on the last 10 windows, "
