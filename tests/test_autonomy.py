@@ -202,3 +202,45 @@ def test_lissajous_timing_smoke(tmp_path):
     assert rows[("fixed timing", "longest band of failing n")] == longest
     assert data["claims"][1]["holds"] == (longest >= 5)
     assert (out / "fixed" / "checkpoint.pt").is_file() and (out / "random" / "checkpoint.pt").is_file()
+
+
+# -- closed-loop schemes ---------------------------------------------------------------------------------------
+def test_scheme2_feedback_gradient_pairs_state_k_with_signal_k_plus_1(agent64, monkeypatch):
+    """One scheme-2 update with (practically) frozen body and SWG moves the FL by −lr·∇(α·L_FB), computed here
+    independently from a plain open-loop simulation: features at steps 0..99, SWG signal at steps 1..100."""
+    import copy
+
+    from bptsb_ros.config import LearningRates
+    from bptsb_ros.training import closed_loop_schemes as cls
+
+    agent = copy.deepcopy(agent64)
+    body, swg, fb = agent.body, agent.brain, agent.feedback
+    state = body.initial_state(1, rest_length=swg.rest_length(body.l, torch.zeros(1, dtype=torch.float64))[0])
+    w0 = fb.weight.detach().clone()
+    roll = simulate_open_loop(agent, 100, state=state)
+    x = roll.length[:100, 0].numpy()
+    y = swg.signal(torch.arange(1, 101, dtype=torch.float64) * body.dt).detach().numpy()
+    xb = np.concatenate([x, np.ones((100, 1))], 1)
+    resid = xb @ w0.numpy().T - y  # (100, E)
+    grad = 0.1 * 2 * resid.T @ xb / resid.size
+    monkeypatch.setattr(cls, "FL_LR", 0.5)
+    tiny = LearningRates(k=1e-300, d=0, l=0, amplitude=0, phase=0)
+    target = lambda t: torch.zeros(t.shape[0], 2, dtype=torch.float64)  # noqa: E731
+    res = cls.train_scheme2(agent, state, target, 1, lr=tiny)
+    assert res.diverged is None and len(res.losses) == 1
+    assert np.allclose(fb.weight.detach().numpy(), w0.numpy() - 0.5 * grad, rtol=1e-9, atol=1e-12)
+
+
+def test_closed_loop_schemes_smoke(tmp_path):
+    out = tmp_path / "cls"
+    assert main(["reproduce", "closed-loop-schemes", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d, rows = data["details"], _rows(data)
+    err = {k: np.array([[np.nan if v is None else v for v in row] for row in d["errors"][k]]) for k in d["errors"]}
+    ratio2 = err["scheme2"] / err["before"]
+    assert rows[("scheme 2, (1,2,0), seed 0", "E_after / E_before")] == pytest.approx(ratio2[0, 0])
+    improved3 = int(np.sum(err["scheme3"] / err["before"] < 1))
+    assert rows[("scheme 3", "systems improved (ratio < 1)")] == improved3
+    draws1 = int(np.sum(err["scheme1"] / 0.02 < 0.1))  # (1,2,0) target mean square: 0.2²/2 = 0.02 m²
+    assert data["claims"][0]["holds"] == (draws1 == 0)
+    assert (out / "schemes.png").is_file()
