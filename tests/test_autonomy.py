@@ -162,15 +162,18 @@ def test_lissajous_switching_smoke(tmp_path):
     assert main(["reproduce", "lissajous-switching", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
     data = read_result(out / "result.json")
     rows = _rows(data)
-    seg = data["details"]["test_run"]["segments"]
-    fx0, fy0 = rows[("CMP, before (no wind)", "dominant frequency x")], rows[("CMP, before (no wind)",
-                                                                              "dominant frequency y")]
-    fx1, fy1 = rows[("CMP, wind", "dominant frequency x")], rows[("CMP, wind", "dominant frequency y")]
+    label = "paper wind (F, 0)"
+    seg = data["details"]["test_runs"][label]["segments"]
+    fx0 = rows[(f"{label}: CMP, before (no wind)", "dominant frequency x")]
+    fy0 = rows[(f"{label}: CMP, before (no wind)", "dominant frequency y")]
+    fx1, fy1 = rows[(f"{label}: CMP, wind", "dominant frequency x")], rows[(f"{label}: CMP, wind",
+                                                                           "dominant frequency y")]
     swapped = abs(fx0 - fy1) <= 0.1 and abs(fy0 - fx1) <= 0.1 and abs(fx0 - fy0) >= 0.5
     drawn = all(s["nmse"] < 0.1 for s in seg.values())
     assert [c["holds"] for c in data["claims"][:2]] == [drawn, swapped]
-    assert len(data["figures"]) == 2 and all((out / f).is_file() for f in data["figures"])
-    assert (out / "switching" / "checkpoint.pt").is_file()
+    assert len(data["claims"]) == 6  # three claims for the paper's wind, three for the published code's
+    assert len(data["figures"]) == 3 and all((out / f).is_file() for f in data["figures"])
+    assert (out / "switching" / "checkpoint.pt").is_file() and (out / "switching_published" / "checkpoint.pt").is_file()
 
 
 def test_lissajous_bifurcation_smoke(tmp_path):

@@ -31,7 +31,8 @@ def plot_perturbation(path: Path, sigmas: np.ndarray, rates: dict[str, np.ndarra
             b = seeds + int(rows[len(rows) // 2])
             sigma = (b // seeds) / 10
             xy = closed_traj[tail, b]
-            ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.0, label=f"{label} (σ = {sigma:.1f})")
+            ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.0, marker="o", markevery=[len(xy) - 1], ms=5,
+                    label=f"{label} (σ = {sigma:.1f}; ● end)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -59,7 +60,7 @@ def _wind_background(ax, t: np.ndarray, wind: np.ndarray) -> None:
 
 
 def plot_switching_curves(path: Path, cmp: np.ndarray, target: np.ndarray, wind: np.ndarray,
-                          segments: dict[str, tuple[int, int]]) -> Path:
+                          segments: dict[str, tuple[int, int]], title: str = "") -> Path:
     """(a) the drawn curve in each wind segment over its target. cmp, target: (T, 2); wind: (T,);
     segments: label → (first, end) rows after the transient."""
     fig, axes = plt.subplots(1, len(segments), figsize=(4 * len(segments), 4.2))
@@ -72,7 +73,7 @@ def plot_switching_curves(path: Path, cmp: np.ndarray, target: np.ndarray, wind:
         ax.set_xlabel("x [m]")
         ax.legend(frameon=False, fontsize=8, loc="upper right")
     np.atleast_1d(axes)[0].set_ylabel("y [m]")
-    fig.suptitle("(a) drawn curves with and without wind (after a transient)")
+    fig.suptitle(f"(a) drawn curves with and without wind (after a transient){', ' + title if title else ''}")
     return _save(fig, path)
 
 

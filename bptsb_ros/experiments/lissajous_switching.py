@@ -121,71 +121,101 @@ def _shift_of(trained: TrainedAgent) -> float:
     paper_ref="supplement 'Behavioral switching', Fig. (a), (b)",
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
             "F_wind = 1; both curves drawn, CMP x/y frequencies (FFT) swap with the wind",
-    durations={"smoke": "≈ 15 s", "short": "≈ 8 min (1,000 s preliminary + 2,000 s switching training)",
-               "paper": "≈ 1 h (2,000 s + 30,000 s of training, the original simTime)"},
+    durations={"smoke": "≈ 20 s", "short": "≈ 8 min (1,000 s preliminary + 2 × 2,000 s switching training, "
+               "the paper's and the published wind, 2 jobs)",
+               "paper": "≈ 1 h (2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs)"},
 )
 @single_threaded
 def run_switching(ctx: Context) -> None:
     pre = _pretrain(ctx)
     settings = _switching_settings(ctx)
     pre_err = _curve_error(pre, CURVE_1, ctx.pick(smoke=3, short=10, paper=10))
-    ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing)")
-    sw, summary = _trained_switching(ctx, pre, "switching", CURVE_SWITCH, "random", settings)
-    shift = summary["wind_shift_x_m"]
+    curve = (CURVE_SWITCH.alpha, CURVE_SWITCH.beta, CURVE_SWITCH.delta)
+    variants = {"paper wind (F, 0)": ("switching", False), "published wind (15·F, 1)": ("switching_published", True)}
+    jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, "random", settings["sim_time"],
+             settings["hold"], published) for name, published in variants.values()]
+    ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing), the paper's wind "
+            "and the published code's wind as two jobs")
+    summaries = run_jobs(switching_job, jobs, workers=ctx.pick(smoke=1, short=2, paper=2), names=list(variants))
     seg = ctx.pick(smoke=6, short=15, paper=20)  # periods per test segment
     transient = ctx.pick(smoke=2, short=5, paper=5)
+    tests = {}
+    for (label, (name, published)), summary in zip(variants.items(), summaries, strict=True):
+        sw = load_trained(ctx.out_dir / name, summary)
+        tests[label] = _switching_test(sw, summary["wind_shift_x_m"], published, seg, transient, ctx.seed)
+    main_label = next(iter(variants))
+    ctx.row("single-curve agent (before switching training)", "(1,2,0) MSE / target mean square", "1", pre_err)
+    for label, test in tests.items():
+        for seg_label, v in test["segments"].items():
+            ctx.row(f"{label}: CMP, {seg_label}", "phase-locked MSE / target mean square", "1", v["nmse"])
+            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency x", "Hz", v["f_x"],
+                    2.0 if seg_label == "wind" else 1.0)
+            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency y", "Hz", v["f_y"],
+                    1.0 if seg_label == "wind" else 2.0)
+    for label, test in tests.items():
+        seg_out = test["segments"]
+        tag = "" if label == main_label else f" [{label}]"
+        ctx.claim(f"both curves are drawn{tag}: (1,2,0) without and (2,1,π/2) with wind (phase-locked MSE < "
+                  f"{DRAWS_NMSE} × target mean square in every segment of a test run, after a transient of "
+                  f"{transient} periods)", all(v["nmse"] < DRAWS_NMSE for v in seg_out.values()),
+                  "; ".join(f"{k}: {v['nmse']:.3g}" for k, v in seg_out.items()))
+        b0, w = seg_out["before (no wind)"], seg_out["wind"]
+        swap = (abs(b0["f_x"] - w["f_y"]) <= FREQ_TOL and abs(b0["f_y"] - w["f_x"]) <= FREQ_TOL
+                and abs(b0["f_x"] - b0["f_y"]) >= 0.5)
+        ctx.claim(f"the CMP's x and y frequencies swap with the wind{tag} (FFT peaks: f_x without ≈ f_y with, f_y "
+                  f"without ≈ f_x with, within {FREQ_TOL} Hz, and f_x ≠ f_y)", swap,
+                  f"without wind (f_x, f_y) = ({b0['f_x']:.2f}, {b0['f_y']:.2f}) Hz; with wind ({w['f_x']:.2f}, "
+                  f"{w['f_y']:.2f}) Hz; targets (1, 2) and (2, 1)")
+        after_err = seg_out["before (no wind)"]["nmse"]
+        ctx.claim(f"the first curve's error grew through the additional training{tag}", after_err > pre_err,
+                  f"(1,2,0) MSE / target mean square: {pre_err:.3g} before, {after_err:.3g} after")
+    from bptsb_ros.analysis.autonomy_plots import plot_switching_curves, plot_switching_dynamics
+
+    for label, test in tests.items():
+        suffix = "" if label == main_label else "_published"
+        ctx.figure(plot_switching_curves(ctx.out_dir / f"switching_curves{suffix}.png", test["cmp"], test["target"],
+                                         test["wind"], test["windows"], title=label))
+        if not suffix:
+            on_at, period = test["wind_on_step"], pre.period
+            lo, hi = max(on_at - 3 * period, 0), min(on_at + 3 * period, len(test["wind"]))
+            ctx.figure(plot_switching_dynamics(ctx.out_dir / "switching_dynamics.png", test["t"][lo:hi],
+                                               test["r"][lo:hi], test["wind"][lo:hi], pre.agent.body.cmp_local))
+    ctx.result.details = {"seed": ctx.seed, "switching_training": dict(zip(variants, summaries, strict=True)),
+                          "test_runs": {k: {"segment_periods": seg, "transient_periods": transient,
+                                            "wind_on_step": v["wind_on_step"], "wind_off_step": v["wind_off_step"],
+                                            "segments": v["segments"]} for k, v in tests.items()},
+                          "criteria": {"draws_nmse": DRAWS_NMSE, "freq_tol_hz": FREQ_TOL},
+                          "wind": "paper: F_wind·(1, 0) N on every movable mass; published code: (15·F_wind, 1) N"}
+
+
+def _switching_test(sw: TrainedAgent, shift: float, published: bool, seg: int, transient: int,
+                    seed: int) -> dict[str, Any]:
+    """Test run of a switching agent: no wind, wind, no wind (``seg`` periods each, switches at random phases);
+    per segment after ``transient`` periods: phase-locked MSE / target mean square and dominant frequencies."""
     agent, period, dt = sw.agent, sw.period, sw.agent.dt
-    rng = np.random.default_rng(ctx.seed + 1)
+    rng = np.random.default_rng(seed + 1)
     n_on, n_off = int(rng.integers(0, 100)), int(rng.integers(0, 100))
-    k0 = sw.state.step
-    on_at = (seg * period + round(period * n_on / 100))
-    off_at = (2 * seg * period + round(period * n_off / 100))
+    on_at = seg * period + round(period * n_on / 100)
+    off_at = 2 * seg * period + round(period * n_off / 100)
     steps = 3 * seg * period
     wind = np.zeros(steps + 1)
     wind[on_at:off_at] = 1.0
-    roll = simulate_open_loop(agent, steps, state=sw.state, wind=wind_vector(wind).to(agent.body.l.dtype))
+    force = wind_vector(wind, published=published).to(agent.body.l.dtype)
+    roll = simulate_open_loop(agent, steps, state=sw.state, wind=force)
     r = roll.r[:, 0].double().numpy()  # (T+1, M, 2)
     cmp = r[:, agent.body.cmp_local]
-    t = (k0 + np.arange(steps + 1)) * dt
+    t = (sw.state.step + np.arange(steps + 1)) * dt
     target = switch_targets(CURVE_1, CURVE_SWITCH, sw.amplitude, sw.omega, shift)(t, wind)
-    segments = {"before (no wind)": (transient * period, on_at), "wind": (on_at + transient * period, off_at),
-                "after (no wind)": (off_at + transient * period, steps + 1)}
+    windows = {"before (no wind)": (transient * period, on_at), "wind": (on_at + transient * period, off_at),
+               "after (no wind)": (off_at + transient * period, steps + 1)}
     seg_out = {}
-    for label, (a, b) in segments.items():
+    for label, (a, b) in windows.items():
         err = float(np.mean((cmp[a:b] - target[a:b]) ** 2))
         ms = float(np.mean((target[a:b] - target[a:b].mean(0)) ** 2))  # mean square about the figure's centre
         fx, fy = dominant_frequency(cmp[a:b], dt)
         seg_out[label] = {"mse": err, "nmse": err / ms, "f_x": float(fx), "f_y": float(fy), "steps": b - a}
-        ctx.row(f"CMP, {label}", "phase-locked MSE / target mean square", "1", err / ms)
-        ctx.row(f"CMP, {label}", "dominant frequency x", "Hz", fx, 2.0 if label == "wind" else 1.0)
-        ctx.row(f"CMP, {label}", "dominant frequency y", "Hz", fy, 1.0 if label == "wind" else 2.0)
-    after_err = seg_out["before (no wind)"]["nmse"]
-    ctx.row("single-curve agent (before switching training)", "(1,2,0) MSE / target mean square", "1", pre_err)
-    drawn = all(s["nmse"] < DRAWS_NMSE for s in seg_out.values())
-    ctx.claim(f"both curves are drawn: (1,2,0) without and (2,1,π/2) with wind (phase-locked MSE < {DRAWS_NMSE} × "
-              "target mean square in every segment of a test run, after a transient of "
-              f"{transient} periods)", drawn,
-              "; ".join(f"{k}: {v['nmse']:.3g}" for k, v in seg_out.items()))
-    b0, w = seg_out["before (no wind)"], seg_out["wind"]
-    swap = (abs(b0["f_x"] - w["f_y"]) <= FREQ_TOL and abs(b0["f_y"] - w["f_x"]) <= FREQ_TOL
-            and abs(b0["f_x"] - b0["f_y"]) >= 0.5)
-    ctx.claim(f"the CMP's x and y frequencies swap with the wind (FFT peaks: f_x without ≈ f_y with, f_y without ≈ "
-              f"f_x with, within {FREQ_TOL} Hz, and f_x ≠ f_y)", swap,
-              f"without wind (f_x, f_y) = ({b0['f_x']:.2f}, {b0['f_y']:.2f}) Hz; with wind ({w['f_x']:.2f}, "
-              f"{w['f_y']:.2f}) Hz; targets (1, 2) and (2, 1)")
-    ctx.claim("the first curve's error grew through the additional training", after_err > pre_err,
-              f"(1,2,0) MSE / target mean square: {pre_err:.3g} before, {after_err:.3g} after")
-    from bptsb_ros.analysis.autonomy_plots import plot_switching_curves, plot_switching_dynamics
-
-    ctx.figure(plot_switching_curves(ctx.out_dir / "switching_curves.png", cmp, target, wind, segments))
-    lo, hi = max(on_at - 3 * period, 0), min(on_at + 3 * period, steps + 1)
-    ctx.figure(plot_switching_dynamics(ctx.out_dir / "switching_dynamics.png", t[lo:hi], r[lo:hi], wind[lo:hi],
-                                       agent.body.cmp_local))
-    ctx.result.details = {"seed": ctx.seed, "switching_training": summary, "wind_shift_x_m": shift,
-                          "test_run": {"segment_periods": seg, "transient_periods": transient, "wind_on_step": on_at,
-                                       "wind_off_step": off_at, "segments": seg_out},
-                          "criteria": {"draws_nmse": DRAWS_NMSE, "freq_tol_hz": FREQ_TOL},
-                          "wind": "F_wind·(1, 0) N on every movable mass (the paper); published code: (15·F, 1)"}
+    return {"segments": seg_out, "cmp": cmp, "r": r, "t": t, "wind": wind, "target": target, "windows": windows,
+            "wind_on_step": on_at, "wind_off_step": off_at}
 
 
 def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
