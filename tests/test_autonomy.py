@@ -181,11 +181,14 @@ def test_lissajous_bifurcation_smoke(tmp_path):
     assert main(["reproduce", "lissajous-bifurcation", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
     data = read_result(out / "result.json")
     d, rows = data["details"], _rows(data)
-    winds, per = np.array(d["winds"]), np.array(d["period_multiple"])
+    winds = np.array(d["winds"])
     assert len(winds) == 61 and winds[0] == -1.0 and winds[-1] == 2.0 and np.allclose(np.diff(winds), 0.05)
-    assert rows[("F_wind grid", "values with a period-1 orbit (1 s)")] == np.sum(per == 1)
-    assert data["claims"][1]["holds"] == bool(np.sum(per > 1) + np.sum(per == 0) > 0)
-    assert len(d["maxima_x"]) == 61 and all(len(m) > 0 for m in d["maxima_x"])
+    for i, label in enumerate(("paper wind (F, 0)", "published wind (15·F, 1)")):
+        per = np.array(d[label]["period_multiple"])
+        assert rows[(f"{label}: F_wind grid", "values with a period-1 orbit (1 s)")] == np.sum(per == 1)
+        assert data["claims"][2 * i + 1]["holds"] == bool(np.sum(per > 1) + np.sum(per == 0) > 0)
+        assert len(d[label]["maxima_x"]) == 61
+    assert len(data["figures"]) == 2
 
 
 def test_lissajous_timing_smoke(tmp_path):

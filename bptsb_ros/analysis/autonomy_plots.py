@@ -97,7 +97,7 @@ def plot_switching_dynamics(path: Path, t: np.ndarray, r: np.ndarray, wind: np.n
 
 
 def plot_bifurcation(path: Path, winds: np.ndarray, max_x: list[np.ndarray], max_y: list[np.ndarray],
-                     cmp: np.ndarray, show: list[float], period: np.ndarray) -> Path:
+                     cmp: np.ndarray, show: list[float], period: np.ndarray, title: str = "") -> Path:
     """(d) local maxima of the CMP's x and y per F_wind, trajectories at ``show`` values on top.
     cmp: (T, len(winds), 2) after the transient; period: (len(winds),) orbit period multiple (0 aperiodic)."""
     fig = plt.figure(figsize=(11, 7.5))
@@ -123,7 +123,7 @@ def plot_bifurcation(path: Path, winds: np.ndarray, max_x: list[np.ndarray], max
         ax.grid(alpha=0.3)
         if row == 2:
             ax.set_xlabel("F_wind [N] (blue, orange: the trained values 0 and 1)")
-    fig.suptitle("(d) bifurcation diagram of the switching agent")
+    fig.suptitle(f"(d) bifurcation diagram of the switching agent{', ' + title if title else ''}")
     return _save(fig, path)
 
 

@@ -234,53 +234,65 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
     paper_ref="supplement 'Behavioral switching', Fig. (d)",
     summary="the switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): maxima of the CMP's "
             "x and y after a transient, period of each orbit",
-    durations={"smoke": "≈ 15 s", "short": "≈ 8 min (the switching training, then ≈ 20 s for the sweep)",
-               "paper": "≈ 1 h (the paper-scale switching training)"},
+    durations={"smoke": "≈ 20 s", "short": "≈ 8 min (the switching trainings, paper's and published wind as 2 "
+               "jobs, then ≈ 20 s per sweep)", "paper": "≈ 1 h (the paper-scale switching trainings)"},
 )
 @single_threaded
 def run_bifurcation(ctx: Context) -> None:
     pre = _pretrain(ctx)
     settings = _switching_settings(ctx)
-    ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s)")
-    sw, summary = _trained_switching(ctx, pre, "switching", CURVE_SWITCH, "random", settings)
-    period = sw.period
+    curve = (CURVE_SWITCH.alpha, CURVE_SWITCH.beta, CURVE_SWITCH.delta)
+    variants = {"paper wind (F, 0)": ("switching", False), "published wind (15·F, 1)": ("switching_published", True)}
+    jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, "random", settings["sim_time"],
+             settings["hold"], published) for name, published in variants.values()]
+    ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s), the paper's and the published "
+            "wind as two jobs")
+    summaries = run_jobs(switching_job, jobs, workers=ctx.pick(smoke=1, short=2, paper=2), names=list(variants))
     transient = ctx.pick(smoke=3, short=30, paper=100)
     record = ctx.pick(smoke=9, short=30, paper=50)
     winds = BIFURCATION_WINDS
-    body = sw.agent.body
-    state = repeat_state(sw.state, len(winds))
-    pop = run_population(body, (transient + record) * period, state, swg=sw.agent.brain,
-                         wind=wind_vector(torch.as_tensor(winds)).to(body.l.dtype))
-    cmp = pop.tracked[transient * period:, :, 0].double().numpy()  # (T, 61, 2)
-    max_x = local_maxima(cmp[:, :, 0])
-    max_y = local_maxima(cmp[:, :, 1])
-    per = periodicity(cmp, period, max_multiple=min(8, record - 1), rtol=1e-3)
-    per[pop.diverged.numpy()] = -1
-    trained_ix = [int(np.argmin(np.abs(winds - f))) for f in (0.0, 1.0)]
-    n_p1, n_multi, n_aper = int(np.sum(per == 1)), int(np.sum(per > 1)), int(np.sum(per == 0))
-    ctx.row("F_wind grid", "values with a period-1 orbit (1 s)", "count", n_p1)
-    ctx.row("F_wind grid", "values with a period-m orbit, m ≥ 2", "count", n_multi)
-    ctx.row("F_wind grid", "values aperiodic on the record (chaotic or quasi-periodic)", "count", n_aper,
-            "chaotic in (0.2, 0.6) and (1.2, 2.0)")
-    ctx.row("F_wind grid", "values that diverged", "count", int(np.sum(per < 0)))
-    stable = winds[(per >= 1)]
-    low = winds <= 0.2
-    ctx.row("F_wind ∈ [−1, 0.2]", "fraction periodic", "1", float(np.mean(per[low] >= 1)), "1 (stable)")
-    ctx.claim("at the trained values F_wind = 0 and 1 the CMP settles on a periodic orbit",
-              all(per[i] >= 1 for i in trained_ix),
-              f"period (in SWG periods; 0 = aperiodic) at F = 0: {per[trained_ix[0]]}, at F = 1: {per[trained_ix[1]]}")
-    ctx.claim("more diverse dynamics than trained: some untrained F_wind give period-m (m ≥ 2) or aperiodic orbits",
-              n_multi + n_aper > 0,
-              f"{n_multi} period-m and {n_aper} aperiodic of {len(winds)} values; aperiodic at F = "
-              f"{_ranges(winds[per == 0])}; periodic at {_ranges(stable)}")
-    from bptsb_ros.analysis.autonomy_plots import plot_bifurcation
+    main_label = next(iter(variants))
+    details: dict[str, Any] = {"seed": ctx.seed, "winds": winds, "transient_periods": transient,
+                               "record_periods": record, "periodicity_rtol": 1e-3}
+    for (label, (name, published)), summary in zip(variants.items(), summaries, strict=True):
+        sw = load_trained(ctx.out_dir / name, summary)
+        period, body = sw.period, sw.agent.body
+        pop = run_population(body, (transient + record) * period, repeat_state(sw.state, len(winds)),
+                             swg=sw.agent.brain,
+                             wind=wind_vector(torch.as_tensor(winds), published=published).to(body.l.dtype))
+        cmp = pop.tracked[transient * period:, :, 0].double().numpy()  # (T, 61, 2)
+        max_x = local_maxima(cmp[:, :, 0])
+        max_y = local_maxima(cmp[:, :, 1])
+        per = periodicity(cmp, period, max_multiple=min(8, record - 1), rtol=1e-3)
+        per[pop.diverged.numpy()] = -1
+        trained_ix = [int(np.argmin(np.abs(winds - f))) for f in (0.0, 1.0)]
+        n_p1, n_multi, n_aper = int(np.sum(per == 1)), int(np.sum(per > 1)), int(np.sum(per == 0))
+        ctx.row(f"{label}: F_wind grid", "values with a period-1 orbit (1 s)", "count", n_p1)
+        ctx.row(f"{label}: F_wind grid", "values with a period-m orbit, m ≥ 2", "count", n_multi)
+        ctx.row(f"{label}: F_wind grid", "values aperiodic on the record (chaotic or quasi-periodic)", "count",
+                n_aper, "chaotic in (0.2, 0.6) and (1.2, 2.0)")
+        ctx.row(f"{label}: F_wind grid", "values that diverged", "count", int(np.sum(per < 0)))
+        low = winds <= 0.2
+        ctx.row(f"{label}: F_wind ∈ [−1, 0.2]", "fraction periodic", "1", float(np.mean(per[low] >= 1)),
+                "1 (stable)")
+        tag = "" if label == main_label else f" [{label}]"
+        ctx.claim(f"at the trained values F_wind = 0 and 1 the CMP settles on a periodic orbit{tag}",
+                  all(per[i] >= 1 for i in trained_ix),
+                  f"period (in SWG periods; 0 = aperiodic) at F = 0: {per[trained_ix[0]]}, at F = 1: "
+                  f"{per[trained_ix[1]]}")
+        ctx.claim(f"more diverse dynamics than trained{tag}: some untrained F_wind give period-m (m ≥ 2) or "
+                  "aperiodic orbits", n_multi + n_aper > 0,
+                  f"{n_multi} period-m and {n_aper} aperiodic of {len(winds)} values; aperiodic at F = "
+                  f"{_ranges(winds[per == 0])}; periodic at {_ranges(winds[per >= 1])}")
+        from bptsb_ros.analysis.autonomy_plots import plot_bifurcation
 
-    show = [-1.0, -0.5, 0.0, 0.4, 1.0, 1.5, 2.0]
-    ctx.figure(plot_bifurcation(ctx.out_dir / "bifurcation.png", winds, max_x, max_y, cmp, show, per))
-    ctx.result.details = {"seed": ctx.seed, "switching_training": summary, "winds": winds,
-                          "transient_periods": transient, "record_periods": record,
-                          "period_multiple": per, "periodicity_rtol": 1e-3,
+        show = [-1.0, -0.5, 0.0, 0.4, 1.0, 1.5, 2.0]
+        suffix = "" if label == main_label else "_published"
+        ctx.figure(plot_bifurcation(ctx.out_dir / f"bifurcation{suffix}.png", winds, max_x, max_y, cmp, show, per,
+                                    title=label))
+        details[label] = {"switching_training": summary, "period_multiple": per,
                           "maxima_x": [m.tolist() for m in max_x], "maxima_y": [m.tolist() for m in max_y]}
+    ctx.result.details = details
 
 
 def _ranges(values: np.ndarray, step: float = 0.05) -> str:
