@@ -95,17 +95,19 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     paper_ref="supplement 'Simultaneous training for a closed loop' and its table",
     summary="3 curves × 5 seeds (jobs): scheme 1 (closed loop from scratch), 2 (BPTSB through SWG + body + FL, "
             "L = L_traj + 0.1·L_FB), 3 (FL re-fitted by regression after every update); E_after / E_before",
-    durations={"smoke": "≈ 30 s (1 curve × 1 seed)", "short": "≈ 10 min (15 jobs on 2 workers; 200 s preliminary, "
-               "100 s per scheme)", "paper": "≈ 3 h (15 × 2,000 s preliminary + schemes, 2 workers)"},
+    durations={"smoke": "≈ 30 s (1 curve × 1 seed)",
+               "short": "≈ 15–20 min on a busy 2-core machine (3 curves × 2 seeds = 6 jobs on 2 workers; 200 s "
+                        "preliminary, 50 s per scheme)",
+               "paper": "≈ 3 h (15 × 2,000 s preliminary + schemes, 2 workers)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:
     n_curves = ctx.pick(smoke=1, short=3, paper=3)
-    seeds = ctx.pick(smoke=1, short=5, paper=5)
+    seeds = ctx.pick(smoke=1, short=2, paper=5)
     pre_time = ctx.pick(smoke=5, short=200, paper=2000)
-    add_time = ctx.pick(smoke=3, short=100, paper=1000)
+    add_time = ctx.pick(smoke=3, short=50, paper=1000)
     eval_periods = ctx.pick(smoke=2, short=10, paper=10)
-    scheme1_time = ctx.pick(smoke=3, short=100, paper=2000)
+    scheme1_time = ctx.pick(smoke=3, short=50, paper=2000)
     grid = [(ci, s) for ci in range(n_curves) for s in range(ctx.seed, ctx.seed + seeds)]
     jobs = [(str(ctx.out_dir / f"curve{ci}_seed{s}"), (CURVES[ci].alpha, CURVES[ci].beta, CURVES[ci].delta), s,
              pre_time, add_time, eval_periods, scheme1_time) for ci, s in grid]
