@@ -167,3 +167,13 @@ def run(ctx: Context) -> None:
         "body_steps_per_second": {k: rows * steps / float(res[f"{k}_wall_s"]) for k in ("open", "closed")},
         "training_loss_last": trained.metrics["loss"][-1],
     }
+    notes = []
+    if rate_open.min() == 1.0:
+        notes.append("The open loop returned from every perturbation: a damped body driven by a fixed periodic "
+                     "rest-length signal forgets its initial condition (here no perturbation up to σ = 1 m pushed it "
+                     "onto another attractor), so its return rate does not fall with σ as the paper's does.")
+    if rate_literal[0] < 1.0:
+        notes.append(f"With the literal E_orig (the SWG's error also for the closed loop) the unperturbed closed loop "
+                     f"already fails (its error is {e_closed_orig / e_open_orig:.2f}× the SWG's, ≥ 2), hence the "
+                     "primary reading E_orig = the same loop unperturbed.")
+    ctx.result.details["notes"] = " ".join(notes)
