@@ -250,3 +250,18 @@ def test_closed_loop_schemes_smoke(tmp_path):
     draws1 = int(np.sum(err["scheme1"] / 0.02 < 0.1))  # (1,2,0) target mean square: 0.2²/2 = 0.02 m²
     assert data["claims"][0]["holds"] == (draws1 == 0)
     assert (out / "schemes.png").is_file()
+
+
+# -- jobs --------------------------------------------------------------------------------------------------------
+def test_jobs_run_in_order_with_one_blas_thread_and_name_a_failure(monkeypatch):
+    import operator
+    import os
+
+    from bptsb_ros.experiments.jobs import JobFailed, run_jobs
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    assert run_jobs(os.getenv, [("OPENBLAS_NUM_THREADS",), ("OMP_NUM_THREADS",)], workers=2) == ["1", "1"]
+    assert "OPENBLAS_NUM_THREADS" not in os.environ  # restored in the parent
+    assert run_jobs(operator.add, [(1, 2), (3, 4)], workers=1) == [3, 7]
+    with pytest.raises(JobFailed, match="second: ZeroDivisionError"):
+        run_jobs(operator.truediv, [(1, 1), (1, 0)], workers=1, names=["first", "second"])

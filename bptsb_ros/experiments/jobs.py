@@ -5,6 +5,7 @@ the order of the jobs. A job that fails raises in the caller, naming the job."""
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
@@ -27,9 +28,8 @@ def _available_cpus() -> int:
 
 
 def _one_thread(fn: Callable[..., R], args: tuple) -> R:
-    import torch
-
-    torch.set_num_threads(1)
+    if "torch" in sys.modules:  # imported with fn's module (OMP_NUM_THREADS = 1 covers a later import)
+        sys.modules["torch"].set_num_threads(1)
     return fn(*args)
 
 
