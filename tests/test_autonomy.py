@@ -196,7 +196,7 @@ def test_lissajous_timing_smoke(tmp_path):
     assert main(["reproduce", "lissajous-timing", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
     data = read_result(out / "result.json")
     d, rows = data["details"], _rows(data)
-    for name in ("fixed", "random"):
+    for name in ("fixed", "random", "fixed, published wind", "random, published wind"):
         to_ref = np.array([np.inf if v is None else v for v in d[f"{name}_to_reference"]])
         assert to_ref[0] == 0.0  # the n = 0 row is the reference
         assert rows[(f"{name} timing", "n converging to the trained trajectory")] == np.sum(to_ref < 0.01)
@@ -207,7 +207,8 @@ def test_lissajous_timing_smoke(tmp_path):
         longest = max(longest, cur)
     assert rows[("fixed timing", "longest band of failing n")] == longest
     assert data["claims"][1]["holds"] == (longest >= 5)
-    assert (out / "fixed" / "checkpoint.pt").is_file() and (out / "random" / "checkpoint.pt").is_file()
+    assert (out / "fixed" / "checkpoint.pt").is_file() and (out / "random_published" / "checkpoint.pt").is_file()
+    assert len(data["figures"]) == 2
 
 
 # -- closed-loop schemes ---------------------------------------------------------------------------------------
