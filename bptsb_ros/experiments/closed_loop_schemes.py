@@ -96,7 +96,7 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     summary="3 curves × 5 seeds (jobs): scheme 1 (closed loop from scratch), 2 (BPTSB through SWG + body + FL, "
             "L = L_traj + 0.1·L_FB), 3 (FL re-fitted by regression after every update); E_after / E_before",
     durations={"smoke": "≈ 30 s (1 curve × 1 seed)",
-               "short": "≈ 15–20 min on a busy 2-core machine (3 curves × 2 seeds = 6 jobs on 2 workers; 200 s "
+               "short": "375 s measured on the busy 2-core machine (3 curves × 2 seeds = 6 jobs on 2 workers; 200 s "
                         "preliminary, 50 s per scheme)",
                "paper": "≈ 3 h (15 × 2,000 s preliminary + schemes, 2 workers)"},
 )

@@ -96,8 +96,8 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
     paper_ref="Fig. 4(b,c); Methods 'Lissajous curve drawing task' (success E/E_orig < 2)",
     summary="displace the movable masses by N(0, σ²), σ = 0…1 step 0.1 × seeds, open loop (SWG) and closed loop "
             "(FL), one batched run each; return rate vs σ",
-    durations={"smoke": "≈ 20 s", "short": "≈ 4 min (1,000 s training; 11 × 100 rows, 50 periods)",
-               "paper": "≈ 12 min (2,000 s training; 11 × 100 rows, 300 periods)"},
+    durations={"smoke": "≈ 20 s", "short": "82–192 s measured (1,000 s training; 11 × 100 rows, 50 periods)",
+               "paper": "≈ 8 min (2,000 s training; 11 × 100 rows, 300 periods)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:

@@ -121,7 +121,7 @@ def _shift_of(trained: TrainedAgent) -> float:
     paper_ref="supplement 'Behavioral switching', Fig. (a), (b)",
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
             "F_wind = 1; both curves drawn, CMP x/y frequencies (FFT) swap with the wind",
-    durations={"smoke": "≈ 20 s", "short": "≈ 8 min (1,000 s preliminary + 2 × 2,000 s switching training, "
+    durations={"smoke": "≈ 20 s", "short": "455 s measured (1,000 s preliminary + 2 × 2,000 s switching training, "
                "the paper's and the published wind, 2 jobs)",
                "paper": "≈ 1 h (2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs)"},
 )
@@ -235,7 +235,7 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
     paper_ref="supplement 'Behavioral switching', Fig. (d)",
     summary="the switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): maxima of the CMP's "
             "x and y after a transient, period of each orbit",
-    durations={"smoke": "≈ 20 s", "short": "≈ 8 min (the switching trainings, paper's and published wind as 2 "
+    durations={"smoke": "≈ 20 s", "short": "492 s measured (the switching trainings, paper's and published wind as 2 "
                "jobs, then ≈ 20 s per sweep)", "paper": "≈ 1 h (the paper-scale switching trainings)"},
 )
 @single_threaded
@@ -369,10 +369,12 @@ def _longest_run(mask: np.ndarray) -> tuple[int, int, int]:
 @experiment(
     "lissajous-timing",
     paper_ref="supplement 'Switching timing' and its figure",
-    summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing (two "
-            "jobs); the wind switched on at every n = 0…99 (one batched run each): which runs converge",
-    durations={"smoke": "≈ 30 s", "short": "≈ 15 min (1,000 s preliminary + 4 × 2,000 s switching: fixed and random "
-               "timing, the paper's and the published wind; 4 jobs on 2 workers)",
+    summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing, paper's "
+            "and published wind (four jobs); the wind switched on at every n = 0…99 (one batched run each): which "
+            "runs converge",
+    durations={"smoke": "≈ 30 s",
+               "short": "599 s measured (1,000 s preliminary + 4 × 2,000 s switching: fixed and random timing, the "
+                        "paper's and the published wind; 4 jobs on 2 workers)",
                "paper": "≈ 4 h (4 × 30,000 s of switching training on 2 cores)"},
 )
 @single_threaded
