@@ -14,6 +14,7 @@ system "autonomously drew a Lissajous curve". Both are computed here:
 from __future__ import annotations
 
 from bptsb_ros.experiments.common import packaged_config
+from bptsb_ros.experiments.lissajous_agents import single_threaded
 from bptsb_ros.experiments.registry import Context, experiment
 
 #: closed-loop error / target mean square below which the closed loop counts as drawing the figure
@@ -26,6 +27,7 @@ DRAWS_NMSE = 0.1
     summary="train SWG + double-circle (N_mov 13) on the (1,2,0) Lissajous curve, fit the FL (σ 0.08), close the loop",
     durations={"smoke": "≈ 10 s", "short": "≈ 1 min", "paper": "≈ 2 min (2,000 s of training, the original simTime)"},
 )
+@single_threaded
 def run(ctx: Context) -> None:
     from bptsb_ros.training.trainer import train
 

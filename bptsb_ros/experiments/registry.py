@@ -25,12 +25,17 @@ from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentR
 
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
-    "bptsb_ros.experiments.lissajous_closed_loop",
+    # "Division of functional roles" (Fig. 2) and the MNIST supplement
     "bptsb_ros.experiments.mnist_drawing",
     "bptsb_ros.experiments.mnist_pca",
     "bptsb_ros.experiments.mnist_labelmap",
     "bptsb_ros.experiments.mnist_specific100",
     "bptsb_ros.experiments.mnist_readout",
+    # "Autonomous behavior through brain function transfer" (Fig. 4) and the SWG supplement
+    "bptsb_ros.experiments.lissajous_closed_loop",
+    "bptsb_ros.experiments.lissajous_perturbation",
+    "bptsb_ros.experiments.lissajous_switching",
+    "bptsb_ros.experiments.closed_loop_schemes",
     "bptsb_ros.experiments.locomotion_closed_loop",
     "bptsb_ros.experiments.locomotion_perturbation",
     "bptsb_ros.experiments.locomotion_headwind",

@@ -125,3 +125,44 @@ class LissajousTask(SwgWindowTask):
             curves["closed loop (FL), next run"] = e["closed"]
         plot_lissajous(path, e["t"], curves, self.target(e["t"]))
         return [path]
+
+
+def windowed_shift_error_batch(traj: np.ndarray, target: np.ndarray, period: int) -> np.ndarray:
+    """:func:`windowed_shift_error` for a whole population at once.
+
+    Args:
+        traj: (T, B, 2) CMP positions [m] at times t0 + k·dt, k = 0..T−1 (NaN rows give NaN).
+        target: (T + period, 2) target at the same times, extended by ``period`` steps (for the shifts).
+        period: steps per target period.
+
+    Returns:
+        (B,) mean over whole periods of the per-period minimum over shifts s = 0..period of the MSE [m²].
+    """
+    n_rows, batch = traj.shape[0], traj.shape[1]
+    if target.shape[0] < n_rows + period:
+        raise ValueError(f"target needs {n_rows + period} rows (traj + period), got {target.shape[0]}")
+    starts = list(range(0, n_rows - period, period))
+    if not starts:
+        raise ValueError(f"need more than one period ({period} steps) of trajectory, got {n_rows} rows")
+    j = np.arange(period + 1)
+    shifts = np.arange(period + 1)
+    errs = np.empty((len(starts), batch))
+    for w, s0 in enumerate(starts):
+        x = traj[s0:s0 + period + 1]  # (J, B, 2)
+        g = target[s0 + shifts[:, None] + j[None, :]]  # (S, J, 2)
+        # mean_j |x_j − g_{j+s}|² = (Σ|x|² − 2 Σ x·g + Σ|g|²) / (2J)   (mean over rows and both coordinates)
+        cross = np.einsum("jbc,sjc->sb", x, g)
+        mse = ((x ** 2).sum((0, 2))[None, :] - 2 * cross + (g ** 2).sum((1, 2))[:, None]) / (2 * (period + 1))
+        errs[w] = mse.min(0)
+    return errs.mean(0)
+
+
+#: the paper's success criterion of a perturbation run (Methods): E / E_orig < RETURN_RATIO
+RETURN_RATIO = 2.0
+
+
+def returned(error: np.ndarray, error_orig: float | np.ndarray) -> np.ndarray:
+    """The paper's "successful return" (Methods, Lissajous): E / E_orig < 2; a NaN error (diverged) fails."""
+    e = np.asarray(error, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(e) & (e < RETURN_RATIO * np.asarray(error_orig, dtype=np.float64))

@@ -1,0 +1,170 @@
+"""Lissajous switching by wind (paper, supplement "Behavioral switching" and "Switching timing").
+
+A trained single-curve SWG agent gets additional BPTSB training in which a binary wind F_wind ∈ {0, 1}
+(a constant force in +x on every movable mass) blows on and off at random times; without wind the target
+is curve 1, with wind curve 2, displaced in x ("The target trajectory was displaced in the x-direction when
+there was wind"; the paper gives no amount: :func:`wind_offset` uses the CMP's mean x shift that the wind
+itself causes in the trained single-curve agent).
+
+Switch times (supplement, Eq. for t_wind): t_wind = t0 + (2π/ω)·n/100 with n ∈ [0, 99]: each wind segment
+lasts a whole number of periods drawn from ``hold_periods`` plus n/100 of a period; ``timing="random"``
+draws n afresh at every switch, ``timing="fixed"`` uses n = 0.
+
+Wind force: the paper's (F_wind, 0) [N]. ``published=True`` gives what the authors' published code did:
+(15·F_wind, +1), a constant +1 N upward whenever wind is enabled (see published-code-facts.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+
+from bptsb_ros.agent import Agent
+from bptsb_ros.body.adjoint import rollout_window
+from bptsb_ros.body.msdn import BodyState
+from bptsb_ros.config import LearningRates, TrainingConfig
+from bptsb_ros.sim.population import wind_force
+from bptsb_ros.sim.rollout import swg_rest_lengths
+from bptsb_ros.training.optim import make_optimizer
+
+#: the paper's learning rates for switching (supplementary table, "Lissajous curves (switching)")
+SWITCHING_LR = LearningRates(k=1e3, d=1e2, l=1e0, amplitude=1e0, phase=1e1)
+#: the published code's wind magnitude while the second curve was active
+PUBLISHED_WIND = 15.0
+
+
+@dataclass(frozen=True)
+class Curve:
+    """A Lissajous curve x = X cos(α ω t), y = Y sin(β ω t + δ)."""
+
+    alpha: float
+    beta: float
+    delta: float
+
+    def __str__(self) -> str:
+        d = self.delta / math.pi
+        ds = "0" if d == 0 else ("π" if d == 1 else f"{d:g}π")
+        return f"({self.alpha:g},{self.beta:g},{ds})"
+
+    def target(self, t: np.ndarray | torch.Tensor, amplitude: float, omega: float,
+               shift_x: float = 0.0) -> np.ndarray | torch.Tensor:
+        """(T, 2) target [m] at times t (T,) [s], displaced by ``shift_x`` [m] in x."""
+        lib = torch if isinstance(t, torch.Tensor) else np
+        return lib.stack([amplitude * lib.cos(self.alpha * omega * t) + shift_x,
+                          amplitude * lib.sin(self.beta * omega * t + self.delta)], -1)
+
+
+CURVE_1 = Curve(1, 2, 0.0)
+CURVE_SWITCH = Curve(2, 1, math.pi / 2)
+CURVE_TIMING = Curve(1, 3, 0.0)
+
+
+def wind_vector(f_wind: np.ndarray | torch.Tensor | float, *, published: bool = False) -> torch.Tensor:
+    """F_wind (...) → force (..., 2) [N] on every movable mass: (F, 0), or the published (15·F, 1)."""
+    f = torch.as_tensor(f_wind, dtype=torch.float64)
+    if published:
+        return torch.stack([PUBLISHED_WIND * f, torch.ones_like(f)], -1)
+    return torch.stack([f, torch.zeros_like(f)], -1)
+
+
+def wind_schedule(steps: int, period: int, rng: np.random.Generator, *, hold_periods: tuple[int, int] = (3, 8),
+                  timing: Literal["random", "fixed"] | int = "random", start_on: bool = False) -> np.ndarray:
+    """Binary wind (steps + 1,) in force at steps 0..steps: segments of whole periods (uniform in
+    ``hold_periods``, inclusive) plus a switch phase n/100 of a period (random n, n = 0, or a given n)."""
+    lo, hi = hold_periods
+    if not 1 <= lo <= hi:
+        raise ValueError(f"hold_periods must satisfy 1 <= lo <= hi, got {hold_periods}")
+    out = np.zeros(steps + 1)
+    on = start_on
+    k = 0
+    while k <= steps:
+        n = rng.integers(0, 100) if timing == "random" else (0 if timing == "fixed" else int(timing))
+        end = (k // period + int(rng.integers(lo, hi + 1))) * period + int(round(period * n / 100))
+        out[k:end] = float(on)
+        k, on = max(end, k + 1), not on
+    return out
+
+
+def switch_targets(curve_off: Curve, curve_on: Curve, amplitude: float, omega: float, shift_x: float):
+    """target(t (T,), wind (T,)) → (T, 2): curve_off without wind, curve_on displaced by shift_x with wind."""
+
+    def target(t, wind):
+        off = curve_off.target(t, amplitude, omega)
+        on = curve_on.target(t, amplitude, omega, shift_x)
+        w = wind[:, None] > 0.5
+        return torch.where(w, on, off) if isinstance(t, torch.Tensor) else np.where(w, on, off)
+
+    return target
+
+
+@torch.no_grad()
+def wind_offset(agent: Agent, state: BodyState, f_wind: float = 1.0, periods: int = 10, *,
+                published: bool = False) -> float:
+    """Mean x shift [m] of the CMP caused by a constant wind: mean CMP x over ``periods`` periods with the
+    wind minus without (both after ``periods`` periods of transient), the trained open loop from ``state``."""
+    from bptsb_ros.sim.population import run_population
+
+    body = agent.body
+    steps = 2 * periods * int(round(2 * math.pi / agent.brain.omega / body.dt))
+    batch = BodyState(*(x.expand(2, *x.shape[1:]) for x in (state.r, state.v, state.a, state.length)), state.step)
+    wind = wind_vector(torch.tensor([0.0, f_wind]), published=published).to(body.l.dtype)
+    pop = run_population(body, steps, batch, swg=agent.brain, wind=wind)
+    x = pop.tracked[steps // 2:, :, 0, 0].double()
+    return float(x[:, 1].mean() - x[:, 0].mean())
+
+
+@dataclass
+class SwitchingTraining:
+    losses: list[float]
+    state: BodyState
+    schedule: np.ndarray
+
+
+def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
+                    target: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], *,
+                    lr: LearningRates = SWITCHING_LR, window: int = 100, published_wind: bool = False,
+                    progress: Callable[[int, int, float], None] | None = None) -> SwitchingTraining:
+    """Additional BPTSB training of an SWG agent under a wind schedule (in place; SGD, truncated windows).
+
+    schedule: (steps + 1,) F_wind in force at steps state.step .. state.step + steps; the number of updates
+    is steps // window. target(t (W,), wind (W,)) → (W, 2) CMP target [m]. Returns the loss of every update
+    and the final state (to continue from).
+    """
+    body, swg = agent.body, agent.brain
+    for module in agent.modules().values():
+        module.requires_grad_(True)
+    if agent.feedback is not None:
+        agent.feedback.requires_grad_(False)
+    opt = make_optimizer(agent, TrainingConfig(lr=lr, update_steps=window))
+    dtype = body.l.dtype
+    forces = wind_force(body, wind_vector(torch.as_tensor(schedule), published=published_wind).to(dtype))  # (S+1, M, 2)
+    k_start = state.step
+    updates = (len(schedule) - 1) // window
+    losses: list[float] = []
+    state = state.detach()
+    for u in range(updates):
+        first = state.step + 1
+        rel = first - k_start
+        rest = swg_rest_lengths(body, swg, first, window)
+        ext = forces[rel:rel + window].unsqueeze(1)  # (W, 1, M, 2)
+        win = rollout_window(body, state, rest, ext)
+        t = torch.arange(first, first + window, dtype=dtype) * body.dt
+        wind = torch.as_tensor(schedule[rel:rel + window], dtype=dtype)
+        loss = ((win.r[:, 0, body.cmp_local] - target(t, wind)) ** 2).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        body.clamp_parameters_()
+        state = win.final.detach()
+        body.check_finite(state)
+        losses.append(float(loss.detach()))
+        if progress is not None:
+            progress(u + 1, updates, losses[-1])
+    for module in agent.modules().values():
+        module.requires_grad_(False)
+    return SwitchingTraining(losses, state, schedule)

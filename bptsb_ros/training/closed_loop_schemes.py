@@ -1,0 +1,187 @@
+"""Simultaneous training for a closed loop (paper, supplement "Simultaneous training for a closed loop"):
+three ways to train the feedback layer (FL) together with the body, on the Lissajous task.
+
+* Scheme 1: no SWG; the closed loop (body + FL, rest length l·(1 + W·[s_k, 1])) is trained from scratch by
+  BPTSB, the FL starting from random weights. Gradients flow through the feedback (plain autograd: the rest
+  length depends on the state, which the hand-derived window adjoint does not cover).
+* Scheme 2: after the preliminary SWG training and one regression of the FL, the SWG, the body and the FL
+  (still open loop: the SWG drives the body) are trained by BPTSB with L = L_traj + α·L_FB, α = 0.1, where
+  L_FB is the MSE between the FL's output from the state at step k and the SWG's signal at step k+1; then the
+  loop is closed.
+* Scheme 3: after the preliminary training, the SWG and the body are trained by BPTSB on L_traj, and the FL
+  is re-fitted by ridge regression (input noise σ as in the FL fit) after every update, on the states of the
+  last ``fit_windows`` windows; then the loop is closed.
+
+Learning rates: the paper's "Lissajous curves (closed-loop)" row (k 1e4, d 1e3, l 1e0, A 1e0, φ 1e1); the
+paper gives none for the FL weights: :data:`FL_LR` (our choice, stated in the results).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from bptsb_ros.agent import Agent
+from bptsb_ros.body.adjoint import rollout_window
+from bptsb_ros.body.msdn import BodyState, SimulationDiverged
+from bptsb_ros.brains import fit_ridge
+from bptsb_ros.config import LearningRates, TrainingConfig
+from bptsb_ros.sim.rollout import swg_rest_lengths
+from bptsb_ros.training.optim import make_optimizer
+
+#: the paper's learning rates for the closed-loop schemes (supplementary table, "Lissajous curves (closed-loop)")
+CLOSED_LOOP_LR = LearningRates(k=1e4, d=1e3, l=1e0, amplitude=1e0, phase=1e1)
+#: learning rate of the FL weights in schemes 1 and 2 (not in the paper's table)
+FL_LR = 1e0
+#: the weight α of L_FB in scheme 2 (paper: 0.1)
+ALPHA_FB = 0.1
+
+Target = Callable[[torch.Tensor], torch.Tensor]  # times (W,) [s] → (W, 2) [m]
+
+
+@dataclass
+class SchemeTraining:
+    """losses: one per update done; diverged: the update at which the loss, the parameters or the simulation
+    became non-finite (training stopped there; the agent is then unusable), or None."""
+
+    losses: list[float]
+    state: BodyState
+    diverged: int | None = None
+
+
+def _finite(agent: Agent, loss: torch.Tensor) -> bool:
+    params = [p for m in agent.modules().values() for p in m.parameters()]
+    return bool(torch.isfinite(loss.detach())) and all(bool(torch.isfinite(p).all()) for p in params)
+
+
+def _optimizer(agent: Agent, lr: LearningRates, with_swg: bool, with_fl: bool) -> torch.optim.Optimizer:
+    for module in agent.modules().values():
+        module.requires_grad_(False)
+    agent.body.requires_grad_(True)
+    if with_swg:
+        agent.brain.requires_grad_(True)
+    if with_fl:
+        agent.feedback.requires_grad_(True)
+    opt = make_optimizer(agent, TrainingConfig(lr=lr)) if with_swg else torch.optim.SGD(
+        [{"params": [agent.body.k], "lr": lr.k}, {"params": [agent.body.d], "lr": lr.d},
+         {"params": [agent.body.l], "lr": lr.l}], lr=lr.k)
+    if not with_swg:  # the SWG stays frozen
+        agent.brain.requires_grad_(False)
+    if with_fl:
+        opt.add_param_group({"params": [agent.feedback.weight], "lr": FL_LR})
+    return opt
+
+
+def _state_ok(body, state: BodyState) -> bool:
+    try:
+        body.check_finite(state.detach())
+    except SimulationDiverged:
+        return False
+    return True
+
+
+def _finish(agent: Agent) -> None:
+    for module in agent.modules().values():
+        module.requires_grad_(False)
+
+
+def train_scheme1(agent: Agent, target: Target, updates: int, *, window: int = 100, lr: LearningRates = CLOSED_LOOP_LR,
+                  init_std: float = 0.1, seed: int = 0) -> SchemeTraining:
+    """Scheme 1: closed loop from scratch; the FL starts from W ~ N(0, init_std²) (bias included)."""
+    body, fb = agent.body, agent.feedback
+    with torch.no_grad():
+        fb.weight.normal_(0.0, init_std, generator=torch.Generator().manual_seed(seed))
+        fb.weight.mul_(fb.driven.unsqueeze(-1))
+    opt = _optimizer(agent, lr, with_swg=False, with_fl=True)
+    state = body.initial_state(1).detach()
+    losses: list[float] = []
+    for _ in range(updates):
+        cmp = []
+        s = state
+        for _i in range(window):
+            s = body.step(s, fb.rest_length(body.l, s))
+            cmp.append(s.r[0, body.cmp_local])
+        t = torch.arange(state.step + 1, state.step + window + 1, dtype=body.l.dtype) * body.dt
+        loss = ((torch.stack(cmp) - target(t)) ** 2).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        body.clamp_parameters_()
+        if not _finite(agent, loss) or not _state_ok(body, s):
+            _finish(agent)
+            return SchemeTraining(losses, state, len(losses))
+        state = s.detach()
+        losses.append(float(loss.detach()))
+    _finish(agent)
+    return SchemeTraining(losses, state)
+
+
+def train_scheme2(agent: Agent, state: BodyState, target: Target, updates: int, *, window: int = 100,
+                  lr: LearningRates = CLOSED_LOOP_LR, alpha: float = ALPHA_FB) -> SchemeTraining:
+    """Scheme 2: BPTSB through SWG + body + FL (open loop), L = L_traj + α·L_FB; the FL as fitted before."""
+    body, swg, fb = agent.body, agent.brain, agent.feedback
+    opt = _optimizer(agent, lr, with_swg=True, with_fl=True)
+    state = state.detach()
+    losses: list[float] = []
+    for _ in range(updates):
+        first = state.step + 1
+        rest = swg_rest_lengths(body, swg, first, window)
+        win = rollout_window(body, state, rest)
+        t = torch.arange(first, first + window, dtype=body.l.dtype) * body.dt
+        l_traj = ((win.r[:, 0, body.cmp_local] - target(t)) ** 2).mean()
+        # the FL's output from the state at step k against the SWG signal in force at step k+1
+        lengths = torch.cat([state.length, win.length[:-1, 0]])  # (W, E): steps first−1 .. first+W−2
+        l_fb = ((fb.signal_from_features(lengths) - swg.signal(t)) ** 2).mean()
+        loss = l_traj + alpha * l_fb
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        body.clamp_parameters_()
+        if not _finite(agent, loss) or not _state_ok(body, win.final):
+            _finish(agent)
+            return SchemeTraining(losses, state, len(losses))
+        state = win.final.detach()
+        losses.append(float(loss.detach()))
+    _finish(agent)
+    return SchemeTraining(losses, state)
+
+
+def train_scheme3(agent: Agent, state: BodyState, target: Target, updates: int, *, window: int = 100,
+                  lr: LearningRates = CLOSED_LOOP_LR, noise: float = 0.08, fit_windows: int = 10,
+                  seed: int = 0) -> SchemeTraining:
+    """Scheme 3: BPTSB on SWG + body (L_traj), the FL re-fitted by ridge regression after every update on the
+    last ``fit_windows`` windows' (state k, SWG signal k+1) pairs with input noise σ = ``noise``."""
+    body, swg, fb = agent.body, agent.brain, agent.feedback
+    opt = _optimizer(agent, lr, with_swg=True, with_fl=False)
+    rng = np.random.default_rng(seed)
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
+    state = state.detach()
+    losses: list[float] = []
+    for _ in range(updates):
+        first = state.step + 1
+        rest = swg_rest_lengths(body, swg, first, window)
+        win = rollout_window(body, state, rest)
+        t = torch.arange(first, first + window, dtype=body.l.dtype) * body.dt
+        loss = ((win.r[:, 0, body.cmp_local] - target(t)) ** 2).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        with torch.no_grad():
+            xs.append(torch.cat([state.length, win.length[:-1, 0]]).double().numpy())
+            ys.append(swg.signal(t).double().numpy())
+        opt.step()
+        body.clamp_parameters_()
+        if not _finite(agent, loss) or not _state_ok(body, win.final) or not np.isfinite(xs[-1]).all():
+            _finish(agent)
+            return SchemeTraining(losses, state, len(losses))
+        xs, ys = xs[-fit_windows:], ys[-fit_windows:]
+        x = np.concatenate(xs)
+        weights, _ = fit_ridge(x + noise * rng.standard_normal(x.shape), np.concatenate(ys))
+        fb.load_fit(weights)
+        state = win.final.detach()
+        losses.append(float(loss.detach()))
+    _finish(agent)
+    return SchemeTraining(losses, state)

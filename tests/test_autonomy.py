@@ -1,0 +1,268 @@
+"""Autonomy experiments (issue 10): batched populations, the error and success criteria, FFT frequency
+detection, bifurcation maxima, periodicity, wind schedules, and the smoke runs of the experiments."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bptsb_ros.agent import build_agent
+from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, periodicity
+from bptsb_ros.cli import main
+from bptsb_ros.experiments import read_result
+from bptsb_ros.experiments.common import packaged_config
+from bptsb_ros.sim.population import run_population
+from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
+from bptsb_ros.tasks.lissajous import returned, windowed_shift_error, windowed_shift_error_batch
+from bptsb_ros.tasks.lissajous_switching import Curve, wind_schedule
+
+
+# -- the paper's error and success criterion ---------------------------------------------------------------
+def test_batched_shift_error_equals_the_scalar_one_and_vanishes_on_a_shifted_target():
+    rng = np.random.default_rng(1)
+    period, n = 20, 75
+    traj = rng.normal(size=(n, 3, 2))
+    target_fn = lambda t: np.stack([np.cos(2 * np.pi * t), np.sin(4 * np.pi * t)], -1)  # noqa: E731
+    dt, t0 = 0.05, 0.3
+    t = t0 + dt * np.arange(n + period)
+    batch = windowed_shift_error_batch(traj, target_fn(t), period)
+    for b in range(3):
+        assert batch[b] == pytest.approx(windowed_shift_error(traj[:, b], target_fn, t0, dt, period), rel=1e-12)
+    # a trajectory that is the target delayed by 7 steps has zero error (the shift absorbs the delay)
+    delayed = target_fn(t[:n] + 7 * dt)[:, None, :]
+    assert windowed_shift_error_batch(delayed, target_fn(t), period)[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_return_criterion_is_half_open_and_fails_diverged_rows():
+    e = np.array([0.5, 1.99, 2.0, 3.0, np.nan])
+    assert returned(e, 1.0).tolist() == [True, True, False, False, False]
+
+
+# -- dynamics descriptors on planted signals ---------------------------------------------------------------
+def test_dominant_frequency_finds_planted_sinusoids_and_their_swap():
+    dt = 0.01
+    t = np.arange(2000) * dt  # 20 s: bin width 0.05 Hz
+    x = 0.2 * np.cos(2 * np.pi * 1.0 * t) + 0.05 * np.sin(2 * np.pi * 3.0 * t) + 0.7
+    y = 0.2 * np.sin(2 * np.pi * 2.0 * t + 0.4)
+    f = dominant_frequency(np.stack([x, y], -1), dt)
+    assert f == pytest.approx([1.0, 2.0], abs=0.01)
+    f_off_bin = dominant_frequency(np.sin(2 * np.pi * 1.37 * t), dt)
+    assert float(f_off_bin) == pytest.approx(1.37, abs=0.01)  # between bins: interpolated
+
+
+def test_local_maxima_and_periodicity_on_planted_orbits():
+    t = np.arange(4000) * 0.01
+    period1 = np.sin(2 * np.pi * t)
+    period2 = np.sin(2 * np.pi * t) + 0.5 * np.sin(np.pi * t)  # repeats every 2 s only
+    quasi = np.sin(2 * np.pi * t) + 0.5 * np.sin(2 * np.pi * math.sqrt(2) * t)
+    maxima = local_maxima(np.stack([period1, period2], 1))
+    assert np.allclose(maxima[0], 1.0, atol=1e-3) and len(maxima[0]) == 40
+    assert len(np.unique(np.round(maxima[1], 6))) == 2  # two distinct peaks per 2-s orbit
+    traj = np.stack([period1, period2, quasi], 1)[:, :, None]
+    assert periodicity(traj, 100, max_multiple=8).tolist() == [1, 2, 0]
+
+
+# -- wind schedules ---------------------------------------------------------------------------------------
+def test_wind_schedule_switches_at_the_stated_phase():
+    rng = np.random.default_rng(0)
+    period = 100
+    fixed = wind_schedule(5000, period, rng, hold_periods=(2, 4), timing="fixed")
+    switches = np.flatnonzero(np.diff(fixed)) + 1
+    assert switches.size > 5 and np.all(switches % period == 0)
+    gaps = np.diff(np.concatenate([[0], switches]))
+    assert gaps.min() >= 2 * period and gaps.max() <= 4 * period
+    rand = wind_schedule(20000, period, np.random.default_rng(1), hold_periods=(2, 4), timing="random")
+    phases = (np.flatnonzero(np.diff(rand)) + 1) % period
+    assert len(set(phases.tolist())) > 10  # random n in [0, 99]
+    given = wind_schedule(3000, period, rng, hold_periods=(3, 3), timing=37)
+    assert (np.flatnonzero(np.diff(given)) + 1).tolist()[:2] == [337, 637]
+    assert set(np.unique(rand).tolist()) == {0.0, 1.0}
+
+
+def test_curve_targets_are_the_lissajous_formulas():
+    c = Curve(2, 1, math.pi / 2)
+    t = np.array([0.0, 0.125, 0.25])
+    xy = c.target(t, 0.2, 2 * math.pi, shift_x=0.05)
+    expect = np.stack([0.2 * np.cos(2 * 2 * np.pi * t) + 0.05, 0.2 * np.sin(2 * np.pi * t + np.pi / 2)], -1)
+    assert np.allclose(xy, expect)
+
+
+# -- populations: one batched run equals the single-run code paths ---------------------------------------
+@pytest.fixture(scope="module")
+def agent64():
+    cfg = packaged_config("lissajous_single", ["dtype=float64"], seed=3)
+    agent = build_agent(cfg)
+    with torch.no_grad():
+        agent.feedback.weight.normal_(0, 0.02, generator=torch.Generator().manual_seed(0))
+    return agent
+
+
+def test_population_equals_simulate_open_and_closed_loop(agent64):
+    body = agent64.body
+    disp = 0.05 * torch.randn(3, body.n_movable, 2, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    steps = 150
+    ref = simulate_open_loop(agent64, steps, displacement=disp)
+    rest0 = agent64.brain.rest_length(body.l, torch.zeros(1, dtype=torch.float64))[0]
+    state0 = body.initial_state(3, rest_length=rest0, displacement=disp)
+    pop = run_population(body, steps, state0, swg=agent64.brain, track=(0, body.cmp_local))
+    assert torch.equal(pop.tracked[:, :, 1], ref.r[:, :, body.cmp_local])
+    assert torch.equal(pop.tracked[:, :, 0], ref.r[:, :, 0])
+    wind = torch.tensor([0.3, 0.0], dtype=torch.float64)
+    refc = simulate_closed_loop(body, agent64.feedback, steps, displacement=disp, wind=wind)
+    s0 = body.initial_state(3, displacement=disp, external_force=wind.expand(body.n_movable, 2))
+    popc = run_population(body, steps, s0, feedback=agent64.feedback, wind=lambda i: wind)  # per-step form
+    assert torch.equal(popc.tracked[:, :, 0], refc.r[:, :, body.cmp_local])
+    assert not bool(popc.diverged.any())
+
+
+def test_population_flags_a_blown_up_row_and_keeps_the_others(agent64):
+    body = agent64.body
+    disp = torch.zeros(2, body.n_movable, 2, dtype=torch.float64)
+    disp[1, 0, 0] = 1e3  # far beyond the limit: row 1 "blows up" at the first check
+    s0 = body.initial_state(2, displacement=disp)
+    pop = run_population(body, 100, s0, swg=agent64.brain, check_every=10)
+    assert pop.diverged.tolist() == [False, True] and int(pop.diverged_at[1]) == 10
+    assert torch.isnan(pop.tracked[1:, 1]).all() and torch.isfinite(pop.tracked[:, 0]).all()
+    alone = run_population(body, 100, body.initial_state(1), swg=agent64.brain)
+    assert torch.equal(alone.tracked[:, 0], pop.tracked[:, 0])
+
+
+# -- the experiments at smoke scale --------------------------------------------------------------------------
+def test_lissajous_perturbation_smoke(tmp_path):
+    out = tmp_path / "pert"
+    assert main(["reproduce", "lissajous-perturbation", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d = data["details"]
+    seeds = d["seeds_per_sigma"]
+    e_open, e_closed = np.array(d["errors_open"], dtype=float), np.array(d["errors_closed"], dtype=float)
+    assert e_open.shape == (11, seeds) and e_closed.shape == (11, seeds)
+    assert np.allclose(e_open[0], e_open[0, 0]) and np.allclose(e_closed[0], e_closed[0, 0])  # σ = 0: identical
+    rows = {r["system"]: r["ours"] for r in data["rows"] if r["metric"] == "return rate"}
+    for j, sigma in enumerate(np.arange(11) / 10):
+        # independent recomputation: fraction of finite errors below twice the unperturbed one
+        expect_open = np.mean([e == e and e < 2 * e_open[0, 0] for e in e_open[j]])
+        expect_closed = np.mean([e == e and e < 2 * e_closed[0, 0] for e in e_closed[j]])
+        assert rows[f"SWG (open loop), σ = {sigma:.1f}"] == pytest.approx(expect_open)
+        assert rows[f"FL (closed loop), σ = {sigma:.1f}"] == pytest.approx(expect_closed)
+    gap = max(abs(rows[f"SWG (open loop), σ = {s:.1f}"] - rows[f"FL (closed loop), σ = {s:.1f}"])
+              for s in np.arange(11) / 10)
+    assert data["claims"][1]["holds"] == (gap <= 0.2)
+    assert all((out / f).is_file() for f in data["figures"])
+
+
+def _rows(data: dict) -> dict[tuple[str, str], float]:
+    return {(r["system"], r["metric"]): r["ours"] for r in data["rows"]}
+
+
+def test_lissajous_switching_smoke(tmp_path):
+    out = tmp_path / "sw"
+    assert main(["reproduce", "lissajous-switching", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    rows = _rows(data)
+    label = "paper wind (F, 0)"
+    seg = data["details"]["test_runs"][label]["segments"]
+    fx0 = rows[(f"{label}: CMP, before (no wind)", "dominant frequency x")]
+    fy0 = rows[(f"{label}: CMP, before (no wind)", "dominant frequency y")]
+    fx1, fy1 = rows[(f"{label}: CMP, wind", "dominant frequency x")], rows[(f"{label}: CMP, wind",
+                                                                           "dominant frequency y")]
+    swapped = abs(fx0 - fy1) <= 0.1 and abs(fy0 - fx1) <= 0.1 and abs(fx0 - fy0) >= 0.5
+    drawn = all(s["nmse"] < 0.1 for s in seg.values())
+    assert [c["holds"] for c in data["claims"][:2]] == [drawn, swapped]
+    assert len(data["claims"]) == 6  # three claims for the paper's wind, three for the published code's
+    assert len(data["figures"]) == 3 and all((out / f).is_file() for f in data["figures"])
+    assert (out / "switching" / "checkpoint.pt").is_file() and (out / "switching_published" / "checkpoint.pt").is_file()
+
+
+def test_lissajous_bifurcation_smoke(tmp_path):
+    out = tmp_path / "bif"
+    assert main(["reproduce", "lissajous-bifurcation", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d, rows = data["details"], _rows(data)
+    winds = np.array(d["winds"])
+    assert len(winds) == 61 and winds[0] == -1.0 and winds[-1] == 2.0 and np.allclose(np.diff(winds), 0.05)
+    for i, label in enumerate(("paper wind (F, 0)", "published wind (15·F, 1)")):
+        per = np.array(d[label]["period_multiple"])
+        assert rows[(f"{label}: F_wind grid", "values with a period-1 orbit (1 s)")] == np.sum(per == 1)
+        assert data["claims"][2 * i + 1]["holds"] == bool(np.sum(per > 1) + np.sum(per == 0) > 0)
+        assert len(d[label]["maxima_x"]) == 61
+    assert len(data["figures"]) == 2
+
+
+def test_lissajous_timing_smoke(tmp_path):
+    out = tmp_path / "tim"
+    assert main(["reproduce", "lissajous-timing", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d, rows = data["details"], _rows(data)
+    for name in ("fixed", "random", "fixed, published wind", "random, published wind"):
+        to_ref = np.array([np.inf if v is None else v for v in d[f"{name}_to_reference"]])
+        assert to_ref[0] == 0.0  # the n = 0 row is the reference
+        assert rows[(f"{name} timing", "n converging to the trained trajectory")] == np.sum(to_ref < 0.01)
+    fails = np.array([np.inf if v is None else v for v in d["fixed_to_reference"]]) >= 0.01
+    longest, cur = 0, 0
+    for f in fails:
+        cur = cur + 1 if f else 0
+        longest = max(longest, cur)
+    assert rows[("fixed timing", "longest band of failing n")] == longest
+    assert data["claims"][1]["holds"] == (longest >= 5)
+    assert (out / "fixed" / "checkpoint.pt").is_file() and (out / "random_published" / "checkpoint.pt").is_file()
+    assert len(data["figures"]) == 2
+
+
+# -- closed-loop schemes ---------------------------------------------------------------------------------------
+def test_scheme2_feedback_gradient_pairs_state_k_with_signal_k_plus_1(agent64, monkeypatch):
+    """One scheme-2 update with (practically) frozen body and SWG moves the FL by −lr·∇(α·L_FB), computed here
+    independently from a plain open-loop simulation: features at steps 0..99, SWG signal at steps 1..100."""
+    import copy
+
+    from bptsb_ros.config import LearningRates
+    from bptsb_ros.training import closed_loop_schemes as cls
+
+    agent = copy.deepcopy(agent64)
+    body, swg, fb = agent.body, agent.brain, agent.feedback
+    state = body.initial_state(1, rest_length=swg.rest_length(body.l, torch.zeros(1, dtype=torch.float64))[0])
+    w0 = fb.weight.detach().clone()
+    roll = simulate_open_loop(agent, 100, state=state)
+    x = roll.length[:100, 0].numpy()
+    y = swg.signal(torch.arange(1, 101, dtype=torch.float64) * body.dt).detach().numpy()
+    xb = np.concatenate([x, np.ones((100, 1))], 1)
+    resid = xb @ w0.numpy().T - y  # (100, E)
+    grad = 0.1 * 2 * resid.T @ xb / resid.size
+    monkeypatch.setattr(cls, "FL_LR", 0.5)
+    tiny = LearningRates(k=1e-300, d=0, l=0, amplitude=0, phase=0)
+    target = lambda t: torch.zeros(t.shape[0], 2, dtype=torch.float64)  # noqa: E731
+    res = cls.train_scheme2(agent, state, target, 1, lr=tiny)
+    assert res.diverged is None and len(res.losses) == 1
+    assert np.allclose(fb.weight.detach().numpy(), w0.numpy() - 0.5 * grad, rtol=1e-9, atol=1e-12)
+
+
+def test_closed_loop_schemes_smoke(tmp_path):
+    out = tmp_path / "cls"
+    assert main(["reproduce", "closed-loop-schemes", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d, rows = data["details"], _rows(data)
+    err = {k: np.array([[np.nan if v is None else v for v in row] for row in d["errors"][k]]) for k in d["errors"]}
+    ratio2 = err["scheme2"] / err["before"]
+    assert rows[("scheme 2, (1,2,0), seed 0", "E_after / E_before")] == pytest.approx(ratio2[0, 0])
+    improved3 = int(np.sum(err["scheme3"] / err["before"] < 1))
+    assert rows[("scheme 3", "systems improved (ratio < 1)")] == improved3
+    draws1 = int(np.sum(err["scheme1"] / 0.02 < 0.1))  # (1,2,0) target mean square: 0.2²/2 = 0.02 m²
+    assert data["claims"][0]["holds"] == (draws1 == 0)
+    assert (out / "schemes.png").is_file()
+
+
+# -- jobs --------------------------------------------------------------------------------------------------------
+def test_jobs_run_in_order_with_one_blas_thread_and_name_a_failure(monkeypatch):
+    import operator
+    import os
+
+    from bptsb_ros.experiments.jobs import JobFailed, run_jobs
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    assert run_jobs(os.getenv, [("OPENBLAS_NUM_THREADS",), ("OMP_NUM_THREADS",)], workers=2) == ["1", "1"]
+    assert "OPENBLAS_NUM_THREADS" not in os.environ  # restored in the parent
+    assert run_jobs(operator.add, [(1, 2), (3, 4)], workers=1) == [3, 7]
+    with pytest.raises(JobFailed, match="second: ZeroDivisionError"):
+        run_jobs(operator.truediv, [(1, 1), (1, 0)], workers=1, names=["first", "second"])
