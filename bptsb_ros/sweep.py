@@ -109,7 +109,7 @@ class TrainJob:
         from bptsb_ros.training.trainer import train
 
         cfg = load_config(self.config, list(self.overrides), self.seed)
-        res = train(cfg, run_dir, progress=False)
+        res = train(cfg, run_dir, overwrite=True, progress=False)  # the sweep owns run_dir; a failed job reruns
         out: dict[str, Any] = {"seed": self.seed, "updates": res.metrics["updates"],
                                "loss_last": res.losses[-1] if res.losses else None,
                                "train_seconds": res.metrics["train_seconds"]}

@@ -79,7 +79,7 @@ def train_single_curve(run_dir: Path, *, sim_time: float, seed: int, curve: Curv
         f"sim_time={sim_time}", f"feedback.fit_time={fit_time}", f"lissajous.eval_periods={eval_periods}",
         f"lissajous.alpha={curve.alpha}", f"lissajous.beta={curve.beta}", f"lissajous.delta={curve.delta}",
         *(extra or [])], seed=seed)
-    res = train(cfg, run_dir, progress=progress)
+    res = train(cfg, run_dir, overwrite=True, progress=progress)  # the experiment (or its job) owns run_dir
     return load_trained(run_dir, res.metrics)
 
 

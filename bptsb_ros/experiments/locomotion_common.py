@@ -91,7 +91,7 @@ def forward_agent_job(settings: AgentSettings, seed: int, run_dir: Path) -> dict
     from bptsb_ros.training.trainer import train
 
     cfg = packaged_config("locomotion_forward", settings.overrides(), seed=seed)
-    res = train(cfg, run_dir, progress=False)
+    res = train(cfg, run_dir, overwrite=True, progress=False)  # a sweep job owns run_dir (a rerun replaces it)
     ev = res.metrics["evaluation"]
     agent = load_agent(run_dir)
     state = task_state(read_checkpoint(run_dir))

@@ -78,7 +78,7 @@ def run(ctx: Context) -> None:
                                                   f"locomotion.wind_period={period}",
                                                   f"locomotion.wind_force={force}"], seed=ctx.seed)
     ctx.log(f"locomotion-headwind: v_max {v_max:.3f} m/s → target {target:.3f} m/s; {sim_time} s switching training")
-    res = train(cfg, ctx.out_dir / "switching", init_from=forward_dir, progress=ctx.progress)
+    res = train(cfg, ctx.out_dir / "switching", overwrite=True, init_from=forward_dir, progress=ctx.progress)
     agents = {}
     for name, run_dir in (("switching", ctx.out_dir / "switching"), ("forward", forward_dir)):
         agents[name] = (load_agent(run_dir), task_state(read_checkpoint(run_dir)))
