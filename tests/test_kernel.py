@@ -156,7 +156,7 @@ def test_threads_over_the_batch_equal_one_thread_bit_for_bit(monkeypatch) -> Non
                              (kernel._adjoint_serial, kernel._adjoint_parallel)):
         assert parallel.targetoptions.get("parallel") and not serial.targetoptions.get("parallel")
         assert parallel.py_func.__qualname__ != serial.py_func.__qualname__
-    case = Case("caterpillar_clamp", "verlet", "numba", steps=40, batch=kernel.PARALLEL_MIN_BATCH + 3)
+    case = Case("caterpillar_clamp", "verlet", "numba", steps=40, batch=19)
     results = []
     for threshold in (10**9, 1):  # serial build, then the parallel one
         monkeypatch.setattr(kernel, "PARALLEL_MIN_BATCH", threshold)

@@ -86,7 +86,9 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"--gif must end in .gif, got {args.gif}")
 
     from bptsb_ros.body.msdn import SimulationDiverged
+    from bptsb_ros.threads import configure_threads
 
+    configure_threads(1, args.backend or "torch")  # one body: one thread (the kernel runs a batch of 1 serially)
     try:
         traj = _simulate_agent(args) if args.agent else _simulate_shape(args)
     except (SimulationDiverged, ValueError) as exc:
