@@ -116,7 +116,7 @@ def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
     force = np.array([np.asarray(m.effort) for *_, m in read_messages(bag, ["/body/external_force"])])
     np.testing.assert_array_equal(force[:, 0], expected)  # x force on mass 0 in force at each step
     np.testing.assert_allclose(wind_periods(read_run(bag)), [(0.2, 0.4), (0.6, 0.8), (1.0, 1.01)], atol=1e-12)
-    metrics = replay(bag, tmp_path / "replay", gif=False)
+    metrics = replay(bag, tmp_path / "replay", run, gif=False)  # the agent only from the user, never from the bag
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9
     assert (tmp_path / "replay" / "speed.png").is_file()
 
