@@ -179,7 +179,16 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
         report["batch_scaling"][str(b)] = measure_isolated(w, True, min_seconds=min_s)
     liss = report["workloads"]["lissajous"]["adjoint"].get("train_steps_per_s", math.nan)
     report["target"] = {"lissajous_train_steps_per_s": 3000, "measured": liss, "met": bool(liss >= 3000)}
+    report["ipc"] = _ipc_entry(quick, progress)
     return report
+
+
+def _ipc_entry(quick: bool, progress) -> dict[str, Any]:
+    """IPC of 17 masses × 2 axes, degree ≤ 3, delay ≤ 20, 3,000 samples, 200 surrogates (20 with --quick)."""
+    from bptsb_ros.analysis.ipc import benchmark_ipc
+
+    progress("bench ipc ...")
+    return benchmark_ipc(surrogates=20 if quick else 200)
 
 
 def workload_table(report: dict[str, Any]) -> str:

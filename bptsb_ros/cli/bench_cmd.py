@@ -27,6 +27,8 @@ def run(args: argparse.Namespace) -> int:
     print(workload_table(report))
     scaling = ", ".join(f"B={b}: {v.get('train_body_steps_per_s')}" for b, v in report["batch_scaling"].items())
     print(f"Lissajous training, body-steps/s by batch size: {scaling}")
+    if "ipc" in report:
+        print(f"{report['ipc']['workload']}: {report['ipc']['seconds']} s")
     t = report["target"]
     print(f"target ≥ {t['lissajous_train_steps_per_s']} Lissajous training steps/s: measured {t['measured']} "
           f"({'met' if t['met'] else 'NOT met'}); wrote {out}")
