@@ -95,3 +95,27 @@ def test_msdn_nonlinearity_smoke(tmp_path):
     for v in [*ipc["1-D chain (8 movable)"].values(), *ipc["double-circle (N_mov 17)"].values()]:
         assert sum(v["by_degree"]) <= v["rank"] + 1e-6
     assert (tmp_path / data["figures"][0]).is_file()
+
+
+def test_target_ipc_smoke(tmp_path):
+    from bptsb_ros.experiments.target_ipc import targets
+
+    _, data = run_experiment("target-ipc", scale="smoke", out_dir=tmp_path, progress=False)
+    prof = data["details"]["profiles"]
+    # the alignment: y(t) of NARMA2 is a function of u(t-1), y(t-1), y(t-2); recomputed here by hand
+    w = np.random.default_rng(1).uniform(0, 1, 50)
+    y = targets(w)["NARMA2"]
+    u = w / 2
+    for t in range(3, 50):
+        assert y[t] == pytest.approx(0.4 * y[t - 1] + 0.4 * y[t - 1] * y[t - 2] + 0.6 * u[t - 1] ** 3 + 0.1)
+    assert prof["memory (Δt = 8)"]["largest_term"] == "P1(u(t-8))"
+    assert prof["memory (Δt = 8)"]["largest_term_capacity"] == pytest.approx(1.0, abs=1e-9)
+    assert prof["NARMA2"]["largest_term"] == "P1(u(t-1))"
+    d10 = prof["NARMA10"]["by_longest_delay"]
+    assert d10[10] > 5 * max(d10[3:10])
+    assert prof["expanded NARMA"]["nonlinear_share"] > prof["NARMA2"]["nonlinear_share"] + 0.1
+    rows = {(r["system"], r["metric"]): r["ours"] for r in data["rows"]}
+    for name, p in prof.items():
+        assert rows[(name, "IPC degree 2")] == pytest.approx(p["by_degree"][1])
+        assert sum(p["by_degree"]) == pytest.approx(p["total"])
+    assert len(data["claims"]) == 5 and (tmp_path / "target_ipc.png").is_file()
