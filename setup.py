@@ -114,6 +114,7 @@ setup(
         "mcap>=1.6",
         "imageio",
         "pillow",
+        "distributed",  # bptsb sweep --scheduler: jobs on a Dask cluster; LocalCluster in the tests
     ],
     extras_require={
         # A full ROS 2 Jazzy install provides these through apt; without one they come as wheels.

@@ -20,6 +20,7 @@ SUBCOMMANDS = (
     "bag",
     "reproduce",
     "report",
+    "sweep",
     "ipc",
 )
 

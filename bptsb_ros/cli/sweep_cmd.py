@@ -1,0 +1,54 @@
+"""`bptsb sweep`: train one config over many seeds, locally or on a Dask cluster, resumable."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+NAME = "sweep"
+HELP = ("Train CONFIG once per seed as independent jobs (local process pool, or a Dask distributed cluster with "
+        "--scheduler); each job in OUT/jobs/seed-N; a rerun skips finished jobs; writes OUT/sweep.json and sweep.csv.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", help="experiment YAML (as for bptsb train)")
+    parser.add_argument("--seeds", required=True, help="seeds: 0-19, or 0,3,5-7")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="config override for every job (repeatable), e.g. --set sim_time=100")
+    parser.add_argument("--out", required=True, help="sweep directory")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None,
+                       help="local worker processes (default: the CPUs available; 0: run in this process)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="Dask distributed scheduler, e.g. tcp://HOST:8786 (workers must see --out)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.config import ConfigError, load_config
+    from bptsb_ros.sweep import SweepError, parse_seeds, run_sweep, train_jobs
+
+    try:
+        seeds = parse_seeds(args.seeds)
+        if args.workers is not None and args.workers < 0:
+            raise SweepError(f"--workers must be >= 0, got {args.workers}")
+        load_config(args.config, args.overrides, seeds[0])  # a bad config fails here, once, not in every job
+        jobs = train_jobs(args.config, seeds, args.overrides)
+        last = [""]
+
+        def show(p) -> None:
+            line = p.line()
+            if line != last[0]:
+                print(line, file=sys.stderr, flush=True)
+                last[0] = line
+
+        result = run_sweep(jobs, args.out, workers=args.workers, scheduler=args.scheduler, progress=show)
+    except (SweepError, ConfigError) as err:
+        print(f"bptsb sweep: {err}", file=sys.stderr)
+        return 2
+    if result.skipped:
+        print(f"skipped {len(result.skipped)} finished job(s): {', '.join(result.skipped)}", file=sys.stderr)
+    for rec in result.failed:
+        print(f"FAILED {rec['name']}: {rec.get('error')}", file=sys.stderr)
+    print(f"{args.out}/sweep.json, {args.out}/sweep.csv: {len(result.records) - len(result.failed)} done, "
+          f"{len(result.failed)} failed")
+    return 1 if result.failed else 0
