@@ -26,6 +26,9 @@ from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentR
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.lissajous_closed_loop",
+    "bptsb_ros.experiments.narma_emulation",
+    "bptsb_ros.experiments.narma_ipc",
+    "bptsb_ros.experiments.memory_task",
     "bptsb_ros.experiments.target_ipc",
     "bptsb_ros.experiments.msdn_nonlinearity",
 )
