@@ -174,3 +174,12 @@ def test_ipc_of_a_bag_reads_inputs_and_block_end_states(tmp_path):
     assert top("mass 1 y")[:2] == ([0], [2]) and top("mass 1 y")[2] == pytest.approx(1, abs=1e-9)
     assert states["mass 2 x"]["rank"] == 0 and states["mass 2 x"]["total"] == 0
     assert states["all movable x, y"]["total"] == pytest.approx(3, abs=1e-9)
+
+
+def test_benchmark_entry_reports_its_workload():
+    from bptsb_ros.analysis.ipc import benchmark_ipc
+
+    out = benchmark_ipc(samples=400, masses=2, max_degree=2, max_delay=5, surrogates=2)
+    assert out["basis_functions"] == 6 + (6 + 15)  # degree 1: 6 delays; degree 2: P2 at 6 + pairs of 6
+    assert out["state_sets"] == 2 * 2 + 1 and out["seconds"] > 0
+    assert 0 < out["total_capacity_all"] <= out["rank_all"] + 1e-9

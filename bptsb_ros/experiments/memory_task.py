@@ -36,7 +36,7 @@ def spearman(x, y) -> float:
     paper_ref="Supplement 'Memory task' (Fig. 'The memory task')",
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
     durations={"smoke": "≈ 50 s", "short": "≈ 12 min (Adam, 25 epochs, Δt = 1, 3, 5, 8, 11, 14, 17, 2 seeds)",
-               "paper": "≈ 2.5 days per training × 17 Δt × 2 bodies × seeds (SGD, 40,000 epochs)"},
+               "paper": "≈ 8-19 h per training (40,000 SGD epochs) × 17 Δt × 2 bodies × 5 seeds, / workers"},
 )
 def run(ctx: Context) -> None:
     import numpy as np
