@@ -35,7 +35,7 @@ def spearman(x, y) -> float:
     "memory-task",
     paper_ref="Supplement 'Memory task' (Fig. 'The memory task')",
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
-    durations={"smoke": "≈ 50 s", "short": "≈ 12 min (Adam, 25 epochs, Δt = 1, 3, 5, 8, 11, 14, 17, 2 seeds)",
+    durations={"smoke": "≈ 50 s", "short": "≈ 15 min (Adam, 15 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 workers)",
                "paper": "≈ 8-19 h per training (40,000 SGD epochs) × 17 Δt × 2 bodies × 5 seeds, / workers"},
 )
 def run(ctx: Context) -> None:
@@ -46,8 +46,8 @@ def run(ctx: Context) -> None:
     from bptsb_ros.experiments.timeseries import BODIES, NarmaJob, config_name, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
 
-    epochs = ctx.pick(smoke=1, short=25, paper=40000)
-    delays = ctx.pick(smoke=(1, 8, 17), short=(1, 3, 5, 8, 11, 14, 17), paper=tuple(range(1, 18)))
+    epochs = ctx.pick(smoke=1, short=15, paper=40000)
+    delays = ctx.pick(smoke=(1, 8, 17), short=(1, 4, 8, 12, 17), paper=tuple(range(1, 18)))
     seeds = [ctx.seed + i for i in range(ctx.pick(smoke=1, short=2, paper=5))]
     eval_inputs = ctx.pick(smoke=150, short=800, paper=3000)
     surrogates = ctx.pick(smoke=5, short=50, paper=200)
