@@ -199,3 +199,23 @@ def test_memory_task_smoke(tmp_path):
     mean = {b: np.mean(d["nmse"][b]) for b in ("double-circle", "multiple-circle")}
     assert data["claims"][1]["holds"] == bool(mean["multiple-circle"] < mean["double-circle"])
     assert {p.rsplit("/", 1)[-1] for p in data["figures"]} == {"memory_error.png", "memory_ipc.png"}
+
+
+def test_zero_bias_relu_mlp_is_linear_on_nonnegative_input_only():
+    """Why the time-series experiments feed the brain 20·(2u − 1): an untrained MLP (zero biases) is positively
+    homogeneous, f(a·x) = a·f(x) for a ≥ 0, so on u ∈ [0, 1] it is a linear map; on (−1, 1) it is not."""
+    from bptsb_ros.brains import MLPBrain
+    from bptsb_ros.config import NarmaConfig
+    from bptsb_ros.tasks.narma import brain_input
+
+    mlp = MLPBrain(1, 8, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    u = torch.linspace(0, 1, 11, dtype=torch.float64).unsqueeze(-1)
+    unit, sym = NarmaConfig(), NarmaConfig(brain_input="symmetric")
+    np.testing.assert_allclose(brain_input(u, unit).numpy(), 20 * u.numpy())
+    np.testing.assert_allclose(brain_input(u, sym).numpy(), 20 * (2 * u.numpy() - 1))
+    with torch.no_grad():
+        lin = mlp(brain_input(u, unit))
+        assert torch.allclose(lin, u * mlp(brain_input(torch.ones(1, 1, dtype=torch.float64), unit)), atol=1e-12)
+        s = mlp(brain_input(u, sym))
+        second_diff = (s[2:] - 2 * s[1:-1] + s[:-2]).abs().max()  # zero for an affine map
+        assert second_diff > 1e-3

@@ -65,6 +65,16 @@ def delay_target(u: np.ndarray, delay: int) -> np.ndarray:
     return out
 
 
+def brain_input(u, narma_cfg: Any):
+    """The brain's input for task inputs u in [0, 1] (array or tensor): ``input_scale × u`` (``brain_input:
+    unit``, the paper's text) or ``input_scale × (2u − 1)`` (``symmetric``, the published code). A zero-bias ReLU
+    MLP is positively homogeneous, hence exactly linear on a non-negative input: only the symmetric input lets
+    an untrained MLP brain be nonlinear. ``narma_cfg``: the config's ``narma`` section (object or dict)."""
+    get = narma_cfg.get if isinstance(narma_cfg, dict) else lambda k, d=None: getattr(narma_cfg, k, d)
+    scale = float(get("input_scale", 20.0))
+    return scale * (2 * u - 1) if get("brain_input", "unit") == "symmetric" else scale * u
+
+
 def narma_inputs(seed: int, count: int) -> np.ndarray:
     """(count,) inputs u ~ U(0, 1) from ``seed``; a longer series from the same seed extends a shorter one.
 
@@ -103,7 +113,7 @@ class NarmaTask(Task):
         body = self.agent.body
         steps = len(u) * n.tau
         per_step = held_inputs(torch.as_tensor(u, dtype=body.l.dtype), n.tau, steps)  # (steps+1,)
-        forces = brain_forces(self.agent, per_step.unsqueeze(-1) * n.input_scale)  # (steps+1, M, 2)
+        forces = brain_forces(self.agent, brain_input(per_step.unsqueeze(-1), n))  # (steps+1, M, 2)
         state = body.initial_state(1, external_force=forces[0])
         with torch.set_grad_enabled(grad):
             win = rollout_window(body, state, body.l.expand(steps, -1), forces[1:], adjoint=self.cfg.training.adjoint)
@@ -121,8 +131,8 @@ class NarmaTask(Task):
         gradients) — the states whose IPC the paper shows."""
         from bptsb_ros.sim.blocks import block_positions
 
-        scale = self.cfg.narma.input_scale
-        return block_positions(self.agent.body, lambda x: brain_forces(self.agent, x * scale), u,
+        n = self.cfg.narma
+        return block_positions(self.agent.body, lambda x: brain_forces(self.agent, brain_input(x, n)), u,
                                self.cfg.narma.tau)[0]
 
     def update_loss(self, index: int) -> tuple[torch.Tensor, dict[str, float]]:
