@@ -35,7 +35,8 @@ def spearman(x, y) -> float:
     "memory-task",
     paper_ref="Supplement 'Memory task' (Fig. 'The memory task')",
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
-    durations={"smoke": "≈ 50 s", "short": "≈ 15 min (Adam, 15 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 workers)",
+    durations={"smoke": "≈ 25 s",
+               "short": "≈ 15 min measured (Adam, 15 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 workers)",
                "paper": "≈ 8-19 h per training (40,000 SGD epochs) × 17 Δt × 2 bodies × 5 seeds, / workers"},
 )
 def run(ctx: Context) -> None:

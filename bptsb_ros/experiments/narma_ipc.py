@@ -26,7 +26,7 @@ BRAINS = ("lil", "mlp")
     "narma-ipc",
     paper_ref="Fig. 3(c)",
     summary="IPC of the output at several epochs, of the target and of every mass's x, y (LIL, MLP; double circle)",
-    durations={"smoke": "≈ 40 s", "short": "≈ 8 min (Adam, 120 epochs, 2 workers)",
+    durations={"smoke": "≈ 40 s", "short": "≈ 11 min measured (Adam, 120 epochs, 2 workers)",
                "paper": "≈ 8-19 h per system: 40,000 SGD epochs × 3,000 steps at 1,800-4,200 steps/s"},
 )
 def run(ctx: Context) -> None:
