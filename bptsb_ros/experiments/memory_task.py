@@ -150,10 +150,15 @@ def run(ctx: Context) -> None:
         ax.set_title(f"(c) IPC, LIL + {b}, Δt = {focus} (red: F₁(u(t−{focus})); CMP neighbours "
                      f"{cmp_neighbours[b]})", fontsize=9)
     ctx.figure(_save(fig, ctx.out_dir / "memory_ipc.png"))
+    notes = [] if ctx.scale == "paper" else [f"{ctx.scale} scale: Δt in {list(delays)} only, {len(seeds)} seed(s), "
+                                             f"{epochs} Adam epochs"]
+    if min(rho.values()) < RHO_MIN:
+        notes.append(f"error not increasing with Δt: the errors ({', '.join(f'{b} {avg[b]:.3g}' for b in avg)} on "
+                     f"average) show the systems barely trained in {epochs} epochs — the output's offset and scale, "
+                     "not its memory, dominate the error")
     ctx.result.details = {"config": config, "epochs": epochs, "delays": list(delays), "seeds": seeds,
                           "eval_inputs": eval_inputs, "washout": washout, "surrogates": surrogates,
                           "nmse": {b: err[b].tolist() for b in BODIES}, "spearman": rho,
                           "f1_focus_per_mass": {b: {str(k): v for k, v in d.items()} for b, d in per_mass.items()},
                           "cmp_neighbours": cmp_neighbours, "output_f1_focus": out_f,
-                          "notes": [] if ctx.scale == "paper" else
-                          [f"{ctx.scale} scale: Δt in {list(delays)} only, {len(seeds)} seed(s), {epochs} Adam epochs"]}
+                          "notes": notes}
