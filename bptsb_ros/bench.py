@@ -261,7 +261,16 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
            for n, e in wl.items()}
     report["targets"]["peak_rss_not_above_torch"] = {
         "per_workload_mib_numba_torch": rss, "met": all(a <= b for a, b in rss.values())}
+    report["ipc"] = _ipc_entry(quick, progress)
     return report
+
+
+def _ipc_entry(quick: bool, progress) -> dict[str, Any]:
+    """IPC of 17 masses × 2 axes, degree ≤ 3, delay ≤ 20, 3,000 samples, 200 surrogates (20 with --quick)."""
+    from bptsb_ros.analysis.ipc import benchmark_ipc
+
+    progress("bench ipc ...")
+    return benchmark_ipc(surrogates=20 if quick else 200)
 
 
 def workload_table(report: dict[str, Any]) -> str:

@@ -132,6 +132,12 @@ class NarmaConfig(_Strict):
     washout: int = Field(30, ge=0, description="inputs discarded at the start")
     train_end: int = Field(120, description="samples washout..train_end-1 train; the rest test")
     input_scale: float = Field(20.0, gt=0, description="force scale: brain input = scale × u")
+    brain_input: Literal["unit", "symmetric"] = Field(
+        "unit", description="brain input = input_scale × u (unit: the paper's text, u in [0, 1] → (0, 20)) or "
+        "input_scale × (2u − 1) (symmetric: the published code, (−20, 20)); the target always uses u in [0, 1]")
+    target: Literal["expanded", "memory"] = Field(
+        "expanded", description="expanded NARMA (main text) or the memory task y(t) = u(t − delay) (supplement)")
+    delay: int = Field(8, ge=0, description="memory task: Δt, the delay in task steps")
     eval_seed: int = 12345
 
 

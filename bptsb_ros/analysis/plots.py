@@ -123,3 +123,65 @@ def plot_spring_lengths(path: Path, t: np.ndarray, lengths: np.ndarray, max_spri
     ax.legend(frameon=False, fontsize=6, ncol=4)
     ax.grid(alpha=0.3)
     return _save(fig, path)
+
+
+IPC_CMAPS = ("Blues", "Oranges", "Greens", "Purples", "Greys")
+
+
+def draw_ipc_bars(ax, names: Sequence[str], capacity: np.ndarray, degrees: np.ndarray, max_delays: np.ndarray,
+                  ranks: Sequence[float] | None = None, highlight: int | None = None, legend: bool = True) -> None:
+    """Stacked IPC bars in the style of the paper's Fig. 3(c): one bar per state set (``capacity`` (B, F)),
+    segments by degree n (colour: blue = linear) and by the longest delay Δt (shade: darker = shorter delay);
+    ``highlight`` (a basis-function column) is drawn in red at the bottom; a black tick marks each rank."""
+    capacity = np.atleast_2d(capacity)
+    top_delay = max(int(max_delays.max()), 1)
+    x = np.arange(len(names))
+    bottom = np.zeros(len(names))
+    if highlight is not None:
+        h = capacity[:, highlight]
+        ax.bar(x, h, bottom=bottom, color="red", width=0.8, edgecolor="none")
+        bottom += h
+        capacity = capacity.copy()
+        capacity[:, highlight] = 0
+    for n in range(1, int(degrees.max()) + 1):
+        cmap = plt.get_cmap(IPC_CMAPS[min(n, len(IPC_CMAPS)) - 1])
+        for d in range(top_delay + 1):
+            cols = (degrees == n) & (max_delays == d)
+            if not cols.any():
+                continue
+            seg = capacity[:, cols].sum(axis=1)
+            if not seg.any():
+                continue
+            ax.bar(x, seg, bottom=bottom, color=cmap(0.9 - 0.65 * d / top_delay), width=0.8, edgecolor="none")
+            bottom += seg
+    if ranks is not None:
+        ax.scatter(x, ranks, marker="_", s=200, color="k", zorder=5, label="rank")
+    ax.set_xticks(x)
+    ax.set_xticklabels(names, rotation=90, fontsize=7)
+    ax.set_ylabel("capacity C")
+    ax.set_ylim(0, max(1.05, float(bottom.max()) * 1.08, float(np.max(ranks)) * 1.08 if ranks is not None else 0))
+    if legend:
+        from matplotlib.patches import Patch
+
+        handles = [Patch(color=plt.get_cmap(IPC_CMAPS[min(n, len(IPC_CMAPS)) - 1])(0.75), label=f"n = {n}")
+                   for n in range(1, int(degrees.max()) + 1)]
+        if highlight is not None:
+            handles.insert(0, Patch(color="red", label="highlighted term"))
+        handles.append(Patch(color="white", label=f"shade: Δt 0 (dark) … {top_delay} (light)"))
+        if ranks is not None:
+            from matplotlib.lines import Line2D
+
+            handles.append(Line2D([], [], color="k", marker="_", ls="none", markersize=12, label="rank"))
+        ax.legend(handles=handles, fontsize=7, frameon=False, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.grid(axis="y", alpha=0.3)
+
+
+def plot_ipc_bars(path: Path, res, labels: Sequence[str] | None = None, title: str = "",
+                  highlight: int | None = None) -> Path:
+    """One figure of :func:`draw_ipc_bars` for the state sets ``labels`` (default all) of an IPCResult."""
+    labels = list(labels) if labels is not None else list(res.labels)
+    rows = [res.group(lab) for lab in labels]
+    fig, ax = plt.subplots(figsize=(max(4.0, 0.28 * len(labels) + 3), 4))
+    draw_ipc_bars(ax, labels, res.capacity[rows], res.degrees, res.max_delays(), res.rank[rows], highlight)
+    ax.set_title(title, fontsize=9)
+    return _save(fig, path)

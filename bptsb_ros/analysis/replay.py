@@ -244,6 +244,8 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
             return positions
         roll = simulate_closed_loop(agent.body, agent.feedback, steps)
     elif loop == "narma":
+        from bptsb_ros.tasks.narma import brain_input
+
         scale = float(agent.config["narma"]["input_scale"])
         if not inputs:
             raise BagError("the narma loop's offline comparison needs the task/input topic")
@@ -251,7 +253,8 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
         for k in range(steps + 1):  # the input in force at each step; a lost message keeps the previous value
             last = inputs.get(k, last)
             series.append(last)
-        roll = simulate_open_loop(agent, steps, inputs=torch.tensor(series, dtype=torch.float64) * scale)
+        roll = simulate_open_loop(agent, steps, inputs=brain_input(torch.tensor(series, dtype=torch.float64),
+                                                                   {**agent.config["narma"], "input_scale": scale}))
     elif loop == "locomotion_headwind":  # the agent's periodic wind, as the wind_source node sends it
         from bptsb_ros.tasks.locomotion import wind_blowing
 

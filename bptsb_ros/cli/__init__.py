@@ -22,6 +22,7 @@ SUBCOMMANDS = (
     "report",
     "sweep",
     "data",
+    "ipc",
 )
 
 

@@ -29,6 +29,8 @@ def run(args: argparse.Namespace) -> int:
     scaling = "; ".join(f"B={b}: torch {v['torch']}, numba {v['numba']} (×{v['numba_over_torch']})"
                         for b, v in report["batch_scaling"].items())
     print(f"Lissajous training, body-steps/s by batch size: {scaling}")
+    if "ipc" in report:
+        print(f"{report['ipc']['workload']}: {report['ipc']['seconds']} s")
     first = report["numba_first_call"]
     print(f"numba first call (s): empty cache {first['cold_compile']}, cached {first['cached']}")
     sched = report["narma_paper_schedule"]

@@ -178,7 +178,7 @@ def _simulate_agent(args: argparse.Namespace) -> Trajectory:
     from bptsb_ros.brains import SineWaveGenerator
     from bptsb_ros.sim.rollout import held_inputs, simulate_closed_loop, simulate_open_loop
     from bptsb_ros.sim.trajectory import trajectory_from_rollout
-    from bptsb_ros.tasks.narma import narma_inputs
+    from bptsb_ros.tasks.narma import brain_input, narma_inputs
     from bptsb_ros.training.checkpoint import CheckpointError, feedback_fitted, load_agent
 
     if args.swg_amplitude or args.ground_clamp or args.environment != "auto" or args.nodes is not None:
@@ -216,7 +216,7 @@ def _simulate_agent(args: argparse.Namespace) -> Trajectory:
                 narma = agent.config["narma"]
                 tau = int(narma["tau"])
                 u = narma_inputs(args.seed, (args.steps - 1) // tau + 1)
-                inputs = float(narma["input_scale"]) * torch.from_numpy(held_inputs(u, tau, args.steps)).to(real)
+                inputs = brain_input(torch.from_numpy(held_inputs(u, tau, args.steps)).to(real), narma)
                 extras["input"] = inputs.numpy().copy()
             roll = simulate_open_loop(agent, args.steps, inputs=inputs, wind=wind, displacement=displacement,
                                       progress=progress)

@@ -31,6 +31,12 @@ MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.mnist_labelmap",
     "bptsb_ros.experiments.mnist_specific100",
     "bptsb_ros.experiments.mnist_readout",
+    # "Distribution of computational properties" (Fig. 3) and the time-series supplement
+    "bptsb_ros.experiments.narma_emulation",
+    "bptsb_ros.experiments.narma_ipc",
+    "bptsb_ros.experiments.memory_task",
+    "bptsb_ros.experiments.target_ipc",
+    "bptsb_ros.experiments.msdn_nonlinearity",
     # "Autonomous behavior through brain function transfer" (Fig. 4) and the SWG supplement
     "bptsb_ros.experiments.lissajous_closed_loop",
     "bptsb_ros.experiments.lissajous_perturbation",

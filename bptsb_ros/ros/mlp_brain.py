@@ -20,6 +20,7 @@ from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.topics import mass_dof_names
+from bptsb_ros.tasks.narma import brain_input
 
 NODE = "mlp_brain"
 PARAMS = (
@@ -36,6 +37,7 @@ class MlpBrain(BrainNode):
             raise ParameterError(f"parameter 'agent': {self.source_text()} has a {type(agent.brain).__name__} brain; "
                                  "mlp_brain needs an MLP or LIL agent (narma)")
         self.scale = self.p["input_scale"] or float(agent.config["narma"]["input_scale"])
+        self.narma = {**agent.config["narma"], "input_scale": self.scale}  # brain_input's settings
         self.n_in = int(agent.brain.layers[0].in_features if isinstance(agent.brain, MLPBrain)
                         else agent.brain.weight.shape[1])
         body = agent.body
@@ -54,7 +56,7 @@ class MlpBrain(BrainNode):
                       "finite values)")
             return
         with torch.no_grad():
-            force = brain_forces(self.agent, u * self.scale)
+            force = brain_forces(self.agent, brain_input(u, self.narma))
         msg_out = m.joint_state(step, self.dt_ns, self.names, effort=force.reshape(-1).double().numpy())
         self.publish_timed(self.pub, msg_out, started)
 

@@ -33,6 +33,48 @@ def expanded_narma(u: np.ndarray, order: int = 2) -> np.ndarray:
     return y[1:]
 
 
+def narma(u: np.ndarray, order: int) -> np.ndarray:
+    """The NARMA model of the supplement ("The target IPC"), y(1..K) for inputs u(0..K-1), y(t ≤ 0) = 0:
+
+        m = 2:  y(t+1) = 0.4 y(t) + 0.4 y(t) y(t−1) + 0.6 u(t)³ + 0.1
+        m > 2:  y(t+1) = 0.3 y(t) + 0.05 y(t) Σ_{i=0}^{m−1} y(t−i) + 1.5 u(t−m+1) u(t) + 0.1
+
+    (u(t < 0) = 0). The usual input is u ~ U(0, 0.5) (Atiya & Parlos 2000); NARMA10 is ``order=10``.
+    """
+    if order < 2:
+        raise ValueError(f"NARMA order m must be >= 2, got {order}")
+    k = len(u)
+    y = np.zeros(k + 1)  # y[t] = y(t); y(0) = 0
+    for t in range(k):
+        if order == 2:
+            y_prev = y[t - 1] if t >= 1 else 0.0
+            y[t + 1] = 0.4 * y[t] + 0.4 * y[t] * y_prev + 0.6 * u[t] ** 3 + 0.1
+        else:
+            window = y[max(0, t - order + 1): t + 1]
+            u_old = u[t - order + 1] if t - order + 1 >= 0 else 0.0
+            y[t + 1] = 0.3 * y[t] + 0.05 * y[t] * window.sum() + 1.5 * u_old * u[t] + 0.1
+    return y[1:]
+
+
+def delay_target(u: np.ndarray, delay: int) -> np.ndarray:
+    """The memory task's target y(t) = u(t − Δt) for inputs u(0..K−1) (zero before the series starts)."""
+    if delay < 0:
+        raise ValueError(f"delay must be >= 0, got {delay}")
+    out = np.zeros(len(u))
+    out[delay:] = u[: len(u) - delay] if delay else u
+    return out
+
+
+def brain_input(u, narma_cfg: Any):
+    """The brain's input for task inputs u in [0, 1] (array or tensor): ``input_scale × u`` (``brain_input:
+    unit``, the paper's text) or ``input_scale × (2u − 1)`` (``symmetric``, the published code). A zero-bias ReLU
+    MLP is positively homogeneous, hence exactly linear on a non-negative input: only the symmetric input lets
+    an untrained MLP brain be nonlinear. ``narma_cfg``: the config's ``narma`` section (object or dict)."""
+    get = narma_cfg.get if isinstance(narma_cfg, dict) else lambda k, d=None: getattr(narma_cfg, k, d)
+    scale = float(get("input_scale", 20.0))
+    return scale * (2 * u - 1) if get("brain_input", "unit") == "symmetric" else scale * u
+
+
 def narma_inputs(seed: int, count: int) -> np.ndarray:
     """(count,) inputs u ~ U(0, 1) from ``seed``; a longer series from the same seed extends a shorter one.
 
@@ -71,17 +113,32 @@ class NarmaTask(Task):
         body = self.agent.body
         steps = len(u) * n.tau
         per_step = held_inputs(torch.as_tensor(u, dtype=body.l.dtype), n.tau, steps)  # (steps+1,)
-        forces = brain_forces(self.agent, per_step.unsqueeze(-1) * n.input_scale)  # (steps+1, M, 2)
+        forces = brain_forces(self.agent, brain_input(per_step.unsqueeze(-1), n))  # (steps+1, M, 2)
         state = body.initial_state(1, external_force=forces[0])
         with torch.set_grad_enabled(grad):
             win = rollout_window(body, state, body.l.expand(steps, -1), forces[1:], adjoint=self.cfg.training.adjoint)
         body.check_finite(win.final)
         return win.r[n.tau - 1:: n.tau, 0, body.cmp_local, 1]
 
+    def target(self, u: np.ndarray) -> np.ndarray:
+        """The series the output is trained on for inputs u (K,): entry t is compared with the output after
+        u(t) was held (expanded NARMA: y(t+1); memory task: u(t − delay))."""
+        n = self.cfg.narma
+        return delay_target(u, n.delay) if n.target == "memory" else expanded_narma(u, n.order)
+
+    def block_positions(self, u: np.ndarray) -> np.ndarray:
+        """(K, M, 2) positions of the movable masses at the end of each input block, one episode from rest (no
+        gradients) — the states whose IPC the paper shows."""
+        from bptsb_ros.sim.blocks import block_positions
+
+        n = self.cfg.narma
+        return block_positions(self.agent.body, lambda x: brain_forces(self.agent, brain_input(x, n)), u,
+                               self.cfg.narma.tau)[0]
+
     def update_loss(self, index: int) -> tuple[torch.Tensor, dict[str, float]]:
         n = self.cfg.narma
         u = self.rng.uniform(0.0, 1.0, n.n_inputs)
-        y = torch.as_tensor(expanded_narma(u, n.order), dtype=self.agent.body.l.dtype)
+        y = torch.as_tensor(self.target(u), dtype=self.agent.body.l.dtype)
         out = self.episode(u)
         sl = slice(n.washout, n.train_end)
         return ((out[sl] - y[sl]) ** 2).mean(), {}
@@ -95,7 +152,7 @@ class NarmaTask(Task):
     def evaluate(self) -> dict[str, Any]:
         n = self.cfg.narma
         u = narma_inputs(n.eval_seed, n.n_inputs)
-        y = expanded_narma(u, n.order)
+        y = self.target(u)
         out = self.episode(u, grad=False).double().numpy()
         test = slice(n.train_end, n.n_inputs)
         post = slice(n.washout, n.n_inputs)
@@ -116,6 +173,7 @@ class NarmaTask(Task):
         e = self._eval
         n = self.cfg.narma
         path = out_dir / "narma.png"
+        title = (f"memory task Δt = {n.delay}" if n.target == "memory" else f"expanded NARMA{n.order}")
         plot_series(path, {"input u": e["u"], "target y": e["y"], "output (CMP y)": e["out"]}, "sample (τ steps)",
-                    "value", title="expanded NARMA2, held-out sequence", shade=(n.train_end, n.n_inputs))
+                    "value", title=f"{title}, held-out sequence", shade=(n.train_end, n.n_inputs))
         return [path]
