@@ -123,3 +123,32 @@ def _tiny_bag(bag: Path) -> None:
         for k in range(3):
             pos = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 0.1 * k]])
             w.write_message("/body/positions", m.pose_array(k, 10_000_000, pos, "msdn"), k * 10_000_000)
+
+
+def test_bag_qos_alias_bomb_gives_a_short_error():
+    """offered_qos_profiles is untrusted bag data: nested aliases (9^6 = 531,441 strings from ~0.3 kB) must be
+    refused by the bounded loader with a short message, not expanded and echoed (several MB)."""
+    from bptsb_ros.bags.errors import BagError
+    from bptsb_ros.bags.qos import qos_profiles_from_value
+
+    levels = ["a0: &a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
+    levels += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 6)]
+    text = "- {" + ", ".join(level.replace(": ", ": ", 1) for level in levels) + ", history: *a5}"
+    assert len(text) < 400
+    with pytest.raises(BagError) as err:
+        qos_profiles_from_value(text)
+    assert len(str(err.value)) < 500
+
+
+def test_bag_schema_names_never_import_arbitrary_modules():
+    """A schema name read from a bag picks the module to import: only installed ROS messages are imported."""
+    import sys
+
+    from bptsb_ros.bags.msgdefs import MessageDefinitionError, get_message_class
+
+    assert get_message_class("geometry_msgs/msg/PoseArray").__name__ == "PoseArray"
+    sys.modules.pop("json.tool", None)
+    for name in ("json/tool/PoseArray", "json/msg/PoseArray", "idlelib/idle/PoseArray"):
+        with pytest.raises(MessageDefinitionError, match="not an installed ROS 2 message"):
+            get_message_class(name)
+    assert "json.tool" not in sys.modules and "idlelib.idle" not in sys.modules

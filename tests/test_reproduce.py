@@ -76,6 +76,12 @@ def test_runner_writes_result_and_never_overwrites(tmp_path, toy_experiment):
     with pytest.raises(ExperimentError, match="used exists"):
         run_experiment(toy_experiment, scale="smoke", out_dir=tmp_path / "used", progress=False)
     assert (tmp_path / "used" / "checkpoint.pt").read_bytes() == b"an earlier run"
+    with pytest.raises(ExperimentError, match="not one"):  # --force never deletes what is not a reproduce run
+        run_experiment(toy_experiment, scale="smoke", out_dir=tmp_path / "used", force=True, progress=False)
+    assert (tmp_path / "used" / "checkpoint.pt").read_bytes() == b"an earlier run"
+    (tmp_path / "a" / "stale-job.json").write_text("{}")  # e.g. a job of another scale
+    run_experiment(toy_experiment, scale="smoke", seed=3, out_dir=tmp_path / "a", force=True, progress=False)
+    assert not (tmp_path / "a" / "stale-job.json").exists()
     with pytest.raises(ExperimentError, match="unknown experiment"):
         run_experiment("no-such-experiment", out_dir=tmp_path / "b")
     with pytest.raises(ExperimentError, match="scale"):

@@ -190,6 +190,15 @@ def type_description_hash(msgtype: str) -> str:
 def get_message_class(msgtype: str) -> type:
     """Import and return the Python class of ``msgtype`` (``pkg/msg/Type`` or ``pkg/Type``)."""
     pkg, namespace, name = split_type(msgtype)
+    # A bag is untrusted data: import only the module of an installed ROS message (its .msg file in the
+    # package's share directory), never whatever module a schema name happens to spell.
+    try:
+        installed = namespace == "msg" and (find_share_dir(pkg) / "msg" / f"{name}.msg").is_file()
+    except MessageDefinitionError:
+        installed = False
+    if not installed:
+        raise MessageDefinitionError(f"{msgtype} is not an installed ROS 2 message (no {pkg}/msg/{name}.msg "
+                                     "found); refusing to import a module a bag names")
     try:
         module = importlib.import_module(f"{pkg}.{namespace}")
     except ImportError as exc:

@@ -8,6 +8,7 @@ from typing import Any
 import yaml
 
 from bptsb_ros.bags.errors import BagError
+from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 NS_PER_S = 1_000_000_000
 #: RMW_DURATION_INFINITE (ns); written as ``{sec: 9223372036, nsec: 854775807}``.
@@ -66,7 +67,7 @@ class QosProfile:
                 avoid_ros_namespace_conventions=bool(data["avoid_ros_namespace_conventions"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
-            raise BagError(f"malformed QoS profile {data!r}: {exc!r}") from None
+            raise BagError(f"malformed QoS profile {bounded_repr(data)}: {bounded_repr(exc)}") from None
 
     @classmethod
     def from_rclpy(cls, profile: Any) -> QosProfile:
@@ -120,10 +121,10 @@ def qos_profiles_from_value(value: Any) -> list[QosProfile]:
     if value in (None, ""):
         return []
     if isinstance(value, str):
-        try:
-            value = yaml.safe_load(value)
-        except yaml.YAMLError as exc:
-            raise BagError(f"offered_qos_profiles is not valid YAML: {exc}") from None
+        try:  # untrusted bag data: bounded size and alias expansion
+            value = load_untrusted_yaml(value, "offered_qos_profiles")
+        except UntrustedYamlError as exc:
+            raise BagError(str(exc)) from None
         if value is None:
             return []
     if not isinstance(value, list):

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-import yaml
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
@@ -34,6 +33,7 @@ from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import METADATA_FILENAME, BagMetadata, TopicInfo, read_metadata
 from bptsb_ros.bags.msgdefs import get_message_class
 from bptsb_ros.bags.qos import qos_profiles_from_value
+from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
 
 
 class BagMessage(NamedTuple):
@@ -416,11 +416,12 @@ def _ros_distro_record(file: Path) -> str:
     with _McapFile(file) as mf:
         for record in mf.reader.iter_metadata():
             if record.name == "rosbag2" and "serialized_metadata" in record.metadata:
-                try:
-                    data = yaml.safe_load(record.metadata["serialized_metadata"]) or {}
-                except yaml.YAMLError:
+                try:  # untrusted bag data: bounded size and alias expansion
+                    data = load_untrusted_yaml(record.metadata["serialized_metadata"], "rosbag2 metadata record")
+                except UntrustedYamlError:
                     return ""
-                return str(data.get("ros_distro") or "")
+                distro = data.get("ros_distro") if isinstance(data, dict) else None
+                return distro[:64] if isinstance(distro, str) else ""
     return ""
 
 

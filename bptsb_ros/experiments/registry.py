@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -48,6 +49,9 @@ MODULES: tuple[str, ...] = (
 )
 
 T = TypeVar("T")
+
+#: written into every run directory; ``--force`` replaces only directories that hold it
+RUN_MARKER = ".bptsb-reproduce"
 
 
 class ExperimentError(RuntimeError):
@@ -148,17 +152,24 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
 
     ``workers``/``scheduler`` say where experiments with independent trainings run them (``bptsb_ros.sweep``);
     ``data_dir`` and ``split`` are passed to experiments that read a data set (MNIST). A non-empty ``out_dir``
-    (an earlier run) is kept unless ``force``; a failed run writes no result.json.
+    (an earlier run) is kept unless ``force``, which removes it first, and only if it is an earlier run (it holds
+    :data:`RUN_MARKER`); a failed run writes no result.json.
     """
     exp = get_experiment(name)
     if scale not in SCALES:
         raise ExperimentError(f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
     out = Path(out_dir) if out_dir is not None else Path("runs") / "reproduce" / name
-    if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
         what = out / RESULT_FILE if (out / RESULT_FILE).exists() else out
-        raise ExperimentError(f"{what} exists; choose another --out or pass --force to replace the run there")
+        if not force:
+            raise ExperimentError(f"{what} exists; choose another --out or pass --force to replace the run there")
+        if not (out / RUN_MARKER).is_file():
+            raise ExperimentError(f"--force replaces only an earlier `bptsb reproduce` run, and {out} is not one "
+                                  f"(no {RUN_MARKER}); remove it yourself or choose another --out")
+        shutil.rmtree(out)  # nothing of the earlier run (jobs of another scale, say) may leak into this one
     try:
         out.mkdir(parents=True, exist_ok=True)
+        (out / RUN_MARKER).write_text(f"bptsb reproduce {name}\n")
     except OSError as err:
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
     result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed))

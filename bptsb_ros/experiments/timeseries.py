@@ -92,7 +92,8 @@ class NarmaJob:
                 torch.manual_seed(cfg.seed)
                 agent = build_agent(cfg)
             else:
-                res = train(cfg, run_dir / "agent", resume=trained > 0, progress=False)
+                # a rerun of a killed job starts its first stage afresh (the job owns run_dir)
+                res = train(cfg, run_dir / "agent", resume=trained > 0, overwrite=trained == 0, progress=False)
                 trained = epochs
                 out[f"loss_last_{epochs}"] = res.losses[-1]
                 out["train_seconds"] = res.metrics["train_seconds"]
