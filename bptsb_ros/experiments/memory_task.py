@@ -36,7 +36,7 @@ def spearman(x, y) -> float:
     paper_ref="Supplement 'Memory task' (Fig. 'The memory task')",
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
     durations={"smoke": "≈ 25 s",
-               "short": "≈ 15 min measured (Adam, 15 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 workers)",
+               "short": "≈ 8 min on an idle 2-core machine (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 workers)",
                "paper": "≈ 8-19 h per training (40,000 SGD epochs) × 17 Δt × 2 bodies × 5 seeds, / workers"},
 )
 def run(ctx: Context) -> None:
@@ -47,7 +47,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.experiments.timeseries import BODIES, NarmaJob, config_name, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
 
-    epochs = ctx.pick(smoke=1, short=15, paper=40000)
+    epochs = ctx.pick(smoke=1, short=60, paper=40000)
     delays = ctx.pick(smoke=(1, 8, 17), short=(1, 4, 8, 12, 17), paper=tuple(range(1, 18)))
     seeds = [ctx.seed + i for i in range(ctx.pick(smoke=1, short=2, paper=5))]
     eval_inputs = ctx.pick(smoke=150, short=800, paper=3000)

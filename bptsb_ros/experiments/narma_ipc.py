@@ -26,7 +26,7 @@ BRAINS = ("lil", "mlp")
     "narma-ipc",
     paper_ref="Fig. 3(c)",
     summary="IPC of the output at several epochs, of the target and of every mass's x, y (LIL, MLP; double circle)",
-    durations={"smoke": "≈ 40 s", "short": "≈ 11 min measured (Adam, 120 epochs, 2 workers)",
+    durations={"smoke": "≈ 40 s", "short": "≈ 4 min on an idle 2-core machine (Adam, 300 epochs, 2 workers)",
                "paper": "≈ 8-19 h per system: 40,000 SGD epochs × 3,000 steps at 1,800-4,200 steps/s"},
 )
 def run(ctx: Context) -> None:
@@ -37,8 +37,8 @@ def run(ctx: Context) -> None:
     from bptsb_ros.experiments.timeseries import NarmaJob, config_name, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
 
-    last = ctx.pick(smoke=1, short=120, paper=40000)
-    stages = ctx.pick(smoke=(0, 1), short=(0, 10, 40, 120), paper=(0, 400, 4000, 40000))
+    last = ctx.pick(smoke=1, short=300, paper=40000)
+    stages = ctx.pick(smoke=(0, 1), short=(0, 30, 100, 300), paper=(0, 400, 4000, 40000))
     eval_inputs = ctx.pick(smoke=250, short=2000, paper=4000)
     max_delay = ctx.pick(smoke=10, short=20, paper=20)
     surrogates = ctx.pick(smoke=5, short=50, paper=200)
