@@ -100,6 +100,10 @@ def test_report_page_has_tables_claims_and_figures(tmp_path, toy_experiment):
     assert "| 1/1 |" in text and "| 0/1 |" in text
     links = [line[line.index("](") + 2:-1] for line in text.splitlines() if line.startswith("![")]
     assert len(links) == 2 and all((page.parent / link).is_file() for link in links)
+    assert all(link.startswith("REPRODUCTION_figures/") for link in links)  # copied beside the page
+    beside = build_report(runs, tmp_path / "R.md")  # the runs lie under the page's folder: linked, not copied
+    links = [line[line.index("](") + 2:-1] for line in beside.read_text().splitlines() if line.startswith("![")]
+    assert sorted(links) == ["runs/failed/toy.png", "runs/held/toy.png"] and not (tmp_path / "R_figures").exists()
 
 
 def test_report_names_a_broken_result(tmp_path):

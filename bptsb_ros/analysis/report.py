@@ -1,9 +1,9 @@
 """REPRODUCTION.md: every reproduced experiment's numbers beside the paper's, its claims and its figures.
 
-:func:`build_report` gathers every ``result.json`` under a runs directory, copies the figures next to the
-page (``<page stem>_figures/<experiment>-<scale>/``, so the page and its figures can be committed) and writes
-one Markdown page: a summary table, then per experiment the command, the table ours-beside-paper, the claims
-with ✓/✗ and the figures.
+:func:`build_report` gathers every ``result.json`` under a runs directory and writes one Markdown page: a
+summary table, then per experiment the command, the table ours-beside-paper, the claims with ✓/✗ and the
+figures. Figures that already lie under the page's folder are linked where they are; others are copied next
+to the page (``<page stem>_figures/<experiment>-<scale>/``), so the page and its figures can be committed.
 """
 
 from __future__ import annotations
@@ -106,6 +106,9 @@ def _copy_figures(run_dir: Path, r: dict[str, Any], fig_root: Path, page_dir: Pa
         src = run_dir / rel
         if not src.is_file():
             links.append(f"{rel} (missing)")
+            continue
+        if src.resolve().is_relative_to(page_dir.resolve()):  # already beside the page: link it where it is
+            links.append(os.path.relpath(src, page_dir))
             continue
         target = dest / rel.replace(os.sep, "_")
         target.parent.mkdir(parents=True, exist_ok=True)
