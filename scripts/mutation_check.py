@@ -48,7 +48,9 @@ class Mutant:
 
 BRAINS = "tests/test_brains.py"
 TASKS = "tests/test_tasks.py"
-BODY = ("tests/test_physics.py", "tests/test_simulate.py")
+# The numba kernel is the default backend, so the physics tests run through it; test_kernel.py pins the torch
+# path to the kernel (float64, 1e-12), which is how a mutant of the torch path is caught.
+BODY = ("tests/test_physics.py", "tests/test_simulate.py", "tests/test_kernel.py")
 RECORDED_QOS = ("tests/test_bags_writer.py", "tests/test_bags_recorder.py::test_stop_signal_keeps_every_message")
 
 MUTANTS: tuple[Mutant, ...] = (
@@ -117,9 +119,13 @@ MUTANTS: tuple[Mutant, ...] = (
            "replay's trajectory_mse_shift_min ×2",
            ("tests/test_replay.py::test_replay_lissajous_metric_of_a_planted_run",)),
     Mutant("narma-0.4", "bptsb_ros/tasks/narma.py",
-           "y[t + 1] = 0.3 * y[t]",
-           "y[t + 1] = 0.4 * y[t]",
-           "NARMA coefficient 0.3 → 0.4", (TASKS,)),
+           "y[t + 1] = 0.3 * y[t] + np.sum",
+           "y[t + 1] = 0.4 * y[t] + np.sum",
+           "expanded-NARMA coefficient 0.3 → 0.4", (TASKS,)),
+    Mutant("narma2-10-0.4", "bptsb_ros/tasks/narma.py",
+           "y[t + 1] = 0.3 * y[t] + 0.05",
+           "y[t + 1] = 0.4 * y[t] + 0.05",
+           "NARMA2/NARMA10 coefficient 0.3 → 0.4", ("tests/test_timeseries.py",)),
     Mutant("lissajous-no-beta", "bptsb_ros/tasks/lissajous.py",
            "torch.sin(beta * omega * t + delta)",
            "torch.sin(omega * t + delta)",
@@ -134,13 +140,30 @@ MUTANTS: tuple[Mutant, ...] = (
            "r = r.add_(state.a, alpha=dt * dt)",
            "½ dropped in the Verlet position update", BODY),
     Mutant("body-verlet-velocity-half", "bptsb_ros/body/msdn.py",
-           "v = torch.add(state.v, state.a + a, alpha=0.5 * dt)",
-           "v = torch.add(state.v, state.a + a, alpha=dt)",
+           "v = torch.add(v, state.a + a, alpha=0.5 * dt)",
+           "v = torch.add(v, state.a + a, alpha=dt)",
            "½ dropped in the Verlet velocity update", BODY),
     Mutant("body-published-velocity-x2", "bptsb_ros/body/msdn.py",
-           "v = torch.add(state.v, a, alpha=0.5 * dt)",
-           "v = torch.add(state.v, a, alpha=dt)",
+           "v = torch.add(v, a, alpha=0.5 * dt)",
+           "v = torch.add(v, a, alpha=dt)",
            "published integrator's velocity update ×2", BODY),
+    # -- the numba kernel (the default backend): the same updates in the compiled window ----------------------
+    Mutant("kernel-verlet-velocity-half", "bptsb_ros/body/kernel.py",
+           "vn[m, c] = vc[m, c] + half_dt * (a[m, c] + an[m, c])",
+           "vn[m, c] = vc[m, c] + dt * (a[m, c] + an[m, c])",
+           "kernel: ½ dropped in the Verlet velocity update", BODY),
+    Mutant("kernel-damping-sign", "bptsb_ros/body/kernel.py",
+           "f0 = kq * x0 + d[e] * w0",
+           "f0 = kq * x0 - d[e] * w0",
+           "kernel: damping force sign flipped (x component)", BODY),
+    Mutant("kernel-clamp-threshold", "bptsb_ros/body/kernel.py",
+           "if clamp and rn[m, 1] < zero:",
+           "if clamp and rn[m, 1] < zero - 0.01:",
+           "kernel: ground clamp threshold changed (y < 0 → y < −0.01)", BODY),
+    Mutant("kernel-verlet-position-half", "bptsb_ros/body/kernel.py",
+           "return np.array([dt, 0.5 * dt * dt, 0.5 * dt,",
+           "return np.array([dt, dt * dt, 0.5 * dt,",
+           "kernel: ½ dropped in the Verlet position update", BODY),
     Mutant("body-ground-half", "bptsb_ros/body/forces.py",
            "ground_c * torch.exp(-ground_c * y)",
            "0.5 * ground_c * torch.exp(-ground_c * y)",
