@@ -10,10 +10,8 @@ otherwise it trains its own. Every result records where its system came from.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -70,26 +68,25 @@ def specific_images(x: np.ndarray, y: np.ndarray, per_digit: int, seed: int) -> 
     return x[order], y[order]
 
 
-def _init_worker() -> None:
-    import torch
-
-    torch.set_num_threads(1)
+def _call_with_kwargs(fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any:
+    return fn(**kwargs)
 
 
 def run_jobs(fn: Callable[..., Any], jobs: list[dict[str, Any]], log: Callable[[str], None]) -> list[Any]:
-    """Run independent trainings ``fn(**job)`` in a process pool (one worker per core, or ``$BPTSB_WORKERS``, at
-    most one per job); results in job order. With one worker the jobs run in this process."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    """Run independent trainings ``fn(**job)`` through the experiments' process pool (:func:`jobs.run_jobs`: one
+    torch and BLAS thread per worker, a failure names its job), one worker per core or ``$BPTSB_WORKERS``, at
+    most one per job; results in job order. With one worker the jobs run in this process."""
+    from bptsb_ros.experiments import jobs as pool
+    from bptsb_ros.threads import configure_threads
+
     limit = os.environ.get(WORKERS_ENV)
-    workers = min(len(jobs), int(limit) if limit else cores)
-    if workers <= 1:
-        _init_worker()
-        return [fn(**job) for job in jobs]
-    log(f"{len(jobs)} trainings in a pool of {workers} processes")
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
-        futures = [pool.submit(fn, **job) for job in jobs]
-        return [f.result() for f in futures]
+    workers = min(len(jobs), int(limit) if limit else pool._available_cpus()) or 1
+    if workers == 1:
+        configure_threads(1, "torch")
+    else:
+        log(f"{len(jobs)} trainings in a pool of {workers} processes")
+    return pool.run_jobs(_call_with_kwargs, [(fn, job) for job in jobs], workers=workers,
+                         names=[f"training {i}" for i in range(len(jobs))])
 
 
 def train_drawing_job(spec_json: dict[str, Any], seed: int, train_x: np.ndarray, train_y: np.ndarray,
