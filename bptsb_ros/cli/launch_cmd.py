@@ -43,6 +43,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
     parser.add_argument("--open-loop-steps", type=int, default=0, metavar="W",
                         help="closed loops: SWG drives steps 0..W before the feedback layer takes over")
+    parser.add_argument("--perturb-at", type=finite_float, default=-1.0, metavar="T",
+                        help="displace the movable masses at sim time T [s] (the state of that step; lockstep-"
+                             "deterministic), by N(0, S²) per coordinate; default: no perturbation")
+    parser.add_argument("--perturb-sigma", type=finite_float, default=0.0, metavar="S",
+                        help="standard deviation of the perturbation [m]")
+    parser.add_argument("--perturb-seed", type=int, default=0, metavar="N",
+                        help="seed of the perturbation's standard-normal pattern (bptsb_ros.sim.perturbation)")
     parser.add_argument("--param", action="append", default=[], metavar="NODE:NAME:=VALUE",
                         help="extra ROS parameter for one node, e.g. body_sim:command_timeout:=5 (repeatable)")
     parser.add_argument("--log-dir", default="", metavar="DIR",
@@ -295,6 +302,9 @@ def run(args: argparse.Namespace) -> int:
     if args.duration < 0 or args.rate_scale <= 0 or args.grace <= 0:
         print("error: --duration must be >= 0, --rate-scale and --grace > 0", file=sys.stderr)
         return 2
+    if args.perturb_sigma < 0 or (args.perturb_sigma > 0 and args.perturb_at < 0):
+        print("error: --perturb-sigma must be >= 0 and needs --perturb-at T (sim seconds, >= 0)", file=sys.stderr)
+        return 2
     if args.agent:
         if not Path(args.agent).exists():
             print(f"error: --agent {args.agent}: no such run directory", file=sys.stderr)
@@ -333,13 +343,15 @@ def run(args: argparse.Namespace) -> int:
 
     common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,
                   rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps)
+    brain_common = dict(common)
+    common.update(perturb_at=args.perturb_at, perturb_sigma=args.perturb_sigma, perturb_seed=args.perturb_seed)
     children: list[Child] = []
     body = Child("body_sim", node_argv("body_sim", node_parameters(loop, "body_sim", summary_path=str(summary_path),
                                                                    **common), extra["body_sim"]),
                  log_dir / "body_sim.log")
     children.append(body)
     for brain in loop.brains:
-        params = node_parameters(loop, brain.executable, **common)
+        params = node_parameters(loop, brain.executable, **brain_common)
         children.append(Child(brain.executable, node_argv(brain.executable, params, extra[brain.executable]),
                               log_dir / f"{brain.executable}.log"))
     recorder = None

@@ -19,6 +19,7 @@ body, and recovery when the live simulation diverges anyway. ``body_sim`` calls 
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -32,6 +33,9 @@ DEFAULT_PUBLISHERS: dict[str, tuple[str, ...]] = {
     "force": ("mlp_brain",),
     "wind": ("wind_source",),  # only when body_sim awaits a synchronised (stamped) wind: wait_for contains wind
 }
+#: Default publishers allowed to perturb the body (``perturb_publishers``): any node. A perturbation is a test the
+#: user runs (``ros2 topic pub``, a script), bounded by ``max_displacement``; list node names to restrict it.
+DEFAULT_PERTURB_PUBLISHERS: tuple[str, ...] = ("*",)
 #: ``command_publishers`` entry that accepts commands from any node (not for a shared network).
 ANY_PUBLISHER = "*"
 #: Default limits [N] of a force-command component and of a wind component.
@@ -69,12 +73,14 @@ def rest_length_floor(rest: np.ndarray, amplitude: np.ndarray | None) -> float:
 @dataclass(frozen=True)
 class CommandLimits:
     """Physical bounds of commands: rest lengths in (min_rest_length, max_rest_length] [m], |force component| <=
-    max_force [N], |wind component| <= max_wind [N]."""
+    max_force [N], |wind component| <= max_wind [N], |displacement component| of a perturbation <=
+    max_displacement [m]."""
 
     max_rest_length: float
     max_force: float = DEFAULT_MAX_FORCE
     max_wind: float = DEFAULT_MAX_WIND
     min_rest_length: float = 0.0
+    max_displacement: float = math.inf
 
     def __post_init__(self) -> None:
         for name in ("max_rest_length", "max_force", "max_wind"):
@@ -90,12 +96,17 @@ class CommandLimits:
         """Limits for a body with layout ``positions`` (N, 2); ``max_rest_length`` 0 means
         ``REST_LENGTH_EXTENT_FACTOR`` × its extent."""
         limit = max_rest_length or REST_LENGTH_EXTENT_FACTOR * body_extent(positions)
-        return cls(float(limit), float(max_force), float(max_wind), float(min_rest_length))
+        return cls(float(limit), float(max_force), float(max_wind), float(min_rest_length),
+                   max_displacement=body_extent(positions))
 
     def check(self, source: str, values: np.ndarray) -> str | None:
-        """Why finite ``values`` of command ``source`` (rest_length, force or wind) are out of bounds, or None."""
+        """Why finite ``values`` of command ``source`` (rest_length, force, wind or perturbation) are out of bounds,
+        or None."""
         vals = np.asarray(values, dtype=np.float64).reshape(-1)
-        if source == "rest_length":
+        if source == "perturbation":
+            bad = np.flatnonzero(np.abs(vals) > self.max_displacement)
+            bound = f"[-{self.max_displacement:g}, {self.max_displacement:g}] m (the body's extent)"
+        elif source == "rest_length":
             bad = np.flatnonzero((vals <= self.min_rest_length) | (vals > self.max_rest_length))
             bound = f"({self.min_rest_length:g}, {self.max_rest_length:g}] m"
         else:
