@@ -257,6 +257,7 @@ def test_live_lissajous_switching_equals_offline(tmp_path, ros_env):
     assert len(seg) >= 2 and {s["wind"] for s in seg} == {True, False}
     for s in seg:
         assert s["nmse_live"] == pytest.approx(s["nmse_offline"], rel=1e-9)
+    assert (tmp_path / "replay" / "switching_curves.png").is_file()
 
 
 def test_live_perturbation_equals_offline_and_replay_reports_the_return(tmp_path, ros_env):
@@ -289,6 +290,7 @@ def test_live_perturbation_equals_offline_and_replay_reports_the_return(tmp_path
     p = metrics["perturbation"]
     assert p["perturbed_at_step"] == 50 and p["eval_periods"] == 2
     assert p["E_live"] == pytest.approx(p["E_offline"], rel=1e-9) and p["returned_equal"]
+    assert (tmp_path / "replay" / "perturbation.png").is_file()
 
 
 def test_launch_refuses_a_perturbation_without_its_time(tmp_path, ros_env):

@@ -321,7 +321,9 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
                                          "steps_compared": int(len(run.steps)),
                                          "perturbed_steps": sorted(run.perturbations)}
         if task == "lissajous" and run.cmp_index >= 0:
-            metrics.update(_lissajous_autonomy(agent_dir, loop, segment, off, wind, warm, last, config))
+            autonomy = _lissajous_autonomy(agent_dir, loop, segment, off, wind, warm, last, config)
+            plots["autonomy"] = autonomy.pop("_plot")
+            metrics.update(autonomy)
         if task:
             off_run = BagRun(run.dt, segment.steps, off[segment.steps], None, None, run.springs, run.fixed,
                              run.cmp_index, run.inputs, run.custom)
@@ -338,19 +340,24 @@ def _lissajous_autonomy(agent_dir: str | Path, loop: str, segment: BagRun, off: 
                         warm: int, last: int, config: dict[str, Any]) -> dict[str, Any]:
     """``perturbation``: the return criterion of a perturbed run, live and offline; ``switching``: the per-segment
     errors of a switching run (``analysis.replay_lissajous``)."""
-    from bptsb_ros.analysis.replay_lissajous import return_metrics, switching_metrics
+    from bptsb_ros.analysis.replay_lissajous import lissajous_target, return_metrics, switching_metrics
     from bptsb_ros.training.checkpoint import read_checkpoint
 
-    out: dict[str, Any] = {}
+    out: dict[str, Any] = {"_plot": {}}
     c = segment.cmp_index
     cmp = {"live": segment.positions[:, c], "offline": off[segment.steps, c]}
     if segment.perturbations:
         orig = offline_positions(agent_dir, loop, last, segment.inputs, warm, wind=wind)
-        out["perturbation"] = return_metrics({**cmp, "unperturbed": orig[segment.steps, c]}, int(segment.steps[0]),
-                                             max(segment.perturbations), segment.dt, config)
+        runs = {**cmp, "unperturbed": orig[segment.steps, c]}
+        out["perturbation"] = return_metrics(runs, int(segment.steps[0]), max(segment.perturbations), segment.dt,
+                                             config)
+        target, *_ = lissajous_target(config)
+        out["_plot"]["perturbation"] = {"runs": runs, "target": target(segment.steps * segment.dt)}
     if loop == "lissajous_switching" and wind is not None and int(segment.steps[0]) == 0:
         out["switching"] = switching_metrics(cmp, wind[segment.steps], segment.dt, config,
                                              read_checkpoint(agent_dir)["extra"])
+        out["_plot"]["switching"] = {"cmp": cmp["live"], "target": out["switching"].pop("_target"),
+                                     "wind": np.any(wind[segment.steps] != 0, axis=1).astype(np.float64)}
     return out
 
 
@@ -376,8 +383,40 @@ def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | N
     elif task == "narma" and "u" in plots:
         files.append(P.plot_series(out_dir / "narma.png", {"input u": plots["u"], "target y": plots["y"],
                                                           "live output": plots["out"]}, "sample", "value"))
+    files += _autonomy_figures(out_dir, run, metrics, plots.get("autonomy", {}))
     if gif and len(run.springs):
         files.append(_animate(out_dir / "replay.gif", run))
+    return files
+
+
+def _autonomy_figures(out_dir: Path, run: BagRun, metrics: dict, plots: dict) -> list[Path]:
+    """perturbation.png (the perturbed run against the offline ones) and switching_curves.png (the first measured
+    segment without and with wind over their targets)."""
+    from bptsb_ros.analysis import autonomy_plots as A
+
+    files = []
+    t = run.steps * run.dt
+    if "perturbation" in plots and "perturbation" in metrics:
+        p = metrics["perturbation"]
+        if "E_live" in p:
+            verdict = (f"{'returned' if p['returned_live'] else 'did not return'} (E / E_orig = "
+                       f"{p['E_live'] / p['E_orig']:.3g}, criterion < 2)")
+        else:
+            verdict = p.get("problem", "")
+        files.append(A.plot_perturbed_run(out_dir / "perturbation.png", t, plots["perturbation"]["runs"],
+                                          plots["perturbation"]["target"], p["perturbed_at_step"] * run.dt,
+                                          p["eval_steps"][0] * run.dt if "eval_steps" in p else None, verdict))
+    if "switching" in plots and metrics.get("switching", {}).get("segments"):
+        segs = metrics["switching"]["segments"]
+        chosen = {}
+        for want in (False, True):
+            s = next((s for s in segs if s["wind"] == want), None)
+            if s is not None:
+                chosen[f"{'wind' if want else 'no wind'} (steps {s['steps'][0]}-{s['steps'][1]})"] = (
+                    s["steps"][0], s["steps"][1] + 1)
+        sw = plots["switching"]
+        files.append(A.plot_switching_curves(out_dir / "switching_curves.png", sw["cmp"], sw["target"], sw["wind"],
+                                             chosen, title="live run"))
     return files
 
 

@@ -109,7 +109,7 @@ def switching_metrics(cmp: dict[str, np.ndarray], wind: np.ndarray, dt: float, c
             seg[f"nmse_{key}"] = float(np.mean((traj[lo:b] - tgt[lo:b]) ** 2)) / ms
         segments.append(seg)
     out: dict[str, Any] = {"segments": segments, "draws_nmse": DRAWS_NMSE,
-                           "transient_periods": SEGMENT_TRANSIENT_PERIODS}
+                           "transient_periods": SEGMENT_TRANSIENT_PERIODS, "_target": tgt}
     for key in cmp:
         drawn = [s[f"nmse_{key}"] < DRAWS_NMSE for s in segments]
         out[f"both_curves_drawn_{key}"] = bool(segments) and all(drawn) and {s["wind"] for s in segments} == {
