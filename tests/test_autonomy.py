@@ -253,6 +253,27 @@ def test_closed_loop_schemes_smoke(tmp_path):
     assert (out / "schemes.png").is_file()
 
 
+def test_closed_loop_schemes_report_a_diverged_preliminary_training(tmp_path, monkeypatch):
+    """A preliminary training that blows up (it happened at paper scale: (1,2,0), seed 4) is reported as such and
+    the other schemes and systems still run; the experiment does not fail."""
+    import bptsb_ros.experiments.closed_loop_schemes as exp
+    from bptsb_ros.training.trainer import TrainingDiverged
+
+    def diverge(*args, **kwargs):
+        raise TrainingDiverged("update 7: simulation diverged at step 700; planted")
+
+    monkeypatch.setattr(exp, "train_single_curve", diverge)
+    out = tmp_path / "cls"
+    assert main(["reproduce", "closed-loop-schemes", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
+    data = read_result(out / "result.json")
+    d, rows = data["details"], _rows(data)
+    assert d["preliminary_diverged"] == ["(1,2,0) seed 0: update 7: simulation diverged at step 700"]
+    assert rows[("preliminary training", "diverged (no system to improve)")] == 1
+    assert all(d["errors"][k][0][0] is None for k in ("before", "scheme2", "scheme3"))  # NaN in JSON
+    assert d["jobs"][0]["scheme1_loss_first_last"] is not None  # scheme 1 from scratch still ran
+    assert "diverged" in data["claims"][1]["evidence"] and not data["claims"][1]["holds"]
+
+
 # -- jobs --------------------------------------------------------------------------------------------------------
 def test_jobs_run_in_order_with_one_blas_thread_and_name_a_failure(monkeypatch):
     import operator

@@ -50,26 +50,41 @@ def closed_loop_error(trained: TrainedAgent, state, curve: Curve, periods: int) 
 
 def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_time: float, add_time: float,
                eval_periods: int, scheme1_time: float) -> dict:
-    """One (curve, seed): preliminary training, E_before, schemes 2 and 3 (then closed), scheme 1 from scratch."""
+    """One (curve, seed): preliminary training, E_before, schemes 2 and 3 (then closed), scheme 1 from scratch.
+
+    A preliminary training that diverges (the paper's learning rates can blow a body up) is a result, not a failure
+    of the experiment: its errors are NaN, ``preliminary_diverged`` says where, and scheme 1 still runs."""
     import torch
 
     from bptsb_ros.agent import build_agent
     from bptsb_ros.experiments.common import packaged_config
     from bptsb_ros.training.closed_loop_schemes import train_scheme1, train_scheme2, train_scheme3
+    from bptsb_ros.training.trainer import TrainingDiverged
 
     c = Curve(*curve)
-    pre = train_single_curve(Path(run_dir) / "preliminary", sim_time=pre_time, seed=seed, curve=c,
-                             fit_time=100, eval_periods=2)
-    amp, omega = pre.amplitude, pre.omega
+    cfg = packaged_config("lissajous_single", [f"lissajous.alpha={c.alpha}", f"lissajous.beta={c.beta}",
+                                               f"lissajous.delta={c.delta}"], seed=seed)
+    fresh = build_agent(cfg)
+    shape = TrainedAgent(fresh, fresh.body.initial_state(1), {}, Path(run_dir))
+    amp, omega, period = shape.amplitude, shape.omega, shape.period
 
     def target(t: torch.Tensor) -> torch.Tensor:
         return c.target(t, amp, omega)
 
     ms = float(np.mean((c.target(np.arange(100) / 100, amp, omega)) ** 2))
-    updates = max(1, int(round(add_time / (pre.period * pre.agent.dt))))
-    out = {"curve": str(c), "seed": seed, "target_mean_square": ms, "updates": updates}
-    out["before"] = closed_loop_error(pre, pre.state, c, eval_periods)
-    for name, fn in (("scheme2", train_scheme2), ("scheme3", train_scheme3)):
+    updates = max(1, int(round(add_time / (period * fresh.dt))))
+    out = {"curve": str(c), "seed": seed, "target_mean_square": ms, "updates": updates, "preliminary_diverged": None}
+    try:
+        pre = train_single_curve(Path(run_dir) / "preliminary", sim_time=pre_time, seed=seed, curve=c,
+                                 fit_time=100, eval_periods=2)
+    except TrainingDiverged as err:
+        pre = None
+        out["preliminary_diverged"] = str(err).split(";")[0]
+        out.update({k: float("nan") for k in ("before", "scheme2", "scheme3")})
+    schemes = (("scheme2", train_scheme2), ("scheme3", train_scheme3)) if pre is not None else ()
+    if pre is not None:
+        out["before"] = closed_loop_error(pre, pre.state, c, eval_periods)
+    for name, fn in schemes:
         agent = copy.deepcopy(pre.agent)
         kw = {"seed": seed} if name == "scheme3" else {}
         res = fn(agent, pre.state, target, updates, **kw)
@@ -78,14 +93,12 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
                                                                                      eval_periods)
         out[f"{name}_loss_first_last"] = [res.losses[0], res.losses[-1]] if res.losses else None
         out[f"{name}_diverged_at_update"] = res.diverged
-    cfg = packaged_config("lissajous_single", [f"lissajous.alpha={c.alpha}", f"lissajous.beta={c.beta}",
-                                               f"lissajous.delta={c.delta}"], seed=seed)
-    fresh = build_agent(cfg)
-    res1 = train_scheme1(fresh, target, max(1, int(round(scheme1_time / (pre.period * pre.agent.dt)))), seed=seed)
+    res1 = train_scheme1(fresh, target, max(1, int(round(scheme1_time / (period * fresh.dt)))), seed=seed)
     out["scheme1"] = float("nan") if res1.diverged is not None else closed_loop_error(
-        TrainedAgent(fresh, res1.state, {}, pre.run_dir), res1.state, c, eval_periods)
+        TrainedAgent(fresh, res1.state, {}, Path(run_dir)), res1.state, c, eval_periods)
     out["scheme1_loss_first_last"] = [res1.losses[0], res1.losses[-1]] if res1.losses else None
     out["scheme1_diverged_at_update"] = res1.diverged
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
     Path(run_dir, "scheme.json").write_text(json.dumps(out))
     return out
 
@@ -129,6 +142,10 @@ def run(ctx: Context) -> None:
             ctx.row(f"scheme 2, {CURVES[ci]}, seed {ctx.seed + j}", "E_after / E_before", "1", ratio2[ci, j], p2)
             ctx.row(f"scheme 3, {CURVES[ci]}, seed {ctx.seed + j}", "E_after / E_before", "1", ratio3[ci, j], p3)
     n = n_curves * seeds
+    failed = [f"{r['curve']} seed {r['seed']}: {r['preliminary_diverged']}" for r in results
+              if r["preliminary_diverged"]]
+    valid = n - len(failed)  # systems with a preliminary agent to improve
+    note = f" ({len(failed)} preliminary training(s) diverged: {'; '.join(failed)})" if failed else ""
     improved2 = int(np.sum(ratio2 < 1))
     improved3 = int(np.sum(ratio3 < 1))
     draws1 = int(np.sum(table["scheme1"] / ms < DRAWS_NMSE))
@@ -137,10 +154,13 @@ def run(ctx: Context) -> None:
     ctx.row("scheme 2", "systems improved (ratio < 1)", f"of {n}", improved2, "7 of 15")
     ctx.row("scheme 3", "systems improved (ratio < 1)", f"of {n}", improved3, "6 of 15")
     ctx.row("regression only (before)", "systems drawing the curve", f"of {n}", draws_before)
+    ctx.row("preliminary training", "diverged (no system to improve)", f"of {n}", len(failed), 0)
     ctx.claim(f"scheme 1 (closed loop from scratch) makes no system draw the curve (closed-loop error < "
               f"{DRAWS_NMSE} × target mean square counts as drawing)", draws1 == 0, f"{draws1} of {n} draw")
-    ctx.claim("scheme 2 improves some systems but not all", 0 < improved2 < n, f"{improved2} of {n} improved")
-    ctx.claim("scheme 3 improves some systems but not all", 0 < improved3 < n, f"{improved3} of {n} improved")
+    ctx.claim("scheme 2 improves some systems but not all", 0 < improved2 < valid,
+              f"{improved2} of {valid} improved{note}")
+    ctx.claim("scheme 3 improves some systems but not all", 0 < improved3 < valid,
+              f"{improved3} of {valid} improved{note}")
     from bptsb_ros.analysis.autonomy_plots import plot_scheme_ratios
 
     ctx.figure(plot_scheme_ratios(ctx.out_dir / "schemes.png", [str(c) for c in CURVES[:n_curves]],
@@ -151,7 +171,8 @@ def run(ctx: Context) -> None:
                           "preliminary_sim_time_s": pre_time, "scheme_sim_time_s": add_time,
                           "scheme1_sim_time_s": scheme1_time, "eval_periods": eval_periods,
                           "errors": table, "target_mean_square": ms, "ratio_scheme2": ratio2, "ratio_scheme3": ratio3,
-                          "jobs": results, "fl_learning_rate": "1.0 (schemes 1, 2; not in the paper)",
+                          "jobs": results, "preliminary_diverged": failed,
+                          "fl_learning_rate": "1.0 (schemes 1, 2; not in the paper)",
                           "scheme1_fl_init": "W ~ N(0, 0.1²)", "scheme3_fit": "ridge (AIC) on the last 10 windows, "
                           "input noise σ 0.08, after every update",
                           "notes": f"{n} systems ({n_curves} curves × {seeds} seeds), preliminary training "

@@ -25,7 +25,9 @@ DRAWS_NMSE = 0.1
     "lissajous-closed-loop",
     paper_ref="Fig. 4(a); Methods 'Lissajous curve drawing task'",
     summary="train SWG + double-circle (N_mov 13) on the (1,2,0) Lissajous curve, fit the FL (σ 0.08), close the loop",
-    durations={"smoke": "≈ 10 s", "short": "≈ 1 min", "paper": "≈ 2 min (2,000 s of training, the original simTime)"},
+    durations={"smoke": "≈ 10 s", "short": "≈ 1 min",
+               "paper": "12 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (2,000 s of "
+                        "training, the original simTime)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:

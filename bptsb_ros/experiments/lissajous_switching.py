@@ -124,7 +124,9 @@ def _shift_of(trained: TrainedAgent) -> float:
             "F_wind = 1; both curves drawn, CMP x/y frequencies (FFT) swap with the wind",
     durations={"smoke": "≈ 20 s", "short": "455 s measured (1,000 s preliminary + 2 × 2,000 s switching training, "
                "the paper's and the published wind, 2 jobs)",
-               "paper": "≈ 1 h (2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs)"},
+               "paper": "69 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
+                        "(2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs); short: 24 s the same "
+                        "way"},
 )
 @single_threaded
 def run_switching(ctx: Context) -> None:
@@ -237,7 +239,9 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
     summary="the switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): maxima of the CMP's "
             "x and y after a transient, period of each orbit",
     durations={"smoke": "≈ 20 s", "short": "492 s measured (the switching trainings, paper's and published wind as 2 "
-               "jobs, then ≈ 20 s per sweep)", "paper": "≈ 1 h (the paper-scale switching trainings)"},
+               "jobs, then ≈ 20 s per sweep)",
+               "paper": "81 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (the "
+                        "paper-scale switching trainings)"},
 )
 @single_threaded
 def run_bifurcation(ctx: Context) -> None:
@@ -378,7 +382,8 @@ def _longest_run(mask: np.ndarray) -> tuple[int, int, int]:
     durations={"smoke": "≈ 30 s",
                "short": "599 s measured (1,000 s preliminary + 4 × 2,000 s switching: fixed and random timing, the "
                         "paper's and the published wind; 4 jobs on 2 workers)",
-               "paper": "≈ 4 h (4 × 30,000 s of switching training on 2 cores)"},
+               "paper": "155 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
+                        "(4 × 30,000 s of switching training, 2 workers)"},
 )
 @single_threaded
 def run_timing(ctx: Context) -> None:
