@@ -111,7 +111,8 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     durations={"smoke": "≈ 30 s (1 curve × 1 seed)",
                "short": "375 s measured on the busy 2-core machine (3 curves × 2 seeds = 6 jobs on 2 workers; 200 s "
                         "preliminary, 50 s per scheme)",
-               "paper": "≈ 3 h (15 × 2,000 s preliminary + schemes, 2 workers)"},
+               "paper": "208 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (15 jobs "
+                        "of 2,000 s preliminary + 1,000 s per scheme 2/3 + 2,000 s scheme 1, 2 workers)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:
