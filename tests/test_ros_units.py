@@ -104,7 +104,7 @@ def test_params_files_match_the_declared_parameters():
 
 def test_loop_wiring():
     assert set(LOOPS) == {"lissajous_open", "lissajous_closed", "locomotion_open", "locomotion_closed",
-                          "locomotion_headwind", "narma"}
+                          "locomotion_headwind", "narma", "mnist_drawing"}
     narma = LOOPS["narma"]
     assert topic_names(narma.topics())[-2:] == ["/task/input", "/brain/force"]
     counts = dict(e.rsplit(":", 1) for e in startup_subscribers(narma, recording=True))
