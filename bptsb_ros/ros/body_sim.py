@@ -10,6 +10,10 @@ state and RViz/Foxglove markers, and integrates the rest-length and force comman
 * ``realtime``: a wall-clock loop at rate_scale/dt that uses the newest command and reports
   jitter, deadline misses, command age and latency on ``/diagnostics`` and at shutdown.
 
+With ``reset_every`` = E > 0 (loop ``mnist_drawing``) the body also takes resets on ``body/reset`` at steps k with
+k % E == 0 (awaited there with ``reset`` in ``wait_for``): the state of step k is then the body at rest at layout +
+the reset's displacement, from which the following steps integrate (``TOPICS.md``, "Resets").
+
 Bad commands (wrong length, NaN/inf, out of physical bounds, stale, stamped beyond the next step, or sent
 while a node not in ``command_publishers`` publishes on the topic) are rejected with a log line and counted;
 the rules live in ``lockstep`` and ``safety`` (ROS-free). A brain that stops sending (no command within
