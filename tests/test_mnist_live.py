@@ -108,8 +108,11 @@ def test_plan_stream_checks_the_launch_arguments(tmp_path):
     need = max(steps[1], steps[7], steps[0]) + 1
     with pytest.raises(StreamError, match=f"need at least {need} steps"):
         plan_stream(str(tmp_path / "sys.pt"), images, labels, first=1, count=3, episode_steps=need - 1)
-    with pytest.raises(StreamError, match="not an MNIST system file"):
+    with pytest.raises(StreamError, match="unreadable"):  # an IDX file is no torch file
         plan_stream(images, images, labels)
+    torch.save({"format": 1}, tmp_path / "checkpoint.pt")
+    with pytest.raises(StreamError, match="not an MNIST system file"):
+        plan_stream(str(tmp_path / "checkpoint.pt"), images, labels)
     with pytest.raises(StreamError, match="images and labels"):
         plan_stream(str(tmp_path / "sys.pt"), "", labels)
 
@@ -229,3 +232,30 @@ def test_body_rejects_and_counts_bad_resets(tmp_path, ros_env, ros_domain_id):
     with torch.no_grad():
         drawn = system.release(torch.from_numpy(good[0]).view(1, -1, 2), 9, states=True)[0]
     np.testing.assert_allclose(pos[:10][:, movable], drawn.numpy(), rtol=0, atol=1e-9)
+
+
+class _Payload:
+    """Unpickling this runs ``exec(code)``: what an attacker hides in a system file."""
+
+    def __init__(self, marker) -> None:
+        self.code = f"open({str(marker)!r}, 'w').write('payload ran')"
+
+    def __reduce__(self):
+        return (exec, (self.code,))
+
+
+def test_a_system_file_with_code_is_refused(tmp_path, capsys):
+    """launch and replay read a system file as data only: one carrying an ``exec`` payload is refused, unrun."""
+    from bptsb_ros.cli import main
+
+    images, labels, _ = write_stream(tmp_path)
+    write_system(tmp_path / "sys.pt")
+    payload = torch.load(tmp_path / "sys.pt", weights_only=True)
+    marker = tmp_path / "PAYLOAD_RAN"
+    payload["state"]["evil"] = _Payload(marker)
+    torch.save(payload, tmp_path / "evil.pt")
+    code = main(["launch", "mnist_drawing", "--agent", str(tmp_path / "evil.pt"), "--images", images, "--labels",
+                 labels, "--log-dir", str(tmp_path / "logs")])
+    err = capsys.readouterr().err
+    assert code == 2 and "refused" in err and "GLOBAL exec" in err, err
+    assert not marker.exists(), "the system file's payload ran"

@@ -35,19 +35,35 @@ class SystemFileError(ValueError):
     """An MNIST system file is missing, unreadable or not a system; the message names the file."""
 
 
-def system_payload(path: str | Path) -> dict[str, Any] | None:
-    """The payload of a system file (keys ``spec``, ``state``, ``extra``), or None when ``path`` is not a file
-    holding one (a run directory, a training checkpoint). Loaded as data only (``weights_only``)."""
+def _read_payload(path: str | Path) -> tuple[dict[str, Any] | None, str]:
+    """(payload of a system file, '') or (None, why it is not one). Loaded as data only (``weights_only``): a file
+    that holds anything but tensors, numbers, strings, lists and dicts is refused, and never runs."""
+    import pickle
+
     path = Path(path)
     if not path.is_file():
-        return None
+        return None, "no such file"
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception:  # noqa: BLE001 - not a readable torch file: not a system (the caller reports the path)
-        return None
+    except pickle.UnpicklingError as err:
+        from bptsb_ros.training.checkpoint import _unpickler_detail
+
+        detail = _unpickler_detail(str(err))
+        if "Unsupported global" in detail:
+            return None, (f"refused: it holds objects other than tensors, numbers, strings, lists and dicts "
+                          f"({detail}); system files are loaded as data only, never as code")
+        return None, f"unreadable ({detail})"
+    except Exception as err:  # noqa: BLE001 - torch raises many types for a damaged file
+        return None, f"unreadable ({str(err)[:200]})"
     if isinstance(payload, dict) and {"spec", "state"} <= set(payload):
-        return payload
-    return None
+        return payload, ""
+    return None, "not an MNIST system file (save_system writes them: systems/<name>.pt of the drawing experiments)"
+
+
+def system_payload(path: str | Path) -> dict[str, Any] | None:
+    """The payload of a system file (keys ``spec``, ``state``, ``extra``), or None when ``path`` is not a file
+    holding one (a run directory, a training checkpoint, a refused or damaged file)."""
+    return _read_payload(path)[0]
 
 
 def is_system_file(path: str | Path) -> bool:
@@ -59,10 +75,9 @@ def load_system_as(path: str | Path, dtype: torch.dtype = torch.float64) -> Imag
     """The system of ``path`` in ``dtype``, parameters frozen. Raises :class:`SystemFileError` naming the file."""
     from bptsb_ros.tasks.mnist_drawing import ImageToBody, SystemSpec
 
-    payload = system_payload(path)
+    payload, why = _read_payload(path)
     if payload is None:
-        raise SystemFileError(f"{path} is not an MNIST system file (written by `bptsb reproduce` MNIST entries: "
-                              "systems/<name>.pt)")
+        raise SystemFileError(f"system file {path}: {why}")
     try:
         system = ImageToBody(SystemSpec.from_json(json.loads(payload["spec"])))
         system.load_state_dict(payload["state"])
