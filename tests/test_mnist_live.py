@@ -170,6 +170,8 @@ def test_mnist_drawing_live_equals_offline_and_replays(tmp_path, ros_env):
     assert metrics["offline_comparison"]["max_abs_drawing_difference_m"] <= 1e-9
     assert metrics["offline_comparison"]["max_abs_reset_difference_m"] <= 1e-12
     assert (tmp_path / "replay" / "drawings.png").is_file()
+    alone = replay(bag, tmp_path / "replay_alone", None, gif=False)  # no system: the CMP from the markers
+    assert "offline" not in alone and alone["live"]["per_digit"] == pytest.approx(hand, rel=1e-9)
 
 
 def test_body_rejects_and_counts_bad_resets(tmp_path, ros_env, ros_domain_id):
