@@ -110,6 +110,13 @@ def test_plan_stream_checks_the_launch_arguments(tmp_path):
         plan_stream(str(tmp_path / "sys.pt"), images, labels, first=1, count=3, episode_steps=need - 1)
     with pytest.raises(StreamError, match="unreadable"):  # an IDX file is no torch file
         plan_stream(images, images, labels)
+    run = tmp_path / "run"
+    (run / "systems").mkdir(parents=True)
+    write_system(run / "systems" / "a.pt")  # a run directory holding one system file stands for it
+    assert plan_stream(str(run), images, labels).count == 4
+    write_system(run / "systems" / "b.pt")
+    with pytest.raises(StreamError, match="holds 2 system files"):
+        plan_stream(str(run), images, labels)
     torch.save({"format": 1}, tmp_path / "checkpoint.pt")
     with pytest.raises(StreamError, match="not an MNIST system file"):
         plan_stream(str(tmp_path / "checkpoint.pt"), images, labels)

@@ -25,7 +25,8 @@ TASK_BODIES: dict[str, tuple[str, int]] = {
 
 SOURCE_PARAMS: tuple[Param, ...] = (
     Param("agent", "", "run directory (or checkpoint.pt) of a trained agent, or an MNIST system file (systems/"
-          "<name>.pt); empty: a fresh, untrained agent from 'config' or from 'task' and the shape parameters", "str"),
+          "<name>.pt, or a run directory holding just one); empty: a fresh, untrained agent from 'config' or from "
+          "'task' and the shape parameters", "str"),
     Param("config", "", "experiment YAML of a fresh agent (used when 'agent' is empty)", "str"),
     Param("task", "lissajous", "task of a fresh agent (when 'agent' and 'config' are empty)", "str", choices=TASKS),
     Param("shape", "", "body shape of a fresh agent; empty: the task's default", "str",
@@ -84,11 +85,11 @@ def load_source(values: dict[str, Any]) -> tuple[Agent, bool]:
         from bptsb_ros.tasks.mnist_live import SystemFileError, is_system_file, system_agent
         from bptsb_ros.training.checkpoint import CheckpointError, load_agent
 
-        if is_system_file(values["agent"]):
-            try:
+        try:
+            if is_system_file(values["agent"]):
                 return system_agent(values["agent"], dtype), True
-            except SystemFileError as err:
-                raise ParameterError(f"parameter 'agent': {err}") from None
+        except SystemFileError as err:
+            raise ParameterError(f"parameter 'agent': {err}") from None
 
         try:
             return load_agent(values["agent"], dtype=dtype), True

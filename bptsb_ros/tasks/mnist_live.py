@@ -41,6 +41,8 @@ def _read_payload(path: str | Path) -> tuple[dict[str, Any] | None, str]:
     import pickle
 
     path = Path(path)
+    if path.is_dir():
+        return None, "a directory without a system file (systems/<name>.pt)"
     if not path.is_file():
         return None, "no such file"
     try:
@@ -60,6 +62,22 @@ def _read_payload(path: str | Path) -> tuple[dict[str, Any] | None, str]:
     return None, "not an MNIST system file (save_system writes them: systems/<name>.pt of the drawing experiments)"
 
 
+def system_file(path: str | Path) -> Path | None:
+    """The system file ``path`` names: the file itself, or, for a run directory of the MNIST experiments (no
+    training ``checkpoint.pt``), its only system file (``*.pt`` or ``systems/*.pt``); None when there is none.
+    Raises SystemFileError when the directory holds several (name one)."""
+    path = Path(path)
+    if not path.is_dir():
+        return path
+    if (path / "checkpoint.pt").is_file():
+        return None  # a training run directory
+    found = [p for p in sorted(path.glob("*.pt")) + sorted(path.glob("systems/*.pt")) if system_payload(p) is not None]
+    if len(found) > 1:
+        raise SystemFileError(f"{path} holds {len(found)} system files ({', '.join(p.name for p in found)}); "
+                              "name one of them")
+    return found[0] if found else None
+
+
 def system_payload(path: str | Path) -> dict[str, Any] | None:
     """The payload of a system file (keys ``spec``, ``state``, ``extra``), or None when ``path`` is not a file
     holding one (a run directory, a training checkpoint, a refused or damaged file)."""
@@ -67,14 +85,18 @@ def system_payload(path: str | Path) -> dict[str, Any] | None:
 
 
 def is_system_file(path: str | Path) -> bool:
-    """True when ``path`` is an MNIST system file."""
-    return system_payload(path) is not None
+    """True when ``path`` is an MNIST system file or a run directory holding exactly one (:func:`system_file`;
+    SystemFileError when it holds several)."""
+    found = system_file(path)
+    return found is not None and system_payload(found) is not None
 
 
 def load_system_as(path: str | Path, dtype: torch.dtype = torch.float64) -> ImageToBody:
-    """The system of ``path`` in ``dtype``, parameters frozen. Raises :class:`SystemFileError` naming the file."""
+    """The system of ``path`` (a system file, or a run directory holding one: :func:`system_file`) in ``dtype``,
+    parameters frozen. Raises :class:`SystemFileError` naming the file."""
     from bptsb_ros.tasks.mnist_drawing import ImageToBody, SystemSpec
 
+    path = system_file(path) or Path(path)
     payload, why = _read_payload(path)
     if payload is None:
         raise SystemFileError(f"system file {path}: {why}")
