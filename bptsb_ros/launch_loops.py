@@ -85,6 +85,9 @@ LOOPS: dict[str, Loop] = {
         Loop("locomotion_headwind", "caterpillar locomotion under a periodic headwind: SWG rest lengths and the "
              "wind of the agent's locomotion.wind_force / wind_period, both in lockstep", "locomotion",
              (SWG, WIND), ("rest_length", "wind")),
+        Loop("lissajous_switching", "Lissajous switching by wind: SWG rest lengths and the wind schedule of the agent "
+             "(switching agents: wind on and off at random times), both in lockstep", "lissajous", (SWG, WIND),
+             ("rest_length", "wind")),
         Loop("narma", "expanded NARMA emulation: streamed input u → MLP (or LIL) forces on the masses",
              "narma", (TASK_INPUT, MLP), ("force",)),
         Loop("mnist_drawing", "see a digit, draw it: streamed MNIST images -> the system's brain -> initial "
@@ -152,13 +155,16 @@ def output_subscribers(loop: Loop, executable: str, *, recording: bool) -> int:
 
 def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int = 0, mode: str = "lockstep",
                     duration: float = 0.0, rate_scale: float = 1.0, recording: bool = False,
-                    open_loop_steps: int = 0, summary_path: str = "") -> dict[str, ParamValue]:
+                    open_loop_steps: int = 0, summary_path: str = "", perturb_at: float = -1.0,
+                    perturb_sigma: float = 0.0, perturb_seed: int = 0) -> dict[str, ParamValue]:
     """ROS parameters of one node of ``loop`` (those that differ from the node's defaults).
 
     Args:
         agent: trained agent run directory; empty: a fresh agent of the loop's task with ``seed``.
         duration: ``body_sim`` run length: sim seconds in lockstep, wall seconds from the first step in realtime.
         open_loop_steps: feedback brain: SWG steps before the feedback layer takes over.
+        perturb_at, perturb_sigma, perturb_seed: ``body_sim`` displaces the movable masses by N(0, σ²) at sim time
+            ``perturb_at`` [s] (negative: never).
     """
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":
@@ -172,6 +178,8 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
             params["duration" if mode == "lockstep" else "wall_duration"] = duration
         if summary_path:
             params["summary_path"] = summary_path
+        if perturb_at >= 0:
+            params.update(perturb_at=perturb_at, perturb_sigma=perturb_sigma, perturb_seed=perturb_seed)
         return params
     if executable not in {b.executable for b in loop.brains}:
         raise ValueError(f"loop {loop.name!r} has no node {executable!r}")
@@ -228,6 +236,10 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
     "seed": ("0", "seed of the fresh agent when no agent is given"),
     "rate_scale": ("1.0", "realtime: sim seconds per wall second"),
     "open_loop_steps": ("0", "closed loops: SWG steps before the feedback layer takes over"),
+    "perturb_at": ("-1", "sim time [s] at which body_sim displaces the movable masses by N(0, perturb_sigma²) "
+                   "(the paper's perturbation); negative: none"),
+    "perturb_sigma": ("0", "standard deviation of that perturbation [m]"),
+    "perturb_seed": ("0", "seed of the perturbation's standard-normal pattern"),
 }
 #: ``agent`` of a loop that needs a trained agent: required (no default), so ``ros2 launch`` refuses to start
 #: without it
@@ -293,7 +305,10 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                   mode=values.get("mode", "lockstep"), duration=number("duration", float, lambda v: v >= 0, ">= 0"),
                   rate_scale=number("rate_scale", float, lambda v: v > 0, "> 0"),
                   recording=bool(values.get("bag")),
-                  open_loop_steps=number("open_loop_steps", int, lambda v: v >= 0, ">= 0"))
+                  open_loop_steps=number("open_loop_steps", int, lambda v: v >= 0, ">= 0"),
+                  perturb_at=number("perturb_at", float, lambda v: True, "a number"),
+                  perturb_sigma=number("perturb_sigma", float, lambda v: v >= 0, ">= 0"),
+                  perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"))
     if values.get("agent"):
         from bptsb_ros.training.checkpoint import CheckpointError, feedback_fitted
 

@@ -7,7 +7,8 @@ shuts every node down and exits non-zero when any other node exits.
     ros2 launch bptsb_ros locomotion_closed.launch.py agent:=runs/NAME duration:=10 mode:=lockstep bag:=bags/run
 
 Arguments: agent (required: a trained agent with a fitted feedback layer), mode (lockstep|realtime), duration,
-bag, seed, rate_scale, open_loop_steps
+bag, seed, rate_scale, open_loop_steps,
+perturb_at, perturb_sigma, perturb_seed
 (``ros2 launch bptsb_ros locomotion_closed.launch.py --show-args``).
 """
 

@@ -9,7 +9,8 @@ or duration:=SECONDS).
         bag:=bags/mnist
 
 Arguments: agent, images, labels, first, count, episode_steps, mode (lockstep only), duration, bag, seed, rate_scale,
-open_loop_steps (``ros2 launch bptsb_ros mnist_drawing.launch.py --show-args``).
+open_loop_steps, perturb_at, perturb_sigma, perturb_seed (``ros2 launch bptsb_ros mnist_drawing.launch.py
+--show-args``).
 """
 
 from bptsb_ros.launch_loops import ros_launch_description

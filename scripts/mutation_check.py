@@ -194,6 +194,32 @@ MUTANTS: tuple[Mutant, ...] = (
            "v = v.masked_fill(r[..., 1:] < 0, 0.0)",
            "v = v.masked_fill(r[..., 1:] < -0.01, 0.0)",
            "ground clamp threshold changed (y < 0 → y < −0.01)", BODY),
+    # -- issue 10 §2: wind schedules and perturbations, live --------------------------------------------
+    Mutant("displaced-velocity", "bptsb_ros/body/msdn.py",
+           "v = state.v.expand_as(r).clone()",
+           "v = torch.zeros_like(r)",
+           "a perturbation also stops the masses", ("tests/test_live_autonomy.py::test_simulate_perturbed_equals_a_"
+                                                    "step_by_step_loop",)),
+    Mutant("live-perturb-rest", "bptsb_ros/ros/body_sim.py",
+           "new = self.body.displaced(state, d, rest, force)",
+           "new = self.body.displaced(state, d, self.base, force)",
+           "the live perturbation recomputes a with the trained instead of the commanded rest lengths",
+           ("tests/test_live_autonomy.py::test_live_perturbation_equals_offline_and_replay_reports_the_return",)),
+    Mutant("wind-periodic-half", "bptsb_ros/tasks/locomotion.py",
+           "return np.mod(t + 0.5 * dt, period) >= 0.5 * period",
+           "return np.mod(t - 0.5 * dt, period) >= 0.5 * period",
+           "the periodic wind starts blowing a step late", ("tests/test_live_autonomy.py::test_constant_and_"
+                                                            "periodic_schedules_by_hand",)),
+    Mutant("wind-file-row", "bptsb_ros/sim/wind_schedule.py",
+           'i = int(np.searchsorted(rows[:, 0], (step + 0.5) * dt, side="right")) - 1',
+           'i = int(np.searchsorted(rows[:, 0], (step + 0.5) * dt, side="left"))',
+           "a wind table row takes effect a row late", ("tests/test_live_autonomy.py::test_file_schedule_and_its_"
+                                                        "errors",)),
+    Mutant("return-ratio", "bptsb_ros/analysis/replay_lissajous.py",
+           "E_live=errors[\"live\"], E_offline=errors[\"offline\"],",
+           "E_live=errors[\"offline\"], E_offline=errors[\"offline\"],",
+           "replay reports the offline error as the live one", ("tests/test_live_autonomy.py::test_return_metrics_on_"
+                                                                "planted_offsets",)),
 )
 
 

@@ -104,7 +104,10 @@ def test_params_files_match_the_declared_parameters():
 
 def test_loop_wiring():
     assert set(LOOPS) == {"lissajous_open", "lissajous_closed", "locomotion_open", "locomotion_closed",
-                          "locomotion_headwind", "narma", "mnist_drawing"}
+                          "locomotion_headwind", "lissajous_switching", "narma", "mnist_drawing"}
+    switching = LOOPS["lissajous_switching"]
+    assert switching.wait_for == ("rest_length", "wind") and [b.executable for b in switching.brains] == [
+        "swg_brain", "wind_source"]
     narma = LOOPS["narma"]
     assert topic_names(narma.topics())[-2:] == ["/task/input", "/brain/force"]
     counts = dict(e.rsplit(":", 1) for e in startup_subscribers(narma, recording=True))
@@ -115,6 +118,9 @@ def test_loop_wiring():
     assert closed == {"/clock": "2", "/body/spring_lengths": "1", "/brain/rest_length": "1"}
     body = node_parameters(LOOPS["lissajous_open"], "body_sim", mode="realtime", duration=3.0)
     assert body["wall_duration"] == 3.0 and "duration" not in body and body["wait_for"] == ["rest_length"]
+    assert "perturb_at" not in body
+    kicked = node_parameters(LOOPS["lissajous_open"], "body_sim", perturb_at=2.5, perturb_sigma=0.3, perturb_seed=7)
+    assert (kicked["perturb_at"], kicked["perturb_sigma"], kicked["perturb_seed"]) == (2.5, 0.3, 7)
     brain = node_parameters(LOOPS["lissajous_open"], "swg_brain", agent="runs/x")
     assert brain == {"agent": "runs/x", "use_sim_time": True, "min_subscribers": 1}
     assert node_parameters(narma, "task_input", recording=True)["min_subscribers"] == 2  # mlp_brain, recorder

@@ -181,3 +181,26 @@ def plot_scheme_ratios(path: Path, curves: list[str], seeds: list[int], ratio2: 
         ax.set_xlabel("seed")
         ax.set_title(f"{title}: E_after / E_before", fontsize=10)
     return _save(fig, path)
+
+
+def plot_perturbed_run(path: Path, t: np.ndarray, cmp: dict[str, np.ndarray], target: np.ndarray, t_kick: float,
+                       eval_from: float | None, verdict: str) -> Path:
+    """A live perturbed run (``bptsb replay``): the CMP's x(t) and y(t) — live, offline with the same perturbation,
+    offline unperturbed — and the target, the perturbation time marked, the window the return is judged on shaded.
+    cmp: label → (T, 2); target: (T, 2); t: (T,) [s]."""
+    styles = {"live": dict(color="tab:red", lw=1.6), "offline": dict(color="k", lw=0.9, ls="--"),
+              "unperturbed": dict(color="tab:blue", lw=0.9, alpha=0.7)}
+    fig, axes = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
+    for c, ax in enumerate(axes):
+        ax.plot(t, target[:, c], color="0.6", lw=0.8, ls=":", label="target")
+        for label, traj in cmp.items():
+            ax.plot(t, traj[:, c], label=label, **styles.get(label, {}))
+        ax.axvline(t_kick, color="tab:green", lw=1.2, label="perturbation")
+        if eval_from is not None:
+            ax.axvspan(eval_from, t[-1], color="0.9", zorder=0, label="error window (E, E_orig)")
+        ax.set_ylabel(f"CMP {'xy'[c]} [m]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(frameon=False, fontsize=8, ncol=3, loc="upper left")
+    axes[1].set_xlabel("time [s]")
+    axes[0].set_title(f"perturbed live run: {verdict}")
+    return _save(fig, path)

@@ -22,6 +22,8 @@ from bptsb_ros.bags.reader import list_topics, read_messages
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute, dt_to_ns
 
 LOOPS_CLOSED = ("lissajous_closed", "locomotion_closed")
+#: loops whose body awaits the wind of every step from ``wind_source``
+LOOPS_WIND = ("locomotion_headwind", "lissajous_switching")
 
 
 @dataclass
@@ -30,7 +32,8 @@ class BagRun:
 
     steps: (T,) step indices; positions: (T, N, 2) [m]; spring_lengths, rest_length: (T, E) [m];
     springs: (E, 2); fixed: (N,) bool; cmp_index: −1 if none; inputs: {step: u} task inputs;
-    custom: the bag's custom_data (loop, mode, agent); wind: {step: F_wind x [N]} from ``env/wind``.
+    custom: the bag's custom_data (loop, mode, agent); wind: {step: (F_x, F_y) [N]} from ``env/wind``;
+    perturbations: {step: (M, 2) displacement [m]} from ``body/perturbation`` (what the body applied).
     """
 
     dt: float
@@ -43,7 +46,8 @@ class BagRun:
     cmp_index: int
     inputs: dict[int, float] = field(default_factory=dict)
     custom: dict[str, str] = field(default_factory=dict)
-    wind: dict[int, float] = field(default_factory=dict)
+    wind: dict[int, tuple[float, float]] = field(default_factory=dict)
+    perturbations: dict[int, np.ndarray] = field(default_factory=dict)
 
     @property
     def missing_steps(self) -> list[int]:
@@ -62,7 +66,18 @@ class BagRun:
         lengths = None if self.spring_lengths is None else self.spring_lengths[sl]
         rest = None if self.rest_length is None else self.rest_length[sl]
         return BagRun(self.dt, self.steps[sl], self.positions[sl], lengths, rest, self.springs, self.fixed,
-                      self.cmp_index, self.inputs, self.custom, self.wind)
+                      self.cmp_index, self.inputs, self.custom, self.wind, self.perturbations)
+
+    def wind_series(self, last: int) -> np.ndarray | None:
+        """(last + 1, 2) wind [N] in force at steps 0..last from ``env/wind``, or None without wind messages;
+        raises BagError if a step's wind is missing (the offline comparison needs every one)."""
+        if not self.wind:
+            return None
+        missing = [k for k in range(last + 1) if k not in self.wind]
+        if missing:
+            raise BagError(f"env/wind lacks {len(missing)} of steps 0..{last} (first: {missing[0]}); the offline "
+                           "comparison needs the wind of every step")
+        return np.array([self.wind[k] for k in range(last + 1)], dtype=np.float64)
 
 
 def _stamp_ns(msg: Any) -> int:
@@ -81,8 +96,9 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     if pos_topic not in topics:
         raise BagError(f"bag {bag} has no {pos_topic} topic (geometry_msgs/PoseArray); topics: {', '.join(topics)}")
     wanted = [t for t in (_topic(k) for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input",
-                                              "wind")) if t in topics]
-    wind_ns: dict[int, float] = {}
+                                              "wind", "perturbation")) if t in topics]
+    wind_ns: dict[int, tuple[float, float]] = {}
+    kicks_ns: dict[int, np.ndarray] = {}
     pos: dict[int, np.ndarray] = {}
     lengths: dict[int, np.ndarray] = {}
     rests: dict[int, np.ndarray] = {}
@@ -100,7 +116,9 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
         elif topic == _topic("task_input") and len(msg.position):
             inputs_ns[_stamp_ns(msg)] = float(msg.position[0])
         elif topic == _topic("wind"):
-            wind_ns[_stamp_ns(msg)] = float(msg.vector.x)
+            wind_ns[_stamp_ns(msg)] = (float(msg.vector.x), float(msg.vector.y))
+        elif topic == _topic("perturbation"):
+            kicks_ns[_stamp_ns(msg)] = np.asarray(msg.position, dtype=np.float64).reshape(-1, 2)
     if not pos:
         raise BagError(f"bag {bag} has no messages on {pos_topic}")
     stamps = np.array(sorted(pos))
@@ -121,7 +139,8 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
 
     return BagRun(dt_ns / NS_PER_S, steps, positions, stack(lengths), stack(rests), springs, fixed, cmp,
                   {int((s + dt_ns // 2) // dt_ns): u for s, u in inputs_ns.items()}, custom,
-                  {int((s + dt_ns // 2) // dt_ns): w for s, w in wind_ns.items()})
+                  {int((s + dt_ns // 2) // dt_ns): w for s, w in wind_ns.items()},
+                  {int((s + dt_ns // 2) // dt_ns): d for s, d in kicks_ns.items()})
 
 
 def bag_custom_data(bag: str | Path) -> dict[str, str]:
@@ -167,19 +186,12 @@ def task_metrics(run: BagRun, task: str, config: dict[str, Any]) -> dict[str, An
     out: dict[str, Any] = {"task": task, "steps": int(len(run.steps)), "first_step": int(run.steps[0]),
                            "duration_s": float(t[-1] - t[0])}
     if task == "lissajous":
-        import torch
-
-        from bptsb_ros.tasks.lissajous import lissajous_target, windowed_shift_error
-
-        lc, omega = config.get("lissajous", {}), float(config.get("brain", {}).get("omega", 2 * np.pi))
-        amp = float(lc.get("amplitude_fraction", 0.05)) * float(config.get("body", {}).get("size", 4.0))
-        args = (amp, amp, float(lc.get("alpha", 1)), float(lc.get("beta", 2)), float(lc.get("delta", 0)), omega)
-
-        def target(tt: np.ndarray) -> np.ndarray:
-            return lissajous_target(torch.as_tensor(tt, dtype=torch.float64), *args).numpy()
+        from bptsb_ros.analysis.replay_lissajous import lissajous_target
+        from bptsb_ros.tasks.lissajous import windowed_shift_error
 
         if run.cmp_index < 0:
             raise BagError("the Lissajous metric needs the CMP (from body/markers)")
+        target, _, _, omega = lissajous_target(config)
         cmp = run.positions[:, run.cmp_index]
         period = int(round(2 * np.pi / omega / run.dt))
         out["metric"] = "trajectory_mse_shift_min"
@@ -220,32 +232,29 @@ def task_metrics(run: BagRun, task: str, config: dict[str, Any]) -> dict[str, An
 
 
 def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict[int, float],
-                      open_loop_steps: int = 0) -> np.ndarray:
+                      open_loop_steps: int = 0, wind: np.ndarray | None = None,
+                      perturbations: dict[int, np.ndarray] | None = None) -> np.ndarray:
     """(steps+1, N, 2) positions of the offline simulation of the same agent and loop, in float64.
 
     Closed loops with ``open_loop_steps`` = W run the SWG for steps 0..W, then the feedback layer (as
-    ``bptsb launch --open-loop-steps W`` does).
+    ``bptsb launch --open-loop-steps W`` does). ``wind``: (steps + 1, 2) wind [N] in force at each step (a wind
+    loop without it gets the agent's own schedule, ``wind_schedule.for_agent``); ``perturbations``: {step: (M, 2)
+    displacement [m]} applied to the state of that step, as ``body_sim`` does (``sim.perturbation``).
     """
     import torch
 
-    from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
+    from bptsb_ros.sim.perturbation import simulate_perturbed
+    from bptsb_ros.sim.rollout import simulate_open_loop
     from bptsb_ros.sim.trajectory import trajectory_from_rollout
-    from bptsb_ros.training.checkpoint import feedback_fitted, load_agent
+    from bptsb_ros.training.checkpoint import feedback_fitted, load_agent, read_checkpoint
 
     agent = load_agent(agent_dir, dtype=torch.float64)
-    if loop in LOOPS_CLOSED:
-        if agent.feedback is None or not feedback_fitted(agent_dir):
-            raise BagError(f"loop {loop} needs an agent with a fitted feedback layer; {agent_dir} has none")
-        if 0 < open_loop_steps < steps:
-            warm = simulate_open_loop(agent, open_loop_steps)
-            rest = simulate_closed_loop(agent.body, agent.feedback, steps - open_loop_steps, state=warm.final)
-            positions = np.concatenate([trajectory_from_rollout(agent.body, warm).positions,
-                                        trajectory_from_rollout(agent.body, rest).positions[1:]])
-            return positions
-        roll = simulate_closed_loop(agent.body, agent.feedback, steps)
-    elif loop == "narma":
+    perturbations = perturbations or {}
+    if loop == "narma":
         from bptsb_ros.tasks.narma import brain_input
 
+        if perturbations:
+            raise BagError("the offline comparison of a perturbed run supports the SWG and feedback loops, not narma")
         scale = float(agent.config["narma"]["input_scale"])
         if not inputs:
             raise BagError("the narma loop's offline comparison needs the task/input topic")
@@ -255,17 +264,18 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
             series.append(last)
         roll = simulate_open_loop(agent, steps, inputs=brain_input(torch.tensor(series, dtype=torch.float64),
                                                                    {**agent.config["narma"], "input_scale": scale}))
-    elif loop == "locomotion_headwind":  # the agent's periodic wind, as the wind_source node sends it
-        from bptsb_ros.tasks.locomotion import wind_blowing
+        return trajectory_from_rollout(agent.body, roll).positions
+    feedback_from = None
+    if loop in LOOPS_CLOSED:
+        if agent.feedback is None or not feedback_fitted(agent_dir):
+            raise BagError(f"loop {loop} needs an agent with a fitted feedback layer; {agent_dir} has none")
+        feedback_from = open_loop_steps if 0 < open_loop_steps < steps else 0
+    if wind is None and loop in LOOPS_WIND:  # the agent's own schedule, as the wind_source node sends it by default
+        from bptsb_ros.sim.wind_schedule import for_agent
 
-        loc = agent.config["locomotion"]
-        on = wind_blowing(np.arange(steps + 1), agent.dt, float(loc["wind_period"]))
-        wind = torch.zeros(steps + 1, 2, dtype=torch.float64)
-        wind[torch.from_numpy(on), 0] = float(loc["wind_force"])
-        roll = simulate_open_loop(agent, steps, wind=wind)
-    else:
-        roll = simulate_open_loop(agent, steps)
-    return trajectory_from_rollout(agent.body, roll).positions
+        wind = for_agent(agent.config, read_checkpoint(agent_dir)["extra"]).forces(steps, agent.dt)
+    r = simulate_perturbed(agent, steps, perturbations, wind=wind, feedback_from=feedback_from)
+    return agent.body.full_positions(r).numpy()
 
 
 def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = None, task: str | None = None,
@@ -307,10 +317,17 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
         metrics["live"] = live
     if agent_dir is not None and loop:
         last = int(run.steps[-1])
-        off = offline_positions(agent_dir, loop, last, run.inputs, int(run.custom.get("open_loop_steps", 0)))
+        warm = int(run.custom.get("open_loop_steps", 0))
+        wind = run.wind_series(last) if loop in LOOPS_WIND else None
+        off = offline_positions(agent_dir, loop, last, run.inputs, warm, wind=wind, perturbations=run.perturbations)
         diff = np.abs(off[run.steps] - run.positions)
         metrics["offline_comparison"] = {"max_abs_position_difference_m": float(diff.max()),
-                                         "steps_compared": int(len(run.steps))}
+                                         "steps_compared": int(len(run.steps)),
+                                         "perturbed_steps": sorted(run.perturbations)}
+        if task == "lissajous" and run.cmp_index >= 0:
+            autonomy = _lissajous_autonomy(agent_dir, loop, segment, off, wind, warm, last, config)
+            plots["autonomy"] = autonomy.pop("_plot")
+            metrics.update(autonomy)
         if task:
             off_run = BagRun(run.dt, segment.steps, off[segment.steps], None, None, run.springs, run.fixed,
                              run.cmp_index, run.inputs, run.custom)
@@ -321,6 +338,31 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
     metrics["files"] = [str(f) for f in files]
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
     return metrics
+
+
+def _lissajous_autonomy(agent_dir: str | Path, loop: str, segment: BagRun, off: np.ndarray, wind: np.ndarray | None,
+                        warm: int, last: int, config: dict[str, Any]) -> dict[str, Any]:
+    """``perturbation``: the return criterion of a perturbed run, live and offline; ``switching``: the per-segment
+    errors of a switching run (``analysis.replay_lissajous``)."""
+    from bptsb_ros.analysis.replay_lissajous import lissajous_target, return_metrics, switching_metrics
+    from bptsb_ros.training.checkpoint import read_checkpoint
+
+    out: dict[str, Any] = {"_plot": {}}
+    c = segment.cmp_index
+    cmp = {"live": segment.positions[:, c], "offline": off[segment.steps, c]}
+    if segment.perturbations:
+        orig = offline_positions(agent_dir, loop, last, segment.inputs, warm, wind=wind)
+        runs = {**cmp, "unperturbed": orig[segment.steps, c]}
+        out["perturbation"] = return_metrics(runs, int(segment.steps[0]), max(segment.perturbations), segment.dt,
+                                             config)
+        target, *_ = lissajous_target(config)
+        out["_plot"]["perturbation"] = {"runs": runs, "target": target(segment.steps * segment.dt)}
+    if loop == "lissajous_switching" and wind is not None and int(segment.steps[0]) == 0:
+        out["switching"] = switching_metrics(cmp, wind[segment.steps], segment.dt, config,
+                                             read_checkpoint(agent_dir)["extra"])
+        out["_plot"]["switching"] = {"cmp": cmp["live"], "target": out["switching"].pop("_target"),
+                                     "wind": np.any(wind[segment.steps] != 0, axis=1).astype(np.float64)}
+    return out
 
 
 def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | None, gif: bool) -> list[Path]:
@@ -345,8 +387,40 @@ def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | N
     elif task == "narma" and "u" in plots:
         files.append(P.plot_series(out_dir / "narma.png", {"input u": plots["u"], "target y": plots["y"],
                                                           "live output": plots["out"]}, "sample", "value"))
+    files += _autonomy_figures(out_dir, run, metrics, plots.get("autonomy", {}))
     if gif and len(run.springs):
         files.append(_animate(out_dir / "replay.gif", run))
+    return files
+
+
+def _autonomy_figures(out_dir: Path, run: BagRun, metrics: dict, plots: dict) -> list[Path]:
+    """perturbation.png (the perturbed run against the offline ones) and switching_curves.png (the first measured
+    segment without and with wind over their targets)."""
+    from bptsb_ros.analysis import autonomy_plots as A
+
+    files = []
+    t = run.steps * run.dt
+    if "perturbation" in plots and "perturbation" in metrics:
+        p = metrics["perturbation"]
+        if "E_live" in p:
+            verdict = (f"{'returned' if p['returned_live'] else 'did not return'} (E / E_orig = "
+                       f"{p['E_live'] / p['E_orig']:.3g}, criterion < 2)")
+        else:
+            verdict = p.get("problem", "")
+        files.append(A.plot_perturbed_run(out_dir / "perturbation.png", t, plots["perturbation"]["runs"],
+                                          plots["perturbation"]["target"], p["perturbed_at_step"] * run.dt,
+                                          p["eval_steps"][0] * run.dt if "eval_steps" in p else None, verdict))
+    if "switching" in plots and metrics.get("switching", {}).get("segments"):
+        segs = metrics["switching"]["segments"]
+        chosen = {}
+        for want in (False, True):
+            s = next((s for s in segs if s["wind"] == want), None)
+            if s is not None:
+                chosen[f"{'wind' if want else 'no wind'} (steps {s['steps'][0]}-{s['steps'][1]})"] = (
+                    s["steps"][0], s["steps"][1] + 1)
+        sw = plots["switching"]
+        files.append(A.plot_switching_curves(out_dir / "switching_curves.png", sw["cmp"], sw["target"], sw["wind"],
+                                             chosen, title="live run"))
     return files
 
 
@@ -360,7 +434,7 @@ def wind_periods(run: BagRun) -> list[tuple[float, float]]:
     end_step = int(run.steps[-1])
     for i, k in enumerate(steps):
         nxt = steps[i + 1] if i + 1 < len(steps) else end_step + 1
-        if run.wind[k] != 0 and nxt > k:
+        if any(run.wind[k]) and nxt > k:
             a, b = k * run.dt, nxt * run.dt
             if out and abs(out[-1][1] - a) < 1e-9:
                 out[-1] = (out[-1][0], b)

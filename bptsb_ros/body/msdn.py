@@ -209,6 +209,23 @@ class MSDN(nn.Module):
         a, length = self.acceleration(r, v, l0, external_force)
         return BodyState(r, v, a, length, 0)
 
+    def displaced(
+        self,
+        state: BodyState,
+        displacement: torch.Tensor,
+        rest_length: torch.Tensor | None = None,
+        external_force: torch.Tensor | None = None,
+    ) -> BodyState:
+        """``state`` with its movable masses moved by ``displacement`` (B, M, 2) [m], at the same step: velocities
+        kept, accelerations and spring lengths recomputed with the rest length (E,) or (B, E) and the external force
+        in force at that step (a perturbation, paper Fig. 4(b,c)). A one-row ``state`` is repeated to B rows."""
+        r = state.r + displacement.to(state.r.dtype)
+        v = state.v.expand_as(r).clone()
+        rest = self.l if rest_length is None else rest_length
+        rest = rest.reshape(-1, rest.shape[-1]).expand(r.shape[0], -1)
+        a, length = self.acceleration(r, v, rest, external_force)
+        return BodyState(r, v, a, length, state.step)
+
     def step(
         self,
         state: BodyState,

@@ -43,6 +43,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
     parser.add_argument("--open-loop-steps", type=int, default=0, metavar="W",
                         help="closed loops: SWG drives steps 0..W before the feedback layer takes over")
+    parser.add_argument("--perturb-at", type=finite_float, default=-1.0, metavar="T",
+                        help="displace the movable masses at sim time T [s] (the state of that step; lockstep-"
+                             "deterministic), by N(0, S²) per coordinate; default: no perturbation")
+    parser.add_argument("--perturb-sigma", type=finite_float, default=0.0, metavar="S",
+                        help="standard deviation of the perturbation [m]")
+    parser.add_argument("--perturb-seed", type=int, default=0, metavar="N",
+                        help="seed of the perturbation's standard-normal pattern (bptsb_ros.sim.perturbation)")
     stream = parser.add_argument_group("mnist_drawing (see a digit, draw it; --agent is an MNIST system file)")
     stream.add_argument("--images", default="", metavar="IDX", help="IDX file of the streamed images (gz or not)")
     stream.add_argument("--labels", default="", metavar="IDX", help="IDX file of their labels")
@@ -315,6 +322,9 @@ def run(args: argparse.Namespace) -> int:
     if args.duration < 0 or args.rate_scale <= 0 or args.grace <= 0:
         print("error: --duration must be >= 0, --rate-scale and --grace > 0", file=sys.stderr)
         return 2
+    if args.perturb_sigma < 0 or (args.perturb_sigma > 0 and args.perturb_at < 0):
+        print("error: --perturb-sigma must be >= 0 and needs --perturb-at T (sim seconds, >= 0)", file=sys.stderr)
+        return 2
     if args.agent and plan is None:
         if not Path(args.agent).exists():
             print(f"error: --agent {args.agent}: no such run directory", file=sys.stderr)
@@ -353,6 +363,8 @@ def run(args: argparse.Namespace) -> int:
 
     common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,
                   rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps)
+    brain_common = dict(common)
+    common.update(perturb_at=args.perturb_at, perturb_sigma=args.perturb_sigma, perturb_seed=args.perturb_seed)
 
     def with_stream(executable: str, params: dict) -> dict:
         if plan is None:
@@ -366,7 +378,7 @@ def run(args: argparse.Namespace) -> int:
     body = Child("body_sim", node_argv("body_sim", body_params, extra["body_sim"]), log_dir / "body_sim.log")
     children.append(body)
     for brain in loop.brains:
-        params = with_stream(brain.executable, node_parameters(loop, brain.executable, **common))
+        params = with_stream(brain.executable, node_parameters(loop, brain.executable, **brain_common))
         children.append(Child(brain.executable, node_argv(brain.executable, params, extra[brain.executable]),
                               log_dir / f"{brain.executable}.log"))
     recorder = None

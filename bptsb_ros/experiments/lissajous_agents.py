@@ -101,10 +101,5 @@ def repeat_state(state: BodyState, batch: int) -> BodyState:
 
 def displaced(agent: Agent, state: BodyState, displacement: torch.Tensor, rest_length: torch.Tensor) -> BodyState:
     """``state`` (1 row) with its movable masses displaced by (B, M, 2) [m]; a(t) recomputed from the displaced
-    positions with ``rest_length`` (the rest length in force at that step); velocities kept."""
-    body = agent.body
-    r = state.r + displacement.to(state.r.dtype)
-    v = state.v.expand_as(r).clone()
-    rest = rest_length.reshape(-1, rest_length.shape[-1]).expand(r.shape[0], -1)
-    a, length = body.acceleration(r, v, rest, None)
-    return BodyState(r, v, a, length, state.step)
+    positions with ``rest_length`` (the rest length in force at that step); velocities kept (``MSDN.displaced``)."""
+    return agent.body.displaced(state, displacement, rest_length)

@@ -27,6 +27,7 @@ import torch
 
 from bptsb_ros.experiments.lissajous_agents import TrainedAgent, displaced, single_threaded, train_single_curve
 from bptsb_ros.experiments.registry import Context, experiment
+from bptsb_ros.sim.perturbation import perturbation_batch
 from bptsb_ros.sim.population import run_population
 from bptsb_ros.tasks.lissajous import RETURN_RATIO, returned, windowed_shift_error_batch
 from bptsb_ros.tasks.lissajous_switching import CURVE_1
@@ -34,14 +35,6 @@ from bptsb_ros.tasks.lissajous_switching import CURVE_1
 SIGMAS = np.round(np.arange(0.0, 1.0001, 0.1), 10)
 #: the open and the closed loop count as "almost the same" when their rates differ by at most this at every σ
 SAME_RATE = 0.2
-
-
-def perturbation_displacements(n_masses: int, seeds: int, sigmas: np.ndarray, dtype: torch.dtype) -> torch.Tensor:
-    """(len(sigmas)·seeds, M, 2) displacements [m], row σ_j·seeds + i = σ_j · z_i, z_i ~ N(0, 1) from seed i."""
-    z = torch.stack([torch.randn(n_masses, 2, generator=torch.Generator().manual_seed(i), dtype=torch.float64)
-                     for i in range(seeds)])
-    return (torch.as_tensor(sigmas, dtype=torch.float64)[:, None, None, None] * z[None]).reshape(-1, n_masses, 2) \
-        .to(dtype)
 
 
 def perturbation_errors(trained: TrainedAgent, seeds: int, *, settle: int, run: int, eval_periods: int,
@@ -52,7 +45,7 @@ def perturbation_errors(trained: TrainedAgent, seeds: int, *, settle: int, run: 
     period = trained.period
     cmp = body.cmp_local
     steps = run * period
-    disp = perturbation_displacements(body.n_movable, seeds, sigmas, body.l.dtype)
+    disp = perturbation_batch(body.n_movable, seeds, sigmas, body.l.dtype)
     batch = disp.shape[0]
     out: dict[str, object] = {"batch": batch, "steps": steps}
     target_fn = CURVE_1.target

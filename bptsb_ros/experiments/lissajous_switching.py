@@ -79,7 +79,8 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, curve_on: tuple[float, 
     res = train_switching(agent, pre.state, schedule, target, published_wind=published_wind)
     s = res.state
     extra = {"task_state": {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step},
-             "losses": res.losses, "wind_shift_x": shift, "timing": str(timing), "curve_on": list(curve_on)}
+             "losses": res.losses, "wind_shift_x": shift, "timing": str(timing), "curve_on": list(curve_on),
+             "published_wind": published_wind, "hold_periods": list(hold)}
     save_checkpoint(run_dir, agent, extra)
     summary = {"wind_shift_x_m": shift, "updates": len(res.losses), "sim_time_s": sim_time, "timing": str(timing),
                "loss_first10": float(np.mean(res.losses[:10])), "loss_last10": float(np.mean(res.losses[-10:])),

@@ -53,6 +53,7 @@ from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, run
 from bptsb_ros.ros.safety import (
     DEFAULT_MAX_FORCE,
     DEFAULT_MAX_WIND,
+    DEFAULT_PERTURB_PUBLISHERS,
     DIVERGENCE_POLICIES,
     CommandLimits,
     DivergenceRecovery,
@@ -72,8 +73,12 @@ from bptsb_ros.ros.topics import (
     mass_dof_names,
     spring_names,
 )
+from bptsb_ros.sim.perturbation import perturbation
 
 NODE = "body_sim"
+#: furthest ahead [steps] a perturbation may be stamped, and the most that may wait at once
+MAX_PERTURB_AHEAD = 10**9
+MAX_PENDING_PERTURBATIONS = 1000
 #: what the ROS graph reports as the node name of an endpoint whose node it has not discovered yet
 UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 PUBLISHED = BODY_OUTPUTS
@@ -124,6 +129,14 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("command_publishers", [], "node names ('name' or '/namespace/name') allowed to publish commands; a "
           "command is rejected while any other node publishes on its topic; empty: this package's brains "
           "(swg_brain, feedback_brain: rest lengths; mlp_brain: forces); '*': any node", "str_list"),
+    Param("perturb_at", -1.0, "sim time [s] at which the movable masses are displaced by N(0, perturb_sigma²) per "
+          "coordinate (the paper's perturbation; the state of that step is displaced, velocities kept); negative: "
+          "none", "float"),
+    Param("perturb_sigma", 0.0, "standard deviation of the scheduled perturbation [m]", "float", minimum=0.0),
+    Param("perturb_seed", 0, "seed of the scheduled perturbation's standard-normal pattern "
+          "(bptsb_ros.sim.perturbation)", "int"),
+    Param("perturb_publishers", list(DEFAULT_PERTURB_PUBLISHERS), "node names allowed to publish on body/perturb "
+          "('*': any node)", "str_list"),
     Param("reset_every", 0, "resets (body/reset, loop mnist_drawing): the body takes a reset only at steps k with "
           "k % reset_every == 0 (with 'reset' in wait_for it waits for one there, lockstep only); the state of step k "
           "is then the body at rest at layout + displacement; 0: no resets", "int", minimum=0),
@@ -199,6 +212,18 @@ class BodySim(Node):
         self.channels["reset"].every = p["reset_every"]
         allowed = tuple(p["command_publishers"])
         self.publisher_rules = {s: PublisherRule(s, allowed) for s in self.channels}
+        # perturbations: stamped with the step whose state they displace, queued until the body reaches it
+        self.perturbations = CommandChannel("perturbation", 2 * body.n_movable, self.dof_names, "lockstep",
+                                            max_ahead=MAX_PERTURB_AHEAD,
+                                            bounds=lambda values: self.limits.check("perturbation", values))
+        self.publisher_rules["perturbation"] = PublisherRule("perturbation", tuple(p["perturb_publishers"]))
+        self.perturbed: list[int] = []
+        if p["perturb_at"] >= 0:
+            k = int(round(p["perturb_at"] / body.dt))
+            disp = perturbation(body.n_movable, p["perturb_sigma"], p["perturb_seed"])
+            rejection = self.perturbations.offer(k, disp.reshape(-1), 0, time.monotonic())
+            if rejection is not None:
+                raise ParameterError(f"parameters perturb_at/perturb_sigma: {rejection.message}")
         self._intruders: dict[str, tuple[int, float, list[str]]] = {}
         self.wind_intake = WindIntake(self.limits)
         self.divergence: DivergenceRecovery[BodyState] = DivergenceRecovery(p["on_divergence"])
@@ -234,6 +259,7 @@ class BodySim(Node):
             "external_force": self.create_publisher(JointState, topic["external_force"], sq),
             "markers": self.create_publisher(MarkerArray, topic["markers"], sq),
             "diagnostics": self.create_publisher(DiagnosticArray, topic["diagnostics"], sq),
+            "perturbation": self.create_publisher(JointState, topic["perturbation"], sq),
         }
         self.subs = {
             "rest_length": self.create_subscription(JointState, topic["rest_length_cmd"],
@@ -241,6 +267,7 @@ class BodySim(Node):
             "force": self.create_subscription(JointState, topic["force_cmd"],
                                               lambda msg: self._on_command("force", msg), sq),
             "wind": self.create_subscription(Vector3Stamped, topic["wind"], self._on_wind, sq),
+            "perturbation": self.create_subscription(JointState, topic["perturb_cmd"], self._on_perturb, sq),
             "reset": self.create_subscription(JointState, topic["reset_cmd"],
                                               lambda msg: self._on_command("reset", msg), sq),
         }
@@ -341,6 +368,39 @@ class BodySim(Node):
             rejection = self.channels["wind"].offer(step, [msg.vector.x, msg.vector.y], self.next_step, now)
         if rejection is not None:
             self._warn(f"reject:wind:{rejection.reason}", f"{rejection.message}; not applied")
+    def _on_perturb(self, msg: JointState) -> None:
+        """A perturbation for the step of its stamp: queued if that step is not integrated yet (then it is applied
+        exactly there, in both timing modes), else rejected as stale."""
+        self.callbacks += 1
+        step = m.step_of(msg.header.stamp, self.dt_ns)
+        channel = self.perturbations
+        intruders = self._untrusted_publishers("perturbation", time.monotonic())
+        if intruders:
+            rejection = channel.reject(step, "untrusted_publisher", f"{self.subs['perturbation'].topic_name} has "
+                                       f"publisher(s) not in perturb_publishers ({', '.join(intruders)})")
+        elif len(channel.pending) >= MAX_PENDING_PERTURBATIONS:
+            rejection = channel.reject(step, "queue_full", f"{MAX_PENDING_PERTURBATIONS} perturbations are queued")
+        else:
+            rejection = channel.offer(step, m.as_array(msg.position), self.next_step, time.monotonic(),
+                                      list(msg.name))
+        if rejection is not None:
+            self._warn(f"reject:perturbation:{rejection.reason}", f"{rejection.message}; not applied")
+        else:
+            self.get_logger().info(f"perturbation queued for step {step}")
+
+    def _perturb(self, state: BodyState, disp: np.ndarray, rest: torch.Tensor,
+                 force: torch.Tensor | None) -> BodyState:
+        """``state`` with the movable masses displaced by ``disp`` (2·M,) [m] (``MSDN.displaced``: velocities kept,
+        accelerations from the rest length and force in force at that step); published on body/perturbation."""
+        d = torch.from_numpy(disp).to(rest.dtype).view(1, -1, 2)
+        with torch.no_grad():
+            new = self.body.displaced(state, d, rest, force)
+        self.perturbed.append(state.step)
+        self.pubs["perturbation"].publish(m.joint_state(state.step, self.dt_ns, self.dof_names, position=disp,
+                                                        frame_id=self.p["frame_id"]))
+        self.get_logger().info(f"step {state.step}: movable masses displaced (largest |d| {np.abs(disp).max():.4g} m)")
+        return new
+
     def _on_parameter(self, name: str, value: ParamValue) -> None:
         """A live parameter change (validated by its spec); raises ParameterError to refuse it. ``rate_scale``,
         ``marker_every``, ``diagnostics_period`` and ``log_level`` are read where they are used."""
@@ -471,6 +531,11 @@ class BodySim(Node):
             out[f"wind_{key}"] = value
             if key.startswith("rejected"):
                 total += value
+        for key, value in self.perturbations.counts().items():
+            out[f"perturbation_{key}"] = value
+            if key.startswith("rejected"):
+                total += value
+        out["perturbation_steps"] = list(self.perturbed)
         out["rejected_total"] = total
         out["divergences"] = self.divergence.events
         return out
@@ -548,6 +613,12 @@ class BodySim(Node):
         problem = self._divergence(new)
         if problem:
             new, rest, force, safe = self._recover(state, step, problem)
+        kick = self.perturbations.take(step)
+        if kick is not None:
+            new = self._perturb(new, kick.values, rest, force)
+            problem = self._divergence(new)
+            if problem:
+                new, rest, force, safe = self._recover(state, step, problem)
         if safe:
             self.stats.safe_steps += 1
         self._publish_state(new, rest, force)
@@ -731,7 +802,7 @@ def summary_text(summary: dict[str, Any]) -> str:
 SUMMARY_GROUPS = {"jitter_ms_": "jitter [ms]", "compute_ms_": "compute [ms]",
                   "command_latency_ms_": "command latency [ms]", "command_age_steps_": "command age [steps]",
                   "rest_length_": "rest-length commands", "force_": "force commands", "wind_": "wind",
-                  "reset_": "resets"}
+                  "perturbation_": "perturbations", "reset_": "resets"}
 
 
 def main(args: list[str] | None = None) -> int:

@@ -31,7 +31,7 @@ import numpy as np
 Mode = Literal["lockstep", "realtime"]
 MODES: tuple[str, ...] = ("lockstep", "realtime")
 REJECT_REASONS: tuple[str, ...] = ("wrong_length", "wrong_names", "non_finite", "out_of_bounds", "stale", "duplicate",
-                                   "too_far_ahead", "untrusted_publisher", "off_schedule")
+                                   "too_far_ahead", "untrusted_publisher", "queue_full", "off_schedule")
 
 
 @dataclass(frozen=True)

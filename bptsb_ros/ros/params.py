@@ -146,12 +146,14 @@ READ_ONLY_REASONS: dict[str, str] = {
     **dict.fromkeys(("wait_for", "wait_for_subscribers", "startup_timeout", "min_subscribers"),
                     "only used while the loop starts up"),
     **dict.fromkeys(("command_timeout", "max_command_age", "min_rest_length", "max_rest_length", "max_force",
-                     "max_wind", "command_publishers", "on_divergence"),
+                     "max_wind", "command_publishers", "perturb_publishers", "on_divergence"),
                     "a safety rule: it must hold for the whole run and not be loosened by anyone who can reach the "
                     "parameter services"),
     **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
     "frame_id": "viewers and the bag expect one frame for the whole run",
-    **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale"), "part of the run's definition "
+    **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale", "perturb_at", "perturb_sigma",
+                     "perturb_seed", "schedule", "force", "force_y", "period", "schedule_seed", "hold_periods",
+                     "timing", "start_on", "file"), "part of the run's definition "
                     "that the offline comparison of the bag (bptsb replay) reproduces"),
     "noise_seed": "the noise generator is seeded once, so that a run with noise can be repeated",
     **dict.fromkeys(("images", "labels", "first", "count", "episode_steps", "reset_every"), "the image stream and "

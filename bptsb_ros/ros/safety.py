@@ -19,6 +19,7 @@ body, and recovery when the live simulation diverges anyway. ``body_sim`` calls 
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -33,6 +34,9 @@ DEFAULT_PUBLISHERS: dict[str, tuple[str, ...]] = {
     "wind": ("wind_source",),  # only when body_sim awaits a synchronised (stamped) wind: wait_for contains wind
     "reset": ("mnist_brain",),  # body/reset: initial displacements of a released body (loop mnist_drawing)
 }
+#: Default publishers allowed to perturb the body (``perturb_publishers``): any node. A perturbation is a test the
+#: user runs (``ros2 topic pub``, a script), bounded by ``max_displacement``; list node names to restrict it.
+DEFAULT_PERTURB_PUBLISHERS: tuple[str, ...] = ("*",)
 #: ``command_publishers`` entry that accepts commands from any node (not for a shared network).
 ANY_PUBLISHER = "*"
 #: Default limits [N] of a force-command component and of a wind component.
@@ -70,15 +74,16 @@ def rest_length_floor(rest: np.ndarray, amplitude: np.ndarray | None) -> float:
 @dataclass(frozen=True)
 class CommandLimits:
     """Physical bounds of commands: rest lengths in (min_rest_length, max_rest_length] [m], |force component| <=
-    max_force [N], |wind component| <= max_wind [N], and the length of each mass's reset displacement (x, y) at
-    most max_displacement [m] (``for_body``: the body's extent; a body released from farther away than its own
-    size is no drawing, only a numerical risk)."""
+    max_force [N], |wind component| <= max_wind [N], |displacement component| of a perturbation <=
+    max_displacement [m], and the length of each mass's reset displacement (x, y) at most max_displacement
+    (``for_body``: the body's extent; a body released from farther away than its own size is no drawing, only a
+    numerical risk)."""
 
     max_rest_length: float
     max_force: float = DEFAULT_MAX_FORCE
     max_wind: float = DEFAULT_MAX_WIND
     min_rest_length: float = 0.0
-    max_displacement: float = float("inf")
+    max_displacement: float = math.inf
 
     def __post_init__(self) -> None:
         for name in ("max_rest_length", "max_force", "max_wind"):
@@ -94,11 +99,12 @@ class CommandLimits:
         """Limits for a body with layout ``positions`` (N, 2); ``max_rest_length`` 0 means
         ``REST_LENGTH_EXTENT_FACTOR`` × its extent."""
         limit = max_rest_length or REST_LENGTH_EXTENT_FACTOR * body_extent(positions)
-        return cls(float(limit), float(max_force), float(max_wind), float(min_rest_length), body_extent(positions))
+        return cls(float(limit), float(max_force), float(max_wind), float(min_rest_length),
+                   max_displacement=body_extent(positions))
 
     def check(self, source: str, values: np.ndarray) -> str | None:
-        """Why finite ``values`` of command ``source`` (rest_length, force, wind or reset) are out of bounds, or
-        None."""
+        """Why finite ``values`` of command ``source`` (rest_length, force, wind, perturbation or reset) are out of
+        bounds, or None."""
         vals = np.asarray(values, dtype=np.float64).reshape(-1)
         if source == "reset":  # (x, y) displacement per movable mass
             norm = np.hypot(vals[0::2], vals[1::2])
@@ -107,7 +113,10 @@ class CommandLimits:
                 return None
             return (f"displacement of {norm[far[0]]:.6g} m of movable mass {int(far[0])} beyond "
                     f"{self.max_displacement:g} m ({far.size} mass(es) out of bounds)")
-        if source == "rest_length":
+        if source == "perturbation":
+            bad = np.flatnonzero(np.abs(vals) > self.max_displacement)
+            bound = f"[-{self.max_displacement:g}, {self.max_displacement:g}] m (the body's extent)"
+        elif source == "rest_length":
             bad = np.flatnonzero((vals <= self.min_rest_length) | (vals > self.max_rest_length))
             bound = f"({self.min_rest_length:g}, {self.max_rest_length:g}] m"
         else:

@@ -1,11 +1,13 @@
-"""``wind_source``: the periodic headwind of the locomotion switching task, in lockstep with the body.
+"""``wind_source``: a wind schedule on ``env/wind``, in lockstep with the body.
 
-On each ``/clock`` tick t_k it publishes on ``env/wind`` the wind in force at step k (stamped t_k):
-F_wind along x while :func:`bptsb_ros.tasks.locomotion.wind_blowing` says the wind blows at step k (calm for
-the first half of every period, blowing for the second), else 0 — the schedule offline training and
-simulation use. ``body_sim`` with ``wait_for: [..., wind]`` integrates step k only with the wind of step k, so
-the live run equals the offline one. Force and period default to the agent's ``locomotion.wind_force`` and
-``locomotion.wind_period``.
+On each ``/clock`` tick t_k it publishes on ``env/wind`` the wind in force at step k (stamped t_k), from a
+:class:`bptsb_ros.sim.wind_schedule.WindSchedule` — the schedule offline training and simulation use. ``body_sim``
+with ``wait_for: [..., wind]`` integrates step k only with the wind of step k, so a live run equals the offline
+one (loops ``locomotion_headwind`` and ``lissajous_switching``).
+
+The schedule is the agent's own unless ``schedule`` says otherwise (``wind_schedule.for_agent``): a switching
+agent's switching wind (segments of whole SWG periods, random switch phases), a Lissajous agent's the same, a
+locomotion agent's periodic headwind. Every other parameter overrides one setting of it; empty / default: keep it.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from dataclasses import fields
 
 from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
@@ -21,19 +24,31 @@ from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.tasks.locomotion import wind_blowing
+from bptsb_ros.sim.wind_schedule import KINDS, WindSchedule, WindScheduleError, for_agent, read_table
 
 NODE = "wind_source"
 PARAMS = topic_params(("clock", "wind")) + (
-    Param("force", "", "F_wind while the wind blows [N, along x]; empty: the agent's locomotion.wind_force", "str"),
-    Param("period", "", "wind cycle [s] (calm half, blowing half; 0: always blowing); empty: the agent's "
-          "locomotion.wind_period", "str"),
+    Param("schedule", "", "wind schedule: constant, periodic, switching or file; empty: the agent's own (switching "
+          "for Lissajous agents, the periodic headwind for locomotion agents)", "str", choices=("",) + KINDS),
+    Param("force", "", "F_x while the wind blows [N]; empty: the schedule's (the agent's locomotion.wind_force, or "
+          "F_wind = 1 for switching)", "str"),
+    Param("force_y", "", "F_y while the wind blows [N]; empty: the schedule's", "str"),
+    Param("period", "", "periodic: wind cycle [s] (calm half, blowing half; 0: always blowing); switching: the SWG "
+          "period [s] segments are counted in; empty: the agent's", "str"),
+    Param("schedule_seed", 0, "switching: seed of the segment lengths and switch phases", "int"),
+    Param("hold_periods", "", "switching: 'lo,hi' whole periods per segment (inclusive); empty: 3,8 (the training's)",
+          "str"),
+    Param("timing", "", "switching: switch phase n/100 of a period: random, fixed (n = 0) or n in 0..99; empty: "
+          "random", "str"),
+    Param("start_on", False, "switching: the first segment blows", "bool"),
+    Param("file", "", "file: CSV table with header t,fx,fy (t [s] ascending; the last row with t <= k·dt is in force "
+          "at step k)", "str"),
 )
 
 
-def _number(name: str, text: str, default: float) -> float:
+def _number(name: str, text: str) -> float | None:
     if not text.strip():
-        return float(default)
+        return None
     try:
         value = float(text)
     except ValueError:
@@ -43,29 +58,69 @@ def _number(name: str, text: str, default: float) -> float:
     return value
 
 
+def schedule_from_parameters(config: dict, extra: dict, p: dict) -> WindSchedule:
+    """The wind schedule of a ``wind_source`` from its parameters ``p`` and the agent's config and checkpoint extras.
+    Raises ParameterError naming the parameter."""
+    try:
+        base = for_agent(config, extra)
+    except WindScheduleError:
+        base = None
+    kind = p["schedule"] or (base.kind if base else "")
+    if not kind:
+        raise ParameterError(f"parameter 'schedule': a {config.get('task')} agent has no wind of its own; choose "
+                             f"one of {', '.join(KINDS)}")
+    fx, fy, period = _number("force", p["force"]), _number("force_y", p["force_y"]), _number("period", p["period"])
+    hold = None
+    if p["hold_periods"].strip():
+        parts = p["hold_periods"].split(",")
+        if len(parts) != 2 or not all(x.strip().isdigit() for x in parts):
+            raise ParameterError(f"parameter 'hold_periods' must be 'lo,hi' (two whole numbers), got "
+                                 f"{p['hold_periods']!r}")
+        hold = (int(parts[0]), int(parts[1]))
+    if kind == "file" and not p["file"]:
+        raise ParameterError("parameter 'file': the file schedule needs a CSV table (t,fx,fy)")
+    settings = schedule_settings(base) if base is not None and base.kind == kind else {"kind": kind}
+    force = settings.get("force", (0.0, 0.0))
+    overrides = {"force": (force[0] if fx is None else fx, force[1] if fy is None else fy), "period": period,
+                 "seed": p["schedule_seed"], "hold_periods": hold, "timing": p["timing"] or None,
+                 "start_on": p["start_on"]}
+    settings.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        if kind == "file":
+            settings.update(table=read_table(p["file"]), source=p["file"])
+        return WindSchedule(**settings)
+    except WindScheduleError as err:
+        raise ParameterError(f"wind schedule: {err}") from None
+
+
+def schedule_settings(schedule: WindSchedule) -> dict:
+    """The fields of ``schedule`` as keyword arguments of WindSchedule."""
+    return {f.name: getattr(schedule, f.name) for f in fields(schedule) if not f.name.startswith("_")}
+
+
 class WindSource(BrainNode):
     def __init__(self, stop: StopFlag) -> None:
         super().__init__(NODE, stop, PARAMS)
-        loc = self.agent.config.get("locomotion", {})
-        self.force = _number("force", self.p["force"], loc.get("wind_force", 0.0))
-        self.period = _number("period", self.p["period"], loc.get("wind_period", 0.0))
-        if self.period < 0:
-            raise ParameterError(f"parameter 'period' must be >= 0, got {self.period}")
+        extra: dict = {}
+        if self.trained:
+            from bptsb_ros.training.checkpoint import read_checkpoint
+
+            extra = read_checkpoint(self.p["agent"])["extra"]
+        self.schedule = schedule_from_parameters(self.agent.config, extra, self.p)
         self.pub = self.output(Vector3Stamped, self.p["topics.wind"], m.command_qos(self.depth))
         self.create_subscription(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
-        self.get_logger().info(f"headwind {self.force:g} N along x, period {self.period:g} s "
-                               f"({'calm half, blowing half' if self.period > 0 else 'always blowing'})")
+        self.get_logger().info(f"wind: {self.schedule.describe()}")
 
-    def wind_at(self, step: int) -> float:
-        """F_wind along x in force at ``step`` [N]."""
-        return self.force if bool(wind_blowing([step], self.agent.dt, self.period)[0]) else 0.0
+    def wind_at(self, step: int) -> tuple[float, float]:
+        """(F_x, F_y) in force at ``step`` [N]."""
+        return self.schedule.force_at(step, self.agent.dt)
 
     def _on_clock(self, msg: Clock) -> None:
         started = time.monotonic()
         step = m.step_of(msg.clock, self.dt_ns)
         out = Vector3Stamped()
         out.header.stamp = m.stamp(step, self.dt_ns)
-        out.vector.x = self.wind_at(step)
+        out.vector.x, out.vector.y = self.wind_at(step)
         self.publish_timed(self.pub, out, started)
 
 

@@ -1,0 +1,117 @@
+"""Lissajous metrics of a replayed live run: the paper's perturbation return criterion and the switching run's
+per-segment errors (paper: Fig. 4(b,c), Methods "Lissajous curve drawing task"; supplement "Behavioral switching").
+
+Both are computed the same way from the live CMP (read from the bag) and from the offline simulation of the same
+agent, wind and perturbations, so ``bptsb replay`` can say whether the live run returned (drew both curves) and
+whether the offline run says the same.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+#: periods at most over which the error after a perturbation is measured (the experiment's eval_periods)
+EVAL_PERIODS = 10
+#: periods skipped at the start of each constant-wind segment of a switching run (the switch transient)
+SEGMENT_TRANSIENT_PERIODS = 2
+
+
+def lissajous_target(config: dict[str, Any]) -> tuple[Callable[[np.ndarray], np.ndarray], int, float, float]:
+    """The agent's single-curve target: (target(t (T,) [s]) → (T, 2) [m], steps per period at the agent's dt,
+    amplitude [m], ω [rad/s]) from its config."""
+    import torch
+
+    from bptsb_ros.tasks.lissajous import lissajous_target as curve
+
+    lc, omega = config.get("lissajous", {}), float(config.get("brain", {}).get("omega", 2 * math.pi))
+    amp = float(lc.get("amplitude_fraction", 0.05)) * float(config.get("body", {}).get("size", 4.0))
+    args = (amp, amp, float(lc.get("alpha", 1)), float(lc.get("beta", 2)), float(lc.get("delta", 0)), omega)
+    dt = float(config.get("body", {}).get("dt", 0.01))
+
+    def target(t: np.ndarray) -> np.ndarray:
+        return curve(torch.as_tensor(t, dtype=torch.float64), *args).numpy()
+
+    return target, int(round(2 * math.pi / omega / dt)), amp, omega
+
+
+def return_metrics(cmp: dict[str, np.ndarray], first_step: int, perturbed_at: int, dt: float,
+                   config: dict[str, Any]) -> dict[str, Any]:
+    """The paper's return criterion E / E_orig < 2 for a perturbed run.
+
+    Args:
+        cmp: CMP trajectories (T, 2) [m] over steps ``first_step`` .. ``first_step + T − 1``: ``live``,
+            ``offline`` (the same perturbation offline) and ``unperturbed`` (the same loop without it: E_orig).
+        perturbed_at: step of the (last) perturbation.
+
+    E is the closed-loop error (per-period minimum over time shifts, mean over periods) over the last P whole
+    periods of the run, P = min(10, half the whole periods after the perturbation) — the same window for all three.
+    """
+    from bptsb_ros.tasks.lissajous import RETURN_RATIO, returned, windowed_shift_error
+
+    target, period, _, _ = lissajous_target(config)
+    n = len(cmp["live"])
+    last = first_step + n - 1
+    after = (last - perturbed_at) // period
+    periods = min(EVAL_PERIODS, after // 2)
+    out: dict[str, Any] = {"perturbed_at_step": int(perturbed_at), "criterion": f"E / E_orig < {RETURN_RATIO:g}"}
+    if periods < 1:
+        out["problem"] = (f"the run ends {last - perturbed_at} steps after the perturbation; the return criterion "
+                          f"needs at least 2 periods ({2 * period} steps)")
+        return out
+    a = n - periods * period - 1
+    t0 = (first_step + a) * dt
+    errors = {k: windowed_shift_error(v[a:], target, t0, dt, period) for k, v in cmp.items()}
+    out.update(eval_periods=periods, eval_steps=[first_step + a, last], E_orig=errors["unperturbed"],
+               E_live=errors["live"], E_offline=errors["offline"],
+               returned_live=bool(returned(errors["live"], errors["unperturbed"])),
+               returned_offline=bool(returned(errors["offline"], errors["unperturbed"])))
+    out["returned_equal"] = out["returned_live"] == out["returned_offline"]
+    return out
+
+
+def wind_segments(wind: np.ndarray) -> list[tuple[int, int, bool]]:
+    """Maximal runs of constant wind in (T, 2) → [(start row, end row (exclusive), blowing)]."""
+    on = np.any(wind != 0, axis=1)
+    change = np.flatnonzero(np.diff(on.astype(np.int8))) + 1
+    bounds = np.concatenate([[0], change, [len(on)]])
+    return [(int(a), int(b), bool(on[a])) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def switching_metrics(cmp: dict[str, np.ndarray], wind: np.ndarray, dt: float, config: dict[str, Any],
+                      extra: dict[str, Any]) -> dict[str, Any]:
+    """Per constant-wind segment of a switching run from step 0: phase-locked MSE / target mean square of the CMP
+    against (1,2,0) without wind and the agent's second curve (``extra['curve_on']``, displaced by
+    ``extra['wind_shift_x']``) with wind, after a transient of 2 periods; for each trajectory in ``cmp`` (T, 2).
+    Segments shorter than transient + 1 period are left out."""
+    from bptsb_ros.experiments.lissajous_switching import DRAWS_NMSE
+    from bptsb_ros.tasks.lissajous_switching import CURVE_1, Curve, switch_targets
+
+    _, period, amp, omega = lissajous_target(config)
+    curve_on = Curve(*extra.get("curve_on", (2, 1, math.pi / 2)))
+    target = switch_targets(CURVE_1, curve_on, amp, omega, float(extra.get("wind_shift_x", 0.0)))
+    n = len(next(iter(cmp.values())))
+    t = np.arange(n) * dt
+    on = np.any(wind[:n] != 0, axis=1).astype(np.float64)
+    tgt = target(t, on)
+    skip = SEGMENT_TRANSIENT_PERIODS * period
+    segments = []
+    for a, b, blowing in wind_segments(wind[:n]):
+        if b - a - skip < period:
+            continue
+        lo = a + skip
+        ms = float(np.mean((tgt[lo:b] - tgt[lo:b].mean(0)) ** 2))
+        seg = {"steps": [lo, b - 1], "wind": blowing, "curve": str(curve_on if blowing else CURVE_1)}
+        for key, traj in cmp.items():
+            seg[f"nmse_{key}"] = float(np.mean((traj[lo:b] - tgt[lo:b]) ** 2)) / ms
+        segments.append(seg)
+    out: dict[str, Any] = {"segments": segments, "draws_nmse": DRAWS_NMSE,
+                           "transient_periods": SEGMENT_TRANSIENT_PERIODS, "_target": tgt}
+    for key in cmp:
+        drawn = [s[f"nmse_{key}"] < DRAWS_NMSE for s in segments]
+        out[f"both_curves_drawn_{key}"] = bool(segments) and all(drawn) and {s["wind"] for s in segments} == {
+            True, False}
+    return out
