@@ -128,7 +128,8 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           positive=True),
     Param("command_publishers", [], "node names ('name' or '/namespace/name') allowed to publish commands; a "
           "command is rejected while any other node publishes on its topic; empty: this package's brains "
-          "(swg_brain, feedback_brain: rest lengths; mlp_brain: forces); '*': any node", "str_list"),
+          "(swg_brain, feedback_brain: rest lengths; mlp_brain: forces; wind_source: wind; mnist_brain: resets); "
+          "'*': any node", "str_list"),
     Param("perturb_at", -1.0, "sim time [s] at which the movable masses are displaced by N(0, perturb_sigma²) per "
           "coordinate (the paper's perturbation; the state of that step is displaced, velocities kept); negative: "
           "none", "float"),
