@@ -34,6 +34,8 @@ NODES = {
     "task_input": "bptsb_ros.ros.task_input",
     "recorder": "bptsb_ros.ros.recorder",
     "wind_source": "bptsb_ros.ros.wind_source",
+    "image_streamer": "bptsb_ros.ros.image_streamer",
+    "mnist_brain": "bptsb_ros.ros.mnist_brain",
 }
 
 # Template of the pip-route wrapper (@NODE@ = node name); it execs <prefix>/bin/<node>, which is where pip puts

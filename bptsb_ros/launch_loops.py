@@ -68,6 +68,8 @@ FEEDBACK = BrainSpec("feedback_brain", ("clock", "spring_lengths"), ("rest_lengt
 TASK_INPUT = BrainSpec("task_input", ("clock",), ("task_input",))
 MLP = BrainSpec("mlp_brain", ("task_input",), ("force_cmd",))
 WIND = BrainSpec("wind_source", ("clock",), ("wind",))
+IMAGES = BrainSpec("image_streamer", ("clock",), ("image", "label"))
+MNIST_BRAIN = BrainSpec("mnist_brain", ("image",), ("reset_cmd",))
 
 LOOPS: dict[str, Loop] = {
     loop.name: loop
@@ -88,6 +90,9 @@ LOOPS: dict[str, Loop] = {
              ("rest_length", "wind")),
         Loop("narma", "expanded NARMA emulation: streamed input u → MLP (or LIL) forces on the masses",
              "narma", (TASK_INPUT, MLP), ("force",)),
+        Loop("mnist_drawing", "see a digit, draw it: streamed MNIST images -> the system's brain -> initial "
+             "displacements; the body is reset to them and released every episode (--agent SYSTEM.pt --images IDX "
+             "--labels IDX)", "mnist_drawing", (IMAGES, MNIST_BRAIN), ("reset",), needs_agent=True),
     )
 }
 
@@ -250,6 +255,11 @@ def launch_arguments(loop: Loop) -> dict[str, tuple[str | None, str]]:
     args: dict[str, tuple[str | None, str]] = dict(LAUNCH_ARGUMENTS)
     if loop.needs_agent:
         args["agent"] = (None, REQUIRED_AGENT)
+    if loop.name == "mnist_drawing":
+        from bptsb_ros.launch_mnist import STREAM_ARGUMENTS
+
+        args["agent"] = (None, "MNIST system file (systems/<name>.pt of the MNIST drawing experiment; required)")
+        args.update(STREAM_ARGUMENTS)
     return args
 
 
@@ -264,7 +274,18 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
     import math
 
     agent = values.get("agent", "")
-    if loop.needs_agent and not agent:
+    if loop.name == "mnist_drawing":  # agent is a system file, not a run directory: launch_mnist checks it
+        from bptsb_ros.launch_mnist import StreamError
+
+        if values.get("mode", "lockstep") != "lockstep":
+            raise LaunchArgumentError(f"mode:={values['mode']}: mnist_drawing resets the body at stated steps, "
+                                      "which needs lockstep")
+        try:
+            mnist_stream_plan(values)
+        except StreamError as err:
+            raise LaunchArgumentError(str(err)) from None
+        values = {**values, "agent": ""}  # skip the run-directory checks below
+    elif loop.needs_agent and not agent:
         raise LaunchArgumentError(f"{loop.name} needs agent:=RUN_DIR, a trained agent with a fitted feedback layer "
                                   "(bptsb train fits it)")
     if values.get("mode", "lockstep") not in ("lockstep", "realtime"):
@@ -288,7 +309,7 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                   perturb_at=number("perturb_at", float, lambda v: True, "a number"),
                   perturb_sigma=number("perturb_sigma", float, lambda v: v >= 0, ">= 0"),
                   perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"))
-    if agent:
+    if values.get("agent"):
         from bptsb_ros.training.checkpoint import CheckpointError, feedback_fitted
 
         if not Path(agent).exists():
@@ -315,10 +336,31 @@ def loop_node_parameters(loop_name: str, executable: str, values: dict[str, str]
     loop, common = resolve_arguments(LOOPS[loop_name], values)
     bag = values.get("bag", "")
     if executable == "recorder":
-        return recorder_parameters(loop, bag, mode=common["mode"], agent=common["agent"],
-                                   open_loop_steps=common["open_loop_steps"])
-    summary_path = str(log_dir_of_bag(bag) / "body_summary.json") if bag and executable == "body_sim" else ""
-    return node_parameters(loop, executable, summary_path=summary_path, **common)
+        params = recorder_parameters(loop, bag, mode=common["mode"], agent=common["agent"],
+                                     open_loop_steps=common["open_loop_steps"])
+    else:
+        summary_path = str(log_dir_of_bag(bag) / "body_summary.json") if bag and executable == "body_sim" else ""
+        params = node_parameters(loop, executable, summary_path=summary_path, **common)
+    if loop_name == "mnist_drawing":
+        from bptsb_ros.launch_mnist import stream_parameters
+
+        params = stream_parameters(mnist_stream_plan(values), executable, params, recording=bool(bag),
+                                   duration=common["duration"])
+    return params
+
+
+def mnist_stream_plan(values: dict[str, str]):  # -> launch_mnist.StreamPlan
+    """The checked stream of an ``mnist_drawing`` launch from its arguments (strings); raises StreamError."""
+    from bptsb_ros.launch_mnist import StreamError, plan_stream
+
+    numbers = {}
+    for name in ("first", "count", "episode_steps"):
+        text = values.get(name) or "0"
+        try:
+            numbers[name] = int(text)
+        except ValueError:
+            raise StreamError(f"{name}:={text}: not an integer") from None
+    return plan_stream(values.get("agent", ""), values.get("images", ""), values.get("labels", ""), **numbers)
 
 
 def params_file_text(executable: str, params: dict[str, ParamValue]) -> str:

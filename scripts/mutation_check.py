@@ -51,6 +51,7 @@ TASKS = "tests/test_tasks.py"
 # The numba kernel is the default backend, so the physics tests run through it; test_kernel.py pins the torch
 # path to the kernel (float64, 1e-12), which is how a mutant of the torch path is caught.
 BODY = ("tests/test_physics.py", "tests/test_simulate.py", "tests/test_kernel.py")
+MNIST_LIVE = "tests/test_mnist_live.py"
 RECORDED_QOS = ("tests/test_bags_writer.py", "tests/test_bags_recorder.py::test_stop_signal_keeps_every_message")
 
 MUTANTS: tuple[Mutant, ...] = (
@@ -118,6 +119,23 @@ MUTANTS: tuple[Mutant, ...] = (
            'out["trajectory_mse_shift_min"] = 2 * windowed_shift_error(',
            "replay's trajectory_mse_shift_min ×2",
            ("tests/test_replay.py::test_replay_lissajous_metric_of_a_planted_run",)),
+    # -- issue 8 §5: the live MNIST loop ----------------------------------------------------------------
+    Mutant("mnist-live-no-reset", "bptsb_ros/ros/body_sim.py",
+           "return None if cmd is None else torch.from_numpy(cmd.values)",
+           "return None",
+           "body_sim ignores every accepted reset", (MNIST_LIVE,)),
+    Mutant("mnist-live-await-every-step", "bptsb_ros/ros/body_sim.py",
+           "if not self.silent[s] and self.channels[s].due(step)",
+           "if not self.silent[s]",
+           "body_sim awaits a reset at every step, not only at reset steps", (MNIST_LIVE,)),
+    Mutant("mnist-live-pixels-256", "bptsb_ros/tasks/mnist_live.py",
+           "astype(np.float32) / 255.0)",
+           "astype(np.float32) / 256.0)",
+           "live pixels / 256 instead of / 255", (MNIST_LIVE,)),
+    Mutant("mnist-live-reset-bound-x10", "bptsb_ros/ros/safety.py",
+           "far = np.flatnonzero(norm > self.max_displacement)",
+           "far = np.flatnonzero(norm > 10 * self.max_displacement)",
+           "reset displacement bound ×10", (MNIST_LIVE,)),
     Mutant("narma-0.4", "bptsb_ros/tasks/narma.py",
            "y[t + 1] = 0.3 * y[t] + np.sum",
            "y[t + 1] = 0.4 * y[t] + np.sum",

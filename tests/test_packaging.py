@@ -21,7 +21,8 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = "bptsb_ros"
-NODES = ("body_sim", "swg_brain", "mlp_brain", "feedback_brain", "task_input", "recorder", "wind_source")
+NODES = ("body_sim", "swg_brain", "mlp_brain", "feedback_brain", "task_input", "recorder", "wind_source",
+         "image_streamer", "mnist_brain")
 # Top-level entries of the checkout that are not part of the package source.
 NOT_SOURCE = {".git", ".venv", ".ci", "build", "install", "log", "runs", "bags", "tests", "dist",
               ".pytest_cache", ".ruff_cache", "bench.json"}

@@ -43,7 +43,8 @@ def test_closed_loops_require_an_agent_and_open_loops_do_not():
         default, text = launch_arguments(loop)["agent"]
         if loop.needs_agent:
             assert default is None and "required" in text, name
-            with pytest.raises(LaunchArgumentError, match=f"{name} needs agent:=RUN_DIR"):
+            need = "needs an MNIST system file" if name == "mnist_drawing" else "needs agent:=RUN_DIR"
+            with pytest.raises(LaunchArgumentError, match=f"{name} {need}"):
                 resolve_arguments(loop, {"agent": ""})
         else:
             assert default == "" and "fresh untrained agent" in text, name
@@ -245,3 +246,32 @@ def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
         assert abs(log_time - stamp) <= 200_000_000  # is logged near its step's sim time (its /clock subscription
         # can run a few steps ahead of a backlog on a loaded machine); wall time would be ~1.8e18 ns
     assert abs(meta["duration"]["nanoseconds"] - stamps[-1]) <= 200_000_000  # the bag lasts the simulated time
+
+
+def test_mnist_drawing_launch_file_runs_one_episode(tmp_path, ros_env):
+    """``ros2 launch bptsb_ros mnist_drawing.launch.py`` with a system file and a planted stream: one image (label 1,
+    a 64-step target) in an episode of 80 steps; the launch ends by itself after the episode, the bag holds every
+    step, the reset at step 0 and the episode length in its custom_data. A realtime mode is refused up front."""
+    from test_mnist_live import write_stream, write_system
+
+    images, labels, _ = write_stream(tmp_path)
+    write_system(tmp_path / "sys.pt")
+    values = {"agent": str(tmp_path / "sys.pt"), "images": images, "labels": labels, "first": "1", "count": "1",
+              "episode_steps": "80", "bag": str(tmp_path / "bag")}
+    assert loop_node_parameters("mnist_drawing", "body_sim", values)["max_steps"] == 79
+    assert "episode_steps=80" in loop_node_parameters("mnist_drawing", "recorder", values)["custom_data"]
+    with pytest.raises(LaunchArgumentError, match="needs lockstep"):
+        resolve_arguments(LOOPS["mnist_drawing"], {**values, "mode": "realtime"})
+    env = _tools_env(ros_env)
+    out = _run(["ros2", "launch", "bptsb_ros", "mnist_drawing.launch.py",
+                *(f"{name}:={value}" for name, value in values.items())], env, timeout=180)
+    text = out.stdout + out.stderr
+    assert out.returncode == 0, text[-4000:]
+    stamps = [msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec for _, _, msg in
+              _read_bag(tmp_path / "bag")]
+    assert stamps == [10_000_000 * k for k in range(80)]
+    meta = yaml.safe_load((tmp_path / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["custom_data"]["episode_steps"] == "80" and meta["custom_data"]["loop"] == "mnist_drawing"
+    from bptsb_ros.bags.reader import read_messages
+
+    assert [m.header.stamp.nanosec for *_, m in read_messages(tmp_path / "bag", ["/body/reset"])] == [0]

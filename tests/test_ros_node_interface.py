@@ -100,11 +100,12 @@ def test_check_cli_accepts_only_ros_arguments():
 # -- parameter tables -------------------------------------------------------------------------------------
 def _node_specs():
     from bptsb_ros.bags.recording import RECORDER_PARAMS
-    from bptsb_ros.ros import body_sim, feedback_brain, mlp_brain, swg_brain, task_input
+    from bptsb_ros.ros import body_sim, feedback_brain, image_streamer, mlp_brain, mnist_brain, swg_brain, task_input
     from bptsb_ros.ros.brain_node import COMMON_PARAMS
 
     return {"body_sim": body_sim.PARAMS, "recorder": RECORDER_PARAMS,
-            **{m.NODE: COMMON_PARAMS + m.PARAMS for m in (feedback_brain, mlp_brain, swg_brain, task_input)}}
+            **{m.NODE: COMMON_PARAMS + m.PARAMS for m in (feedback_brain, mlp_brain, swg_brain, task_input,
+                                                         image_streamer, mnist_brain)}}
 
 
 def test_live_parameters_are_the_documented_ones():
@@ -113,7 +114,7 @@ def test_live_parameters_are_the_documented_ones():
         "body_sim": {"wind", "rate_scale", "marker_every", "diagnostics_period", "log_level"},
         "feedback_brain": {"gain", "noise", "log_level"},
         "recorder": {"log_level"}, "mlp_brain": {"log_level"}, "swg_brain": {"log_level"},
-        "task_input": {"log_level"},
+        "task_input": {"log_level"}, "image_streamer": {"log_level"}, "mnist_brain": {"log_level"},
     }
 
 
@@ -276,7 +277,8 @@ def test_late_joiner_of_a_command_topic_gets_no_backlog(ros_domain_id):
         probe.close()
 
 
-@pytest.mark.parametrize("node", ["swg_brain", "feedback_brain", "mlp_brain", "task_input"])
+@pytest.mark.parametrize("node", ["swg_brain", "feedback_brain", "mlp_brain", "task_input", "image_streamer",
+                                  "mnist_brain"])
 def test_brains_default_to_sim_time_and_the_params_files_agree(node, repo_root):
     import yaml
 

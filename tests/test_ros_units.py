@@ -104,7 +104,7 @@ def test_params_files_match_the_declared_parameters():
 
 def test_loop_wiring():
     assert set(LOOPS) == {"lissajous_open", "lissajous_closed", "locomotion_open", "locomotion_closed",
-                          "locomotion_headwind", "lissajous_switching", "narma"}
+                          "locomotion_headwind", "lissajous_switching", "narma", "mnist_drawing"}
     switching = LOOPS["lissajous_switching"]
     assert switching.wait_for == ("rest_length", "wind") and [b.executable for b in switching.brains] == [
         "swg_brain", "wind_source"]

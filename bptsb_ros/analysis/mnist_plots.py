@@ -199,3 +199,43 @@ def plot_curves(path: Path, curves: dict[str, Sequence[float]], ylabel: str, tit
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7)
     return _save(fig, path)
+
+
+def plot_live_drawings(path: Path, live: np.ndarray, offline: np.ndarray | None, targets: Sequence[np.ndarray],
+                       labels: np.ndarray, errors: np.ndarray, dt: float, reset_steps: Sequence[int],
+                       max_panels: int = 20) -> Path:
+    """The live MNIST loop (``bptsb replay``): one panel per episode (the first ``max_panels``) with its label's
+    target (grey), the live drawing coloured by time and, when given, the offline drawing of the same image (black
+    dashed); the panel title gives the label, the reset step and the live MSE.
+
+    ``live``, ``offline``: (n, E, 2) [m] relative to the CMP's rest position; ``targets``: per digit (T_d + 1, 2).
+    """
+    n = min(len(live), max_panels)
+    cols = min(n, 5)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols + 0.8, 2.6 * rows + 0.6), squeeze=False)
+    lim = _limits([targets[int(d)] for d in labels[:n]] + [live[i, : len(targets[int(labels[i])])] for i in range(n)])
+    t_max = (live.shape[1] - 1) * dt
+    lc = None
+    for i, ax in enumerate(axes.flat):
+        if i >= n:
+            ax.axis("off")
+            continue
+        tgt = targets[int(labels[i])]
+        ax.plot(tgt[:, 0], tgt[:, 1], color="0.75", lw=4, zorder=0, label="target")
+        steps = len(tgt)
+        lc = _time_line(ax, live[i, :steps], dt, t_max, lw=1.8)
+        if offline is not None:
+            ax.plot(offline[i, :steps, 0], offline[i, :steps, 1], "k--", lw=0.8, label="offline")
+        _digit_axes(ax, f"{int(labels[i])} (step {reset_steps[i]}): {errors[i]:.3g} m²", lim)
+        ax.set_xlabel("x [m]", fontsize=7)
+        ax.set_ylabel("y [m]", fontsize=7)
+    axes.flat[0].legend(fontsize=6, loc="best")
+    if lc is not None:
+        fig.colorbar(lc, ax=axes, label="time since release [s]", shrink=0.8)
+    fig.suptitle("Live drawings (coloured by time) over their targets (grey)"
+                 + ("; offline drawing of the same image dashed" if offline is not None else ""), fontsize=10)
+    path = Path(path)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path

@@ -290,6 +290,10 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
         raise NotADirectoryError(errno.ENOTDIR, "it exists and is not a directory", str(out_dir))
     out_dir.mkdir(parents=True, exist_ok=True)
     custom = bag_custom_data(bag)
+    if (loop or custom.get("loop")) == "mnist_drawing":  # episodes of drawings: analysis/mnist_replay.py
+        from bptsb_ros.analysis.mnist_replay import replay_mnist
+
+        return replay_mnist(bag, out_dir, agent_dir, gif=gif, skip_damaged=skip_damaged)
     named = custom.get("agent") if custom.get("agent") not in (None, "", "fresh") else None
     config: dict[str, Any] = {}
     if agent_dir is not None:

@@ -50,6 +50,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="standard deviation of the perturbation [m]")
     parser.add_argument("--perturb-seed", type=int, default=0, metavar="N",
                         help="seed of the perturbation's standard-normal pattern (bptsb_ros.sim.perturbation)")
+    stream = parser.add_argument_group("mnist_drawing (see a digit, draw it; --agent is an MNIST system file)")
+    stream.add_argument("--images", default="", metavar="IDX", help="IDX file of the streamed images (gz or not)")
+    stream.add_argument("--labels", default="", metavar="IDX", help="IDX file of their labels")
+    stream.add_argument("--first", type=int, default=0, metavar="N", help="index of the first image streamed")
+    stream.add_argument("--count", type=int, default=0, metavar="N",
+                        help="images streamed, one per episode (0: all from --first on)")
+    stream.add_argument("--episode-steps", type=int, default=0, metavar="E",
+                        help="steps per episode, image i at step i*E (0: the longest digit target's steps + 1)")
     parser.add_argument("--param", action="append", default=[], metavar="NODE:NAME:=VALUE",
                         help="extra ROS parameter for one node, e.g. body_sim:command_timeout:=5 (repeatable)")
     parser.add_argument("--log-dir", default="", metavar="DIR",
@@ -295,7 +303,19 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.launch_loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
     loop = LOOPS[args.loop]
-    if loop.needs_agent and not args.agent:
+    plan = None
+    if loop.name == "mnist_drawing":  # --agent is a system file: checked with the stream, before any node starts
+        from bptsb_ros.launch_mnist import StreamError, plan_stream
+
+        if args.mode != "lockstep":
+            print("error: mnist_drawing resets the body at stated steps, which needs --mode lockstep", file=sys.stderr)
+            return 2
+        try:
+            plan = plan_stream(args.agent, args.images, args.labels, args.first, args.count, args.episode_steps)
+        except StreamError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+    elif loop.needs_agent and not args.agent:
         print(f"error: loop {loop.name} needs --agent RUN_DIR (a trained agent with a fitted feedback layer)",
               file=sys.stderr)
         return 2
@@ -305,7 +325,7 @@ def run(args: argparse.Namespace) -> int:
     if args.perturb_sigma < 0 or (args.perturb_sigma > 0 and args.perturb_at < 0):
         print("error: --perturb-sigma must be >= 0 and needs --perturb-at T (sim seconds, >= 0)", file=sys.stderr)
         return 2
-    if args.agent:
+    if args.agent and plan is None:
         if not Path(args.agent).exists():
             print(f"error: --agent {args.agent}: no such run directory", file=sys.stderr)
             return 2
@@ -345,19 +365,26 @@ def run(args: argparse.Namespace) -> int:
                   rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps)
     brain_common = dict(common)
     common.update(perturb_at=args.perturb_at, perturb_sigma=args.perturb_sigma, perturb_seed=args.perturb_seed)
+
+    def with_stream(executable: str, params: dict) -> dict:
+        if plan is None:
+            return params
+        from bptsb_ros.launch_mnist import stream_parameters
+
+        return stream_parameters(plan, executable, params, recording=bool(args.bag), duration=args.duration)
+
     children: list[Child] = []
-    body = Child("body_sim", node_argv("body_sim", node_parameters(loop, "body_sim", summary_path=str(summary_path),
-                                                                   **common), extra["body_sim"]),
-                 log_dir / "body_sim.log")
+    body_params = with_stream("body_sim", node_parameters(loop, "body_sim", summary_path=str(summary_path), **common))
+    body = Child("body_sim", node_argv("body_sim", body_params, extra["body_sim"]), log_dir / "body_sim.log")
     children.append(body)
     for brain in loop.brains:
-        params = node_parameters(loop, brain.executable, **brain_common)
+        params = with_stream(brain.executable, node_parameters(loop, brain.executable, **brain_common))
         children.append(Child(brain.executable, node_argv(brain.executable, params, extra[brain.executable]),
                               log_dir / f"{brain.executable}.log"))
     recorder = None
     if args.bag:
-        params = recorder_parameters(loop, args.bag, mode=args.mode, agent=args.agent,
-                                     open_loop_steps=args.open_loop_steps)
+        params = with_stream("recorder", recorder_parameters(loop, args.bag, mode=args.mode, agent=args.agent,
+                                                             open_loop_steps=args.open_loop_steps))
         recorder = Child("recorder", node_argv("recorder", params, extra["recorder"]), log_dir / "recorder.log")
         children.append(recorder)
 

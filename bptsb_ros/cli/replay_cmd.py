@@ -15,8 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", help="bag directory (metadata.yaml + .mcap) or a .mcap file")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--agent", default=None,
-                        help="run directory of the agent; without it no agent is loaded (a path stored in "
-                        "the bag is only printed, never loaded: bags are untrusted data)")
+                        help="run directory of the agent (mnist_drawing: the MNIST system file); without it no agent "
+                        "is loaded (a path stored in the bag is only printed, never loaded: bags are untrusted data)")
     parser.add_argument("--task", choices=("lissajous", "locomotion", "narma"), default=None,
                         help="task whose metric to compute (default: the agent's)")
     from bptsb_ros.launch_loops import LOOPS  # ROS-free: keeps --help fast

@@ -7,7 +7,8 @@ import importlib
 import sys
 
 NAME = "run"
-HELP = "run one ROS 2 node: body_sim, swg_brain, mlp_brain, feedback_brain, task_input or recorder"
+HELP = ("run one ROS 2 node: body_sim, swg_brain, mlp_brain, feedback_brain, task_input, recorder, image_streamer or "
+        "mnist_brain")
 
 NODES: dict[str, str] = {
     "body_sim": "soft-body simulator: publishes /clock and the body state, integrates brain commands",
@@ -16,6 +17,8 @@ NODES: dict[str, str] = {
     "feedback_brain": "feedback layer: body state → rest-length commands (closed loop)",
     "task_input": "streams the task's input series (NARMA u) on each /clock tick",
     "recorder": "records topics to a rosbag2 MCAP bag (parameters bag_path, topics)",
+    "image_streamer": "MNIST loop: one IDX image per episode on camera/image (parameters images, labels)",
+    "mnist_brain": "MNIST loop: camera/image → initial displacements on body/reset (agent: a system file)",
 }
 
 

@@ -130,6 +130,15 @@ def _read_bytes(path: Path) -> bytes:
         raise MnistError(f"{path}: cannot read ({err})") from None
 
 
+def read_idx(path: str | Path) -> np.ndarray:
+    """One IDX file (gzipped when its name ends in ``.gz``) as a uint8 array, unverified (a stream of your own
+    images for the live loop); raises MnistError naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise MnistError(f"{path}: no such file")
+    return parse_idx(_read_bytes(path), str(path))
+
+
 def _custom_checksums(directory: Path) -> dict[str, str] | None:
     path = directory / CHECKSUM_FILE
     if not path.is_file():

@@ -24,8 +24,9 @@ TASK_BODIES: dict[str, tuple[str, int]] = {
 }
 
 SOURCE_PARAMS: tuple[Param, ...] = (
-    Param("agent", "", "run directory (or checkpoint.pt) of a trained agent; empty: a fresh, untrained agent "
-          "from 'config' or from 'task' and the shape parameters", "str"),
+    Param("agent", "", "run directory (or checkpoint.pt) of a trained agent, or an MNIST system file (systems/"
+          "<name>.pt, or a run directory holding just one); empty: a fresh, untrained agent from 'config' or from "
+          "'task' and the shape parameters", "str"),
     Param("config", "", "experiment YAML of a fresh agent (used when 'agent' is empty)", "str"),
     Param("task", "lissajous", "task of a fresh agent (when 'agent' and 'config' are empty)", "str", choices=TASKS),
     Param("shape", "", "body shape of a fresh agent; empty: the task's default", "str",
@@ -67,8 +68,11 @@ def fresh_config(values: dict[str, Any]) -> dict[str, Any]:
 def load_source(values: dict[str, Any]) -> tuple[Agent, bool]:
     """Build the agent named by the source parameters, in the parameter ``dtype``, parameters frozen.
 
+    An MNIST system file (``tasks.mnist_drawing.save_system``) gives the agent of ``tasks.mnist_live.system_agent``:
+    the system's body, the whole system as brain.
+
     Returns:
-        (agent, trained): ``trained`` is True for an agent loaded from a run directory.
+        (agent, trained): ``trained`` is True for an agent loaded from a run directory or a system file.
 
     Raises:
         ParameterError: naming ``agent``, ``config`` or the shape parameter that is wrong.
@@ -78,7 +82,14 @@ def load_source(values: dict[str, Any]) -> tuple[Agent, bool]:
 
     dtype = dtype_of(values["dtype"])
     if values["agent"]:
+        from bptsb_ros.tasks.mnist_live import SystemFileError, is_system_file, system_agent
         from bptsb_ros.training.checkpoint import CheckpointError, load_agent
+
+        try:
+            if is_system_file(values["agent"]):
+                return system_agent(values["agent"], dtype), True
+        except SystemFileError as err:
+            raise ParameterError(f"parameter 'agent': {err}") from None
 
         try:
             return load_agent(values["agent"], dtype=dtype), True

@@ -10,6 +10,10 @@ state and RViz/Foxglove markers, and integrates the rest-length and force comman
 * ``realtime``: a wall-clock loop at rate_scale/dt that uses the newest command and reports
   jitter, deadline misses, command age and latency on ``/diagnostics`` and at shutdown.
 
+With ``reset_every`` = E > 0 (loop ``mnist_drawing``) the body also takes resets on ``body/reset`` at steps k with
+k % E == 0 (awaited there with ``reset`` in ``wait_for``): the state of step k is then the body at rest at layout +
+the reset's displacement, from which the following steps integrate (``TOPICS.md``, "Resets").
+
 Bad commands (wrong length, NaN/inf, out of physical bounds, stale, stamped beyond the next step, or sent
 while a node not in ``command_publishers`` publishes on the topic) are rejected with a log line and counted;
 the rules live in ``lockstep`` and ``safety`` (ROS-free). A brain that stops sending (no command within
@@ -124,7 +128,8 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           positive=True),
     Param("command_publishers", [], "node names ('name' or '/namespace/name') allowed to publish commands; a "
           "command is rejected while any other node publishes on its topic; empty: this package's brains "
-          "(swg_brain, feedback_brain: rest lengths; mlp_brain: forces); '*': any node", "str_list"),
+          "(swg_brain, feedback_brain: rest lengths; mlp_brain: forces; wind_source: wind; mnist_brain: resets); "
+          "'*': any node", "str_list"),
     Param("perturb_at", -1.0, "sim time [s] at which the movable masses are displaced by N(0, perturb_sigma²) per "
           "coordinate (the paper's perturbation; the state of that step is displaced, velocities kept); negative: "
           "none", "float"),
@@ -133,6 +138,9 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "(bptsb_ros.sim.perturbation)", "int"),
     Param("perturb_publishers", list(DEFAULT_PERTURB_PUBLISHERS), "node names allowed to publish on body/perturb "
           "('*': any node)", "str_list"),
+    Param("reset_every", 0, "resets (body/reset, loop mnist_drawing): the body takes a reset only at steps k with "
+          "k % reset_every == 0 (with 'reset' in wait_for it waits for one there, lockstep only); the state of step k "
+          "is then the body at rest at layout + displacement; 0: no resets", "int", minimum=0),
     Param("on_divergence", "restore", "when a step diverges: restore (last good state + safe command, go on) or "
           "stop (end the run cleanly); an ERROR diagnostic is published either way", "str",
           choices=DIVERGENCE_POLICIES),
@@ -197,8 +205,12 @@ class BodySim(Node):
                                         ("force", 2 * body.n_movable, self.dof_names),
                                         # used when "wind" is in wait_for (a wind_source node): the wind of
                                         # step k, stamped and synchronised like a command
-                                        ("wind", 2, ["x", "y"]))
+                                        ("wind", 2, ["x", "y"]),
+                                        # body/reset: displacements (x, y) of the movable masses at steps k with
+                                        # k % reset_every == 0 (every=0: resets off)
+                                        ("reset", 2 * body.n_movable, self.dof_names))
         }
+        self.channels["reset"].every = p["reset_every"]
         allowed = tuple(p["command_publishers"])
         self.publisher_rules = {s: PublisherRule(s, allowed) for s in self.channels}
         # perturbations: stamped with the step whose state they displace, queued until the body reaches it
@@ -218,6 +230,11 @@ class BodySim(Node):
         self.divergence: DivergenceRecovery[BodyState] = DivergenceRecovery(p["on_divergence"])
         self.diverged_stop = False
         self.wait_sources: list[str] = list(dict.fromkeys(p["wait_for"]))
+        if "reset" in self.wait_sources and not p["reset_every"]:
+            raise ParameterError("parameter 'wait_for' contains reset but 'reset_every' is 0: set the episode length")
+        if p["reset_every"] and p["mode"] != "lockstep":
+            raise ParameterError("parameter 'reset_every': resets take effect at a stated step, which needs mode "
+                                 "lockstep")
         self.silent: dict[str, bool] = {s: False for s in self.channels}
         self.wind: np.ndarray | None = None
         if any(p["wind"]):
@@ -252,6 +269,8 @@ class BodySim(Node):
                                               lambda msg: self._on_command("force", msg), sq),
             "wind": self.create_subscription(Vector3Stamped, topic["wind"], self._on_wind, sq),
             "perturbation": self.create_subscription(JointState, topic["perturb_cmd"], self._on_perturb, sq),
+            "reset": self.create_subscription(JointState, topic["reset_cmd"],
+                                              lambda msg: self._on_command("reset", msg), sq),
         }
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
@@ -547,7 +566,8 @@ class BodySim(Node):
         deadline = time.monotonic() + self.p["command_timeout"]
         while not self.stop:
             self._drain()
-            missing = [s for s in self.wait_sources if not self.silent[s] and not self.channels[s].has(step)]
+            missing = [s for s in self.wait_sources if not self.silent[s] and self.channels[s].due(step)
+                       and not self.channels[s].has(step)]
             if not missing:
                 return
             now = time.monotonic()
@@ -580,7 +600,17 @@ class BodySim(Node):
 
     def _integrate(self, state: BodyState | None, step: int) -> BodyState:
         rest, force, safe = self._command(step)
-        new = self._advance(state, rest, force)
+        reset = self._reset(step)
+        if reset is not None:  # released from rest at layout + displacement: the state of step k, not integrated
+            with torch.no_grad():
+                fresh = self.body.initial_state(1, rest_length=rest, external_force=force,
+                                                displacement=reset.to(rest.dtype).view(1, -1, 2))
+            state, new = None, BodyState(fresh.r, fresh.v, fresh.a, fresh.length, step)
+        elif self.channels["reset"].due(step) and "reset" in self.wait_sources:
+            safe = True  # an awaited reset that never came: the body runs on, unreset
+            new = self._advance(state, rest, force)
+        else:
+            new = self._advance(state, rest, force)
         problem = self._divergence(new)
         if problem:
             new, rest, force, safe = self._recover(state, step, problem)
@@ -595,6 +625,13 @@ class BodySim(Node):
         self._publish_state(new, rest, force)
         self.stats.steps = step
         return new
+
+    def _reset(self, step: int) -> torch.Tensor | None:
+        """The accepted reset (displacements (2M,) [m]) that takes effect at ``step``, or None."""
+        if not self.channels["reset"].due(step):
+            return None
+        cmd = self.channels["reset"].take(step)
+        return None if cmd is None else torch.from_numpy(cmd.values)
 
     def _recover(self, state: BodyState | None, step: int,
                  problem: str) -> tuple[BodyState, torch.Tensor, torch.Tensor | None, bool]:
@@ -766,7 +803,7 @@ def summary_text(summary: dict[str, Any]) -> str:
 SUMMARY_GROUPS = {"jitter_ms_": "jitter [ms]", "compute_ms_": "compute [ms]",
                   "command_latency_ms_": "command latency [ms]", "command_age_steps_": "command age [steps]",
                   "rest_length_": "rest-length commands", "force_": "force commands", "wind_": "wind",
-                  "perturbation_": "perturbations"}
+                  "perturbation_": "perturbations", "reset_": "resets"}
 
 
 def main(args: list[str] | None = None) -> int:

@@ -31,7 +31,7 @@ import numpy as np
 Mode = Literal["lockstep", "realtime"]
 MODES: tuple[str, ...] = ("lockstep", "realtime")
 REJECT_REASONS: tuple[str, ...] = ("wrong_length", "wrong_names", "non_finite", "out_of_bounds", "stale", "duplicate",
-                                   "too_far_ahead", "untrusted_publisher", "queue_full")
+                                   "too_far_ahead", "untrusted_publisher", "queue_full", "off_schedule")
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,8 @@ class CommandChannel:
         max_ahead: furthest step ahead of the next one a command may be stamped for (both modes).
         max_age_steps: realtime: oldest usable command, in steps behind the step being integrated.
         bounds: physical check of finite values: returns why they are out of bounds, or None.
+        every: commands are taken only for steps k with k % every == 0 (1: every step; 0: none, the source is
+            off); one stamped for another step is rejected (``off_schedule``). The body's resets use it.
     """
 
     name: str
@@ -72,6 +74,7 @@ class CommandChannel:
     max_ahead: int = 1
     max_age_steps: int = 10
     bounds: Callable[[np.ndarray], str | None] | None = None
+    every: int = 1
     pending: dict[int, Command] = field(default_factory=dict)
     latest: Command | None = None
     accepted: int = 0
@@ -83,6 +86,8 @@ class CommandChannel:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         if self.size <= 0:
             raise ValueError(f"channel {self.name}: size must be positive, got {self.size}")
+        if self.every < 0:
+            raise ValueError(f"channel {self.name}: every must be >= 0, got {self.every}")
 
     def offer(self, step: int, values: np.ndarray, next_step: int, now: float,
               names: list[str] | None = None) -> Rejection | None:
@@ -123,6 +128,9 @@ class CommandChannel:
         problem = self.bounds(vals) if self.bounds is not None else None
         if problem:
             return self._reject("out_of_bounds", f"{what}: {problem}")
+        if not self.due(step):
+            rule = f"only steps that are multiples of {self.every}" if self.every else "none: the source is off"
+            return self._reject("off_schedule", f"{what}: this channel takes {rule}")
         if step > next_step + self.max_ahead:
             return self._reject("too_far_ahead", f"{what}: more than {self.max_ahead} step(s) ahead of {next_step}")
         if self.mode == "lockstep":
@@ -144,6 +152,10 @@ class CommandChannel:
     def _reject(self, reason: str, message: str) -> Rejection:
         self.rejected[reason] += 1
         return Rejection(reason, f"rejected {message}")
+
+    def due(self, step: int) -> bool:
+        """Whether a command for ``step`` is on this channel's schedule (``every``)."""
+        return self.every > 0 and step % self.every == 0
 
     def has(self, step: int) -> bool:
         """Lockstep: a command for ``step`` is queued. Realtime: a usable newest command exists."""

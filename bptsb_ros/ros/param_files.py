@@ -21,6 +21,8 @@ NODES: dict[str, str] = {
     "mlp_brain": "bptsb_ros.ros.mlp_brain",
     "task_input": "bptsb_ros.ros.task_input",
     "wind_source": "bptsb_ros.ros.wind_source",
+    "image_streamer": "bptsb_ros.ros.image_streamer",
+    "mnist_brain": "bptsb_ros.ros.mnist_brain",
 }
 SIM_TIME = ("use_sim_time", True, "brains run on the body's /clock (sim time)")
 

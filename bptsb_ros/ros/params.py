@@ -156,6 +156,9 @@ READ_ONLY_REASONS: dict[str, str] = {
                      "timing", "start_on", "file"), "part of the run's definition "
                     "that the offline comparison of the bag (bptsb replay) reproduces"),
     "noise_seed": "the noise generator is seeded once, so that a run with noise can be repeated",
+    **dict.fromkeys(("images", "labels", "first", "count", "episode_steps", "reset_every"), "the image stream and "
+                    "its episodes are the run's definition, which the bag records and bptsb replay splits and "
+                    "compares offline"),
     **dict.fromkeys(("bag_path", "chunk_size", "compression", "custom_data"), "the bag is opened with it at "
                     "startup"),
     **dict.fromkeys(("topics", "exclude_topics", "include_hidden_topics", "discovery_period", "queue_depth"),

@@ -32,6 +32,7 @@ DEFAULT_PUBLISHERS: dict[str, tuple[str, ...]] = {
     "rest_length": ("swg_brain", "feedback_brain"),
     "force": ("mlp_brain",),
     "wind": ("wind_source",),  # only when body_sim awaits a synchronised (stamped) wind: wait_for contains wind
+    "reset": ("mnist_brain",),  # body/reset: initial displacements of a released body (loop mnist_drawing)
 }
 #: Default publishers allowed to perturb the body (``perturb_publishers``): any node. A perturbation is a test the
 #: user runs (``ros2 topic pub``, a script), bounded by ``max_displacement``; list node names to restrict it.
@@ -74,7 +75,9 @@ def rest_length_floor(rest: np.ndarray, amplitude: np.ndarray | None) -> float:
 class CommandLimits:
     """Physical bounds of commands: rest lengths in (min_rest_length, max_rest_length] [m], |force component| <=
     max_force [N], |wind component| <= max_wind [N], |displacement component| of a perturbation <=
-    max_displacement [m]."""
+    max_displacement [m], and the length of each mass's reset displacement (x, y) at most max_displacement
+    (``for_body``: the body's extent; a body released from farther away than its own size is no drawing, only a
+    numerical risk)."""
 
     max_rest_length: float
     max_force: float = DEFAULT_MAX_FORCE
@@ -100,9 +103,16 @@ class CommandLimits:
                    max_displacement=body_extent(positions))
 
     def check(self, source: str, values: np.ndarray) -> str | None:
-        """Why finite ``values`` of command ``source`` (rest_length, force, wind or perturbation) are out of bounds,
-        or None."""
+        """Why finite ``values`` of command ``source`` (rest_length, force, wind, perturbation or reset) are out of
+        bounds, or None."""
         vals = np.asarray(values, dtype=np.float64).reshape(-1)
+        if source == "reset":  # (x, y) displacement per movable mass
+            norm = np.hypot(vals[0::2], vals[1::2])
+            far = np.flatnonzero(norm > self.max_displacement)
+            if not far.size:
+                return None
+            return (f"displacement of {norm[far[0]]:.6g} m of movable mass {int(far[0])} beyond "
+                    f"{self.max_displacement:g} m ({far.size} mass(es) out of bounds)")
         if source == "perturbation":
             bad = np.flatnonzero(np.abs(vals) > self.max_displacement)
             bound = f"[-{self.max_displacement:g}, {self.max_displacement:g}] m (the body's extent)"

@@ -42,16 +42,20 @@ TOPICS: dict[str, Topic] = {
         Topic("task_input", "task/input", "sensor_msgs/msg/JointState"),
         Topic("perturb_cmd", "body/perturb", "sensor_msgs/msg/JointState"),
         Topic("perturbation", "body/perturbation", "sensor_msgs/msg/JointState"),
+        Topic("image", "camera/image", "sensor_msgs/msg/Image"),
+        Topic("label", "camera/label", "sensor_msgs/msg/JointState"),
+        Topic("reset_cmd", "body/reset", "sensor_msgs/msg/JointState"),
     )
 }
 
 #: Keys of the topics ``body_sim`` publishes, and of those it subscribes to.
 BODY_OUTPUTS: tuple[str, ...] = ("clock", "positions", "mass_states", "spring_lengths", "rest_length",
                                  "external_force", "markers", "diagnostics", "perturbation")
-BODY_INPUTS: tuple[str, ...] = ("rest_length_cmd", "force_cmd", "wind", "perturb_cmd")
+BODY_INPUTS: tuple[str, ...] = ("rest_length_cmd", "force_cmd", "wind", "perturb_cmd", "reset_cmd")
 
 #: Command sources the body can wait for in lockstep, by the topic key they arrive on.
-COMMAND_SOURCES: dict[str, str] = {"rest_length": "rest_length_cmd", "force": "force_cmd", "wind": "wind"}
+COMMAND_SOURCES: dict[str, str] = {"rest_length": "rest_length_cmd", "force": "force_cmd", "wind": "wind",
+                                   "reset": "reset_cmd"}
 
 
 def feedback_state_key(state_type: str) -> str:
