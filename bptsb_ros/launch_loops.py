@@ -309,6 +309,8 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                   perturb_at=number("perturb_at", float, lambda v: True, "a number"),
                   perturb_sigma=number("perturb_sigma", float, lambda v: v >= 0, ">= 0"),
                   perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"))
+    if common["perturb_sigma"] > 0 and common["perturb_at"] < 0:
+        raise LaunchArgumentError(f"perturb_sigma:={common['perturb_sigma']:g} needs perturb_at:=T (sim seconds, >= 0)")
     if values.get("agent"):
         from bptsb_ros.training.checkpoint import CheckpointError, feedback_fitted
 

@@ -86,8 +86,15 @@ def test_agent_wind_and_node_parameters():
     from bptsb_ros.sim.wind_schedule import for_agent
 
     liss = {"task": "lissajous", "brain": {"omega": math.pi}}
-    s = for_agent(liss, {"curve_on": [2, 1, 1.57], "published_wind": True, "hold_periods": [4, 6]})
-    assert (s.kind, s.force, s.period, s.hold_periods) == ("switching", (15.0, 1.0), 2.0, (4, 6))
+    s = for_agent(liss, {"curve_on": [2, 1, 1.57], "published_wind": True, "hold_periods": [4, 6],
+                         "timing": "fixed"})
+    assert (s.kind, s.force, s.calm, s.period, s.hold_periods, s.timing) == (
+        "switching", (15.0, 1.0), (0.0, 1.0), 2.0, (4, 6), "fixed")
+    # what the switching training fed the body: wind_vector(F_wind, published) = (15·F, 1), calm included
+    from bptsb_ros.tasks.lissajous_switching import wind_schedule, wind_vector
+
+    f_wind = wind_schedule(3000, 200, np.random.default_rng(0), hold_periods=(4, 6), timing="fixed")
+    np.testing.assert_array_equal(s.forces(3000, DT), wind_vector(f_wind, published=True).numpy())
     loc = for_agent({"task": "locomotion", "locomotion": {"wind_force": -3.0, "wind_period": 4.0}})
     assert (loc.kind, loc.force, loc.period) == ("periodic", (-3.0, 0.0), 4.0)
     defaults = {p.name: p.default for p in PARAMS}
@@ -101,6 +108,10 @@ def test_agent_wind_and_node_parameters():
         schedule_from_parameters(liss, {}, {**defaults, "timing": "150"})
     with pytest.raises(ParameterError, match="schedule"):
         schedule_from_parameters({"task": "narma"}, {}, defaults)
+    with pytest.raises(ParameterError, match="shorter than half a time step"):
+        schedule_from_parameters(liss, {}, {**defaults, "period": "0.004"}, 0.01)
+    with pytest.raises(ParameterError, match="hold_periods"):
+        schedule_from_parameters(liss, {}, {**defaults, "hold_periods": "²,3"})
 
 
 # -- perturbations -------------------------------------------------------------------------------------------
@@ -195,6 +206,10 @@ def test_return_metrics_on_planted_offsets():
     assert (out["returned_live"], out["returned_offline"], out["returned_equal"]) == (False, True, False)
     short = return_metrics(planted, 0, 950, DT, config)
     assert "problem" in short and "returned_live" not in short
+    # rows 700..1000 only (a bag with a gap before them), kicked at step 100: the window stays within the rows
+    tail = {k: v[700:] for k, v in planted.items()}
+    out = return_metrics(tail, 700, 100, DT, config)
+    assert out["eval_periods"] == 3 and out["eval_steps"] == [700, 1000]
 
 
 def test_switching_metrics_on_planted_drawings():
@@ -237,7 +252,8 @@ def test_live_lissajous_switching_equals_offline(tmp_path, ros_env):
     _save(run, agent, {"curve_on": [2, 1, math.pi / 2], "wind_shift_x": 0.1, "hold_periods": [4, 4]})
     bag = tmp_path / "bag"
     out = bptsb(["launch", "lissajous_switching", "--agent", str(run), "--duration", "10", "--bag", str(bag),
-                 "--param", "wind_source:schedule_seed:=2"], ros_env)
+                 "--param", "wind_source:schedule_seed:=2", "--perturb-at", "6.5", "--perturb-sigma", "0.1",
+                 "--perturb-seed", "5"], ros_env)
     assert out.returncode == 0, out.stdout[-4000:]
     stamps, pos = bag_positions(bag)
     assert stamps.tolist() == [k * DT_NS_DEFAULT for k in range(1001)]
@@ -247,12 +263,16 @@ def test_live_lissajous_switching_equals_offline(tmp_path, ros_env):
     live_wind = {stamp_ns(m.header.stamp) // DT_NS_DEFAULT: (m.vector.x, m.vector.y)
                  for *_, m in read_messages(bag, ["/env/wind"])}
     np.testing.assert_array_equal(np.array([live_wind[k] for k in range(1001)]), wind)
-    roll = simulate_open_loop(agent, 1000, wind=torch.from_numpy(wind))
-    ref = agent.body.full_positions(roll.r[:, 0]).numpy()
-    assert np.abs(ref - agent.body.full_positions(simulate_open_loop(agent, 1000).r[:, 0]).numpy()).max() > 1e-3
+    assert wind[650, 0] == 1.0  # the kick lands while the wind blows: its force enters the new accelerations
+    kick = {650: 0.1 * torch.randn(agent.body.n_movable, 2, generator=torch.Generator().manual_seed(5),
+                                   dtype=torch.float64).numpy()}
+    ref = agent.body.full_positions(_step_by_step(agent, 1000, kick, wind)).numpy()
+    calm = simulate_open_loop(agent, 1000)
+    assert np.abs(ref - agent.body.full_positions(calm.r[:, 0]).numpy()).max() > 1e-3
     assert np.abs(pos - ref).max() <= 1e-9
     metrics = replay(bag, tmp_path / "replay", run, gif=False)
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9
+    assert metrics["offline_comparison"]["perturbed_steps"] == [650]
     seg = metrics["switching"]["segments"]
     assert len(seg) >= 2 and {s["wind"] for s in seg} == {True, False}
     for s in seg:
@@ -294,8 +314,15 @@ def test_live_perturbation_equals_offline_and_replay_reports_the_return(tmp_path
 
 
 def test_launch_refuses_a_perturbation_without_its_time(tmp_path, ros_env):
+    from bptsb_ros.launch_loops import LOOPS, LaunchArgumentError, resolve_arguments
+
     out = bptsb(["launch", "lissajous_open", "--duration", "1", "--perturb-sigma", "0.2"], ros_env)
     assert out.returncode == 2 and "--perturb-at" in out.stdout
+    with pytest.raises(LaunchArgumentError, match="perturb_at"):  # the same rule for ros2 launch
+        resolve_arguments(LOOPS["lissajous_open"], {"perturb_sigma": "0.2"})
+    late = bptsb(["launch", "lissajous_open", "--duration", "1", "--perturb-at", "2", "--perturb-sigma", "0.2"],
+                 ros_env)
+    assert late.returncode != 0 and "after the run's last step" in late.stdout
 
 
 def test_perturbation_topic_in_realtime(tmp_path, ros_env, ros_domain_id):

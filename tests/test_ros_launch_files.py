@@ -242,10 +242,12 @@ def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
     rows = _read_bag(bag)
     stamps = [msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec for _, _, msg in rows]
     assert stamps == [10_000_000 * k for k in range(len(stamps))] and len(stamps) > 50
-    for (_, log_time, _), stamp in zip(rows, stamps, strict=True):  # the recorder's clock follows /clock: a state
-        assert abs(log_time - stamp) <= 200_000_000  # is logged near its step's sim time (its /clock subscription
-        # can run a few steps ahead of a backlog on a loaded machine); wall time would be ~1.8e18 ns
-    assert abs(meta["duration"]["nanoseconds"] - stamps[-1]) <= 200_000_000  # the bag lasts the simulated time
+    # The recorder's clock follows /clock: a state is logged near its step's sim time. Its /clock subscription runs
+    # ahead of a backlog of state messages when the machine is loaded (an unpaced lockstep body outruns the
+    # recorder; 440 ms was seen with 2 busy cores), so the bound is 1 s of sim time; wall time would be ~1.8e18 ns.
+    for (_, log_time, _), stamp in zip(rows, stamps, strict=True):
+        assert abs(log_time - stamp) <= 1_000_000_000
+    assert abs(meta["duration"]["nanoseconds"] - stamps[-1]) <= 1_000_000_000  # the bag lasts the simulated time
 
 
 def test_mnist_drawing_launch_file_runs_one_episode(tmp_path, ros_env):

@@ -118,7 +118,11 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
         elif topic == _topic("wind"):
             wind_ns[_stamp_ns(msg)] = (float(msg.vector.x), float(msg.vector.y))
         elif topic == _topic("perturbation"):
-            kicks_ns[_stamp_ns(msg)] = np.asarray(msg.position, dtype=np.float64).reshape(-1, 2)
+            kick = np.asarray(msg.position, dtype=np.float64)
+            if kick.size % 2 or not np.isfinite(kick).all():
+                raise BagError(f"bag {bag}: a {topic} message holds {kick.size} values (x, y per movable mass "
+                               "expected, all finite)")
+            kicks_ns[_stamp_ns(msg)] = kick.reshape(-1, 2)
     if not pos:
         raise BagError(f"bag {bag} has no messages on {pos_topic}")
     stamps = np.array(sorted(pos))
@@ -250,6 +254,10 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
 
     agent = load_agent(agent_dir, dtype=torch.float64)
     perturbations = perturbations or {}
+    wrong = [k for k, d in perturbations.items() if np.shape(d) != (agent.body.n_movable, 2)]
+    if wrong:
+        raise BagError(f"the perturbation at step {wrong[0]} displaces {np.shape(perturbations[wrong[0]])[0]} masses; "
+                       f"the agent's body has {agent.body.n_movable} movable masses")
     if loop == "narma":
         from bptsb_ros.tasks.narma import brain_input
 
@@ -269,7 +277,7 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
     if loop in LOOPS_CLOSED:
         if agent.feedback is None or not feedback_fitted(agent_dir):
             raise BagError(f"loop {loop} needs an agent with a fitted feedback layer; {agent_dir} has none")
-        feedback_from = open_loop_steps if 0 < open_loop_steps < steps else 0
+        feedback_from = max(open_loop_steps, 0)  # the SWG drives steps 0..W (all of them when W >= steps)
     if wind is None and loop in LOOPS_WIND:  # the agent's own schedule, as the wind_source node sends it by default
         from bptsb_ros.sim.wind_schedule import for_agent
 
@@ -316,52 +324,62 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
         plots = live.pop("_plot", {})
         metrics["live"] = live
     if agent_dir is not None and loop:
-        last = int(run.steps[-1])
-        warm = int(run.custom.get("open_loop_steps", 0))
-        wind = run.wind_series(last) if loop in LOOPS_WIND else None
-        off = offline_positions(agent_dir, loop, last, run.inputs, warm, wind=wind, perturbations=run.perturbations)
-        diff = np.abs(off[run.steps] - run.positions)
-        metrics["offline_comparison"] = {"max_abs_position_difference_m": float(diff.max()),
-                                         "steps_compared": int(len(run.steps)),
-                                         "perturbed_steps": sorted(run.perturbations)}
-        if task == "lissajous" and run.cmp_index >= 0:
-            autonomy = _lissajous_autonomy(agent_dir, loop, segment, off, wind, warm, last, config)
-            plots["autonomy"] = autonomy.pop("_plot")
-            metrics.update(autonomy)
-        if task:
-            off_run = BagRun(run.dt, segment.steps, off[segment.steps], None, None, run.springs, run.fixed,
-                             run.cmp_index, run.inputs, run.custom)
-            offline = task_metrics(off_run, task, config)
-            plots["offline"] = offline.pop("_plot", {})
-            metrics["offline"] = offline
+        try:
+            _compare_offline(run, segment, agent_dir, loop, task, config, metrics, plots)
+        except BagError as err:  # the live metrics stand; say why there is no offline comparison
+            metrics["offline_comparison"] = {"skipped": str(err)}
     files = _write(out_dir, segment, metrics, plots, task, gif)
     metrics["files"] = [str(f) for f in files]
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
     return metrics
 
 
+def _compare_offline(run: BagRun, segment: BagRun, agent_dir: str | Path, loop: str, task: str | None,
+                     config: dict[str, Any], metrics: dict[str, Any], plots: dict[str, Any]) -> None:
+    """The offline simulation of the same agent, loop, inputs, wind and perturbations: position difference, the
+    task metric offline, and for Lissajous runs the return criterion / switching segments (into ``metrics``)."""
+    last = int(run.steps[-1])
+    warm = int(run.custom.get("open_loop_steps", 0))
+    wind = run.wind_series(last) if loop in LOOPS_WIND else None
+    off = offline_positions(agent_dir, loop, last, run.inputs, warm, wind=wind, perturbations=run.perturbations)
+    diff = np.abs(off[run.steps] - run.positions)
+    metrics["offline_comparison"] = {"max_abs_position_difference_m": float(diff.max()),
+                                     "steps_compared": int(len(run.steps)),
+                                     "perturbed_steps": sorted(run.perturbations)}
+    if task == "lissajous" and run.cmp_index >= 0:
+        autonomy = _lissajous_autonomy(agent_dir, loop, segment, off, wind, warm, last, config)
+        plots["autonomy"] = autonomy.pop("_plot")
+        metrics.update(autonomy)
+    if task:
+        off_run = BagRun(run.dt, segment.steps, off[segment.steps], None, None, run.springs, run.fixed,
+                         run.cmp_index, run.inputs, run.custom)
+        offline = task_metrics(off_run, task, config)
+        plots["offline"] = offline.pop("_plot", {})
+        metrics["offline"] = offline
+
+
 def _lissajous_autonomy(agent_dir: str | Path, loop: str, segment: BagRun, off: np.ndarray, wind: np.ndarray | None,
                         warm: int, last: int, config: dict[str, Any]) -> dict[str, Any]:
     """``perturbation``: the return criterion of a perturbed run, live and offline; ``switching``: the per-segment
     errors of a switching run (``analysis.replay_lissajous``)."""
-    from bptsb_ros.analysis.replay_lissajous import lissajous_target, return_metrics, switching_metrics
+    from bptsb_ros.analysis.replay_lissajous import blowing, lissajous_target, return_metrics, switching_metrics
     from bptsb_ros.training.checkpoint import read_checkpoint
 
     out: dict[str, Any] = {"_plot": {}}
     c = segment.cmp_index
     cmp = {"live": segment.positions[:, c], "offline": off[segment.steps, c]}
-    if segment.perturbations:
+    kicks = [k for k in segment.perturbations if segment.steps[0] <= k <= segment.steps[-1]]
+    if kicks:
         orig = offline_positions(agent_dir, loop, last, segment.inputs, warm, wind=wind)
         runs = {**cmp, "unperturbed": orig[segment.steps, c]}
-        out["perturbation"] = return_metrics(runs, int(segment.steps[0]), max(segment.perturbations), segment.dt,
-                                             config)
+        out["perturbation"] = return_metrics(runs, int(segment.steps[0]), max(kicks), segment.dt, config)
         target, *_ = lissajous_target(config)
         out["_plot"]["perturbation"] = {"runs": runs, "target": target(segment.steps * segment.dt)}
     if loop == "lissajous_switching" and wind is not None and int(segment.steps[0]) == 0:
         out["switching"] = switching_metrics(cmp, wind[segment.steps], segment.dt, config,
                                              read_checkpoint(agent_dir)["extra"])
         out["_plot"]["switching"] = {"cmp": cmp["live"], "target": out["switching"].pop("_target"),
-                                     "wind": np.any(wind[segment.steps] != 0, axis=1).astype(np.float64)}
+                                     "wind": blowing(wind[segment.steps]).astype(np.float64)}
     return out
 
 
@@ -425,7 +443,7 @@ def _autonomy_figures(out_dir: Path, run: BagRun, metrics: dict, plots: dict) ->
 
 
 def wind_periods(run: BagRun) -> list[tuple[float, float]]:
-    """Time intervals [s] in which a non-zero wind was in force (from ``env/wind``), as (start, end) pairs;
+    """Time intervals [s] in which the wind blew (non-zero x component, from ``env/wind``), as (start, end) pairs;
     a wind stamped at step k holds until the next message."""
     if not run.wind:
         return []
@@ -434,7 +452,7 @@ def wind_periods(run: BagRun) -> list[tuple[float, float]]:
     end_step = int(run.steps[-1])
     for i, k in enumerate(steps):
         nxt = steps[i + 1] if i + 1 < len(steps) else end_step + 1
-        if any(run.wind[k]) and nxt > k:
+        if run.wind[k][0] != 0 and nxt > k:
             a, b = k * run.dt, nxt * run.dt
             if out and abs(out[-1][1] - a) < 1e-9:
                 out[-1] = (out[-1][0], b)

@@ -56,7 +56,7 @@ def return_metrics(cmp: dict[str, np.ndarray], first_step: int, perturbed_at: in
     n = len(cmp["live"])
     last = first_step + n - 1
     after = (last - perturbed_at) // period
-    periods = min(EVAL_PERIODS, after // 2)
+    periods = min(EVAL_PERIODS, after // 2, (n - 1) // period)  # within the run and within the recorded rows
     out: dict[str, Any] = {"perturbed_at_step": int(perturbed_at), "criterion": f"E / E_orig < {RETURN_RATIO:g}"}
     if periods < 1:
         out["problem"] = (f"the run ends {last - perturbed_at} steps after the perturbation; the return criterion "
@@ -73,9 +73,15 @@ def return_metrics(cmp: dict[str, np.ndarray], first_step: int, perturbed_at: in
     return out
 
 
+def blowing(wind: np.ndarray) -> np.ndarray:
+    """(T, 2) wind [N] → (T,) bool: the wind blows where its x component is non-zero (F_wind scales the x component
+    in the paper's wind (F, 0) and in the published (15·F, 1), whose calm is (0, 1))."""
+    return np.asarray(wind)[:, 0] != 0
+
+
 def wind_segments(wind: np.ndarray) -> list[tuple[int, int, bool]]:
-    """Maximal runs of constant wind in (T, 2) → [(start row, end row (exclusive), blowing)]."""
-    on = np.any(wind != 0, axis=1)
+    """Maximal runs of wind on / off (:func:`blowing`) in (T, 2) → [(start row, end row (exclusive), blowing)]."""
+    on = blowing(wind)
     change = np.flatnonzero(np.diff(on.astype(np.int8))) + 1
     bounds = np.concatenate([[0], change, [len(on)]])
     return [(int(a), int(b), bool(on[a])) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
@@ -95,16 +101,16 @@ def switching_metrics(cmp: dict[str, np.ndarray], wind: np.ndarray, dt: float, c
     target = switch_targets(CURVE_1, curve_on, amp, omega, float(extra.get("wind_shift_x", 0.0)))
     n = len(next(iter(cmp.values())))
     t = np.arange(n) * dt
-    on = np.any(wind[:n] != 0, axis=1).astype(np.float64)
+    on = blowing(wind[:n]).astype(np.float64)
     tgt = target(t, on)
     skip = SEGMENT_TRANSIENT_PERIODS * period
     segments = []
-    for a, b, blowing in wind_segments(wind[:n]):
+    for a, b, on_seg in wind_segments(wind[:n]):
         if b - a - skip < period:
             continue
         lo = a + skip
         ms = float(np.mean((tgt[lo:b] - tgt[lo:b].mean(0)) ** 2))
-        seg = {"steps": [lo, b - 1], "wind": blowing, "curve": str(curve_on if blowing else CURVE_1)}
+        seg = {"steps": [lo, b - 1], "wind": on_seg, "curve": str(curve_on if on_seg else CURVE_1)}
         for key, traj in cmp.items():
             seg[f"nmse_{key}"] = float(np.mean((traj[lo:b] - tgt[lo:b]) ** 2)) / ms
         segments.append(seg)

@@ -40,7 +40,8 @@ def targets(w: np.ndarray) -> dict[str, np.ndarray]:
     "target-ipc",
     paper_ref="Supplement 'The target IPC' (Fig. 'The target IPC')",
     summary="IPC profiles of NARMA2, NARMA10, expanded NARMA and the memory target (Δt = 8)",
-    durations={"smoke": "≈ 5 s", "short": "≈ 1-3 min measured", "paper": "≈ 2 min"},
+    durations={"smoke": "≈ 5 s", "short": "≈ 1-3 min measured",
+               "paper": "79 s measured 2026-11-27, 2 cores, lightly loaded"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, to_unit_interval

@@ -79,6 +79,8 @@ NODE = "body_sim"
 #: furthest ahead [steps] a perturbation may be stamped, and the most that may wait at once
 MAX_PERTURB_AHEAD = 10**9
 MAX_PENDING_PERTURBATIONS = 1000
+#: perturbed steps listed in the run summary (all are counted)
+LISTED_PERTURBATIONS = 20
 #: what the ROS graph reports as the node name of an endpoint whose node it has not discovered yet
 UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 PUBLISHED = BODY_OUTPUTS
@@ -218,9 +220,13 @@ class BodySim(Node):
                                             max_ahead=MAX_PERTURB_AHEAD,
                                             bounds=lambda values: self.limits.check("perturbation", values))
         self.publisher_rules["perturbation"] = PublisherRule("perturbation", tuple(p["perturb_publishers"]))
-        self.perturbed: list[int] = []
+        self.perturbed: list[int] = []  # the first LISTED_PERTURBATIONS steps perturbed
+        self.perturbation_count = 0
         if p["perturb_at"] >= 0:
             k = int(round(p["perturb_at"] / body.dt))
+            if self.max_steps and k > self.max_steps:
+                raise ParameterError(f"parameter 'perturb_at': {p['perturb_at']:g} s is after the run's last step "
+                                     f"({self.max_steps * body.dt:g} s)")
             disp = perturbation(body.n_movable, p["perturb_sigma"], p["perturb_seed"])
             rejection = self.perturbations.offer(k, disp.reshape(-1), 0, time.monotonic())
             if rejection is not None:
@@ -381,6 +387,8 @@ class BodySim(Node):
                                        f"publisher(s) not in perturb_publishers ({', '.join(intruders)})")
         elif len(channel.pending) >= MAX_PENDING_PERTURBATIONS:
             rejection = channel.reject(step, "queue_full", f"{MAX_PENDING_PERTURBATIONS} perturbations are queued")
+        elif self.max_steps and step > self.max_steps:
+            rejection = channel.reject(step, "too_far_ahead", f"the run ends at step {self.max_steps}")
         else:
             rejection = channel.offer(step, m.as_array(msg.position), self.next_step, time.monotonic(),
                                       list(msg.name))
@@ -392,15 +400,19 @@ class BodySim(Node):
     def _perturb(self, state: BodyState, disp: np.ndarray, rest: torch.Tensor,
                  force: torch.Tensor | None) -> BodyState:
         """``state`` with the movable masses displaced by ``disp`` (2·M,) [m] (``MSDN.displaced``: velocities kept,
-        accelerations from the rest length and force in force at that step); published on body/perturbation."""
+        accelerations from the rest length and force in force at that step)."""
         d = torch.from_numpy(disp).to(rest.dtype).view(1, -1, 2)
         with torch.no_grad():
-            new = self.body.displaced(state, d, rest, force)
-        self.perturbed.append(state.step)
-        self.pubs["perturbation"].publish(m.joint_state(state.step, self.dt_ns, self.dof_names, position=disp,
+            return self.body.displaced(state, d, rest, force)
+
+    def _report_perturbation(self, step: int, disp: np.ndarray) -> None:
+        """An applied perturbation: published on body/perturbation (the bag holds it), logged and counted."""
+        self.perturbation_count += 1
+        if len(self.perturbed) < LISTED_PERTURBATIONS:
+            self.perturbed.append(step)
+        self.pubs["perturbation"].publish(m.joint_state(step, self.dt_ns, self.dof_names, position=disp,
                                                         frame_id=self.p["frame_id"]))
-        self.get_logger().info(f"step {state.step}: movable masses displaced (largest |d| {np.abs(disp).max():.4g} m)")
-        return new
+        self.get_logger().info(f"step {step}: movable masses displaced (largest |d| {np.abs(disp).max():.4g} m)")
 
     def _on_parameter(self, name: str, value: ParamValue) -> None:
         """A live parameter change (validated by its spec); raises ParameterError to refuse it. ``rate_scale``,
@@ -536,7 +548,9 @@ class BodySim(Node):
             out[f"perturbation_{key}"] = value
             if key.startswith("rejected"):
                 total += value
+        out["perturbation_applied"] = self.perturbation_count
         out["perturbation_steps"] = list(self.perturbed)
+        out["perturbation_pending"] = len(self.perturbations.pending)
         out["rejected_total"] = total
         out["divergences"] = self.divergence.events
         return out
@@ -616,10 +630,15 @@ class BodySim(Node):
             new, rest, force, safe = self._recover(state, step, problem)
         kick = self.perturbations.take(step)
         if kick is not None:
-            new = self._perturb(new, kick.values, rest, force)
-            problem = self._divergence(new)
-            if problem:
-                new, rest, force, safe = self._recover(state, step, problem)
+            kicked = self._perturb(new, kick.values, rest, force)
+            problem = self._divergence(kicked)
+            if problem:  # the kick is dropped, not the step: the run goes on unperturbed and says so
+                text = f"the perturbation at step {step} would diverge ({problem.split(';')[0]}); not applied"
+                self.get_logger().error(text)
+                self._maybe_diagnostics(error=text)
+            else:
+                new = kicked
+                self._report_perturbation(step, kick.values)
         if safe:
             self.stats.safe_steps += 1
         self._publish_state(new, rest, force)

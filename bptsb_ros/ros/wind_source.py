@@ -58,9 +58,9 @@ def _number(name: str, text: str) -> float | None:
     return value
 
 
-def schedule_from_parameters(config: dict, extra: dict, p: dict) -> WindSchedule:
-    """The wind schedule of a ``wind_source`` from its parameters ``p`` and the agent's config and checkpoint extras.
-    Raises ParameterError naming the parameter."""
+def schedule_from_parameters(config: dict, extra: dict, p: dict, dt: float = 0.01) -> WindSchedule:
+    """The wind schedule of a ``wind_source`` from its parameters ``p`` and the agent's config and checkpoint extras
+    (``dt``: the agent's time step [s]). Raises ParameterError naming the parameter."""
     try:
         base = for_agent(config, extra)
     except WindScheduleError:
@@ -73,7 +73,7 @@ def schedule_from_parameters(config: dict, extra: dict, p: dict) -> WindSchedule
     hold = None
     if p["hold_periods"].strip():
         parts = p["hold_periods"].split(",")
-        if len(parts) != 2 or not all(x.strip().isdigit() for x in parts):
+        if len(parts) != 2 or not all(x.strip().isascii() and x.strip().isdigit() for x in parts):
             raise ParameterError(f"parameter 'hold_periods' must be 'lo,hi' (two whole numbers), got "
                                  f"{p['hold_periods']!r}")
         hold = (int(parts[0]), int(parts[1]))
@@ -88,7 +88,9 @@ def schedule_from_parameters(config: dict, extra: dict, p: dict) -> WindSchedule
     try:
         if kind == "file":
             settings.update(table=read_table(p["file"]), source=p["file"])
-        return WindSchedule(**settings)
+        schedule = WindSchedule(**settings)
+        schedule.force_at(0, dt)  # the period in steps is checked here, at startup
+        return schedule
     except WindScheduleError as err:
         raise ParameterError(f"wind schedule: {err}") from None
 
@@ -106,7 +108,7 @@ class WindSource(BrainNode):
             from bptsb_ros.training.checkpoint import read_checkpoint
 
             extra = read_checkpoint(self.p["agent"])["extra"]
-        self.schedule = schedule_from_parameters(self.agent.config, extra, self.p)
+        self.schedule = schedule_from_parameters(self.agent.config, extra, self.p, self.agent.dt)
         self.pub = self.output(Vector3Stamped, self.p["topics.wind"], m.command_qos(self.depth))
         self.create_subscription(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         self.get_logger().info(f"wind: {self.schedule.describe()}")

@@ -13,7 +13,8 @@ the body; so a live run under a schedule equals the offline one. Kinds:
   or a given n — so every switch is at phase n/100 of the SWG period (t_wind = t0 + (2π/ω)·n/100); seeded by
   ``seed`` (:func:`bptsb_ros.tasks.lissajous_switching.wind_schedule`, which the switching training uses).
 * ``file``: a piecewise-constant table from a CSV file with the header ``t,fx,fy`` (t [s] ascending, forces
-  [N]): the row with the largest t ≤ k·dt is in force at step k; calm before the first row.
+  [N]): the row with the largest t ≤ k·dt is in force at step k (up to 10⁻⁶ of a step of rounding); calm before
+  the first row.
 
 :func:`for_agent` gives the schedule an agent was trained with (a switching agent: its switching wind; a
 locomotion agent: its headwind); the ``wind_source`` node uses it unless its parameters say otherwise.
@@ -46,6 +47,8 @@ class WindSchedule:
     Attributes:
         kind: one of :data:`KINDS`.
         force: (F_x, F_y) [N] while the wind blows (``constant``, ``periodic``, ``switching``).
+        calm: (F_x, F_y) [N] while it does not (``periodic``, ``switching``): (0, 0), or the published code's
+            constant +1 N upward force, (0, 1), that its switching agents were trained with.
         period: ``periodic``: the cycle [s]; ``switching``: the SWG period [s] the segments are counted in.
         seed: ``switching``: seed of the segment lengths and switch phases.
         hold_periods: ``switching``: (lo, hi) whole periods per segment, inclusive.
@@ -57,6 +60,7 @@ class WindSchedule:
 
     kind: str
     force: tuple[float, float] = (0.0, 0.0)
+    calm: tuple[float, float] = (0.0, 0.0)
     period: float = 0.0
     seed: int = 0
     hold_periods: tuple[int, int] = (3, 8)
@@ -64,13 +68,15 @@ class WindSchedule:
     start_on: bool = False
     table: tuple[tuple[float, float, float], ...] = ()
     source: str = ""
-    _cache: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+    _cache: dict[str, Any] = field(default_factory=dict, init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise WindScheduleError(f"wind schedule kind {self.kind!r}: choose one of {', '.join(KINDS)}")
-        if len(self.force) != 2 or not all(math.isfinite(f) for f in self.force):
-            raise WindScheduleError(f"wind force must be two finite numbers (x, y) [N], got {self.force}")
+        for name in ("force", "calm"):
+            value = getattr(self, name)
+            if len(value) != 2 or not all(math.isfinite(f) for f in value):
+                raise WindScheduleError(f"wind {name} must be two finite numbers (x, y) [N], got {value}")
         if not (math.isfinite(self.period) and self.period >= 0):
             raise WindScheduleError(f"wind period must be finite and >= 0 [s], got {self.period}")
         if self.kind == "switching":
@@ -79,7 +85,8 @@ class WindSchedule:
             lo, hi = self.hold_periods
             if not 1 <= lo <= hi:
                 raise WindScheduleError(f"hold_periods must satisfy 1 <= lo <= hi, got {self.hold_periods}")
-            if self.timing not in ("random", "fixed") and not (self.timing.isdigit() and int(self.timing) < 100):
+            if self.timing not in ("random", "fixed") and not (self.timing.isascii() and self.timing.isdigit()
+                                                                and int(self.timing) < 100):
                 raise WindScheduleError(f"timing must be random, fixed or an integer n in [0, 99], got "
                                         f"{self.timing!r}")
         if self.kind == "file" and not self.table:
@@ -116,22 +123,27 @@ class WindSchedule:
         if steps < 0:
             raise ValueError(f"steps must be >= 0, got {steps}")
         if self.kind == "file":
-            rows = np.asarray(self.table, dtype=np.float64)
-            t = np.arange(steps + 1) * dt
-            # the last row with t_row <= t (a half-step margin keeps a row stamped at k·dt on step k)
-            idx = np.searchsorted(rows[:, 0], t + 0.5 * dt, side="right") - 1
-            out = np.where(idx[:, None] >= 0, rows[np.maximum(idx, 0), 1:], 0.0)
-            return out
-        return self.blowing(steps, dt)[:, None] * np.asarray(self.force, dtype=np.float64)[None]
+            rows = self._rows()
+            idx = np.searchsorted(rows[:, 0], _row_times(np.arange(steps + 1), dt), side="right") - 1
+            return np.where(idx[:, None] >= 0, rows[np.maximum(idx, 0), 1:], 0.0)
+        on = self.blowing(steps, dt)[:, None]
+        return on * np.asarray(self.force, dtype=np.float64) + (1 - on) * np.asarray(self.calm, dtype=np.float64)
 
     def force_at(self, step: int, dt: float) -> tuple[float, float]:
         """(F_x, F_y) [N] in force at ``step`` (what ``wind_source`` publishes for it)."""
         if self.kind == "file":
-            rows = np.asarray(self.table, dtype=np.float64)
-            i = int(np.searchsorted(rows[:, 0], (step + 0.5) * dt, side="right")) - 1
+            rows = self._rows()
+            i = int(np.searchsorted(rows[:, 0], _row_times(np.array(step), dt), side="right")) - 1
             return (0.0, 0.0) if i < 0 else (float(rows[i, 1]), float(rows[i, 2]))
         on = self.blowing_at(step, dt)
-        return (self.force[0] * on, self.force[1] * on)
+        return tuple(float(on * f + (1 - on) * c) for f, c in zip(self.force, self.calm, strict=True))  # type: ignore[return-value]
+
+    def _rows(self) -> np.ndarray:
+        """The file table as a (R, 3) float64 array (converted once)."""
+        rows = self._cache.get("rows")
+        if rows is None:
+            rows = self._cache["rows"] = np.asarray(self.table, dtype=np.float64)
+        return rows
 
     def blowing_at(self, step: int, dt: float) -> float:
         """1.0 when the wind blows at ``step`` (constant, periodic, switching), else 0.0."""
@@ -154,12 +166,21 @@ class WindSchedule:
         if cached is None or cached[0] != dt or len(cached[1]) <= steps:
             horizon = max(steps, 2 * (len(cached[1]) if cached is not None and cached[0] == dt else 1024))
             period = int(round(self.period / dt))
+            if period < 1:
+                raise WindScheduleError(f"the switching period {self.period:g} s is shorter than half a time step "
+                                        f"({dt:g} s)")
             timing: Any = self.timing if self.timing in ("random", "fixed") else int(self.timing)
             pattern = wind_schedule(horizon, period, np.random.default_rng(self.seed), hold_periods=self.hold_periods,
                                     timing=timing, start_on=self.start_on)
             cached = (dt, pattern)
             self._cache["switching"] = cached
         return cached[1]
+
+
+def _row_times(steps: np.ndarray, dt: float) -> np.ndarray:
+    """Times k·dt [s] at which table rows are looked up; a row stamped exactly at k·dt (up to rounding, 10⁻⁶ of a
+    step) is in force at step k."""
+    return (np.asarray(steps, dtype=np.float64) + 1e-6) * dt
 
 
 def read_table(path: str | Path) -> tuple[tuple[float, float, float], ...]:
@@ -199,8 +220,9 @@ def read_table(path: str | Path) -> tuple[tuple[float, float, float], ...]:
 def for_agent(config: dict[str, Any], extra: dict[str, Any] | None = None) -> WindSchedule:
     """The wind an agent was trained with.
 
-    * a switching agent (checkpoint ``extra`` has ``curve_on``): its switching wind, F_wind = 1 as (1, 0) N or
-      the published (15, 1) N (``extra['published_wind']``), segments of whole SWG periods;
+    * a switching agent (checkpoint ``extra`` has ``curve_on``): its switching wind, F_wind ∈ {0, 1} as (F, 0) N
+      or the published (15·F, 1) N (``extra['published_wind']``: blowing (15, 1), calm (0, 1)), segments of
+      ``extra['hold_periods']`` SWG periods, its training's switch ``timing`` (random, fixed or n);
     * any other Lissajous agent: the same switching wind (the paper's switching setting);
     * a locomotion agent: its periodic headwind (``locomotion.wind_force`` along x, ``wind_period``).
 
@@ -210,9 +232,12 @@ def for_agent(config: dict[str, Any], extra: dict[str, Any] | None = None) -> Wi
     task = config.get("task")
     if "curve_on" in extra or task == "lissajous":
         omega = float(config.get("brain", {}).get("omega", 2 * math.pi))
-        force = PUBLISHED_SWITCHING_FORCE if extra.get("published_wind") else (1.0, 0.0)
+        published = bool(extra.get("published_wind"))
+        force = PUBLISHED_SWITCHING_FORCE if published else (1.0, 0.0)
+        calm = (0.0, PUBLISHED_SWITCHING_FORCE[1]) if published else (0.0, 0.0)
         hold = tuple(int(h) for h in extra.get("hold_periods", (3, 8)))
-        return WindSchedule("switching", force=force, period=2 * math.pi / omega, hold_periods=hold)  # type: ignore[arg-type]
+        return WindSchedule("switching", force=force, calm=calm, period=2 * math.pi / omega,
+                            hold_periods=hold, timing=str(extra.get("timing", "random")))  # type: ignore[arg-type]
     if task == "locomotion":
         loc = config.get("locomotion", {})
         return WindSchedule("periodic", force=(float(loc.get("wind_force", 0.0)), 0.0),
