@@ -205,3 +205,22 @@ def test_state_batch_broadcasts_like_torch() -> None:
     with pytest.raises(ValueError, match="batch"):
         with torch.no_grad():
             body.kernel_window(state.r, state.v, state.a, rest[1:3, :2], None)
+
+
+def test_a_spring_of_zero_length_gives_nan_in_both_backends_not_an_exception() -> None:
+    """Two masses on one point (it happened to a caterpillar at paper scale): k (L − l) / L divides by zero. Torch
+    gives NaN, which the divergence checks report; the kernel must do the same, not raise ZeroDivisionError."""
+    out = {}
+    for backend in ("torch", "numba"):
+        body = MSDN(build_shape("double_circle", 25), backend=backend, dtype=torch.float64)
+        with torch.no_grad():
+            state = body.initial_state(1)
+            i, j = (int(x) for x in body.topology.springs[0])  # put one end of spring 0 onto the other
+            full = body.full_positions(state.r)[0]
+            movable = body.movable_index.tolist()
+            moved, onto = (i, j) if i in movable else (j, i)
+            state.r[0, movable.index(moved)] = full[onto]
+            out[backend] = body.step(state, body.l)
+    for backend, new in out.items():
+        assert bool(torch.isnan(new.a).any()), backend
+        assert float(new.length[0, 0]) == 0.0, backend

@@ -249,10 +249,13 @@ def _renamed(fn, suffix: str):
     return copy
 
 
-_forward_serial = njit(cache=True, nogil=True)(_forward_impl)
-_forward_parallel = njit(cache=True, nogil=True, parallel=True)(_renamed(_forward_impl, "_parallel"))
-_adjoint_serial = njit(cache=True, nogil=True)(_adjoint_impl)
-_adjoint_parallel = njit(cache=True, nogil=True, parallel=True)(_renamed(_adjoint_impl, "_parallel"))
+# error_model="numpy": a division by zero (a spring of zero length) gives inf/NaN as in torch, which the divergence
+# checks report, instead of numba's default ZeroDivisionError from inside the kernel
+_JIT = dict(cache=True, nogil=True, error_model="numpy")
+_forward_serial = njit(**_JIT)(_forward_impl)
+_forward_parallel = njit(**_JIT, parallel=True)(_renamed(_forward_impl, "_parallel"))
+_adjoint_serial = njit(**_JIT)(_adjoint_impl)
+_adjoint_parallel = njit(**_JIT, parallel=True)(_renamed(_adjoint_impl, "_parallel"))
 
 #: batch size from which the bodies of a window are spread over threads (below it one thread is faster)
 PARALLEL_MIN_BATCH = int(os.environ.get("BPTSB_PARALLEL_MIN_BATCH", "256"))
