@@ -43,7 +43,7 @@ def settings_for(ctx: Context) -> tuple[AgentSettings, int]:
             "closed/open speed ≥ 0.7; variants: SWG→FL transition period, velocity FL",
     durations={"smoke": "≈ 20 s (2 agents, 4 s of training)",
                "short": "≈ 25 min with 2 workers, ≈ 48 min in one process (20 agents, 200 s of training each)",
-               "paper": "90 s measured 2026-11-27, 2 cores, lightly loaded (20 agents, 1000 s each, 2 workers)"},
+               "paper": "75 s measured 2026-11-27, 2 cores, lightly loaded (20 agents, 1000 s each, 2 workers)"},
 )
 def run(ctx: Context) -> None:
     settings, n_agents = settings_for(ctx)

@@ -53,7 +53,7 @@ def phase_speeds(t_block: np.ndarray, v_block: np.ndarray, period: float) -> dic
     summary="forward agent → additional training at v_max/2 under a periodic headwind F = −1; speed under the "
             "switching wind (c) and speed vs F_wind ∈ [−2, 1] (e, one batched simulation)",
     durations={"smoke": "≈ 20 s", "short": "≈ 13 min (2,000 s of switching training; forward agent reused)",
-               "paper": "20 s measured 2026-11-27, 2 cores, lightly loaded (10,000 s of switching training)"},
+               "paper": "18 s measured 2026-11-27, 2 cores, lightly loaded (10,000 s of switching training)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint

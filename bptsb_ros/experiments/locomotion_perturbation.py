@@ -65,7 +65,7 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
             "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded",
     durations={"smoke": "≈ 10 s", "short": "≈ 2 min after locomotion-closed-loop-20 (its agents reused)",
-               "paper": "44 s measured 2026-11-27, 2 cores, lightly loaded"},
+               "paper": "26 s measured 2026-11-27, 2 cores, lightly loaded (agents reused)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
