@@ -201,8 +201,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "a perturbation also stops the masses", ("tests/test_live_autonomy.py::test_simulate_perturbed_equals_a_"
                                                     "step_by_step_loop",)),
     Mutant("live-perturb-rest", "bptsb_ros/ros/body_sim.py",
-           "new = self.body.displaced(state, d, rest, force)",
-           "new = self.body.displaced(state, d, self.base, force)",
+           "return self.body.displaced(state, d, rest, force)",
+           "return self.body.displaced(state, d, self.base, force)",
            "the live perturbation recomputes a with the trained instead of the commanded rest lengths",
            ("tests/test_live_autonomy.py::test_live_perturbation_equals_offline_and_replay_reports_the_return",)),
     Mutant("wind-periodic-half", "bptsb_ros/tasks/locomotion.py",
@@ -211,8 +211,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "the periodic wind starts blowing a step late", ("tests/test_live_autonomy.py::test_constant_and_"
                                                             "periodic_schedules_by_hand",)),
     Mutant("wind-file-row", "bptsb_ros/sim/wind_schedule.py",
-           'i = int(np.searchsorted(rows[:, 0], (step + 0.5) * dt, side="right")) - 1',
-           'i = int(np.searchsorted(rows[:, 0], (step + 0.5) * dt, side="left"))',
+           'i = int(np.searchsorted(rows[:, 0], _row_times(np.array(step), dt), side="right")) - 1',
+           'i = int(np.searchsorted(rows[:, 0], _row_times(np.array(step), dt), side="left"))',
            "a wind table row takes effect a row late", ("tests/test_live_autonomy.py::test_file_schedule_and_its_"
                                                         "errors",)),
     Mutant("return-ratio", "bptsb_ros/analysis/replay_lissajous.py",
