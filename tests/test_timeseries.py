@@ -219,3 +219,28 @@ def test_zero_bias_relu_mlp_is_linear_on_nonnegative_input_only():
         s = mlp(brain_input(u, sym))
         second_diff = (s[2:] - 2 * s[1:-1] + s[:-2]).abs().max()  # zero for an affine map
         assert second_diff > 1e-3
+
+
+def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
+    """At paper scale the LIL + multiple circle blew up under the paper's SGD rates (update 11): such a system is a
+    result (no emulation: counted as an infinite error, named in the claims), not a failed experiment."""
+    from bptsb_ros.experiments import timeseries
+    from bptsb_ros.training.trainer import TrainingDiverged
+
+    real = timeseries.NarmaJob.__call__
+
+    def call(self, run_dir):
+        if "brain.type=lil" in self.overrides and any("multiple_circle" in o for o in self.overrides):
+            raise TrainingDiverged("update 11: simulation diverged at step 3000; planted")
+        return real(self, run_dir)
+
+    monkeypatch.setattr(timeseries.NarmaJob, "__call__", call)
+    _, data = run_experiment("narma-emulation", scale="smoke", out_dir=tmp_path, progress=False)
+    rows = {r["system"]: r["ours"] for r in data["rows"]}
+    assert rows["LIL + multiple-circle (N_mov 17) (training diverged)"] is None  # NaN in JSON
+    assert data["details"]["diverged"] == {
+        "LIL + multiple-circle (N_mov 17)": "TrainingDiverged: update 11: simulation diverged at step 3000"}
+    claims = data["claims"]
+    # the MLP beats a LIL that blew up; the LIL's multiple circle cannot beat its double circle
+    assert claims[0]["holds"] == (rows["MLP + double-circle (N_mov 17)"] < rows["LIL + double-circle (N_mov 17)"])
+    assert claims[1]["holds"] is False and "diverged" in claims[1]["evidence"]

@@ -16,6 +16,8 @@ computed here:
 
 from __future__ import annotations
 
+import math
+
 from bptsb_ros.experiments.registry import Context, ExperimentError, experiment
 
 SYSTEMS = [(body, brain) for brain in ("lil", "mlp") for body in ("double-circle", "multiple-circle")]
@@ -50,10 +52,17 @@ def run(ctx: Context) -> None:
             for body, brain in SYSTEMS]
     ctx.log(f"narma-emulation: {len(jobs)} trainings ({config}, {epochs} epochs) as parallel jobs")
     results = run_jobs(jobs, ctx.out_dir / "sweep", ctx.log,
-                       workers=ctx.pick(smoke=0, short=None, paper=None))
+                       workers=ctx.pick(smoke=0, short=None, paper=None), diverged_ok=True)
     errors: dict[tuple[str, str], float] = {}
     series = {}
+    diverged = {(body, brain): results[f"{brain}_{body}"]["diverged"] for body, brain in SYSTEMS
+                if "diverged" in results[f"{brain}_{body}"]}
     for body, brain in SYSTEMS:
+        if (body, brain) in diverged:  # the simulation blew up in training: no emulation at all (error ∞)
+            errors[(body, brain)] = math.inf
+            ctx.row(f"{system_name(body, brain)} (training diverged)", "NMSE (held-out, after washout)", "1",
+                    float("nan"), "figure table (not in our text)")
+            continue
         st = load_states(ctx.out_dir / "sweep" / "jobs" / f"{brain}_{body}", epochs)
         movable = list(st["movable"])
         out = st["positions"][:, movable.index(int(st["cmp_index"])), 1]
@@ -67,12 +76,15 @@ def run(ctx: Context) -> None:
                                   f"{errors[(body, brain)]:.12g} differs from the job's {job_nmse:.12g}")
     mlp_better = {b: errors[(b, "mlp")] < errors[(b, "lil")] for b in ("double-circle", "multiple-circle")}
     mc_better = {br: errors[("multiple-circle", br)] < errors[("double-circle", br)] for br in ("lil", "mlp")}
+    blew_up = "".join(f"; {system_name(*k)}: training diverged ({v}), counted as an infinite error"
+                      for k, v in diverged.items())
     ctx.claim("the MLP brain gives a smaller error than the LIL (both bodies)", all(mlp_better.values()),
-              "; ".join(f"{b}: MLP {errors[(b, 'mlp')]:.3g} vs LIL {errors[(b, 'lil')]:.3g}" for b in mlp_better))
+              "; ".join(f"{b}: MLP {errors[(b, 'mlp')]:.3g} vs LIL {errors[(b, 'lil')]:.3g}" for b in mlp_better)
+              + blew_up)
     ctx.claim("the multiple-circle body gives a smaller error than the double circle (both brains)",
               all(mc_better.values()),
               "; ".join(f"{br.upper()}: multiple {errors[('multiple-circle', br)]:.3g} vs double "
-                        f"{errors[('double-circle', br)]:.3g}" for br in mc_better))
+                        f"{errors[('double-circle', br)]:.3g}" for br in mc_better) + blew_up)
 
     # Fig. 3(b): input, target and the four outputs on the held-out sequence, and the error table
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), gridspec_kw={"height_ratios": [1, 2, 1.2]})
@@ -86,7 +98,7 @@ def run(ctx: Context) -> None:
     axes[1].set_ylabel("y (CMP y) [m]")
     axes[1].set_xlabel("task step t (τ = 20 simulation steps)")
     axes[1].legend(fontsize=7, frameon=False, ncol=2)
-    names = [system_name(b, br) for b, br in series]
+    names = [system_name(b, br) for b, br in series]  # systems whose training diverged have no output to draw
     axes[2].barh(names, [errors[k] for k in series], color=[f"C{i}" for i in range(len(series))])
     axes[2].set_xlabel("NMSE (held-out)")
     axes[2].tick_params(axis="y", labelsize=7)
@@ -98,4 +110,5 @@ def run(ctx: Context) -> None:
                      "between seeds; the paper trained 40,000 SGD epochs")
     ctx.result.details = {"notes": notes, "config": config, "epochs": epochs, "eval_inputs": eval_inputs,
                           "washout": washout, "jobs": results,
-                          "nmse": {system_name(b, br): v for (b, br), v in errors.items()}}
+                          "nmse": {system_name(b, br): (None if math.isinf(v) else v) for (b, br), v in errors.items()},
+                          "diverged": {system_name(*k): v for k, v in diverged.items()}}

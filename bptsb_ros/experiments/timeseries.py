@@ -109,10 +109,12 @@ class NarmaJob:
         return out
 
 
-def run_jobs(jobs: list[Any], out_dir: Path, log, workers: int | None = None) -> dict[str, dict[str, Any]]:
+def run_jobs(jobs: list[Any], out_dir: Path, log, workers: int | None = None,
+             diverged_ok: bool = False) -> dict[str, dict[str, Any]]:
     """Run independent jobs (``bptsb_ros.sweep.Job``) in a local process pool (``workers``: default one per
     CPU; 0 runs them one after another in this process, for smoke runs where starting workers costs more than
-    the jobs); every failure is an error."""
+    the jobs). Every failure is an error, except, with ``diverged_ok``, a training that diverged: its result is
+    ``{"diverged": message}`` (the paper's SGD learning rates can blow a system up; that is a result)."""
     from bptsb_ros.sweep import run_sweep
 
     last = [""]
@@ -123,11 +125,14 @@ def run_jobs(jobs: list[Any], out_dir: Path, log, workers: int | None = None) ->
             log(p.line())
 
     res = run_sweep(jobs, out_dir, workers=workers, progress=progress)
-    if res.failed:
-        first = res.failed[0]
-        raise RuntimeError(f"{len(res.failed)} of {len(jobs)} jobs failed; first: {first['name']}: "
+    diverged = {f["name"]: {"diverged": str(f.get("error")).split(";")[0]} for f in res.failed
+                if diverged_ok and str(f.get("error", "")).startswith("TrainingDiverged")}
+    failed = [f for f in res.failed if f["name"] not in diverged]
+    if failed:
+        first = failed[0]
+        raise RuntimeError(f"{len(failed)} of {len(jobs)} jobs failed; first: {first['name']}: "
                            f"{first.get('error')} (records in {out_dir / 'sweep.json'})")
-    return res.results()
+    return {**res.results(), **diverged}
 
 
 def load_states(run_dir: Path, epochs: int) -> dict[str, np.ndarray]:
