@@ -82,6 +82,16 @@ def test_runner_writes_result_and_never_overwrites(tmp_path, toy_experiment):
     (tmp_path / "a" / "stale-job.json").write_text("{}")  # e.g. a job of another scale
     run_experiment(toy_experiment, scale="smoke", seed=3, out_dir=tmp_path / "a", force=True, progress=False)
     assert not (tmp_path / "a" / "stale-job.json").exists()
+    # --resume: only an unfinished reproduce run (marker, no result.json), continued in place
+    with pytest.raises(ExperimentError, match="finished"):
+        run_experiment(toy_experiment, scale="smoke", out_dir=tmp_path / "a", resume=True, progress=False)
+    with pytest.raises(ExperimentError, match="not one"):
+        run_experiment(toy_experiment, scale="smoke", out_dir=tmp_path / "used", resume=True, progress=False)
+    (tmp_path / "a" / "result.json").unlink()  # as a run that was killed before it finished leaves it
+    (tmp_path / "a" / "finished-job.json").write_text("{}")
+    _, resumed = run_experiment(toy_experiment, scale="smoke", seed=3, out_dir=tmp_path / "a", resume=True,
+                                progress=False)
+    assert (tmp_path / "a" / "finished-job.json").exists() and resumed["provenance"]["command"].endswith("--resume")
     with pytest.raises(ExperimentError, match="unknown experiment"):
         run_experiment("no-such-experiment", out_dir=tmp_path / "b")
     with pytest.raises(ExperimentError, match="scale"):

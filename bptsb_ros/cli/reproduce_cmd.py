@@ -19,7 +19,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="smoke: seconds (tests); short: minutes on 2 cores; paper: the paper's settings")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--out", default=None, help="run directory (default runs/reproduce/NAME)")
-    parser.add_argument("--force", action="store_true", help="replace an existing result.json in --out")
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument("--force", action="store_true", help="replace an existing result.json in --out")
+    what.add_argument("--resume", action="store_true",
+                      help="continue an unfinished run in --out (no result.json): trainings that are jobs keep what "
+                           "finished (the sweep resumes); the rest runs again")
     parser.add_argument("--data", default=None,
                         help="data directory for experiments that read a data set (MNIST: the IDX files; "
                              "default $BPTSB_MNIST_DIR)")
@@ -51,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         path, result = run_experiment(args.name, scale=args.scale, seed=args.seed, out_dir=args.out,
-                                      force=args.force, progress=not args.no_progress, workers=args.workers,
+                                      force=args.force, resume=args.resume, progress=not args.no_progress,
+                                      workers=args.workers,
                                       scheduler=args.scheduler, data_dir=args.data, split=args.split)
     except (ExperimentError, ConfigError, SweepError, MnistError) as err:
         print(f"bptsb reproduce: {err}", file=sys.stderr)

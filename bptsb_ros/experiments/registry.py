@@ -144,7 +144,7 @@ def _git_commit() -> str | None:
 
 
 def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: str | Path | None = None,
-                   force: bool = False, progress: bool = True,
+                   force: bool = False, resume: bool = False, progress: bool = True,
                    log: Callable[[str], None] | None = None, workers: int | None = None,
                    scheduler: str | None = None, data_dir: str | Path | None = None,
                    split: str = "auto") -> tuple[Path, dict[str, Any]]:
@@ -153,13 +153,20 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
     ``workers``/``scheduler`` say where experiments with independent trainings run them (``bptsb_ros.sweep``);
     ``data_dir`` and ``split`` are passed to experiments that read a data set (MNIST). A non-empty ``out_dir``
     (an earlier run) is kept unless ``force``, which removes it first, and only if it is an earlier run (it holds
-    :data:`RUN_MARKER`); a failed run writes no result.json.
+    :data:`RUN_MARKER`); a failed run writes no result.json. ``resume`` continues such an unfinished run in place
+    (experiments whose trainings are sweep jobs keep the finished jobs).
     """
     exp = get_experiment(name)
     if scale not in SCALES:
         raise ExperimentError(f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
     out = Path(out_dir) if out_dir is not None else Path("runs") / "reproduce" / name
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if resume:
+        if not (out / RUN_MARKER).is_file():
+            raise ExperimentError(f"--resume continues an unfinished `bptsb reproduce` run, and {out} is not one "
+                                  f"(no {RUN_MARKER})")
+        if (out / RESULT_FILE).exists():
+            raise ExperimentError(f"{out / RESULT_FILE} exists: that run finished (pass --force to run it again)")
+    elif out.exists() and (not out.is_dir() or any(out.iterdir())):
         what = out / RESULT_FILE if (out / RESULT_FILE).exists() else out
         if not force:
             raise ExperimentError(f"{what} exists; choose another --out or pass --force to replace the run there")
@@ -173,7 +180,7 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
     except OSError as err:
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
     result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed))
-    command = f"bptsb reproduce {name} --scale {scale} --seed {seed}"
+    command = f"bptsb reproduce {name} --scale {scale} --seed {seed}" + (" --resume" if resume else "")
     if data_dir is not None:
         command += f" --data {data_dir}"
     if split != "auto":
