@@ -37,7 +37,8 @@ def spearman(x, y) -> float:
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
     durations={"smoke": "≈ 25 s",
                "short": "≈ 8 min on an idle 2-core machine (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 workers)",
-               "paper": "≈ 8-19 h per training (40,000 SGD epochs) × 17 Δt × 2 bodies × 5 seeds, / workers"},
+               "paper": "≈ 12-16 min per training (40,000 SGD epochs; measured for narma-emulation, numba "
+                        "backend) × 17 Δt × 2 bodies × 5 seeds, / workers: ≈ 20 h on 2 workers"},
 )
 def run(ctx: Context) -> None:
     import numpy as np
