@@ -193,7 +193,7 @@ def test_return_metrics_on_planted_offsets():
     from bptsb_ros.analysis.replay_lissajous import lissajous_target, return_metrics
 
     config = {"task": "lissajous", "brain": {"omega": 2 * math.pi}, "body": {"size": 4.0, "dt": DT},
-              "lissajous": {"amplitude_fraction": 0.05, "alpha": 1, "beta": 2, "delta": 0}}
+              "lissajous": {"amplitude_fraction": 0.05, "alpha": 1, "beta": 2, "delta": 0.0}}
     target, period, amp, _ = lissajous_target(config)
     assert (period, amp) == (100, 0.2)
     t = np.arange(1001) * DT
@@ -217,7 +217,7 @@ def test_switching_metrics_on_planted_drawings():
     from bptsb_ros.tasks.lissajous_switching import CURVE_1, Curve
 
     config = {"task": "lissajous", "brain": {"omega": 2 * math.pi}, "body": {"size": 4.0, "dt": DT},
-              "lissajous": {"amplitude_fraction": 0.05}}
+              "lissajous": {"amplitude_fraction": 0.05, "alpha": 1, "beta": 2, "delta": 0.0}}
     extra = {"curve_on": [2, 1, math.pi / 2], "wind_shift_x": 0.3}
     wind = np.zeros((1201, 2))
     wind[400:800, 0] = 1.0

@@ -21,21 +21,18 @@ SEGMENT_TRANSIENT_PERIODS = 2
 
 
 def lissajous_target(config: dict[str, Any]) -> tuple[Callable[[np.ndarray], np.ndarray], int, float, float]:
-    """The agent's single-curve target: (target(t (T,) [s]) → (T, 2) [m], steps per period at the agent's dt,
-    amplitude [m], ω [rad/s]) from its config."""
-    import torch
+    """The agent's single-curve target (``tasks.lissajous.target_from_config``): (target(t (T,) [s]) → (T, 2) [m],
+    steps per period, amplitude [m], ω [rad/s]). Settings missing from ``config`` (a bag replayed without its
+    agent) are the paper's single-curve ones."""
+    from bptsb_ros.tasks.lissajous import target_from_config
 
-    from bptsb_ros.tasks.lissajous import lissajous_target as curve
-
-    lc, omega = config.get("lissajous", {}), float(config.get("brain", {}).get("omega", 2 * math.pi))
-    amp = float(lc.get("amplitude_fraction", 0.05)) * float(config.get("body", {}).get("size", 4.0))
-    args = (amp, amp, float(lc.get("alpha", 1)), float(lc.get("beta", 2)), float(lc.get("delta", 0)), omega)
-    dt = float(config.get("body", {}).get("dt", 0.01))
-
-    def target(t: np.ndarray) -> np.ndarray:
-        return curve(torch.as_tensor(t, dtype=torch.float64), *args).numpy()
-
-    return target, int(round(2 * math.pi / omega / dt)), amp, omega
+    full = {"lissajous": {"amplitude_fraction": 0.05, "alpha": 1, "beta": 2, "delta": 0.0,
+                          **config.get("lissajous", {})},
+            "brain": {"omega": 2 * math.pi, **config.get("brain", {})},
+            "body": {"size": 4.0, "dt": 0.01, **config.get("body", {})}}
+    target, period = target_from_config(full)
+    amp = float(full["lissajous"]["amplitude_fraction"]) * float(full["body"]["size"])
+    return target, period, amp, float(full["brain"]["omega"])
 
 
 def return_metrics(cmp: dict[str, np.ndarray], first_step: int, perturbed_at: int, dt: float,

@@ -99,7 +99,3 @@ def repeat_state(state: BodyState, batch: int) -> BodyState:
                      state.step)
 
 
-def displaced(agent: Agent, state: BodyState, displacement: torch.Tensor, rest_length: torch.Tensor) -> BodyState:
-    """``state`` (1 row) with its movable masses displaced by (B, M, 2) [m]; a(t) recomputed from the displaced
-    positions with ``rest_length`` (the rest length in force at that step); velocities kept (``MSDN.displaced``)."""
-    return agent.body.displaced(state, displacement, rest_length)

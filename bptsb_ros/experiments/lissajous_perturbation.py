@@ -25,7 +25,7 @@ import time
 import numpy as np
 import torch
 
-from bptsb_ros.experiments.lissajous_agents import TrainedAgent, displaced, single_threaded, train_single_curve
+from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded, train_single_curve
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.sim.perturbation import perturbation_batch
 from bptsb_ros.sim.population import run_population
@@ -53,7 +53,7 @@ def perturbation_errors(trained: TrainedAgent, seeds: int, *, settle: int, run: 
     s0 = trained.state
     rest0 = agent.brain.rest_length(body.l, torch.tensor([s0.step * body.dt], dtype=body.l.dtype))[0]
     t0 = time.perf_counter()
-    pop = run_population(body, steps, displaced(agent, s0, disp, rest0), swg=agent.brain)
+    pop = run_population(body, steps, body.displaced(s0, disp, rest0), swg=agent.brain)
     out["open_wall_s"] = time.perf_counter() - t0
     out["open"] = _errors(pop.tracked[:, :, 0].double().numpy(), s0.step, period, eval_periods, body.dt,
                           trained, target_fn)
@@ -65,7 +65,7 @@ def perturbation_errors(trained: TrainedAgent, seeds: int, *, settle: int, run: 
     rest_c = fb.rest_length(body.l, settled)
     sc = body.step(settled, rest_c)
     t0 = time.perf_counter()
-    popc = run_population(body, steps, displaced(agent, sc, disp, rest_c), feedback=fb)
+    popc = run_population(body, steps, body.displaced(sc, disp, rest_c), feedback=fb)
     out["closed_wall_s"] = time.perf_counter() - t0
     out["closed"] = _errors(popc.tracked[:, :, 0].double().numpy(), sc.step, period, eval_periods, body.dt,
                             trained, target_fn)
