@@ -98,6 +98,11 @@ def test_agent_wind_and_node_parameters():
     loc = for_agent({"task": "locomotion", "locomotion": {"wind_force": -3.0, "wind_period": 4.0}})
     assert (loc.kind, loc.force, loc.period) == ("periodic", (-3.0, 0.0), 4.0)
     defaults = {p.name: p.default for p in PARAMS}
+    force = next(p for p in PARAMS if p.name == "force")  # `-p force:=2.0` (a double) as well as '' or '2.5'
+    assert (force.validate(2.0), force.validate(3), force.validate(""), force.validate("2.5")) == (2.0, 3.0, "", 2.5)
+    for bad in ("strong", float("nan"), True):
+        with pytest.raises(ParameterError, match="force"):
+            force.validate(bad)
     s = schedule_from_parameters(liss, {}, {**defaults, "force": "2.5", "hold_periods": "1,2", "timing": "fixed"})
     assert (s.kind, s.force, s.hold_periods, s.timing, s.period) == ("switching", (2.5, 0.0), (1, 2), "fixed", 2.0)
     c = schedule_from_parameters(liss, {}, {**defaults, "schedule": "constant", "force_y": "-1"})
@@ -273,6 +278,8 @@ def test_live_lissajous_switching_equals_offline(tmp_path, ros_env):
     metrics = replay(bag, tmp_path / "replay", run, gif=False)
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9
     assert metrics["offline_comparison"]["perturbed_steps"] == [650]
+    summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
+    assert summary["wind_accepted"] == 1001 and summary["rejected_total"] == 0  # the wind of every step, counted
     seg = metrics["switching"]["segments"]
     assert len(seg) >= 2 and {s["wind"] for s in seg} == {True, False}
     for s in seg:

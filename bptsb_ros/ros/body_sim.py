@@ -540,8 +540,8 @@ class BodySim(Node):
                 out[f"{name}_{key}"] = value
                 if key.startswith("rejected"):
                     total += value
-        for key, value in self.wind_intake.counts().items():
-            out[f"wind_{key}"] = value
+        for key, value in self.wind_intake.counts().items():  # unsynchronised wind; the channel counts the stamped
+            out[f"wind_{key}"] = out.get(f"wind_{key}", 0) + value  # wind of a wind_source (one or the other)
             if key.startswith("rejected"):
                 total += value
         for key, value in self.perturbations.counts().items():

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, Literal
 if TYPE_CHECKING:
     from rclpy.node import Node
 
-Kind = Literal["bool", "int", "float", "str", "str_list", "float_list"]
+Kind = Literal["bool", "int", "float", "optional_float", "str", "str_list", "float_list"]
 ParamValue = bool | int | float | str | list[str] | list[float]
 
 
@@ -85,7 +85,9 @@ class Param:
                 raise ParameterError(f"parameter '{self.name}' must have {self.size} values, got {len(v)}")
             if not all(math.isfinite(x) for x in v):
                 raise ParameterError(f"parameter '{self.name}' must be finite, got {v}")
-        if self.kind in ("int", "float"):
+        if self.kind == "optional_float" and v == "":
+            return v
+        if self.kind in ("int", "float", "optional_float"):
             if not math.isfinite(v):
                 raise ParameterError(f"parameter '{self.name}' must be finite, got {v}")
             if self.positive and not v > 0:
@@ -116,6 +118,16 @@ def _coerce(spec: Param, value: Any) -> ParamValue:
     elif kind == "float":
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             return float(value)
+    elif kind == "optional_float":  # a number, or '' for "not given" (the node then uses its own default)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if isinstance(value, str):
+            if not value.strip():
+                return ""
+            try:
+                return float(value)
+            except ValueError:
+                pass
     elif kind == "str":
         if isinstance(value, str):
             return value
@@ -128,7 +140,8 @@ def _coerce(spec: Param, value: Any) -> ParamValue:
         if isinstance(value, (array.array, Sequence)) and not isinstance(value, (str, bytes)) and all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
             return [float(x) for x in value]
-    expected = {"bool": "a bool", "int": "an integer", "float": "a number", "str": "a string",
+    expected = {"bool": "a bool", "int": "an integer", "float": "a number", "optional_float": "a number or ''",
+                "str": "a string",
                 "str_list": "a list of strings", "float_list": "a list of numbers"}[kind]
     raise ParameterError(f"parameter '{name}' must be {expected}, got {value!r} ({type(value).__name__})")
 

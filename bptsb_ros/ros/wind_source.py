@@ -12,7 +12,6 @@ locomotion agent's periodic headwind. Every other parameter overrides one settin
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from dataclasses import fields
@@ -31,10 +30,10 @@ PARAMS = topic_params(("clock", "wind")) + (
     Param("schedule", "", "wind schedule: constant, periodic, switching or file; empty: the agent's own (switching "
           "for Lissajous agents, the periodic headwind for locomotion agents)", "str", choices=("",) + KINDS),
     Param("force", "", "F_x while the wind blows [N]; empty: the schedule's (the agent's locomotion.wind_force, or "
-          "F_wind = 1 for switching)", "str"),
-    Param("force_y", "", "F_y while the wind blows [N]; empty: the schedule's", "str"),
+          "F_wind = 1 for switching)", "optional_float"),
+    Param("force_y", "", "F_y while the wind blows [N]; empty: the schedule's", "optional_float"),
     Param("period", "", "periodic: wind cycle [s] (calm half, blowing half; 0: always blowing); switching: the SWG "
-          "period [s] segments are counted in; empty: the agent's", "str"),
+          "period [s] segments are counted in; empty: the agent's", "optional_float"),
     Param("schedule_seed", 0, "switching: seed of the segment lengths and switch phases", "int"),
     Param("hold_periods", "", "switching: 'lo,hi' whole periods per segment (inclusive); empty: 3,8 (the training's)",
           "str"),
@@ -46,16 +45,9 @@ PARAMS = topic_params(("clock", "wind")) + (
 )
 
 
-def _number(name: str, text: str) -> float | None:
-    if not text.strip():
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise ParameterError(f"parameter '{name}' must be a number or empty, got {text!r}") from None
-    if not math.isfinite(value):
-        raise ParameterError(f"parameter '{name}' must be finite, got {text!r}")
-    return value
+def _number(value: float | str) -> float | None:
+    """An ``optional_float`` parameter's value: None when not given ('')."""
+    return None if value == "" else float(value)
 
 
 def schedule_from_parameters(config: dict, extra: dict, p: dict, dt: float = 0.01) -> WindSchedule:
@@ -69,7 +61,7 @@ def schedule_from_parameters(config: dict, extra: dict, p: dict, dt: float = 0.0
     if not kind:
         raise ParameterError(f"parameter 'schedule': a {config.get('task')} agent has no wind of its own; choose "
                              f"one of {', '.join(KINDS)}")
-    fx, fy, period = _number("force", p["force"]), _number("force_y", p["force_y"]), _number("period", p["period"])
+    fx, fy, period = _number(p["force"]), _number(p["force_y"]), _number(p["period"])
     hold = None
     if p["hold_periods"].strip():
         parts = p["hold_periods"].split(",")
