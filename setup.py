@@ -95,7 +95,7 @@ if _EditableWheel is not None:
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version="0.2.0",
     description="Backpropagation through soft body (BPTSB): differentiable mass-spring-damper bodies and "
     "their brains, trained offline in torch and run live as ROS 2 nodes recorded to MCAP.",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),

@@ -139,6 +139,8 @@ def test_setup_py_and_package_xml_agree() -> None:
     assert manifest.findtext("export/build_type") == "ament_python"
     setup_text = (REPO_ROOT / "setup.py").read_text()
     assert f'version="{manifest.findtext("version")}"' in setup_text, "setup.py version differs from package.xml"
+    init_text = (REPO_ROOT / PACKAGE / "__init__.py").read_text()
+    assert f'__version__ = "{manifest.findtext("version")}"' in init_text, "__version__ differs from package.xml"
     for node in NODES:
         assert f'"{node}": "bptsb_ros.ros.{node}"' in setup_text, f"{node} is not an entry point in setup.py"
 
@@ -203,3 +205,27 @@ def test_cli_help_does_not_import_heavy_modules() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO_ROOT)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]", f"bptsb --help imported {out.stdout.strip()}: import them inside run()"
+
+
+def test_cli_version_is_the_manifest_version() -> None:
+    import xml.etree.ElementTree as ET
+
+    version = ET.parse(REPO_ROOT / "package.xml").getroot().findtext("version")
+    out = subprocess.run([sys.executable, "-m", "bptsb_ros.cli", "--version"], capture_output=True, text=True,
+                         check=True, cwd=REPO_ROOT)
+    assert out.stdout.strip() == f"bptsb {version}"
+
+
+def test_citation_file_cites_the_paper_and_this_version() -> None:
+    import xml.etree.ElementTree as ET
+
+    import yaml
+
+    cff = yaml.safe_load((REPO_ROOT / "CITATION.cff").read_text())
+    assert cff["cff-version"] == "1.2.0"
+    assert cff["version"] == ET.parse(REPO_ROOT / "package.xml").getroot().findtext("version")
+    paper = cff["preferred-citation"]
+    assert paper["title"].startswith("Backpropagation through Soft Body")
+    assert [a["family-names"] for a in paper["authors"]] == ["Tomioka", "Inoue", "Kuniyoshi", "Nakajima"]
+    assert (REPO_ROOT / "LICENSE").read_text().lstrip().startswith("Apache License")
+    assert cff["license"] == "Apache-2.0"

@@ -9,6 +9,8 @@ import argparse
 import importlib
 import sys
 
+from bptsb_ros import __version__
+
 SUBCOMMANDS = (
     "train",
     "simulate",
@@ -32,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Backpropagation through soft body: train brain-body systems offline, run them "
         "live as ROS 2 nodes, record and replay bags.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in SUBCOMMANDS:
         module = importlib.import_module(f"bptsb_ros.cli.{name}_cmd")
