@@ -84,10 +84,16 @@ class Context:
     def row(self, system: str, metric: str, unit: str, ours: float | None, paper: float | str | None = None) -> None:
         self.result.rows.append(Row(system, metric, unit, ours, paper))
 
-    def claim(self, claim: str, holds: bool, evidence: str) -> bool:
-        """Record a paper claim with the computed verdict; returns ``holds``."""
-        self.result.claims.append(Claim(claim, holds, evidence))
-        return bool(holds)
+    def claim(self, claim: str, holds: bool | None, evidence: str) -> bool | None:
+        """Record a paper claim with the computed verdict (None: not testable, ``evidence`` names the failed
+        premise); returns the verdict as recorded (True, False or None)."""
+        recorded = Claim(claim, holds, evidence)
+        self.result.claims.append(recorded)
+        return recorded.holds
+
+    def not_testable(self, claim: str, premise: str) -> None:
+        """Record a paper claim that cannot be tested because ``premise`` (what failed, in words) failed."""
+        self.result.claims.append(Claim.not_testable(claim, premise))
 
     def figure(self, path: Path) -> Path:
         """Register a figure written inside ``out_dir``."""
