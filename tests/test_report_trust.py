@@ -157,6 +157,12 @@ def test_experiment_names_just_outside_the_slug_refused(name):
         validate_result(_result(experiment=name))
 
 
+def test_an_experiment_is_registered_only_under_a_slug():
+    with pytest.raises(ValueError, match="not a slug"):
+        experiment("../escaped", paper_ref="-", summary="-", durations={})
+    assert "../escaped" not in _REGISTRY
+
+
 def test_a_traversing_experiment_name_writes_nothing_outside(tmp_path, capsys):
     page = tmp_path / "a" / "b" / "c" / "R.md"
     _plant(tmp_path / "runs" / "x", _result(experiment="../../../escaped"))

@@ -22,7 +22,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentResult, Row, write_result
+from bptsb_ros.experiments.result import (
+    EXPERIMENT_SLUG,
+    MAX_SLUG_LEN,
+    RESULT_FILE,
+    SCALES,
+    Claim,
+    ExperimentResult,
+    Row,
+    write_result,
+)
 
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
@@ -115,7 +124,10 @@ _REGISTRY: dict[str, Experiment] = {}
 
 
 def experiment(name: str, *, paper_ref: str, summary: str, durations: dict[str, str]):
-    """Decorator registering ``run(ctx)`` as the paper experiment ``name``."""
+    """Decorator registering ``run(ctx)`` as the paper experiment ``name`` (a slug: its result.json must
+    pass :func:`~bptsb_ros.experiments.result.validate_result`, so a bad name fails here, not after the run)."""
+    if len(name) > MAX_SLUG_LEN or not EXPERIMENT_SLUG.fullmatch(name):
+        raise ValueError(f"experiment name {name!r} is not a slug ([a-z0-9][a-z0-9_-]*)")
 
     def register(fn: Callable[[Context], None]) -> Callable[[Context], None]:
         if name in _REGISTRY and _REGISTRY[name].run is not fn:
