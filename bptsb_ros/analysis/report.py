@@ -1,26 +1,49 @@
 """REPRODUCTION.md: every reproduced experiment's numbers beside the paper's, its claims and its figures.
 
 :func:`build_report` gathers every ``result.json`` under a runs directory and writes one Markdown page: a
-summary table, then per experiment the command, the table ours-beside-paper, the claims with ✓/✗ and the
-figures. Figures that already lie under the page's folder are linked where they are; others are copied next
-to the page (``<page stem>_figures/<experiment>-<scale>/``), so the page and its figures can be committed.
+summary table (claims ✓ holding, ✗ not holding, ∅ not testable), then per experiment the command, the table
+ours-beside-paper, the claims and the figures. Figures that already lie under the page's folder are linked
+where they are; others are copied next to the page (``<page stem>_figures/<experiment>-<scale>-seed<N>/``),
+so the page and its figures can be committed.
+
+What it writes it owns, and nothing else: the page starts with :data:`PAGE_MARKER` and an existing page
+without it is refused; the figures folder is an :class:`~bptsb_ros.analysis.owned_folder.OwnedFolder`
+(its manifest lists the files the report wrote; a folder without one is refused, files added by hand are
+kept). A result.json is data: its texts are escaped (:mod:`bptsb_ros.analysis.markdown`), and a figure is
+copied only if it is a regular file inside its run directory reached through no symbolic link.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
-from pathlib import Path
+import re
+import sys
+import tempfile
+from collections.abc import Callable
+from pathlib import Path, PurePosixPath
 from typing import Any
 
-from bptsb_ros.experiments.result import RESULT_FILE, ResultError, read_result
+from bptsb_ros.analysis.markdown import md_link_target, md_pre, md_text
+from bptsb_ros.analysis.owned_folder import OwnedFolder, OwnedFolderError
+from bptsb_ros.experiments.result import RESULT_FILE, ResultError, claim_mark, read_result
+
+#: the first line of every page the report writes (an HTML comment: invisible when rendered)
+PAGE_MARKER = "<!-- written by bptsb report: rerunning `bptsb report` replaces this page -->"
+TITLE = "# Reproduction of the paper's experiments"
+# pages written before the marker existed start with the title and this line (accepted as ours)
+_LEGACY_MADE_BY = "Made by `bptsb report` from the `result.json`"
+_GIT_SHA = re.compile(r"[0-9a-f]{4,64}")
+
+
+class ReportError(RuntimeError):
+    """The report cannot be written where asked (a page or folder that is not the report's); one line."""
 
 
 def _fmt(value: Any) -> str:
     if value is None:
         return "—"
     if isinstance(value, str):
-        return value
+        return md_text(value)
     if value == 0:
         return "0"
     if abs(value) >= 1e4 or abs(value) < 1e-3:
@@ -44,47 +67,121 @@ def _paper_order() -> dict[str, int]:
     return {name: i for i, name in enumerate(experiments())}
 
 
-def build_report(runs_dir: str | Path, out: str | Path) -> Path:
-    """Write the Markdown page ``out`` from the results under ``runs_dir``; returns its path."""
+def claim_counts(claims: list[dict[str, Any]]) -> tuple[int, int, int]:
+    """(holding, not holding, not testable) among result.json claims."""
+    held = sum(c["holds"] is True for c in claims)
+    failed = sum(c["holds"] is False for c in claims)
+    return held, failed, len(claims) - held - failed
+
+
+def _warn(message: str) -> None:
+    print(f"bptsb report: warning: {message}", file=sys.stderr)
+
+
+def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], None] = _warn) -> Path:
+    """Write the Markdown page ``out`` from the results under ``runs_dir``; returns its path.
+
+    Raises ResultError for a result.json that breaks the schema, ReportError (nothing written) where ``out``
+    or its figures folder is not the report's to overwrite; ``warn`` gets one line per figure skipped.
+    """
     runs_dir, out = Path(runs_dir), Path(out)
     results = find_results(runs_dir)
     if not results:
         raise ResultError(f"no {RESULT_FILE} under {runs_dir} (run `bptsb reproduce NAME` first)")
-    fig_root = out.parent / f"{out.stem}_figures"
-    if fig_root.exists():
-        shutil.rmtree(fig_root)
-    lines = ["# Reproduction of the paper's experiments", "",
+    _check_page(out)
+    try:
+        figures = OwnedFolder.open(out.parent / f"{out.stem}_figures")
+    except OwnedFolderError as err:
+        raise ReportError(str(err)) from None
+    lines = [PAGE_MARKER, TITLE, "",
              "Made by `bptsb report` from the `result.json` of each `bptsb reproduce` run. *ours* is measured by "
-             "the command shown; *paper* is the paper's value (— where the paper gives no number). A claim's ✓/✗ "
-             "is computed from our numbers by the experiment's code, never written by hand.", "",
-             "| experiment | paper | scale | seed | claims holding | wall time |", "|---|---|---|---|---|---|"]
+             "the command shown; *paper* is the paper's value (— where the paper gives no number). A claim's "
+             "verdict is computed from our numbers by the experiment's code, never written by hand: ✓ holds, "
+             "✗ does not hold, ∅ not testable (a premise of the claim failed, named in its evidence, so our "
+             "numbers say nothing about it either way).", "",
+             "| experiment | paper | scale | seed | claims ✓ | ✗ | ∅ not testable | wall time |",
+             "|---|---|---|---|---|---|---|---|"]
     for _, r in results:
-        held = sum(c["holds"] for c in r["claims"])
-        lines.append(f"| [{r['experiment']}](#{_anchor(r)}) | {r['paper_ref']} | {r['scale']} | {r['seed']} | "
-                     f"{held}/{len(r['claims'])} | {_duration(r['wall_s'])} |")
+        held, failed, untestable = claim_counts(r["claims"])
+        lines.append(f"| [{r['experiment']}](#{_anchor(r)}) | {md_text(r['paper_ref'])} | {r['scale']} | "
+                     f"{r['seed']} | {held} | {failed} | {untestable} | {_duration(r['wall_s'])} |")
+    copies: dict[str, Path] = {}
+    used_dirs: set[str] = set()
     for path, r in results:
         lines += ["", f"## {r['experiment']} ({r['scale']}, seed {r['seed']})", "",
-                  f"Paper: {r['paper_ref']}. Wall time {_duration(r['wall_s'])}."]
-        prov = r.get("provenance") or {}
-        if prov.get("command"):
-            commit = f" at commit `{prov['git_commit']}`" if prov.get("git_commit") else ""
-            lines += ["", f"```\n{prov['command']}\n```", f"({prov.get('machine', '')}{commit}.)"]
-        for key, value in prov.items():
-            if key not in ("command", "git_commit", "machine", "python"):
-                lines.append(f"- {key}: {value}")
+                  f"Paper: {md_text(r['paper_ref'])}. Wall time {_duration(r['wall_s'])}."]
+        lines += _provenance_lines(r.get("provenance") or {})
         if r["rows"]:
             lines += ["", "| system | metric | ours | paper | unit |", "|---|---|---|---|---|"]
-            lines += [f"| {row['system']} | {row['metric']} | {_fmt(row['ours'])} | {_fmt(row['paper'])} | "
-                      f"{row['unit']} |" for row in r["rows"]]
+            lines += [f"| {md_text(row['system'])} | {md_text(row['metric'])} | {_fmt(row['ours'])} | "
+                      f"{_fmt(row['paper'])} | {md_text(row['unit'])} |" for row in r["rows"]]
         if r["claims"]:
             lines += ["", "Claims of the paper:", ""]
-            lines += [f"- {'✓' if c['holds'] else '✗'} {c['claim']} — {c['evidence']}" for c in r["claims"]]
-        figs = _copy_figures(path.parent, r, fig_root, out.parent)
-        if figs:
-            lines += [""] + [f"![{Path(f).stem}]({f})" for f in figs]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n", encoding="utf-8")
+            lines += [f"- {claim_mark(c['holds'])}{':' if c['holds'] is None else ''} {md_text(c['claim'])} — "
+                      f"{md_text(c['evidence'])}" for c in r["claims"]]
+        dest = _unique_dir(f"{r['experiment']}-{r['scale']}-seed{r['seed']}", used_dirs)
+        figure_lines = _figure_lines(path.parent, r["figures"], dest, figures.root, out.parent, copies, warn)
+        if figure_lines:
+            lines += [""] + figure_lines
+    try:
+        figures.write(copies)
+    except OwnedFolderError as err:
+        raise ReportError(str(err)) from None
+    _write_page(out, "\n".join(lines) + "\n")
     return out
+
+
+def _provenance_lines(prov: dict[str, Any]) -> list[str]:
+    lines = []
+    if prov.get("command"):
+        sha = str(prov.get("git_commit") or "")
+        commit = f" at commit `{sha}`" if _GIT_SHA.fullmatch(sha) else (f" at commit {md_text(sha)}" if sha else "")
+        lines += ["", md_pre(prov["command"]), "", f"({md_text(prov.get('machine', ''))}{commit}.)"]
+    for key, value in prov.items():
+        if key not in ("command", "git_commit", "machine", "python"):
+            lines.append(f"- {md_text(key)}: {md_text(value)}")
+    return lines
+
+
+def _unique_dir(name: str, used: set[str]) -> str:
+    """``name``, or ``name-2``, ``name-3``... if an earlier result (same experiment, scale, seed) took it."""
+    candidate, n = name, 1
+    while candidate in used:
+        n += 1
+        candidate = f"{name}-{n}"
+    used.add(candidate)
+    return candidate
+
+
+def _check_page(out: Path) -> None:
+    """Refuse to replace ``out`` unless it is absent or a page this program wrote (its marker line)."""
+    if out.is_symlink():
+        raise ReportError(f"{out} is a symbolic link; bptsb report does not write through it")
+    if not out.exists():
+        return
+    if not out.is_file():
+        raise ReportError(f"{out} exists and is not a file; choose another --out")
+    try:
+        with out.open(encoding="utf-8", errors="replace") as f:
+            head = [f.readline(4096).rstrip("\r\n") for _ in range(3)]
+    except OSError as err:
+        raise ReportError(f"{out}: unreadable ({err})") from None
+    if head[0] != PAGE_MARKER and not (head[0] == TITLE and head[2].startswith(_LEGACY_MADE_BY)):
+        raise ReportError(f"{out} exists and was not written by bptsb report (its first line is not "
+                          f"{PAGE_MARKER!r}); move it away or choose another --out")
+
+
+def _write_page(out: Path, text: str) -> None:
+    """Write ``out`` atomically (a unique temporary file beside it, then a rename)."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, out)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _anchor(r: dict[str, Any]) -> str:
@@ -99,19 +196,41 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
-def _copy_figures(run_dir: Path, r: dict[str, Any], fig_root: Path, page_dir: Path) -> list[str]:
-    dest = fig_root / f"{r['experiment']}-{r['scale']}-seed{r['seed']}"
-    links = []
-    for rel in r["figures"]:
-        src = run_dir / rel
-        if not src.is_file():
-            links.append(f"{rel} (missing)")
+def safe_figure(run_dir: Path, rel: str) -> tuple[Path | None, str]:
+    """The figure ``rel`` of ``run_dir`` if it may be shown: a regular file inside ``run_dir`` reached
+    through no symbolic link. Returns (path, "") or (None, why not)."""
+    path = run_dir
+    for part in PurePosixPath(rel).parts:
+        path = path / part
+        if path.is_symlink():
+            return None, f"{path} is a symbolic link"
+    if not path.resolve().is_relative_to(run_dir.resolve()):
+        return None, f"{path} lies outside its run directory"
+    if not path.is_file():
+        return None, f"{path} is missing"
+    return path, ""
+
+
+def _figure_lines(run_dir: Path, rels: list[str], dest: str, fig_root: Path, page_dir: Path,
+                  copies: dict[str, Path], warn: Callable[[str], None]) -> list[str]:
+    """The page's lines for one result's figures; fills ``copies`` (path in the figures folder → source)."""
+    lines = []
+    for rel in rels:
+        src, why = safe_figure(run_dir, rel)
+        if src is None:
+            if "missing" not in why:
+                warn(f"figure not copied: {why}")
+            lines.append(f"- figure {md_text(rel)}: not shown ({md_text(why.removeprefix(str(run_dir) + os.sep))})")
             continue
         if src.resolve().is_relative_to(page_dir.resolve()):  # already beside the page: link it where it is
-            links.append(os.path.relpath(src, page_dir))
-            continue
-        target = dest / rel.replace(os.sep, "_")
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(src, target)
-        links.append(os.path.relpath(target, page_dir))
-    return links
+            target = Path(os.path.relpath(src, page_dir))
+        else:
+            flat = PurePosixPath(rel.replace("/", "_"))
+            name, n = f"{dest}/{flat}", 1
+            while name in copies:  # "a/b.png" and "a_b.png" of one run
+                n += 1
+                name = f"{dest}/{flat.stem}-{n}{flat.suffix}"
+            copies[name] = src
+            target = Path(os.path.relpath(fig_root / name, page_dir))
+        lines.append(f"![{md_text(PurePosixPath(rel).stem)}]({md_link_target(target.as_posix())})")
+    return lines

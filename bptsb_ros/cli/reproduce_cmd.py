@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.config import ConfigError
     from bptsb_ros.data.mnist import MnistError
     from bptsb_ros.experiments import ExperimentError, experiments, run_experiment
+    from bptsb_ros.experiments.result import claim_mark
     from bptsb_ros.sweep import SweepError
 
     if args.list:
@@ -65,6 +66,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"{row['system']:28s} {row['metric']:40s} ours {row['ours']!s:>12.12} paper {row['paper']!s:>10.10} "
               f"{row['unit']}")
     for claim in result["claims"]:
-        print(f"{'✓' if claim['holds'] else '✗'} {claim['claim']} ({claim['evidence']})")
+        print(f"{claim_mark(claim['holds'])} {claim['claim']} ({claim['evidence']})")
     print(json.dumps({"result": str(path), "wall_s": result["wall_s"], "figures": result["figures"]}))
     return 0

@@ -298,7 +298,7 @@ def run_bifurcation(ctx: Context) -> None:
                                     title=label))
         details[label] = {"switching_training": summary, "period_multiple": per,
                           "maxima_x": [m.tolist() for m in max_x], "maxima_y": [m.tolist() for m in max_y]}
-    failed = [c.claim for c in ctx.result.claims if not c.holds]
+    failed = [c.claim for c in ctx.result.claims if c.holds is False]  # None (not testable) has not failed
     details["notes"] = _training_note(settings["sim_time"]) + ((
         " A damped body driven by a periodic signal under a constant force settles on a periodic orbit unless the "
         "training made it strongly nonlinear; the paper's chaotic windows need the switching agent it trained.")

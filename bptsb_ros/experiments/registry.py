@@ -22,7 +22,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-from bptsb_ros.experiments.result import RESULT_FILE, SCALES, Claim, ExperimentResult, Row, write_result
+from bptsb_ros.experiments.result import (
+    EXPERIMENT_SLUG,
+    MAX_SLUG_LEN,
+    RESULT_FILE,
+    SCALES,
+    Claim,
+    ExperimentResult,
+    Row,
+    write_result,
+)
 
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
@@ -84,10 +93,16 @@ class Context:
     def row(self, system: str, metric: str, unit: str, ours: float | None, paper: float | str | None = None) -> None:
         self.result.rows.append(Row(system, metric, unit, ours, paper))
 
-    def claim(self, claim: str, holds: bool, evidence: str) -> bool:
-        """Record a paper claim with the computed verdict; returns ``holds``."""
-        self.result.claims.append(Claim(claim, holds, evidence))
-        return bool(holds)
+    def claim(self, claim: str, holds: bool | None, evidence: str) -> bool | None:
+        """Record a paper claim with the computed verdict (None: not testable, ``evidence`` names the failed
+        premise); returns the verdict as recorded (True, False or None)."""
+        recorded = Claim(claim, holds, evidence)
+        self.result.claims.append(recorded)
+        return recorded.holds
+
+    def not_testable(self, claim: str, premise: str) -> None:
+        """Record a paper claim that cannot be tested because ``premise`` (what failed, in words) failed."""
+        self.result.claims.append(Claim.not_testable(claim, premise))
 
     def figure(self, path: Path) -> Path:
         """Register a figure written inside ``out_dir``."""
@@ -109,7 +124,10 @@ _REGISTRY: dict[str, Experiment] = {}
 
 
 def experiment(name: str, *, paper_ref: str, summary: str, durations: dict[str, str]):
-    """Decorator registering ``run(ctx)`` as the paper experiment ``name``."""
+    """Decorator registering ``run(ctx)`` as the paper experiment ``name`` (a slug: its result.json must
+    pass :func:`~bptsb_ros.experiments.result.validate_result`, so a bad name fails here, not after the run)."""
+    if len(name) > MAX_SLUG_LEN or not EXPERIMENT_SLUG.fullmatch(name):
+        raise ValueError(f"experiment name {name!r} is not a slug ([a-z0-9][a-z0-9_-]*)")
 
     def register(fn: Callable[[Context], None]) -> Callable[[Context], None]:
         if name in _REGISTRY and _REGISTRY[name].run is not fn:

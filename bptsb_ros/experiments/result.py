@@ -4,13 +4,20 @@ Schema (every experiment writes exactly this, plus the optional ``details`` and 
 
     {"experiment": str, "paper_ref": str, "scale": "smoke"|"short"|"paper", "seed": int, "wall_s": float,
      "rows":   [{"system": str, "metric": str, "unit": str, "ours": float|null, "paper": float|str|null}],
-     "claims": [{"claim": str, "holds": bool, "evidence": str}],
+     "claims": [{"claim": str, "holds": bool|null, "evidence": str}],
      "figures": [str],            # paths relative to the run directory
      "details": {...},            # optional: per-seed values, settings, anything a reader may want
      "provenance": {...}}         # optional: command, package version, git commit, split of the data
 
-``claims[].holds`` is computed by the experiment from its own numbers; :class:`Claim` refuses anything
-but a real boolean so that a string or a hand-written ``"yes"`` cannot slip in.
+``experiment`` is a slug (``[a-z0-9][a-z0-9_-]*``: it names folders of the report); ``wall_s``, ``seed`` and
+the numbers of ``rows`` are finite (NaN and ±Infinity are refused, in the file and in the schema).
+
+``claims[].holds`` is computed by the experiment from its own numbers and has three states: ``true`` (the
+claim holds), ``false`` (it does not) and ``null``, *not testable*: a premise the claim rests on failed (the
+training diverged, the baseline has no periodic orbit to compare with...), so our numbers say nothing about
+the claim either way; its ``evidence`` then names the failed premise and must not be empty.
+:class:`Claim` refuses anything but a real boolean or None so that a string or a hand-written ``"yes"``
+cannot slip in; :meth:`Claim.not_testable` makes the third state.
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,6 +34,9 @@ import numpy as np
 
 SCALES = ("smoke", "short", "paper")
 RESULT_FILE = "result.json"
+#: what an experiment's name may look like (it becomes part of folder names and page anchors)
+EXPERIMENT_SLUG = re.compile(r"[a-z0-9][a-z0-9_-]*")
+MAX_SLUG_LEN = 100
 
 
 class ResultError(ValueError):
@@ -44,19 +55,36 @@ class Row:
     paper: float | str | None = None
 
 
+def claim_mark(holds: bool | None) -> str:
+    """How a verdict is shown: ``✓`` holds, ``✗`` does not, ``∅ not testable`` (a premise failed)."""
+    return "∅ not testable" if holds is None else ("✓" if holds else "✗")
+
+
 @dataclass
 class Claim:
-    """A qualitative statement of the paper and whether our numbers support it."""
+    """A qualitative statement of the paper and whether our numbers support it.
+
+    ``holds`` is True (supported), False (contradicted) or None: *not testable*, a premise of the claim
+    failed and ``evidence`` names it (use :meth:`not_testable`). Anything else is refused.
+    """
 
     claim: str
-    holds: bool
+    holds: bool | None
     evidence: str
 
     def __post_init__(self) -> None:
         if isinstance(self.holds, np.bool_):
             self.holds = bool(self.holds)
-        if not isinstance(self.holds, bool):
-            raise ResultError(f"claim {self.claim!r}: holds must be a computed bool, got {type(self.holds).__name__}")
+        if self.holds is not None and not isinstance(self.holds, bool):
+            raise ResultError(f"claim {self.claim!r}: holds must be a computed bool (or None: not testable), got "
+                              f"{type(self.holds).__name__}")
+        if self.holds is None and not (isinstance(self.evidence, str) and self.evidence.strip()):
+            raise ResultError(f"claim {self.claim!r}: a not-testable claim needs evidence naming the failed premise")
+
+    @classmethod
+    def not_testable(cls, claim: str, premise: str) -> Claim:
+        """The claim ``claim`` cannot be tested because ``premise`` (what failed, in words) failed."""
+        return cls(claim, None, premise)
 
 
 @dataclass
@@ -107,7 +135,7 @@ def _plain(value: Any) -> Any:
 _TOP = {"experiment": str, "paper_ref": str, "scale": str, "seed": int, "wall_s": (int, float), "rows": list,
         "claims": list, "figures": list}
 _ROW = {"system": str, "metric": str, "unit": str}
-_CLAIM = {"claim": str, "holds": bool, "evidence": str}
+_CLAIM = {"claim": str, "evidence": str}
 
 
 def validate_result(data: Any, source: str = "result") -> None:
@@ -119,6 +147,15 @@ def validate_result(data: Any, source: str = "result") -> None:
             raise ResultError(f"{source}: missing key {key!r}")
         if not isinstance(data[key], kind) or (kind is int and isinstance(data[key], bool)):
             raise ResultError(f"{source}: {key} has the wrong type ({type(data[key]).__name__})")
+    name = data["experiment"]
+    if len(name) > MAX_SLUG_LEN or not EXPERIMENT_SLUG.fullmatch(name):
+        raise ResultError(f"{source}: experiment must be a name like 'lissajous-closed-loop' (lower-case letters, "
+                          f"digits, '-' and '_'), got {name!r:.80}")
+    if not _finite(data["wall_s"]) or data["wall_s"] < 0:
+        raise ResultError(f"{source}: wall_s must be a finite number of seconds ≥ 0, got {data['wall_s']!r}")
+    for key in ("details", "provenance"):
+        if key in data and not isinstance(data[key], dict):
+            raise ResultError(f"{source}: {key} must be an object, got {type(data[key]).__name__}")
     if data["scale"] not in SCALES:
         raise ResultError(f"{source}: scale must be one of {', '.join(SCALES)}, got {data['scale']!r}")
     for i, row in enumerate(data["rows"]):
@@ -126,16 +163,32 @@ def validate_result(data: Any, source: str = "result") -> None:
         for key in ("ours", "paper"):
             if key not in row:
                 raise ResultError(f"{source}: rows[{i}] lacks {key!r}")
-        if row["ours"] is not None and (isinstance(row["ours"], bool) or not isinstance(row["ours"], (int, float))):
-            raise ResultError(f"{source}: rows[{i}].ours must be a number or null")
-        if row["paper"] is not None and (isinstance(row["paper"], bool)
-                                         or not isinstance(row["paper"], (int, float, str))):
-            raise ResultError(f"{source}: rows[{i}].paper must be a number, a text or null")
+        if row["ours"] is not None and not _finite(row["ours"]):
+            raise ResultError(f"{source}: rows[{i}].ours must be a finite number or null, got {row['ours']!r:.80}")
+        if row["paper"] is not None and not (isinstance(row["paper"], str) or _finite(row["paper"])):
+            raise ResultError(f"{source}: rows[{i}].paper must be a finite number, a text or null, got "
+                              f"{row['paper']!r:.80}")
     for i, claim in enumerate(data["claims"]):
         _check_fields(claim, _CLAIM, f"{source}: claims[{i}]")
+        if "holds" not in claim or (claim["holds"] is not None and not isinstance(claim["holds"], bool)):
+            raise ResultError(f"{source}: claims[{i}].holds must be true, false or null (not testable), got "
+                              f"{claim.get('holds')!r:.80}")
+        if claim["holds"] is None and not claim["evidence"].strip():
+            raise ResultError(f"{source}: claims[{i}] is not testable (holds null) but its evidence does not name "
+                              "the failed premise")
     for i, fig in enumerate(data["figures"]):
         if not isinstance(fig, str) or Path(fig).is_absolute() or ".." in Path(fig).parts:
             raise ResultError(f"{source}: figures[{i}] must be a path inside the run directory, got {fig!r}")
+
+
+def _finite(value: Any) -> bool:
+    """True for a finite int or float (not a bool; an int too large for a float is not finite)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def _check_fields(item: Any, fields: dict[str, type], where: str) -> None:
@@ -158,13 +211,22 @@ def write_result(out_dir: Path, result: ExperimentResult) -> Path:
 MAX_RESULT_BYTES = 50_000_000
 
 
+def _refuse_constant(name: str) -> Any:
+    """json.loads would turn ``NaN``/``Infinity``/``-Infinity`` into floats; a result.json never holds them."""
+    raise ResultError(f"{name} is not valid JSON (a result.json holds only finite numbers)")
+
+
 def read_result(path: Path) -> dict[str, Any]:
     """Read and validate one result.json; raises ResultError naming the file."""
     try:
         if path.stat().st_size > MAX_RESULT_BYTES:
             raise ResultError(f"{path}: larger than {MAX_RESULT_BYTES} bytes, not a result file")
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        data = json.loads(path.read_text(encoding="utf-8"), parse_constant=_refuse_constant)
+    except ResultError as err:
+        raise ResultError(f"{path}: {err}") from None
+    except RecursionError:
+        raise ResultError(f"{path}: unreadable (nested too deeply)") from None
+    except (OSError, ValueError) as err:  # ValueError: JSONDecodeError, UnicodeDecodeError, an int too long
         raise ResultError(f"{path}: unreadable ({err})") from None
     validate_result(data, str(path))
     return data
