@@ -43,9 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
     parser.add_argument("--open-loop-steps", type=int, default=0, metavar="W",
                         help="closed loops: SWG drives steps 0..W before the feedback layer takes over")
-    parser.add_argument("--perturb-at", type=finite_float, default=-1.0, metavar="T",
-                        help="displace the movable masses at sim time T [s] (the state of that step; lockstep-"
-                             "deterministic), by N(0, S²) per coordinate; default: no perturbation")
+    parser.add_argument("--perturb-at", type=finite_float, default=None, metavar="T",
+                        help="displace the movable masses at sim time T [s] (>= 0 and within --duration; the state "
+                             "of that step; lockstep-deterministic), by N(0, S²) per coordinate; default: no "
+                             "perturbation")
     parser.add_argument("--perturb-sigma", type=finite_float, default=0.0, metavar="S",
                         help="standard deviation of the perturbation [m]")
     parser.add_argument("--perturb-seed", type=int, default=0, metavar="N",
@@ -299,6 +300,17 @@ def _bag_target_problem(bag: Path) -> str:
     return ""
 
 
+def _perturbation_problem(args: argparse.Namespace) -> str:
+    """Why --perturb-at/--perturb-sigma cannot be run ('' when they can), before any node starts."""
+    from bptsb_ros.launch_loops import perturbation_problem
+
+    if args.perturb_at is not None and args.perturb_at < 0:
+        return f"--perturb-at {args.perturb_at:g}: must be >= 0 (sim seconds)"
+    problem = perturbation_problem(-1.0 if args.perturb_at is None else args.perturb_at, args.perturb_sigma,
+                                   duration=args.duration, rate_scale=args.rate_scale, mode=args.mode)
+    return problem.replace("perturb_at:=", "--perturb-at ").replace("perturb_sigma:=", "--perturb-sigma ")
+
+
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.launch_loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
@@ -322,8 +334,9 @@ def run(args: argparse.Namespace) -> int:
     if args.duration < 0 or args.rate_scale <= 0 or args.grace <= 0:
         print("error: --duration must be >= 0, --rate-scale and --grace > 0", file=sys.stderr)
         return 2
-    if args.perturb_sigma < 0 or (args.perturb_sigma > 0 and args.perturb_at < 0):
-        print("error: --perturb-sigma must be >= 0 and needs --perturb-at T (sim seconds, >= 0)", file=sys.stderr)
+    problem = _perturbation_problem(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
         return 2
     if args.agent and plan is None:
         if not Path(args.agent).exists():
@@ -364,7 +377,8 @@ def run(args: argparse.Namespace) -> int:
     common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,
                   rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps)
     brain_common = dict(common)
-    common.update(perturb_at=args.perturb_at, perturb_sigma=args.perturb_sigma, perturb_seed=args.perturb_seed)
+    common.update(perturb_at=-1.0 if args.perturb_at is None else args.perturb_at, perturb_sigma=args.perturb_sigma,
+                  perturb_seed=args.perturb_seed)
 
     def with_stream(executable: str, params: dict) -> dict:
         if plan is None:
