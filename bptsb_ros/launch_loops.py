@@ -153,6 +153,19 @@ def output_subscribers(loop: Loop, executable: str, *, recording: bool) -> int:
     return min(counts)
 
 
+def perturbation_problem(perturb_at: float, perturb_sigma: float, *, duration: float, rate_scale: float,
+                         mode: str) -> str:
+    """Why a scheduled perturbation cannot be run ('' when it can): sigma < 0, sigma without a time, or a time
+    after the run's end (the run's sim length: ``duration`` in lockstep, ``duration`` × ``rate_scale`` in
+    realtime; 0: no end, then body_sim bounds the step). ``perturb_at`` < 0 means none."""
+    if perturb_sigma < 0 or (perturb_sigma > 0 and perturb_at < 0):
+        return f"perturb_sigma:={perturb_sigma:g} must be >= 0 and needs perturb_at:=T (sim seconds, >= 0)"
+    length = duration * (rate_scale if mode == "realtime" else 1.0)
+    if duration > 0 and perturb_at > length:
+        return f"perturb_at:={perturb_at:g} is after the run's last step ({length:g} s of sim time, the duration)"
+    return ""
+
+
 def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int = 0, mode: str = "lockstep",
                     duration: float = 0.0, rate_scale: float = 1.0, recording: bool = False,
                     open_loop_steps: int = 0, summary_path: str = "", perturb_at: float = -1.0,
@@ -309,8 +322,10 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                   perturb_at=number("perturb_at", float, lambda v: True, "a number"),
                   perturb_sigma=number("perturb_sigma", float, lambda v: v >= 0, ">= 0"),
                   perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"))
-    if common["perturb_sigma"] > 0 and common["perturb_at"] < 0:
-        raise LaunchArgumentError(f"perturb_sigma:={common['perturb_sigma']:g} needs perturb_at:=T (sim seconds, >= 0)")
+    problem = perturbation_problem(common["perturb_at"], common["perturb_sigma"], duration=common["duration"],
+                                   rate_scale=common["rate_scale"], mode=common["mode"])
+    if problem:
+        raise LaunchArgumentError(problem)
     if values.get("agent"):
         from bptsb_ros.training.checkpoint import CheckpointError, feedback_fitted
 

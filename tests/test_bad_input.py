@@ -4,6 +4,7 @@ problem, bounded in size, a non-zero exit, and nothing lost or left behind."""
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -152,3 +153,52 @@ def test_bag_schema_names_never_import_arbitrary_modules():
         with pytest.raises(MessageDefinitionError, match="not an installed ROS 2 message"):
             get_message_class(name)
     assert "json.tool" not in sys.modules and "idlelib.idle" not in sys.modules
+
+
+def test_perturb_step_is_bounded_before_the_integer_conversion():
+    from bptsb_ros.ros.body_sim import MAX_PERTURB_AHEAD, perturb_step
+    from bptsb_ros.ros.params import ParameterError
+
+    assert perturb_step(1.0, 0.01, 100) == 100  # the last step of a 100-step run
+    assert perturb_step(1.0049, 0.01, 100) == 100
+    with pytest.raises(ParameterError, match=r"1.0051 s is after the run.s last step \(1 s\)"):
+        perturb_step(1.0051, 0.01, 100)  # rounds to step 101
+    for at in (1e307, 1.7e308):  # 1e307 / 0.01 = inf: int(round(inf)) was an OverflowError
+        with pytest.raises(ParameterError, match="is after the run's last step"):
+            perturb_step(at, 0.01, 100)
+    assert perturb_step(MAX_PERTURB_AHEAD * 0.01, 0.01, 0) == MAX_PERTURB_AHEAD  # no end: at most this far ahead
+    with pytest.raises(ParameterError, match=re.escape(f"more than {MAX_PERTURB_AHEAD:g} steps")):
+        perturb_step(1e307, 0.01, 0)
+
+
+@pytest.mark.parametrize("args, ok", [
+    (["--duration", "5", "--perturb-at", "5"], True), (["--duration", "5", "--perturb-at", "5.001"], False),
+    (["--duration", "5", "--perturb-at", "1e307"], False), (["--duration", "0", "--perturb-at", "1e307"], True),
+    (["--duration", "2", "--mode", "realtime", "--rate-scale", "3", "--perturb-at", "6"], True),
+    (["--duration", "2", "--mode", "realtime", "--rate-scale", "3", "--perturb-at", "6.01"], False),
+    (["--duration", "5", "--perturb-at", "-0.5"], False), (["--duration", "5", "--perturb-at", "0"], True),
+])
+def test_launch_checks_perturb_at_against_the_run_before_starting(args, ok, capsys):
+    import argparse
+
+    from bptsb_ros.cli import launch_cmd
+
+    parser = argparse.ArgumentParser()
+    launch_cmd.add_arguments(parser)
+    problem = launch_cmd._perturbation_problem(parser.parse_args(["lissajous_open", *args, "--perturb-sigma", "0.1"]))
+    assert (problem == "") == ok, problem
+    if not ok:  # refused by the command itself, before any node starts: one line, exit 2
+        assert main(["launch", "lissajous_open", *args, "--perturb-sigma", "0.1"]) == 2
+        err = _one_line_error(capsys)
+        assert "--perturb-at" in err and ("after the run's last step" in err or "must be >= 0" in err)
+
+
+def test_body_sim_refuses_a_perturbation_beyond_any_step_in_one_line(tmp_path, ros_env):
+    """--duration 0 (no end): the launcher cannot know the step, body_sim refuses it at start-up (it crashed
+    with an OverflowError traceback)."""
+    from ros_live import bptsb
+
+    out = bptsb(["launch", "lissajous_open", "--duration", "0", "--perturb-at", "1e307", "--perturb-sigma", "0.1",
+                 "--timeout", "120", "--log-dir", str(tmp_path / "logs")], ros_env)
+    assert out.returncode == 1 and "Traceback" not in out.stdout, out.stdout[-3000:]
+    assert "parameter 'perturb_at': 1e+307 s is more than 1e+09 steps" in out.stdout

@@ -144,3 +144,28 @@ def test_cli_recover_and_info(unfinished, tmp_path: Path, capsys: pytest.Capture
     assert f"Messages:          {counts[-1]}" in out and "Topic: /a" in out
     assert bag_cmd.run(parser.parse_args(["recover", str(tmp_path / "nope")])) == 2
     assert "bag not found" in capsys.readouterr().err
+
+
+def test_a_fifo_as_the_mcap_is_refused_without_blocking(tmp_path: Path) -> None:
+    """A FIFO named like the bag's file blocked `bag recover` in open() forever; run in a child with a timeout so
+    the old behaviour fails the test instead of hanging it."""
+    import os
+    import subprocess
+    import sys
+
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    os.mkfifo(bag / "bag_0.mcap")
+    code = "from bptsb_ros.cli import main; import sys; sys.exit(main(sys.argv[1:]))"
+    repo = Path(__file__).resolve().parent.parent
+    for target in (bag, bag / "bag_0.mcap"):
+        out = subprocess.run([sys.executable, "-c", code, "bag", "recover", str(target)], capture_output=True,
+                             text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(repo)})
+        assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr[-2000:]
+        assert "not a regular" in out.stderr or "neither a bag directory nor a regular .mcap" in out.stderr
+        assert len(out.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in bag.iterdir()) == ["bag_0.mcap"]  # nothing written beside it
+    with pytest.raises(BagError, match=r"bag_0.mcap is a FIFO \(named pipe\), not a regular file"):
+        from bptsb_ros.bags.recover import recover_file
+
+        recover_file(bag / "bag_0.mcap")

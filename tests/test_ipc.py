@@ -4,6 +4,7 @@ independently of bptsb_ros.analysis.ipc), the basis, thresholds, the command and
 from __future__ import annotations
 
 import json
+import os
 from itertools import combinations
 
 import numpy as np
@@ -195,3 +196,152 @@ def test_a_linear_filter_has_no_capacity_above_degree_one_even_unthresholded(u):
     raw = ipc(u, x, max_degree=3, max_delay=25, washout=30, threshold="none")
     assert raw.by_degree()[0, 0] == pytest.approx(1.0, abs=0.05)  # delays overlap in-sample by ≈ 1/√T
     assert raw.by_degree()[0, 1:].sum() < 1e-9
+
+
+def _npz_with_header(path, name: str, shape: tuple[int, ...], data: bytes, dtype: str = "<f8") -> None:
+    """A zip holding NAME.npy whose header declares ``shape`` but whose data are ``data`` (planted bytes)."""
+    import io
+    import zipfile
+
+    from numpy.lib import format as npy_format
+
+    head = io.BytesIO()
+    npy_format.write_array_header_1_0(head, {"descr": dtype, "fortran_order": False, "shape": shape})
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr(f"{name}.npy", head.getvalue() + data)
+        zf.writestr("states.npy", _npy_bytes(np.zeros((100, 2))))
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
+
+
+def _peak_bytes(fn):
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        result = fn()
+    finally:
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    return result, peak
+
+
+def test_ipc_npz_with_a_forged_shape_is_one_line(tmp_path, capsys):
+    """15 kB claiming 2**40 float64 (8 TiB): refused from the header, nothing allocated; np.load tried to."""
+    bad = tmp_path / "forged.npz"
+    _npz_with_header(bad, "u", (2**40,), bytes(15_000))
+    assert bad.stat().st_size < 20_000
+    assert main(["ipc", "--input", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "array 'u': declares shape (1099511627776,) of float64 (8796093022208 bytes)" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+    # a shape the zip entry does not hold (100 declared, 10 present) is refused too
+    _npz_with_header(bad, "u", (100,), bytes(80))
+    assert main(["ipc", "--input", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "declares shape (100,) of float64 (800 bytes) but the zip entry holds 80 bytes" in capsys.readouterr().err
+
+
+def test_ipc_npz_bomb_is_refused_by_its_declared_shape(tmp_path, capsys, monkeypatch):
+    """64 MiB of zeros deflated to ~64 kB, against a bound of 8 MiB: refused before decompressing (the old
+    np.load decompressed it all)."""
+    from bptsb_ros import safe_npz
+
+    path = tmp_path / "bomb.npz"
+    np.savez_compressed(path, u=np.zeros(2**23), states=np.zeros((10, 1)))
+    assert path.stat().st_size < 2**20
+    monkeypatch.setattr(safe_npz, "MAX_NPZ_BYTES", 8 * 2**20)
+    rc, peak = _peak_bytes(lambda: main(["ipc", "--input", str(path), "--out", str(tmp_path / "o"), "--max-degree",
+                                         "1", "--max-delay", "0", "--threshold", "none"]))
+    assert rc == 2 and peak < 4 * 2**20
+    assert "array 'u': declares shape (8388608,) of float64 (67108864 bytes), more than the 8388608 bytes" in (
+        capsys.readouterr().err)
+
+
+def test_npz_byte_bound_both_sides(tmp_path):
+    from bptsb_ros.safe_npz import NpzError, load_npz
+
+    path = tmp_path / "a.npz"
+    u, states = np.linspace(-1, 1, 10), np.arange(20.0).reshape(10, 2)
+    np.savez(path, u=u, states=states)
+    got = load_npz(path, ("u", "states"), max_bytes=240)  # exactly 80 + 160 bytes of data
+    np.testing.assert_array_equal(got["u"], u)
+    np.testing.assert_array_equal(got["states"], states)
+    with pytest.raises(NpzError, match="array 'states': declares shape \\(10, 2\\) of float64 \\(160 bytes\\), "
+                                       "more than the 159 bytes allowed"):
+        load_npz(path, ("u", "states"), max_bytes=239)
+    np.savez(path, u=np.array([object()], dtype=object), states=states)
+    with pytest.raises(NpzError, match="holds Python objects"):
+        load_npz(path, ("u",))
+    with pytest.raises(NpzError, match="must hold arrays 'nope'; it has states, u"):
+        load_npz(path, ("nope",))
+
+
+def _stars_and_bars(max_degree: int, max_delay: int) -> list[int]:
+    """Functions of degree n over D + 1 delays: each delay carries an order >= 0, the orders sum to n, so
+    C(n + D, D) (stars and bars) -- a different derivation from the code's compositions."""
+    from math import comb
+
+    return [comb(n + max_delay, max_delay) for n in range(1, max_degree + 1)]
+
+
+def test_basis_size_in_closed_form():
+    from bptsb_ros.cli.ipc_cmd import basis_size
+
+    assert basis_size(3, 20) == [21, 231, 1771]  # by hand: 21; 21 + C(21, 2); 21 + 2 C(21, 2) + C(21, 3)
+    for n, d in [(1, 0), (2, 3), (4, 5), (5, 2), (12, 400)]:
+        assert basis_size(n, d) == _stars_and_bars(n, d)
+    for n, d in [(2, 3), (4, 5), (5, 2)]:
+        assert sum(basis_size(n, d)) == sum(len(basis_terms(k, d)) for k in range(1, n + 1))
+
+
+def test_ipc_refuses_a_basis_too_large_before_reading_anything(tmp_path, capsys, u, monkeypatch):
+    from bptsb_ros.cli import ipc_cmd
+
+    total = sum(_stars_and_bars(12, 400))
+    rc = main(["ipc", "--input", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "o"), "--max-degree", "12",
+               "--max-delay", "400"])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"is a basis of {total:.3e} functions, more than the maximum of 100,000" in err
+    assert len(err.strip().splitlines()) == 1
+    # both sides of the bounds (patched to the planted input's sizes): degree 2, delay 4 is 5 + 15 functions
+    np.savez(tmp_path / "in.npz", u=u[:300], states=np.column_stack([delayed(u[:300], 0), delayed(u[:300], 1)]))
+    args = ["ipc", "--input", str(tmp_path / "in.npz"), "--max-degree", "2", "--max-delay", "4", "--washout",
+            "10", "--surrogates", "2"]
+    monkeypatch.setattr(ipc_cmd, "MAX_BASIS_FUNCTIONS", 20)
+    monkeypatch.setattr(ipc_cmd, "MAX_BASIS_BYTES", 15 * 290 * 8)  # the degree-2 block over 300 - 10 samples
+    assert main([*args, "--out", str(tmp_path / "ok")]) == 0
+    assert (tmp_path / "ok" / "ipc.json").exists()
+    monkeypatch.setattr(ipc_cmd, "MAX_BASIS_FUNCTIONS", 19)
+    assert main([*args, "--out", str(tmp_path / "no1")]) == 2
+    assert "is a basis of 20 functions, more than the maximum of 19" in capsys.readouterr().err
+    monkeypatch.setattr(ipc_cmd, "MAX_BASIS_FUNCTIONS", 20)
+    monkeypatch.setattr(ipc_cmd, "MAX_BASIS_BYTES", 15 * 290 * 8 - 1)
+    assert main([*args, "--out", str(tmp_path / "no2")]) == 2
+    assert "the degree-2 basis (15 functions × 290 samples)" in capsys.readouterr().err
+    assert not (tmp_path / "no1").exists() and not (tmp_path / "no2").exists()
+
+
+def test_ipc_checks_out_before_computing(tmp_path, capsys, u, monkeypatch):
+    import bptsb_ros.analysis.ipc as ipc_module
+
+    def never(*args, **kwargs):
+        raise AssertionError("computed before --out was checked")
+
+    monkeypatch.setattr(ipc_module, "ipc_groups", never)
+    np.savez(tmp_path / "in.npz", u=u[:300], states=delayed(u[:300], 0))
+    a_file = tmp_path / "file"
+    a_file.write_text("keep me")
+    outs = [(str(a_file), f"{a_file} is not a directory"), (str(a_file / "sub"), f"{a_file} is not a directory")]
+    if os.path.isdir("/sys/kernel"):  # read-only even for root
+        outs.append(("/sys/kernel/bptsb_ipc", "/sys/kernel is not writable"))
+    for out, message in outs:
+        assert main(["ipc", "--input", str(tmp_path / "in.npz"), "--out", out, "--max-delay", "4"]) == 2
+        err = capsys.readouterr().err
+        assert f"cannot write --out {out}: {message}" in err and len(err.strip().splitlines()) == 1
+    assert a_file.read_text() == "keep me"

@@ -7,11 +7,15 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 import torch
-from ros_live import bag_positions, bptsb, fresh_agent, stamp_ns
+from ros_live import REPO, bag_positions, bptsb, fresh_agent, stamp_ns
 
 DT = 0.01
 DT_NS_DEFAULT = 10_000_000
@@ -380,3 +384,86 @@ def test_perturbation_topic_in_realtime(tmp_path, ros_env, ros_domain_id):
         bag, ["/body/perturbation"])]
     assert len(kicks) == 1 and kicks[0][0] == 300 * DT_NS_DEFAULT
     np.testing.assert_array_equal(kicks[0][1], disp)
+
+
+def _read_table_in_subprocess(path, timeout: float = 30) -> subprocess.CompletedProcess:
+    """read_table(path) in a child with a 2 GiB address-space limit and a timeout, so that a FIFO that blocks or a
+    device that never ends fails the test instead of hanging it (or filling the memory)."""
+    import resource
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (2 * 2**30, 2 * 2**30))
+
+    code = ("import sys\nfrom bptsb_ros.sim.wind_schedule import WindScheduleError, read_table\n"
+            "try:\n    read_table(sys.argv[1])\nexcept WindScheduleError as err:\n    print(err)\n    sys.exit(2)\n")
+    return subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=timeout,
+                          preexec_fn=limit, env={**os.environ, "PYTHONPATH": str(REPO)})
+
+
+def test_wind_file_must_be_a_regular_file(tmp_path):
+    fifo = tmp_path / "wind.fifo"
+    os.mkfifo(fifo)
+    for path, kind in ((fifo, "a FIFO (named pipe)"), ("/dev/zero", "a character device"), (tmp_path, "a directory")):
+        out = _read_table_in_subprocess(path)
+        assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr[-2000:]
+        assert out.stdout.strip() == f"wind file {path} is {kind}, not a regular file"
+
+
+def test_wind_file_size_bound_both_sides(tmp_path, monkeypatch):
+    from bptsb_ros.sim import wind_schedule
+    from bptsb_ros.sim.wind_schedule import WindScheduleError, read_table
+
+    f = tmp_path / "wind.csv"
+    text = "t,fx,fy\n0,1,2\n"
+    f.write_text(text)
+    monkeypatch.setattr(wind_schedule, "MAX_TABLE_BYTES", len(text))
+    assert read_table(f) == ((0.0, 1.0, 2.0),)
+    monkeypatch.setattr(wind_schedule, "MAX_TABLE_BYTES", len(text) - 1)
+    with pytest.raises(WindScheduleError, match=f"holds {len(text)} bytes, more than the maximum of {len(text) - 1}"):
+        read_table(f)
+
+
+def test_wind_table_beyond_max_wind_is_refused_at_startup(tmp_path, capsys):
+    """A 1e30 N row made the body reject every wind (the run ended 'ok' with no wind at all): the table is
+    checked against the body's max_wind by read_table, by wind_source and by `bptsb launch` before starting."""
+    from bptsb_ros.cli import main
+    from bptsb_ros.cli.launch_cmd import _wind_limit
+    from bptsb_ros.ros.params import ParameterError
+    from bptsb_ros.ros.safety import DEFAULT_MAX_WIND
+    from bptsb_ros.ros.wind_source import PARAMS, schedule_from_parameters
+    from bptsb_ros.sim.wind_schedule import WindScheduleError, read_table
+
+    assert DEFAULT_MAX_WIND == 1000.0
+    f = tmp_path / "wind.csv"
+    f.write_text("t,fx,fy\n0,1,0\n0.5,-1000,1000\n")  # exactly at the limit: accepted
+    assert read_table(f, max_force=1000.0)[1] == (0.5, -1000.0, 1000.0)
+    loc = {"task": "locomotion", "locomotion": {"wind_force": -3.0, "wind_period": 4.0}}
+    defaults = {p.name: p.default for p in PARAMS}
+    file_params = {**defaults, "schedule": "file", "file": str(f)}
+    assert schedule_from_parameters(loc, {}, file_params).force_at(50, DT) == (-1000.0, 1000.0)
+    extra = {"body_sim": [], "swg_brain": [], "wind_source": ["schedule:=file", f"file:='{f}'"]}
+    assert _wind_limit(extra) == 1000.0
+    f.write_text("t,fx,fy\n0,1,0\n# gusts\n0.5,-1000.001,0\n")  # just above
+    message = f"wind file {f}, row 3: force (-1000, 0) N is beyond the body's max_wind of 1000 N per component"
+    with pytest.raises(WindScheduleError, match=re.escape(message)):
+        read_table(f, max_force=1000.0)
+    with pytest.raises(ParameterError, match="row 3"):
+        schedule_from_parameters(loc, {}, file_params)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        _wind_limit(extra)
+    assert _wind_limit({**extra, "body_sim": ["max_wind:=2000"]}) == 2000.0  # the body's own limit counts
+    f.write_text("t,fx,fy\n0,0,1e30\n")
+    args = ["launch", "locomotion_headwind", "--duration", "1", "--param", "wind_source:schedule:=file",
+            "--param", f"wind_source:file:={f}", "--log-dir", str(tmp_path / "logs")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"error: wind file {f}, row 2: force (0, 1e+30) N is beyond the body's max_wind of 1000 N per "
+                   "component (every wind would be rejected)")
+    assert not (tmp_path / "logs").exists()  # refused before any node started
+    # the other schedules: a force or calm beyond the limit, both sides
+    const = {**defaults, "schedule": "constant", "force": 1000.0, "force_y": -1000.0}
+    assert schedule_from_parameters(loc, {}, const).force == (1000.0, -1000.0)
+    with pytest.raises(ParameterError, match=r"force \(1000.01, -1000\) N is beyond the body's max_wind of 1000 N"):
+        schedule_from_parameters(loc, {}, {**const, "force": 1000.01})
+    with pytest.raises(ParameterError, match="max_wind of 5 N"):
+        schedule_from_parameters(loc, {}, {**const, "max_wind": 5.0})

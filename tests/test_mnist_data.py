@@ -161,3 +161,96 @@ def test_data_cli_verifies(tmp_path, capsys):
     (tmp_path / "MD5SUMS").write_text("not a checksum line\n")
     assert main(["data", "mnist", "--dir", str(tmp_path), "--verify"]) == 2
     assert "md5sum format" in capsys.readouterr().err
+
+
+def _idx(dims: tuple[int, ...], data: bytes) -> bytes:
+    return struct.pack(f">BBBB{len(dims)}i", 0, 0, 8, len(dims), *dims) + data
+
+
+@pytest.mark.parametrize("dims, data, message", [
+    ((-1, -1), bytes(1), r"shape \(-1, -1\); every size must be >= 1"),  # product 1: was a reshape ValueError
+    ((0,), b"", r"shape \(0,\); every size must be >= 1"),
+    ((65536, 65536, 65536, 65536), b"", "more than the maximum"),  # product 2**64 wrapped to 0 in int64
+    ((1, 1, 1, 1, 1), bytes(1), "declares 5 dimensions"),
+])
+def test_forged_idx_dimensions_are_refused(tmp_path, dims, data, message):
+    raw = _idx(dims, data)
+    with pytest.raises(MnistError, match=message):
+        parse_idx(raw, "x")
+    for name, payload in (("x.idx", raw), ("x.idx.gz", gzip.compress(raw))):  # the file readers, too
+        (tmp_path / name).write_bytes(payload)
+        with pytest.raises(MnistError, match=message):
+            mnist.read_idx(tmp_path / name)
+    # the accepted edge: one of each size, four dimensions
+    assert parse_idx(_idx((1, 1, 1, 1), bytes([7])), "x").tolist() == [[[[7]]]]
+
+
+def test_idx_size_bound_both_sides(tmp_path, monkeypatch):
+    monkeypatch.setattr(mnist, "MAX_IDX_BYTES", 100)
+    assert parse_idx(_idx((4, 25), bytes(100)), "x").shape == (4, 25)
+    (tmp_path / "ok.gz").write_bytes(gzip.compress(_idx((4, 25), bytes(100))))
+    assert mnist.read_idx(tmp_path / "ok.gz").shape == (4, 25)
+    with pytest.raises(MnistError, match=r"\(101 bytes\), more than the maximum of 100 bytes"):
+        parse_idx(_idx((101,), bytes(101)), "x")
+
+
+def _peak_bytes(fn) -> int:
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        fn()
+    finally:
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    return peak
+
+
+@pytest.mark.parametrize("gz", [True, False])
+def test_idx_reads_no_more_than_its_header_declares(tmp_path, gz):
+    """A gzip bomb (64 MiB of zeros behind a 10-label header, 64 kB on disk) or a 64 MiB sparse file is
+    refused after reading at most the declared size + 1 byte, not the whole file."""
+    x, y = tiny_set(10)
+    write_custom_set(tmp_path, x, y, gz=gz)
+    name = "t10k-labels-idx1-ubyte" + (".gz" if gz else "")
+    tail = bytes(64 * 2**20)
+    if gz:
+        (tmp_path / name).write_bytes(gzip.compress(mnist.encode_idx(y) + tail, compresslevel=1))
+        assert (tmp_path / name).stat().st_size < 2**20
+    else:
+        with open(tmp_path / name, "ab") as handle:
+            handle.truncate(len(mnist.encode_idx(y)) + len(tail))
+    errors = []
+
+    def load():
+        try:
+            load_split(tmp_path)
+        except MnistError as err:
+            errors.append(str(err))
+
+    assert _peak_bytes(load) < 8 * 2**20
+    expected = "more than 10 bytes of data" if gz else "holds 67108874 bytes of data"
+    assert len(errors) == 1 and expected in errors[0] and name in errors[0]
+    # one byte past the declared size is refused too; exactly the declared size verifies (the planted set)
+    write_custom_set(tmp_path, x, y, gz=gz)
+    raw = mnist.encode_idx(y) + b"\0"
+    (tmp_path / name).write_bytes(gzip.compress(raw) if gz else raw)
+    with pytest.raises(MnistError, match="more than 10 bytes" if gz else "holds 11 bytes"):
+        load_split(tmp_path)
+    write_custom_set(tmp_path, x, y, gz=gz)
+    assert load_split(tmp_path).test_y.tolist() == [8, 9]
+
+
+def test_data_cli_unwritable_dir_is_one_line(tmp_path, capsys, monkeypatch):
+    def offline(url, timeout):
+        raise mnist.urllib.error.URLError("offline (planted)")
+
+    monkeypatch.setattr(mnist.urllib.request, "urlopen", offline)
+    (tmp_path / "afile").write_text("x")
+    for target in (tmp_path / "afile", tmp_path / "afile" / "sub"):
+        assert main(["data", "mnist", "--dir", str(target), "--test-only"]) == 2
+        err = capsys.readouterr().err
+        assert f"{target}: not a writable directory" in err and len(err.strip().splitlines()) == 1
+    assert (tmp_path / "afile").read_text() == "x"
+    assert main(["data", "mnist", "--dir", str(tmp_path / "new"), "--test-only"]) == 2  # writable: offline
+    assert "offline (planted)" in capsys.readouterr().err and (tmp_path / "new").is_dir()

@@ -49,6 +49,7 @@ from bptsb_ros.bags.metadata import (
 )
 from bptsb_ros.bags.qos import qos_profiles_from_value
 from bptsb_ros.bags.writer import CUSTOM_DATA_RECORD, DEFAULT_CHUNK_SIZE, McapStream
+from bptsb_ros.safe_files import UnsafeFileError, open_regular
 from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -391,6 +392,9 @@ def _bag_files(bag_dir: Path) -> list[Path]:
     files = [p for p in listed if p.is_file() and p.suffix == ".mcap"] or sorted(bag_dir.glob("*.mcap"))
     if not files:
         raise BagError(f"no .mcap file in {bag_dir}")
+    for file in files:  # a FIFO would block the open, a device never end
+        if not file.is_file():
+            raise BagError(f"{file} is not a regular file")
     return files
 
 
@@ -398,10 +402,14 @@ def recover_file(
     path: Path, *, chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = "zstd", keep_damaged: bool = True
 ) -> tuple[FileRecovery, McapStream]:
     """Rebuild one MCAP file in place (see the module docstring); return what was recovered and its topics."""
-    total = path.stat().st_size
+    try:
+        source = open_regular(path)
+    except UnsafeFileError as err:
+        raise BagError(str(err)) from None
+    total = os.fstat(source.fileno()).st_size
     tmp = path.with_name(path.name + ".recovering")
     try:
-        with open(path, "rb") as f, open(tmp, "wb") as out_file:
+        with source as f, open(tmp, "wb") as out_file:
             out = McapStream(out_file, chunk_size=chunk_size, compression=compression)
             scan = _Scan(out)
             used, reason = scan.run(f, total)
@@ -438,6 +446,8 @@ def recover_bag(path: str | Path, *, keep_damaged: bool = True, compression: str
     path = Path(path)
     if not path.exists():
         raise BagError(f"bag not found: {path}")
+    if not (path.is_dir() or path.is_file()):
+        raise BagError(f"{path} is neither a bag directory nor a regular .mcap file")
     bag_dir = path.parent if path.is_file() else path
     files = [path] if path.is_file() else _bag_files(path)
     report_files: list[FileRecovery] = []

@@ -46,11 +46,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run one subcommand; a Ctrl-C that reaches Python (while the subcommands are imported, or in a command
+    that does not handle it itself) is one line and exit status 130, not a traceback."""
     try:
+        args = build_parser().parse_args(argv)
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("bptsb: interrupted", file=sys.stderr)
         return 130
 
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+import tempfile
 from pathlib import Path
 
 NAME = "ipc"
@@ -32,20 +34,70 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the surrogate permutations")
 
 
+#: most basis functions (all degrees together) a run may ask for; the default basis (degree 3, delay 20) has 2,023
+MAX_BASIS_FUNCTIONS = 100_000
+#: most bytes of the largest degree's basis matrix (functions × samples × 8); the default is ~32 MB at 2,000 samples
+MAX_BASIS_BYTES = 4 * 2**30
+
+
+def basis_size(max_degree: int, max_delay: int) -> list[int]:
+    """Number of basis functions of each degree n = 1..max_degree over delays 0..max_delay, in closed form.
+
+    A function of degree n with k factors picks k distinct delays of the D + 1 (C(D+1, k) ways) and splits n
+    into k positive orders in delay order (C(n−1, k−1) compositions): F_n = Σ_k C(D+1, k)·C(n−1, k−1).
+    """
+    return [sum(math.comb(max_delay + 1, k) * math.comb(n - 1, k - 1) for k in range(1, n + 1))
+            for n in range(1, max_degree + 1)]
+
+
+def _check_basis(max_degree: int, max_delay: int, samples: int | None = None) -> None:
+    """Refuse a basis too large to compute (IPCError naming its size) before any work is done."""
+    from bptsb_ros.analysis.ipc import IPCError
+
+    if max_degree < 1 or max_delay < 0:
+        return  # ipc_groups names these
+    sizes = basis_size(max_degree, max_delay)
+    total = sum(sizes)
+    if total > MAX_BASIS_FUNCTIONS:
+        shown = f"{total:,}" if total < 10**12 else f"{total:.3e}"
+        raise IPCError(f"--max-degree {max_degree} --max-delay {max_delay} is a basis of {shown} functions, "
+                       f"more than the maximum of {MAX_BASIS_FUNCTIONS:,}; lower --max-degree or --max-delay")
+    if samples is not None and samples > 0 and max(sizes) * samples * 8 > MAX_BASIS_BYTES:
+        raise IPCError(f"--max-degree {max_degree} --max-delay {max_delay}: the degree-{sizes.index(max(sizes)) + 1}"
+                       f" basis ({max(sizes):,} functions × {samples:,} samples) needs "
+                       f"{max(sizes) * samples * 8 / 2**30:.1f} GiB, more than the maximum of "
+                       f"{MAX_BASIS_BYTES / 2**30:.0f} GiB; lower --max-degree or --max-delay or use fewer samples")
+
+
+def _check_out(out: Path) -> str | None:
+    """Why ``out`` cannot become the output directory (checked before computing), or None when it can."""
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"{existing} is not a directory"
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as err:
+        return f"{existing} is not writable ({err.strerror or err})"
+    return None
+
+
 def _from_npz(path: str, per_column: bool):
     import numpy as np
 
     from bptsb_ros.analysis.ipc import IPCError
+    from bptsb_ros.safe_npz import NpzError, load_npz
 
     try:
-        with np.load(path, allow_pickle=False) as data:
-            if "u" not in data or "states" not in data:
-                raise IPCError(f"{path} must hold arrays 'u' and 'states', has {', '.join(data.files) or 'none'}")
-            u, states = np.asarray(data["u"], float), np.asarray(data["states"], float)
-    except (OSError, ValueError) as err:
-        if isinstance(err, IPCError):
-            raise
-        raise IPCError(f"cannot read {path} as .npz: {err}") from None
+        arrays = load_npz(path, ("u", "states"))
+    except NpzError as err:
+        raise IPCError(str(err)) from None
+    for name, array in arrays.items():
+        if array.dtype.kind not in "biuf":
+            raise IPCError(f"{path}: array {name!r} must be real numbers, got dtype {array.dtype}")
+    u, states = np.asarray(arrays["u"], float), np.asarray(arrays["states"], float)
     groups, labels = [states], ["states"]
     if per_column and states.ndim == 2:
         groups += [states[:, i] for i in range(states.shape[1])]
@@ -58,30 +110,41 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.analysis.plots import plot_ipc_bars
     from bptsb_ros.bags.errors import BagError
 
+    out = Path(args.out)
+    problem = _check_out(out)
+    if problem is not None:
+        print(f"bptsb ipc: cannot write --out {out}: {problem}", file=sys.stderr)
+        return 2
     try:
+        _check_basis(args.max_degree, args.max_delay)
         if args.input:
             u, groups, labels = _from_npz(args.input, args.per_column)
         else:
             series = bag_series(args.bag, args.tau or None)
             u = to_unit_interval(series.u)
             groups, labels = mass_groups(series.positions, series.movable, series.cmp_index)
+        if getattr(u, "ndim", 0) == 1:  # other shapes: ipc_groups names them
+            _check_basis(args.max_degree, args.max_delay, len(u) - max(args.washout, args.max_delay))
         res = ipc_groups(u, groups, labels, max_degree=args.max_degree, max_delay=args.max_delay,
                          washout=args.washout, surrogates=args.surrogates, threshold=args.threshold, seed=args.seed,
                          progress=True)
     except (IPCError, BagError) as err:
         print(f"bptsb ipc: {err}", file=sys.stderr)
         return 2
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     data = res.to_json()
     data["source"] = {"input": args.input, "bag": args.bag}
     if args.bag:
         data["source"]["tau"] = series.tau
     import json
 
-    (out / "ipc.json").write_text(json.dumps(data))
     shown = [lab for lab in res.labels if not lab.startswith("all ")] if args.bag else res.labels
-    plot_ipc_bars(out / "ipc.png", res, shown, title=f"IPC of {args.bag or args.input}")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "ipc.json").write_text(json.dumps(data))
+        plot_ipc_bars(out / "ipc.png", res, shown, title=f"IPC of {args.bag or args.input}")
+    except OSError as err:  # --out was checked before computing; it changed since
+        print(f"bptsb ipc: cannot write --out {out}: {err.strerror or err}", file=sys.stderr)
+        return 1
     for s in res.summary():
         degrees = ", ".join(f"deg {n}: {c:.3f}" for n, c in s["by_degree"].items())
         print(f"{s['label']}: total {s['total']:.3f} (rank {s['rank']}; {degrees})")

@@ -43,9 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
     parser.add_argument("--open-loop-steps", type=int, default=0, metavar="W",
                         help="closed loops: SWG drives steps 0..W before the feedback layer takes over")
-    parser.add_argument("--perturb-at", type=finite_float, default=-1.0, metavar="T",
-                        help="displace the movable masses at sim time T [s] (the state of that step; lockstep-"
-                             "deterministic), by N(0, S²) per coordinate; default: no perturbation")
+    parser.add_argument("--perturb-at", type=finite_float, default=None, metavar="T",
+                        help="displace the movable masses at sim time T [s] (>= 0 and within --duration; the state "
+                             "of that step; lockstep-deterministic), by N(0, S²) per coordinate; default: no "
+                             "perturbation")
     parser.add_argument("--perturb-sigma", type=finite_float, default=0.0, metavar="S",
                         help="standard deviation of the perturbation [m]")
     parser.add_argument("--perturb-seed", type=int, default=0, metavar="N",
@@ -299,6 +300,57 @@ def _bag_target_problem(bag: Path) -> str:
     return ""
 
 
+def _extra_value(items: list[str], name: str) -> str | None:
+    """The value of the last ``name:=VALUE`` of one node's ``--param`` items (a YAML scalar, quotes removed)."""
+    from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
+
+    values = [item.split(":=", 1)[1] for item in items if item.split(":=", 1)[0] == name]
+    if not values:
+        return None
+    try:
+        value = load_untrusted_yaml(values[-1], f"--param {name}", max_bytes=4096, max_nodes=1)
+    except UntrustedYamlError:
+        return values[-1]
+    return values[-1] if isinstance(value, (dict, list)) or value is None else str(value)
+
+
+def _wind_limit(extra: dict[str, list[str]]) -> float:
+    """body_sim's max_wind [N] (its default, or ``--param body_sim:max_wind:=X``), passed on to wind_source; a
+    wind_source file table is checked against it here, before any node starts (the body would reject every wind
+    beyond it: a run without wind). Raises ValueError naming the row and the limit."""
+    from bptsb_ros.ros.safety import DEFAULT_MAX_WIND
+    from bptsb_ros.sim.wind_schedule import WindScheduleError, read_table
+
+    text = _extra_value(extra.get("body_sim", []), "max_wind")
+    try:
+        limit = DEFAULT_MAX_WIND if text is None else float(text)
+    except ValueError:
+        raise ValueError(f"--param body_sim:max_wind:={text}: not a number") from None
+    if not (limit > 0 and limit < float("inf")):
+        raise ValueError(f"--param body_sim:max_wind:={text}: must be finite and > 0")
+    wind = extra.get("wind_source")
+    if wind is not None and _extra_value(wind, "schedule") == "file":
+        path = _extra_value(wind, "file")
+        if not path:
+            raise ValueError("--param wind_source:schedule:=file needs --param wind_source:file:=CSV")
+        try:
+            read_table(path, max_force=limit)
+        except WindScheduleError as err:
+            raise ValueError(str(err)) from None
+    return limit
+
+
+def _perturbation_problem(args: argparse.Namespace) -> str:
+    """Why --perturb-at/--perturb-sigma cannot be run ('' when they can), before any node starts."""
+    from bptsb_ros.launch_loops import perturbation_problem
+
+    if args.perturb_at is not None and args.perturb_at < 0:
+        return f"--perturb-at {args.perturb_at:g}: must be >= 0 (sim seconds)"
+    problem = perturbation_problem(-1.0 if args.perturb_at is None else args.perturb_at, args.perturb_sigma,
+                                   duration=args.duration, rate_scale=args.rate_scale, mode=args.mode)
+    return problem.replace("perturb_at:=", "--perturb-at ").replace("perturb_sigma:=", "--perturb-sigma ")
+
+
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.launch_loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
@@ -322,8 +374,9 @@ def run(args: argparse.Namespace) -> int:
     if args.duration < 0 or args.rate_scale <= 0 or args.grace <= 0:
         print("error: --duration must be >= 0, --rate-scale and --grace > 0", file=sys.stderr)
         return 2
-    if args.perturb_sigma < 0 or (args.perturb_sigma > 0 and args.perturb_at < 0):
-        print("error: --perturb-sigma must be >= 0 and needs --perturb-at T (sim seconds, >= 0)", file=sys.stderr)
+    problem = _perturbation_problem(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
         return 2
     if args.agent and plan is None:
         if not Path(args.agent).exists():
@@ -345,6 +398,7 @@ def run(args: argparse.Namespace) -> int:
     nodes = ["body_sim"] + [b.executable for b in loop.brains] + (["recorder"] if args.bag else [])
     try:
         extra = parse_extra(args.param, nodes)
+        max_wind = _wind_limit(extra)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -364,7 +418,8 @@ def run(args: argparse.Namespace) -> int:
     common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,
                   rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps)
     brain_common = dict(common)
-    common.update(perturb_at=args.perturb_at, perturb_sigma=args.perturb_sigma, perturb_seed=args.perturb_seed)
+    common.update(perturb_at=-1.0 if args.perturb_at is None else args.perturb_at, perturb_sigma=args.perturb_sigma,
+                  perturb_seed=args.perturb_seed)
 
     def with_stream(executable: str, params: dict) -> dict:
         if plan is None:
@@ -379,6 +434,8 @@ def run(args: argparse.Namespace) -> int:
     children.append(body)
     for brain in loop.brains:
         params = with_stream(brain.executable, node_parameters(loop, brain.executable, **brain_common))
+        if brain.executable == "wind_source":
+            params["max_wind"] = max_wind
         children.append(Child(brain.executable, node_argv(brain.executable, params, extra[brain.executable]),
                               log_dir / f"{brain.executable}.log"))
     recorder = None

@@ -25,9 +25,12 @@ from __future__ import annotations
 
 import gzip
 import hashlib
+import math
 import os
+import tempfile
 import urllib.error
 import urllib.request
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,6 +68,10 @@ CHECKSUM_FILE = "MD5SUMS"
 ENV_DIR = "BPTSB_MNIST_DIR"
 
 _IDX_DTYPES = {0x08: np.uint8}
+#: most dimensions an IDX header may declare (MNIST uses 1 and 3)
+MAX_IDX_DIMS = 4
+#: most data bytes an IDX header may declare: 512 MiB (the MNIST training images are 47 MB)
+MAX_IDX_BYTES = 512 * 2**20
 
 
 class MnistError(RuntimeError):
@@ -88,18 +95,36 @@ class Split:
     description: str
 
 
-def parse_idx(data: bytes, what: str) -> np.ndarray:
-    """Decode IDX bytes (magic 0x0000TTDD: type TT, DD dimensions, big-endian int32 sizes) to an array."""
-    if len(data) < 4 or data[0] != 0 or data[1] != 0:
+def _idx_header(head: bytes, what: str) -> tuple[int, tuple[int, ...]]:
+    """Check the first bytes of an IDX file; returns (header length in bytes, shape).
+
+    Refused before anything is allocated: a bad magic number or element type, 0 or more than
+    :data:`MAX_IDX_DIMS` dimensions, a size below 1, or more than :data:`MAX_IDX_BYTES` bytes of data.
+    """
+    if len(head) < 4 or head[0] != 0 or head[1] != 0:
         raise MnistError(f"{what}: not an IDX file (bad magic number)")
-    dtype_code, ndim = data[2], data[3]
+    dtype_code, ndim = head[2], head[3]
     if dtype_code not in _IDX_DTYPES:
         raise MnistError(f"{what}: IDX element type 0x{dtype_code:02x} is not unsigned bytes (0x08)")
+    if ndim == 0 or ndim > MAX_IDX_DIMS:
+        raise MnistError(f"{what}: IDX header declares {ndim} dimensions (1 to {MAX_IDX_DIMS} allowed)")
     header = 4 + 4 * ndim
-    if ndim == 0 or len(data) < header:
+    if len(head) < header:
         raise MnistError(f"{what}: truncated IDX header")
-    shape = tuple(int(s) for s in np.frombuffer(data, dtype=">i4", count=ndim, offset=4))
-    expected = int(np.prod(shape))
+    shape = tuple(int(s) for s in np.frombuffer(head, dtype=">i4", count=ndim, offset=4))
+    if min(shape) < 1:
+        raise MnistError(f"{what}: IDX header declares shape {shape}; every size must be >= 1")
+    size = math.prod(shape)  # Python integers: no int64 wrap-around
+    if size > MAX_IDX_BYTES:
+        raise MnistError(f"{what}: IDX header declares shape {shape} ({size} bytes), more than the maximum of "
+                         f"{MAX_IDX_BYTES} bytes")
+    return header, shape
+
+
+def parse_idx(data: bytes, what: str) -> np.ndarray:
+    """Decode IDX bytes (magic 0x0000TTDD: type TT, DD dimensions, big-endian int32 sizes) to an array."""
+    header, shape = _idx_header(data[:4 + 4 * MAX_IDX_DIMS], what)
+    expected = math.prod(shape)
     if len(data) - header != expected:
         raise MnistError(f"{what}: IDX header says {shape} ({expected} bytes) but the file holds "
                          f"{len(data) - header} bytes of data (truncated or corrupt)")
@@ -121,13 +146,33 @@ def _find(directory: Path, name: str) -> Path | None:
 
 
 def _read_bytes(path: Path) -> bytes:
+    """The uncompressed bytes of one IDX file, header included, read no further than its header declares.
+
+    The header is checked first (:func:`_idx_header`); an uncompressed file's size must then match it before
+    its data are read, and a gzipped one is decompressed to at most the declared size + 1 byte, so neither a
+    forged header nor a gzip bomb makes this allocate more than :data:`MAX_IDX_BYTES`.
+    """
+    what = str(path)
     try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rb") as handle:
-                return handle.read()
-        return path.read_bytes()
-    except (OSError, EOFError, gzip.BadGzipFile) as err:
+        with (gzip.open(path, "rb") if path.suffix == ".gz" else path.open("rb")) as handle:
+            head = handle.read(4)
+            if len(head) == 4:
+                head += handle.read(4 * min(head[3], MAX_IDX_DIMS))
+            header, shape = _idx_header(head, what)
+            expected = math.prod(shape)
+            if path.suffix != ".gz":
+                held = os.fstat(handle.fileno()).st_size - header
+                if held != expected:
+                    raise MnistError(f"{what}: IDX header says {shape} ({expected} bytes) but the file holds "
+                                     f"{held} bytes of data (truncated or corrupt)")
+            data = handle.read(expected + 1)
+    except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as err:
         raise MnistError(f"{path}: cannot read ({err})") from None
+    if len(data) != expected:
+        held = f"more than {expected}" if len(data) > expected else str(len(data))
+        raise MnistError(f"{what}: IDX header says {shape} ({expected} bytes) but the file holds {held} "
+                         "bytes of data (truncated or corrupt)")
+    return head + data
 
 
 def read_idx(path: str | Path) -> np.ndarray:
@@ -225,6 +270,16 @@ def load_split(data: str | Path | None = None, split: str = "auto") -> Split:
                  test_y[cut:].astype(np.int64), standard, desc)
 
 
+def _writable_dir(directory: Path) -> None:
+    """Create ``directory`` if needed and check a file can be created in it (before anything is fetched)."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as err:
+        raise MnistError(f"{directory}: not a writable directory ({err.strerror or err})") from None
+
+
 def download(directory: str | Path, *, include_train: bool = True, mirrors: tuple[str, ...] = MIRRORS,
              timeout: float = 30.0) -> list[Path]:
     """Download the gzipped files into ``directory`` (kept only when their MD5 matches); verify all.
@@ -233,7 +288,7 @@ def download(directory: str | Path, *, include_train: bool = True, mirrors: tupl
     mirror tried when a file cannot be fetched (e.g. offline).
     """
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    _writable_dir(directory)
     names = FILES if include_train else (TEST_IMAGES, TEST_LABELS)
     written = []
     for name in names:
@@ -256,8 +311,11 @@ def download(directory: str | Path, *, include_train: bool = True, mirrors: tupl
                 continue
             target = directory / f"{name}.gz"
             tmp = target.with_suffix(".gz.part")
-            tmp.write_bytes(payload)
-            tmp.replace(target)
+            try:
+                tmp.write_bytes(payload)
+                tmp.replace(target)
+            except OSError as err:
+                raise MnistError(f"{target}: cannot write ({err.strerror or err})") from None
             written.append(target)
             break
         else:

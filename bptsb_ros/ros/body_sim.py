@@ -150,6 +150,19 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           for key in PUBLISHED + SUBSCRIBED)
 
 
+def perturb_step(at: float, dt: float, max_steps: int) -> int:
+    """The step of a perturbation scheduled at sim time ``at`` >= 0 [s]: round(at / dt), at most ``max_steps``
+    (the run's last step; 0: no end, then at most MAX_PERTURB_AHEAD). Raises ParameterError naming the limit
+    (checked in floats first: ``at`` = 1e307 would overflow the integer conversion)."""
+    limit = max_steps or MAX_PERTURB_AHEAD
+    steps = at / dt
+    if not math.isfinite(steps) or steps >= limit + 0.5:
+        end = (f"after the run's last step ({max_steps * dt:g} s)" if max_steps else
+               f"more than {MAX_PERTURB_AHEAD:g} steps ({MAX_PERTURB_AHEAD * dt:g} s) ahead")
+        raise ParameterError(f"parameter 'perturb_at': {at:g} s is {end}")
+    return int(round(steps))
+
+
 def parse_wait_for_subscribers(entries: list[str]) -> list[tuple[str, int]]:
     """``['topic:count', ...]`` → [(topic, count)]; raises ParameterError naming the bad entry."""
     out = []
@@ -223,10 +236,7 @@ class BodySim(Node):
         self.perturbed: list[int] = []  # the first LISTED_PERTURBATIONS steps perturbed
         self.perturbation_count = 0
         if p["perturb_at"] >= 0:
-            k = int(round(p["perturb_at"] / body.dt))
-            if self.max_steps and k > self.max_steps:
-                raise ParameterError(f"parameter 'perturb_at': {p['perturb_at']:g} s is after the run's last step "
-                                     f"({self.max_steps * body.dt:g} s)")
+            k = perturb_step(p["perturb_at"], body.dt, self.max_steps)
             disp = perturbation(body.n_movable, p["perturb_sigma"], p["perturb_seed"])
             rejection = self.perturbations.offer(k, disp.reshape(-1), 0, time.monotonic())
             if rejection is not None:

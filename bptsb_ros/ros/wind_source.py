@@ -23,6 +23,7 @@ from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
+from bptsb_ros.ros.safety import DEFAULT_MAX_WIND
 from bptsb_ros.sim.wind_schedule import KINDS, WindSchedule, WindScheduleError, for_agent, read_table
 
 NODE = "wind_source"
@@ -42,6 +43,9 @@ PARAMS = topic_params(("clock", "wind")) + (
     Param("start_on", False, "switching: the first segment blows", "bool"),
     Param("file", "", "file: CSV table with header t,fx,fy (t [s] ascending; the last row with t <= k·dt is in force "
           "at step k)", "str"),
+    Param("max_wind", DEFAULT_MAX_WIND, "body_sim's max_wind [N] (bptsb launch passes it): a schedule with a force "
+          "component beyond it is refused at startup, since the body would reject every such wind", "float",
+          positive=True),
 )
 
 
@@ -77,14 +81,20 @@ def schedule_from_parameters(config: dict, extra: dict, p: dict, dt: float = 0.0
                  "seed": p["schedule_seed"], "hold_periods": hold, "timing": p["timing"] or None,
                  "start_on": p["start_on"]}
     settings.update({k: v for k, v in overrides.items() if v is not None})
+    limit = p["max_wind"]
     try:
         if kind == "file":
-            settings.update(table=read_table(p["file"]), source=p["file"])
+            settings.update(table=read_table(p["file"], max_force=limit), source=p["file"])
         schedule = WindSchedule(**settings)
         schedule.force_at(0, dt)  # the period in steps is checked here, at startup
-        return schedule
     except WindScheduleError as err:
         raise ParameterError(f"wind schedule: {err}") from None
+    if kind != "file":
+        for name, value in (("force", schedule.force), ("calm", schedule.calm)):
+            if max(abs(value[0]), abs(value[1])) > limit:
+                raise ParameterError(f"wind schedule: its {name} ({value[0]:g}, {value[1]:g}) N is beyond the "
+                                     f"body's max_wind of {limit:g} N per component (every wind would be rejected)")
+    return schedule
 
 
 def schedule_settings(schedule: WindSchedule) -> dict:

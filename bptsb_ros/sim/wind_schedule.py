@@ -34,6 +34,8 @@ KINDS = ("constant", "periodic", "switching", "file")
 PUBLISHED_SWITCHING_FORCE = (15.0, 1.0)
 #: largest wind table read from a file (rows)
 MAX_TABLE_ROWS = 1_000_000
+#: largest wind file read [bytes]: 64 MiB (a million rows of three numbers)
+MAX_TABLE_BYTES = 64 * 2**20
 
 
 class WindScheduleError(ValueError):
@@ -183,14 +185,20 @@ def _row_times(steps: np.ndarray, dt: float) -> np.ndarray:
     return (np.asarray(steps, dtype=np.float64) + 1e-6) * dt
 
 
-def read_table(path: str | Path) -> tuple[tuple[float, float, float], ...]:
+def read_table(path: str | Path, max_force: float | None = None) -> tuple[tuple[float, float, float], ...]:
     """Rows (t [s], F_x, F_y) of a CSV wind table with the header ``t,fx,fy``; raises WindScheduleError naming
-    the file and the problem (missing, unreadable, wrong header, bad number, t not ascending, too many rows)."""
+    the file and the problem (missing, not a regular file, over :data:`MAX_TABLE_BYTES`, unreadable, wrong header,
+    bad number, t not ascending, too many rows, or a force component beyond ±``max_force`` [N] when given: the
+    body's ``max_wind``, which would reject every wind of the run)."""
+    from bptsb_ros.safe_files import UnsafeFileError, read_regular
+
     path = Path(path)
     try:
-        text = path.read_text()
+        text = read_regular(path, MAX_TABLE_BYTES).decode("utf-8")
     except FileNotFoundError:
         raise WindScheduleError(f"wind file {path}: no such file") from None
+    except UnsafeFileError as err:
+        raise WindScheduleError(f"wind file {err}") from None
     except (OSError, UnicodeDecodeError) as err:
         raise WindScheduleError(f"wind file {path}: cannot read it ({err})") from None
     lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
@@ -206,11 +214,15 @@ def read_table(path: str | Path) -> tuple[tuple[float, float, float], ...]:
         except ValueError:
             values = ()
         if len(values) != 3 or not all(math.isfinite(v) for v in values):
-            raise WindScheduleError(f"wind file {path}, row {n}: need three finite numbers t,fx,fy, got {line!r}")
+            raise WindScheduleError(f"wind file {path}, row {n}: need three finite numbers t,fx,fy, got {line[:80]!r}")
         if rows and values[0] <= rows[-1][0]:
             raise WindScheduleError(f"wind file {path}, row {n}: t = {values[0]:g} s is not after the previous row")
         if values[0] < 0:
             raise WindScheduleError(f"wind file {path}, row {n}: t must be >= 0, got {values[0]:g}")
+        if max_force is not None and max(abs(values[1]), abs(values[2])) > max_force:
+            raise WindScheduleError(f"wind file {path}, row {n}: force ({values[1]:g}, {values[2]:g}) N is beyond "
+                                    f"the body's max_wind of {max_force:g} N per component (every wind would be "
+                                    "rejected)")
         rows.append(values)
     if not rows:
         raise WindScheduleError(f"wind file {path}: no rows after the header")
