@@ -90,8 +90,12 @@ class TrainingConfig(_Strict):
     backend: Literal["numba", "torch"] = Field(
         "numba", description="body integration: numba (compiled window kernel, fastest on CPU) or torch (the "
                              "reference; GPU)")
-    reject_factor: float = Field(0.0, ge=0, description="reject an update whose loss > factor × recent median (0: off)")
-    reject_patience: int = Field(5, ge=1, description="divide all learning rates by 10 after this many rejections")
+    reject_factor: float = Field(
+        0.0, ge=0, description="the update guard's spike rule: reject (undo) an update whose loss exceeds factor × the "
+                               "previous loss (the mean of the last 5 once there are 5); 0: off. Non-finite losses, "
+                               "gradients and diverged simulations are always rejected (bptsb_ros.training.guard)")
+    reject_patience: int = Field(5, ge=1, description="divide all learning rates by 10 after this many rejections "
+                                                      "(two good updates in a row reset the count)")
     checkpoint_every: int = Field(0, ge=0, description="updates between checkpoints (0: only at the end)")
     log_every: int = Field(10, ge=1)
 
