@@ -5,6 +5,11 @@ name the key (``training.lr.k: Input should be a valid number``). Durations are 
 (seconds of simulated time, continuous tasks) and ``epochs`` (episodic tasks), so
 ``--set sim_time=20`` or ``--set epochs=2`` shortens any run.
 
+Profiles: a file may name variants of itself in a top-level ``profiles:`` mapping (profile name → a partial
+config, merged key by key over the file). ``profile: NAME`` in the file or ``--set profile=NAME`` selects one;
+the other ``--set`` overrides apply after it, and the resolved config records the profile's name
+(``config/narma.yaml``: ``--set profile=paper_table`` trains with the paper's learning-rate table).
+
 Untrusted input is bounded: a config file is at most ``MAX_CONFIG_BYTES``, its YAML may expand (aliases
 included) to at most ``MAX_YAML_NODES`` nodes, every float must be finite, and error messages echo at most
 ``ECHO_CHARS`` characters of an offending value.
@@ -85,8 +90,12 @@ class TrainingConfig(_Strict):
     backend: Literal["numba", "torch"] = Field(
         "numba", description="body integration: numba (compiled window kernel, fastest on CPU) or torch (the "
                              "reference; GPU)")
-    reject_factor: float = Field(0.0, ge=0, description="reject an update whose loss > factor × recent median (0: off)")
-    reject_patience: int = Field(5, ge=1, description="divide all learning rates by 10 after this many rejections")
+    reject_factor: float = Field(
+        0.0, ge=0, description="the update guard's spike rule: reject (undo) an update whose loss exceeds factor × the "
+                               "previous loss (the mean of the last 5 once there are 5); 0: off. Non-finite losses, "
+                               "gradients and diverged simulations are always rejected (bptsb_ros.training.guard)")
+    reject_patience: int = Field(5, ge=1, description="divide all learning rates by 10 after this many rejections "
+                                                      "(two good updates in a row reset the count)")
     checkpoint_every: int = Field(0, ge=0, description="updates between checkpoints (0: only at the end)")
     log_every: int = Field(10, ge=1)
 
@@ -144,6 +153,7 @@ class NarmaConfig(_Strict):
 class ExperimentConfig(_Strict):
     task: Literal["lissajous", "locomotion", "narma"]
     name: str = ""
+    profile: str = Field("", description="the profile of the file's 'profiles:' applied (recorded; '' none)")
     seed: int = 0
     dtype: Literal["float32", "float64"] = "float32"
     sim_time: float = Field(100.0, gt=0, description="simulated training time [s] (continuous tasks)")
@@ -232,6 +242,33 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
     return data
 
 
+def _merge(base: dict, patch: dict) -> None:
+    """Merge ``patch`` into ``base`` in place: nested mappings key by key, anything else replaced."""
+    for key, value in patch.items():
+        if isinstance(value, dict) and isinstance(base.get(key), dict):
+            _merge(base[key], value)
+        else:
+            base[key] = value
+
+
+def apply_profile(data: dict, source: str = "") -> dict:
+    """Remove the ``profiles:`` mapping from a raw config and merge the one ``profile`` names into it."""
+    profiles = data.pop("profiles", None)
+    if profiles is None:
+        profiles = {}
+    if not isinstance(profiles, dict) or not all(isinstance(v, dict) for v in profiles.values()):
+        raise ConfigError(f"profiles in {source or 'the config'} must map each profile name to a mapping of keys")
+    name = data.get("profile", "")
+    if name in (None, ""):  # ``--set profile=`` (YAML: null) selects none
+        data.pop("profile", None)
+        return data
+    if not isinstance(name, str) or name not in profiles:
+        known = ", ".join(sorted(map(str, profiles))) or "none"
+        raise ConfigError(f"profile {echo(name)} is not defined in {source or 'the config'} (defined: {known})")
+    _merge(data, profiles[name])
+    return data
+
+
 def validate(data: dict, source: str = "") -> ExperimentConfig:
     """Validate a raw mapping; raises ConfigError listing every bad key."""
     if not isinstance(data, dict):
@@ -256,7 +293,12 @@ def load_config(path: str | Path, overrides: list[str] | None = None, seed: int 
     except OSError as err:
         raise ConfigError(f"cannot read config file {path}: {err.strerror or err}") from None
     data = safe_yaml(text, f"config file {path}") or {}
-    data = apply_overrides(data, overrides or [])
+    if not isinstance(data, dict):
+        raise ConfigError(f"configuration {path} must be a mapping, got {type(data).__name__}")
+    overrides = overrides or []
+    chosen = [o for o in overrides if parse_override(o)[0] == ["profile"]]  # the profile first, the rest over it
+    data = apply_profile(apply_overrides(data, chosen), str(path))
+    data = apply_overrides(data, [o for o in overrides if o not in chosen])
     if seed is not None:
         data["seed"] = seed
     cfg = validate(data, str(path))

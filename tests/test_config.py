@@ -63,3 +63,43 @@ def test_bad_body_window_and_learning_rates_name_the_key():
                   "training": {"update_steps": 150}})
     with pytest.raises(ConfigError, match="every learning rate is zero"):
         validate({"task": "lissajous", "training": {"lr": {"k": 0, "d": 0, "l": 0, "amplitude": 0, "phase": 0}}})
+
+
+NARMA = Path(__file__).resolve().parents[1] / "config" / "narma.yaml"
+
+
+def test_narma_and_memory_default_to_the_authors_rates_and_offer_the_paper_table():
+    """Hand values: the authors' timeseries/expandedNARMA.yaml and memory.yaml (k 1e3, d 1e2, l 1, brain 1e-2)
+    and the paper's learning-rate table, row "Time-series emulation" (k 1e4, d 1e3, l 1e1, brain 1e-1)."""
+    from bptsb_ros.experiments.common import packaged_config
+    from bptsb_ros.experiments.timeseries import config_name, narma_overrides
+
+    lr = load_config(NARMA).training.lr
+    assert (lr.k, lr.d, lr.l, lr.brain) == (1e3, 1e2, 1.0, 1e-2)
+    memory = packaged_config(config_name("paper"), narma_overrides("paper", 1, "double-circle", "lil",
+                                                                   ("narma.target=memory", "narma.delay=8")))
+    assert memory.narma.target == "memory" and memory.training.lr == lr and memory.training.reject_factor == 10
+    cfg = load_config(NARMA, ["profile=paper_table"])
+    lr = cfg.training.lr
+    assert (lr.k, lr.d, lr.l, lr.brain) == (1e4, 1e3, 10.0, 0.1) and cfg.profile == "paper_table"
+    # the other overrides apply over the profile, wherever they stand on the command line
+    assert load_config(NARMA, ["training.lr.k=5", "profile=paper_table"]).training.lr.k == 5
+
+
+def test_profiles_merge_over_the_file_and_bad_ones_name_the_problem(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("task: lissajous\nsim_time: 10\nprofile: long\nprofiles:\n"
+                 "  long: {sim_time: 50, training: {lr: {k: 7}}}\n")
+    cfg = load_config(p)
+    assert cfg.sim_time == 50 and cfg.training.lr.k == 7 and cfg.training.lr.d == 1e3  # merged key by key
+    assert validate(cfg.model_dump(mode="json")).profile == "long"  # the resolved config records it
+    plain = load_config(p, ["profile="])
+    assert plain.sim_time == 10 and plain.training.lr.k == 1e4 and plain.profile == ""
+    with pytest.raises(ConfigError, match=r"profile 'short' is not defined in .*c\.yaml \(defined: long\)"):
+        load_config(p, ["profile=short"])
+    p.write_text("task: lissajous\nprofiles: 3\n")
+    with pytest.raises(ConfigError, match="profiles in .* must map each profile name to a mapping"):
+        load_config(p)
+    p.write_text("task: lissajous\nprofile: x\n")
+    with pytest.raises(ConfigError, match=r"profile 'x' is not defined .*\(defined: none\)"):
+        load_config(p)

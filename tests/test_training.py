@@ -13,7 +13,7 @@ from bptsb_ros.config import ConfigError, load_config
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.tasks.locomotion import LocomotionTask
 from bptsb_ros.training.checkpoint import CheckpointError, load_agent, read_checkpoint
-from bptsb_ros.training.trainer import TrainingDiverged, train
+from bptsb_ros.training.trainer import train
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 
@@ -121,14 +121,23 @@ def test_resume_continues_where_it_stopped(tmp_path):
               resume=True, progress=False)
 
 
-def test_divergence_is_reported_not_trained_on(tmp_path):
+def test_a_diverging_update_is_undone_and_training_goes_on(tmp_path):
+    """k's rate 1e12: every update from the initial parameters diverges the next window. The guard undoes each,
+    divides every rate by 10 after five, and the run ends with finite losses and a finite carried state (the
+    reporting of a training that cannot go on: tests/test_training_last_good.py)."""
     cfg = load_config(CONFIG / "lissajous_single.yaml", ["sim_time=20", "training.lr.k=1.0e+12",
-                                                           "training.checkpoint_every=1"])
-    with pytest.raises(TrainingDiverged, match=r"(step \d+|loss is).*the last good checkpoint, update \d+, is kept"):
-        train(cfg, tmp_path / "run", progress=False)
-    report = json.loads((tmp_path / "run" / "diverged.json").read_text())
-    assert "k in [" in report["parameters"] and report["update"] >= 1
-    # the kept checkpoint holds the last finite state, so the run can be inspected or resumed
+                                                           "training.checkpoint_every=1", "feedback.fit_time=5",
+                                                           "lissajous.eval_periods=1"])
+    res = train(cfg, tmp_path / "run", progress=False)
+    guard = json.loads((tmp_path / "run" / "metrics.json").read_text())["guard"]
+    events = guard["events"]
+    assert len(events) >= 5 and {e["reason"] for e in events} == {"diverged"}
+    assert guard["divisions"] == len(events) // 5 >= 1
+    assert guard["rates"]["k"] == pytest.approx(1e12 * 0.1 ** guard["divisions"])
+    assert guard["rates"]["l"] == pytest.approx(10.0 * 0.1 ** guard["divisions"])
+    assert len(res.losses) == 20 and np.isfinite(res.losses).all()
+    for e in events:  # a rejected update repeats the previous entry of the loss curve
+        assert res.losses[e["update"]] == res.losses[e["update"] - 1]
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["extra"]["task_state"]
     assert torch.isfinite(state["r"]).all() and torch.isfinite(state["v"]).all()
 

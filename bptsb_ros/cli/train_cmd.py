@@ -50,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
         "first_loss": losses[0] if losses else None,
         "last_loss": losses[-1] if losses else None,
         "train_steps_per_second": round(m["train_steps_per_second"] or 0.0, 1),
+        "updates_undone": m["guard"]["rejections"],
+        "learning_rate_divisions": m["guard"]["divisions"],
         **{k: v for k, v in ev.items() if isinstance(v, (int, float, bool)) and not isinstance(v, list)},
     }
     print(json.dumps(summary, indent=2))

@@ -93,11 +93,13 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
                                                                                      eval_periods)
         out[f"{name}_loss_first_last"] = [res.losses[0], res.losses[-1]] if res.losses else None
         out[f"{name}_diverged_at_update"] = res.diverged
+        out[f"{name}_guard"] = res.guard
     res1 = train_scheme1(fresh, target, max(1, int(round(scheme1_time / (period * fresh.dt)))), seed=seed)
     out["scheme1"] = float("nan") if res1.diverged is not None else closed_loop_error(
         TrainedAgent(fresh, res1.state, {}, Path(run_dir)), res1.state, c, eval_periods)
     out["scheme1_loss_first_last"] = [res1.losses[0], res1.losses[-1]] if res1.losses else None
     out["scheme1_diverged_at_update"] = res1.diverged
+    out["scheme1_guard"] = res1.guard
     Path(run_dir).mkdir(parents=True, exist_ok=True)
     Path(run_dir, "scheme.json").write_text(json.dumps(out))
     return out

@@ -85,7 +85,7 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, curve_on: tuple[float, 
     summary = {"wind_shift_x_m": shift, "updates": len(res.losses), "sim_time_s": sim_time, "timing": str(timing),
                "loss_first10": float(np.mean(res.losses[:10])), "loss_last10": float(np.mean(res.losses[-10:])),
                "wind_on_fraction": float(schedule.mean()), "hold_periods": list(hold),
-               "published_wind": published_wind}
+               "published_wind": published_wind, "guard": res.guard}
     Path(run_dir, "switching.json").write_text(json.dumps({**summary, "losses": res.losses}))
     return summary
 

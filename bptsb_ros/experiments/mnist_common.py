@@ -108,7 +108,7 @@ def train_drawing_job(spec_json: dict[str, Any], seed: int, train_x: np.ndarray,
     save_system(system, checkpoint, {**meta, "epochs": epochs, "batch": batch, "seed": seed})
     ev = evaluate_drawing(system, test_x, test_y)
     return {"name": spec.name, "losses": log.losses, "epoch_losses": log.epoch_losses, "train_s": log.wall_s,
-            "updates": len(log.losses), "checkpoint": checkpoint, **ev}
+            "updates": len(log.losses), "checkpoint": checkpoint, "guard": log.guard, **ev}
 
 
 def reusable_checkpoint(path: Path, meta: dict[str, Any]) -> bool:
@@ -143,4 +143,6 @@ def obtain_drawing_system(ctx: Context, spec, data: Data, *, epochs: int, batch:
                    ctx.log)[0]
     system, _ = load_system(path)
     evaluation = {k: res[k] for k in ("errors", "drawings", "brain", "displacement")}
-    return system, evaluation, f"trained here ({res['updates']} updates, {res['train_s']:.0f} s)"
+    g = res["guard"]
+    return system, evaluation, (f"trained here ({res['updates']} updates, {res['train_s']:.0f} s, {g['rejections']} "
+                                f"update(s) undone by the guard, final rates {g['rates']})")

@@ -106,7 +106,7 @@ def run(ctx: Context) -> None:
         "systems": {label[sp.name]: {"spec": sp.to_json(), "updates": r["updates"], "train_s": round(r["train_s"], 1),
                                      "first_epoch_train_mse": r["epoch_losses"][0] if r["epoch_losses"] else None,
                                      "last_epoch_train_mse": r["epoch_losses"][-1] if r["epoch_losses"] else None,
-                                     "checkpoint": str(sp.name) + ".pt"}
+                                     "checkpoint": str(sp.name) + ".pt", "guard": r["guard"]}
                     for sp, r in zip(specs, results)},
         "per_digit_test_mse": per_digit,
         "epochs": s["epochs"], "batch": BATCH, "data": data.description,

@@ -38,7 +38,7 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
     log = train_readout(model, train_x, train_y, epochs=epochs, batch=BATCH, seed=seed, test=(test_x, test_y))
     return {"accuracy": accuracy(model, test_x, test_y), "train_accuracy": accuracy(model, train_x, train_y),
             "epoch_accuracy": log.epoch_accuracy, "losses": log.losses, "train_s": log.wall_s,
-            "n_features": model.n_features}
+            "n_features": model.n_features, "guard": log.guard}
 
 
 @experiment(
@@ -82,5 +82,5 @@ def run(ctx: Context) -> None:
     ctx.result.details = {"epochs": epochs, "batch": BATCH, "data": data.description,
                           "systems": {name: {"n_features": r["n_features"], "train_s": round(r["train_s"], 1),
                                              "train_accuracy": r["train_accuracy"],
-                                             "epoch_accuracy": r["epoch_accuracy"]}
+                                             "epoch_accuracy": r["epoch_accuracy"], "guard": r["guard"]}
                                       for name, r in zip(names, results)}}

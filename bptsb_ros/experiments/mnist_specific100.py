@@ -96,4 +96,5 @@ def run(ctx: Context) -> None:
                                f"Specific {len(y)} images: mean drawing MSE (train = test)"))
     ctx.result.details = {"epochs": epochs, "images": len(y), "pca": pca, "label_maps": maps,
                           "systems": {sp.name: {"updates": results[sp.name]["updates"],
-                                                "train_s": round(results[sp.name]["train_s"], 1)} for sp in specs}}
+                                                "train_s": round(results[sp.name]["train_s"], 1),
+                                                "guard": results[sp.name]["guard"]} for sp in specs}}

@@ -10,7 +10,8 @@ computed here:
 * the MLP gives a smaller error than the LIL (for both bodies);
 * the multiple-circle body gives a smaller error than the double circle (for both brains).
 
-``paper`` scale: the paper's schedule, SGD with the table's learning rates for 40,000 epochs (config/narma.yaml).
+``paper`` scale: the paper's schedule, 40,000 SGD epochs with the authors' learning rates (config/narma.yaml;
+the paper's table, 10× higher, is its profile ``paper_table``), every update through the authors' guard.
 ``short``: Adam (config/narma_adam.yaml) for a few hundred epochs — what converges on this machine.
 """
 

@@ -51,8 +51,9 @@ def narma_overrides(scale: str, epochs: int, body: str, brain: str, extra: tuple
 
 
 def config_name(scale: str) -> str:
-    """``paper``: the paper's SGD schedule (config/narma.yaml, the table's learning rates); otherwise Adam
-    (config/narma_adam.yaml), which converges in hundreds of epochs."""
+    """``paper``: the paper's SGD schedule (config/narma.yaml: the authors' learning rates, k 1e3, d 1e2, l 1,
+    brain 1e-2, from their expandedNARMA.yaml and memory.yaml); otherwise Adam (config/narma_adam.yaml), which
+    converges in hundreds of epochs."""
     return "narma" if scale == "paper" else "narma_adam"
 
 
@@ -114,7 +115,7 @@ def run_jobs(jobs: list[Any], out_dir: Path, log, workers: int | None = None,
     """Run independent jobs (``bptsb_ros.sweep.Job``) in a local process pool (``workers``: default one per
     CPU; 0 runs them one after another in this process, for smoke runs where starting workers costs more than
     the jobs). Every failure is an error, except, with ``diverged_ok``, a training that diverged: its result is
-    ``{"diverged": message}`` (the paper's SGD learning rates can blow a system up; that is a result)."""
+    ``{"diverged": message}`` (SGD can blow a system up beyond what the update guard can undo; that is a result)."""
     from bptsb_ros.sweep import run_sweep
 
     last = [""]

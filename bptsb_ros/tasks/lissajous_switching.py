@@ -18,18 +18,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 import torch
 
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.adjoint import rollout_window
-from bptsb_ros.body.msdn import BodyState
+from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.config import LearningRates, TrainingConfig
 from bptsb_ros.sim.population import wind_force
 from bptsb_ros.sim.rollout import swg_rest_lengths
+from bptsb_ros.training.guard import UpdateGuard
 from bptsb_ros.training.optim import make_optimizer
 
 #: the paper's learning rates for switching (supplementary table, "Lissajous curves (switching)")
@@ -120,20 +121,32 @@ def wind_offset(agent: Agent, state: BodyState, f_wind: float = 1.0, periods: in
 
 @dataclass
 class SwitchingTraining:
+    """losses: one per update (a rejected update repeats the previous entry); guard: the guard's summary."""
+
     losses: list[float]
     state: BodyState
     schedule: np.ndarray
+    guard: dict[str, Any] = field(default_factory=dict)
 
 
 def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
                     target: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], *,
                     lr: LearningRates = SWITCHING_LR, window: int = 100, published_wind: bool = False,
+                    reject_factor: float = 0.0,
                     progress: Callable[[int, int, float], None] | None = None) -> SwitchingTraining:
     """Additional BPTSB training of an SWG agent under a wind schedule (in place; SGD, truncated windows).
 
     schedule: (steps + 1,) F_wind in force at steps state.step .. state.step + steps; the number of updates
     is steps // window. target(t (W,), wind (W,)) → (W, 2) CMP target [m]. Returns the loss of every update
     and the final state (to continue from).
+
+    Every update goes through the :class:`~bptsb_ros.training.guard.UpdateGuard` (a diverged window or a
+    non-finite loss or gradient undoes the previous update; the window's state is carried on only if finite).
+    ``reject_factor`` 0 (default): no spike rule — the target switches curves with the wind, so a jump of the
+    loss is expected here, and the authors' Lissajous training had none.
+
+    Raises:
+        SimulationDiverged: a failure the guard cannot undo (no update since the start or the last restore).
     """
     body, swg = agent.body, agent.brain
     for module in agent.modules().values():
@@ -141,11 +154,11 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
     if agent.feedback is not None:
         agent.feedback.requires_grad_(False)
     opt = make_optimizer(agent, TrainingConfig(lr=lr, update_steps=window))
+    guard = UpdateGuard(opt, factor=reject_factor)
     dtype = body.l.dtype
     forces = wind_force(body, wind_vector(torch.as_tensor(schedule), published=published_wind).to(dtype))  # (S+1, M, 2)
     k_start = state.step
     updates = (len(schedule) - 1) // window
-    losses: list[float] = []
     state = state.detach()
     for u in range(updates):
         first = state.step + 1
@@ -156,15 +169,23 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
         t = torch.arange(first, first + window, dtype=dtype) * body.dt
         wind = torch.as_tensor(schedule[rel:rel + window], dtype=dtype)
         loss = ((win.r[:, 0, body.cmp_local] - target(t, wind)) ** 2).mean()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        body.clamp_parameters_()
-        state = win.final.detach()
-        body.check_finite(state)
-        losses.append(float(loss.detach()))
+        failure = None
+        try:
+            body.check_finite(win.final.detach())
+        except SimulationDiverged as err:
+            failure = str(err)
+        decision = guard.backward_and_review(u, loss, diverged=failure)
+        if decision.stop:
+            for module in agent.modules().values():
+                module.requires_grad_(False)
+            raise SimulationDiverged(f"switching update {u}: {failure or decision.reason}; nothing to undo")
+        if decision.accepted:
+            opt.step()
+            body.clamp_parameters_()
+        if failure is None:
+            state = win.final.detach()
         if progress is not None:
-            progress(u + 1, updates, losses[-1])
+            progress(u + 1, updates, guard.history[-1])
     for module in agent.modules().values():
         module.requires_grad_(False)
-    return SwitchingTraining(losses, state, schedule)
+    return SwitchingTraining(guard.history, state, schedule, guard.summary())

@@ -26,6 +26,7 @@ from bptsb_ros.body.msdn import MSDN
 from bptsb_ros.body.shapes import build_shape
 from bptsb_ros.brains.fnn import LinearInputLayer, MLPBrain
 from bptsb_ros.tasks.digits import load_targets, padded_targets
+from bptsb_ros.training.guard import FACTOR, UpdateGuard
 
 N_PIXELS = 784
 #: the paper's learning rates for MNIST (supplement table): k, d, l and the LIL/MLP, plain SGD
@@ -192,9 +193,10 @@ def make_optimizer(system: ImageToBody) -> torch.optim.Optimizer:
 
 @dataclass
 class TrainLog:
-    losses: list[float] = field(default_factory=list)  # mean batch MSE per update [m²]
+    losses: list[float] = field(default_factory=list)  # mean batch MSE per update [m²]; a rejected one repeats
     epoch_losses: list[float] = field(default_factory=list)
     wall_s: float = 0.0
+    guard: dict[str, Any] = field(default_factory=dict)  # the update guard's summary (rules, events, rates)
 
 
 def iterate_batches(n: int, batch: int, gen: np.random.Generator) -> list[np.ndarray]:
@@ -203,15 +205,25 @@ def iterate_batches(n: int, batch: int, gen: np.random.Generator) -> list[np.nda
 
 
 def train_drawing(system: ImageToBody, x: np.ndarray, y: np.ndarray, *, epochs: int, batch: int = 50,
-                  seed: int = 0, max_updates: int | None = None,
+                  seed: int = 0, max_updates: int | None = None, reject_factor: float = FACTOR,
                   log: Callable[[str], None] | None = None) -> TrainLog:
-    """BPTSB over the whole release: each batch of images is one simulation; SGD/Adam on the MSE."""
+    """BPTSB over the whole release: each batch of images is one simulation; SGD/Adam on the MSE.
+
+    Every update goes through the :class:`~bptsb_ros.training.guard.UpdateGuard` as in the authors' MNIST
+    training: a non-finite loss or gradient, or a loss above ``reject_factor`` × the previous (the mean of the last
+    5 once there are 5), undoes the previous update; five rejections divide every rate by 10.
+
+    Raises:
+        FloatingPointError: a non-finite loss or gradient the guard cannot undo (no update since the start or
+            the last restore).
+    """
     targets = DigitTargets(system.spec.dt, system.body.k.dtype)
     opt = make_optimizer(system)
+    guard = UpdateGuard(opt, factor=reject_factor, log=log)
     gen = np.random.default_rng(seed)
     xt = torch.as_tensor(x)
     yt = torch.as_tensor(y)
-    out = TrainLog()
+    out = TrainLog(losses=guard.history)
     t0 = time.perf_counter()
     updates = 0
     for epoch in range(epochs):
@@ -223,15 +235,14 @@ def train_drawing(system: ImageToBody, x: np.ndarray, y: np.ndarray, *, epochs: 
             steps = int(targets.steps[labels].max())
             drawing = system.draw(xt[idx], steps)
             loss = targets.errors(drawing, labels).mean()
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"non-finite drawing loss at update {updates}; "
-                                         f"body {system.body.parameter_ranges()}")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            system.body.clamp_parameters_()
+            decision = guard.backward_and_review(updates, loss)
+            if decision.stop:
+                raise FloatingPointError(f"{decision.reason} of the drawing loss at update {updates} with nothing "
+                                         f"to undo; body {system.body.parameter_ranges()}")
+            if decision.accepted:
+                opt.step()
+                system.body.clamp_parameters_()
             updates += 1
-            out.losses.append(float(loss.detach()))
             epoch_sum += out.losses[-1] * len(idx)
             count += len(idx)
         if count:
@@ -239,6 +250,7 @@ def train_drawing(system: ImageToBody, x: np.ndarray, y: np.ndarray, *, epochs: 
             if log:
                 log(f"{system.spec.name}: epoch {epoch + 1}/{epochs} train MSE {epoch_sum / count:.4g} m²")
     out.wall_s = time.perf_counter() - t0
+    out.guard = guard.summary()
     return out
 
 

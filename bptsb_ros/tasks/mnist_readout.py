@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -18,6 +19,7 @@ from torch import nn
 
 from bptsb_ros.brains.fnn import LinearInputLayer
 from bptsb_ros.tasks.mnist_drawing import N_PIXELS, ImageToBody, SystemSpec, iterate_batches
+from bptsb_ros.training.guard import FACTOR, UpdateGuard
 
 N_CLASSES = 10
 #: Adam learning rates for the readout experiment. The paper gives none for it; plain SGD with the drawing
@@ -102,36 +104,46 @@ def make_optimizer(model: ReadoutSystem) -> torch.optim.Optimizer:
 
 @dataclass
 class ReadoutLog:
-    losses: list[float] = field(default_factory=list)
+    losses: list[float] = field(default_factory=list)  # batch cross-entropy per update; a rejected one repeats
     epoch_accuracy: list[float] = field(default_factory=list)  # test accuracy after each epoch
     wall_s: float = 0.0
+    guard: dict[str, Any] = field(default_factory=dict)  # the update guard's summary (rules, events, rates)
 
 
 def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs: int, batch: int = 50,
-                  seed: int = 0, test: tuple[np.ndarray, np.ndarray] | None = None,
+                  seed: int = 0, test: tuple[np.ndarray, np.ndarray] | None = None, reject_factor: float = FACTOR,
                   log: Callable[[str], None] | None = None) -> ReadoutLog:
-    """Softmax cross-entropy through the body (BPTSB) with the paper's learning rates."""
+    """Softmax cross-entropy through the body (BPTSB), every update through the
+    :class:`~bptsb_ros.training.guard.UpdateGuard` as in the authors' MNIST training (see :func:`train_drawing`).
+
+    Raises:
+        FloatingPointError: a non-finite loss or gradient the guard cannot undo.
+    """
     opt = make_optimizer(model)
+    guard = UpdateGuard(opt, factor=reject_factor, log=log)
     gen = np.random.default_rng(seed)
     xt, yt = torch.as_tensor(x), torch.as_tensor(y)
-    out = ReadoutLog()
+    out = ReadoutLog(losses=guard.history)
     t0 = time.perf_counter()
+    updates = 0
     for epoch in range(epochs):
         for idx in iterate_batches(len(y), batch, gen):
             loss = nn.functional.cross_entropy(model(xt[idx]), yt[idx])
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"{model.spec.name}: non-finite readout loss in epoch {epoch + 1}")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            if model.system is not None:
-                model.system.body.clamp_parameters_()
-            out.losses.append(float(loss.detach()))
+            decision = guard.backward_and_review(updates, loss)
+            if decision.stop:
+                raise FloatingPointError(f"{model.spec.name}: {decision.reason} of the readout loss in epoch "
+                                         f"{epoch + 1} with nothing to undo")
+            if decision.accepted:
+                opt.step()
+                if model.system is not None:
+                    model.system.body.clamp_parameters_()
+            updates += 1
         if test is not None:
             out.epoch_accuracy.append(accuracy(model, *test))
             if log:
                 log(f"{model.spec.name}: epoch {epoch + 1}/{epochs} test accuracy {100 * out.epoch_accuracy[-1]:.2f} %")
     out.wall_s = time.perf_counter() - t0
+    out.guard = guard.summary()
     return out
 
 

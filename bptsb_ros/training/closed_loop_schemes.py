@@ -14,12 +14,19 @@ three ways to train the feedback layer (FL) together with the body, on the Lissa
 
 Learning rates: the paper's "Lissajous curves (closed-loop)" row (k 1e4, d 1e3, l 1e0, A 1e0, φ 1e1); the
 paper gives none for the FL weights: :data:`FL_LR` (our choice, stated in the results).
+
+Every update goes through the :class:`~bptsb_ros.training.guard.UpdateGuard`: a diverged window, a non-finite loss
+or gradient (or, with ``reject_factor`` > 0, a loss spike) undoes the previous update (parameters, optimiser state
+and, in scheme 3, the fitted FL), the window's body state is carried on only if it stayed finite, and five
+rejections divide every rate by 10. The authors' Lissajous trainings had no spike rule: ``reject_factor`` is 0 by
+default. A failure the guard cannot undo stops the scheme (``SchemeTraining.diverged``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -30,6 +37,7 @@ from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.brains import fit_ridge
 from bptsb_ros.config import LearningRates, TrainingConfig
 from bptsb_ros.sim.rollout import swg_rest_lengths
+from bptsb_ros.training.guard import UpdateGuard
 from bptsb_ros.training.optim import make_optimizer
 
 #: the paper's learning rates for the closed-loop schemes (supplementary table, "Lissajous curves (closed-loop)")
@@ -44,17 +52,14 @@ Target = Callable[[torch.Tensor], torch.Tensor]  # times (W,) [s] → (W, 2) [m]
 
 @dataclass
 class SchemeTraining:
-    """losses: one per update done; diverged: the update at which the loss, the parameters or the simulation
-    became non-finite (training stopped there; the agent is then unusable), or None."""
+    """losses: one per update done (a rejected update repeats the previous entry); diverged: the update at which
+    the simulation, the loss or the gradients failed with nothing for the guard to undo (training stopped there;
+    the agent holds the parameters of the last accepted update), or None; guard: the guard's summary."""
 
     losses: list[float]
     state: BodyState
     diverged: int | None = None
-
-
-def _finite(agent: Agent, loss: torch.Tensor) -> bool:
-    params = [p for m in agent.modules().values() for p in m.parameters()]
-    return bool(torch.isfinite(loss.detach())) and all(bool(torch.isfinite(p).all()) for p in params)
+    guard: dict[str, Any] = field(default_factory=dict)
 
 
 def _optimizer(agent: Agent, lr: LearningRates, with_swg: bool, with_fl: bool) -> torch.optim.Optimizer:
@@ -75,12 +80,13 @@ def _optimizer(agent: Agent, lr: LearningRates, with_swg: bool, with_fl: bool) -
     return opt
 
 
-def _state_ok(body, state: BodyState) -> bool:
+def _divergence(body, state: BodyState) -> str | None:
+    """None when the state is finite and bounded, else the simulation's error message."""
     try:
         body.check_finite(state.detach())
-    except SimulationDiverged:
-        return False
-    return True
+    except SimulationDiverged as err:
+        return str(err)
+    return None
 
 
 def _finish(agent: Agent) -> None:
@@ -89,16 +95,16 @@ def _finish(agent: Agent) -> None:
 
 
 def train_scheme1(agent: Agent, target: Target, updates: int, *, window: int = 100, lr: LearningRates = CLOSED_LOOP_LR,
-                  init_std: float = 0.1, seed: int = 0) -> SchemeTraining:
+                  init_std: float = 0.1, seed: int = 0, reject_factor: float = 0.0) -> SchemeTraining:
     """Scheme 1: closed loop from scratch; the FL starts from W ~ N(0, init_std²) (bias included)."""
     body, fb = agent.body, agent.feedback
     with torch.no_grad():
         fb.weight.normal_(0.0, init_std, generator=torch.Generator().manual_seed(seed))
         fb.weight.mul_(fb.driven.unsqueeze(-1))
     opt = _optimizer(agent, lr, with_swg=False, with_fl=True)
+    guard = UpdateGuard(opt, factor=reject_factor)
     state = body.initial_state(1).detach()
-    losses: list[float] = []
-    for _ in range(updates):
+    for u in range(updates):
         cmp = []
         s = state
         for _i in range(window):
@@ -106,27 +112,33 @@ def train_scheme1(agent: Agent, target: Target, updates: int, *, window: int = 1
             cmp.append(s.r[0, body.cmp_local])
         t = torch.arange(state.step + 1, state.step + window + 1, dtype=body.l.dtype) * body.dt
         loss = ((torch.stack(cmp) - target(t)) ** 2).mean()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        body.clamp_parameters_()
-        if not _finite(agent, loss) or not _state_ok(body, s):
-            _finish(agent)
-            return SchemeTraining(losses, state, len(losses))
-        state = s.detach()
-        losses.append(float(loss.detach()))
+        failure = _divergence(body, s)
+        decision = guard.backward_and_review(u, loss, diverged=failure)
+        if decision.stop:
+            return _stopped(agent, guard, state, u)
+        if decision.accepted:
+            opt.step()
+            body.clamp_parameters_()
+        if failure is None:
+            state = s.detach()
     _finish(agent)
-    return SchemeTraining(losses, state)
+    return SchemeTraining(guard.history, state, None, guard.summary())
+
+
+def _stopped(agent: Agent, guard: UpdateGuard, state: BodyState, update: int) -> SchemeTraining:
+    _finish(agent)
+    return SchemeTraining(guard.history, state, update, guard.summary())
 
 
 def train_scheme2(agent: Agent, state: BodyState, target: Target, updates: int, *, window: int = 100,
-                  lr: LearningRates = CLOSED_LOOP_LR, alpha: float = ALPHA_FB) -> SchemeTraining:
+                  lr: LearningRates = CLOSED_LOOP_LR, alpha: float = ALPHA_FB,
+                  reject_factor: float = 0.0) -> SchemeTraining:
     """Scheme 2: BPTSB through SWG + body + FL (open loop), L = L_traj + α·L_FB; the FL as fitted before."""
     body, swg, fb = agent.body, agent.brain, agent.feedback
     opt = _optimizer(agent, lr, with_swg=True, with_fl=True)
+    guard = UpdateGuard(opt, factor=reject_factor)
     state = state.detach()
-    losses: list[float] = []
-    for _ in range(updates):
+    for u in range(updates):
         first = state.step + 1
         rest = swg_rest_lengths(body, swg, first, window)
         win = rollout_window(body, state, rest)
@@ -136,52 +148,52 @@ def train_scheme2(agent: Agent, state: BodyState, target: Target, updates: int, 
         lengths = torch.cat([state.length, win.length[:-1, 0]])  # (W, E): steps first−1 .. first+W−2
         l_fb = ((fb.signal_from_features(lengths) - swg.signal(t)) ** 2).mean()
         loss = l_traj + alpha * l_fb
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        body.clamp_parameters_()
-        if not _finite(agent, loss) or not _state_ok(body, win.final):
-            _finish(agent)
-            return SchemeTraining(losses, state, len(losses))
-        state = win.final.detach()
-        losses.append(float(loss.detach()))
+        failure = _divergence(body, win.final)
+        decision = guard.backward_and_review(u, loss, diverged=failure)
+        if decision.stop:
+            return _stopped(agent, guard, state, u)
+        if decision.accepted:
+            opt.step()
+            body.clamp_parameters_()
+        if failure is None:
+            state = win.final.detach()
     _finish(agent)
-    return SchemeTraining(losses, state)
+    return SchemeTraining(guard.history, state, None, guard.summary())
 
 
 def train_scheme3(agent: Agent, state: BodyState, target: Target, updates: int, *, window: int = 100,
                   lr: LearningRates = CLOSED_LOOP_LR, noise: float = 0.08, fit_windows: int = 10,
-                  seed: int = 0) -> SchemeTraining:
-    """Scheme 3: BPTSB on SWG + body (L_traj), the FL re-fitted by ridge regression after every update on the
-    last ``fit_windows`` windows' (state k, SWG signal k+1) pairs with input noise σ = ``noise``."""
+                  seed: int = 0, reject_factor: float = 0.0) -> SchemeTraining:
+    """Scheme 3: BPTSB on SWG + body (L_traj), the FL re-fitted by ridge regression after every accepted update on
+    the last ``fit_windows`` accepted windows' (state k, SWG signal k+1) pairs with input noise σ = ``noise``."""
     body, swg, fb = agent.body, agent.brain, agent.feedback
     opt = _optimizer(agent, lr, with_swg=True, with_fl=False)
+    guard = UpdateGuard(opt, factor=reject_factor, modules={"feedback": fb})  # a restore brings the FL back too
     rng = np.random.default_rng(seed)
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
     state = state.detach()
-    losses: list[float] = []
-    for _ in range(updates):
+    for u in range(updates):
         first = state.step + 1
         rest = swg_rest_lengths(body, swg, first, window)
         win = rollout_window(body, state, rest)
         t = torch.arange(first, first + window, dtype=body.l.dtype) * body.dt
         loss = ((win.r[:, 0, body.cmp_local] - target(t)) ** 2).mean()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        with torch.no_grad():
-            xs.append(torch.cat([state.length, win.length[:-1, 0]]).double().numpy())
-            ys.append(swg.signal(t).double().numpy())
-        opt.step()
-        body.clamp_parameters_()
-        if not _finite(agent, loss) or not _state_ok(body, win.final) or not np.isfinite(xs[-1]).all():
-            _finish(agent)
-            return SchemeTraining(losses, state, len(losses))
-        xs, ys = xs[-fit_windows:], ys[-fit_windows:]
-        x = np.concatenate(xs)
-        weights, _ = fit_ridge(x + noise * rng.standard_normal(x.shape), np.concatenate(ys))
-        fb.load_fit(weights)
-        state = win.final.detach()
-        losses.append(float(loss.detach()))
+        failure = _divergence(body, win.final)
+        decision = guard.backward_and_review(u, loss, diverged=failure)
+        if decision.stop:
+            return _stopped(agent, guard, state, u)
+        if decision.accepted:
+            with torch.no_grad():
+                xs.append(torch.cat([state.length, win.length[:-1, 0]]).double().numpy())
+                ys.append(swg.signal(t).double().numpy())
+            opt.step()
+            body.clamp_parameters_()
+            xs, ys = xs[-fit_windows:], ys[-fit_windows:]
+            x = np.concatenate(xs)
+            weights, _ = fit_ridge(x + noise * rng.standard_normal(x.shape), np.concatenate(ys))
+            fb.load_fit(weights)
+        if failure is None:
+            state = win.final.detach()
     _finish(agent)
-    return SchemeTraining(losses, state)
+    return SchemeTraining(guard.history, state, None, guard.summary())

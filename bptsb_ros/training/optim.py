@@ -38,7 +38,3 @@ def make_optimizer(agent: Agent, cfg: TrainingConfig) -> torch.optim.Optimizer:
         return torch.optim.SGD(groups, lr=groups[0]["lr"])
     return torch.optim.Adam(groups, lr=groups[0]["lr"])
 
-
-def scale_learning_rates(optimizer: torch.optim.Optimizer, factor: float) -> None:
-    for group in optimizer.param_groups:
-        group["lr"] *= factor

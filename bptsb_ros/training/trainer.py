@@ -1,12 +1,12 @@
 """The BPTSB training loop: truncated windows, per-parameter learning rates, projection onto
-non-negative body parameters, update rejection, checkpoints, metrics, progress."""
+non-negative body parameters, the update guard (:mod:`bptsb_ros.training.guard`), checkpoints, metrics,
+progress."""
 
 from __future__ import annotations
 
 import copy
 import json
 import math
-import statistics
 import sys
 import time
 from dataclasses import dataclass, field
@@ -24,7 +24,8 @@ from bptsb_ros.tasks import get_task
 from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
-from bptsb_ros.training.optim import make_optimizer, scale_learning_rates
+from bptsb_ros.training.guard import UpdateGuard
+from bptsb_ros.training.optim import make_optimizer
 
 
 class TrainingDiverged(RuntimeError):
@@ -64,6 +65,15 @@ def train(
     after update i is written once window i+1 ran with those parameters, and a run that diverges writes
     its last good state (also with ``checkpoint_every: 0``) before it stops.
 
+    Every update goes through the :class:`~bptsb_ros.training.guard.UpdateGuard`: window i's loss, measured with
+    the parameters the previous update produced, is judged before the step from it; a diverged window, a
+    non-finite loss or gradient, or (``training.reject_factor`` > 0) a loss above factor × the previous loss (the
+    mean of the last 5 once there are 5) restores the parameters and optimiser state from before the previous
+    update and skips the step; after ``training.reject_patience`` rejections (two good updates in a row reset the
+    count) every learning rate is divided by 10. A rejected update repeats the previous entry of the loss curve;
+    the events are in ``metrics.json`` (``guard``). A numerical failure that no restore can undo (no update since
+    the start or the last restore) ends the training as diverged.
+
     ``init_from``: a trained run directory of the same task and body whose parameters and carried body state
     this training continues from (additional training, e.g. headwind switching after forward locomotion); the
     optimiser and the losses start afresh. Ignored when resuming.
@@ -72,7 +82,8 @@ def train(
         ConfigError: ``run_dir`` holds a run (neither ``resume`` nor ``overwrite``), or the config differs
             from the resumed run's.
         CheckpointError: ``resume`` without a readable checkpoint.
-        TrainingDiverged: the simulation or the loss diverged.
+        TrainingDiverged: the simulation or the loss diverged and the guard had nothing to undo, or the
+            final evaluation diverged.
     """
     run_dir = Path(run_dir)
     payload = None
@@ -90,9 +101,7 @@ def train(
     agent = build_agent(cfg)
     task = get_task(cfg.task)(agent, cfg)
     optimizer = make_optimizer(agent, cfg.training)
-    losses: list[float] = []
     start = 0
-    rejections = 0
     if payload is not None:
         _check_resumable(payload["config"], agent.config, run_dir)
         for name, module in agent.modules().items():
@@ -100,9 +109,7 @@ def train(
         extra = payload["extra"]
         optimizer.load_state_dict(extra["optimizer"])
         task.load_state_dict(extra["task_state"])
-        losses = list(extra["losses"])
         start = int(extra["update"])
-        rejections = int(extra.get("rejections", 0))
     elif init_from is not None:
         payload = read_checkpoint(init_from)
         if payload["config"].get("task") != cfg.task:
@@ -120,6 +127,16 @@ def train(
 
     total = task.num_updates()
     tc = cfg.training
+    guard = UpdateGuard(optimizer, factor=tc.reject_factor, patience=tc.reject_patience,
+                        log=lambda line: bar.write(line, file=sys.stderr))
+    if resume:
+        extra = payload["extra"]
+        if "guard" in extra:
+            guard.load_state_dict(extra["guard"])
+        else:  # a checkpoint from before the guard: its losses, nothing to undo
+            guard.history[:] = [float(x) for x in extra["losses"]]
+            guard.count = int(extra.get("rejections", 0))
+    losses = guard.history  # the loss curve: a rejected update repeats the previous entry
     task.prepare()
     t_start = time.perf_counter()
     sim_steps = 0
@@ -128,14 +145,14 @@ def train(
 
     def checkpoint(update: int, **more: Any) -> None:
         save_checkpoint(run_dir, agent, {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
-                                         "losses": losses, "update": update, "rejections": rejections, **more})
+                                         "losses": losses, "update": update, "guard": guard.state_dict(), **more})
 
     def snapshot(update: int) -> dict[str, Any]:
         """Everything a checkpoint at ``update`` holds, copied (later updates change the tensors in place)."""
         return copy.deepcopy({
             "modules": {name: m.state_dict() for name, m in agent.modules().items()},
             "extra": {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(), "losses": losses,
-                      "update": update, "rejections": rejections},
+                      "update": update, "guard": guard.state_dict()},
         })
 
     # ``pending``: the parameters about to be simulated (not yet known to be good); ``good``: the last ones
@@ -160,53 +177,43 @@ def train(
         else:
             kept = "no checkpoint was saved: no window completed"
         report = {"update": update, "error": why, "losses": losses, "parameters": agent.body.parameter_ranges(),
-                  "last_good_update": None if good is None else good["extra"]["update"]}
+                  "last_good_update": None if good is None else good["extra"]["update"], "guard": guard.summary()}
         (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
         return TrainingDiverged(f"update {update}: {why} ({kept}; details in {run_dir / 'diverged.json'})")
 
     try:
         for i in range(start, total):
+            loss: torch.Tensor | None = None
+            failure: str | None = None
             try:
                 loss, _info = task.update_loss(i)
             except SimulationDiverged as err:
-                raise diverged(i, str(err)) from None
+                failure = str(err)
             sim_steps += getattr(task, "steps_per_update", tc.update_steps)
-            optimizer.zero_grad(set_to_none=True)
-            value = float(loss.detach())
-            if not math.isfinite(value):
-                raise diverged(i, f"loss is {value}; {agent.body.parameter_ranges()}")
-            window_completed()
-            loss.backward()
-            grads_ok = all(
-                torch.isfinite(p.grad).all() for g in optimizer.param_groups for p in g["params"] if p.grad is not None
-            )
-            recent = losses[-20:]
-            if not grads_ok or (tc.reject_factor and recent and value > tc.reject_factor * statistics.median(recent)):
-                rejections += 1
-                bar.write(f"update {i}: rejected (loss {value:.3g}, gradients finite: {grads_ok})")
-                if rejections >= tc.reject_patience:
-                    scale_learning_rates(optimizer, 0.1)
-                    rejections = 0
-                    bar.write(f"update {i}: {tc.reject_patience} rejections, learning rates divided by 10")
-                losses.append(value)
-                bar.update(1)
-                pending = snapshot(i + 1)
-                due = due or bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
-                continue
-            optimizer.step()
-            agent.body.clamp_parameters_()
-            losses.append(value)
+            if loss is not None and math.isfinite(float(loss.detach())):
+                window_completed()
+            decision = guard.backward_and_review(i, loss, diverged=failure)
+            if decision.stop:
+                why = failure or (f"loss is {float(loss.detach())}" if decision.reason == "non-finite loss"
+                                  else decision.reason)
+                ranges = "" if failure else f"; {agent.body.parameter_ranges()}"
+                raise diverged(i, f"{why}{ranges}; the guard has nothing to undo (no update since the start or the "
+                                  "last restore)")
+            if decision.accepted:
+                optimizer.step()
+                agent.body.clamp_parameters_()
             bar.update(1)
             if i % tc.log_every == 0:
-                bar.set_postfix(loss=f"{value:.4g}")
+                bar.set_postfix(loss=f"{losses[-1]:.4g}")
             pending = snapshot(i + 1)
-            due = bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
+            due = due or bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
     finally:
         bar.close()
     elapsed = time.perf_counter() - t_start
 
     metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": losses,
-                               "updates": len(losses), "train_seconds": elapsed, "backend": tc.backend,
+                               "updates": len(losses), "guard": guard.summary(), "train_seconds": elapsed,
+                               "backend": tc.backend,
                                "threads": threads,
                                "train_steps_per_second": sim_steps / elapsed if elapsed > 0 else None}
     try:
