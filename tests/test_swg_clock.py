@@ -97,6 +97,9 @@ def test_clock_phase_is_exact_and_periodic_at_the_large_step() -> None:
     steps = np.array([0, 1, 99, 100, K0, K0 + 37, 10_000_000 + 99, 2**40 + 3])
     np.testing.assert_allclose(clock_phase(torch.from_numpy(steps), DT, 2 * math.pi).numpy(),
                                exact_phase(steps, Fraction(1)), rtol=0, atol=1e-15)
+    # bit-periodic: step K0 + j has the phase of step j (K0 is a multiple of the 100-step period)
+    j = torch.arange(250)
+    assert torch.equal(clock_phase(K0 + j, DT, 2 * math.pi), clock_phase(j, DT, 2 * math.pi))
     # an incommensurate ω = 5 rad/s: float64-accurate (the bound in bptsb_ros.sim.clock)
     steps = np.array([1, K0, K0 + 1, 10_000_000])
     got = clock_phase(torch.from_numpy(steps), DT, 5.0).numpy()
