@@ -93,10 +93,9 @@ def _setup(w: Workload, adjoint: bool, dtype: torch.dtype, backend: str = "numba
 
     def run_window(state):
         k0 = state.step
-        t = torch.arange(k0 + 1, k0 + 1 + w.window, dtype=dtype) * body.dt
         ext = None
         if w.brain == "swg":
-            rest = swg.rest_length(body.l, t)
+            rest = swg.rest_length_at_steps(body.l, torch.arange(k0 + 1, k0 + 1 + w.window), body.dt)
         else:
             rest = body.l.expand(w.window, -1)
             if w.brain == "mlp":

@@ -145,6 +145,89 @@ def test_setup_py_and_package_xml_agree() -> None:
         assert f'"{node}": "bptsb_ros.ros.{node}"' in setup_text, f"{node} is not an entry point in setup.py"
 
 
+#: rosdep keys (rosdistro rosdep/python.yaml) of the Python modules the package imports; None: rosdistro has no
+#: key, so package.xml must name the distribution in a comment (a pip requirement). Every other third-party
+#: import is a ROS package, whose Python package carries its name (rclpy, sensor_msgs, launch_ros, ...).
+ROSDEP_KEYS: dict[str, str | None] = {
+    "numpy": "python3-numpy", "yaml": "python3-yaml", "pydantic": "python3-pydantic",
+    "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "PIL": "python3-pil", "numba": "python3-numba",
+    "sklearn": "python3-sklearn", "torch": None, "mcap": None, "distributed": None,
+}
+
+
+def _third_party_imports() -> set[str]:
+    """Top-level names of every absolute import in bptsb_ros/ (module level or inside functions), less the
+    standard library and the package itself."""
+    import ast
+
+    names: set[str] = set()
+    for path in (REPO_ROOT / PACKAGE).rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                names.update(alias.name.split(".")[0] for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split(".")[0])
+    return names - set(sys.stdlib_module_names) - {PACKAGE}
+
+
+def _canonical(name: str) -> str:
+    import re
+
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def _install_requires() -> set[str]:
+    """Distribution names (canonical) of setup.py's install_requires, read from its syntax tree."""
+    import ast
+    import re
+
+    for node in ast.walk(ast.parse((REPO_ROOT / "setup.py").read_text())):
+        if isinstance(node, ast.keyword) and node.arg == "install_requires":
+            return {_canonical(re.split(r"[\s<>=!~;\[]", ast.literal_eval(elt))[0]) for elt in node.value.elts}
+    raise AssertionError("setup.py has no install_requires")
+
+
+def _manifest_dependencies() -> tuple[set[str], str]:
+    """package.xml: the names of its exec_depend / depend elements, and the text of its comments."""
+    import xml.etree.ElementTree as ET
+
+    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+    root = ET.parse(REPO_ROOT / "package.xml", parser).getroot()
+    depends = {(e.text or "").strip() for tag in ("exec_depend", "depend") for e in root.iter(tag)}
+    comments = " ".join(e.text or "" for e in root.iter() if e.tag is ET.Comment)
+    return depends, comments
+
+
+def test_every_third_party_import_is_a_declared_dependency() -> None:
+    """What the code imports (not what package.xml already lists) decides: each Python module's distribution
+    (from its installed metadata) is in install_requires and, by its rosdep key, an exec_depend of package.xml
+    (or, with no rosdep key, named in a package.xml comment); each ROS package is an exec_depend."""
+    imports = _third_party_imports()
+    assert {"torch", "numpy", "numba", "sklearn", "rclpy", "diagnostic_msgs", "launch_ros"} <= imports
+    requires = _install_requires()
+    depends, comments = _manifest_dependencies()
+    installed = importlib.metadata.packages_distributions()
+    problems = []
+    for module in sorted(imports):
+        if module not in ROSDEP_KEYS:
+            if module not in depends:
+                problems.append(f"ROS package {module}: no <exec_depend>{module}</exec_depend> in package.xml")
+            continue
+        dists = installed.get(module)
+        if not dists:
+            problems.append(f"{module}: not installed, so its distribution is unknown")
+            continue
+        dist = _canonical(dists[0])
+        if dist not in requires:
+            problems.append(f"{module}: distribution {dists[0]} is not in setup.py install_requires")
+        key = ROSDEP_KEYS[module]
+        if key is not None and key not in depends:
+            problems.append(f"{module}: no <exec_depend>{key}</exec_depend> in package.xml")
+        if key is None and dists[0].lower() not in comments.lower():
+            problems.append(f"{module}: {dists[0]} has no rosdep key and no package.xml comment names it")
+    assert not problems, "\n".join(problems)
+
+
 def test_node_wrapper_execs_the_console_script_beside_it(tmp_path: Path) -> None:
     """The pip-route wrapper in lib/bptsb_ros runs <prefix>/bin/<node> with all arguments, from any cwd."""
     prefix = tmp_path / "prefix with space"

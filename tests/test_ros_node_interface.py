@@ -79,6 +79,34 @@ def test_node_help_lists_parameters_and_exits(ros_env):
     assert "[dynamic:" in out.stdout and "[read-only: the timing loop" in out.stdout
 
 
+def _all_node_specs():
+    """Every node's parameter specs, by node name: the params-file nodes (``param_files.NODES``) and the recorder."""
+    import importlib
+
+    from bptsb_ros.bags.recording import RECORDER_PARAMS
+    from bptsb_ros.ros.brain_node import COMMON_PARAMS
+    from bptsb_ros.ros.param_files import NODES
+
+    specs = {"recorder": ("bptsb_ros.ros.recorder", RECORDER_PARAMS)}
+    for node, module in NODES.items():
+        own = importlib.import_module(module).PARAMS
+        specs[node] = (module, own if node == "body_sim" else COMMON_PARAMS + tuple(own))
+    return specs
+
+
+def test_every_node_help_lists_all_its_parameters(capsys):
+    """``<node> --help`` (its main(), in this process: the help exits before rclpy starts) lists every
+    parameter the node declares, wind_source included."""
+    import importlib
+
+    for node, (module, specs) in _all_node_specs().items():
+        assert importlib.import_module(module).main(["--help"]) == 0, node
+        out = capsys.readouterr().out
+        assert out.startswith(f"usage: ros2 run bptsb_ros {node} "), (node, out[:200])
+        missing = [p.name for p in specs if f"\n  {p.name}: " not in out]
+        assert not missing, (node, missing)
+
+
 def test_unknown_node_argument_is_an_error(ros_env):
     for module in ("bptsb_ros.ros.body_sim", "bptsb_ros.ros.recorder"):
         out = _node([module, "--agent", "x", "--ros-args", "-p", "task:=lissajous"], ros_env)
@@ -174,6 +202,65 @@ def test_body_summary_is_a_few_readable_lines():
     assert {len(line) - len(line.lstrip()) for line in lines} == {2}
 
 
+# -- list parameters: declared with their array type -------------------------------------------------------
+def _declare_in_own_context(specs, ros_args: list[str]):
+    """Declare ``specs`` on a plain node of a private rclpy context started with ``ros_args``; returns
+    (values, {name: (declared type, value type)})."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+
+    ctx = Context()
+    rclpy.init(context=ctx, args=["t", "--ros-args", *ros_args])
+    try:
+        node = Node("list_types", context=ctx)
+        try:
+            values = P.declare_parameters(node, specs)
+            names = [p.name for p in specs]
+            types = {d.name: (d.type, node.get_parameter(d.name).type_.value)
+                     for d in node.describe_parameters(names)}
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    return values, types
+
+
+def test_list_parameters_are_declared_with_their_array_type():
+    """An empty list default reads back as a string array (``ros2 param get`` said 'Byte values are: []'
+    before): every list parameter of every node is declared STRING_ARRAY / DOUBLE_ARRAY, not dynamically
+    typed, with or without a value given."""
+    from rcl_interfaces.msg import ParameterType as T
+
+    array_type = {"str_list": T.PARAMETER_STRING_ARRAY, "float_list": T.PARAMETER_DOUBLE_ARRAY}
+    checked = set()
+    for node, (_module, specs) in _all_node_specs().items():
+        lists = [p for p in specs if p.kind in array_type]
+        values, types = _declare_in_own_context(lists, [])
+        for p in lists:
+            assert types[p.name] == (array_type[p.kind], array_type[p.kind]), (node, p.name, types[p.name])
+            assert values[p.name] == p.default
+            checked.add((node, p.name, bool(p.default)))
+    assert {("body_sim", "wait_for", False), ("body_sim", "command_publishers", False),
+            ("recorder", "topics", False), ("body_sim", "perturb_publishers", True),
+            ("body_sim", "wind", True)} <= checked
+    # given values keep the type; an empty -p list (which rcl passes on as unset) is an empty string array,
+    # also where the default is not empty
+    from bptsb_ros.ros.body_sim import PARAMS
+
+    lists = [p for p in PARAMS if p.name in ("wait_for", "perturb_publishers", "command_publishers", "wind")]
+    values, types = _declare_in_own_context(lists, ["-p", "wait_for:=[rest_length]", "-p", "perturb_publishers:=[]",
+                                                    "-p", "wind:=[0.5, 0.0]"])
+    assert values == {"wait_for": ["rest_length"], "perturb_publishers": [], "command_publishers": [],
+                      "wind": [0.5, 0.0]}
+    assert {t for pair in types.values() for t in pair} == {T.PARAMETER_STRING_ARRAY, T.PARAMETER_DOUBLE_ARRAY}
+    # a value of another type is one clear error naming the parameter
+    with pytest.raises(P.ParameterError, match=r"^parameter 'wait_for' must be a list of strings"):
+        _declare_in_own_context(lists, ["-p", "wait_for:=5"])
+    with pytest.raises(P.ParameterError, match=r"^parameter 'wind' must be a list of numbers with a decimal point"):
+        _declare_in_own_context(lists, ["-p", "wind:=[1, 0]"])
+
+
 # -- live parameters on running nodes ---------------------------------------------------------------------
 def _set(probe: Probe, node: str, name: str, value):
     from rcl_interfaces.srv import SetParameters
@@ -217,6 +304,14 @@ def test_live_parameters_on_running_nodes(tmp_path, ros_env, ros_domain_id):
         ro = _set(probe, "body_sim", "mode", "lockstep")
         assert not ro.successful and "read-only" in ro.reason
         values, described = _get(probe, "body_sim", ["rate_scale", "wind", "mode", "use_sim_time"])
+        from rcl_interfaces.msg import ParameterType
+        from rcl_interfaces.srv import GetParameters
+
+        get = probe.node.create_client(GetParameters, "/body_sim/get_parameters")
+        future = get.call_async(GetParameters.Request(names=["wait_for_subscribers", "command_publishers"]))
+        assert probe.spin_until(future.done, 30)  # empty lists, read back as string arrays (ros2 param get)
+        assert [(v.type, list(v.string_array_value)) for v in future.result().values] == [
+            (ParameterType.PARAMETER_STRING_ARRAY, [])] * 2
         assert values == [2.0, [0.5, 0.0], "realtime", False]  # the refused values left the old ones
         assert described["mode"].read_only and not described["rate_scale"].read_only
         reason = "[read-only: the timing loop (lockstep or realtime) is chosen at startup]"

@@ -23,7 +23,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import torch
 
 from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded, train_single_curve
 from bptsb_ros.experiments.registry import Context, experiment
@@ -51,7 +50,7 @@ def perturbation_errors(trained: TrainedAgent, seeds: int, *, settle: int, run: 
     target_fn = CURVE_1.target
     # open loop: perturb the state where training ended
     s0 = trained.state
-    rest0 = agent.brain.rest_length(body.l, torch.tensor([s0.step * body.dt], dtype=body.l.dtype))[0]
+    rest0 = agent.brain.rest_length_at_steps(body.l, [s0.step], body.dt)[0]
     t0 = time.perf_counter()
     pop = run_population(body, steps, body.displaced(s0, disp, rest0), swg=agent.brain)
     out["open_wall_s"] = time.perf_counter() - t0

@@ -177,8 +177,9 @@ def batched_centre_x(agent: Agent, state: BodyState, steps: int, *, closed: Feed
         raise ValueError("an open loop needs an SWG agent")
     out = np.empty((steps + 1, b))
     out[0] = state.r[..., 0].double().mean(-1).numpy()
-    t = (torch.arange(state.step + 1, state.step + steps + 1, dtype=body.l.dtype) * body.dt)
-    rest_open = swg.rest_length(body.l, t) if closed is None else None
+    rest_open = None
+    if closed is None:
+        rest_open = swg.rest_length_at_steps(body.l, torch.arange(state.step + 1, state.step + steps + 1), body.dt)
     for i in range(1, steps + 1):
         rest = rest_open[i - 1] if closed is None else closed.rest_length(body.l, state)
         state = body.step(state, rest, None if wind is None else wind[i])

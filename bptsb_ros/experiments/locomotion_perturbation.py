@@ -46,8 +46,7 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     sig = torch.as_tensor(np.repeat(sigmas, n_noise))
     seeds = torch.arange(noise_seed0, noise_seed0 + len(sig))
     if closed is None:
-        t = torch.tensor([s0.step * dt], dtype=body.l.dtype)
-        rest = agent.brain.rest_length(body.l, t)[0]
+        rest = agent.brain.rest_length_at_steps(body.l, [s0.step], dt)[0]
     else:
         rest = closed.rest_length(body.l, s0)[0]
     start = perturbed(agent, s0, sig, seeds, rest)

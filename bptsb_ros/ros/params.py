@@ -271,8 +271,48 @@ def set_log_level(node: Node, level: str) -> None:
                                  "warn": LoggingSeverity.WARN, "error": LoggingSeverity.ERROR}[level])
 
 
+#: list kinds and their ROS array type (``rcl_interfaces/msg/ParameterType``): declared statically typed, so that
+#: an empty list is a STRING_ARRAY (or DOUBLE_ARRAY), not the BYTE_ARRAY rclpy infers from ``[]``
+ARRAY_TYPES: dict[str, str] = {"str_list": "STRING_ARRAY", "float_list": "DOUBLE_ARRAY"}
+
+
+def _declare_array(node: Node, p: Param, descriptor: Any) -> None:
+    """Declare a list parameter with its array type (``descriptor.dynamic_typing`` False) and its default.
+
+    rclpy infers the type of a default value, and ``[]`` (or an empty ``-p name:=[]``, which arrives unset)
+    reads as a byte array; so the parameter is declared by type, left writable while its value is set
+    typed, and only then gets its final (possibly read-only) descriptor.
+    """
+    from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializedException
+    from rclpy.parameter import Parameter
+
+    ptype = Parameter.Type[ARRAY_TYPES[p.kind]]
+    descriptor.type = ptype.value
+    writable = type(descriptor)(name=descriptor.name, type=descriptor.type, description=descriptor.description,
+                                additional_constraints=descriptor.additional_constraints, read_only=False,
+                                dynamic_typing=False)
+    override = node._parameter_overrides.get(p.name)  # rclpy keeps -p / --params-file values here
+    try:
+        node.declare_parameter(p.name, ptype, writable)
+    except InvalidParameterTypeException:
+        given = override.value if override is not None else None
+        example = "[1.0, 0.0]" if p.kind == "float_list" else "['a', 'b']"
+        raise ParameterError(f"parameter '{p.name}' must be a list of "
+                             f"{'numbers with a decimal point' if p.kind == 'float_list' else 'strings'}, e.g. "
+                             f"{example}; got {given!r}") from None
+    try:
+        node.get_parameter(p.name)
+    except ParameterUninitializedException:  # not given, or given as an empty list
+        value = [] if override is not None else list(p.default)
+        result = node.set_parameters([Parameter(p.name, ptype, value)])[0]
+        if not result.successful:
+            raise ParameterError(f"parameter '{p.name}': {result.reason}") from None
+    node.set_descriptor(p.name, descriptor)
+
+
 def declare_parameters(node: Node, specs: Sequence[Param], on_change: OnChange | None = None) -> dict[str, ParamValue]:
-    """Declare ``specs`` on ``node`` (dynamically typed so ``2`` works for a float) and validate.
+    """Declare ``specs`` on ``node`` (scalars dynamically typed so ``2`` works for a float; lists statically
+    typed as STRING_ARRAY / DOUBLE_ARRAY, :func:`_declare_array`) and validate.
 
     Parameters with ``dynamic=True`` may be set while the node runs: a parameter callback validates them
     (:func:`apply_changes`), calls ``on_change`` and updates the returned dict, which the node keeps reading;
@@ -286,9 +326,12 @@ def declare_parameters(node: Node, specs: Sequence[Param], on_change: OnChange |
     for p in specs:
         descriptor = ParameterDescriptor(
             name=p.name, description=describe(p), additional_constraints=p.constraints(),
-            read_only=not p.dynamic, dynamic_typing=True,
+            read_only=not p.dynamic, dynamic_typing=p.kind not in ARRAY_TYPES,
         )
-        node.declare_parameter(p.name, p.default, descriptor)
+        if p.kind in ARRAY_TYPES:
+            _declare_array(node, p, descriptor)
+        else:
+            node.declare_parameter(p.name, p.default, descriptor)
         out[p.name] = p.validate(node.get_parameter(p.name).value)
     if "log_level" in out:
         set_log_level(node, str(out["log_level"]))

@@ -20,7 +20,7 @@ from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.brain_node import BrainNode, topic_params
+from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.safety import DEFAULT_MAX_WIND
@@ -130,7 +130,7 @@ class WindSource(BrainNode):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node; ``args`` are ROS arguments (``--ros-args -p agent:=runs/x ...``), default sys.argv."""
-    return run_node(NODE, WindSource, args)
+    return run_node(NODE, WindSource, args, params=COMMON_PARAMS + PARAMS, summary=__doc__ or "")
 
 
 if __name__ == "__main__":

@@ -86,8 +86,7 @@ def run_population(
     k0 = state.step
     rest_swg = None
     if swg is not None:
-        t = torch.arange(k0 + 1, k0 + steps + 1, dtype=body.l.dtype) * body.dt
-        rest_swg = swg.rest_length(body.l, t)  # (steps, E)
+        rest_swg = swg.rest_length_at_steps(body.l, torch.arange(k0 + 1, k0 + steps + 1), body.dt)  # (steps, E)
     constant = None
     if wind is not None and not callable(wind):
         constant = wind_force(body, wind)

@@ -70,9 +70,8 @@ class _Recorder:
 
 
 def swg_rest_lengths(body: MSDN, swg: SineWaveGenerator, first_step: int, count: int) -> torch.Tensor:
-    """(count, E) SWG rest lengths at steps first_step .. first_step+count-1."""
-    t = torch.arange(first_step, first_step + count, dtype=body.l.dtype) * body.dt
-    return swg.rest_length(body.l, t)
+    """(count, E) SWG rest lengths at steps first_step .. first_step+count-1 (exact clock phase)."""
+    return swg.rest_length_at_steps(body.l, torch.arange(first_step, first_step + count), body.dt)
 
 
 PROGRESS_EVERY = 100  # steps between calls of a ``progress`` callback
@@ -320,8 +319,7 @@ def simulate_closed_loop(
 
         def rest_at(i: int, prev: BodyState) -> torch.Tensor:
             alpha = min(i / handover_steps, 1.0)
-            t = torch.tensor([(k0 + i) * body.dt], dtype=body.l.dtype)
-            mix = alpha * feedback.signal(prev) + (1 - alpha) * handover.signal(t)
+            mix = alpha * feedback.signal(prev) + (1 - alpha) * handover.signal_at_steps([k0 + i], body.dt)
             return body.l * (1 + mix)
     return _run(body, steps, state, body.l.expand_as(state.length), rest_at, forces, check_every, progress)
 

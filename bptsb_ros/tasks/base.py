@@ -12,6 +12,7 @@ from bptsb_ros.agent import Agent
 from bptsb_ros.body.adjoint import Window, rollout_window
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.config import ExperimentConfig
+from bptsb_ros.sim.clock import step_times
 from bptsb_ros.sim.rollout import swg_rest_lengths
 
 
@@ -87,9 +88,9 @@ class SwgWindowTask(Task):
         return win
 
     def window_times(self, first_step: int) -> torch.Tensor:
-        """(W,) times [s] of the steps first_step+1 .. first_step+W."""
-        dtype = self.agent.body.l.dtype
-        return torch.arange(first_step + 1, first_step + 1 + self.window, dtype=dtype) * self.agent.dt
+        """(W,) float64 times [s] of the steps first_step+1 .. first_step+W (float64 so that a target's phase
+        ω·t stays exact at large t; cast the target, not the time, to the model dtype)."""
+        return step_times(first_step + 1, self.window, self.agent.dt)
 
     def state_dict(self) -> dict[str, Any]:
         s = self.state

@@ -78,7 +78,8 @@ class LissajousTask(SwgWindowTask):
     def update_loss(self, index: int) -> tuple[torch.Tensor, dict[str, float]]:
         k0 = self.state.step
         win = self.run_window()
-        loss = ((win.r[:, 0, self.agent.body.cmp_local] - self.target(self.window_times(k0))) ** 2).mean()
+        cmp = win.r[:, 0, self.agent.body.cmp_local]
+        loss = ((cmp - self.target(self.window_times(k0)).to(cmp.dtype)) ** 2).mean()
         return loss, {}
 
     # -- evaluation ------------------------------------------------------------------------------

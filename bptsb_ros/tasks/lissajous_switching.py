@@ -28,6 +28,7 @@ from bptsb_ros.agent import Agent
 from bptsb_ros.body.adjoint import rollout_window
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.config import LearningRates, TrainingConfig
+from bptsb_ros.sim.clock import step_times
 from bptsb_ros.sim.population import wind_force
 from bptsb_ros.sim.rollout import swg_rest_lengths
 from bptsb_ros.training.guard import UpdateGuard
@@ -166,9 +167,9 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
         rest = swg_rest_lengths(body, swg, first, window)
         ext = forces[rel:rel + window].unsqueeze(1)  # (W, 1, M, 2)
         win = rollout_window(body, state, rest, ext)
-        t = torch.arange(first, first + window, dtype=dtype) * body.dt
+        t = step_times(first, window, body.dt)  # float64: the target's phase stays exact at large t
         wind = torch.as_tensor(schedule[rel:rel + window], dtype=dtype)
-        loss = ((win.r[:, 0, body.cmp_local] - target(t, wind)) ** 2).mean()
+        loss = ((win.r[:, 0, body.cmp_local] - target(t, wind).to(dtype)) ** 2).mean()
         failure = None
         try:
             body.check_finite(win.final.detach())

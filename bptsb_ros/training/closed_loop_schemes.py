@@ -36,6 +36,7 @@ from bptsb_ros.body.adjoint import rollout_window
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.brains import fit_ridge
 from bptsb_ros.config import LearningRates, TrainingConfig
+from bptsb_ros.sim.clock import step_times
 from bptsb_ros.sim.rollout import swg_rest_lengths
 from bptsb_ros.training.guard import UpdateGuard
 from bptsb_ros.training.optim import make_optimizer
@@ -110,8 +111,8 @@ def train_scheme1(agent: Agent, target: Target, updates: int, *, window: int = 1
         for _i in range(window):
             s = body.step(s, fb.rest_length(body.l, s))
             cmp.append(s.r[0, body.cmp_local])
-        t = torch.arange(state.step + 1, state.step + window + 1, dtype=body.l.dtype) * body.dt
-        loss = ((torch.stack(cmp) - target(t)) ** 2).mean()
+        t = step_times(state.step + 1, window, body.dt)  # float64: the target's phase stays exact
+        loss = ((torch.stack(cmp) - target(t).to(body.l.dtype)) ** 2).mean()
         failure = _divergence(body, s)
         decision = guard.backward_and_review(u, loss, diverged=failure)
         if decision.stop:
@@ -142,11 +143,12 @@ def train_scheme2(agent: Agent, state: BodyState, target: Target, updates: int, 
         first = state.step + 1
         rest = swg_rest_lengths(body, swg, first, window)
         win = rollout_window(body, state, rest)
-        t = torch.arange(first, first + window, dtype=body.l.dtype) * body.dt
-        l_traj = ((win.r[:, 0, body.cmp_local] - target(t)) ** 2).mean()
+        t = step_times(first, window, body.dt)
+        l_traj = ((win.r[:, 0, body.cmp_local] - target(t).to(body.l.dtype)) ** 2).mean()
         # the FL's output from the state at step k against the SWG signal in force at step k+1
         lengths = torch.cat([state.length, win.length[:-1, 0]])  # (W, E): steps first−1 .. first+W−2
-        l_fb = ((fb.signal_from_features(lengths) - swg.signal(t)) ** 2).mean()
+        l_fb = ((fb.signal_from_features(lengths) - swg.signal_at_steps(torch.arange(first, first + window), body.dt))
+                ** 2).mean()
         loss = l_traj + alpha * l_fb
         failure = _divergence(body, win.final)
         decision = guard.backward_and_review(u, loss, diverged=failure)
@@ -177,8 +179,8 @@ def train_scheme3(agent: Agent, state: BodyState, target: Target, updates: int, 
         first = state.step + 1
         rest = swg_rest_lengths(body, swg, first, window)
         win = rollout_window(body, state, rest)
-        t = torch.arange(first, first + window, dtype=body.l.dtype) * body.dt
-        loss = ((win.r[:, 0, body.cmp_local] - target(t)) ** 2).mean()
+        t = step_times(first, window, body.dt)
+        loss = ((win.r[:, 0, body.cmp_local] - target(t).to(body.l.dtype)) ** 2).mean()
         failure = _divergence(body, win.final)
         decision = guard.backward_and_review(u, loss, diverged=failure)
         if decision.stop:
@@ -186,7 +188,7 @@ def train_scheme3(agent: Agent, state: BodyState, target: Target, updates: int, 
         if decision.accepted:
             with torch.no_grad():
                 xs.append(torch.cat([state.length, win.length[:-1, 0]]).double().numpy())
-                ys.append(swg.signal(t).double().numpy())
+                ys.append(swg.signal_at_steps(torch.arange(first, first + window), body.dt).double().numpy())
             opt.step()
             body.clamp_parameters_()
             xs, ys = xs[-fit_windows:], ys[-fit_windows:]

@@ -28,9 +28,8 @@ def fit_feedback(agent: Agent, cfg: FeedbackConfig, state: BodyState | None, see
     states = BodyState(roll.r[:-1, 0], roll.v[:-1, 0], roll.a[:-1, 0], roll.length[:-1, 0])
     x = state_features(states, cfg.state).double().numpy()
     first = 0 if state is None else state.step
-    t = torch.arange(first + 1, first + steps + 1, dtype=body.l.dtype) * body.dt
-    with torch.no_grad():
-        y = agent.brain.signal(t).double().numpy()  # ... and the SWG signal in force at step k+1
+    with torch.no_grad():  # ... and the SWG signal in force at step k+1
+        y = agent.brain.signal_at_steps(torch.arange(first + 1, first + steps + 1), body.dt).double().numpy()
     lo, hi = int(0.2 * steps), int(0.8 * steps)
     rng = np.random.default_rng(seed)
     x_fit = x[lo:hi] + cfg.noise * rng.standard_normal(x[lo:hi].shape)
