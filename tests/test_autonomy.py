@@ -149,7 +149,10 @@ def test_lissajous_perturbation_smoke(tmp_path):
         assert rows[f"FL (closed loop), σ = {sigma:.1f}"] == pytest.approx(expect_closed)
     gap = max(abs(rows[f"SWG (open loop), σ = {s:.1f}"] - rows[f"FL (closed loop), σ = {s:.1f}"])
               for s in np.arange(11) / 10)
-    assert data["claims"][1]["holds"] == (gap <= 0.2)
+    nmse = {r["system"]: r["ours"] for r in data["rows"] if r["metric"] == "unperturbed error / target mean square"}
+    some_fail = min(v for k, v in rows.items() if k.startswith(("SWG (open loop), σ", "FL (closed loop), σ"))) < 1
+    testable = nmse["SWG (open loop)"] < 0.1 and nmse["FL (closed loop)"] < 0.1 and some_fail
+    assert data["claims"][2]["holds"] == ((gap <= 0.2 + 1e-9) if testable else None)
     assert all((out / f).is_file() for f in data["figures"])
 
 
@@ -168,9 +171,10 @@ def test_lissajous_switching_smoke(tmp_path):
     fy0 = rows[(f"{label}: CMP, before (no wind)", "dominant frequency y")]
     fx1, fy1 = rows[(f"{label}: CMP, wind", "dominant frequency x")], rows[(f"{label}: CMP, wind",
                                                                            "dominant frequency y")]
-    swapped = abs(fx0 - fy1) <= 0.1 and abs(fy0 - fx1) <= 0.1 and abs(fx0 - fy0) >= 0.5
+    swapped = abs(fx0 - fy1) <= 0.1 + 1e-9 and abs(fy0 - fx1) <= 0.1 + 1e-9 and abs(fx0 - fy0) >= 0.5
     drawn = all(s["nmse"] < 0.1 for s in seg.values())
-    assert [c["holds"] for c in data["claims"][:2]] == [drawn, swapped]
+    pre_draws = rows[("single-curve agent (before switching training)", "(1,2,0) MSE / target mean square")] < 0.1
+    assert [c["holds"] for c in data["claims"][:2]] == ([drawn, swapped] if pre_draws else [None, None])
     assert len(data["claims"]) == 6  # three claims for the paper's wind, three for the published code's
     assert len(data["figures"]) == 3 and all((out / f).is_file() for f in data["figures"])
     assert (out / "switching" / "checkpoint.pt").is_file() and (out / "switching_published" / "checkpoint.pt").is_file()
@@ -186,7 +190,12 @@ def test_lissajous_bifurcation_smoke(tmp_path):
     for i, label in enumerate(("paper wind (F, 0)", "published wind (15·F, 1)")):
         per = np.array(d[label]["period_multiple"])
         assert rows[(f"{label}: F_wind grid", "values with a period-1 orbit (1 s)")] == np.sum(per == 1)
-        assert data["claims"][2 * i + 1]["holds"] == bool(np.sum(per > 1) + np.sum(per == 0) > 0)
+        learned = all(v is not None and v < 0.1 for v in d[label]["trained_nmse"].values())  # draws its curve at 0, 1
+        trained = np.isclose(winds, 0.0) | np.isclose(winds, 1.0)
+        p1 = bool(np.all(per[trained] == 1))
+        assert data["claims"][2 * i]["holds"] == (p1 if learned else None)
+        diverse = bool(np.sum(per[~trained] > 1) + np.sum(per[~trained] == 0) > 0)
+        assert data["claims"][2 * i + 1]["holds"] == (diverse if learned and p1 else None)
         assert len(d[label]["maxima_x"]) == 61
     assert len(data["figures"]) == 2
 
@@ -199,14 +208,16 @@ def test_lissajous_timing_smoke(tmp_path):
     for name in ("fixed", "random", "fixed, published wind", "random, published wind"):
         to_ref = np.array([np.inf if v is None else v for v in d[f"{name}_to_reference"]])
         assert to_ref[0] == 0.0  # the n = 0 row is the reference
-        assert rows[(f"{name} timing", "n converging to the trained trajectory")] == np.sum(to_ref < 0.01)
-    fails = np.array([np.inf if v is None else v for v in d["fixed_to_reference"]]) >= 0.01
+        to_target = np.array([np.inf if v is None else v for v in d[f"{name}_to_target"]])
+        assert rows[(f"{name} timing", "n converging to the trained trajectory")] == np.sum(to_target < 0.1)
+    fixed_to_target = np.array([np.inf if v is None else v for v in d["fixed_to_target"]])
+    fails = ~(fixed_to_target < 0.1)
     longest, cur = 0, 0
     for f in fails:
         cur = cur + 1 if f else 0
         longest = max(longest, cur)
     assert rows[("fixed timing", "longest band of failing n")] == longest
-    assert data["claims"][1]["holds"] == (longest >= 5)
+    assert data["claims"][1]["holds"] == ((longest >= 5) if fixed_to_target[0] < 0.1 else None)
     assert (out / "fixed" / "checkpoint.pt").is_file() and (out / "random_published" / "checkpoint.pt").is_file()
     assert len(data["figures"]) == 2
 
@@ -249,7 +260,9 @@ def test_closed_loop_schemes_smoke(tmp_path):
     improved3 = int(np.sum(err["scheme3"] / err["before"] < 1))
     assert rows[("scheme 3", "systems improved (ratio < 1)")] == improved3
     draws1 = int(np.sum(err["scheme1"] / 0.02 < 0.1))  # (1,2,0) target mean square: 0.2²/2 = 0.02 m²
-    assert data["claims"][0]["holds"] == (draws1 == 0)
+    trained1 = d["jobs"][0]["scheme1_diverged_at_update"] is None
+    assert data["claims"][0]["holds"] == ((draws1 == 0) if trained1 else None)
+    assert data["claims"][1]["holds"] is None  # one system: "only some" cannot be told
     assert (out / "schemes.png").is_file()
 
 
@@ -271,7 +284,7 @@ def test_closed_loop_schemes_report_a_diverged_preliminary_training(tmp_path, mo
     assert rows[("preliminary training", "diverged (no system to improve)")] == 1
     assert all(d["errors"][k][0][0] is None for k in ("before", "scheme2", "scheme3"))  # NaN in JSON
     assert d["jobs"][0]["scheme1_loss_first_last"] is not None  # scheme 1 from scratch still ran
-    assert "diverged" in data["claims"][1]["evidence"] and not data["claims"][1]["holds"]
+    assert "diverged" in data["claims"][1]["evidence"] and data["claims"][1]["holds"] is None
 
 
 # -- jobs --------------------------------------------------------------------------------------------------------

@@ -5,7 +5,6 @@ recomputations from its own records."""
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pytest
@@ -151,7 +150,7 @@ def test_smoke_runs_match_their_records(tmp_path):
     for r in recs:  # the job's own open and closed runs equal the trainer's evaluation of the same agent
         assert r["open_speed"] == pytest.approx(r["trainer_open_speed"], rel=1e-6)
         assert r["ratio"] == pytest.approx(r["trainer_ratio"], rel=1e-6)
-    assert cl["claims"][0]["holds"] == (count > 0)
+    assert cl["claims"][0]["holds"] == ((count > 0) if any(r["open_speed"] > 0 for r in recs) else None)
     assert {"gaits.png", "closed_open_ratio.png"} <= set(cl["figures"])
 
     _, pe = run_experiment("locomotion-perturbation", scale="smoke", out_dir=tmp_path / "pe", progress=False,
@@ -165,8 +164,11 @@ def test_smoke_runs_match_their_records(tmp_path):
         assert ((per_agent[loop] * 3) % 1 == 0).all()  # rates are counts out of 3 seeds
     sig = np.array(d["sigmas"])
     holds = [c["holds"] for c in pe["claims"]]
-    assert holds[0] == (mean["open"][sig >= 0.6].mean() < mean["open"][sig <= 0.4].mean())
-    assert holds[2] == (np.abs(mean["open"] - mean["closed"]).mean() <= 0.15)
+    moves = all(v > 0 for v in d["open_speed_before"])
+    assert holds[0] == ((mean["open"][sig >= 0.6].mean() < mean["open"][sig <= 0.4].mean()) if moves else None)
+    some_fail = min(mean["open"].min(), mean["closed"].min()) < 1
+    same_testable = moves and not d["fallback_best_agent"] and some_fail
+    assert holds[2] == ((np.abs(mean["open"] - mean["closed"]).mean() <= 0.15 + 1e-9) if same_testable else None)
 
     _, hw = run_experiment("locomotion-headwind", scale="smoke", out_dir=tmp_path / "hw", progress=False,
                            workers=0, log=lambda m: None)
@@ -179,8 +181,11 @@ def test_smoke_runs_match_their_records(tmp_path):
     err = np.abs(v - d["target"]) / d["target"]
     claims = {c["claim"][:30]: c["holds"] for c in hw["claims"]}
     far = next(h for k, h in claims.items() if k.startswith("the speed is far"))
-    assert far == (np.nanmean(err[winds < -1]) > np.nanmean(err[(winds >= -1) & (winds <= 1)]))
-    ph = d["phase_speeds"]["switching"]
+    learned = all(err[np.isclose(winds, f)][0] <= 0.25 + 1e-9 for f in (0.0, -1.0))  # trained F_wind near v_tgt
+    assert far == ((np.mean(np.nan_to_num(err[winds < -1], nan=np.inf)) > 0.5) if learned else None)
+    ph, blocks = d["phase_speeds"]["switching"], d["phase_blocks"]
     drop = next(h for k, h in claims.items() if k.startswith("the speed drops"))
-    assert drop == (ph["windy_early"] < ph["windy_late"]) or math.isnan(ph["windy_early"])
+    recovers = (ph["windy_early"] < ph["calm"] and ph["windy_early"] < ph["windy_late"]
+                and abs(ph["windy_late"] - ph["calm"]) <= 0.25 * d["target"] + 1e-9)
+    assert drop == (recovers if all(blocks[k] > 0 for k in ("calm", "windy_early", "windy_late")) else None)
     assert {"headwind_speed.png", "speed_vs_wind.png"} <= set(hw["figures"])

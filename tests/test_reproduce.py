@@ -141,8 +141,13 @@ def test_lissajous_closed_loop_smoke(tmp_path):
     open_err = rows[("SWG (open loop)", "trajectory MSE, min over shifts")]
     closed_err = rows[("FL (closed loop)", "trajectory MSE, min over shifts")]
     assert rows[("FL / SWG", "error ratio")] == pytest.approx(closed_err / open_err)
-    # the "larger" claim is the computed comparison of the two rows
-    assert data["claims"][0]["holds"] == (closed_err > open_err)
+    # the "larger" claim is the computed comparison of the two rows, testable when both loops draw the curve
+    both_draw = all(rows[(system, "error / target mean square")] < 0.1
+                    for system in ("SWG (open loop)", "FL (closed loop)"))
+    assert data["claims"][0]["holds"] == ((closed_err > open_err) if both_draw else None)
+    swg_draws = rows[("SWG (open loop)", "error / target mean square")] < 0.1
+    assert data["claims"][1]["holds"] == ((rows[("FL (closed loop)", "error / target mean square")] < 0.1)
+                                          if swg_draws else None)
     assert all((out / f).is_file() for f in data["figures"]) and len(data["figures"]) == 2
     assert main(["reproduce", "lissajous-closed-loop", "--scale", "smoke", "--out", str(out)]) == 2
     assert Path(out / "agent" / "checkpoint.pt").is_file()

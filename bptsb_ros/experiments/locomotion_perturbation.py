@@ -6,16 +6,18 @@ is reused when it exists beside this run, trained otherwise).
 
 Per agent and loop type the 11 × 100 perturbed copies are ONE batched simulation. Speed before: the last half
 of a ``before`` run of the loop; speed after: the last half of the ``after`` run that starts at the perturbation
-(time to regain speed, as the paper's successful cases "gradually regained their speed").
+(time to regain speed, as the paper's successful cases "gradually regained their speed"). Claims: :func:`claims`.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from bptsb_ros.experiments.claim_rules import at_most
 from bptsb_ros.experiments.locomotion_closed_loop import settings_for
 from bptsb_ros.experiments.locomotion_common import (
     SUCCESS_RATIO,
@@ -26,10 +28,68 @@ from bptsb_ros.experiments.locomotion_common import (
     train_agents,
 )
 from bptsb_ros.experiments.registry import Context, experiment
+from bptsb_ros.experiments.result import Claim
 
 SIGMAS = tuple(round(0.1 * i, 1) for i in range(11))
 #: |open − closed| return rate, averaged over σ, below which the two count as "almost the same"
 SAME_RATE = 0.15
+#: the σ [m] at or below which a perturbation counts as weak, and at or above which as strong
+WEAK_SIGMA, STRONG_SIGMA = 0.4, 0.6
+
+
+@dataclass(frozen=True)
+class PerturbationRates:
+    """What the claims of locomotion-perturbation rest on: sigmas (S,) [m]; rate_open, rate_closed (S,): the
+    return rates, mean over the perturbed agents; open_moves: every perturbed agent's open loop moved forward
+    before the perturbation; closed_succeeded: the perturbed agents are ones whose closed loop succeeded in
+    locomotion-closed-loop-20 (False: none did, the best one was perturbed)."""
+
+    sigmas: np.ndarray
+    rate_open: np.ndarray
+    rate_closed: np.ndarray
+    open_moves: bool
+    closed_succeeded: bool
+
+
+def claims(n: PerturbationRates) -> list[Claim]:
+    """The paper (main text): "As the standard deviation of the perturbation increased, the return rates tended to
+    decrease (Fig. 4(c)). However, the return rates of the sinusoidal drive and closed-loop control were almost the
+    same, suggesting that the robustness was not impaired by the closed loop." The paper perturbs the closed loops
+    that succeeded ("We then analyzed the stability of the closed-loop systems").
+
+    * each loop's rate falls: mean rate over σ ≥ 0.6 < mean over σ ≤ 0.4. Premise: the loop locomotes before the
+      perturbation (open loop: it moves forward; closed loop: it is one that succeeded).
+    * almost the same: mean |rate_open − rate_closed| over σ ≤ :data:`SAME_RATE` (inclusive). Premises: both
+      loops locomote, and some σ gives a rate below 1 (otherwise no perturbation tested their robustness).
+    """
+    sig = np.asarray(n.sigmas, float)
+    rates = {"open": np.asarray(n.rate_open, float), "closed": np.asarray(n.rate_closed, float)}
+    low, high = sig <= WEAK_SIGMA + 1e-9, sig >= STRONG_SIGMA - 1e-9
+    premise = {"open": None if n.open_moves else "an open loop perturbed here does not move forward before the "
+                                                 "perturbation",
+               "closed": None if n.closed_succeeded else "no agent's closed loop succeeded (closed/open speed ≥ 0.7), "
+                                                         "so the closed loop perturbed here does not locomote"}
+    out = []
+    for loop in ("open", "closed"):
+        text = (f"{loop} loop: the return rate falls as σ grows (mean over σ ≥ {STRONG_SIGMA} < mean over "
+                f"σ ≤ {WEAK_SIGMA})")
+        if premise[loop]:
+            out.append(Claim.not_testable(text, premise[loop]))
+            continue
+        lo_rate, hi_rate = float(rates[loop][low].mean()), float(rates[loop][high].mean())
+        out.append(Claim(text, hi_rate < lo_rate, f"{hi_rate:.3f} vs {lo_rate:.3f}"))
+    same = (f"return rates of the SWG and the closed loop are almost the same (mean |difference| over σ "
+            f"≤ {SAME_RATE})")
+    failed = [p for p in premise.values() if p]
+    if failed:
+        out.append(Claim.not_testable(same, "; ".join(failed)))
+    elif min(rates["open"].min(), rates["closed"].min()) >= 1:
+        out.append(Claim.not_testable(same, "both loops returned from every perturbation (rate 1 at every σ): no σ "
+                                            "tested their robustness"))
+    else:
+        gap = float(np.mean(np.abs(rates["open"] - rates["closed"])))
+        out.append(Claim(same, at_most(gap, SAME_RATE), f"mean |open − closed| = {gap:.3f}"))
+    return out
 
 
 def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before: int, after: int,
@@ -85,6 +145,7 @@ def run(ctx: Context) -> None:
     chosen = ok[:max_agents]
     sigmas = np.array(SIGMAS)
     rates = {"open": [], "closed": []}
+    v_before_open = []
     example = {}
     for s in chosen:
         run_dir = sweep.out_dir / "jobs" / f"seed-{s}"
@@ -95,6 +156,8 @@ def run(ctx: Context) -> None:
             ctx.log(f"locomotion-perturbation: agent {s}, {loop} loop, {len(sigmas)} σ × {n_noise} seeds batched")
             out = return_rates(agent, state, fl, sigmas, n_noise, int(round(before_s / dt)), int(round(after_s / dt)))
             rates[loop].append(out["success"].mean(1))
+            if loop == "open":
+                v_before_open.append(float(out["v_before"]))
             if s == chosen[0]:
                 example[loop] = out
     mean = {k: np.mean(v, 0) for k, v in rates.items()}
@@ -102,14 +165,8 @@ def run(ctx: Context) -> None:
         for sg in (0.0, 0.3, 0.5, 1.0):
             i = int(np.argmin(np.abs(sigmas - sg)))
             ctx.row(name, f"return rate at σ = {sg:.1f} m", "1", float(mean[loop][i]))
-    low, high = sigmas <= 0.4 + 1e-9, sigmas >= 0.6 - 1e-9
-    for loop in ("open", "closed"):
-        lo_rate, hi_rate = float(mean[loop][low].mean()), float(mean[loop][high].mean())
-        ctx.claim(f"{loop} loop: the return rate falls as σ grows (mean over σ ≥ 0.6 < mean over σ ≤ 0.4)",
-                  hi_rate < lo_rate, f"{hi_rate:.3f} vs {lo_rate:.3f}")
-    gap = float(np.mean(np.abs(mean["open"] - mean["closed"])))
-    ctx.claim(f"return rates of the SWG and the closed loop are almost the same (mean |difference| over σ "
-              f"≤ {SAME_RATE})", gap <= SAME_RATE, f"mean |open − closed| = {gap:.3f}")
+    ctx.result.claims.extend(claims(PerturbationRates(sigmas, mean["open"], mean["closed"],
+                                                      all(v > 0 for v in v_before_open), not fallback)))
     ctx.figure(_plot(ctx.out_dir / "return_rate.png", sigmas, rates, mean, example, chosen, before_s, dt))
     ctx.result.details = {
         "agents": chosen, "successful_agents": [] if fallback else ok, "settings": settings.__dict__,
@@ -117,6 +174,7 @@ def run(ctx: Context) -> None:
         "sigmas": sigmas.tolist(),
         "return_rate_mean": {k: v.tolist() for k, v in mean.items()},
         "return_rate_per_agent": {k: [r.tolist() for r in v] for k, v in rates.items()},
+        "open_speed_before": v_before_open,
         "notes": ("No agent's closed loop succeeded; the agent with the best closed/open ratio was perturbed instead."
                   if fallback else ""),
     }

@@ -1,0 +1,46 @@
+"""Thresholds and comparisons shared by the claims of the SWG experiments (Lissajous and locomotion).
+
+Each experiment turns its measured numbers into :class:`~bptsb_ros.experiments.result.Claim` objects with a pure
+function ``claims(numbers)``, so that every verdict can be tested on planted numbers. The helpers here keep the
+boundaries of those verdicts the same everywhere: a bound the paper states as inclusive ("0.7 or more", "within")
+is met at the bound itself even when the number was computed in floating point (0.8 − 0.6 = 0.20000000000000007).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: phase-locked (or, for a closed loop, minimum-over-shifts) MSE / target mean square below which a curve counts as
+#: drawn: the error is a tenth of the figure's own size (a body at rest at the figure's centre scores 1)
+DRAWS_NMSE = 0.1
+#: absolute slack of an inclusive comparison of O(1) numbers (rates, ratios, frequencies in Hz)
+EPS = 1e-9
+
+
+def at_most(x: float, bound: float) -> bool:
+    """x ≤ bound, counting a floating-point excess below :data:`EPS` as equal; False for NaN."""
+    return bool(x <= bound + EPS)
+
+
+def draws(nmse: float) -> bool:
+    """The curve is drawn: error / target mean square < :data:`DRAWS_NMSE` (strict; NaN, a blow-up, is not)."""
+    return bool(nmse < DRAWS_NMSE)
+
+
+def longest_run(mask: np.ndarray) -> tuple[int, int, int]:
+    """Longest run of True in a 1-D mask: (length, first index, last index); (0, −1, −1) if none."""
+    best, cur, start, out = 0, 0, 0, (0, -1, -1)
+    for i, v in enumerate(np.asarray(mask, dtype=bool)):
+        cur = cur + 1 if v else 0
+        if cur == 1:
+            start = i
+        if cur > best:
+            best, out = cur, (cur, start, i)
+    return out
+
+
+def fmt(x: float) -> str:
+    """A number for evidence text: 3 significant digits; 'nan' / 'inf' spelled out."""
+    return f"{x:.3g}" if math.isfinite(x) else str(x)
