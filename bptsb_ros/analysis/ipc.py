@@ -256,7 +256,8 @@ def ipc_groups(
         u: (T,) i.i.d. input in [−1, 1].
         groups: state sets, each (T,) or (T, N_g), row t the state after input u(t) was applied.
         labels: a name per set (default "states 0", ...).
-        max_degree, max_delay: the basis: degrees 1..max_degree, delays 0..max_delay [task steps].
+        max_degree: the basis's degrees 1..max_degree.
+        max_delay: the basis's delays 0..max_delay [task steps].
         washout: samples discarded at the start (at least max_delay are always discarded).
         surrogates: shuffled-input surrogates for the threshold (0 with ``threshold="none"``).
         threshold: "degree-max", "function-max" or "none" (module docstring).
