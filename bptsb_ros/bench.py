@@ -273,7 +273,7 @@ def _ipc_entry(quick: bool, progress) -> dict[str, Any]:
 
 
 def workload_table(report: dict[str, Any]) -> str:
-    """A Markdown table of the report (for the README): one row per workload and backend."""
+    """A Markdown table of the report (for the docs): one row per workload and backend."""
     rows = ["| workload | batch | backend | forward steps/s | train steps/s | train steps/s (plain autograd) "
             "| numba / torch | peak RSS MiB |",
             "|---|---|---|---|---|---|---|---|"]

@@ -15,9 +15,9 @@ Layout of a sweep directory::
 Resuming: a job whose ``job.json`` says ``done`` is skipped and its record reused; failed and unfinished jobs run
 again. A job that raises is recorded as failed with its error and traceback; the other jobs go on.
 
-Where jobs run: ``workers`` processes on this machine (``concurrent.futures`` with the ``spawn`` start method,
+Where jobs run: ``workers`` local processes (``concurrent.futures`` with the ``spawn`` start method,
 one torch thread each), or, with ``scheduler="tcp://HOST:8786"``, the workers of an existing Dask distributed
-cluster (a lab cluster or SLURM through dask-jobqueue; README, "Sweeps"). Cluster workers must import
+cluster (a lab cluster or SLURM through dask-jobqueue; docs/reproducing.md, "Sweeps"). Cluster workers must import
 ``bptsb_ros`` and see ``OUT`` on a shared file system.
 """
 

@@ -1,7 +1,7 @@
 """MNIST drawing (paper: main text "Division of functional roles", Fig. 2(a)/(b); Methods "MNIST
 classification and drawing task").
 
-Four systems, {LIL, MLP} × multiple-circle bodies of 17 and 65 masses (the README's reading of the paper's
+Four systems, {LIL, MLP} × multiple-circle bodies of 17 and 65 masses (the package's reading of the paper's
 "N_mov = 17, 65"), are trained by BPTSB to draw the label's digit with the CMP after the brain has placed the
 other movable masses; batch 50, the paper's learning rates (SGD: k 1e4, d 1e3, l 1, brain 1). Trainings are
 independent jobs in a process pool.
@@ -110,5 +110,5 @@ def run(ctx: Context) -> None:
                     for sp, r in zip(specs, results)},
         "per_digit_test_mse": per_digit,
         "epochs": s["epochs"], "batch": BATCH, "data": data.description,
-        "reading": "multiple-circle nodes 17/65 count every mass (README); 4 and 36 masses are placed by the brain",
+        "reading": "multiple-circle nodes 17/65 count every mass (docs); 4 and 36 masses are placed by the brain",
     }

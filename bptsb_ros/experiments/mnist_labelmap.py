@@ -5,7 +5,7 @@ trained initial position for the best test sample of every digit, the body is re
 labelled with the digit whose target the CMP's drawing is closest to (MSE). The label-map size is the share of
 cells that keep the original label; Fig. 2(e) shows it per mass. All grids are one batched simulation.
 
-Body: multiple-circle with 37 masses, i.e. 17 movable masses. Under the README's reading (``nodes`` counts every
+Body: multiple-circle with 37 masses, i.e. 17 movable masses. Under the package's reading (``nodes`` counts every
 mass) the paper's "N_mov = 17" multiple-circle body has only 4 placed masses, all joined to the CMP, and the
 paper's statements about masses that are *not* joined to the CMP could not apply to it; 37 masses give exactly
 17 movable ones (12 not joined to the CMP, 4 joined), the body these statements need.

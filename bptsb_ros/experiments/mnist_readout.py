@@ -4,7 +4,7 @@ states out", Table: 91.18 / 95.69 / 96.77 / 95.36 / 96.22 %).
 LIL brain → initial displacements of the movable masses except the CMP → 1 s of transient dynamics from rest →
 the positions of the movable masses every 0.1 s (20·N_mov numbers) → linear readout → softmax cross-entropy,
 trained through the body (BPTSB). Five systems: only brain (two linear layers, 784 → 32 → 10), double-circle
-N_mov 17 / 65 (33 / 129 masses), multiple-circle 17 / 65 masses (the README's reading). Batch 50; Adam (the
+N_mov 17 / 65 (33 / 129 masses), multiple-circle 17 / 65 masses (the package's reading). Batch 50; Adam (the
 paper gives no learning rates for this experiment; SGD with the drawing task's rates diverges). Trainings are
 independent jobs in a process pool; each batch of images is one simulation.
 

@@ -2,7 +2,7 @@
 
 100 training images, 10 of every digit chosen at random (seeded) from the training part of the split, are
 used for training *and* testing. Systems: {LIL, MLP} × {double-circle N_mov 17 and 65 (33 and 129 masses),
-multiple-circle 17 and 65 masses (the README's reading)}, plus the MLP + multiple-circle 37 (17 movable) body
+multiple-circle 17 and 65 masses (the package's reading)}, plus the MLP + multiple-circle 37 (17 movable) body
 for the label maps (see ``mnist-labelmap`` for why). Trainings are independent jobs in a process pool.
 
 Claims (the supplement's words → our criterion):
