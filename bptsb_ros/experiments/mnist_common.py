@@ -41,6 +41,18 @@ class Data:
         return f"{self.description}; n_train {len(self.train_y)}; n_test {len(self.test_y)}"
 
 
+def body_label(shape: str, n_movable: int) -> str:
+    """A body as the result rows name it, by the paper's count of movable masses: ``multiple-circle (N_mov 17)``."""
+    return f"{shape.replace('_', '-')} (N_mov {n_movable})"
+
+
+def body_nodes(shape: str, n_movable: int) -> int:
+    """Masses (``nodes``, fixed ones included) of the ``shape`` body with the paper's ``n_movable`` = N_mov."""
+    from bptsb_ros.body.shapes import nodes_for_movable
+
+    return nodes_for_movable(shape, n_movable)
+
+
 def load_data(ctx: Context, n_train: int | None, n_test: int | None) -> Data:
     """The split named by ``ctx.split`` from ``ctx.data_dir`` (or ``$BPTSB_MNIST_DIR``), cut to the first
     ``n_train`` training and ``n_test`` test images (None: all)."""
