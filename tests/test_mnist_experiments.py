@@ -88,6 +88,42 @@ def test_missing_data_is_one_clear_error(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "x" / "result.json").exists()
 
 
+def _context(scale: str, split: str, data):
+    from bptsb_ros.experiments.registry import Context
+    from bptsb_ros.experiments.result import ExperimentResult
+
+    return Context(scale, 0, data, ExperimentResult("mnist-x", "", scale, 0), log=lambda _: None, data_dir=data,
+                   split=split)
+
+
+def test_paper_scale_means_the_papers_split(tmp_path, capsys):
+    """--scale paper with --split auto trains on the training set and tests on the test set; without the training
+    files it is one clear error (not a quiet fall-back to test-8k-2k); an explicit --split is honoured."""
+    from bptsb_ros.data.mnist import MnistError
+    from bptsb_ros.experiments.mnist_common import load_data
+
+    rng = np.random.default_rng(1)
+    digits = lambda n: (rng.integers(0, 256, (n, 28, 28)).astype(np.uint8), (np.arange(n) % 10).astype(np.uint8))  # noqa: E731
+    (test_x, test_y), (train_x, train_y) = digits(20), digits(30)
+    full = write_custom_set(tmp_path / "full", test_x, test_y, train_x, train_y)
+    test_only = write_custom_set(tmp_path / "test_only", test_x, test_y)
+    data = load_data(_context("paper", "auto", full), None, None)
+    assert (len(data.train_y), len(data.test_y)) == (30, 20)
+    np.testing.assert_array_equal(data.train_x, train_x.reshape(30, -1) / np.float32(255))
+    with pytest.raises(MnistError, match="train-images-idx3-ubyte"):
+        load_data(_context("paper", "auto", test_only), None, None)
+    data = load_data(_context("paper", "test-8k-2k", full), None, None)  # asked for: the first 16 / last 4 test images
+    assert (len(data.train_y), len(data.test_y)) == (16, 4)
+    data = load_data(_context("short", "auto", test_only), None, None)  # below paper scale auto may fall back
+    assert (len(data.train_y), len(data.test_y)) == (16, 4)
+    out = tmp_path / "run"
+    assert main(["reproduce", "mnist-readout", "--scale", "paper", "--data", str(test_only), "--out", str(out),
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "split 'paper' needs train-images-idx3-ubyte" in err and len(err.strip().splitlines()) == 1
+    assert not (out / "result.json").exists()
+
+
 def test_mnist_drawing_smoke(tiny_mnist, tmp_path):
     """Trains in the process pool; the saved systems redraw the test images with the reported errors."""
     from bptsb_ros.tasks.mnist_drawing import load_system
