@@ -16,7 +16,7 @@ joined masses < mean of the others; supplement: the largest-size mass is not joi
 
 from __future__ import annotations
 
-from bptsb_ros.experiments.mnist_analysis import labelmap_analysis
+from bptsb_ros.experiments.mnist_analysis import PAPER_GRID, labelmap_analysis
 from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
 from bptsb_ros.experiments.mnist_drawing import BATCH, SHAPE, scale_settings, system_label, system_meta
 from bptsb_ros.experiments.registry import Context, experiment
@@ -36,7 +36,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.tasks.mnist_drawing import SystemSpec
 
     s = scale_settings(ctx)
-    grid = ctx.pick(smoke=3, short=15, paper=41)
+    grid = ctx.pick(smoke=3, short=15, paper=PAPER_GRID)
     data = load_data(ctx, s["n_train"], s["n_test"])
     spec = SystemSpec(brain="mlp", shape=SHAPE, nodes=body_nodes(SHAPE, N_MOV))
     reuse = ctx.out_dir.parent / "mnist-drawing" / "systems" / f"{spec.name}.pt"

@@ -16,7 +16,7 @@ Claims (the supplement's words → our criterion):
 
 from __future__ import annotations
 
-from bptsb_ros.experiments.mnist_analysis import labelmap_analysis, pca_analysis
+from bptsb_ros.experiments.mnist_analysis import PAPER_GRID, labelmap_analysis, pca_analysis
 from bptsb_ros.experiments.mnist_common import (
     body_nodes,
     load_data,
@@ -33,6 +33,9 @@ BRAINS = ("lil", "mlp")
 #: the body of the PCA and label maps (supplement Fig. S(b)/(c)): MLP + multiple circle N_mov 17
 ANALYSED = ("mlp", "multiple_circle", 17)
 BATCH = 50
+#: epochs at paper scale (ours: the paper and the configs give none; 2 updates per epoch on 100 images)
+PAPER_EPOCHS = 1000
+PER_DIGIT = 10
 
 
 def _short(shape: str) -> str:
@@ -59,9 +62,9 @@ def run(ctx: Context) -> None:
     from bptsb_ros.tasks.digits import load_targets
     from bptsb_ros.tasks.mnist_drawing import load_system
 
-    per_digit = ctx.pick(smoke=2, short=10, paper=10)
-    epochs = ctx.pick(smoke=1, short=150, paper=1000)
-    grid = ctx.pick(smoke=3, short=15, paper=41)
+    per_digit = ctx.pick(smoke=2, short=PER_DIGIT, paper=PER_DIGIT)
+    epochs = ctx.pick(smoke=1, short=150, paper=PAPER_EPOCHS)
+    grid = ctx.pick(smoke=3, short=15, paper=PAPER_GRID)
     data = load_data(ctx, None, 0)
     x, y = specific_images(data.train_x, data.train_y, per_digit, ctx.seed)
     ctx.result.provenance["data"] = (f"{10 * per_digit} images ({per_digit} per digit, seed {ctx.seed}) from the "
