@@ -70,8 +70,10 @@ def system_meta(ctx: Context, data_key: str, epochs: int) -> dict:
     "mnist-drawing",
     paper_ref="Fig. 2(a)/(b); Methods 'MNIST classification and drawing task'",
     summary="{LIL, MLP} × multiple-circle N_mov 17/65: image → initial positions → released body draws the digit",
-    durations={"smoke": "≈ 15-45 s", "short": "≈ 10 min (8,000 images, 3 epochs; 2 processes; measured under load)",
-               "paper": "≈ 4 h on 2 free cores (60,000 images, 50 epochs; 0.07 / 0.16 s per update for 17 / 65)"},
+    durations={"smoke": "≈ 15-65 s",
+               "short": "≈ 4-8 min, estimated (3 epochs of the split's training images: 60,000; 2 processes)",
+               "paper": "≈ 1-2¼ h on 2 cores (60,000 images × 50 epochs, 4 systems; 16-43 ms per update at load "
+                        "≈ 1, `bptsb bench`)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_best_drawings, plot_curves, plot_error_bars

@@ -29,8 +29,9 @@ N_MOV = 17
     "mnist-labelmap",
     paper_ref="Fig. 2(d)/(e); Methods; supplement 'Label maps'",
     summary="MLP + multiple-circle N_mov 17: label maps per placed mass, label-map sizes, joined-to-CMP claim",
-    durations={"smoke": "≈ 10 s", "short": "≈ 3 min (8,000 images, 3 epochs; 15×15 grids)",
-               "paper": "≈ 2 h (60,000 images, 50 epochs; 41×41 grids)"},
+    durations={"smoke": "≈ 20 s", "short": "≈ 1 min reusing a short mnist-drawing run (≈ 2-4 min training its own)",
+               "paper": "≈ 2-3 min reusing a paper-scale mnist-drawing run (41×41 grids: 268,960 bodies), else "
+                        "≈ 25-45 min (60,000 images × 50 epochs)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.tasks.mnist_drawing import SystemSpec

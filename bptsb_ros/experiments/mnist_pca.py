@@ -25,8 +25,9 @@ N_MOV = 17
     "mnist-pca",
     paper_ref="Fig. 2(c); main text 'Division of functional roles'",
     summary="MLP + multiple-circle N_mov 17: brain vs body output in 2-D PCA, label separation (silhouette, probe)",
-    durations={"smoke": "≈ 15 s", "short": "≈ 1½ min reusing a short mnist-drawing run (≈ 4 min training its own)",
-               "paper": "≈ 1 h (60,000 images, 50 epochs) unless a paper-scale mnist-drawing run is reused"},
+    durations={"smoke": "≈ 15 s", "short": "≈ 1 min reusing a short mnist-drawing run (≈ 2-4 min training its own)",
+               "paper": "≈ 1 min reusing a paper-scale mnist-drawing run, else ≈ 25-45 min (60,000 images × 50 "
+                        "epochs)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.tasks.mnist_drawing import SystemSpec

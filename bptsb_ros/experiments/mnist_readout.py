@@ -53,8 +53,9 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
     paper_ref="supplement 'MNIST classification by reading states out' (Table)",
     summary="LIL → body → states every 0.1 s for 1 s → linear readout; only brain vs double/multiple-circle N_mov "
             "17/65",
-    durations={"smoke": "≈ 5-30 s", "short": "≈ 10 min under load (8,000 images, 2 epochs; 2 processes)",
-               "paper": "≈ 10 h on 2 free cores (60,000 images, 100 epochs, 5 systems)"},
+    durations={"smoke": "≈ 5-30 s", "short": "≈ 4-8 min, estimated (2 epochs of 60,000 images; 2 processes)",
+               "paper": "≈ 2½-4 h on 2 cores (60,000 images × 100 epochs, 5 systems; 1-52 ms per update at load "
+                        "≈ 1, `bptsb bench`)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_curves

@@ -54,8 +54,8 @@ def systems() -> list[tuple[str, str, int, object]]:
     "mnist-specific100",
     paper_ref="supplement 'MNIST classification with specific inputs' (Fig. S: errors, label-map sizes, PCA)",
     summary="100 fixed images (10 per digit) train = test: {LIL, MLP} × four bodies; errors, PCA, label maps",
-    durations={"smoke": "≈ 25 s", "short": "≈ 22 min under load (150 epochs of 2 batches, 9 systems; 2 processes)",
-               "paper": "≈ 1 h on 2 free cores (1,000 epochs; the paper gives no epoch count)"},
+    durations={"smoke": "≈ 10-25 s", "short": "≈ 1-3 min, estimated (150 epochs of 2 batches, 8 systems; 2 processes)",
+               "paper": "≈ 10-25 min on 2 cores (1,000 epochs of 2 batches; the paper gives no epoch count)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_best_drawings, plot_error_bars
