@@ -10,7 +10,8 @@ from pathlib import Path
 NAME = "bench"
 HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of the standard workloads "
         "(Lissajous, NARMA, locomotion batch 20, MNIST-like batch 100, forward sweeps batch 1000) on both body "
-        "backends (torch, numba), batch scaling and the numba compile time; writes JSON.")
+        "backends (torch, numba), batch scaling and the numba compile time; MNIST training images/s of every "
+        "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,6 +37,19 @@ def run(args: argparse.Namespace) -> int:
     sched = report["narma_paper_schedule"]
     print(f"paper's NARMA schedule ({sched['epochs']} epochs × {sched['steps_per_epoch']} steps), projected hours: "
           + ", ".join(f"{b} {h}" for b, h in sched["projected_hours"].items()))
+    mnist = report.get("mnist", {})
+    if "systems" in mnist:
+        from bptsb_ros.bench_mnist import mnist_table
+
+        print(mnist_table(mnist))
+        sched = mnist["paper_schedule"]
+        print(f"MNIST at the paper's schedule, estimated hours ({sched['workers']} workers; one core): "
+              + ", ".join(f"{n} {h['pool_h']} ({h['one_core_h']})" for n, h in sched["hours"].items()
+                          if isinstance(h, dict))
+              + f"; all five in order {sched['hours']['all_five_in_order_h']} (load average "
+              f"{mnist['load_average_at_start'][0]:.1f} → {mnist['load_average_at_end'][0]:.1f})")
+    elif mnist:
+        print(f"MNIST benchmark failed: {mnist.get('error')}")
     for name, t in report["targets"].items():
         if "target" in t:
             print(f"target {name} ≥ {t['target']:g}: measured {t['measured']} ({'met' if t['met'] else 'NOT met'})")

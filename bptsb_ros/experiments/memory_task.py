@@ -45,7 +45,15 @@ def run(ctx: Context) -> None:
 
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
-    from bptsb_ros.experiments.timeseries import BODIES, NarmaJob, config_name, load_states, narma_overrides, run_jobs
+    from bptsb_ros.experiments.timeseries import (
+        BODIES,
+        N_MOV,
+        NarmaJob,
+        config_name,
+        load_states,
+        narma_overrides,
+        run_jobs,
+    )
     from bptsb_ros.sweep import Job
 
     epochs = ctx.pick(smoke=1, short=60, paper=40000)
@@ -71,7 +79,8 @@ def run(ctx: Context) -> None:
     err = {b: np.array([[results[f"{b}_dt{dt}_s{s}"]["nmse"] for s in seeds] for dt in delays]) for b in BODIES}
     for b in BODIES:
         for i, dt in enumerate(delays):
-            ctx.row(f"LIL + {b}", f"NMSE at Δt = {dt} (mean of {len(seeds)} seeds)", "1", float(err[b][i].mean()))
+            ctx.row(f"LIL + {b} (N_mov {N_MOV})", f"NMSE at Δt = {dt} (mean of {len(seeds)} seeds)", "1",
+                    float(err[b][i].mean()))
     rho = {b: spearman(np.array(delays), err[b].mean(axis=1)) for b in BODIES}
     ctx.claim(f"the error grows with Δt in both bodies (Spearman ρ ≥ {RHO_MIN})",
               all(r >= RHO_MIN for r in rho.values()),
@@ -120,7 +129,8 @@ def run(ctx: Context) -> None:
               f"others: mean {np.mean(far):.3g} (max {max(far):.3g})")
     out_f = {b: float(res.capacity[res.group(f"{b}: output (CMP y)"), f]) for b in BODIES}
     for b in BODIES:
-        ctx.row(f"LIL + {b}, Δt = {focus}", f"output F₁(u(t−{focus})) capacity", "1", out_f[b], "target: 1")
+        ctx.row(f"LIL + {b} (N_mov {N_MOV}), Δt = {focus}", f"output F₁(u(t−{focus})) capacity", "1", out_f[b],
+                "target: 1")
 
     # figures (a) error vs Δt, (b) Δt = focus series, (c) IPC
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
