@@ -392,7 +392,7 @@ def ipc_groups(
         for lo in range(0, n_sur, per):
             n = min(per, n_sur - lo)
             perms = np.stack([g.permutation(len(u)) for g in children[lo: lo + n]])
-            shuffled = table[:, perms]  # (orders + 1, n, T)
+            shuffled = np.take(table, perms, axis=1)  # (orders + 1, n, T); take: 3-4 times faster than [:, perms]
             for t in tuples:
                 lag = 1 if start >= len(t) else 0  # the reference's delays 1, 2, …; any distinct ones would do
                 f = _centred_product([shuffled[o, :, start - lag - i: start - lag - i + samples]
