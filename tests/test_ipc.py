@@ -336,6 +336,9 @@ def test_planted_mixtures_over_24_states_have_their_closed_form_capacities():
     expected[planted_] += (1 - expected[planted_]) * 23 / (T_ - start - 1)
     cap = res.capacity[0]
     np.testing.assert_allclose(cap[expected > 0], expected[expected > 0], atol=0.03)
+    for term in picked:  # in-sample, exactly each function's own least-squares fit
+        f = res.index(term)
+        assert res.raw[0, f] == pytest.approx(own_fit_capacity(legendre_term(u, term, start), x[start:]), abs=1e-9)
     bd = res.by_degree()[0]
     for n in (1, 2, 3):
         assert bd[n - 1] == pytest.approx(expected[res.degrees == n].sum(), abs=0.1), n
