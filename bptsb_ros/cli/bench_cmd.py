@@ -31,7 +31,10 @@ def run(args: argparse.Namespace) -> int:
                         for b, v in report["batch_scaling"].items())
     print(f"Lissajous training, body-steps/s by batch size: {scaling}")
     if "ipc" in report:
-        print(f"{report['ipc']['workload']}: {report['ipc']['seconds']} s")
+        for row in (report["ipc"], report["ipc"].get("reservoir")):
+            if row:
+                print(f"{row['workload']}: {row['seconds']} s (orthogonalise_linear: "
+                      f"{row.get('seconds_orthogonalise_linear')} s)")
     first = report["numba_first_call"]
     print(f"numba first call (s): empty cache {first['cold_compile']}, cached {first['cached']}")
     sched = report["narma_paper_schedule"]
