@@ -7,7 +7,12 @@ Run it as ``python -m bptsb_ros.ros.recorder --ros-args -p bag_path:=bags/run1 -
 Every ``discovery_period`` it looks at the graph; each selected topic that has a publisher gets a raw subscription
 (serialized CDR bytes, never re-encoded) with the QoS that matches all its publishers (reliable only if all are
 reliable, transient-local only if all are) and a history of ``queue_depth``. The publishers' offered QoS profiles
-and the type hash go into the bag. Each message is stamped with its receive time: the middleware's receive
+and the type hash go into the bag. Each message is taken with its publisher's GID (:mod:`bptsb_ros.ros.take`) and
+written to the MCAP channel of its (topic, publisher), named after the publisher's node as the ROS graph reports it
+(:mod:`bptsb_ros.bags.publishers`): a message forged by another node on ``body/positions`` is in the bag, and
+marked as that node's. Every message waiting on a subscription is taken in one executor call.
+
+Each message is stamped with its receive time: the middleware's receive
 timestamp (system clock, ns since the epoch), or, when ``use_sim_time`` is true (``ros2 bag record
 --use-sim-time``; the launchers set it for lockstep runs), the node clock, which follows ``/clock``: the bag's
 timeline is then sim time, so a 10 s lockstep run lasts 10 s in ``ros2 bag info``, ``ros2 bag play`` and
@@ -36,9 +41,11 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
 
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.msgdefs import get_message_class
+from bptsb_ros.bags.publishers import UNKNOWN_NODE, PublisherId, gid_text
 from bptsb_ros.bags.qos import QosProfile
 from bptsb_ros.bags.recording import (
     RECORDER_PARAMS,
@@ -50,6 +57,12 @@ from bptsb_ros.bags.recording import (
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.ros.params import ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import exit_process, ignore_stop_signals, unblock_interrupt
+from bptsb_ros.ros.take import GidTaker, TakenInfo, batch_executor_class, gid_take_problem, rclpy_take
+
+#: most messages taken from one subscription in one executor call (then the other subscriptions and timers)
+BATCH = 200
+#: rmw's "sequence numbers unsupported" value
+SEQUENCE_UNSUPPORTED = 2**64 - 1
 
 
 class RecorderNode(Node):
@@ -69,6 +82,10 @@ class RecorderNode(Node):
         self._policies: dict[str, tuple[str, str]] = {}
         self._publisher_counts: dict[str, int] = {}
         self._warned: set[str] = set()
+        self._identities: dict[str, dict[str, PublisherId]] = {}  # topic -> GID -> publisher (from the graph)
+        self._written: set[str] = set()  # GIDs the bag has a channel for
+        self._takers: list[GidTaker] = []
+        self._gid_problem = gid_take_problem()
         self.received = 0
         try:
             self.get_logger().info(
@@ -76,6 +93,9 @@ class RecorderNode(Node):
                 + (f"{len(self.config.topics)} topics" if self.config.topics else "all topics")
                 + f"; log times: {'sim time from /clock' if self._use_sim_time else 'system time'})"
             )
+            if self._gid_problem:
+                self.get_logger().warning(f"publisher GIDs cannot be taken here ({self._gid_problem}): messages are "
+                                          "recorded without their publishers' identities")
             self._discover()
             # steady-clock timers: on sim time the node clock stands still until the first /clock, and the body
             # publishes that only once the recorder has subscribed
@@ -94,9 +114,39 @@ class RecorderNode(Node):
             elif topic not in self._skipped:
                 self._subscribe(topic, types)
 
+    def _learn_publishers(self, topic: str) -> None:
+        """Map the GIDs of ``topic``'s publishers to their nodes (from the graph); a publisher whose node the graph
+        names only now is renamed in the bag."""
+        known = self._identities.setdefault(topic, {})
+        for info in self.get_publishers_info_by_topic(topic):
+            gid = gid_text(info.endpoint_gid)
+            node = "" if info.node_name == UNKNOWN_NODE else info.node_name
+            old = known.get(gid)
+            if old is None or (node and not old.node):
+                known[gid] = PublisherId(gid, node, info.node_namespace if node else "")
+                if old is not None and gid in self._written:
+                    self.writer.name_publisher(known[gid])
+
+    def _publisher(self, topic: str, raw_gid: bytes) -> PublisherId | None:
+        """The publisher of a message from its GID bytes (None without them)."""
+        if not raw_gid:
+            return None
+        gid = gid_text(raw_gid)
+        publisher = self._identities.get(topic, {}).get(gid)
+        if publisher is None:  # its first message: ask the graph
+            self._learn_publishers(topic)
+            publisher = self._identities[topic].setdefault(gid, PublisherId(gid))
+        if gid not in self._written:
+            self._written.add(gid)
+        return publisher
+
     def _check_new_publishers(self, topic: str) -> None:
-        """Warn once when a publisher that joined later offers less than the subscription requests."""
+        """Learn the nodes of new publishers; warn once when one that joined later offers less than the
+        subscription requests."""
         count = self.count_publishers(topic)
+        unnamed = any(not p.node for p in self._identities.get(topic, {}).values())
+        if count != self._publisher_counts.get(topic) or unnamed:
+            self._learn_publishers(topic)
         if count == self._publisher_counts.get(topic) or topic in self._warned:
             return
         self._publisher_counts[topic] = count
@@ -136,21 +186,43 @@ class RecorderNode(Node):
             reliability=QoSReliabilityPolicy[reliability.upper()],
             durability=QoSDurabilityPolicy[durability.upper()],
         )
-        self._recorded[topic] = self.create_subscription(
-            msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True
-        )
+        sub = self.create_subscription(msg_class, topic, functools.partial(self._on_batch, topic), qos, raw=True)
+        sub.bptsb_take_batch = self._batch_taker(sub)  # served by batch_executor_class()
+        self._recorded[topic] = sub
+        self._learn_publishers(topic)
         self.get_logger().debug(f"Subscribed to {topic} [{msgtype}] ({reliability}, {durability})")
         if self.config.topics and all(t in self._recorded for t in self.config.topics):
             self.get_logger().info(f"All {len(self.config.topics)} requested topics subscribed")
 
-    def _on_message(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
-        if self._use_sim_time:
-            stamp = self.get_clock().now().nanoseconds
-        else:
-            stamp = info.get("received_timestamp") or time.time_ns()
-        self.writer.write(topic, data, stamp, info.get("source_timestamp") or stamp,
-                          info.get("publication_sequence_number") or 0)
-        self.received += 1
+    def _batch_taker(self, sub: Subscription) -> Any:
+        """The function that takes up to :data:`BATCH` waiting messages of ``sub`` (with their GIDs if it can)."""
+        taker: GidTaker | None = None
+        if not self._gid_problem:
+            taker = GidTaker(sub)
+            self._takers.append(taker)
+
+        def take_batch() -> list[tuple[bytes, TakenInfo]]:
+            batch = []
+            for _ in range(BATCH):
+                got = taker.take() if taker is not None else rclpy_take(sub)
+                if got is None:
+                    break
+                batch.append(got)
+            return batch
+
+        return take_batch
+
+    def _on_batch(self, topic: str, batch: list[tuple[bytes, TakenInfo]]) -> None:
+        for data, info in batch:
+            if self._use_sim_time:
+                stamp = self.get_clock().now().nanoseconds
+            else:
+                stamp = info.received_timestamp or time.time_ns()
+            sequence = info.publication_sequence_number
+            self.writer.write(topic, data, stamp, info.source_timestamp or stamp,
+                              0 if sequence == SEQUENCE_UNSUPPORTED else sequence,
+                              self._publisher(topic, info.publisher_gid))
+            self.received += 1
 
     def stop_timers(self) -> None:
         """Stop looking for new topics and stop the flush timer (the stop sequence has begun): from now on the
@@ -165,6 +237,8 @@ class RecorderNode(Node):
         if missing:
             self.get_logger().warning(f"Requested topics never recorded (no publisher seen): {', '.join(missing)}")
         metadata = self.writer.close()
+        for taker in self._takers:
+            taker.close()
         counts = "".join(f"\n  {t.message_count:>8}  {t.name}" for t in metadata.topics) or " (no topics)"
         self.get_logger().info(f"Bag {self.writer.path} closed: {metadata.message_count} messages{counts}")
 
@@ -217,7 +291,7 @@ def main(args: list[str] | None = None) -> int:
             print(f"recorder: {exc}", file=sys.stderr)
             code = 2
             return code
-        executor = SingleThreadedExecutor()
+        executor = batch_executor_class()()
         executor.add_node(node)
         try:
             while not stop.is_set():
