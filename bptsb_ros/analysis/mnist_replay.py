@@ -73,7 +73,7 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
     """Analyse a ``mnist_drawing`` bag; writes ``metrics.json`` and ``drawings.png`` (and ``replay.gif``) to
     ``out_dir`` and returns the metrics. With ``system_path`` (the system file, never a path from the bag) the
     recorded images are drawn offline too and compared."""
-    from bptsb_ros.analysis.replay import _animate, read_run
+    from bptsb_ros.analysis.replay import _animate, read_run, recording_summary
     from bptsb_ros.tasks.mnist_drawing import DigitTargets
     from bptsb_ros.tasks.mnist_live import load_system_as, pixels
 
@@ -113,6 +113,7 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
         "bag": str(bag), "agent": str(system_path) if system_path is not None else None, "loop": "mnist_drawing",
         "mode": run.custom.get("mode"), "dt": run.dt, "recorded_steps": int(len(run.steps)),
         "missing_steps": len(run.missing_steps), "publishers": run.provenance.to_dict(),
+        "recording": recording_summary(run.custom),
         "episode_steps": episode_steps, "episodes": len(complete),
         "incomplete_episodes": len(shown) - len(complete), "reset_steps": [int(k) for k in complete],
         "labels": y.tolist(),

@@ -178,6 +178,14 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
                   {int((s + dt_ns // 2) // dt_ns): d for s, d in kicks_ns.items()}, own.report)
 
 
+def recording_summary(custom: dict[str, str]) -> dict[str, Any]:
+    """What the recorder says it lost (``dropped_messages`` None: it did not count, an older recorder)."""
+    from bptsb_ros.bags.recording import recorded_loss
+
+    total, by_topic, complete = recorded_loss(custom)
+    return {"dropped_messages": total, "dropped_by_topic": by_topic, "recording_complete": complete}
+
+
 def bag_custom_data(bag: str | Path) -> dict[str, str]:
     """The bag's ``custom_data`` (loop, mode, agent, open_loop_steps from ``bptsb launch``); {} if none."""
     try:
@@ -352,7 +360,8 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
     metrics: dict[str, Any] = {"bag": str(bag), "agent": str(agent_dir) if agent_dir else None,
                                **({"bag_agent": named} if named and agent_dir is None else {}), "loop": loop,
                                "mode": run.custom.get("mode"), "dt": run.dt, "recorded_steps": int(len(run.steps)),
-                               "missing_steps": len(run.missing_steps), "publishers": run.provenance.to_dict()}
+                               "missing_steps": len(run.missing_steps), "publishers": run.provenance.to_dict(),
+                               "recording": recording_summary(run.custom)}
     segment = run.rows(run.longest_contiguous())
     if metrics["missing_steps"]:
         metrics["metric_steps"] = [int(segment.steps[0]), int(segment.steps[-1])]

@@ -34,6 +34,7 @@ from bptsb_ros.bags.metadata import METADATA_FILENAME, BagMetadata, TopicInfo, b
 from bptsb_ros.bags.msgdefs import get_message_class
 from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, names_from_record
 from bptsb_ros.bags.qos import qos_profiles_from_value
+from bptsb_ros.bags.recording import RECORDING_RECORD, recorded_loss
 from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
 
 
@@ -90,6 +91,11 @@ class BagInfo:
     damaged_chunks: list[str] = field(default_factory=list)
     #: messages per topic and publisher, from the MCAP channels (publisher None: not recorded)
     publishers: list[PublisherCount] = field(default_factory=list)
+    #: messages the recorder lost (None: it did not count, an older recorder), per topic, and whether its final
+    #: drain completed (``custom_data`` ``dropped_messages``, ``dropped_by_topic``, ``recording_complete``)
+    dropped_messages: int | None = None
+    dropped_by_topic: dict[str, int] = field(default_factory=dict)
+    recording_complete: bool = True
 
     @property
     def duration_ns(self) -> int:
@@ -462,21 +468,36 @@ def bag_info(path: str | Path) -> BagInfo:
                 ))
                 if stats is not None:
                     info.message_count += stats.channel_message_counts.get(cid, 0)
+    custom = metadata.custom_data if metadata is not None else _recording_record(files[0])
+    dropped, by_topic, complete = recorded_loss(custom)
+    loss = {"dropped_messages": dropped, "dropped_by_topic": by_topic, "recording_complete": complete}
     if metadata is not None:
         return BagInfo(
             path=path, files=files, size_bytes=sum(f.stat().st_size for f in files),
             storage_identifier=metadata.storage_identifier, ros_distro=metadata.ros_distro,
             start_ns=metadata.starting_time_ns, end_ns=metadata.end_time_ns, message_count=metadata.message_count,
             topics=metadata.topics, chunk_count=chunk_count, chunk_compressions=sorted(compressions),
-            profile=profile, library=library, damaged_chunks=damaged, publishers=list(by_publisher.values()),
+            profile=profile, library=library, damaged_chunks=damaged, publishers=list(by_publisher.values()), **loss,
         )
     return BagInfo(
         path=path, files=files, size_bytes=sum(f.stat().st_size for f in files), storage_identifier="mcap",
         ros_distro=_ros_distro_record(files[0]), start_ns=start or 0, end_ns=end or 0, message_count=count,
         topics=list(topics.values()),
         chunk_count=chunk_count, chunk_compressions=sorted(compressions), profile=profile, library=library,
-        damaged_chunks=damaged, publishers=list(by_publisher.values()),
+        damaged_chunks=damaged, publishers=list(by_publisher.values()), **loss,
     )
+
+
+def _recording_record(file: Path) -> dict[str, str]:
+    """The recorder's loss entries (``bptsb_ros.recording`` record) of a lone MCAP file; {} without them."""
+    with _McapFile(file) as mf:
+        try:
+            for record in mf.reader.iter_metadata():
+                if record.name == RECORDING_RECORD:
+                    return {str(k)[:64]: str(v)[:4096] for k, v in record.metadata.items()}
+        except Exception:  # noqa: BLE001 - an unreadable record: no loss entries
+            return {}
+    return {}
 
 
 def _ros_distro_record(file: Path) -> str:
@@ -544,6 +565,10 @@ def format_info(info: BagInfo) -> str:
     if not info.topics:
         lines.append("Topic information: (none)")
     lines += _publisher_lines(info.publishers)
+    if info.dropped_messages is not None:
+        parts = ", ".join(f"{t} {n}" for t, n in info.dropped_by_topic.items())
+        lines.append(f"Lost messages:     {info.dropped_messages}" + (f" ({parts})" if parts else "")
+                     + ("" if info.recording_complete else "; the recorder's final drain was cut short"))
     for i, text in enumerate(info.damaged_chunks):
         lines.append(("DAMAGED:           " if i == 0 else pad) + text)
     if info.damaged_chunks:

@@ -18,9 +18,17 @@ timestamp (system clock, ns since the epoch), or, when ``use_sim_time`` is true 
 timeline is then sim time, so a 10 s lockstep run lasts 10 s in ``ros2 bag info``, ``ros2 bag play`` and
 Foxglove however long it took. ``custom_data`` key ``log_time`` says which: ``sim`` or ``system``.
 
-On SIGINT or SIGTERM it stops discovery and the flush timer, keeps taking the messages still in flight (one
-per executor call) until a wait of ``drain_quiet`` seconds brings none (at most ``stop_timeout`` in all), then
-finalizes the bag (summary, indexes, ``metadata.yaml``) and exits 0. Killed outright, it leaves the chunks written
+Losses are counted (:class:`bptsb_ros.bags.recording.LossCount`): a jump in a publisher's sequence numbers, and
+the middleware's ``message_lost`` reports. With ``ack_topic`` set (lockstep runs of ``bptsb launch``) the recorder
+also publishes how far it has recorded the run (:class:`~bptsb_ros.bags.recording.StepAck`); ``body_sim`` with
+``wait_for_recorder`` does not run further ahead than ``recorder_window`` steps, so a lockstep recording cannot lose
+a message however slow the recorder is (it slows the run instead).
+
+On SIGINT or SIGTERM it stops discovery and the flush timer and keeps taking every message published before the
+stop signal (publisher's source time; later ones are not part of the recording) until none has come for
+``drain_quiet`` seconds; ``stop_timeout`` caps that, and a drain cut short counts as a loss. Then it finalizes the
+bag (summary, indexes, ``metadata.yaml`` with ``custom_data`` ``dropped_messages`` and ``dropped_by_topic``) and
+exits 0, or 1 when anything was lost (unless ``allow_loss``). Killed outright, it leaves the chunks written
 so far (closed at least every ``flush_period``); ``bptsb bag recover`` restores them. Log lines
 ``Recording to ...`` and, with explicit ``topics``, ``All <n> requested topics subscribed`` tell a launcher when it
 is ready; one ``Subscribed to <topic> [<type>]`` line per topic is logged at DEBUG (``-p log_level:=debug``).
@@ -33,10 +41,12 @@ import signal
 import sys
 import threading
 import time
+from collections import Counter
 from typing import Any
 
 import rclpy
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
@@ -49,7 +59,12 @@ from bptsb_ros.bags.publishers import UNKNOWN_NODE, PublisherId, gid_text
 from bptsb_ros.bags.qos import QosProfile
 from bptsb_ros.bags.recording import (
     RECORDER_PARAMS,
+    RECORDING_RECORD,
+    SEQUENCE_UNSUPPORTED,
+    STAMPED_TYPES,
+    LossCount,
     RecorderConfig,
+    StepAck,
     incompatible_offers,
     select_topics,
     subscription_policies,
@@ -61,8 +76,7 @@ from bptsb_ros.ros.take import GidTaker, TakenInfo, batch_executor_class, gid_ta
 
 #: most messages taken from one subscription in one executor call (then the other subscriptions and timers)
 BATCH = 200
-#: rmw's "sequence numbers unsupported" value
-SEQUENCE_UNSUPPORTED = 2**64 - 1
+EXIT_LOST = 1
 
 
 class RecorderNode(Node):
@@ -83,11 +97,23 @@ class RecorderNode(Node):
         self._publisher_counts: dict[str, int] = {}
         self._warned: set[str] = set()
         self._identities: dict[str, dict[str, PublisherId]] = {}  # topic -> GID -> publisher (from the graph)
-        self._written: set[str] = set()  # GIDs the bag has a channel for
         self._takers: list[GidTaker] = []
         self._gid_problem = gid_take_problem()
         self.received = 0
+        self.after_stop = 0  # messages published after the stop signal, not recorded
+        self.loss = LossCount()
+        self._loss_logs: Counter = Counter()
+        self._stop_ns: int | None = None
+        self.ack = StepAck(self.config.ack_topics)
+        self._ack_pub = None
         try:
+            if self.config.ack_topic:  # the latest acknowledgement, also for a body that subscribes late
+                from rosgraph_msgs.msg import Clock as ClockMsg
+
+                self._ack_class = ClockMsg
+                self._ack_pub = self.create_publisher(ClockMsg, self.config.ack_topic, QoSProfile(
+                    history=QoSHistoryPolicy.KEEP_LAST, depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
+                    durability=QoSDurabilityPolicy.TRANSIENT_LOCAL))
             self.get_logger().info(
                 f"Recording to {self.writer.path} ("
                 + (f"{len(self.config.topics)} topics" if self.config.topics else "all topics")
@@ -124,7 +150,7 @@ class RecorderNode(Node):
             old = known.get(gid)
             if old is None or (node and not old.node):
                 known[gid] = PublisherId(gid, node, info.node_namespace if node else "")
-                if old is not None and gid in self._written:
+                if old is not None:
                     self.writer.name_publisher(known[gid])
 
     def _publisher(self, topic: str, raw_gid: bytes) -> PublisherId | None:
@@ -136,8 +162,6 @@ class RecorderNode(Node):
         if publisher is None:  # its first message: ask the graph
             self._learn_publishers(topic)
             publisher = self._identities[topic].setdefault(gid, PublisherId(gid))
-        if gid not in self._written:
-            self._written.add(gid)
         return publisher
 
     def _check_new_publishers(self, topic: str) -> None:
@@ -186,7 +210,12 @@ class RecorderNode(Node):
             reliability=QoSReliabilityPolicy[reliability.upper()],
             durability=QoSDurabilityPolicy[durability.upper()],
         )
-        sub = self.create_subscription(msg_class, topic, functools.partial(self._on_batch, topic), qos, raw=True)
+        if topic in self.config.ack_topics and msgtype not in STAMPED_TYPES:
+            self.get_logger().error(f"ack_topics: {topic} [{msgtype}] carries no stamp; not acknowledged")
+            self.ack.refuse(topic)
+        events = SubscriptionEventCallbacks(message_lost=functools.partial(self._on_lost, topic))
+        sub = self.create_subscription(msg_class, topic, functools.partial(self._on_batch, topic), qos, raw=True,
+                                       event_callbacks=events)
         sub.bptsb_take_batch = self._batch_taker(sub)  # served by batch_executor_class()
         self._recorded[topic] = sub
         self._learn_publishers(topic)
@@ -214,64 +243,120 @@ class RecorderNode(Node):
 
     def _on_batch(self, topic: str, batch: list[tuple[bytes, TakenInfo]]) -> None:
         for data, info in batch:
+            if self._stop_ns is not None and info.source_timestamp > self._stop_ns:
+                self.after_stop += 1  # published after the stop signal: not part of the recording
+                continue
             if self._use_sim_time:
                 stamp = self.get_clock().now().nanoseconds
             else:
                 stamp = info.received_timestamp or time.time_ns()
             sequence = info.publication_sequence_number
-            self.writer.write(topic, data, stamp, info.source_timestamp or stamp,
-                              0 if sequence == SEQUENCE_UNSUPPORTED else sequence,
-                              self._publisher(topic, info.publisher_gid))
+            sequence = 0 if sequence == SEQUENCE_UNSUPPORTED else sequence
+            publisher = self._publisher(topic, info.publisher_gid)
+            self.writer.write(topic, data, stamp, info.source_timestamp or stamp, sequence, publisher)
             self.received += 1
+            # sequence numbers are per publisher: without its GID (rclpy's take) only message_lost reports count
+            skipped = self.loss.see(topic, publisher.gid, sequence) if publisher is not None else 0
+            if skipped:
+                self._warn_loss(topic, f"{skipped} messages of {publisher.name} before sequence number {sequence} "
+                                       "were never recorded")
+            if self._ack_pub is not None:
+                try:
+                    self.ack.see(topic, data)
+                except ValueError as exc:
+                    self.get_logger().error(f"ack_topics: {topic}: {exc}; not acknowledged any more")
+                    self.ack.refuse(topic)
+        self._publish_ack()
 
-    def stop_timers(self) -> None:
-        """Stop looking for new topics and stop the flush timer (the stop sequence has begun): from now on the
-        executor only has subscriptions to serve, so an executor call that handled nothing means no message was
-        ready. ``BagWriter.write`` still flushes when ``flush_period`` is due."""
+    def _publish_ack(self) -> None:
+        due = self.ack.due() if self._ack_pub is not None else None
+        if due is not None:
+            msg = self._ack_class()
+            msg.clock.sec, msg.clock.nanosec = divmod(due, 1_000_000_000)
+            self._ack_pub.publish(msg)
+
+    def _on_lost(self, topic: str, info: QoSMessageLostInfo) -> None:
+        self.loss.lost(topic, int(info.total_count_change))
+        self._warn_loss(topic, f"the middleware lost {info.total_count_change} messages")
+
+    def _warn_loss(self, topic: str, text: str) -> None:
+        """Log a loss on ``topic`` (the first one of each topic, then every 100th time)."""
+        self._loss_logs[topic] += 1
+        if self._loss_logs[topic] % 100 == 1:
+            self.get_logger().error(f"LOST messages on {topic}: {text} (lost so far on {topic}: "
+                                    f"{self.loss.by_topic().get(topic, 0)})")
+
+    def begin_stop(self, stop_ns: int) -> None:
+        """The stop sequence has begun (signal at ``stop_ns``, system time): stop looking for new topics and stop
+        the flush timer (``BagWriter.write`` still flushes when ``flush_period`` is due); from now on messages
+        published after ``stop_ns`` are not recorded."""
+        self._stop_ns = stop_ns
         self._discovery_timer.cancel()
         self._flush_timer.cancel()
 
-    def close(self) -> None:
-        """Finalize the bag and log what it holds."""
+    def close(self) -> int:
+        """Finalize the bag (with what was lost) and log what it holds; return the exit status: 0, or
+        :data:`EXIT_LOST` when messages were lost and ``allow_loss`` is false."""
         missing = [t for t in self.config.topics if t not in self._recorded]
         if missing:
             self.get_logger().warning(f"Requested topics never recorded (no publisher seen): {', '.join(missing)}")
-        metadata = self.writer.close()
+        lost = self.loss.custom_data()
+        self.writer.set_custom_data(lost)
+        metadata = self.writer.close(records={RECORDING_RECORD: lost})
+        self.release()
+        counts = "".join(f"\n  {t.message_count:>8}  {t.name}" for t in metadata.topics) or " (no topics)"
+        self.get_logger().info(f"Bag {self.writer.path} closed: {metadata.message_count} messages{counts}"
+                               + (f"\n  ({self.after_stop} published after the stop signal, not recorded)"
+                                  if self.after_stop else ""))
+        if not self.loss.any:
+            return 0
+        what = ", ".join(f"{t} {n}" for t, n in self.loss.by_topic().items())
+        text = (f"the recording LOST {self.loss.total} messages" + (f" ({what})" if what else "")
+                + ("; the final drain was cut short by stop_timeout, more may be missing" if self.loss.cut_short
+                   else ""))
+        if self.config.allow_loss:
+            self.get_logger().warning(text + " (allowed: allow_loss)")
+            return 0
+        self.get_logger().error(text + "; exiting with status 1 (allow_loss:=true accepts a lossy recording)")
+        return EXIT_LOST
+
+    def release(self) -> None:
+        """Free the take buffers."""
         for taker in self._takers:
             taker.close()
-        counts = "".join(f"\n  {t.message_count:>8}  {t.name}" for t in metadata.topics) or " (no topics)"
-        self.get_logger().info(f"Bag {self.writer.path} closed: {metadata.message_count} messages{counts}")
 
 
-def _drain(executor: SingleThreadedExecutor, node: RecorderNode) -> None:
-    """Take the messages still in flight after the stop signal.
+def _drain(executor: SingleThreadedExecutor, node: RecorderNode, stop_ns: int) -> None:
+    """Take the messages still waiting or in flight after the stop signal (at ``stop_ns``, system time).
 
-    ``spin_once`` handles at most one callback, so this loops ``spin_once(timeout_sec=drain_quiet)`` and stops
-    only when a call took no message, i.e. nothing became ready for ``drain_quiet`` seconds however long the
-    backlog is. The timers are cancelled first, so a call that ran a timer never counts as a quiet one.
-    ``stop_timeout`` caps the whole drain (the launcher's --grace is longer).
+    Every executor call takes all waiting messages of a subscription (:func:`bptsb_ros.ros.take.batch_executor_class`),
+    so a backlog of thousands drains in a fraction of a second. The drain ends once no message published before the
+    signal has come for ``drain_quiet`` seconds (wall time since the last one, whatever else the executor did);
+    ``stop_timeout`` caps it, and a drain cut short is counted as a loss.
     """
-    node.stop_timers()
-    started = time.monotonic()
-    deadline = started + node.config.stop_timeout
+    node.begin_stop(stop_ns)
+    quiet, cap = node.config.drain_quiet, node.config.stop_timeout
+    started = last = time.monotonic()
     taken = node.received
     while True:
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            node.get_logger().warning(
-                f"stop_timeout: still taking messages after {node.config.stop_timeout:g} s "
-                f"({node.received - taken} taken since the stop signal); closing the bag, later ones are lost"
-            )
-            return
         before = node.received
-        executor.spin_once(timeout_sec=min(node.config.drain_quiet, remaining))
-        if node.received == before:
+        executor.spin_once(timeout_sec=min(quiet, 0.05))
+        now = time.monotonic()
+        if node.received != before:
+            last = now
+        elif now - last >= quiet:
+            return
+        if now - started >= cap:
+            node.loss.cut_short = True
+            node.get_logger().error(
+                f"stop_timeout: still taking messages published before the stop signal after {cap:g} s "
+                f"({node.received - taken} taken since); closing the bag, the recording is incomplete")
             return
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the recorder until SIGINT/SIGTERM; return 0 on a clean stop, 2 for bad parameters or arguments
-    (``--help`` lists the parameters)."""
+    """Run the recorder until SIGINT/SIGTERM; return 0 on a clean stop, 1 when messages were lost (unless
+    ``allow_loss``), 2 for bad parameters or arguments (``--help`` lists the parameters)."""
     from bptsb_ros.ros.runtime import check_cli
 
     code = check_cli("recorder", sys.argv[1:] if args is None else list(args), RECORDER_PARAMS, __doc__ or "")
@@ -279,8 +364,15 @@ def main(args: list[str] | None = None) -> int:
         unblock_interrupt()
         return code
     stop = threading.Event()
+    stop_ns: list[int] = []  # system time of the first stop signal
+
+    def on_stop(*_: object) -> None:
+        if not stop_ns:
+            stop_ns.append(time.time_ns())
+        stop.set()
+
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, on_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     unblock_interrupt()  # a stop requested during startup (held pending by the launcher) arrives now
     node: RecorderNode | None = None
     code: int | None = None  # set once the recorder has finished (an exception leaves it None and propagates)
@@ -296,17 +388,17 @@ def main(args: list[str] | None = None) -> int:
         try:
             while not stop.is_set():
                 executor.spin_once(timeout_sec=0.05)
-            _drain(executor, node)
+            _drain(executor, node, stop_ns[0] if stop_ns else time.time_ns())
         except ExternalShutdownException:
             pass
-        node.close()
-        code = 0
+        code = node.close()
         return code
     finally:
         ignore_stop_signals()  # stopping already: a late SIGINT/SIGTERM must not kill the cleanup
         if node is not None:
             if not node.writer.closed:
                 node.writer.close()
+            node.release()
             node.destroy_node()
         rclpy.try_shutdown()
         if args is None and code is not None:  # run as a program: exit at once (see runtime.exit_process)
