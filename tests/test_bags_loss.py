@@ -130,3 +130,23 @@ def test_bag_info_shows_the_losses(tmp_path: Path) -> None:
     assert (lone.dropped_messages, lone.dropped_by_topic, lone.recording_complete) == (2, {"/clock": 2}, True)
     old = _bag(tmp_path / "old", 5, {})
     assert bag_info(old).dropped_messages is None and "Lost messages" not in format_info(bag_info(old))
+
+
+def test_soak_cli_checks_its_arguments(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import argparse
+
+    from bptsb_ros.cli import bench_cmd
+
+    parser = argparse.ArgumentParser()
+    bench_cmd.add_arguments(parser)
+    out = tmp_path / "soak.json"
+    nothing = ["--soak", "--realtime-seconds", "0", "--lockstep-seconds", "0", "--out", str(out)]
+    assert bench_cmd.run(parser.parse_args(nothing + ["--workdir", str(tmp_path / "w")])) == 0  # both runs skipped
+    report = json.loads(out.read_text())
+    assert "realtime" not in report and "lockstep" not in report and report["cpu_count"] >= 1
+    capsys.readouterr()
+    for bad, message in ((["--realtime-seconds", "-1"], "--realtime-seconds must be >= 0"),
+                         (["--lockstep-busy", "-1"], "must be >= 0"),
+                         (["--workdir", str(tmp_path)], "exists and is not empty")):
+        assert bench_cmd.run(parser.parse_args(nothing + bad)) == 2
+        assert message in capsys.readouterr().err
