@@ -19,7 +19,7 @@ VPY := $(VENV)/bin/python
 PIP := $(VPY) -m pip
 STAMP := $(VENV)/.bptsb-install.stamp
 # The package is installed editable: code changes need no reinstall, but changes to what gets installed do.
-INSTALL_INPUTS := Makefile setup.py setup.cfg package.xml resource/bptsb_ros \
+INSTALL_INPUTS := Makefile pyproject.toml setup.py setup.cfg package.xml resource/bptsb_ros \
 	$(wildcard launch/*.launch.py) $(wildcard config/*.yaml) $(wildcard config/*.json)
 
 # DDS discovery stays on this host; the domain can be overridden (tests pick their own private one).

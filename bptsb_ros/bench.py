@@ -1,6 +1,7 @@
 """Benchmarks of the standard workloads: physics steps per second (forward alone; forward + backward
 + update) and peak memory, for both body backends side by side (torch: the reference; numba: the
-compiled window kernel), each measurement in its own process so its peak RSS is its own.
+compiled window kernel), each measurement in its own process so its peak RSS is its own; and the MNIST
+systems' training throughput in images/s with the paper-schedule estimate (:mod:`bptsb_ros.bench_mnist`).
 
 Speed is measured here, never asserted in a timed test. The numba kernels' first-call time (compile, or
 loading the on-disk cache) is measured separately and kept out of the steady-state figures.
@@ -255,6 +256,13 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
         "narma_train_steps_per_s": (30_000, narma["numba"]),
         "sweep_forward_body_steps_per_s": (1_000_000, measured("sweep", "numba", "forward_body_steps_per_s")),
     }
+    from bptsb_ros import bench_mnist
+
+    progress("bench mnist (every MNIST system, batch 50; paper-schedule estimate) ...")
+    report["mnist"] = bench_mnist.run_isolated(quick)
+    mnist_rates = [m["train_images_per_s"] for m in report["mnist"].get("systems", {}).values()]
+    targets["mnist_slowest_system_train_images_per_s"] = (round(bench_mnist.TARGET_TRAIN_IMAGES_PER_S, 1),
+                                                          min(mnist_rates) if mnist_rates else math.nan)
     report["targets"] = {k: {"target": t, "measured": m, "met": bool(m >= t)} for k, (t, m) in targets.items()}
     rss = {n: (e["numba"].get("peak_rss_mib", math.nan), e["torch"].get("peak_rss_mib", math.nan))
            for n, e in wl.items()}
@@ -265,11 +273,12 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
 
 
 def _ipc_entry(quick: bool, progress) -> dict[str, Any]:
-    """IPC of 17 masses × 2 axes, degree ≤ 3, delay ≤ 20, 3,000 samples, 200 surrogates (20 with --quick)."""
+    """IPC of 17 masses × 2 axes and of a 34-unit tanh reservoir, degree ≤ 3, delay ≤ 20, 3,000 samples, 1,000
+    surrogates per degree tuple (200 with --quick); the reference definition and the orthogonalised variant."""
     from bptsb_ros.analysis.ipc import benchmark_ipc
 
     progress("bench ipc ...")
-    return benchmark_ipc(surrogates=20 if quick else 200)
+    return benchmark_ipc(surrogates=200 if quick else 1000)
 
 
 def workload_table(report: dict[str, Any]) -> str:

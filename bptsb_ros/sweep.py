@@ -8,27 +8,39 @@ is the callable for ``bptsb sweep CONFIG``: train one config with overrides and 
 Layout of a sweep directory::
 
     OUT/jobs/NAME/        one run directory per job (whatever the job writes)
-    OUT/jobs/NAME/job.json  {"name", "status": "done"|"failed", "wall_s", "result"|"error"}, written last
+    OUT/jobs/NAME/job.json  {"name", "key", "status": "done"|"failed", "wall_s", "result"|"error", "files"},
+                          written last
     OUT/sweep.json        every job's record, in job order
     OUT/sweep.csv         the same as a table: name, status, wall_s, error, then the result keys
+    OUT/.bptsb.lock       held while a sweep runs there (:mod:`bptsb_ros.rundir_lock`): one sweep per OUT
 
-Resuming: a job whose ``job.json`` says ``done`` is skipped and its record reused; failed and unfinished jobs run
-again. A job that raises is recorded as failed with its error and traceback; the other jobs go on.
+Resuming: a job whose ``job.json`` is a valid finished record *of this job* is skipped and its record reused:
+status ``done``, the job's name, its ``key`` (a hash of what the job is: its callable and arguments, for
+:class:`TrainJob` also the config file's content), a number ``wall_s``, a ``result`` mapping, and ``files``
+(path → size of every file the job left in its directory) matching the directory now. Any other record is not
+trusted: the job runs again (with one line saying why). Failed and unfinished jobs run again. A job that raises
+is recorded as failed with its error and traceback; the other jobs go on.
 
 Where jobs run: ``workers`` local processes (``concurrent.futures`` with the ``spawn`` start method,
 one torch thread each), or, with ``scheduler="tcp://HOST:8786"``, the workers of an existing Dask distributed
-cluster (a lab cluster or SLURM through dask-jobqueue; docs/reproducing.md, "Sweeps"). Cluster workers must import
-``bptsb_ros`` and see ``OUT`` on a shared file system.
+cluster (a lab cluster or SLURM through dask-jobqueue; docs, "Reproducing"). Cluster workers must import
+``bptsb_ros`` and see ``OUT`` on a shared file system. The scheduler address is ``tcp://HOST:PORT`` or
+``HOST:PORT``; connecting gives up after ``connect_timeout`` seconds, whatever the other end does
+(:mod:`bptsb_ros.dask_connect`).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
+import functools
+import hashlib
 import json
 import math
 import multiprocessing
 import os
 import re
+import sys
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
@@ -37,16 +49,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bptsb_ros.rundir_lock import LOCK_NAME, hold_run_dir
+
 JOB_FILE = "job.json"
 SWEEP_JSON = "sweep.json"
 SWEEP_CSV = "sweep.csv"
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=+-]*$")
+MAX_JOBS = 100_000
+"""Most seeds one ``--seeds`` may name (a larger sweep is almost surely a typo, and would not fit in memory)."""
+MAX_SEED = 2**63 - 1
+DEFAULT_CONNECT_TIMEOUT = 20.0
+"""Seconds to wait for a Dask scheduler to answer (``bptsb sweep --connect-timeout``)."""
 
 JobFn = Callable[[Path], dict[str, Any]]
 
 
 class SweepError(ValueError):
-    """A sweep cannot start (bad job names, bad seeds, unreachable scheduler); one line for the user."""
+    """A sweep cannot start (bad job names, bad seeds, bad or unreachable scheduler); one line for the user."""
+
+
+class SchedulerError(SweepError):
+    """The Dask scheduler could not be reached or did not answer as one (a runtime failure, not a usage error)."""
 
 
 @dataclass(frozen=True)
@@ -104,6 +127,16 @@ class TrainJob:
     overrides: tuple[str, ...] = ()
     seed: int = 0
 
+    def identity(self) -> dict[str, Any]:
+        """What makes this job this job (for :func:`job_key`): the config file's content and its stem (the run's
+        default name), the overrides and the seed; not the path spelling (``config/x.yaml`` or an absolute one)."""
+        try:
+            content = hashlib.sha256(Path(self.config).read_bytes()).hexdigest()
+        except OSError:
+            content = f"unreadable: {self.config}"
+        return {"config_stem": Path(self.config).stem, "config_sha256": content,
+                "overrides": list(self.overrides), "seed": self.seed}
+
     def __call__(self, run_dir: Path) -> dict[str, Any]:
         from bptsb_ros.config import load_config
         from bptsb_ros.training.trainer import train
@@ -120,17 +153,24 @@ class TrainJob:
 
 
 def parse_seeds(text: str) -> list[int]:
-    """``"0-19"``, ``"3"``, ``"0,2,5-7"`` → sorted distinct seeds."""
+    """``"0-19"``, ``"3"``, ``"0,2,5-7"`` → sorted distinct seeds (ASCII digits; 0 … :data:`MAX_SEED`; at most
+    :data:`MAX_JOBS` of them)."""
     seeds: set[int] = set()
     for part in text.split(","):
         part = part.strip()
-        m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
+        m = re.fullmatch(r"([0-9]{1,19})(?:-([0-9]{1,19}))?", part)
         if not m:
-            raise SweepError(f"--seeds {text!r}: {part!r} is not a seed or a range like 0-19")
+            raise SweepError(f"--seeds {text[:60]!r}: {part[:40]!r} is not a seed or a range like 0-19 "
+                             f"(digits 0-9, seeds 0 to {MAX_SEED})")
         lo, hi = int(m.group(1)), int(m.group(2) or m.group(1))
+        if hi > MAX_SEED:
+            raise SweepError(f"--seeds {text[:60]!r}: seed {hi} is above the largest, {MAX_SEED}")
         if hi < lo:
-            raise SweepError(f"--seeds {text!r}: range {part} runs backwards")
-        seeds.update(range(lo, hi + 1))
+            raise SweepError(f"--seeds {text[:60]!r}: range {part} runs backwards")
+        if hi - lo + 1 <= MAX_JOBS:  # checked before building anything: 0-9999999999 must not fill the memory
+            seeds.update(range(lo, hi + 1))
+        if hi - lo + 1 > MAX_JOBS or len(seeds) > MAX_JOBS:
+            raise SweepError(f"--seeds {text[:60]!r} names more than {MAX_JOBS:,} seeds (the most one sweep runs)")
     return sorted(seeds)
 
 
@@ -153,9 +193,72 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-def execute_job(job: Job, run_dir: str | Path, torch_threads: int | None = None) -> dict[str, Any]:
-    """Run one job in ``run_dir`` and write its ``job.json``; never raises for the job's own errors."""
+def _describe(obj: Any) -> Any:
+    """A JSON-able description of a job's callable and its arguments, equal for equal jobs across processes.
+
+    Objects without a stable description (``repr`` with a memory address) make a key that never matches: such
+    jobs simply run again on resume.
+    """
+    if obj is None or isinstance(obj, (bool, int, str)):
+        return obj
+    if isinstance(obj, float):
+        return repr(obj)
+    if isinstance(obj, (list, tuple)):
+        return [_describe(v) for v in obj]
+    if isinstance(obj, dict):
+        return [[_describe(k), _describe(v)] for k, v in sorted(obj.items(), key=lambda kv: repr(kv[0]))]
+    if isinstance(obj, os.PathLike):
+        return {"path": os.fspath(obj)}
+    if hasattr(obj, "identity") and callable(obj.identity):
+        return {"type": _qualname(type(obj)), "identity": _describe(obj.identity())}
+    if isinstance(obj, functools.partial):
+        return {"partial": _describe(obj.func), "args": _describe(obj.args), "keywords": _describe(obj.keywords)}
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {"type": _qualname(type(obj)),
+                "fields": {f.name: _describe(getattr(obj, f.name)) for f in dataclasses.fields(obj)}}
+    if hasattr(obj, "tobytes") and hasattr(obj, "dtype") and hasattr(obj, "shape"):  # numpy arrays
+        return {"array": str(obj.dtype), "shape": list(obj.shape), "sha256": hashlib.sha256(obj.tobytes()).hexdigest()}
+    if callable(obj) and hasattr(obj, "__qualname__"):
+        return {"callable": _qualname(obj)}
+    return {"repr": repr(obj)}
+
+
+def _qualname(obj: Any) -> str:
+    return f"{getattr(obj, '__module__', '?')}.{getattr(obj, '__qualname__', type(obj).__qualname__)}"
+
+
+def job_key(job: Job) -> str:
+    """SHA-256 (hex) of the job's name and what it runs; a finished record is reused only under the same key."""
+    text = json.dumps({"name": job.name, "fn": _describe(job.fn)}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+_OWN_FILES = {JOB_FILE, JOB_FILE + ".tmp", LOCK_NAME}
+
+
+def _manifest(run_dir: Path) -> dict[str, int]:
+    """relative path → size in bytes of every regular file under ``run_dir`` but the sweep's own (symlinks not
+    followed, not listed)."""
+    files: dict[str, int] = {}
+    for root, dirs, names in os.walk(run_dir):
+        dirs.sort()
+        for name in sorted(names):
+            path = Path(root, name)
+            rel = path.relative_to(run_dir).as_posix()
+            if rel in _OWN_FILES or path.is_symlink() or not path.is_file():
+                continue
+            files[rel] = path.stat().st_size
+    return files
+
+
+def execute_job(job: Job, run_dir: str | Path, torch_threads: int | None = None,
+                key: str | None = None) -> dict[str, Any]:
+    """Run one job in ``run_dir`` and write its ``job.json``; never raises for the job's own errors.
+
+    ``key``: :func:`job_key` of ``job`` (computed here if not given; the sweep passes the one it checks against).
+    """
     run_dir = Path(run_dir)
+    key = key if key is not None else job_key(job)
     run_dir.mkdir(parents=True, exist_ok=True)
     if torch_threads:
         import torch
@@ -166,10 +269,11 @@ def execute_job(job: Job, run_dir: str | Path, torch_threads: int | None = None)
         result = job.fn(run_dir)
         if not isinstance(result, dict):
             raise TypeError(f"job {job.name!r} returned {type(result).__name__}, not a dict of results")
-        record: dict[str, Any] = {"name": job.name, "status": "done", "wall_s": round(time.perf_counter() - t0, 3),
-                                  "result": _jsonable(result)}
+        record: dict[str, Any] = {"name": job.name, "key": key, "status": "done",
+                                  "wall_s": round(time.perf_counter() - t0, 3), "result": _jsonable(result),
+                                  "files": _manifest(run_dir)}
     except Exception as err:  # noqa: BLE001 - a failing job is reported, the sweep goes on
-        record = {"name": job.name, "status": "failed", "wall_s": round(time.perf_counter() - t0, 3),
+        record = {"name": job.name, "key": key, "status": "failed", "wall_s": round(time.perf_counter() - t0, 3),
                   "error": f"{type(err).__name__}: {err}", "traceback": traceback.format_exc()}
     tmp = run_dir / (JOB_FILE + ".tmp")
     tmp.write_text(json.dumps(record, indent=2))
@@ -177,12 +281,49 @@ def execute_job(job: Job, run_dir: str | Path, torch_threads: int | None = None)
     return record
 
 
-def _finished(run_dir: Path) -> dict[str, Any] | None:
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def finished_record(job: Job, run_dir: Path, key: str) -> tuple[dict[str, Any] | None, str | None]:
+    """(the record, None) if ``run_dir/job.json`` is a valid finished record of ``job`` (see the module
+    docstring); else (None, why it is not trusted), or (None, None) when there is no record or it says failed."""
+    path = run_dir / JOB_FILE
+    if not path.exists():
+        return None, None
     try:
-        record = json.loads((run_dir / JOB_FILE).read_text())
-    except (OSError, ValueError):
-        return None
-    return record if isinstance(record, dict) and record.get("status") == "done" else None
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        return None, f"unreadable ({type(err).__name__})"
+    if not isinstance(record, dict):
+        return None, "not a JSON object"
+    if record.get("status") == "failed" and record.get("name") == job.name:
+        return None, None
+    if record.get("status") != "done":
+        return None, f"status {str(record.get('status'))[:20]!r}, not 'done'"
+    missing = [k for k in ("name", "key", "wall_s", "result", "files") if k not in record]
+    if missing:
+        return None, f"missing {', '.join(missing)}"
+    if record["name"] != job.name:
+        return None, f"it names another job ({str(record['name'])[:40]!r})"
+    if record["key"] != key:
+        return None, "it is the record of another job (its key differs: other config, overrides or seed)"
+    if not _is_number(record["wall_s"]) or record["wall_s"] < 0:
+        return None, "wall_s is not a non-negative number"
+    if not isinstance(record["result"], dict):
+        return None, "result is not a mapping"
+    files = record["files"]
+    if not isinstance(files, dict) or not all(isinstance(n, int) and not isinstance(n, bool) for n in files.values()):
+        return None, "files is not a mapping of sizes"
+    now = _manifest(run_dir)  # the record's file names are compared with the listing, never opened
+    gone = sorted(set(files) - set(now))
+    if gone:
+        more = f" (and {len(gone) - 1} more)" if gone[1:] else ""
+        return None, f"its result file {gone[0][:60]!r} is missing{more}"
+    changed = sorted(n for n in files if now[n] != files[n])
+    if changed:
+        return None, f"its result file {changed[0][:60]!r} changed size"
+    return record, None
 
 
 def run_sweep(
@@ -193,7 +334,8 @@ def run_sweep(
     scheduler: str | None = None,
     progress: Callable[[Progress], None] | None = None,
     torch_threads: int | None = 1,
-    connect_timeout: float = 20.0,
+    connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
+    notice: Callable[[str], None] | None = None,
 ) -> SweepResult:
     """Run every job not already done in ``out_dir``; write ``sweep.json`` and ``sweep.csv``.
 
@@ -201,10 +343,19 @@ def run_sweep(
         jobs: distinct names (letters, digits, ``._=+-``), each the name of its run directory.
         workers: local worker processes (default: the CPUs available); ignored with ``scheduler``.
             ``workers=0`` runs the jobs one after another in this process (debugging).
-        scheduler: address of a Dask distributed scheduler (``tcp://HOST:8786``) to run the jobs on.
+        scheduler: address of a Dask distributed scheduler (``tcp://HOST:8786``,
+            :func:`bptsb_ros.dask_connect.scheduler_address`; or
+            the ``inproc://`` address of an in-process cluster) to run the jobs on.
         progress: called with the counts after every change.
         torch_threads: torch threads per job (1: as many jobs as cores without oversubscription; None: leave).
-        connect_timeout: seconds to wait for the Dask scheduler.
+        connect_timeout: seconds to wait for the Dask scheduler to answer.
+        notice: called with one line per job whose ``job.json`` claims it finished but is not trusted (the job
+            runs again); default: printed to stderr.
+
+    Raises:
+        SweepError: bad job names or scheduler address (nothing was created).
+        SchedulerError: the scheduler did not answer as a Dask scheduler within ``connect_timeout``.
+        RunDirLocked: another bptsb process holds ``out_dir`` (:mod:`bptsb_ros.rundir_lock`); nothing was touched.
     """
     names = [j.name for j in jobs]
     bad = [n for n in names if not _NAME.match(n)]
@@ -213,40 +364,60 @@ def run_sweep(
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise SweepError(f"job names must be distinct; repeated: {dup[:3]}")
+    address = None
+    if scheduler:
+        from bptsb_ros.dask_connect import connect, scheduler_address
+
+        # inproc://: a LocalCluster(processes=False) of this very process (tests, notebooks); never from the CLI
+        address = scheduler if scheduler.startswith("inproc://") else scheduler_address(scheduler)
+    if not (_is_number(connect_timeout) and connect_timeout > 0):
+        raise SweepError(f"the connect timeout must be a positive number of seconds, got {connect_timeout!r}")
     out = Path(out_dir)
-    (out / "jobs").mkdir(parents=True, exist_ok=True)
-    records: dict[str, dict[str, Any]] = {}
-    skipped = []
-    for job in jobs:
-        prior = _finished(out / "jobs" / job.name)
-        if prior is not None:
-            records[job.name] = prior
-            skipped.append(job.name)
-    todo = [j for j in jobs if j.name not in records]
-    counts = {"done": len(records), "running": 0, "failed": 0}
+    with hold_run_dir(out):
+        keys = {job.name: job_key(job) for job in jobs}
+        records: dict[str, dict[str, Any]] = {}
+        skipped = []
+        for job in jobs:
+            prior, why = finished_record(job, out / "jobs" / job.name, keys[job.name])
+            if prior is not None:
+                records[job.name] = prior
+                skipped.append(job.name)
+            elif why is not None:
+                line = f"{job.name}: {out / 'jobs' / job.name / JOB_FILE} is not trusted ({why}); running the job again"
+                if notice is not None:
+                    notice(line)
+                else:
+                    print(line, file=sys.stderr, flush=True)
+        todo = [j for j in jobs if j.name not in records]
+        client = connect(address, connect_timeout) if address and todo else None
+        try:
+            (out / "jobs").mkdir(exist_ok=True)
+            counts = {"done": len(records), "running": 0, "failed": 0}
 
-    def report(running: int) -> None:
-        counts["running"] = running
-        if progress is not None:
-            progress(Progress(len(jobs), counts["done"], running, counts["failed"]))
+            def report(running: int) -> None:
+                counts["running"] = running
+                if progress is not None:
+                    progress(Progress(len(jobs), counts["done"], running, counts["failed"]))
 
-    def finish(record: dict[str, Any]) -> None:
-        records[record["name"]] = record
-        counts["done" if record["status"] == "done" else "failed"] += 1
+            def finish(record: dict[str, Any]) -> None:
+                records[record["name"]] = record
+                counts["done" if record["status"] == "done" else "failed"] += 1
 
-    report(0)
-    if todo:
-        if scheduler:
-            _run_dask(todo, out, scheduler, connect_timeout, torch_threads, finish, report)
-        elif workers == 0:
-            for job in todo:
-                report(1)
-                finish(execute_job(job, out / "jobs" / job.name, torch_threads))
             report(0)
-        else:
-            _run_pool(todo, out, workers or _cpus(), torch_threads, finish, report)
-    ordered = [records[n] for n in names]
-    write_tables(out, ordered)
+            if client is not None:
+                _run_dask(todo, out, client, keys, torch_threads, finish, report)
+            elif todo and workers == 0:
+                for job in todo:
+                    report(1)
+                    finish(execute_job(job, out / "jobs" / job.name, torch_threads, keys[job.name]))
+                report(0)
+            elif todo:
+                _run_pool(todo, out, workers or _cpus(), torch_threads, keys, finish, report)
+        finally:
+            if client is not None:
+                client.close()
+        ordered = [records[n] for n in names]
+        write_tables(out, ordered)
     return SweepResult(out, ordered, skipped)
 
 
@@ -254,12 +425,12 @@ def _cpus() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-def _run_pool(todo: list[Job], out: Path, workers: int, threads: int | None,
+def _run_pool(todo: list[Job], out: Path, workers: int, threads: int | None, keys: dict[str, str],
               finish: Callable[[dict[str, Any]], None], report: Callable[[int], None]) -> None:
     workers = max(1, min(workers, len(todo)))
     ctx = multiprocessing.get_context("spawn")  # no forked torch/ROS state in the workers
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        pending = {pool.submit(execute_job, job, out / "jobs" / job.name, threads): job for job in todo}
+        pending = {pool.submit(execute_job, job, out / "jobs" / job.name, threads, keys[job.name]): job for job in todo}
         report(min(workers, len(pending)))
         while pending:
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -273,38 +444,29 @@ def _run_pool(todo: list[Job], out: Path, workers: int, threads: int | None,
             report(min(workers, len(pending)))
 
 
-def _run_dask(todo: list[Job], out: Path, scheduler: str, timeout: float, threads: int | None,
+def _run_dask(todo: list[Job], out: Path, client: Any, keys: dict[str, str], threads: int | None,
               finish: Callable[[dict[str, Any]], None], report: Callable[[int], None]) -> None:
-    try:
-        from distributed import Client, as_completed
-    except ImportError:
-        raise SweepError("--scheduler needs the 'distributed' package (pip install distributed)") from None
-    try:
-        client = Client(scheduler, timeout=f"{timeout}s")
-    except (OSError, TimeoutError) as err:
-        raise SweepError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from None
-    try:
-        stamp = time.time_ns()  # fresh task keys: a resumed sweep never reuses an old result held by the cluster
-        futures = {client.submit(execute_job, job, str(out / "jobs" / job.name), threads,
-                                 key=f"bptsb-{job.name}-{stamp}", pure=False): job for job in todo}
+    from distributed import as_completed
 
-        def running() -> int:
-            try:
-                return min(len(futures), sum(len(v) for v in client.processing().values()))
-            except Exception:  # noqa: BLE001 - counts only
-                return 0
+    stamp = time.time_ns()  # fresh task keys: a resumed sweep never reuses an old result held by the cluster
+    futures = {client.submit(execute_job, job, str(out / "jobs" / job.name), threads, keys[job.name],
+                             key=f"bptsb-{job.name}-{stamp}", pure=False): job for job in todo}
 
+    def running() -> int:
+        try:
+            return min(len(futures), sum(len(v) for v in client.processing().values()))
+        except Exception:  # noqa: BLE001 - counts only
+            return 0
+
+    report(running())
+    for fut in as_completed(list(futures)):
+        job = futures.pop(fut)
+        try:
+            finish(fut.result())
+        except Exception as err:  # noqa: BLE001 - the worker died or the task was lost
+            finish({"name": job.name, "status": "failed", "wall_s": None,
+                    "error": f"dask task failed: {type(err).__name__}: {err}"})
         report(running())
-        for fut in as_completed(list(futures)):
-            job = futures.pop(fut)
-            try:
-                finish(fut.result())
-            except Exception as err:  # noqa: BLE001 - the worker died or the task was lost
-                finish({"name": job.name, "status": "failed", "wall_s": None,
-                        "error": f"dask task failed: {type(err).__name__}: {err}"})
-            report(running())
-    finally:
-        client.close()
 
 
 def write_tables(out: str | Path, records: list[dict[str, Any]]) -> tuple[Path, Path]:

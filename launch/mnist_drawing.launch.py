@@ -4,7 +4,7 @@ Nodes: body_sim, image_streamer, mnist_brain (+ recorder with bag:=DIR). Same pr
 ``bptsb launch mnist_drawing``; the launch ends when body_sim exits (after count episodes of episode_steps steps,
 or duration:=SECONDS).
 
-    ros2 launch bptsb_ros mnist_drawing.launch.py agent:=runs/mnist-drawing/systems/mlp-multiple_circle-17.pt \
+    ros2 launch bptsb_ros mnist_drawing.launch.py agent:=runs/mnist-drawing/systems/mlp-multiple_circle-37.pt \
         images:=data/mnist/t10k-images-idx3-ubyte.gz labels:=data/mnist/t10k-labels-idx1-ubyte.gz count:=10 \
         bag:=bags/mnist
 

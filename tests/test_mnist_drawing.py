@@ -133,3 +133,36 @@ def test_readout_states_are_positions_every_tenth_of_a_second():
     torch.testing.assert_close(feats.view(2, 10, 17, 2)[:, -1], r[:, 100])  # last at t = 1 s
     brain_only = ReadoutSystem(ReadoutSpec(shape=None, hidden=32), seed=0)
     assert brain_only.n_features == 32 and brain_only(x).shape == (2, 10)
+
+
+@pytest.mark.parametrize("kind", ["drawing", "readout"])
+def test_a_batch_of_images_is_one_simulation_equal_to_one_image_at_a_time(kind):
+    """Training batches are one batched simulation of B bodies: the batch-mean loss and its gradients (brain
+    weights, k, d, l) equal the mean over B single-image simulations (float64)."""
+    if kind == "drawing":
+        model = ImageToBody(SystemSpec(brain="mlp", nodes=37, dtype="float64"), 0)
+        tg = DigitTargets(dtype=F64)
+
+        def loss_of(x, labels):
+            return tg.errors(model.draw(x, int(tg.steps.max())), labels).mean()
+        body = model.body
+    else:
+        model = ReadoutSystem(ReadoutSpec(shape="multiple_circle", nodes=37), 0).double()
+
+        def loss_of(x, labels):
+            return torch.nn.functional.cross_entropy(model(x), labels)
+        body = model.system.body
+    params = [p for p in model.parameters() if p.requires_grad]
+    assert any(p is body.k for p in params) and any(p is body.l for p in params)
+    x, labels = images(3), torch.tensor([4, 0, 8])
+
+    def grads(loss):
+        return [g.clone() for g in torch.autograd.grad(loss, params)]
+
+    loss = loss_of(x, labels)
+    losses = [loss_of(x[i: i + 1], labels[i: i + 1]) for i in range(3)]
+    assert loss.item() == pytest.approx(sum(one.item() for one in losses) / 3, rel=1e-12)
+    batched = grads(loss)
+    single = [grads(one) for one in losses]
+    for j, g in enumerate(batched):
+        torch.testing.assert_close(g, sum(s[j] for s in single) / 3, rtol=1e-12, atol=1e-15)

@@ -39,6 +39,41 @@ def rows_of(result: dict) -> dict[tuple[str, str], float]:
     return {(r["system"], r["metric"]): r["ours"] for r in result["rows"]}
 
 
+#: the paper's bodies by N_mov (movable masses) → masses, by hand (published-code facts: a multiple circle of 37
+#: masses has 17 movable, of 101 masses 65; a double circle of 33 has 17, of 129 has 65)
+MASSES = {("multiple_circle", 17): 37, ("multiple_circle", 65): 101, ("double_circle", 17): 33,
+          ("double_circle", 65): 129}
+
+
+def assert_paper_body(system, n_mov: int) -> None:
+    """The built body has ``n_mov`` movable masses (counted from its fixed mask) and the brain places the
+    2(N_mov − 1) coordinates of the movable masses other than the CMP (paper, "MNIST classification and drawing")."""
+    fixed = np.asarray(system.body.topology.fixed, dtype=bool)
+    assert int(np.count_nonzero(~fixed)) == n_mov and fixed.size == MASSES[(system.spec.shape, n_mov)]
+    out = system.brain_output(torch.zeros(2, 784, dtype=system.body.k.dtype))
+    assert out.shape == (2, 2 * (n_mov - 1))
+
+
+def test_every_mnist_system_has_the_papers_movable_masses():
+    """The systems each MNIST experiment trains: N_mov 17 / 65 movable masses, brain outputs 2(N_mov − 1), readout
+    states 20·N_mov (supplement, "reading states out")."""
+    from bptsb_ros.experiments import mnist_drawing, mnist_readout, mnist_specific100
+    from bptsb_ros.tasks.mnist_drawing import ImageToBody
+    from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem
+
+    drawing = [(n, spec) for _, n, spec in mnist_drawing.systems()]
+    drawing += [(n, spec) for _, _, n, spec in mnist_specific100.systems()]
+    assert sorted({(spec.shape, n) for n, spec in drawing}) == sorted(MASSES)
+    for n, spec in drawing:
+        assert_paper_body(ImageToBody(spec), n)
+    bodies = [(shape, n, nodes) for shape, n, nodes, *_ in mnist_readout.systems() if shape is not None]
+    assert sorted((shape, n) for shape, n, _ in bodies) == sorted(MASSES)
+    for shape, n, nodes in bodies:
+        model = ReadoutSystem(ReadoutSpec(shape=shape, nodes=nodes))
+        assert int(np.count_nonzero(~np.asarray(model.system.body.topology.fixed))) == n
+        assert model.n_features == 20 * n and model.readout.in_features == 20 * n
+
+
 def test_every_mnist_experiment_is_listed(capsys):
     assert main(["reproduce", "--list"]) == 0
     out = capsys.readouterr().out
@@ -51,6 +86,42 @@ def test_missing_data_is_one_clear_error(tmp_path, monkeypatch, capsys):
     assert main(["reproduce", "mnist-drawing", "--scale", "smoke", "--out", str(tmp_path / "x")]) == 2
     assert "pass --data DIR or set BPTSB_MNIST_DIR" in capsys.readouterr().err
     assert not (tmp_path / "x" / "result.json").exists()
+
+
+def _context(scale: str, split: str, data):
+    from bptsb_ros.experiments.registry import Context
+    from bptsb_ros.experiments.result import ExperimentResult
+
+    return Context(scale, 0, data, ExperimentResult("mnist-x", "", scale, 0), log=lambda _: None, data_dir=data,
+                   split=split)
+
+
+def test_paper_scale_means_the_papers_split(tmp_path, capsys):
+    """--scale paper with --split auto trains on the training set and tests on the test set; without the training
+    files it is one clear error (not a quiet fall-back to test-8k-2k); an explicit --split is honoured."""
+    from bptsb_ros.data.mnist import MnistError
+    from bptsb_ros.experiments.mnist_common import load_data
+
+    rng = np.random.default_rng(1)
+    digits = lambda n: (rng.integers(0, 256, (n, 28, 28)).astype(np.uint8), (np.arange(n) % 10).astype(np.uint8))  # noqa: E731
+    (test_x, test_y), (train_x, train_y) = digits(20), digits(30)
+    full = write_custom_set(tmp_path / "full", test_x, test_y, train_x, train_y)
+    test_only = write_custom_set(tmp_path / "test_only", test_x, test_y)
+    data = load_data(_context("paper", "auto", full), None, None)
+    assert (len(data.train_y), len(data.test_y)) == (30, 20)
+    np.testing.assert_array_equal(data.train_x, train_x.reshape(30, -1) / np.float32(255))
+    with pytest.raises(MnistError, match="train-images-idx3-ubyte"):
+        load_data(_context("paper", "auto", test_only), None, None)
+    data = load_data(_context("paper", "test-8k-2k", full), None, None)  # asked for: the first 16 / last 4 test images
+    assert (len(data.train_y), len(data.test_y)) == (16, 4)
+    data = load_data(_context("short", "auto", test_only), None, None)  # below paper scale auto may fall back
+    assert (len(data.train_y), len(data.test_y)) == (16, 4)
+    out = tmp_path / "run"
+    assert main(["reproduce", "mnist-readout", "--scale", "paper", "--data", str(test_only), "--out", str(out),
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "split 'paper' needs train-images-idx3-ubyte" in err and len(err.strip().splitlines()) == 1
+    assert not (out / "result.json").exists()
 
 
 def test_mnist_drawing_smoke(tiny_mnist, tmp_path):
@@ -66,18 +137,21 @@ def test_mnist_drawing_smoke(tiny_mnist, tmp_path):
     targets = load_targets()
     mean = {}
     for brain in ("lil", "mlp"):
-        for nodes in (17, 65):
-            system, extra = load_system(out / "systems" / f"{brain}-multiple_circle-{nodes}.pt")
+        for n_mov in (17, 65):
+            masses = MASSES[("multiple_circle", n_mov)]
+            system, extra = load_system(out / "systems" / f"{brain}-multiple_circle-{masses}.pt")
             assert extra["scale"] == "smoke" and extra["epochs"] == 1
+            assert_paper_body(system, n_mov)
             with torch.no_grad():
                 drawing = system.draw(test_x, 160, adjoint=False).double().numpy()
             errs = [np.mean((drawing[i, : len(targets[d])] - targets[d]) ** 2) for i, d in enumerate(test_y)]
-            mean[(brain, nodes)] = rows[(f"{brain.upper()} + MC {nodes}", "test drawing MSE (mean)")]
-            assert mean[(brain, nodes)] == pytest.approx(np.mean(errs), rel=1e-4)
+            label = f"{brain.upper()} + multiple-circle (N_mov {n_mov})"
+            mean[(brain, n_mov)] = rows[(label, "test drawing MSE (mean)")]
+            assert mean[(brain, n_mov)] == pytest.approx(np.mean(errs), rel=1e-4)
     claims = {c["claim"]: c["holds"] for c in result["claims"]}
     assert claims["the MLP brain draws with a smaller error than the LIL (both bodies)"] == all(
         mean[("mlp", n)] < mean[("lil", n)] for n in (17, 65))
-    assert claims["more mass points give a smaller error (65 < 17, both brains)"] == all(
+    assert claims["more mass points give a smaller error (N_mov 65 < 17, both brains)"] == all(
         mean[(b, 65)] < mean[(b, 17)] for b in ("lil", "mlp"))
 
 
@@ -104,7 +178,8 @@ def test_mnist_pca_smoke(tiny_mnist, tmp_path, monkeypatch):
     out = tmp_path / "pca"
     result = reproduce("mnist-pca", data, out)
     rows = rows_of(result)
-    system, _ = load_system(out / "systems" / "mlp-multiple_circle-17.pt")
+    system, _ = load_system(out / "systems" / "mlp-multiple_circle-37.pt")
+    assert_paper_body(system, 17)
     x = torch.as_tensor(images[120:150].reshape(30, -1) / 255.0, dtype=torch.float32)
     y = labels[120:150]
     with torch.no_grad():
@@ -115,19 +190,22 @@ def test_mnist_pca_smoke(tiny_mnist, tmp_path, monkeypatch):
         centred = feats - feats.mean(0)
         _, _, vt = np.linalg.svd(centred, full_matrices=False)
         got[part] = _silhouette(centred @ vt[:2].T, y)
-        assert rows[(f"MLP + MC 17: {part}", "silhouette of the labels, 2-D PCA")] == pytest.approx(got[part],
-                                                                                                    abs=2e-3)
+        assert rows[(f"MLP + multiple-circle (N_mov 17): {part}", "silhouette of the labels, 2-D PCA")] == \
+            pytest.approx(got[part], abs=2e-3)
     body_s, brain_s = got["body output (CMP trajectory)"], got["brain output (initial positions)"]
     assert result["claims"][0]["holds"] == (body_s > brain_s)
 
 
 def test_mnist_labelmap_smoke(tiny_mnist, tmp_path, monkeypatch):
+    from bptsb_ros.tasks.mnist_drawing import load_system
+
     monkeypatch.setenv("BPTSB_WORKERS", "1")
     data, _, _ = tiny_mnist
     result = reproduce("mnist-labelmap", data, tmp_path / "lm")
+    assert_paper_body(load_system(tmp_path / "lm" / "systems" / "mlp-multiple_circle-37.pt")[0], 17)
     sizes = {r["system"]: r["ours"] for r in result["rows"] if r["metric"].startswith("label-map size")}
     # multiple-circle 37: movable masses 20..35 are placed; 32..35 (the innermost ring) hold springs to the CMP
-    assert len(sizes) == 16
+    assert len(sizes) == 16 and all(k.startswith("MLP + multiple-circle (N_mov 17): mass ") for k in sizes)
     joined = {k: v for k, v in sizes.items() if "joined" in k}
     assert sorted(int(k.split("mass ")[1].split()[0]) for k in joined) == [32, 33, 34, 35]
     grid = result["details"]["label_maps"]["grid"]
@@ -141,17 +219,28 @@ def test_mnist_labelmap_smoke(tiny_mnist, tmp_path, monkeypatch):
 
 
 def test_mnist_specific100_smoke(tiny_mnist, tmp_path, monkeypatch):
+    from bptsb_ros.tasks.mnist_drawing import load_system
+
     monkeypatch.setenv("BPTSB_WORKERS", "1")
     data, _, _ = tiny_mnist
     result = reproduce("mnist-specific100", data, tmp_path / "sp")
     assert "20 images (2 per digit" in result["provenance"]["data"]
+    for (shape, n_mov), masses in MASSES.items():
+        for brain in ("lil", "mlp"):
+            assert_paper_body(load_system(tmp_path / "sp" / "systems" / f"{brain}-{shape}-{masses}.pt")[0], n_mov)
+    assert len(list((tmp_path / "sp" / "systems").glob("*.pt"))) == 8
     mse = {r["system"]: r["ours"] for r in result["rows"] if r["metric"].startswith("drawing MSE")}
     claims = {c["claim"]: c["holds"] for c in result["claims"]}
-    bodies = ("DC N_mov 17", "DC N_mov 65", "MC N_mov 17", "MC N_mov 65")
+    bodies = [f"{s} (N_mov {n})" for s in ("double-circle", "multiple-circle") for n in (17, 65)]
+    assert sorted(mse) == sorted(f"{br} + {b}" for br in ("LIL", "MLP") for b in bodies)
     assert claims["the MLP yields less error than the LIL (every body)"] == all(
         mse[f"MLP + {b}"] < mse[f"LIL + {b}"] for b in bodies)
-    assert claims["bodies with more mass points perform better (65 < 17, every brain and shape)"] == all(
-        mse[f"{br} + {s} N_mov 65"] < mse[f"{br} + {s} N_mov 17"] for br in ("LIL", "MLP") for s in ("DC", "MC"))
+    assert claims["bodies with more mass points perform better (N_mov 65 < 17, every brain and shape)"] == all(
+        mse[f"{br} + {s} (N_mov 65)"] < mse[f"{br} + {s} (N_mov 17)"] for br in ("LIL", "MLP")
+        for s in ("double-circle", "multiple-circle"))
+    sizes = [r["system"] for r in result["rows"] if r["metric"].startswith("label-map size")]
+    assert len(sizes) == 16
+    assert all(k.startswith("MLP + multiple-circle (N_mov 17), specific 100: mass ") for k in sizes)
 
 
 def test_mnist_readout_smoke(tiny_mnist, tmp_path, monkeypatch):
@@ -160,12 +249,18 @@ def test_mnist_readout_smoke(tiny_mnist, tmp_path, monkeypatch):
     result = reproduce("mnist-readout", data, tmp_path / "ro")
     acc = {r["system"]: r["ours"] for r in result["rows"]}
     paper = {r["system"]: r["paper"] for r in result["rows"]}
-    assert paper == {"only brain": 91.18, "double-circle N_mov 17": 95.69, "double-circle N_mov 65": 96.77,
-                     "multiple-circle 17": 95.36, "multiple-circle 65": 96.22}
+    assert paper == {"only brain": 91.18, "double-circle (N_mov 17)": 95.69, "double-circle (N_mov 65)": 96.77,
+                     "multiple-circle (N_mov 17)": 95.36, "multiple-circle (N_mov 65)": 96.22}
     for v in acc.values():  # accuracies on 30 test images: multiples of 1/30
         assert v * 30 / 100 == pytest.approx(round(v * 30 / 100))
     brain = acc.pop("only brain")
     assert result["claims"][0]["holds"] == all(v > brain for v in acc.values())
-    assert result["claims"][1]["holds"] == (acc["double-circle N_mov 65"] > acc["double-circle N_mov 17"]
-                                           and acc["multiple-circle 65"] > acc["multiple-circle 17"])
-    assert result["details"]["systems"]["double-circle N_mov 17"]["n_features"] == 20 * 17
+    assert result["claims"][1]["holds"] == (acc["double-circle (N_mov 65)"] > acc["double-circle (N_mov 17)"]
+                                           and acc["multiple-circle (N_mov 65)"] > acc["multiple-circle (N_mov 17)"])
+    from bptsb_ros.body.shapes import build_shape
+
+    systems = result["details"]["systems"]
+    for (shape, n_mov), masses in MASSES.items():
+        entry = systems[f"{shape.replace('_', '-')} (N_mov {n_mov})"]
+        assert entry["n_features"] == 20 * n_mov and entry["nodes"] == masses  # 20·N_mov stored states
+        assert int(np.count_nonzero(~build_shape(shape, entry["nodes"]).fixed)) == n_mov

@@ -8,7 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from bptsb_ros.body.shapes import SHAPES, Topology, build_shape, caterpillar, double_circle, multiple_circle
+from bptsb_ros.body.shapes import (
+    SHAPES,
+    Topology,
+    build_shape,
+    caterpillar,
+    double_circle,
+    multiple_circle,
+    nodes_for_movable,
+)
 
 
 def assert_well_formed(topo: Topology) -> None:
@@ -70,6 +78,27 @@ def test_multiple_circle_counts() -> None:
     topo = multiple_circle(65)
     assert_well_formed(topo)
     assert topo.n_masses == 65 and int(topo.fixed.sum()) == 28 and len(topo.movable) == 37
+
+
+@pytest.mark.parametrize(
+    "shape,n_movable,nodes",
+    [("double_circle", 17, 33), ("double_circle", 65, 129), ("double_circle", 4, 7),
+     ("multiple_circle", 17, 37), ("multiple_circle", 65, 101), ("multiple_circle", 5, 17),
+     ("caterpillar", 10, 10), ("caterpillar", 2, 2)],
+)
+def test_nodes_for_movable(shape: str, n_movable: int, nodes: int) -> None:
+    """The paper's N_mov → masses (hand values; the facts file: multiple circle 37 → 17 movable, 101 → 65),
+    checked again by counting the built body's movable masses from its fixed mask."""
+    assert nodes_for_movable(shape, n_movable) == nodes
+    topo = build_shape(shape, nodes)
+    assert int(np.count_nonzero(~topo.fixed)) == n_movable and topo.n_masses == nodes
+
+
+@pytest.mark.parametrize("shape,n_movable", [("double_circle", 3), ("multiple_circle", 4), ("multiple_circle", 16),
+                                             ("multiple_circle", 18), ("caterpillar", 1), ("triangle", 17)])
+def test_nodes_for_movable_rejects_counts_no_body_has(shape: str, n_movable: int) -> None:
+    with pytest.raises(ValueError, match="movable|n_masses|unknown shape"):
+        nodes_for_movable(shape, n_movable)
 
 
 def test_caterpillar_counts_and_layout() -> None:

@@ -84,8 +84,10 @@ def test_local_pool_failure_and_resume(tmp_path):
 def test_dask_local_cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
     values = [0, 1, 2, 3]
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None,
-                                  silence_logs=40) as cluster:
+    # tcp, as a real cluster: the address goes through the validation and the probe that bptsb sweep uses
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, protocol="tcp://",
+                                  dashboard_address=None, silence_logs=40) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
         seen = []
         res = run_sweep(_jobs(values), tmp_path, scheduler=cluster.scheduler_address, progress=seen.append)
         _check_tables(tmp_path, values)

@@ -156,6 +156,35 @@ def caterpillar(n_masses: int = 10, neighbours: int = 3) -> Topology:
     )
 
 
+def nodes_for_movable(name: str, n_movable: int) -> int:
+    """The ``n_masses`` (every mass, fixed ones included) of the ``name`` body with ``n_movable`` movable masses.
+
+    The paper counts bodies by their movable masses N_mov (N = N_mov + N_fix; brain outputs 2(N_mov − 1),
+    readout 20·N_mov states), for the multiple circle as for the double circle. Double circle: N = 2 N_mov − 1
+    (M = N_mov − 1 inner masses, as many fixed outer ones, the CMP); multiple circle with c rings: the fixed
+    outer ring holds 4(2c − 1) of the 4c² + 1 masses, so N_mov = 4(c − 1)² + 1 (5, 17, 37, 65, 101, ... for
+    c = 2, 3, ...) and N = 4c² + 1 (N_mov 17 → 37 masses, 65 → 101); caterpillar: every mass is movable.
+
+    Raises:
+        ValueError: no body of that shape has exactly ``n_movable`` movable masses.
+    """
+    if name == "double_circle":
+        if n_movable < 4:
+            raise ValueError(f"a double_circle has at least 4 movable masses (7 masses), got n_movable={n_movable}")
+        return 2 * n_movable - 1
+    if name == "multiple_circle":
+        inner = int(round(math.sqrt(max(n_movable - 1, 0) / 4)))  # c − 1
+        if inner < 1 or 4 * inner * inner + 1 != n_movable:
+            raise ValueError("a multiple_circle has n_movable = 4(c−1)²+1 movable masses with c >= 2 (5, 17, 37, "
+                             f"65, 101, ...), got {n_movable}")
+        return 4 * (inner + 1) ** 2 + 1
+    if name == "caterpillar":
+        if n_movable < 2:
+            raise ValueError(f"caterpillar needs n_masses >= 2, got n_movable={n_movable}")
+        return n_movable
+    raise ValueError(f"unknown shape {name!r}; choose one of {', '.join(SHAPES)}")
+
+
 def build_shape(name: str, n_masses: int, size: float = 4.0, neighbours: int = 3) -> Topology:
     """Build a shape by name; ``size`` is the diameter of circular bodies [m] (at most ``MAX_MASSES`` masses)."""
     if n_masses > MAX_MASSES:

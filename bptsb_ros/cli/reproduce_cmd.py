@@ -41,10 +41,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.config import ConfigError
+    from bptsb_ros.dask_connect import scheduler_address
     from bptsb_ros.data.mnist import MnistError
     from bptsb_ros.experiments import ExperimentError, experiments, run_experiment
     from bptsb_ros.experiments.result import claim_mark
-    from bptsb_ros.sweep import SweepError
+    from bptsb_ros.rundir_lock import RunDirLocked
+    from bptsb_ros.sweep import SchedulerError, SweepError
 
     if args.list:
         for exp in experiments().values():
@@ -55,10 +57,14 @@ def run(args: argparse.Namespace) -> int:
         print("bptsb reproduce: name an experiment (bptsb reproduce --list)", file=sys.stderr)
         return 2
     try:
+        scheduler = scheduler_address(args.scheduler) if args.scheduler is not None else None
         path, result = run_experiment(args.name, scale=args.scale, seed=args.seed, out_dir=args.out,
                                       force=args.force, resume=args.resume, progress=not args.no_progress,
                                       workers=args.workers,
-                                      scheduler=args.scheduler, data_dir=args.data, split=args.split)
+                                      scheduler=scheduler, data_dir=args.data, split=args.split)
+    except (SchedulerError, RunDirLocked) as err:  # runtime failures: the arguments were fine
+        print(f"bptsb reproduce: {err}", file=sys.stderr)
+        return 1
     except (ExperimentError, ConfigError, SweepError, MnistError) as err:
         print(f"bptsb reproduce: {err}", file=sys.stderr)
         return 2

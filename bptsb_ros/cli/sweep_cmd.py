@@ -20,17 +20,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--workers", type=int, default=None,
                        help="local worker processes (default: the CPUs available; 0: run in this process)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help="Dask distributed scheduler, e.g. tcp://HOST:8786 (workers must see --out)")
+                       help="Dask distributed scheduler, tcp://HOST:PORT or HOST:PORT, e.g. tcp://10.0.0.5:8786 "
+                            "(workers must see --out)")
+    parser.add_argument("--connect-timeout", type=_timeout, default=None, metavar="SECONDS",
+                        help="give up on the --scheduler after this many seconds (default 20)")
+
+
+def _timeout(text: str) -> float:
+    from bptsb_ros.cli.common import finite_float
+
+    value = finite_float(text)
+    if not 0 < value <= 3600:
+        raise argparse.ArgumentTypeError(f"must be in (0, 3600] seconds, got {text[:40]!r}")
+    return value
 
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.config import ConfigError, load_config
-    from bptsb_ros.sweep import SweepError, parse_seeds, run_sweep, train_jobs
+    from bptsb_ros.dask_connect import scheduler_address
+    from bptsb_ros.rundir_lock import RunDirLocked
+    from bptsb_ros.sweep import DEFAULT_CONNECT_TIMEOUT, SchedulerError, SweepError, parse_seeds, run_sweep, train_jobs
 
     try:
         seeds = parse_seeds(args.seeds)
         if args.workers is not None and args.workers < 0:
             raise SweepError(f"--workers must be >= 0, got {args.workers}")
+        if args.connect_timeout is not None and args.scheduler is None:
+            raise SweepError("--connect-timeout applies to --scheduler only")
+        scheduler = scheduler_address(args.scheduler) if args.scheduler is not None else None
         load_config(args.config, args.overrides, seeds[0])  # a bad config fails here, once, not in every job
         jobs = train_jobs(args.config, seeds, args.overrides)
         last = [""]
@@ -41,7 +58,11 @@ def run(args: argparse.Namespace) -> int:
                 print(line, file=sys.stderr, flush=True)
                 last[0] = line
 
-        result = run_sweep(jobs, args.out, workers=args.workers, scheduler=args.scheduler, progress=show)
+        result = run_sweep(jobs, args.out, workers=args.workers, scheduler=scheduler, progress=show,
+                           connect_timeout=args.connect_timeout or DEFAULT_CONNECT_TIMEOUT)
+    except (SchedulerError, RunDirLocked) as err:  # runtime failures: the arguments were fine
+        print(f"bptsb sweep: {err}", file=sys.stderr)
+        return 1
     except (SweepError, ConfigError) as err:
         print(f"bptsb sweep: {err}", file=sys.stderr)
         return 2

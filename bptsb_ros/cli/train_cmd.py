@@ -25,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.config import ConfigError, load_config
+    from bptsb_ros.rundir_lock import RunDirLocked
     from bptsb_ros.training.checkpoint import CheckpointError
     from bptsb_ros.training.trainer import TrainingDiverged, train
 
@@ -37,6 +38,9 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, CheckpointError, TrainingDiverged) as err:
         print(f"bptsb train: {err}", file=sys.stderr)
         return 2
+    except RunDirLocked as err:
+        print(f"bptsb train: {err}", file=sys.stderr)
+        return 1
     except OSError as err:
         where = f" {err.filename}" if err.filename else ""
         print(f"bptsb train: cannot write{where}: {err.strerror or err}", file=sys.stderr)

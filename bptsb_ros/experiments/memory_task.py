@@ -45,14 +45,22 @@ def run(ctx: Context) -> None:
 
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
-    from bptsb_ros.experiments.timeseries import BODIES, NarmaJob, config_name, load_states, narma_overrides, run_jobs
+    from bptsb_ros.experiments.timeseries import (
+        BODIES,
+        N_MOV,
+        NarmaJob,
+        config_name,
+        load_states,
+        narma_overrides,
+        run_jobs,
+    )
     from bptsb_ros.sweep import Job
 
     epochs = ctx.pick(smoke=1, short=60, paper=40000)
     delays = ctx.pick(smoke=(1, 8, 17), short=(1, 4, 8, 12, 17), paper=tuple(range(1, 18)))
     seeds = [ctx.seed + i for i in range(ctx.pick(smoke=1, short=2, paper=5))]
     eval_inputs = ctx.pick(smoke=150, short=800, paper=3000)
-    surrogates = ctx.pick(smoke=5, short=50, paper=200)
+    surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     max_delay = ctx.pick(smoke=10, short=20, paper=20)
     washout = ctx.pick(smoke=30, short=100, paper=100)
     config = config_name(ctx.scale)
@@ -71,7 +79,8 @@ def run(ctx: Context) -> None:
     err = {b: np.array([[results[f"{b}_dt{dt}_s{s}"]["nmse"] for s in seeds] for dt in delays]) for b in BODIES}
     for b in BODIES:
         for i, dt in enumerate(delays):
-            ctx.row(f"LIL + {b}", f"NMSE at Δt = {dt} (mean of {len(seeds)} seeds)", "1", float(err[b][i].mean()))
+            ctx.row(f"LIL + {b} (N_mov {N_MOV})", f"NMSE at Δt = {dt} (mean of {len(seeds)} seeds)", "1",
+                    float(err[b][i].mean()))
     rho = {b: spearman(np.array(delays), err[b].mean(axis=1)) for b in BODIES}
     ctx.claim(f"the error grows with Δt in both bodies (Spearman ρ ≥ {RHO_MIN})",
               all(r >= RHO_MIN for r in rho.values()),
@@ -120,7 +129,8 @@ def run(ctx: Context) -> None:
               f"others: mean {np.mean(far):.3g} (max {max(far):.3g})")
     out_f = {b: float(res.capacity[res.group(f"{b}: output (CMP y)"), f]) for b in BODIES}
     for b in BODIES:
-        ctx.row(f"LIL + {b}, Δt = {focus}", f"output F₁(u(t−{focus})) capacity", "1", out_f[b], "target: 1")
+        ctx.row(f"LIL + {b} (N_mov {N_MOV}), Δt = {focus}", f"output F₁(u(t−{focus})) capacity", "1", out_f[b],
+                "target: 1")
 
     # figures (a) error vs Δt, (b) Δt = focus series, (c) IPC
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))

@@ -1,11 +1,13 @@
-"""What the MNIST experiments share: the data (``--data DIR`` / ``$BPTSB_MNIST_DIR``, ``--split``), training
-several systems as independent jobs in a process pool, and the trained drawing systems on disk.
+"""What the MNIST experiments share: the data (``--data DIR`` / ``$BPTSB_MNIST_DIR``, ``--split``; at paper
+scale ``auto`` is the paper's 60,000 / 10,000 split), the bodies by the paper's N_mov, training several systems
+as independent jobs in a process pool, and the trained drawing systems on disk.
 
 Trained drawing systems are written to ``RUN_DIR/systems/<brain>-<shape>-<nodes>.pt`` (spec + state dicts,
 read back with ``torch.load(weights_only=True)``) with the scale, seed and data split they were trained
-with. ``mnist-pca`` reuses the system of an ``mnist-drawing`` run in ``<its --out>/../mnist-drawing`` (the
-default layout ``runs/reproduce/NAME``) when that system was trained at the same scale, seed and split;
-otherwise it trains its own. Every result records where its system came from.
+with. ``mnist-pca`` and ``mnist-labelmap`` reuse the MLP + multiple-circle N_mov 17 system of an
+``mnist-drawing`` run in ``<its --out>/../mnist-drawing`` (the default layout ``runs/reproduce/NAME``) when
+that system was trained at the same scale, seed and split; otherwise they train their own. Every result
+records where its system came from.
 """
 
 from __future__ import annotations
@@ -41,10 +43,29 @@ class Data:
         return f"{self.description}; n_train {len(self.train_y)}; n_test {len(self.test_y)}"
 
 
+def body_label(shape: str, n_movable: int) -> str:
+    """A body as the result rows name it, by the paper's count of movable masses: ``multiple-circle (N_mov 17)``."""
+    return f"{shape.replace('_', '-')} (N_mov {n_movable})"
+
+
+def body_nodes(shape: str, n_movable: int) -> int:
+    """Masses (``nodes``, fixed ones included) of the ``shape`` body with the paper's ``n_movable`` = N_mov."""
+    from bptsb_ros.body.shapes import nodes_for_movable
+
+    return nodes_for_movable(shape, n_movable)
+
+
+def split_for(ctx: Context) -> str:
+    """The split a run uses: ``--split`` as given, except that ``auto`` at paper scale is the paper's split (the
+    60,000 training / 10,000 test images; without the training files that is an error naming them, not a quiet
+    fall-back to ``test-8k-2k``)."""
+    return "paper" if ctx.scale == "paper" and ctx.split == "auto" else ctx.split
+
+
 def load_data(ctx: Context, n_train: int | None, n_test: int | None) -> Data:
-    """The split named by ``ctx.split`` from ``ctx.data_dir`` (or ``$BPTSB_MNIST_DIR``), cut to the first
+    """The split :func:`split_for` names from ``ctx.data_dir`` (or ``$BPTSB_MNIST_DIR``), cut to the first
     ``n_train`` training and ``n_test`` test images (None: all)."""
-    split: Split = load_split(ctx.data_dir, ctx.split)
+    split: Split = load_split(ctx.data_dir, split_for(ctx))
     tx, ty = split.train_x[:n_train], split.train_y[:n_train]
     sx, sy = split.test_x[:n_test], split.test_y[:n_test]
     desc = split.description

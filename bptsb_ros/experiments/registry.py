@@ -18,6 +18,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -32,6 +33,7 @@ from bptsb_ros.experiments.result import (
     Row,
     write_result,
 )
+from bptsb_ros.rundir_lock import LOCK_NAME, dir_is_empty, hold_run_dir
 
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
@@ -178,22 +180,40 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
     if scale not in SCALES:
         raise ExperimentError(f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
     out = Path(out_dir) if out_dir is not None else Path("runs") / "reproduce" / name
+    if resume and not (out / RUN_MARKER).is_file():
+        raise ExperimentError(f"--resume continues an unfinished `bptsb reproduce` run, and {out} is not one "
+                              f"(no {RUN_MARKER})")
+    if out.exists() and not out.is_dir():
+        raise ExperimentError(f"{out} exists and is not a directory; choose another --out")
+    with ExitStack() as held:
+        try:  # RunDirLocked (not an OSError): another bptsb process works in out; nothing was touched
+            held.enter_context(hold_run_dir(out))
+        except OSError as err:
+            raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
+        return _run_locked(exp, out, scale=scale, seed=seed, force=force, resume=resume, progress=progress,
+                           log=log, workers=workers, scheduler=scheduler, data_dir=data_dir, split=split)
+
+
+def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: bool, resume: bool, progress: bool,
+                log: Callable[[str], None] | None, workers: int | None, scheduler: str | None,
+                data_dir: str | Path | None, split: str) -> tuple[Path, dict[str, Any]]:
+    """:func:`run_experiment` once this process holds ``out``'s lock."""
+    name = exp.name
     if resume:
         if not (out / RUN_MARKER).is_file():
             raise ExperimentError(f"--resume continues an unfinished `bptsb reproduce` run, and {out} is not one "
                                   f"(no {RUN_MARKER})")
         if (out / RESULT_FILE).exists():
             raise ExperimentError(f"{out / RESULT_FILE} exists: that run finished (pass --force to run it again)")
-    elif out.exists() and (not out.is_dir() or any(out.iterdir())):
+    elif not dir_is_empty(out):
         what = out / RESULT_FILE if (out / RESULT_FILE).exists() else out
         if not force:
             raise ExperimentError(f"{what} exists; choose another --out or pass --force to replace the run there")
         if not (out / RUN_MARKER).is_file():
             raise ExperimentError(f"--force replaces only an earlier `bptsb reproduce` run, and {out} is not one "
                                   f"(no {RUN_MARKER}); remove it yourself or choose another --out")
-        shutil.rmtree(out)  # nothing of the earlier run (jobs of another scale, say) may leak into this one
+        _clear_run(out)  # nothing of the earlier run (jobs of another scale, say) may leak into this one
     try:
-        out.mkdir(parents=True, exist_ok=True)
         (out / RUN_MARKER).write_text(f"bptsb reproduce {name}\n")
     except OSError as err:
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
@@ -219,6 +239,17 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
     result.wall_s = round(time.perf_counter() - t0, 2)
     path = write_result(out, result)
     return path, result.to_json()
+
+
+def _clear_run(out: Path) -> None:
+    """Remove an earlier reproduce run's contents, keeping ``out`` itself and the lock this process holds."""
+    for entry in out.iterdir():
+        if entry.name == LOCK_NAME:
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
 
 
 def _cpu_count() -> int:

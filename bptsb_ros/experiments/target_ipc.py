@@ -48,7 +48,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
 
     samples = ctx.pick(smoke=1500, short=6000, paper=10000)
-    surrogates = ctx.pick(smoke=10, short=100, paper=200)
+    surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     max_delay, washout = 20, 100
     w = np.random.default_rng(ctx.seed).uniform(0.0, 1.0, samples)
     ys = targets(w)
@@ -101,7 +101,8 @@ def run(ctx: Context) -> None:
                      "1.5 u(t-10) u(t-1) has equal linear parts in u(t-1) and u(t-10), and the 10-step one carries "
                      "more capacity here; the paper's figure (not in our text) may use another input range")
     ctx.result.details = {"notes": notes, "samples": samples, "washout": washout, "max_delay": max_delay,
-                          "max_degree": 3, "surrogates": surrogates, "threshold": "degree-max",
+                          "max_degree": 3, "surrogates": surrogates, "threshold": res.settings["threshold"],
+                          "definition": res.settings["definition"],
                           "inputs": "w ~ U(0,1); NARMA2/NARMA10 u = w/2, expanded NARMA and memory u = w; "
                                     "IPC input 2w−1",
                           "profiles": profile}

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bptsb_ros.body.shapes import Topology
+from bptsb_ros.body.shapes import Topology, nodes_for_movable
 
 
 def chain_topology(n_movable: int = 8, spacing: float = 0.5) -> Topology:
@@ -34,7 +34,9 @@ def one_torch_thread() -> None:
 #: the time-series experiments' bodies: N_mov = 17 movable masses each. Double circle: 33 masses (16 fixed);
 #: multiple circle: 37 masses (3 rings, the outer 20 fixed), whose 17 movable masses match the paper's N_mov = 17
 #: and its per-mass IPC figure (IDs 0…16, the innermost ring joined to the CMP).
-BODIES = {"double-circle": ("double_circle", 33), "multiple-circle": ("multiple_circle", 37)}
+N_MOV = 17
+BODIES = {"double-circle": ("double_circle", nodes_for_movable("double_circle", N_MOV)),
+          "multiple-circle": ("multiple_circle", nodes_for_movable("multiple_circle", N_MOV))}
 
 
 #: the brain sees 20·(2u − 1) as in the published code, not 20·u: a zero-bias ReLU MLP is exactly linear on a

@@ -33,7 +33,7 @@ N_PIXELS = 784
 PAPER_LR = {"k": 1e4, "d": 1e3, "l": 1.0, "brain": 1.0}
 #: metres of initial displacement per unit of brain output, per brain. The rule: the untrained brain places
 #: the masses ≈ 0.2-0.4 m (size/20-size/10) from rest on MNIST images. The LIL's N(0, 1) weights give outputs
-#: of ≈ 8 (‖x‖ ≈ 9 for an MNIST image), hence 0.05 m (mean |displacement| 0.32 m, multiple-circle 17); the
+#: of ≈ 8 (‖x‖ ≈ 9 for an MNIST image), hence 0.05 m (mean |displacement| 0.32 m, multiple-circle of 17 masses); the
 #: Xavier MLP's outputs are ≈ 0.2 already, hence 1 (mean |displacement| 0.20 m).
 DISPLACEMENT_SCALE = {"lil": 0.05, "mlp": 1.0}
 
@@ -43,7 +43,8 @@ class SystemSpec:
     """One brain-body system of the MNIST experiments.
 
     brain: ``lil`` (784 → out, W, b ~ N(0, 1)) or ``mlp`` (784 → hidden → hidden → out, ReLU, Xavier).
-    shape, nodes: the body (``nodes`` counts every mass, fixed ones included).
+    shape, nodes: the body (``nodes`` counts every mass, fixed ones included; the paper counts movable masses:
+        its multiple-circle N_mov = 17 / 65 are ``nodes`` 37 / 101, ``body.shapes.nodes_for_movable``).
     displacement_scale: metres of initial displacement per unit of brain output [m].
     lr: learning rates per parameter kind (k, d, l, brain); optimizer ``sgd`` (the paper) or ``adam``.
 
@@ -54,7 +55,7 @@ class SystemSpec:
 
     brain: str = "mlp"
     shape: str = "multiple_circle"
-    nodes: int = 17
+    nodes: int = 37
     size: float = 4.0
     hidden: int = 128
     dt: float = 0.01
@@ -80,7 +81,7 @@ class SystemSpec:
 
     @property
     def name(self) -> str:
-        """Short id: ``mlp-multiple_circle-17``."""
+        """Short id: ``mlp-multiple_circle-37``."""
         return f"{self.brain}-{self.shape}-{self.nodes}"
 
     def to_json(self) -> dict[str, Any]:

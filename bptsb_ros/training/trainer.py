@@ -20,6 +20,7 @@ from bptsb_ros.agent import build_agent
 from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
+from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
 from bptsb_ros.tasks import get_task
 from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
@@ -84,18 +85,27 @@ def train(
         CheckpointError: ``resume`` without a readable checkpoint.
         TrainingDiverged: the simulation or the loss diverged and the guard had nothing to undo, or the
             final evaluation diverged.
+        RunDirLocked: another bptsb process holds ``run_dir`` (:mod:`bptsb_ros.rundir_lock`).
     """
     run_dir = Path(run_dir)
+    if resume and not run_dir.is_dir():
+        read_checkpoint(run_dir)  # raises before creating anything: a missing run leaves nothing behind
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ConfigError(f"--out {run_dir} exists and is not a directory")
+    with hold_run_dir(run_dir):  # RunDirLocked: another bptsb process works in run_dir; nothing was touched
+        return _train_locked(cfg, run_dir, resume=resume, overwrite=overwrite, progress=progress,
+                             init_from=init_from)
+
+
+def _train_locked(cfg: ExperimentConfig, run_dir: Path, *, resume: bool, overwrite: bool, progress: bool,
+                  init_from: str | Path | None) -> TrainResult:
+    """:func:`train` once this process holds ``run_dir``'s lock."""
     payload = None
     if resume:
-        payload = read_checkpoint(run_dir)  # before creating anything: a missing run leaves nothing behind
-    elif run_dir.exists() and not overwrite:
-        if not run_dir.is_dir():
-            raise ConfigError(f"--out {run_dir} exists and is not a directory")
-        if any(run_dir.iterdir()):
-            raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
-                              "replace it with --force, or choose another directory")
-    run_dir.mkdir(parents=True, exist_ok=True)
+        payload = read_checkpoint(run_dir)
+    elif not overwrite and not dir_is_empty(run_dir):
+        raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
+                          "replace it with --force, or choose another directory")
     threads = configure_threads(1, cfg.training.backend)  # every task trains one small body: one thread
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
