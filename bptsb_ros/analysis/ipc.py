@@ -327,7 +327,8 @@ def ipc_groups(
         groups: state sets, each (T,) or (T, N_g), row t the state after input u(t) was applied.
         labels: a name per set (default "states 0", ...).
         max_degree: the basis's degrees 1..max_degree.
-        max_delay, min_delay: its delays min_delay..max_delay [task steps] (the reference: 0..99).
+        max_delay: the basis's largest delay [task steps] (the reference: 99).
+        min_delay: the basis's smallest delay [task steps] (the reference: 0).
         washout: samples discarded at the start (at least max_delay are always discarded; the reference: 1000).
         surrogates: shuffled-input surrogates per degree tuple (ignored with ``threshold="none"``).
         threshold: "tuple-max" (a function counts if its capacity exceeds threshold_scale × the largest
