@@ -17,12 +17,14 @@ Brain = SineWaveGenerator | MLPBrain | LinearInputLayer
 
 @dataclass
 class Agent:
-    """A brain–body system. ``config`` is the resolved experiment config as a plain dict."""
+    """A brain–body system. ``config`` is the resolved experiment config as a plain dict; ``feedback_fitted``
+    says whether ``feedback`` holds a ridge fit (a fresh feedback layer is all zeros)."""
 
     config: dict
     body: MSDN
     brain: Brain
     feedback: FeedbackLayer | None
+    feedback_fitted: bool = False
 
     @property
     def task(self) -> str:

@@ -17,6 +17,8 @@ included) to at most ``MAX_YAML_NODES`` nodes, every float must be finite, and e
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -228,10 +230,40 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return path, safe_yaml(raw, f"override {echo(key)}")
 
 
-def apply_overrides(data: dict, overrides: list[str]) -> dict:
-    """Apply ``--set`` overrides to a raw config mapping (validation happens afterwards)."""
+Overrides = Sequence[str] | Mapping[str, Any]
+"""Config overrides: ``--set`` texts ``["a.b=value", ...]`` (values parsed as YAML) or a mapping
+``{"a.b": value}`` (values taken as they are)."""
+
+
+def override_items(overrides: Overrides | None) -> list[tuple[list[str], Any, str]]:
+    """Overrides → (key path, value, the override as named in messages), in order."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, str):
+        raise ConfigError(f"overrides must be a list of key=value texts or a mapping, got the text {echo(overrides)}")
+    if isinstance(overrides, Mapping):
+        items = []
+        for key, value in overrides.items():
+            if not isinstance(key, str):
+                raise ConfigError(f"override key {echo(key)} must be a text (a dotted key such as 'training.lr.k')")
+            path = [p for p in key.strip().split(".") if p]
+            if not path:
+                raise ConfigError(f"override key {echo(key)} is empty")
+            items.append((path, copy.deepcopy(value), f"{key}={echo(value)}"))
+        return items
     for text in overrides:
-        path, value = parse_override(text)
+        if not isinstance(text, str):
+            raise ConfigError(f"override {echo(text)} must be a text key=value (e.g. 'sim_time=20')")
+    return [(*parse_override(text), text) for text in overrides]
+
+
+def apply_overrides(data: dict, overrides: Overrides) -> dict:
+    """Apply ``--set`` overrides (or a mapping of them) to a raw config mapping (validation happens afterwards)."""
+    return _apply_items(data, override_items(overrides))
+
+
+def _apply_items(data: dict, items: list[tuple[list[str], Any, str]]) -> dict:
+    for path, value, text in items:
         node = data
         for part in path[:-1]:
             child = node.setdefault(part, {})
@@ -279,8 +311,8 @@ def validate(data: dict, source: str = "") -> ExperimentConfig:
         raise ConfigError(_format_errors(err, source)) from None
 
 
-def load_config(path: str | Path, overrides: list[str] | None = None, seed: int | None = None) -> ExperimentConfig:
-    """Read, override and validate an experiment YAML."""
+def load_config(path: str | Path, overrides: Overrides | None = None, seed: int | None = None) -> ExperimentConfig:
+    """Read, override and validate an experiment YAML (``overrides``: see :data:`Overrides`)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
@@ -295,10 +327,10 @@ def load_config(path: str | Path, overrides: list[str] | None = None, seed: int 
     data = safe_yaml(text, f"config file {path}") or {}
     if not isinstance(data, dict):
         raise ConfigError(f"configuration {path} must be a mapping, got {type(data).__name__}")
-    overrides = overrides or []
-    chosen = [o for o in overrides if parse_override(o)[0] == ["profile"]]  # the profile first, the rest over it
-    data = apply_profile(apply_overrides(data, chosen), str(path))
-    data = apply_overrides(data, [o for o in overrides if o not in chosen])
+    items = override_items(overrides)
+    chosen = [item for item in items if item[0] == ["profile"]]  # the profile first, the rest over it
+    data = apply_profile(_apply_items(data, chosen), str(path))
+    data = _apply_items(data, [item for item in items if item[0] != ["profile"]])
     if seed is not None:
         data["seed"] = seed
     cfg = validate(data, str(path))

@@ -164,21 +164,10 @@ def _simulate_shape(args: argparse.Namespace) -> Trajectory:
 
 
 def _simulate_agent(args: argparse.Namespace) -> Trajectory:
-    """A trained agent from ``--agent RUN_DIR``, run open or closed loop by ``bptsb_ros.sim.rollout``.
-
-    SWG agents modulate their rest lengths; LIL/MLP agents get the task input series
-    ``narma_inputs(--seed, n)``, held for the config's ``narma.tau`` steps by ``held_inputs`` and scaled
-    by ``narma.input_scale`` (stored as the extra ``input``, the per-step brain input in force at each
-    step): what the NARMA evaluation and the live ``task_input`` node feed for that seed.
-    """
-    import numpy as np
-    import torch
-
+    """A trained agent from ``--agent RUN_DIR``, run open or closed loop by
+    :func:`bptsb_ros.sim.agent_run.simulate_agent` (LIL/MLP agents: the NARMA input series of ``--seed``)."""
     from bptsb_ros.agent import dtype_of
-    from bptsb_ros.brains import SineWaveGenerator
-    from bptsb_ros.sim.rollout import held_inputs, simulate_closed_loop, simulate_open_loop
-    from bptsb_ros.sim.trajectory import trajectory_from_rollout
-    from bptsb_ros.tasks.narma import brain_input, narma_inputs
+    from bptsb_ros.sim.agent_run import simulate_agent
     from bptsb_ros.training.checkpoint import CheckpointError, feedback_fitted, load_agent
 
     if args.swg_amplitude or args.ground_clamp or args.environment != "auto" or args.nodes is not None:
@@ -199,25 +188,6 @@ def _simulate_agent(args: argparse.Namespace) -> Trajectory:
         body.integrator = args.integrator
     if args.backend is not None:
         body.backend = args.backend
-    real = body.l.dtype
-    gen = torch.Generator().manual_seed(args.seed)
-    displacement = None
-    if args.perturb > 0:
-        displacement = (args.perturb * torch.randn(1, body.n_movable, 2, generator=gen, dtype=torch.float64)).to(real)
-    wind = None if args.wind is None else torch.tensor(args.wind, dtype=real)
-    extras: dict[str, np.ndarray] = {}
     with _progress(args) as progress:
-        if args.loop == "closed":
-            roll = simulate_closed_loop(body, agent.feedback, args.steps, wind=wind, displacement=displacement,
-                                        progress=progress)
-        else:
-            inputs = None
-            if not isinstance(agent.brain, SineWaveGenerator):
-                narma = agent.config["narma"]
-                tau = int(narma["tau"])
-                u = narma_inputs(args.seed, (args.steps - 1) // tau + 1)
-                inputs = brain_input(torch.from_numpy(held_inputs(u, tau, args.steps)).to(real), narma)
-                extras["input"] = inputs.numpy().copy()
-            roll = simulate_open_loop(agent, args.steps, inputs=inputs, wind=wind, displacement=displacement,
-                                      progress=progress)
-    return trajectory_from_rollout(body, roll, extras=extras)
+        return simulate_agent(agent, args.steps, loop=args.loop, seed=args.seed, perturb=args.perturb,
+                              wind=args.wind, progress=progress)

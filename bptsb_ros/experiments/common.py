@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
-from bptsb_ros.config import ConfigError, ExperimentConfig, load_config
+from bptsb_ros.config import ConfigError, ExperimentConfig, Overrides, echo, load_config
 
 PACKAGE = "bptsb_ros"
 
@@ -26,6 +27,27 @@ def config_dir() -> Path:
                           "index (set AMENT_PREFIX_PATH)") from None
 
 
-def packaged_config(name: str, overrides: list[str] | None = None, seed: int | None = None) -> ExperimentConfig:
-    """Load ``config/<name>.yaml`` with ``--set``-style overrides."""
-    return load_config(config_dir() / f"{name}.yaml", overrides or [], seed)
+#: what a packaged config's name looks like (a name, never a path)
+CONFIG_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+#: suffix of the ROS node parameter files that share ``config/`` with the experiment configs
+NODE_PARAMS_SUFFIX = "_params"
+
+
+def packaged_configs() -> list[str]:
+    """Names of the packaged experiment configs (``config/<name>.yaml``, node parameter files left out), sorted."""
+    return sorted(p.stem for p in config_dir().glob("*.yaml")
+                  if CONFIG_NAME.fullmatch(p.stem) and not p.stem.endswith(NODE_PARAMS_SUFFIX))
+
+
+def packaged_config_path(name: str) -> Path:
+    """The file of the packaged experiment config ``name``; ConfigError naming the known ones if there is none."""
+    if not isinstance(name, str) or not CONFIG_NAME.fullmatch(name) or name.endswith(NODE_PARAMS_SUFFIX) \
+            or not (config_dir() / f"{name}.yaml").is_file():
+        raise ConfigError(f"no packaged config named {echo(name)} (packaged: {', '.join(packaged_configs())}); "
+                          "give a path to load a file")
+    return config_dir() / f"{name}.yaml"
+
+
+def packaged_config(name: str, overrides: Overrides | None = None, seed: int | None = None) -> ExperimentConfig:
+    """Load ``config/<name>.yaml`` with ``--set``-style overrides (or a mapping of them)."""
+    return load_config(packaged_config_path(name), overrides, seed)

@@ -170,6 +170,21 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
                    split: str = "auto") -> tuple[Path, dict[str, Any]]:
     """Run one experiment and write ``out_dir/result.json``; returns (its path, its content).
 
+    Arguments as :func:`execute_experiment`, which returns the :class:`ExperimentResult` itself.
+    """
+    path, result = execute_experiment(name, scale=scale, seed=seed, out_dir=out_dir, force=force, resume=resume,
+                                      progress=progress, log=log, workers=workers, scheduler=scheduler,
+                                      data_dir=data_dir, split=split)
+    return path, result.to_json()
+
+
+def execute_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: str | Path | None = None,
+                       force: bool = False, resume: bool = False, progress: bool = True,
+                       log: Callable[[str], None] | None = None, workers: int | None = None,
+                       scheduler: str | None = None, data_dir: str | Path | None = None,
+                       split: str = "auto") -> tuple[Path, ExperimentResult]:
+    """Run one experiment and write ``out_dir/result.json``; returns (its path, the result).
+
     ``workers``/``scheduler`` say where experiments with independent trainings run them (``bptsb_ros.sweep``);
     ``data_dir`` and ``split`` are passed to experiments that read a data set (MNIST). A non-empty ``out_dir``
     (an earlier run) is kept unless ``force``, which removes it first, and only if it is an earlier run (it holds
@@ -238,7 +253,7 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
     exp.run(ctx)
     result.wall_s = round(time.perf_counter() - t0, 2)
     path = write_result(out, result)
-    return path, result.to_json()
+    return path, result
 
 
 def _clear_run(out: Path) -> None:

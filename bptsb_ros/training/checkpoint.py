@@ -96,6 +96,9 @@ def load_agent(run_dir: str | Path, dtype: torch.dtype | None = None) -> Agent:
         module.requires_grad_(False)
         if dtype is not None:
             module.to(dtype)
+    extra = payload.get("extra")
+    agent.feedback_fitted = agent.feedback is not None and isinstance(extra, dict) and \
+        bool(extra.get("feedback_fitted", False))
     return agent
 
 

@@ -35,6 +35,7 @@ def fit_feedback(agent: Agent, cfg: FeedbackConfig, state: BodyState | None, see
     x_fit = x[lo:hi] + cfg.noise * rng.standard_normal(x[lo:hi].shape)
     weights, lambdas = fit_ridge(x_fit, y[lo:hi], criterion=cfg.criterion)
     agent.feedback.load_fit(weights)
+    agent.feedback_fitted = True
     pred = np.concatenate([x[lo:hi], np.ones((hi - lo, 1))], 1) @ weights.T
     rmse = float(np.sqrt(np.mean((pred - y[lo:hi]) ** 2)))
     return {

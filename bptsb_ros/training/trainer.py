@@ -1,6 +1,7 @@
 """The BPTSB training loop: truncated windows, per-parameter learning rates, projection onto
 non-negative body parameters, the update guard (:mod:`bptsb_ros.training.guard`), checkpoints, metrics,
-progress."""
+progress. With a run directory (``bptsb train --out``) it writes checkpoints, metrics and plots there; without
+one it trains in memory and writes nothing (the Python API, :func:`bptsb_ros.train`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,8 +18,8 @@ from typing import Any
 import torch
 import yaml
 
-from bptsb_ros.agent import build_agent
-from bptsb_ros.body.msdn import SimulationDiverged
+from bptsb_ros.agent import Agent, build_agent
+from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
@@ -35,10 +37,27 @@ class TrainingDiverged(RuntimeError):
 
 @dataclass
 class TrainResult:
-    run_dir: Path
+    """What :func:`train` returns.
+
+    Attributes:
+        run_dir: the run directory written, or None (trained in memory).
+        losses: the loss curve, one entry per update (a rejected update repeats the previous entry).
+        metrics: the content of ``metrics.json`` (loss, guard, timing, ``evaluation``, ``feedback_fit``).
+        files: the files written (empty in memory).
+        agent: the trained agent (its feedback layer fitted for SWG agents).
+        state: the body state where training ended (B = 1; SWG tasks: on the trained cycle), or None for
+            episodic tasks.
+    """
+
+    run_dir: Path | None
     losses: list[float]
     metrics: dict[str, Any]
     files: list[Path] = field(default_factory=list)
+    agent: Agent | None = None
+    state: BodyState | None = None
+
+#: ``callback(update, loss)`` of :func:`train`: the update's index and its entry of the loss curve
+UpdateCallback = Callable[[int, float], None]
 
 
 def _progress(total: int, desc: str, enabled: bool):
@@ -51,14 +70,19 @@ def _progress(total: int, desc: str, enabled: bool):
 
 def train(
     cfg: ExperimentConfig,
-    run_dir: str | Path,
+    run_dir: str | Path | None,
     *,
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = True,
     init_from: str | Path | None = None,
+    callback: UpdateCallback | None = None,
 ) -> TrainResult:
     """Train ``cfg``'s agent, writing checkpoint.pt, config.yaml, metrics.json and plots to ``run_dir``.
+
+    ``run_dir`` None trains in memory: nothing is written (no checkpoint, no plots, no ``diverged.json``), and
+    the trained agent is in the result as it is with a run directory. ``callback(update, loss)`` is called
+    after every update with its index and its entry of the loss curve.
 
     ``run_dir`` must not hold anything yet unless ``resume`` (continue the run saved there; a missing run
     is an error that creates nothing) or ``overwrite`` (replace it). The checkpoint only ever holds
@@ -80,13 +104,18 @@ def train(
     optimiser and the losses start afresh. Ignored when resuming.
 
     Raises:
-        ConfigError: ``run_dir`` holds a run (neither ``resume`` nor ``overwrite``), or the config differs
-            from the resumed run's.
+        ConfigError: ``run_dir`` holds a run (neither ``resume`` nor ``overwrite``), the config differs
+            from the resumed run's, or ``resume`` without a run directory.
         CheckpointError: ``resume`` without a readable checkpoint.
         TrainingDiverged: the simulation or the loss diverged and the guard had nothing to undo, or the
             final evaluation diverged.
         RunDirLocked: another bptsb process holds ``run_dir`` (:mod:`bptsb_ros.rundir_lock`).
     """
+    if run_dir is None:
+        if resume:
+            raise ConfigError("resume continues a run saved in a run directory; give one")
+        return _train_locked(cfg, None, resume=False, overwrite=overwrite, progress=progress, init_from=init_from,
+                             callback=callback)
     run_dir = Path(run_dir)
     if resume and not run_dir.is_dir():
         read_checkpoint(run_dir)  # raises before creating anything: a missing run leaves nothing behind
@@ -94,25 +123,26 @@ def train(
         raise ConfigError(f"--out {run_dir} exists and is not a directory")
     with hold_run_dir(run_dir):  # RunDirLocked: another bptsb process works in run_dir; nothing was touched
         return _train_locked(cfg, run_dir, resume=resume, overwrite=overwrite, progress=progress,
-                             init_from=init_from)
+                             init_from=init_from, callback=callback)
 
 
-def _train_locked(cfg: ExperimentConfig, run_dir: Path, *, resume: bool, overwrite: bool, progress: bool,
-                  init_from: str | Path | None) -> TrainResult:
-    """:func:`train` once this process holds ``run_dir``'s lock."""
+def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, overwrite: bool, progress: bool,
+                  init_from: str | Path | None, callback: UpdateCallback | None) -> TrainResult:
+    """:func:`train` once this process holds ``run_dir``'s lock (``run_dir`` None: in memory, nothing to lock)."""
     payload = None
-    if resume:
-        payload = read_checkpoint(run_dir)
-    elif not overwrite and not dir_is_empty(run_dir):
-        raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
-                          "replace it with --force, or choose another directory")
+    if run_dir is not None:
+        if resume:
+            payload = read_checkpoint(run_dir)
+        elif not overwrite and not dir_is_empty(run_dir):
+            raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
+                              "replace it with --force, or choose another directory")
     threads = configure_threads(1, cfg.training.backend)  # every task trains one small body: one thread
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
     task = get_task(cfg.task)(agent, cfg)
     optimizer = make_optimizer(agent, cfg.training)
     start = 0
-    if payload is not None:
+    if payload is not None and run_dir is not None:
         _check_resumable(payload["config"], agent.config, run_dir)
         for name, module in agent.modules().items():
             module.load_state_dict(payload["modules"][name])
@@ -133,7 +163,8 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path, *, resume: bool, overwri
             raise ConfigError(f"cannot continue from {init_from}: its agent differs ({err})") from None
         if "task_state" in payload["extra"]:
             task.load_state_dict(payload["extra"]["task_state"])
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
+    if run_dir is not None:
+        (run_dir / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
 
     total = task.num_updates()
     tc = cfg.training
@@ -154,11 +185,16 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path, *, resume: bool, overwri
     bar.update(start)
 
     def checkpoint(update: int, **more: Any) -> None:
+        if run_dir is None:
+            return
         save_checkpoint(run_dir, agent, {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
                                          "losses": losses, "update": update, "guard": guard.state_dict(), **more})
 
-    def snapshot(update: int) -> dict[str, Any]:
-        """Everything a checkpoint at ``update`` holds, copied (later updates change the tensors in place)."""
+    def snapshot(update: int) -> dict[str, Any] | None:
+        """Everything a checkpoint at ``update`` holds, copied (later updates change the tensors in place);
+        None in memory (no checkpoint is ever written)."""
+        if run_dir is None:
+            return None
         return copy.deepcopy({
             "modules": {name: m.state_dict() for name, m in agent.modules().items()},
             "extra": {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(), "losses": losses,
@@ -172,12 +208,14 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path, *, resume: bool, overwri
     def window_completed() -> None:
         nonlocal good, due
         good = pending
-        if due:
+        if due and run_dir is not None and good is not None:
             save_checkpoint(run_dir, agent, good["extra"], modules=good["modules"])
             due = False
 
     def diverged(update: int, why: str) -> TrainingDiverged:
         """Write the last good state (parameters that completed a window), record the failure, build the error."""
+        if run_dir is None:
+            return TrainingDiverged(f"update {update}: {why} (trained in memory: nothing was written)")
         if good is not None:
             save_checkpoint(run_dir, agent, good["extra"], modules=good["modules"])
             kept = (f"the last good checkpoint, update {good['extra']['update']}, is kept: parameters that "
@@ -215,6 +253,8 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path, *, resume: bool, overwri
             bar.update(1)
             if i % tc.log_every == 0:
                 bar.set_postfix(loss=f"{losses[-1]:.4g}")
+            if callback is not None:
+                callback(i, float(losses[-1]))
             pending = snapshot(i + 1)
             due = due or bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
     finally:
@@ -235,8 +275,10 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path, *, resume: bool, overwri
     except SimulationDiverged as err:  # the final parameters never completed a window: keep the last good ones
         raise diverged(total, f"evaluation: {err}") from None
     checkpoint(total, feedback_fitted=getattr(task, "feedback_fitted", False))
-    files = _write_outputs(run_dir, task, metrics)
-    return TrainResult(run_dir, losses, metrics, files)
+    files = [] if run_dir is None else _write_outputs(run_dir, task, metrics)
+    state = getattr(task, "state", None)
+    return TrainResult(run_dir, losses, metrics, files, agent,
+                       state.detach() if isinstance(state, BodyState) else None)
 
 
 #: keys that may differ between a run and its resumption (durations, logging, the backend: equal to rounding)
