@@ -158,6 +158,7 @@ def test_mnist_labelmap_claims():
 def test_mnist_labelmap_extremes_ties():
     # a float tie (sizes equal up to rounding) between a joined and a not-joined mass at the maximum refutes it
     assert labelmap([0.8] * 11 + [0.9], [0.9 + 1e-12, 0.5, 0.5, 0.5])[1] is False
+    assert labelmap([0.8] * 11 + [0.9], [0.9 - 1e-12, 0.5, 0.5, 0.5])[1] is False  # the joined one a hair below
     assert labelmap([0.8] * 11 + [0.9], [0.9 - 1e-6, 0.5, 0.5, 0.5])[1] is True
     assert labelmap([0.8] * 11 + [0.5 + 1e-12], [0.6, 0.5, 0.5, 0.6])[1] is False  # tie at the minimum
     assert labelmap([0.8] * 11 + [0.5 + 1e-6], [0.6, 0.5, 0.5, 0.6])[1] is True
@@ -363,6 +364,11 @@ def test_separation_probe_size_and_chance():
     assert got["probe_n"] == 5 and got["probe_chance"] == pytest.approx(0.6)
     assert np.bincount(y[separation.held_out(y)]).tolist() == [3, 2]
     assert len(separation.held_out(np.arange(7) % 3)) == 4  # ⌈7/2⌉
+    # 5 zeros and 4 ones: the held-out 5 take 5·5/9 ≈ 2.8 → 3 zeros; chance among them 3/5, not 5/9
+    y9 = np.array([0] * 5 + [1] * 4)
+    got9 = separation.separation_scores(np.random.default_rng(1).normal(size=(9, 3)), y9)
+    assert np.bincount(y9[separation.held_out(y9)]).tolist() == [3, 2]
+    assert got9["probe_n"] == 5 and got9["probe_chance"] == pytest.approx(0.6)
 
 
 # -- label maps: start point (each digit's best sample) and width (±size/5) ------------------------------------------
@@ -389,8 +395,13 @@ def test_label_maps_start_at_each_digits_best_sample_within_0_8_m(tmp_path, monk
     real = md.label_maps
 
     def spy(system, base, *, half_width, grid):
-        seen.update(base=base.numpy().copy(), half_width=half_width, out=real(system, base, half_width=half_width,
-                                                                               grid=grid))
+        """The real label maps, their labels replaced by planted ones: digit d's Δ = 0 cells d, every other
+        cell (d + 1) mod 10, so only the centre cell tells each digit's start drawing."""
+        out = real(system, base, half_width=half_width, grid=grid)
+        seen.update(base=base.numpy().copy(), half_width=half_width, real=out["labels"].copy())
+        planted = np.broadcast_to((np.arange(10) + 1)[:, None, None, None] % 10, out["labels"].shape).copy()
+        planted[:, :, grid // 2, grid // 2] = np.arange(10)[:, None]
+        seen["out"] = {**out, "labels": planted}
         return seen["out"]
 
     monkeypatch.setattr(md, "label_maps", spy)
@@ -399,8 +410,8 @@ def test_label_maps_start_at_each_digits_best_sample_within_0_8_m(tmp_path, monk
     np.testing.assert_array_equal(seen["base"], disp[best])
     assert seen["half_width"] == pytest.approx(0.8) and out["half_width_m"] == pytest.approx(0.8)
     assert seen["out"]["deltas"].tolist() == pytest.approx([-0.8, 0.0, 0.8])
-    assert out["centre_labels"] == seen["out"]["labels"][:, 0, 1, 1].tolist()
-    # the Δ = 0 cell of every mass is the same unshifted body
-    assert (seen["out"]["labels"][:, :, 1, 1] == seen["out"]["labels"][:, :1, 1, 1]).all()
+    assert out["centre_labels"] == list(range(10))  # read at the Δ = 0 cell
+    # in the real maps the Δ = 0 cell of every mass is the same unshifted body
+    assert (seen["real"][:, :, 1, 1] == seen["real"][:, :1, 1, 1]).all()
     with pytest.raises(ValueError, match="odd"):
         ma.labelmap_analysis(ctx, system, {"errors": errors, "displacement": disp}, labels, 4, "planted")
