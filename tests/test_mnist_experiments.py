@@ -3,6 +3,8 @@ recomputation from what it saved (rows ↔ claims, rows ↔ saved systems)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -37,6 +39,27 @@ def reproduce(name: str, data, out, *extra: str) -> dict:
 
 def rows_of(result: dict) -> dict[tuple[str, str], float]:
     return {(r["system"], r["metric"]): r["ours"] for r in result["rows"]}
+
+
+def learned(percent: float, n: int, chance: float = 0.1) -> bool:
+    """The claims' premise, by its definition: accuracy above chance by more than 3 binomial standard errors (the
+    planted test images hold every digit equally often: chance 1/10)."""
+    return percent / 100 > chance + 3 * math.sqrt(chance * (1 - chance) / n) + 1e-9
+
+
+def every(checks: list[tuple[bool, bool]]) -> bool | None:
+    """A claim over (holds, testable) comparisons: False if a testable one fails, else None if one is not
+    testable, else True."""
+    if any(t and not h for h, t in checks):
+        return False
+    return None if not all(t for _, t in checks) else True
+
+
+def verdict(result: dict, start: str) -> bool | None:
+    """The verdict of the one claim whose text starts with ``start``."""
+    found = [c["holds"] for c in result["claims"] if c["claim"].startswith(start)]
+    assert len(found) == 1, (start, [c["claim"] for c in result["claims"]])
+    return found[0]
 
 
 #: the paper's bodies by N_mov (movable masses) → masses, by hand (published-code facts: a multiple circle of 37
@@ -135,7 +158,7 @@ def test_mnist_drawing_smoke(tiny_mnist, tmp_path):
     test_x = torch.as_tensor(images[120:150].reshape(30, -1) / 255.0, dtype=torch.float32)
     test_y = labels[120:150]
     targets = load_targets()
-    mean = {}
+    mean, acc = {}, {}
     for brain in ("lil", "mlp"):
         for n_mov in (17, 65):
             masses = MASSES[("multiple_circle", n_mov)]
@@ -148,14 +171,19 @@ def test_mnist_drawing_smoke(tiny_mnist, tmp_path):
             label = f"{brain.upper()} + multiple-circle (N_mov {n_mov})"
             mean[(brain, n_mov)] = rows[(label, "test drawing MSE (mean)")]
             assert mean[(brain, n_mov)] == pytest.approx(np.mean(errs), rel=1e-4)
-    claims = {c["claim"]: c["holds"] for c in result["claims"]}
-    assert claims["the MLP brain draws with a smaller error than the LIL (both bodies)"] == all(
-        mean[("mlp", n)] < mean[("lil", n)] for n in (17, 65))
-    assert claims["more mass points give a smaller error (N_mov 65 < 17, both brains)"] == all(
-        mean[(b, 65)] < mean[(b, 17)] for b in ("lil", "mlp"))
+            nearest = [int(np.argmin([np.mean((drawing[i, : len(t)] - t) ** 2) for t in targets])) == d
+                       for i, d in enumerate(test_y)]
+            acc[(brain, n_mov)] = rows[(label, "test drawings nearest to their own target")]
+            assert acc[(brain, n_mov)] == pytest.approx(100 * np.mean(nearest))
+    ok = {k: learned(v, 30) for k, v in acc.items()}
+    assert verdict(result, "the MLP brain draws with a smaller error") == every(
+        [(mean[("mlp", n)] < mean[("lil", n)], ok[("mlp", n)] and ok[("lil", n)]) for n in (17, 65)])
+    assert verdict(result, "more mass points give a smaller error") == every(
+        [(mean[(b, 65)] < mean[(b, 17)], ok[(b, 65)] and ok[(b, 17)]) for b in ("lil", "mlp")])
 
 
-def _silhouette(points: np.ndarray, labels: np.ndarray) -> float:
+def _silhouettes(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Per-point silhouette by its definition: (b − a) / max(a, b), a lone point of its label 0."""
     dist = np.linalg.norm(points[:, None] - points[None], axis=-1)
     out = []
     for i in range(len(points)):
@@ -166,11 +194,29 @@ def _silhouette(points: np.ndarray, labels: np.ndarray) -> float:
         a = dist[i, same].mean()
         b = min(dist[i, labels == other].mean() for other in np.unique(labels) if other != labels[i])
         out.append((b - a) / max(a, b))
-    return float(np.mean(out))
+    return np.asarray(out)
+
+
+def _redraw(system, images: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(brain output without the CMP, CMP drawings, errors against every target (n, 10)) of the saved system for
+    ``images`` (n, 784) in [0, 1]."""
+    x = torch.as_tensor(np.asarray(images).reshape(len(labels), -1), dtype=torch.float32)
+    targets = load_targets()
+    with torch.no_grad():
+        brain = system.displacement(x)[:, system.driven].reshape(len(labels), -1).double().numpy()
+        drawing = system.draw(x, max(len(t) for t in targets) - 1, adjoint=False).double().numpy()
+    errs = np.array([[np.mean((d[: len(t)] - t) ** 2) for t in targets] for d in drawing])
+    return brain, drawing, errs
+
+
+#: the PCA probe's held-out half of the 30 planted test images (3 of every digit), stratified: 15 images, five
+#: digits twice and five once, so always answering one digit scores 2/15
+PROBE_N, PROBE_CHANCE = 15, 2 / 15
 
 
 def test_mnist_pca_smoke(tiny_mnist, tmp_path, monkeypatch):
-    """Silhouettes recomputed with numpy (SVD for PCA, the silhouette by its definition) from the saved system."""
+    """Silhouettes recomputed with numpy (SVD for PCA, the silhouette by its definition) from the saved system;
+    the claims' verdicts recomputed from them and the rows."""
     from bptsb_ros.tasks.mnist_drawing import load_system
 
     monkeypatch.setenv("BPTSB_WORKERS", "1")
@@ -180,42 +226,71 @@ def test_mnist_pca_smoke(tiny_mnist, tmp_path, monkeypatch):
     rows = rows_of(result)
     system, _ = load_system(out / "systems" / "mlp-multiple_circle-37.pt")
     assert_paper_body(system, 17)
-    x = torch.as_tensor(images[120:150].reshape(30, -1) / 255.0, dtype=torch.float32)
     y = labels[120:150]
-    with torch.no_grad():
-        brain = system.displacement(x)[:, system.driven].reshape(30, -1).double().numpy()
-        body = system.draw(x, 157, adjoint=False).reshape(30, -1).double().numpy()
-    got = {}
-    for part, feats in (("brain output (initial positions)", brain), ("body output (CMP trajectory)", body)):
+    brain, drawing, errs = _redraw(system, images[120:150].reshape(30, -1) / np.float32(255), y)
+    name = "MLP + multiple-circle (N_mov 17)"
+    acc = rows[(name, "test drawings nearest to their own target")]
+    assert acc == pytest.approx(100 * np.mean(errs.argmin(1) == y))
+    ok = learned(acc, 30)
+    got, per, probe = {}, {}, {}
+    for part, feats in (("brain", brain), ("body", drawing.reshape(30, -1))):
+        what = "brain output (initial positions)" if part == "brain" else "body output (CMP trajectory)"
         centred = feats - feats.mean(0)
         _, _, vt = np.linalg.svd(centred, full_matrices=False)
-        got[part] = _silhouette(centred @ vt[:2].T, y)
-        assert rows[(f"MLP + multiple-circle (N_mov 17): {part}", "silhouette of the labels, 2-D PCA")] == \
-            pytest.approx(got[part], abs=2e-3)
-    body_s, brain_s = got["body output (CMP trajectory)"], got["brain output (initial positions)"]
-    assert result["claims"][0]["holds"] == (body_s > brain_s)
+        sil = _silhouettes(centred @ vt[:2].T, y)
+        got[part], per[part] = sil.mean(), [sil[y == d].mean() for d in range(10)]
+        assert rows[(f"{name}: {what}", "silhouette of the labels, 2-D PCA")] == pytest.approx(got[part], abs=2e-3)
+        probe[part] = rows[(f"{name}: {what}", "linear-probe accuracy in the 2-D PCA plane (held-out half)")]
+        assert probe[part] * PROBE_N / 100 == pytest.approx(round(probe[part] * PROBE_N / 100))
+    assert verdict(result, f"{name}: each output classifies") == every(
+        [(learned(probe[p], PROBE_N, PROBE_CHANCE), ok) for p in ("brain", "body")])
+    assert verdict(result, f"{name}: the body's output separates") == every([(got["body"] > got["brain"], ok)])
+    assert verdict(result, f"{name}: especially digits 5, 7 and 8") == every(
+        [(per["body"][d] > per["brain"][d], ok) for d in (5, 7, 8)])
+
+
+def labelmap_verdicts(sizes: dict[str, float], centre_ok: bool) -> list[bool | None]:
+    """[joined smaller, largest not joined / smallest joined, others mostly original] from the size rows."""
+    if not centre_ok:
+        return [None, None, None]
+    joined = [v for k, v in sizes.items() if "joined" in k]
+    others = [v for k, v in sizes.items() if "joined" not in k]
+    top = [k for k, v in sizes.items() if v >= max(sizes.values()) - 1e-9]
+    bottom = [k for k, v in sizes.items() if v <= min(sizes.values()) + 1e-9]
+    return [bool(np.mean(joined) < np.mean(others) - 1e-9),
+            all("joined" not in k for k in top) and all("joined" in k for k in bottom),
+            bool(min(others) > 0.5 + 1e-9)]
+
+
+def best_draw_own_digit(errs: np.ndarray, labels: np.ndarray) -> bool:
+    """Each digit's lowest-error image (the label maps' start) draws nearest to its own digit's target."""
+    best = [np.flatnonzero(labels == d)[np.argmin(errs[labels == d, d])] for d in range(10)]
+    return all(int(errs[i].argmin()) == d for d, i in enumerate(best))
 
 
 def test_mnist_labelmap_smoke(tiny_mnist, tmp_path, monkeypatch):
     from bptsb_ros.tasks.mnist_drawing import load_system
 
     monkeypatch.setenv("BPTSB_WORKERS", "1")
-    data, _, _ = tiny_mnist
+    data, images, labels = tiny_mnist
     result = reproduce("mnist-labelmap", data, tmp_path / "lm")
-    assert_paper_body(load_system(tmp_path / "lm" / "systems" / "mlp-multiple_circle-37.pt")[0], 17)
+    system = load_system(tmp_path / "lm" / "systems" / "mlp-multiple_circle-37.pt")[0]
+    assert_paper_body(system, 17)
     sizes = {r["system"]: r["ours"] for r in result["rows"] if r["metric"].startswith("label-map size")}
     # multiple-circle 37: movable masses 20..35 are placed; 32..35 (the innermost ring) hold springs to the CMP
     assert len(sizes) == 16 and all(k.startswith("MLP + multiple-circle (N_mov 17): mass ") for k in sizes)
     joined = {k: v for k, v in sizes.items() if "joined" in k}
     assert sorted(int(k.split("mass ")[1].split()[0]) for k in joined) == [32, 33, 34, 35]
     grid = result["details"]["label_maps"]["grid"]
+    assert result["details"]["label_maps"]["half_width_m"] == pytest.approx(0.8)  # ±size/5 for size 4
     for v in sizes.values():  # a size is a share of the 10 maps' grid² cells
         assert v * 10 * grid * grid == pytest.approx(round(v * 10 * grid * grid))
-    others = [v for k, v in sizes.items() if "joined" not in k]
-    assert result["claims"][0]["holds"] == (np.mean(list(joined.values())) < np.mean(others))
-    hi = max(sizes, key=sizes.get)
-    lo = min(sizes, key=sizes.get)
-    assert result["claims"][1]["holds"] == ("joined" not in hi and "joined" in lo)
+    _, _, errs = _redraw(system, images[120:150].reshape(30, -1) / np.float32(255), labels[120:150])
+    assert verdicts_of(result) == labelmap_verdicts(sizes, best_draw_own_digit(errs, labels[120:150]))
+
+
+def verdicts_of(result: dict) -> list[bool | None]:
+    return [c["holds"] for c in result["claims"]]
 
 
 def test_mnist_specific100_smoke(tiny_mnist, tmp_path, monkeypatch):
@@ -230,17 +305,45 @@ def test_mnist_specific100_smoke(tiny_mnist, tmp_path, monkeypatch):
             assert_paper_body(load_system(tmp_path / "sp" / "systems" / f"{brain}-{shape}-{masses}.pt")[0], n_mov)
     assert len(list((tmp_path / "sp" / "systems").glob("*.pt"))) == 8
     mse = {r["system"]: r["ours"] for r in result["rows"] if r["metric"].startswith("drawing MSE")}
-    claims = {c["claim"]: c["holds"] for c in result["claims"]}
+    acc = {r["system"]: r["ours"] for r in result["rows"] if r["metric"].startswith("drawings nearest")}
+    ok = {k: learned(v, 20) for k, v in acc.items()}  # 20 images, 2 of every digit: chance 1/10
     bodies = [f"{s} (N_mov {n})" for s in ("double-circle", "multiple-circle") for n in (17, 65)]
-    assert sorted(mse) == sorted(f"{br} + {b}" for br in ("LIL", "MLP") for b in bodies)
-    assert claims["the MLP yields less error than the LIL (every body)"] == all(
-        mse[f"MLP + {b}"] < mse[f"LIL + {b}"] for b in bodies)
-    assert claims["bodies with more mass points perform better (N_mov 65 < 17, every brain and shape)"] == all(
-        mse[f"{br} + {s} (N_mov 65)"] < mse[f"{br} + {s} (N_mov 17)"] for br in ("LIL", "MLP")
-        for s in ("double-circle", "multiple-circle"))
-    sizes = [r["system"] for r in result["rows"] if r["metric"].startswith("label-map size")]
+    assert sorted(mse) == sorted(acc) == sorted(f"{br} + {b}" for br in ("LIL", "MLP") for b in bodies)
+    got = verdicts_of(result)
+    assert got[0] is all(v >= 90 for v in acc.values())
+    assert got[1] == every([(mse[f"MLP + {b}"] < mse[f"LIL + {b}"], ok[f"MLP + {b}"] and ok[f"LIL + {b}"])
+                            for b in bodies])
+    pairs = [(f"{br} + {s} (N_mov 65)", f"{br} + {s} (N_mov 17)") for br in ("LIL", "MLP")
+             for s in ("double-circle", "multiple-circle")]
+    assert got[2] == every([(mse[big] < mse[small], ok[big] and ok[small]) for big, small in pairs])
+    name = "MLP + multiple-circle (N_mov 17), specific 100"
+    rows = rows_of(result)
+    analysed = ok["MLP + multiple-circle (N_mov 17)"]
+    probe = rows[(f"{name}: brain output (initial positions)",
+                  "linear-probe accuracy in the 2-D PCA plane (held-out half)")]
+    # the probe's held-out half of 20 images (2 per digit), stratified: one of every digit, chance 1/10
+    assert got[3] == every([(learned(probe, 10), analysed)])
+    body_2d = rows[(f"{name}: body output (CMP trajectory)", "silhouette of the labels, 2-D PCA")]
+    brain_2d = rows[(f"{name}: brain output (initial positions)", "silhouette of the labels, 2-D PCA")]
+    system = load_system(tmp_path / "sp" / "systems" / "mlp-multiple_circle-37.pt")[0]
+    from bptsb_ros.data.mnist import load_split
+    from bptsb_ros.experiments.mnist_common import specific_images
+
+    split = load_split(data, "test-8k-2k")  # the 20 images: 2 per digit from its training part, seed 0
+    x, y = specific_images(split.train_x, split.train_y, 2, 0)
+    _, drawing, errs = _redraw(system, x, y)
+    centred = drawing.reshape(20, -1) - drawing.reshape(20, -1).mean(0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    sil = _silhouettes(centred @ vt[:2].T, y)
+    assert body_2d == pytest.approx(sil.mean(), abs=2e-3)
+    assert got[4] == every([(sil[y == d].mean() > 0, analysed) for d in range(10)])
+    assert got[5] == every([(body_2d > brain_2d, analysed)])
+    sizes = {r["system"]: r["ours"] for r in result["rows"] if r["metric"].startswith("label-map size")}
     assert len(sizes) == 16
-    assert all(k.startswith("MLP + multiple-circle (N_mov 17), specific 100: mass ") for k in sizes)
+    assert all(k.startswith(f"{name}: mass ") for k in sizes)
+    chosen = result["details"]["label_maps"]["best_sample_per_digit"]
+    assert chosen == [int(np.flatnonzero(y == d)[np.argmin(errs[y == d, d])]) for d in range(10)]
+    assert got[6:] == labelmap_verdicts(sizes, best_draw_own_digit(errs, y))[:2]
 
 
 def test_mnist_readout_smoke(tiny_mnist, tmp_path, monkeypatch):
@@ -253,10 +356,17 @@ def test_mnist_readout_smoke(tiny_mnist, tmp_path, monkeypatch):
                      "multiple-circle (N_mov 17)": 95.36, "multiple-circle (N_mov 65)": 96.22}
     for v in acc.values():  # accuracies on 30 test images: multiples of 1/30
         assert v * 30 / 100 == pytest.approx(round(v * 30 / 100))
+    ok = {k: learned(v, 30) for k, v in acc.items()}  # 30 test images, 3 of every digit: chance 1/10
     brain = acc.pop("only brain")
-    assert result["claims"][0]["holds"] == all(v > brain for v in acc.values())
-    assert result["claims"][1]["holds"] == (acc["double-circle (N_mov 65)"] > acc["double-circle (N_mov 17)"]
-                                           and acc["multiple-circle (N_mov 65)"] > acc["multiple-circle (N_mov 17)"])
+    got = verdicts_of(result)
+    assert got[0] is all(v > 95 for v in acc.values())
+    assert got[1] == every([(v > brain, ok[k] and ok["only brain"]) for k, v in acc.items()])
+    assert got[2] == every([(acc[f"{s} (N_mov 65)"] > acc[f"{s} (N_mov 17)"],
+                             ok[f"{s} (N_mov 65)"] and ok[f"{s} (N_mov 17)"]) for s in ("double-circle",
+                                                                                      "multiple-circle")])
+    assert got[3] == every([(abs(acc[f"double-circle (N_mov {n})"] - acc[f"multiple-circle (N_mov {n})"]) <= 1 + 1e-9,
+                             ok[f"double-circle (N_mov {n})"] and ok[f"multiple-circle (N_mov {n})"])
+                            for n in (17, 65)])
     from bptsb_ros.body.shapes import build_shape
 
     systems = result["details"]["systems"]

@@ -124,7 +124,7 @@ def plot_pca(path: Path, brain_2d: np.ndarray, body_2d: np.ndarray, labels: np.n
             ax.scatter(pts[sel, 0], pts[sel, 1], s=6, color=DIGIT_COLOURS[d], label=str(d))
         sc = scores[part]
         ax.set_title(f"{part} output ({'initial positions' if part == 'brain' else 'CMP trajectory'})\n"
-                     f"silhouette (2-D) {sc['silhouette_2d']:.3f}, linear probe {100 * sc['probe_accuracy']:.1f} %",
+                     f"silhouette (2-D) {sc['silhouette_2d']:.3f}, linear probe (2-D) {100 * sc['probe_2d']:.1f} %",
                      fontsize=9)
         ax.set_xlabel("PC 1")
         ax.set_ylabel("PC 2")

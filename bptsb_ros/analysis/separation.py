@@ -1,10 +1,12 @@
 """How well a set of outputs separates the labels (the paper's PCA argument, Fig. 2(c), made a number).
 
-* ``pca_2d``: the 2-D principal-component projection the figure shows (scikit-learn PCA).
+* ``pca_2d``: the 2-D principal-component projection the figure shows (scikit-learn PCA of the raw features).
 * ``silhouette``: the mean silhouette coefficient of the points grouped by label, in [−1, 1]; 1 = every point
-  far closer to its own label's points than to any other label's, 0 = labels overlap.
+  far closer to its own label's points than to any other label's, 0 = labels overlap. ``silhouette_per_label``:
+  the mean over each label's points.
 * ``probe_accuracy``: a linear probe: multinomial logistic regression on the standardised features, fitted
-  on one half of the points and scored on the other (stratified), the share of correctly labelled points.
+  on one half of the points and scored on the other (:func:`held_out`: stratified by label when every label has
+  two points), the share of correctly labelled held-out points.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ def pca_2d(features: np.ndarray) -> np.ndarray:
 
 
 def silhouette(points: np.ndarray, labels: np.ndarray) -> float:
-    """Mean silhouette coefficient (Euclidean) of ``points`` (n, f) grouped by ``labels`` (n,)."""
+    """Mean silhouette coefficient (Euclidean) of ``points`` (n, f) grouped by ``labels`` (n,); NaN for fewer than
+    two labels."""
     from sklearn.metrics import silhouette_score
 
     if len(np.unique(labels)) < 2:
@@ -28,28 +31,63 @@ def silhouette(points: np.ndarray, labels: np.ndarray) -> float:
     return float(silhouette_score(points, labels))
 
 
-def probe_accuracy(features: np.ndarray, labels: np.ndarray, seed: int = 0) -> float:
-    """Held-out accuracy of a linear probe (logistic regression, standardised inputs, half/half split)."""
-    from sklearn.linear_model import LogisticRegression
+def silhouette_per_label(points: np.ndarray, labels: np.ndarray, n_labels: int = 10) -> np.ndarray:
+    """(n_labels,) mean silhouette coefficient of each label's points (a lone point of its label scores 0); NaN
+    for a label with no point, and everywhere for fewer than two labels."""
+    from sklearn.metrics import silhouette_samples
+
+    labels = np.asarray(labels)
+    out = np.full(n_labels, np.nan)
+    if len(np.unique(labels)) < 2:
+        return out
+    s = silhouette_samples(points, labels)
+    for d in range(n_labels):
+        if (labels == d).any():
+            out[d] = float(s[labels == d].mean())
+    return out
+
+
+def held_out(labels: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Sorted indices of the half of the points a probe is scored on (the other half fits it): ⌈n/2⌉ points,
+    stratified by label when every label present has at least two points."""
     from sklearn.model_selection import train_test_split
+
+    labels = np.asarray(labels)
+    counts = np.bincount(labels)
+    stratify = labels if counts[counts > 0].min() >= 2 else None
+    _, test = train_test_split(np.arange(len(labels)), test_size=0.5, random_state=seed, stratify=stratify)
+    return np.sort(test)
+
+
+def probe_accuracy(features: np.ndarray, labels: np.ndarray, seed: int = 0) -> float:
+    """Held-out accuracy of a linear probe (logistic regression on standardised inputs) fitted on the points
+    outside :func:`held_out` and scored on those inside it; NaN when the fitting half holds fewer than two labels."""
+    from sklearn.linear_model import LogisticRegression
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    counts = np.bincount(labels)
-    stratify = labels if counts[counts > 0].min() >= 2 else None
-    xa, xb, ya, yb = train_test_split(features, labels, test_size=0.5, random_state=seed, stratify=stratify)
+    features, labels = np.asarray(features, dtype=np.float64), np.asarray(labels)
+    test = np.zeros(len(labels), dtype=bool)
+    test[held_out(labels, seed)] = True
+    if len(np.unique(labels[~test])) < 2:
+        return float("nan")
     model = make_pipeline(StandardScaler(), LogisticRegression(max_iter=2000))
-    model.fit(xa, ya)
-    return float(model.score(xb, yb))
+    model.fit(features[~test], labels[~test])
+    return float(model.score(features[test], labels[test]))
 
 
 def separation_scores(features: np.ndarray, labels: np.ndarray, seed: int = 0) -> dict[str, float | np.ndarray]:
-    """PCA to 2-D and the three scores: ``silhouette_2d`` (on the projection the figure shows),
-    ``silhouette_full`` (standardised full features) and ``probe_accuracy``; plus ``points_2d``."""
+    """PCA to 2-D and the scores: on the projection the figure shows ``silhouette_2d``, ``per_label_2d`` (10,) and
+    ``probe_2d``; on the standardised full features ``silhouette_full`` and ``probe_accuracy``; ``probe_n`` (points
+    a probe is scored on) and ``probe_chance`` (the most common label's share among them); plus ``points_2d``."""
     from sklearn.preprocessing import StandardScaler
 
     features = np.asarray(features, dtype=np.float64)
+    labels = np.asarray(labels)
     pts = pca_2d(features)
     full = StandardScaler().fit_transform(features)
-    return {"points_2d": pts, "silhouette_2d": silhouette(pts, labels), "silhouette_full": silhouette(full, labels),
-            "probe_accuracy": probe_accuracy(features, labels, seed)}
+    test = held_out(labels, seed)
+    return {"points_2d": pts, "silhouette_2d": silhouette(pts, labels),
+            "per_label_2d": silhouette_per_label(pts, labels), "probe_2d": probe_accuracy(pts, labels, seed),
+            "silhouette_full": silhouette(full, labels), "probe_accuracy": probe_accuracy(features, labels, seed),
+            "probe_n": len(test), "probe_chance": float(np.bincount(labels[test]).max() / len(test))}

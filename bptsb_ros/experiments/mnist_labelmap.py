@@ -10,19 +10,129 @@ Fig. 2(e) shows it per mass. All grids are one batched simulation.
 
 Grid: Δ within ±size/deltaScale = ±0.8 m (the published ``deltaScale: 5``, our reading).
 
-Claims: "the label map size of the mass point that connects directly to the CMP is smaller" → mean size of the
-joined masses < mean of the others; supplement: the largest-size mass is not joined, the smallest-size one is.
+Claims: the paper's sentences on label-map sizes (main text, Fig. 2(e); supplement "Label maps"), premised on
+label maps drawn around drawings of their own digits (:func:`claims`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt
 from bptsb_ros.experiments.mnist_analysis import PAPER_GRID, labelmap_analysis
 from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
 from bptsb_ros.experiments.mnist_drawing import BATCH, SHAPE, scale_settings, system_label, system_meta
 from bptsb_ros.experiments.registry import Context, experiment
+from bptsb_ros.experiments.result import Claim
 
 #: the paper's label-map body (Fig. 2(d)/(e)): multiple circle with N_mov = 17 movable masses
 N_MOV = 17
+#: "mostly occupied by the original label": more than half of a mass's label maps' cells
+MOSTLY = 0.5
+
+
+@dataclass(frozen=True)
+class LabelMapNumbers:
+    """What the label-map claims rest on, for the P placed masses of one system.
+
+    size: (P,) label-map size of each mass, the mean over the 10 labels of the share of cells keeping the original
+    label; joined: (P,) bool, a spring joins the mass to the CMP; masses: (P,) the masses' indices in the body (for
+    the evidence); centre_labels: (10,) the label of digit d's Δ = 0 cell (the unshifted best sample of d)."""
+
+    size: np.ndarray
+    joined: np.ndarray
+    masses: np.ndarray
+    centre_labels: np.ndarray
+
+    @classmethod
+    def from_details(cls, maps: dict[str, Any]) -> LabelMapNumbers:
+        """From :func:`~bptsb_ros.experiments.mnist_analysis.labelmap_analysis`' return value."""
+        return cls(np.asarray(maps["size_per_mass"], float), np.asarray(maps["joined_to_cmp"], bool),
+                   np.asarray(maps["masses"], int), np.asarray(maps["centre_labels"], int))
+
+
+def premise(n: LabelMapNumbers) -> str | None:
+    """The failed premise of every label-map claim in words (None: testable): the maps start from drawings of their
+    own digits (each digit's Δ = 0 cell carries its own label: "the proportion of the original label area" is
+    measured around a drawing of that label), and the body has placed masses of both kinds, joined to the CMP and
+    not."""
+    centre = np.asarray(n.centre_labels)
+    wrong = [f"digit {d} → {int(c)}" for d, c in enumerate(centre) if c != d]
+    if len(centre) != 10 or wrong:
+        return ("the label maps do not start from drawings of their own digits (the best sample's unshifted "
+                f"drawing is nearest to another digit's target: {', '.join(wrong) or 'fewer than 10 digits'})")
+    joined = np.asarray(n.joined, bool)
+    if not (joined.any() and (~joined).any()):
+        return "the body has no placed mass of one kind (joined to the CMP / not joined)"
+    return None
+
+
+def _mass(n: LabelMapNumbers, p: int) -> str:
+    return f"mass {int(n.masses[p])} ({fmt(float(n.size[p]))}, {'joined' if n.joined[p] else 'not joined'})"
+
+
+def joined_smaller_claim(n: LabelMapNumbers, label: str) -> Claim:
+    """Mean label-map size of the masses joined to the CMP < mean of the others, strictly (means within EPS are
+    equal: sizes are shares of cells, and equal sizes average to different floats, 0.8 · 12 / 12 ≠ 0.8)."""
+    text = (f"{label}: masses joined to the CMP have smaller label-map sizes (mean over joined < mean over the "
+            "others)")
+    if (why := premise(n)) is not None:
+        return Claim.not_testable(text, why)
+    size, joined = np.asarray(n.size, float), np.asarray(n.joined, bool)
+    mj, mo = float(size[joined].mean()), float(size[~joined].mean())
+    return Claim(text, not at_most(mo, mj), f"joined: {fmt(mj)} ({int(joined.sum())} masses), others: {fmt(mo)} "
+                                      f"({int((~joined).sum())} masses)")
+
+
+def extremes_claim(n: LabelMapNumbers, label: str) -> Claim:
+    """Every mass at the largest label-map size is not joined to the CMP, every one at the smallest is (a tie across
+    the two kinds refutes it: a joined mass then has the maximum size); sizes within EPS count as equal."""
+    text = (f"{label}: the mass with the largest label-map size is not joined to the CMP and the one with the "
+            "smallest is")
+    if (why := premise(n)) is not None:
+        return Claim.not_testable(text, why)
+    size, joined = np.asarray(n.size, float), np.asarray(n.joined, bool)
+    top = np.flatnonzero(size >= size.max() - EPS)
+    bottom = np.flatnonzero(size <= size.min() + EPS)
+    holds = bool(not joined[top].any() and joined[bottom].all())
+    return Claim(text, holds, f"largest: {', '.join(_mass(n, p) for p in top)}; smallest: "
+                              f"{', '.join(_mass(n, p) for p in bottom)}")
+
+
+def others_mostly_claim(n: LabelMapNumbers, label: str) -> Claim:
+    """Every mass not joined to the CMP keeps its original label on more than :data:`MOSTLY` of its maps' cells
+    (strictly; within EPS of it is at it)."""
+    text = (f"{label}: the label maps of the masses not joined to the CMP are mostly occupied by the original "
+            f"label (label-map size > {MOSTLY} for every such mass)")
+    if (why := premise(n)) is not None:
+        return Claim.not_testable(text, why)
+    size, joined = np.asarray(n.size, float), np.asarray(n.joined, bool)
+    p = int(np.flatnonzero(~joined)[np.argmin(size[~joined])])
+    return Claim(text, not at_most(float(size[p]), MOSTLY), f"smallest among the masses not joined: {_mass(n, p)}")
+
+
+def claims(n: LabelMapNumbers, label: str = system_label("mlp", N_MOV)) -> list[Claim]:
+    """The paper (main text, "Division of functional roles", Fig. 2(d)/(e)): "The map structures of the mass points
+    directly connected to the CMP were intricate, ... Conversely, other maps were mostly occupied by the original
+    label number" and "To shed light on this distribution, the label map size of the mass point that connects
+    directly to the CMP is smaller."; the supplement ("Label maps"): "The mass point with the maximum label map
+    size does not connect to the CMP directly; on the contrary, the point with the minimum size has a direct
+    connection."
+
+    * joined smaller: mean size over the masses joined to the CMP < mean over the others, strictly (beyond EPS);
+    * largest not joined, smallest joined: every mass at the maximum size is not joined, every one at the minimum
+      is (ties within EPS; a tie across the two kinds refutes the sentence);
+    * others mostly original: every mass not joined to the CMP has size > 1/2 ("mostly occupied"), strictly.
+
+    Premise of all three (:func:`premise`): the maps start from drawings of their own digits, each digit's Δ = 0
+    cell carries its own label (the paper shifts masses from "the proper positions to realize the best
+    trajectory"; the size is "the proportion of the original label area", meaningless around a drawing of another
+    digit), and the body has placed masses of both kinds.
+    """
+    return [joined_smaller_claim(n, label), extremes_claim(n, label), others_mostly_claim(n, label)]
 
 
 @experiment(
@@ -46,5 +156,6 @@ def run(ctx: Context) -> None:
     label = system_label("mlp", N_MOV)
     ctx.row(label, "test drawing MSE (mean)", "m²", float(ev["errors"].mean()))
     maps = labelmap_analysis(ctx, system, ev, data.test_y, grid, label)
+    ctx.result.claims.extend(claims(LabelMapNumbers.from_details(maps), label))
     ctx.result.details = {"system": source, "spec": spec.to_json(), "epochs": s["epochs"], "label_maps": maps,
                           "data": data.description}
