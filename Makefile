@@ -19,7 +19,7 @@ VPY := $(VENV)/bin/python
 PIP := $(VPY) -m pip
 STAMP := $(VENV)/.bptsb-install.stamp
 # The package is installed editable: code changes need no reinstall, but changes to what gets installed do.
-INSTALL_INPUTS := Makefile setup.py setup.cfg package.xml resource/bptsb_ros \
+INSTALL_INPUTS := Makefile pyproject.toml setup.py setup.cfg package.xml resource/bptsb_ros \
 	$(wildcard launch/*.launch.py) $(wildcard config/*.yaml) $(wildcard config/*.json)
 
 # DDS discovery stays on this host; the domain can be overridden (tests pick their own private one).
@@ -33,7 +33,7 @@ export PIP_PROGRESS_BAR := off
 # This machine's pip config names local package indexes that lack most projects; pip warns once per project.
 PIP_FILTER := sed -u -e "/Location 'file:.*' is ignored/d"
 
-.PHONY: help venv test lint mutation demo bench clean distclean
+.PHONY: help venv test lint mutation demo bench docs clean distclean
 
 help:
 	@echo "make demo       train a small Lissajous agent, simulate it, write plots and an animation"
@@ -42,6 +42,7 @@ help:
 	@echo "make lint       ruff check"
 	@echo "make mutation   apply each listed one-line bug to a temporary copy and check that the tests catch it"
 	@echo "make bench      speed benchmark -> bench.json"
+	@echo "make docs       build the documentation site (mkdocs, warnings are errors) -> site/"
 	@echo "make clean      remove build outputs and caches; make distclean also removes .venv and runs/"
 
 venv: $(STAMP)
@@ -70,8 +71,13 @@ demo: venv
 bench: venv
 	$(VENV)/bin/bptsb bench --out bench.json
 
+# mkdocs.yml at the root, pages in docs/, the API reference from the docstrings (mkdocstrings reads the source
+# statically: nothing is imported). NO_MKDOCS_2_WARNING silences mkdocs-material's banner about MkDocs 2.0.
+docs: venv
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
+
 clean:
-	rm -rf build install log dist .eggs *.egg-info .pytest_cache .ruff_cache bench.json
+	rm -rf build install log dist .eggs *.egg-info .pytest_cache .ruff_cache bench.json site
 	find . -path ./$(VENV) -prune -o -type d -name __pycache__ -prune -exec rm -rf {} +
 
 distclean: clean

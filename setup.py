@@ -134,6 +134,10 @@ setup(
             "rosbags",
             "colcon-core",
             "colcon-ros",
+            # make docs: the documentation site and its API reference
+            "mkdocs>=1.6",
+            "mkdocs-material>=9.5",
+            "mkdocstrings-python>=1.10",
         ],
     },
     zip_safe=False,

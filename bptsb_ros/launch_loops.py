@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bptsb_ros.ros.params import ParamValue, yaml_value
-from bptsb_ros.ros.topics import BODY_OUTPUTS, COMMAND_SOURCES, TOPICS, absolute, feedback_state_key
+from bptsb_ros.ros.topics import BODY_OUTPUTS, COMMAND_SOURCES, RECORDER_ACK, TOPICS, absolute, feedback_state_key
 
 __all__ = ["LOOPS", "BrainSpec", "Loop", "ParamValue", "agent_loop", "feedback_state_key", "format_parameter",
            "log_dir_of_bag", "node_parameters", "recorder_parameters", "ros_launch_description", "topic_names"]
@@ -62,6 +62,14 @@ class Loop:
             keys += [k for k in brain.publishes if k not in keys]
         return keys
 
+    def step_topics(self) -> list[str]:
+        """Keys of the topics with one message every step (what the recorder acknowledges in lockstep)."""
+        return [k for k in self.topics() if k not in NOT_EVERY_STEP]
+
+
+#: loop topics without a message every step: markers every marker_every steps, diagnostics every second,
+#: perturbations and the MNIST stream per event or episode
+NOT_EVERY_STEP = frozenset({"markers", "diagnostics", "perturbation", "image", "label", "reset_cmd"})
 
 SWG = BrainSpec("swg_brain", ("clock",), ("rest_length_cmd",))
 FEEDBACK = BrainSpec("feedback_brain", ("clock", "spring_lengths"), ("rest_length_cmd",))
@@ -187,6 +195,8 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
             "wait_for_subscribers": startup_subscribers(loop, recording=recording),
             "rate_scale": rate_scale,
         })
+        if recording and mode == "lockstep":  # the recorder's acknowledgements pace the run: nothing is lost
+            params["wait_for_recorder"] = True
         if duration > 0:
             params["duration" if mode == "lockstep" else "wall_duration"] = duration
         if summary_path:
@@ -209,18 +219,24 @@ def log_dir_of_bag(bag: str | Path) -> Path:
 
 
 def recorder_parameters(loop: Loop, bag: str, *, mode: str = "lockstep", agent: str = "",
-                        open_loop_steps: int = 0) -> dict[str, ParamValue]:
+                        open_loop_steps: int = 0, allow_loss: bool = False) -> dict[str, ParamValue]:
     """ROS parameters of the recorder of ``loop``: every loop topic to ``bag``, log times from ``/clock`` in lockstep
     (``use_sim_time``: the bag's timeline is sim time; realtime keeps system time), and the run description in the
     bag's ``custom_data`` (keys ``loop``, ``mode``, ``agent`` — ``fresh`` without one — and ``open_loop_steps``,
-    which ``bptsb replay`` reads for its offline comparison)."""
-    return {
+    which ``bptsb replay`` reads for its offline comparison). In lockstep it acknowledges the per-step topics on
+    ``recorder/ack`` (``body_sim``'s ``wait_for_recorder``); ``allow_loss``: exit 0 even if messages were lost."""
+    params: dict[str, ParamValue] = {
         "bag_path": bag,
         "use_sim_time": mode == "lockstep",
         "topics": topic_names(loop.topics()),
         "custom_data": [f"loop={loop.name}", f"mode={mode}", f"agent={agent or 'fresh'}",
                         f"open_loop_steps={open_loop_steps}"],
     }
+    if mode == "lockstep":
+        params.update(ack_topic=absolute(TOPICS[RECORDER_ACK].name), ack_topics=topic_names(loop.step_topics()))
+    if allow_loss:
+        params["allow_loss"] = True
+    return params
 
 
 def format_parameter(name: str, value: ParamValue) -> str:
@@ -253,6 +269,8 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
                    "(the paper's perturbation); negative: none"),
     "perturb_sigma": ("0", "standard deviation of that perturbation [m]"),
     "perturb_seed": ("0", "seed of the perturbation's standard-normal pattern"),
+    "allow_loss": ("false", "with bag: a recording that lost messages still ends the launch cleanly (the bag counts "
+                   "them either way); false: the recorder exits 1 and the launch fails"),
 }
 #: ``agent`` of a loop that needs a trained agent: required (no default), so ``ros2 launch`` refuses to start
 #: without it
@@ -303,6 +321,8 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                                   "(bptsb train fits it)")
     if values.get("mode", "lockstep") not in ("lockstep", "realtime"):
         raise LaunchArgumentError(f"mode:={values['mode']}: choose lockstep or realtime")
+    if values.get("allow_loss", "false").lower() not in ("true", "false"):
+        raise LaunchArgumentError(f"allow_loss:={values['allow_loss']}: choose true or false")
 
     def number(name: str, kind: type, ok, rule: str):
         text = values.get(name, LAUNCH_ARGUMENTS[name][0])
@@ -354,7 +374,8 @@ def loop_node_parameters(loop_name: str, executable: str, values: dict[str, str]
     bag = values.get("bag", "")
     if executable == "recorder":
         params = recorder_parameters(loop, bag, mode=common["mode"], agent=common["agent"],
-                                     open_loop_steps=common["open_loop_steps"])
+                                     open_loop_steps=common["open_loop_steps"],
+                                     allow_loss=values.get("allow_loss", "false").lower() == "true")
     else:
         summary_path = str(log_dir_of_bag(bag) / "body_summary.json") if bag and executable == "body_sim" else ""
         params = node_parameters(loop, executable, summary_path=summary_path, **common)

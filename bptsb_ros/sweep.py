@@ -21,9 +21,9 @@ status ``done``, the job's name, its ``key`` (a hash of what the job is: its cal
 trusted: the job runs again (with one line saying why). Failed and unfinished jobs run again. A job that raises
 is recorded as failed with its error and traceback; the other jobs go on.
 
-Where jobs run: ``workers`` processes on this machine (``concurrent.futures`` with the ``spawn`` start method,
+Where jobs run: ``workers`` local processes (``concurrent.futures`` with the ``spawn`` start method,
 one torch thread each), or, with ``scheduler="tcp://HOST:8786"``, the workers of an existing Dask distributed
-cluster (a lab cluster or SLURM through dask-jobqueue; README, "Sweeps"). Cluster workers must import
+cluster (a lab cluster or SLURM through dask-jobqueue; docs, "Reproducing"). Cluster workers must import
 ``bptsb_ros`` and see ``OUT`` on a shared file system. The scheduler address is ``tcp://HOST:PORT`` or
 ``HOST:PORT``; connecting gives up after ``connect_timeout`` seconds, whatever the other end does
 (:mod:`bptsb_ros.dask_connect`).

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Train the shipped experiment configs at their full settings and print the results table that the
-# README quotes (every number comes from the runs' metrics.json). About 15 minutes on 2 cores.
+# Train the shipped experiment configs at their full settings and print the results table that
+# docs/training.md quotes (every number comes from the runs' metrics.json). About 15 minutes on 2 cores.
 #   bash scripts/experiments.sh [OUT_DIR]
 set -euo pipefail
 cd "$(dirname "$0")/.."

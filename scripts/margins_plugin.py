@@ -1,4 +1,4 @@
-"""pytest plugin that reports how far the tolerance tests are from their limits (the README's measured values).
+"""pytest plugin that reports how far the tolerance tests are from their limits (docs/testing.md quotes them).
 
 It wraps, without changing what they assert, the helpers the tests already use and prints the largest values
 seen at the end of the run:

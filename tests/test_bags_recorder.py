@@ -6,6 +6,7 @@ domain (``ros_env`` fixture of conftest.py).
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -64,6 +65,36 @@ time.sleep(60)
 """
 
 
+# Like PUBLISHER, in two parts: message 0, then (after a line on stdin) messages 1..N-1.
+TWO_PART_PUBLISHER = PUBLISHER.replace("for i in range(n):", """data.publish(Float64MultiArray(data=[0.0, 0.0]))
+poses.publish(PoseArray(poses=[Pose()] * 3))
+data.wait_for_all_acked(Duration(seconds=20)) and poses.wait_for_all_acked(Duration(seconds=20))
+print("first", flush=True)
+sys.stdin.readline()
+for i in range(1, n):""")
+
+
+# Publishes on /bagtest/data at ~200 Hz until killed, printing "publishing" once the recorder has subscribed.
+ENDLESS_PUBLISHER = r"""
+import time
+import rclpy
+from rclpy.qos import QoSProfile, QoSReliabilityPolicy
+from std_msgs.msg import Float64MultiArray
+rclpy.init()
+node = rclpy.create_node("endless_publisher")
+pub = node.create_publisher(Float64MultiArray, "/bagtest/data", QoSProfile(depth=100,
+                            reliability=QoSReliabilityPolicy.RELIABLE))
+while pub.get_subscription_count() == 0:
+    time.sleep(0.02)
+print("publishing", flush=True)
+i = 0
+while True:
+    pub.publish(Float64MultiArray(data=[float(i)]))
+    i += 1
+    time.sleep(0.005)
+"""
+
+
 # `bptsb bag recover BAG` as its own process (through the subcommand module, as `bptsb` dispatches it).
 RECOVER = (
     "import argparse, sys\n"
@@ -82,10 +113,21 @@ def env(ros_env: dict[str, str]) -> dict[str, str]:
     return env
 
 
-def _recorder(bag: Path, env: dict[str, str], *extra: str) -> subprocess.Popen[str]:
+def _recorder(bag: Path, env: dict[str, str], *extra: str, cpu: int | None = None) -> subprocess.Popen[str]:
+    """The recorder as a process (``cpu``: pinned to that CPU)."""
     cmd = [sys.executable, "-m", "bptsb_ros.ros.recorder", "--ros-args", "-p", f"bag_path:={bag}",
            "-p", "topics:=[/bagtest/data, bagtest/poses]", *extra]
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    pin = None if cpu is None else (lambda: os.sched_setaffinity(0, {cpu}))
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=pin)
+
+
+def _busy(cpu: int, n: int) -> list[subprocess.Popen]:
+    """``n`` processes spinning on ``cpu`` (artificial load: the recorder pinned there gets 1/(n+1) of it)."""
+    def pin() -> None:
+        os.sched_setaffinity(0, {cpu})
+
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=pin) for _ in range(n)]
 
 
 def _publish(n: int, period: float, env: dict[str, str]) -> subprocess.Popen[str]:
@@ -183,6 +225,85 @@ def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], si
         assert sorted(c.msgcount for c in reader.connections) == [n, n]
         poses = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages() if c.topic == "/bagtest/poses"]
     assert [p.poses[0].position.x for p in poses] == [float(i) for i in range(n)]
+
+
+def test_stop_signal_keeps_every_message_under_load(tmp_path: Path, env: dict[str, str]) -> None:
+    """The recorder shares one CPU with 3 busy processes: a burst of 2 × 4000 messages (all acknowledged by the
+    recorder's DDS reader, so all waiting in its queue when SIGINT comes) is still recorded whole and the bag
+    says nothing was lost. Taking one message per executor call, the recorder used to need more than its 8 s
+    stop_timeout for this backlog and closed the bag without the rest ("later ones are lost"), exiting 0."""
+    n = 4000
+    cpu = min(os.sched_getaffinity(0))
+    bag = tmp_path / "loaded"
+    busy = _busy(cpu, 3)
+    recorder = publisher = None
+    try:
+        recorder = _recorder(bag, env, cpu=cpu)
+        publisher = _publish(n, 0.0, env)
+        rc, out = _stop(recorder, signal.SIGINT)
+    finally:
+        _kill_leftovers(publisher, recorder, *busy)
+    assert rc == 0, out
+    meta = read_metadata(bag)
+    assert {t.name: t.message_count for t in meta.topics} == {"/bagtest/data": n, "/bagtest/poses": n}, out
+    assert meta.custom_data["dropped_messages"] == "0" and meta.custom_data["recording_complete"] == "true"
+    assert [m.message.data[0] for m in read_messages(bag, ["/bagtest/data"])] == [float(i) for i in range(n)]
+
+
+@pytest.mark.parametrize("allow_loss", [False, True])
+def test_lost_messages_are_counted_and_fail_the_recorder(tmp_path: Path, env: dict[str, str], allow_loss: bool) -> None:
+    """A recorder with a 1-message queue is stopped (SIGSTOP) while 2 × 499 messages are published, then resumed:
+    its queue keeps only the newest of each topic. The gaps in the publishers' sequence numbers are counted: the
+    bag's custom_data says how many were lost per topic (checked here against what was published), the log says
+    LOST, and the recorder exits 1, or 0 with allow_loss."""
+    n = 500
+    bag = tmp_path / "lossy"
+    recorder = _recorder(bag, env, "-p", "queue_depth:=1", "-p", f"allow_loss:={str(allow_loss).lower()}")
+    publisher = subprocess.Popen([sys.executable, "-c", TWO_PART_PUBLISHER, str(n), "0"], env=env, text=True,
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        assert publisher.stdout.readline().strip() == "first"
+        time.sleep(1.0)  # message 0 is taken and written
+        recorder.send_signal(signal.SIGSTOP)
+        publisher.stdin.write("go\n")
+        publisher.stdin.flush()
+        time.sleep(2.0)  # messages 1..n-1 are sent into the stopped recorder's 1-message queue
+        recorder.send_signal(signal.SIGCONT)
+        assert publisher.stdout.readline().strip() == "acked"
+        rc, out = _stop(recorder, signal.SIGINT)
+    finally:
+        _kill_leftovers(publisher, recorder)
+    counts = {t.name: t.message_count for t in read_metadata(bag).topics}
+    assert all(2 <= c < n for c in counts.values()), counts
+    meta = read_metadata(bag)
+    assert json.loads(meta.custom_data["dropped_by_topic"]) == {t: n - c for t, c in counts.items()}
+    assert meta.custom_data["dropped_messages"] == str(2 * n - sum(counts.values()))
+    assert "LOST messages on /bagtest/data" in out and f"the recording LOST {2 * n - sum(counts.values())}" in out
+    assert rc == (0 if allow_loss else 1), out
+
+
+def test_messages_published_after_the_stop_are_not_waited_for(tmp_path: Path, env: dict[str, str]) -> None:
+    """A publisher that never stops: the recorder stops within a second of SIGINT (it used to keep taking the new
+    messages until its 8 s stop_timeout and then report "later ones are lost"), records every message up to the
+    stop signal without a gap, and reports no loss."""
+    bag = tmp_path / "endless"
+    recorder = _recorder(bag, env, "-p", "topics:=[/bagtest/data]")
+    publisher = subprocess.Popen([sys.executable, "-c", ENDLESS_PUBLISHER], env=env, text=True,
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        assert publisher.stdout.readline().strip() == "publishing"
+        time.sleep(1.5)
+        asked = time.monotonic()
+        rc, out = _stop(recorder, signal.SIGINT)
+        took = time.monotonic() - asked
+    finally:
+        _kill_leftovers(publisher, recorder)
+    assert rc == 0, out
+    assert took < 4.0, f"{took:.1f} s to stop\n{out}"
+    assert "published after the stop signal, not recorded" in out and "stop_timeout" not in out, out
+    data = [m.message.data[0] for m in read_messages(bag, ["/bagtest/data"])]
+    assert len(data) > 50 and data == [float(i) for i in range(int(data[0]), int(data[0]) + len(data))]
+    assert read_metadata(bag).custom_data["dropped_messages"] == "0"
 
 
 def test_sigkill_leaves_recoverable_chunks(tmp_path: Path, env: dict[str, str]) -> None:

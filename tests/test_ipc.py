@@ -1,5 +1,6 @@
-"""Information processing capacity: planted systems with known capacities (expectations computed here,
-independently of bptsb_ros.analysis.ipc), the basis, thresholds, the command and bad input."""
+"""Information processing capacity (the definition of K. Inoue's ipc-module): planted systems with known
+capacities (expectations from closed forms or computed here, independently of bptsb_ros.analysis.ipc), the basis,
+the per-degree-tuple surrogate threshold, the rank cap, the command and bad input."""
 
 from __future__ import annotations
 
@@ -82,13 +83,19 @@ def test_total_never_exceeds_rank_and_noise_states_have_none(u):
                      washout=10, surrogates=40)
     assert list(res.rank) == [8, 3, 1]
     assert np.all(res.total <= res.rank + 1e-9)
-    assert res.total[0] < 0.02 and res.total[2] < 0.02
-    # without the threshold the same noise shows its spurious capacity (≈ rank × functions / samples)
-    raw = ipc(u, noise, max_degree=3, max_delay=8, washout=10, threshold="none")
-    assert raw.total[0] > 10 * res.total[0] + 0.5
-    # the per-function threshold lets through about 1/(surrogates + 1) of the null functions, each small
-    fmax = ipc(u, noise, max_degree=3, max_delay=8, washout=10, surrogates=40, threshold="function-max")
-    assert fmax.total[0] < 0.3
+    # Gaussian noise independent of the input: each function's chance capacity has mean r / (S − 1) exactly (a
+    # random r-dimensional subspace of the S − 1 centred dimensions); unthresholded they add up to F·r/(S − 1)
+    raw = ipc(u, noise, max_degree=3, max_delay=8, washout=10, threshold="none", rank_cap=False)
+    chance = len(raw.terms) * 8 / (T - 10 - 1)
+    assert raw.total[0] == pytest.approx(chance, rel=0.1)
+    # the threshold (the largest of 40 surrogates of the same degree tuple) lets through ≈ 1/41 of them (each
+    # with about 2 - 7 times the mean chance capacity)
+    assert res.total[0] < 0.3 * chance and res.total[2] < 0.3 * len(raw.terms) / (T - 11)
+    # the surrogates are chance capacities too: their mean is r/(S − 1) for every tuple
+    for tup, caps in res.surrogate.items():
+        assert caps.shape == (40, 3)
+        assert caps[:, 0].mean() == pytest.approx(8 / (T - 11), rel=0.25), tup
+        np.testing.assert_allclose(res.tuple_thresholds()[tup], caps.max(axis=0))
 
 
 def test_groups_equal_separate_computations(u):
@@ -105,10 +112,25 @@ def test_groups_equal_separate_computations(u):
     (dict(u=np.zeros(100), states=np.full((100, 2), np.nan)), "non-finite"),
     (dict(u=np.zeros(30), states=np.zeros((30, 2)), washout=25), "samples remain"),
     (dict(u=np.zeros(100), states=np.zeros((100, 2)), threshold="chi"), "threshold must be"),
+    (dict(u=np.zeros(100), states=np.zeros((100, 2)), threshold="degree-max"), "threshold must be"),
+    (dict(u=np.zeros(100), states=np.zeros((100, 2)), min_delay=4), r"min_delay \(4\) must not exceed"),
+    (dict(u=np.zeros(100), states=np.zeros((100, 2)), min_delay=-1), "must be >= 0"),
+    (dict(u=np.zeros(100), states=np.zeros((100, 2)), threshold_scale=-0.1), "threshold_scale"),
+    (dict(u=np.zeros(100), states=np.zeros((100, 2)), threshold_scale=np.inf), "threshold_scale"),
+    (dict(u=np.zeros(100), states=np.zeros((100, 2)), surrogates=0), "needs surrogates >= 1"),
 ])
 def test_bad_input_is_one_clear_error(args, message):
     with pytest.raises(IPCError, match=message):
         ipc(**{"max_delay": 3, "washout": 5, **args})
+
+
+def test_accepted_edges_of_the_options(u):
+    """min_delay = max_delay (one delay), threshold_scale 0 (keep every positive capacity), one surrogate."""
+    x = np.column_stack([delayed(u, 3), delayed(u, 3) ** 2])
+    res = ipc(u, x, max_degree=2, max_delay=3, min_delay=3, washout=5, surrogates=1, threshold_scale=0.0)
+    assert res.terms == [((3, 1),), ((3, 2),)]  # degree 2 at one delay: only P2 (a product needs two delays)
+    np.testing.assert_allclose(res.capacity[0], [1.0, 1.0], atol=1e-9)
+    assert np.all(res.threshold == 0.0)
 
 
 def test_ipc_command_writes_json_and_figure(tmp_path, u):
@@ -122,6 +144,17 @@ def test_ipc_command_writes_json_and_figure(tmp_path, u):
     assert st["rank"] == 2 and st["total"] == pytest.approx(2.0, abs=1e-6)
     kept = [(b["delays"], b["orders"]) for b, c in zip(data["basis"], st["capacity"]) if c > 0.5]
     assert sorted(kept) == [([0], [1]), ([2], [1])]
+    assert set(st["thresholds"]) == {"1", "2", "1,1"} and data["settings"]["surrogates"] == 10
+    # the new options: delays from 1 (u(t) is then no basis function), no rank cap, a scaled threshold
+    rc = main(["ipc", "--input", str(tmp_path / "in.npz"), "--out", str(tmp_path / "o2"), "--max-degree", "2",
+               "--max-delay", "4", "--min-delay", "1", "--washout", "10", "--surrogates", "10",
+               "--threshold-scale", "3", "--no-rank-cap", "--orthogonalise-linear"])
+    assert rc == 0
+    data2 = json.loads((tmp_path / "o2" / "ipc.json").read_text())
+    assert all(min(b["delays"]) >= 1 for b in data2["basis"])
+    assert data2["settings"]["rank_cap"] is False and data2["settings"]["threshold_scale"] == 3.0
+    assert data2["settings"]["definition"] == "orthogonalised-linear"
+    assert data2["states"][0]["total"] == pytest.approx(1.0, abs=1e-6)  # only u(t − 2) is left
     assert (tmp_path / "o" / "ipc.png").stat().st_size > 1000
     np.savez(tmp_path / "bad.npz", u=u * 3, states=x)
     assert main(["ipc", "--input", str(tmp_path / "bad.npz"), "--out", str(tmp_path / "b")]) == 2
@@ -172,10 +205,11 @@ def test_ipc_of_a_bag_reads_inputs_and_block_end_states(tmp_path):
 
     assert top("output (CMP y)")[:2] == ([2], [1]) and top("output (CMP y)")[2] == pytest.approx(1, abs=1e-9)
     assert top("mass 1 x")[:2] == ([1], [1]) and top("mass 1 x")[2] == pytest.approx(1, abs=1e-9)
-    # degree-2 functions are orthogonalised in-sample against the linear ones: u(t)² keeps 1 − O(delays / T)
-    assert top("mass 1 y")[:2] == ([0], [2]) and top("mass 1 y")[2] == pytest.approx(1, abs=0.05)
+    # u(t)² = (2/√5·P̃₂(u(t)) + 1)/3 is affine in P̃₂(u(t)): capacity 1
+    assert top("mass 1 y")[:2] == ([0], [2]) and top("mass 1 y")[2] == pytest.approx(1, abs=1e-9)
     assert states["mass 2 x"]["rank"] == 0 and states["mass 2 x"]["total"] == 0
-    assert states["all movable x, y"]["total"] == pytest.approx(3, abs=0.05)
+    # three exact capacities of 1 reach the rank; the cap drops anything a surrogate threshold let through
+    assert states["all movable x, y"]["total"] == pytest.approx(3, abs=1e-9)
 
 
 def test_benchmark_entry_reports_its_workload():
@@ -185,17 +219,200 @@ def test_benchmark_entry_reports_its_workload():
     assert out["basis_functions"] == 6 + (6 + 15)  # degree 1: 6 delays; degree 2: P2 at 6 + pairs of 6
     assert out["state_sets"] == 2 * 2 + 1 and out["seconds"] > 0
     assert 0 < out["total_capacity_all"] <= out["rank_all"] + 1e-9
+    assert out["seconds_orthogonalise_linear"] > 0
+    res = out["reservoir"]
+    assert res["seconds"] > 0 and res["seconds_orthogonalise_linear"] > 0
+    assert res["rank"] == 4 and 0 < sum(res["by_degree"]) <= 4 + 1e-9
 
 
-def test_a_linear_filter_has_no_capacity_above_degree_one_even_unthresholded(u):
-    """In-sample, P̃₃(u(t)) overlaps P̃₁(u(t)); without the orthogonalisation a strong linear state would show
-    raw 3rd-order capacity ≈ its linear capacity × overlap² that no surrogate reproduces."""
+def test_a_linear_filter_has_only_chance_capacity_above_degree_one(u):
+    """x(t) = 0.5·x(t−1) + u(t) is uncorrelated with every degree ≥ 2 function: its raw capacity for them is chance
+    (≈ 1/S each in-sample: P̃₃(u(t)) overlaps P̃₁(u(t)) by ≈ 1/√T), which the surrogate threshold removes; the
+    capacity left above degree 1 is that of the ≈ 1/(surrogates + 1) chance survivors."""
     x = np.zeros(T)
     for t in range(1, T):
         x[t] = 0.5 * x[t - 1] + u[t]  # memory ≈ 0.5^d: all of it within the 25 delays below
-    raw = ipc(u, x, max_degree=3, max_delay=25, washout=30, threshold="none")
+    raw = ipc(u, x, max_degree=3, max_delay=25, washout=30, threshold="none", rank_cap=False)
+    res = ipc(u, x, max_degree=3, max_delay=25, washout=30, surrogates=200)
+    nonlinear = raw.degrees > 1
     assert raw.by_degree()[0, 0] == pytest.approx(1.0, abs=0.05)  # delays overlap in-sample by ≈ 1/√T
-    assert raw.by_degree()[0, 1:].sum() < 1e-9
+    assert raw.raw[0, nonlinear].sum() == pytest.approx(nonlinear.sum() / (T - 31), rel=0.3)
+    assert res.by_degree()[0, 1:].sum() < 0.05 * raw.raw[0, nonlinear].sum()
+    assert res.total[0] <= 1 + 1e-9
+    # the linearity-test variant: degree >= 2 functions orthogonalised in-sample against the degree-1 ones;
+    # x lies in their span up to 0.5^26, so nothing above degree 1 is left even unthresholded
+    orth = ipc(u, x, max_degree=3, max_delay=25, washout=30, threshold="none", orthogonalise_linear=True)
+    assert orth.raw[0, nonlinear].sum() < 1e-9
+    np.testing.assert_allclose(orth.raw[0, ~nonlinear], raw.raw[0, ~nonlinear], atol=1e-12)
+    assert orth.settings["definition"] == "orthogonalised-linear" and raw.settings["definition"] == "ipc-module"
+
+
+def test_orthogonalised_variant_removes_clustered_linear_overlaps(u):
+    """Four states u(t), …, u(t − 3): in-sample, P̃₁(u(t))P̃₁(u(t−1))P̃₁(u(t−2)) overlaps u(t − 3) by the sum
+    Σ u(t)u(t−1)u(t−2)u(t−3)/S, and the same sum (one step shifted) is its overlap with its shifted versions: chance
+    capacities of the reference definition (≈ 1/S each) that the orthogonalised variant sets to 0 for every
+    degree >= 2 function, with the surrogates in the same orthogonal complement (a threshold of ≈ 0 but > 0 is
+    irrelevant: the raw values are 0 up to rounding)."""
+    x = np.column_stack([delayed(u, d) for d in range(4)])
+    ref = ipc(u, x, max_degree=3, max_delay=3, washout=5, surrogates=100)
+    orth = ipc(u, x, max_degree=3, max_delay=3, washout=5, surrogates=100, orthogonalise_linear=True)
+    nonlinear = ref.degrees > 1
+    assert ref.raw[0, nonlinear].max() > 1 / (T - 5)  # chance overlaps, each of order 1/S
+    assert orth.raw[0, nonlinear].max() < 1e-20 and orth.by_degree()[0, 1:].sum() < 1e-20
+    assert orth.total[0] == pytest.approx(4.0, abs=1e-9)
+
+
+# ---- the reference definition (K. Inoue's ipc-module): expectations from closed forms / independent fits ----
+
+def legendre_term(u: np.ndarray, term, start: int) -> np.ndarray:
+    """∏ √(2n+1)·P_n(u(t − d)) for t ≥ start, with numpy's Legendre basis (independent of the code's recursion)."""
+    out = np.ones(len(u) - start)
+    for d, n in term:
+        out = out * np.sqrt(2 * n + 1) * np.polynomial.legendre.Legendre.basis(n)(u[start - d: len(u) - d])
+    return out
+
+
+def own_fit_capacity(f: np.ndarray, x: np.ndarray) -> float:
+    """1 − min_w,b ‖f − Xw − b‖² / ‖f − f̄‖²: the target's own least-squares fit on the states."""
+    a = np.column_stack([x, np.ones(len(x))])
+    w, *_ = np.linalg.lstsq(a, f, rcond=None)
+    return 1.0 - float(np.sum((f - a @ w) ** 2) / np.sum((f - f.mean()) ** 2))
+
+
+def planted(u: np.ndarray, terms, start: int) -> np.ndarray:
+    """(T, len(terms)) states: column j the Legendre product terms[j] (zero before ``start``)."""
+    x = np.zeros((len(u), len(terms)))
+    for j, term in enumerate(terms):
+        x[start:, j] = legendre_term(u, term, start)
+    return x
+
+
+#: 22 orthonormal basis functions as states: degree 1 only at some delays (so that a degree ≥ 2 function's
+#: linear neighbours are not all in the state space), degree 2 and 3 at delays 0..6
+STATE_TERMS = [((0, 1),), ((2, 1),), ((5, 1),),
+               ((0, 2),), ((3, 2),), ((6, 2),), ((0, 1), (1, 1)), ((1, 1), (4, 1)), ((2, 1), (6, 1)),
+               ((3, 1), (5, 1)), ((0, 3),), ((4, 3),), ((0, 2), (2, 1)), ((1, 1), (3, 2)), ((5, 2), (6, 1)),
+               ((0, 1), (1, 1), (2, 1)), ((1, 1), (3, 1), (6, 1)), ((2, 1), (4, 1), (5, 1)), ((0, 1), (3, 1), (6, 1)),
+               ((1, 3),), ((2, 2), (4, 1)), ((0, 1), (4, 2))]
+
+
+def test_each_functions_capacity_is_its_own_least_squares_fit(u):
+    """Every basis function's raw capacity equals its own least-squares fit on the states (1 exactly for the
+    functions present as states); nothing is orthogonalised against the linear functions first."""
+    D, start = 6, 6
+    x = planted(u, STATE_TERMS, start)
+    res = ipc(u, x, max_degree=3, max_delay=D, washout=start, threshold="none")
+    assert res.rank[0] == len(STATE_TERMS)
+    for f, term in enumerate(res.terms):
+        expected = own_fit_capacity(legendre_term(u, term, start), x[start:])
+        assert res.raw[0, f] == pytest.approx(expected, abs=1e-9), res.name(f)
+    for term in STATE_TERMS:
+        assert res.raw[0, res.index(term)] == pytest.approx(1.0, abs=1e-9)
+
+
+def test_planted_mixtures_over_24_states_have_their_closed_form_capacities():
+    """State j = a_j·f_j + b_j·g_j + σ·noise_j for 48 distinct orthonormal basis functions (many small
+    degree-2/3 terms) and unit-variance noise: C[f_j] = a_j²/(a_j² + b_j² + σ²), C[g_j] = b_j²/(…) (population
+    values; in-sample ±1/√T), nothing else; the per-degree totals are the sums of those (19.2 < the rank 24, so
+    the rank cap does not bite)."""
+    rng = np.random.default_rng(11)
+    T_, D, start = 8000, 10, 10
+    u = rng.uniform(-1, 1, T_)
+    pool = [t for n in (1, 2, 3) for t in basis_terms(n, D)]
+    picked = [pool[i] for i in rng.choice(len(pool), 48, replace=False)]
+    f_terms, g_terms = picked[:24], picked[24:]
+    share, sigma2 = np.linspace(0.06, 0.94, 24), 0.25  # a_j², b_j² = 1 − a_j²: capacities from 0.048 up
+    x = rng.normal(scale=np.sqrt(sigma2), size=(T_, 24))
+    for j in range(24):
+        x[start:, j] += (np.sqrt(share[j]) * legendre_term(u, f_terms[j], start)
+                         + np.sqrt(1 - share[j]) * legendre_term(u, g_terms[j], start))
+    res = ipc(u, x, max_degree=3, max_delay=D, washout=start, surrogates=300)
+    expected = np.zeros(len(res.terms))
+    for j in range(24):
+        expected[res.index(f_terms[j])] = share[j] / (1 + sigma2)
+        expected[res.index(g_terms[j])] = (1 - share[j]) / (1 + sigma2)
+    # in-sample, the unexplained part (1 − C) of a planted function also has the chance capacity (r − 1)/(S − 1)
+    # on the other states' directions
+    planted_ = expected > 0
+    expected[planted_] += (1 - expected[planted_]) * 23 / (T_ - start - 1)
+    cap = res.capacity[0]
+    np.testing.assert_allclose(cap[expected > 0], expected[expected > 0], atol=0.03)
+    for term in picked:  # in-sample, exactly each function's own least-squares fit
+        f = res.index(term)
+        assert res.raw[0, f] == pytest.approx(own_fit_capacity(legendre_term(u, term, start), x[start:]), abs=1e-9)
+    bd = res.by_degree()[0]
+    for n in (1, 2, 3):
+        assert bd[n - 1] == pytest.approx(expected[res.degrees == n].sum(), abs=0.1), n
+    assert res.total[0] <= res.rank[0] + 1e-9
+
+
+def test_surrogate_threshold_keeps_a_small_planted_term_of_its_own_tuple(u):
+    """A 1-D state whose in-sample capacity for P̃₂(u(t−3))P̃₁(u(t−7)) is exactly c = 20/S (built here: the
+    centred term plus noise made orthogonal to it): above the (2, 1) tuple's surrogate maximum (the largest of
+    200 chance capacities χ²₁/S), so it is counted with its exact value; the chance capacities of the ~1,800
+    other basis functions are mostly removed (about 1/(surrogates + 1) of them survive, each ≈ 10/S)."""
+    D, start = 20, 20
+    S = T - start
+    term = ((3, 2), (7, 1))
+    f = legendre_term(u, term, start)
+    f -= f.mean()
+    e = np.random.default_rng(4).normal(size=S)
+    e -= e.mean()
+    e -= (e @ f) / (f @ f) * f
+    c = 20 / S
+    s = np.zeros(T)
+    s[start:] = f / np.linalg.norm(f) + np.sqrt((1 - c) / c) * e / np.linalg.norm(e)
+    res = ipc(u, s, max_degree=3, max_delay=D, washout=start, surrogates=200)
+    i = res.index(term)
+    assert res.raw[0, i] == pytest.approx(c, rel=1e-9)
+    assert res.capacity[0, i] == pytest.approx(c, rel=1e-9)
+    others = np.delete(res.capacity[0], i)
+    assert others.sum() < 0.02 * len(res.terms) * 10 / S + 1e-12
+
+
+def test_total_is_capped_at_the_rank_by_dropping_the_smallest(u):
+    """20 states, each the sum of 5 distinct basis functions (100 functions, population capacity 1/5 each): more
+    capacities than the rank; raw, they (with the chance capacity of all other functions) sum past the rank of
+    20; capped, the largest ones are kept while their sum stays ≤ the rank."""
+    rng = np.random.default_rng(8)
+    T_, D, start = 6000, 8, 8
+    u = rng.uniform(-1, 1, T_)
+    pool = [t for n in (1, 2, 3) for t in basis_terms(n, D)]
+    picked = [pool[i] for i in rng.choice(len(pool), 100, replace=False)]
+    x = np.zeros((T_, 20))
+    for j in range(20):
+        x[start:, j] = sum(legendre_term(u, t, start) for t in picked[5 * j: 5 * j + 5])
+    res = ipc(u, x, max_degree=3, max_delay=D, washout=start, threshold="none")
+    assert res.rank[0] == 20
+    raw = res.raw[0]
+    assert raw.sum() > 20 + 0.5 * (len(raw) - 100) * 20 / T_  # + chance capacities of the other functions
+    cap = res.capacity[0]
+    assert res.total[0] <= 20 + 1e-9
+    kept, dropped = raw[cap > 0], raw[cap == 0]
+    assert kept.min() >= dropped.max()
+    assert res.total[0] > 20 - dropped.max()
+    planted_ = np.array([res.index(t) for t in picked])
+    assert np.all(cap[np.setdiff1d(np.arange(len(raw)), planted_)] == 0)  # the chance capacities go first
+    kept_planted = cap[planted_][cap[planted_] > 0]
+    assert len(kept_planted) >= 95  # the planted sum ≈ 20 + 100·0.8·19/S: only its smallest few are dropped
+    np.testing.assert_allclose(kept_planted, 0.2, atol=0.05)
+    uncapped = ipc(u, x, max_degree=3, max_delay=D, washout=start, threshold="none", rank_cap=False)
+    assert uncapped.total[0] == pytest.approx(raw.sum(), rel=1e-12)
+
+
+def test_min_delay_shifts_the_basis(u):
+    """Delays 2..6: the counts of the closed forms below with D = 5 delays, and a state u(t − 1) (outside the
+    range) has no capacity while u(t − 2) has capacity 1."""
+    x = np.column_stack([delayed(u, 1), delayed(u, 2)])
+    res = ipc(u, x, max_degree=3, max_delay=6, min_delay=2, washout=10, surrogates=50)
+    D = 5
+    assert len(res.terms) == D + (D + len(list(combinations(range(D), 2)))) + (
+        D + D * (D - 1) + len(list(combinations(range(D), 3))))
+    assert min(d for t in res.terms for d, _ in t) == 2
+    assert res.capacity[0, res.index(((2, 1),))] == pytest.approx(1.0, abs=1e-9)
+    assert res.total[0] == pytest.approx(1.0, abs=0.05)
+
+
 
 
 def _npz_with_header(path, name: str, shape: tuple[int, ...], data: bytes, dtype: str = "<f8") -> None:

@@ -312,3 +312,17 @@ def test_citation_file_cites_the_paper_and_this_version() -> None:
     assert [a["family-names"] for a in paper["authors"]] == ["Tomioka", "Inoue", "Kuniyoshi", "Nakajima"]
     assert (REPO_ROOT / "LICENSE").read_text().lstrip().startswith("Apache License")
     assert cff["license"] == "Apache-2.0"
+
+
+def test_pyproject_names_the_setuptools_backend_and_the_installed_version_matches() -> None:
+    import tomllib
+    import xml.etree.ElementTree as ET
+
+    project = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())
+    assert project["build-system"]["build-backend"] == "setuptools.build_meta"
+    assert project["tool"]["ruff"]["line-length"] == 120
+    try:
+        installed = importlib.metadata.version(PACKAGE)
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip(f"{PACKAGE} is not pip-installed (make venv installs it)")
+    assert installed == ET.parse(REPO_ROOT / "package.xml").getroot().findtext("version")

@@ -150,3 +150,70 @@ def test_divergence_with_on_divergence_stop_ends_the_run_with_a_finalised_bag(tm
     assert info.message_count > 0 and steps == list(range(20))  # steps 0..19; step 20 diverged
     statuses = [s for *_, d in read_messages(bag, ["/diagnostics"]) for s in d.status]
     assert any(s.level == DiagnosticStatus.ERROR and "step 20 diverged" in s.message for s in statuses)
+
+
+def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp_path, ros_env, ros_domain_id):
+    """A node named ``forger`` publishes /body/positions (all masses at (7, 7)) for every step of a lockstep run:
+    the bag keeps its messages on a channel marked with its node and GID, next to the body's; replay uses only
+    body_sim's, reports the forger's by name and count, and the replayed run equals the offline one."""
+    import subprocess
+    import sys
+
+    from geometry_msgs.msg import PoseArray
+    from mcap.reader import make_reader
+    from ros_live import REPO, env_for
+    from rosgraph_msgs.msg import Clock
+
+    from bptsb_ros.agent import build_agent
+    from bptsb_ros.analysis.replay import replay
+    from bptsb_ros.config import validate
+    from bptsb_ros.ros import messages as m
+    from bptsb_ros.training.checkpoint import save_checkpoint
+
+    run = tmp_path / "agent"
+    save_checkpoint(run, build_agent(validate({"task": "lissajous", "seed": 0, "dtype": "float64",
+                                               "feedback": {"enabled": False}})))
+    n_masses = fresh_agent("lissajous").body.topology.n_masses
+    forged = np.full((n_masses, 2), 7.0)
+    forger = Probe(ros_domain_id, "forger")
+    pub = forger.node.create_publisher(PoseArray, "/body/positions", m.state_qos(100))
+    sent: list[int] = []
+
+    def on_clock(msg: Clock) -> None:  # forge the state of every step the body announces, once the recorder listens
+        if pub.get_subscription_count() >= 1:
+            k = m.step_of(msg.clock, DT_NS)
+            pub.publish(m.pose_array(k, DT_NS, forged, "msdn"))
+            sent.append(k)
+
+    forger.subscribe(Clock, "/clock", m.state_qos(100), on_clock)
+    bag = tmp_path / "bag"
+    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--agent", str(run),
+                             "--duration", "1", "--bag", str(bag), "--timeout", "120"],
+                            env=env_for(ros_env), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert forger.spin_until(lambda: proc.poll() is not None, 150)
+        out = proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        forger.close()
+    assert proc.returncode == 0, out[-4000:]
+    metrics = replay(bag, tmp_path / "replay", run, gif=False)
+    assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9  # the forged states are not used
+    assert metrics["recorded_steps"] == 101 and metrics["missing_steps"] == 0
+    from bptsb_ros.bags.reader import read_published
+
+    by_node: dict[str, list[int]] = {}
+    for (_, _, _, msg), publisher in read_published(bag, ["/body/positions"]):
+        by_node.setdefault(publisher.name, []).append(m.step_of(msg.header.stamp, DT_NS))
+    assert sorted(by_node["/body_sim"]) == list(range(101))
+    assert set(by_node) == {"/body_sim", "/forger"} and len(by_node["/forger"]) >= 50, {k: len(v) for k, v in
+                                                                                       by_node.items()}
+    with open(bag / "bag_0.mcap", "rb") as f:  # the forger's channel, read without our reader
+        channels = [c for c in make_reader(f).get_summary().channels.values() if c.topic == "/body/positions"]
+    assert sorted(c.metadata["publisher_node"] for c in channels) == ["body_sim", "forger"]
+    assert len({c.metadata["publisher_gid"] for c in channels}) == 2
+    assert metrics["publishers"]["checked"] is True
+    assert metrics["publishers"]["foreign"] == {"/body/positions": {"/forger": len(by_node["/forger"])}}
+    assert metrics["publishers"]["duplicates"] == {}

@@ -1,55 +1,79 @@
-"""Information processing capacity (IPC; Dambre et al., Sci. Rep. 2, 514, 2012).
+"""Information processing capacity (IPC; Dambre et al., Sci. Rep. 2, 514, 2012), defined as in K. Inoue's
+``ipc-module`` (PyPI, MIT licence; the implementation the paper used), computed here from that definition.
 
-Given an i.i.d. input u(t) uniform on [−1, 1] and states X(t) (T × N), the capacity of the states for a
-target function f(t) is
+Given an i.i.d. input u(t) uniform on [−1, 1] and states X(t) (T × N), only the samples t ≥ ``start`` =
+max(washout, max_delay) are used (S = T − start of them). The capacity of the states for a target f(t) is
 
-    C[f] = 1 − min_{w, b} ⟨(f − wᵀX − b)²⟩ / ⟨(f − ⟨f⟩)²⟩  =  ‖Qᵀ f_c‖² / ‖f_c‖²,
+    C[f] = 1 − min_{w, b} Σ_t (f − wᵀX − b)² / Σ_t (f − f̄)²  =  ‖Qᵀ f_c‖² / ‖f_c‖²,
 
-with f_c and X_c centred over the samples and Q an orthonormal basis of the column space of X_c (its SVD;
-the columns whose singular value exceeds ``rank_tol`` × the largest give the rank r). The targets are the
-products of orthonormal Legendre polynomials of delayed inputs,
+f_c and X_c centred over the samples, Q (S × r) an orthonormal basis of the column space of X_c: its left
+singular vectors whose singular value exceeds ``rank_tol`` × the largest (default ε·max(S, N), numpy's
+``matrix_rank`` rule); r is the rank. Every target is fitted on its own (nothing is orthogonalised against other
+targets). The targets are the products of orthonormal Legendre polynomials of delayed inputs,
 
-    f(t) = ∏_i P̃_{n_i}(u(t − Δt_i)),   P̃_n = √(2n + 1) P_n,   distinct delays Δt_i ∈ [0, max_delay],
+    f(t) = ∏_i P̃_{n_i}(u(t − Δt_i)),   P̃_n = √(2n + 1) P_n,   distinct delays Δt_i ∈ [min_delay, max_delay],
 
-grouped by degree n = Σ n_i ≤ ``max_degree``. For orthogonal targets the capacities sum to at most r, and
-to r when the system has fading memory and the basis is complete enough.
+of degree n = Σ n_i ≤ ``max_degree``; a function's *degree tuple* is its orders sorted, e.g. (2, 1) for
+P̃₂(u(t−3))·P̃₁(u(t−7)) (degree 3 has the tuples (3,), (2, 1), (1, 1, 1)).
 
-In a finite sample the Legendre products are only orthogonal on average: P̃₃(u(t)) overlaps P̃₁(u(t)) by
-≈ 1/√T, so a state with a strong linear component would show a spurious 3rd-order capacity that no shuffled
-surrogate reproduces. The basis functions of degree ≥ 2 are therefore orthogonalised, in-sample, against the
-span of the degree-1 functions (one QR of the (T × (max_delay + 1)) linear block) before their capacities are
-taken; a purely linear system then has exactly zero capacity above degree 1. (Overlaps among functions of the
-same degree, or between degrees 2 and 3, are left: the thresholded total can exceed the rank by a few per cent
-in finite samples.)
+A finite sample gives every target a chance capacity (≈ χ²_r / S). It is removed with shuffled-input
+surrogates, **one threshold per degree tuple**: for each of ``surrogates`` permutations of u (the same ones for
+every tuple; permutation i from the i-th generator spawned from ``default_rng(seed)``, as the reference draws
+them), the capacity of that tuple's product of the shuffled input at the delays 1, 2, …; a function is kept if
+its capacity exceeds ``threshold_scale`` × the largest of its tuple's surrogate capacities (else it counts 0).
+About 1/(surrogates + 1) of the functions that the states do not carry survive this (each with a capacity near
+the threshold). Finally (``rank_cap``) the capacities of each state set are sorted in decreasing order and every
+one whose running sum exceeds the rank is set to 0, so the total is at most the rank.
 
-A finite sample also gives every target a small spurious capacity (≈ χ²_r / T). It is removed with surrogates:
-the same computation with the input shuffled in time (``surrogates`` permutations), and a capacity is kept
-only if it exceeds a threshold taken from them:
+The reference's settings (ipc-module 1.0.1: ``UnivariateProfiler``, ``calc``, ``to_dataframe``), its
+defaults, and their names here (default here in brackets):
 
-* ``"degree-max"`` (default): the maximum surrogate capacity over every surrogate **and every basis function
-  of the same degree** (one threshold per state set and degree; conservative — on pure noise states almost
-  nothing survives, so the thresholded total stays ≤ the rank);
-* ``"function-max"``: the maximum over the surrogates of **the same basis function** (per-function; at the
-  chance level 1/(surrogates + 1) a spurious function survives);
-* ``"none"``: raw capacities.
+* ``offset=1000`` (samples discarded)              → ``washout`` [100]; start = max(washout, max_delay);
+* ``calc(n, delay_max=100)`` (delays 0 … 99)       → ``max_delay`` (inclusive: delay_max − 1) [20];
+* ``zero_offset=True`` (first delay 0; False: 1)   → ``min_delay`` [0];
+* ``surrogate_num=1000``, ``surrogate_seed=0``     → ``surrogates`` [1000], ``seed`` [0] (same permutations);
+* ``max_scale=1.0`` (in ``to_dataframe``/``total``) → ``threshold_scale`` [1.0];
+* ``truncate_by_rank=True`` (in ``to_dataframe``)  → ``rank_cap`` [True];
+* ``poly_name`` (default ``"GramSchmidt"``, the input's empirical orthogonal polynomials) → always Legendre,
+  the polynomials of the uniform distribution on [−1, 1] (the paper maps u to it; the two agree to O(1/√T)).
 
-Several state sets sharing one input (each mass's x, each mass's y, the output, all together) are computed
-in one pass: the basis matrix of a degree is built once per (surrogate) input and projected onto the
-stacked orthonormal bases of all sets with a single GEMM. Everything is float64.
+Two details differ by design: the reference divides by the uncentred Σ f² (here the centred Σ f_c², the
+1 − MSE / variance definition; a relative difference of O(1/S)), and its rank rule compares the singular values
+with ε·max(S, N)·σ²_max, which depends on the states' units (here ε·max(S, N)·σ_max, numpy's scale-free rule;
+the two differ only for nearly singular states).
+
+A variant (``orthogonalise_linear``; not the reference's) is for testing whether a system is linear: in a
+finite sample a degree ≥ 2 function overlaps the degree-1 functions by O(1/√S) (Σ_t u(t)u(t−1)u(t−2)·u(t−3) ≠ 0),
+so a state with a strong linear part has chance capacities for the degree ≥ 2 functions that come in clusters
+(the same overlap at every shift of the delays) and survive the per-tuple thresholds far more often than
+1/(surrogates + 1); e.g. a linear 8-mass chain shows a degree-3 "capacity" of up to 0.2 at 700 samples. With
+the variant every degree ≥ 2 function and every degree ≥ 2 surrogate target is first made orthogonal, in-sample,
+to the span of the degree-1 functions of u (delays min_delay..max_delay), so a linear system has none above
+degree 1. It lowers the degree ≥ 2 capacities of nonlinear systems by the part they share with
+linear functions in-sample.
+
+Several state sets sharing one input (each mass's x, each mass's y, the output, all together) are computed in
+one pass: the basis functions (in chunks) and the surrogate targets (in chunks of permutations) are built once
+and projected onto the stacked orthonormal bases of all sets with one GEMM. Everything is float64.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-THRESHOLDS = ("degree-max", "function-max", "none")
+THRESHOLDS = ("tuple-max", "none")
+#: elements of one chunk of basis-function or surrogate values (float64: 32 MB)
+_CHUNK = 4_000_000
 
 
 class IPCError(ValueError):
@@ -57,13 +81,12 @@ class IPCError(ValueError):
 
 
 Term = tuple[tuple[int, int], ...]  # ((delay, order), ...), delays strictly increasing
+DegreeTuple = tuple[int, ...]  # the orders of a term, sorted in decreasing order: (2, 1)
 
 
-def basis_terms(degree: int, max_delay: int) -> list[Term]:
-    """Every product of Legendre polynomials of total degree ``degree`` over distinct delays 0..max_delay.
-
-    A term is ((Δt₁, n₁), (Δt₂, n₂), ...) with Δt₁ < Δt₂ < … and Σ nᵢ = ``degree``.
-    """
+def basis_terms(degree: int, max_delay: int, min_delay: int = 0) -> list[Term]:
+    """Every product of Legendre polynomials of total degree ``degree`` over distinct delays
+    min_delay..max_delay: ((Δt₁, n₁), (Δt₂, n₂), ...) with Δt₁ < Δt₂ < … and Σ nᵢ = ``degree``."""
     out: list[Term] = []
 
     def grow(start: int, remaining: int, prefix: list[tuple[int, int]]) -> None:
@@ -76,8 +99,13 @@ def basis_terms(degree: int, max_delay: int) -> list[Term]:
                 grow(d + 1, remaining - n, prefix)
                 prefix.pop()
 
-    grow(0, degree, [])
+    grow(min_delay, degree, [])
     return out
+
+
+def degree_tuple(term: Term) -> DegreeTuple:
+    """The orders of ``term`` in decreasing order, e.g. (2, 1) for ((3, 2), (7, 1)) and for ((3, 1), (7, 2))."""
+    return tuple(sorted((n for _, n in term), reverse=True))
 
 
 def legendre_orthonormal(u: np.ndarray, max_order: int) -> np.ndarray:
@@ -95,38 +123,41 @@ def legendre_orthonormal(u: np.ndarray, max_order: int) -> np.ndarray:
 class _DegreeBasis:
     degree: int
     terms: list[Term]
-    orders: np.ndarray  # (F, k) order of each factor (0 where the term has fewer factors)
-    delays: np.ndarray  # (F, k)
+    orders: np.ndarray  # (F, degree) order of each factor (0: the constant 1, where the term has fewer factors)
+    delays: np.ndarray  # (F, degree)
 
 
-def _degree_basis(degree: int, max_delay: int) -> _DegreeBasis:
-    terms = basis_terms(degree, max_delay)
-    k = degree
-    orders = np.zeros((len(terms), k), dtype=np.int64)
-    delays = np.zeros((len(terms), k), dtype=np.int64)
+def _degree_basis(degree: int, max_delay: int, min_delay: int) -> _DegreeBasis:
+    terms = basis_terms(degree, max_delay, min_delay)
+    orders = np.zeros((len(terms), degree), dtype=np.int64)
+    delays = np.full((len(terms), degree), min_delay, dtype=np.int64)
     for i, term in enumerate(terms):
         for j, (d, n) in enumerate(term):
             orders[i, j], delays[i, j] = n, d
     return _DegreeBasis(degree, terms, orders, delays)
 
 
-def _basis_matrix(lagged: np.ndarray, db: _DegreeBasis) -> np.ndarray:
-    """(F, S) centred basis values; ``lagged`` is (max_order + 1, max_delay + 1, S) with order 0 = ones."""
-    f = lagged[db.orders[:, 0], db.delays[:, 0]].copy()
-    for j in range(1, db.orders.shape[1]):
-        f *= lagged[db.orders[:, j], db.delays[:, j]]
-    f -= f.mean(axis=1, keepdims=True)
+def _centred_product(factors: Sequence[np.ndarray]) -> np.ndarray:
+    f = factors[0] * factors[1] if len(factors) > 1 else factors[0].copy()
+    for g in factors[2:]:
+        f *= g
+    f -= f.mean(axis=-1, keepdims=True)
     return f
 
 
-def _lagged(u: np.ndarray, max_order: int, max_delay: int, start: int) -> np.ndarray:
-    """(max_order + 1, max_delay + 1, T − start): P̃_n(u(t − d)) for t ≥ start; order 0 is the constant 1."""
-    p = np.vstack([np.ones((1, len(u))), legendre_orthonormal(u, max_order)])
-    samples = len(u) - start
-    out = np.empty((max_order + 1, max_delay + 1, samples))
-    for d in range(max_delay + 1):
-        out[:, d] = p[:, start - d: start - d + samples]
-    return out
+def _linear_basis(lin: np.ndarray) -> np.ndarray:
+    """(S, D) orthonormal basis of the span of the centred degree-1 functions ``lin`` (D, S)."""
+    q, r = np.linalg.qr((lin - lin.mean(axis=1, keepdims=True)).T)
+    d = np.abs(np.diag(r))
+    return q[:, d > 1e-10 * d.max()] if d.size and d.max() > 0 else q[:, :0]
+
+
+def _capacities(f: np.ndarray, q: np.ndarray, member: np.ndarray) -> np.ndarray:
+    """(n, G) capacities of the centred targets ``f`` (n, S) for the orthonormal bases ``q`` (S, R) of G state
+    sets (``member`` (R, G): which set each column belongs to)."""
+    norm = np.einsum("ns,ns->n", f, f)
+    proj = (f @ q) ** 2 @ member
+    return proj / np.where(norm > 0, norm, np.inf)[:, None]
 
 
 @dataclass
@@ -136,16 +167,30 @@ class IPCResult:
     labels: list[str]
     terms: list[Term]
     degrees: np.ndarray  # (F,)
-    raw: np.ndarray  # (G, F) capacities before thresholding
-    threshold: np.ndarray  # (G, F)
+    raw: np.ndarray  # (G, F) every function's own capacity, before thresholding
+    threshold: np.ndarray  # (G, F) its tuple's threshold (threshold_scale × the largest surrogate capacity)
     rank: np.ndarray  # (G,)
     dims: np.ndarray  # (G,) number of state columns
+    surrogate: dict[DegreeTuple, np.ndarray] = field(default_factory=dict)  # tuple -> (surrogates, G) capacities
+    rank_cap: bool = True
     settings: dict[str, Any] = field(default_factory=dict)
 
-    @property
+    @cached_property
+    def tuples(self) -> list[DegreeTuple]:
+        """(F,) the degree tuple of each basis function."""
+        return [degree_tuple(t) for t in self.terms]
+
+    @cached_property
     def capacity(self) -> np.ndarray:
-        """(G, F) capacities after thresholding (0 where the raw value does not exceed the threshold)."""
-        return np.where(self.raw > self.threshold, self.raw, 0.0)
+        """(G, F) capacities: 0 where the raw value does not exceed the threshold, then (``rank_cap``) 0 where
+        the running sum of the capacities in decreasing order exceeds the rank."""
+        cap = np.where(self.raw > self.threshold, self.raw, 0.0)
+        if self.rank_cap:
+            order = np.argsort(-cap, axis=1, kind="stable")
+            running = np.cumsum(np.take_along_axis(cap, order, axis=1), axis=1)
+            over = running > self.rank[:, None] * (1 + 1e-12) + 1e-9  # tolerance: sums of exact 1s
+            np.put_along_axis(cap, order, np.where(over, 0.0, np.take_along_axis(cap, order, axis=1)), axis=1)
+        return cap
 
     @property
     def total(self) -> np.ndarray:
@@ -156,6 +201,17 @@ class IPCResult:
         """(G, max_degree) capacity summed per degree (column n−1 is degree n)."""
         cap = self.capacity
         return np.stack([cap[:, self.degrees == n].sum(axis=1) for n in range(1, int(self.degrees.max()) + 1)], 1)
+
+    def by_tuple(self) -> dict[DegreeTuple, np.ndarray]:
+        """Degree tuple -> (G,) capacity summed over its functions."""
+        cap, tuples = self.capacity, self.tuples
+        return {t: cap[:, [i for i, s in enumerate(tuples) if s == t]].sum(axis=1)
+                for t in dict.fromkeys(tuples)}
+
+    def tuple_thresholds(self) -> dict[DegreeTuple, np.ndarray]:
+        """Degree tuple -> (G,) its threshold."""
+        first = {t: i for i, t in reversed(list(enumerate(self.tuples)))}
+        return {t: self.threshold[:, first[t]] for t in dict.fromkeys(self.tuples)}
 
     def max_delays(self) -> np.ndarray:
         """(F,) the longest delay of each basis function."""
@@ -172,10 +228,12 @@ class IPCResult:
         return " ".join(f"P{n}(u(t-{d}))" if d else f"P{n}(u(t))" for d, n in self.terms[f])
 
     def summary(self) -> list[dict[str, Any]]:
-        """Per state set: total, per-degree totals, rank, dims."""
-        bd = self.by_degree()
+        """Per state set: total, per-degree and per-tuple totals, per-tuple thresholds, rank, dims."""
+        bd, bt, thr = self.by_degree(), self.by_tuple(), self.tuple_thresholds()
         return [{"label": lab, "total": float(self.total[g]), "rank": int(self.rank[g]), "dims": int(self.dims[g]),
-                 "by_degree": {str(n + 1): float(bd[g, n]) for n in range(bd.shape[1])}}
+                 "by_degree": {str(n + 1): float(bd[g, n]) for n in range(bd.shape[1])},
+                 "by_tuple": {",".join(map(str, t)): float(v[g]) for t, v in bt.items()},
+                 "thresholds": {",".join(map(str, t)): float(v[g]) for t, v in thr.items()}}
                 for g, lab in enumerate(self.labels)]
 
     def to_json(self) -> dict[str, Any]:
@@ -195,7 +253,8 @@ class IPCResult:
         return path
 
 
-def _check_inputs(u: Any, groups: Sequence[Any], washout: int, max_delay: int) -> tuple[np.ndarray, list[np.ndarray]]:
+def _check_inputs(u: Any, groups: Sequence[Any], washout: int, max_delay: int,
+                  min_delay: int) -> tuple[np.ndarray, list[np.ndarray]]:
     u = np.asarray(u, dtype=np.float64)
     if u.ndim != 1:
         raise IPCError(f"the input u must be one-dimensional (T,), got shape {u.shape}")
@@ -204,8 +263,10 @@ def _check_inputs(u: Any, groups: Sequence[Any], washout: int, max_delay: int) -
     if u.size and (u.min() < -1 - 1e-12 or u.max() > 1 + 1e-12):
         raise IPCError(f"the input u must lie in [-1, 1] (Legendre polynomials of a uniform input), got "
                        f"[{u.min():.4g}, {u.max():.4g}]")
-    if washout < 0 or max_delay < 0:
-        raise IPCError("washout and max_delay must be >= 0")
+    if washout < 0 or max_delay < 0 or min_delay < 0:
+        raise IPCError("washout, min_delay and max_delay must be >= 0")
+    if min_delay > max_delay:
+        raise IPCError(f"min_delay ({min_delay}) must not exceed max_delay ({max_delay})")
     start = max(washout, max_delay)
     if len(u) - start < 10:
         raise IPCError(f"only {len(u) - start} samples remain after the washout/max delay ({start}) of {len(u)}")
@@ -224,13 +285,17 @@ def _check_inputs(u: Any, groups: Sequence[Any], washout: int, max_delay: int) -
     return u, xs
 
 
-def _orthonormal_bases(xs: list[np.ndarray], start: int, rank_tol: float) -> tuple[np.ndarray, np.ndarray]:
+def _orthonormal_bases(xs: list[np.ndarray], start: int,
+                       rank_tol: float | None) -> tuple[np.ndarray, np.ndarray]:
     """Stacked orthonormal bases (S, R) of the centred states' column spaces, and each set's rank (G,)."""
     qs, ranks = [], []
     for x in xs:
         xc = x[start:] - x[start:].mean(axis=0)
-        uu, s, _ = np.linalg.svd(xc, full_matrices=False)
-        r = int(np.sum(s > rank_tol * s[0])) if s.size and s[0] > 0 else 0
+        qx, r_x = np.linalg.qr(xc)  # (S, N), (N, N): the SVD of the small R is cheaper than that of X_c
+        ur, s, _ = np.linalg.svd(r_x)
+        uu = qx @ ur
+        tol = np.finfo(np.float64).eps * max(xc.shape) if rank_tol is None else rank_tol
+        r = int(np.sum(s > tol * s[0])) if s.size and s[0] > 0 else 0
         qs.append(uu[:, :r])
         ranks.append(r)
     return np.hstack(qs), np.array(ranks)
@@ -243,25 +308,36 @@ def ipc_groups(
     *,
     max_degree: int = 3,
     max_delay: int = 20,
+    min_delay: int = 0,
     washout: int = 100,
-    surrogates: int = 200,
-    threshold: str = "degree-max",
+    surrogates: int = 1000,
+    threshold: str = "tuple-max",
+    threshold_scale: float = 1.0,
+    rank_cap: bool = True,
+    orthogonalise_linear: bool = False,
     seed: int = 0,
-    rank_tol: float = 1e-10,
+    rank_tol: float | None = None,
     progress: bool = False,
 ) -> IPCResult:
-    """IPC of several state sets driven by the same input.
+    """IPC of several state sets driven by the same input (definitions and the reference's defaults: the
+    module docstring).
 
     Args:
         u: (T,) i.i.d. input in [−1, 1].
         groups: state sets, each (T,) or (T, N_g), row t the state after input u(t) was applied.
         labels: a name per set (default "states 0", ...).
-        max_degree, max_delay: the basis: degrees 1..max_degree, delays 0..max_delay [task steps].
-        washout: samples discarded at the start (at least max_delay are always discarded).
-        surrogates: shuffled-input surrogates for the threshold (0 with ``threshold="none"``).
-        threshold: "degree-max", "function-max" or "none" (module docstring).
+        max_degree: the basis's degrees 1..max_degree.
+        max_delay: the basis's largest delay [task steps] (the reference: 99).
+        min_delay: the basis's smallest delay [task steps] (the reference: 0).
+        washout: samples discarded at the start (at least max_delay are always discarded; the reference: 1000).
+        surrogates: shuffled-input surrogates per degree tuple (ignored with ``threshold="none"``).
+        threshold: "tuple-max" (a function counts if its capacity exceeds threshold_scale × the largest
+            surrogate capacity of its degree tuple) or "none" (raw capacities).
+        threshold_scale: the factor on the surrogate maximum (the reference's ``max_scale``).
+        rank_cap: drop the smallest capacities of a set while their total exceeds its rank.
+        orthogonalise_linear: the linearity-test variant (module docstring); not the reference's definition.
         seed: seed of the surrogate permutations.
-        rank_tol: singular values below rank_tol × the largest do not count toward the rank.
+        rank_tol: singular values ≤ rank_tol × the largest do not count toward the rank (default ε·max(S, N)).
         progress: a progress bar over the surrogates on stderr.
     """
     if threshold not in THRESHOLDS:
@@ -270,60 +346,73 @@ def ipc_groups(
         raise IPCError("max_degree must be >= 1")
     if threshold != "none" and surrogates < 1:
         raise IPCError(f"threshold {threshold!r} needs surrogates >= 1")
-    u, xs = _check_inputs(u, groups, washout, max_delay)
+    if not (math.isfinite(threshold_scale) and threshold_scale >= 0):
+        raise IPCError(f"threshold_scale must be a finite number >= 0, got {threshold_scale}")
+    u, xs = _check_inputs(u, groups, washout, max_delay, min_delay)
     labels = list(labels) if labels is not None else [f"states {i}" for i in range(len(xs))]
     if len(labels) != len(xs):
         raise IPCError(f"{len(labels)} labels for {len(xs)} state sets")
     t0 = time.perf_counter()
     start = max(washout, max_delay)
+    samples = len(u) - start
     q, ranks = _orthonormal_bases(xs, start, rank_tol)
-    bounds = np.concatenate([[0], np.cumsum(ranks)])
-    bases = [_degree_basis(n, max_delay) for n in range(1, max_degree + 1)]
+    member = np.zeros((q.shape[1], len(xs)))
+    member[np.arange(q.shape[1]), np.repeat(np.arange(len(xs)), ranks)] = 1.0
+    bases = [b for b in (_degree_basis(n, max_delay, min_delay) for n in range(1, max_degree + 1)) if b.terms]
+    # table[n, t] = P̃_n(u(t)), order 0 the constant 1; lagged[n, d, s] = P̃_n(u(start + s − d))
+    table = np.vstack([np.ones((1, len(u))), legendre_orthonormal(u, max_degree)])
+    lagged = np.stack([table[:, start - d: start - d + samples] for d in range(max_delay + 1)], axis=1)
 
-    def capacities(series: np.ndarray) -> list[np.ndarray]:
-        """Per degree, (G, F_n) capacities of the basis built from ``series``."""
-        lagged = _lagged(series, max_degree, max_delay, start)
-        out = []
-        lower: np.ndarray | None = None  # (S, k) orthonormal basis of the degree-1 functions, in-sample
-        for db in bases:
-            f = _basis_matrix(lagged, db)  # (F, S)
-            if lower is not None:
-                f -= (f @ lower) @ lower.T
-            if db.degree == 1 and max_degree > 1:
-                qb, rb = np.linalg.qr(f.T)
-                d = np.abs(np.diag(rb))
-                lower = qb[:, d > 1e-8 * d.max()]
-            norm = np.einsum("fs,fs->f", f, f)
-            proj = (f @ q) ** 2  # (F, R): one GEMM for every set
-            per_set = np.stack([proj[:, bounds[g]: bounds[g + 1]].sum(axis=1) for g in range(len(xs))])
-            out.append(per_set / np.where(norm > 0, norm, np.inf))
-        return out
+    delays = np.arange(min_delay, max_delay + 1)
+    # orthonormal basis of the centred degree-1 functions, in-sample (orthogonalise_linear only)
+    lin = _linear_basis(lagged[1, delays]) if orthogonalise_linear else None
 
-    raw = capacities(u)
-    thr = [np.zeros_like(c) for c in raw]
+    raw_parts = []
+    for db in bases:
+        rows = max(1, _CHUNK // samples)
+        for lo in range(0, len(db.terms), rows):
+            o, d = db.orders[lo: lo + rows], db.delays[lo: lo + rows]
+            f = _centred_product([lagged[o[:, j], d[:, j]] for j in range(db.degree)])
+            if lin is not None and db.degree > 1:
+                f -= (f @ lin) @ lin.T
+            raw_parts.append(_capacities(f, q, member).T)
+    raw = np.hstack(raw_parts)
+    terms = [t for db in bases for t in db.terms]
+    tuples = list(dict.fromkeys(degree_tuple(t) for t in terms))
     n_sur = surrogates if threshold != "none" else 0
+    sur = {t: np.zeros((n_sur, len(xs))) for t in tuples}
     if n_sur:
-        rng = np.random.default_rng(seed)
-        import sys
-
         from tqdm import tqdm
 
-        bar = tqdm(range(n_sur), desc="IPC surrogates", disable=not progress, unit="sur", file=sys.stderr,
+        per = max(1, _CHUNK // ((max_degree + 1) * len(u)))
+        # permutation i from the i-th generator spawned from default_rng(seed): the reference's convention,
+        # so that the same seed gives the same surrogates (and the chunking does not matter)
+        children = np.random.default_rng(seed).spawn(n_sur)
+        bar = tqdm(total=n_sur, desc="IPC surrogates", disable=not progress, unit="sur", file=sys.stderr,
                    mininterval=0.1 if sys.stderr.isatty() else 10.0)  # in a log file, a line every 10 s
-        for _ in bar:
-            for n, c in enumerate(capacities(rng.permutation(u))):
-                if threshold == "degree-max":
-                    thr[n] = np.maximum(thr[n], c.max(axis=1, keepdims=True))
-                else:
-                    thr[n] = np.maximum(thr[n], c)
-    degrees = np.concatenate([np.full(len(db.terms), db.degree) for db in bases])
-    terms = [t for db in bases for t in db.terms]
-    settings = {"max_degree": max_degree, "max_delay": max_delay, "washout": washout, "samples": len(u) - start,
-                "surrogates": n_sur, "threshold": threshold, "seed": seed, "rank_tol": rank_tol,
-                "seconds": round(time.perf_counter() - t0, 3)}
-    return IPCResult(labels, terms, degrees, np.hstack(raw),
-                     np.hstack([np.broadcast_to(t, r.shape) for t, r in zip(thr, raw)]).copy(),
-                     ranks, np.array([x.shape[1] for x in xs]), settings)
+        for lo in range(0, n_sur, per):
+            n = min(per, n_sur - lo)
+            perms = np.stack([g.permutation(len(u)) for g in children[lo: lo + n]])
+            shuffled = np.take(table, perms, axis=1)  # (orders + 1, n, T); take: 3-4 times faster than [:, perms]
+            for t in tuples:
+                lag = 1 if start >= len(t) else 0  # the reference's delays 1, 2, …; any distinct ones would do
+                f = _centred_product([shuffled[o, :, start - lag - i: start - lag - i + samples]
+                                      for i, o in enumerate(t)])
+                if lin is not None and sum(t) > 1:  # the null of an orthogonalised function: in the same space
+                    f -= (f @ lin) @ lin.T
+                sur[t][lo: lo + n] = _capacities(f, q, member)
+            bar.update(n)
+        bar.close()
+    thr_tuple = {t: threshold_scale * s.max(axis=0) if n_sur else np.zeros(len(xs)) for t, s in sur.items()}
+    thr = np.stack([thr_tuple[degree_tuple(t)] for t in terms], axis=1)
+    degrees = np.array([sum(n for _, n in t) for t in terms])
+    settings = {"definition": "orthogonalised-linear" if orthogonalise_linear else "ipc-module",
+                "max_degree": max_degree, "max_delay": max_delay, "min_delay": min_delay, "washout": washout,
+                "samples": samples, "surrogates": n_sur,
+                "threshold": threshold, "threshold_scale": threshold_scale, "rank_cap": rank_cap, "seed": seed,
+                "rank_tol": rank_tol, "seconds": round(time.perf_counter() - t0, 3)}
+    return IPCResult(labels, terms, degrees, raw, thr, ranks, np.array([x.shape[1] for x in xs]), sur, rank_cap,
+                     settings)
 
 
 def ipc(u: Any, states: Any, **kwargs: Any) -> IPCResult:
@@ -337,10 +426,28 @@ def to_unit_interval(u01: np.ndarray) -> np.ndarray:
     return 2.0 * np.asarray(u01, dtype=np.float64) - 1.0
 
 
+def tanh_reservoir(samples: int, units: int, seed: int = 0, spectral_radius: float = 0.9,
+                   input_scale: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
+    """A random tanh echo-state network driven by i.i.d. u ~ U(−1, 1): (u (T,), states (T, units))."""
+    rng = np.random.default_rng(seed)
+    u = rng.uniform(-1, 1, samples)
+    w = rng.normal(size=(units, units))
+    w *= spectral_radius / np.abs(np.linalg.eigvals(w)).max()
+    w_in = input_scale * rng.uniform(-1, 1, units)
+    x = np.zeros((samples, units))
+    s = np.zeros(units)
+    for t in range(samples):
+        s = np.tanh(w @ s + w_in * u[t])
+        x[t] = s
+    return u, x
+
+
 def benchmark_ipc(samples: int = 3000, masses: int = 17, max_degree: int = 3, max_delay: int = 20,
-                  surrogates: int = 200, seed: int = 0) -> dict[str, Any]:
-    """Time the per-mass IPC of ``masses`` × 2 axes (each coordinate its own 1-D state set) plus all of them
-    together, for a synthetic fading-memory system driven by i.i.d. input (the `bptsb bench` entry)."""
+                  surrogates: int = 1000, seed: int = 0) -> dict[str, Any]:
+    """Time two IPC workloads (the `bptsb bench` entry), each with the reference definition and with
+    ``orthogonalise_linear``: the per-mass IPC of ``masses`` × 2 axes (each coordinate its own 1-D state set)
+    plus all of them together, for a synthetic fading-memory system; and one 2·``masses``-unit tanh reservoir
+    as a single state set. Both driven by i.i.d. input, ``samples`` samples."""
     rng = np.random.default_rng(seed)
     u = rng.uniform(-1, 1, samples)
     # each coordinate: a leaky nonlinear filter of the input with its own time constant
@@ -349,14 +456,27 @@ def benchmark_ipc(samples: int = 3000, masses: int = 17, max_degree: int = 3, ma
     for t in range(1, samples):
         x[t] = a * x[t - 1] + (1 - a) * np.tanh(1.5 * u[t] + 0.3 * x[t - 1])
     groups = [x[:, i] for i in range(2 * masses)] + [x]
-    t0 = time.perf_counter()
-    res = ipc_groups(u, groups, max_degree=max_degree, max_delay=max_delay, washout=100, surrogates=surrogates,
-                     seed=seed)
-    wall = time.perf_counter() - t0
+    ur, xr = tanh_reservoir(samples, 2 * masses, seed)
+    opts = dict(max_degree=max_degree, max_delay=max_delay, washout=100, surrogates=surrogates, seed=seed)
+
+    def timed(u: np.ndarray, groups: list[np.ndarray], orth: bool) -> tuple[IPCResult, float]:
+        t0 = time.perf_counter()
+        res = ipc_groups(u, groups, orthogonalise_linear=orth, **opts)
+        return res, round(time.perf_counter() - t0, 3)
+
+    res, wall = timed(u, groups, False)
+    _, wall_orth = timed(u, groups, True)
+    rres, rwall = timed(ur, [xr], False)
+    _, rwall_orth = timed(ur, [xr], True)
     return {"workload": f"IPC of {masses} masses x 2 axes (+ all together), degree <= {max_degree}, "
-                        f"delay <= {max_delay}, {samples} samples, {surrogates} surrogates",
-            "basis_functions": len(res.terms), "state_sets": len(groups), "seconds": round(wall, 3),
-            "total_capacity_all": round(float(res.total[-1]), 4), "rank_all": int(res.rank[-1])}
+                        f"delay <= {max_delay}, {samples} samples, {surrogates} surrogates per degree tuple",
+            "basis_functions": len(res.terms), "state_sets": len(groups), "seconds": wall,
+            "seconds_orthogonalise_linear": wall_orth,
+            "total_capacity_all": round(float(res.total[-1]), 4), "rank_all": int(res.rank[-1]),
+            "reservoir": {"workload": f"IPC of a {2 * masses}-unit tanh reservoir (one state set), same basis "
+                                      "and surrogates",
+                          "seconds": rwall, "seconds_orthogonalise_linear": rwall_orth,
+                          "by_degree": [round(float(v), 4) for v in rres.by_degree()[0]], "rank": int(rres.rank[0])}}
 
 
 def infer_tau(inputs: dict[int, float]) -> int:

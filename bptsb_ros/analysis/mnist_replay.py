@@ -12,14 +12,16 @@ in float64. They agree when the live loop equals the offline drawing (lockstep: 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
-from bptsb_ros.bags.reader import list_topics, read_messages
+from bptsb_ros.bags.reader import list_topics, read_published
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
 
 
@@ -32,9 +34,11 @@ def _step(msg: Any, dt_ns: int) -> int:
     return int((int(s.sec) * NS_PER_S + int(s.nanosec) + dt_ns // 2) // dt_ns)
 
 
-def read_stream_topics(bag: str | Path, dt: float, skip_damaged: bool = False
+def read_stream_topics(bag: str | Path, dt: float, skip_damaged: bool = False, provenance: Provenance | None = None
                        ) -> tuple[dict[int, np.ndarray], dict[int, int], dict[int, np.ndarray]]:
-    """{step: image (28, 28) uint8}, {step: label}, {step: reset displacement (2M,) [m]} recorded in ``bag``."""
+    """{step: image (28, 28) uint8}, {step: label}, {step: reset displacement (2M,) [m]} recorded in ``bag``, from
+    their owners only (``image_streamer``, ``mnist_brain``: :mod:`bptsb_ros.analysis.provenance`); what was left out
+    is added to ``provenance``."""
     topics = list_topics(bag)
     need = [_topic("image"), _topic("label")]
     missing = [t for t in need if t not in topics]
@@ -45,33 +49,42 @@ def read_stream_topics(bag: str | Path, dt: float, skip_damaged: bool = False
     images: dict[int, np.ndarray] = {}
     labels: dict[int, int] = {}
     resets: dict[int, np.ndarray] = {}
-    for topic, _type, _t, msg in read_messages(bag, wanted, skip_damaged=skip_damaged):
+    own = OwnMessages(bag, {_topic("image"): "image_streamer", _topic("label"): "image_streamer",
+                            _topic("reset_cmd"): "mnist_brain"})
+    if provenance is not None:
+        own.report = provenance
+    for (topic, _type, _t, msg), publisher in read_published(bag, wanted, skip_damaged=skip_damaged):
+        if not own.keep(topic, publisher):
+            continue
         k = _step(msg, dt_ns)
         if topic == _topic("image"):
             if msg.encoding != "mono8" or (msg.height, msg.width) != (28, 28) or len(msg.data) != 784:
                 raise BagError(f"bag {bag}: the image of step {k} is not mono8 28 x 28")
-            images[k] = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(28, 28)
+            own.put(images, k, np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(28, 28), topic, publisher)
         elif topic == _topic("label"):
-            labels[k] = int(round(msg.position[0]))
+            own.put(labels, k, int(round(msg.position[0])), topic, publisher)
         else:
-            resets[k] = np.asarray(msg.position, dtype=np.float64)
+            own.put(resets, k, np.asarray(msg.position, dtype=np.float64), topic, publisher)
     return images, labels, resets
 
 
 def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path | None = None, *, gif: bool = True,
-                 skip_damaged: bool = False) -> dict[str, Any]:
+                 skip_damaged: bool = False, body_node: str = "body_sim") -> dict[str, Any]:
     """Analyse a ``mnist_drawing`` bag; writes ``metrics.json`` and ``drawings.png`` (and ``replay.gif``) to
     ``out_dir`` and returns the metrics. With ``system_path`` (the system file, never a path from the bag) the
     recorded images are drawn offline too and compared."""
-    from bptsb_ros.analysis.replay import _animate, read_run
+    from bptsb_ros.analysis.replay import _animate, read_run, recording_summary
     from bptsb_ros.tasks.mnist_drawing import DigitTargets
     from bptsb_ros.tasks.mnist_live import load_system_as, pixels
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     system = load_system_as(system_path) if system_path is not None else None
-    run = read_run(bag, dt=system.spec.dt if system is not None else None, skip_damaged=skip_damaged)
-    images, labels, resets = read_stream_topics(bag, run.dt, skip_damaged)
+    run = read_run(bag, dt=system.spec.dt if system is not None else None, skip_damaged=skip_damaged,
+                   body_node=body_node, loop="mnist_drawing")
+    images, labels, resets = read_stream_topics(bag, run.dt, skip_damaged, run.provenance)
+    for line in run.provenance.warnings(bag):
+        print(line, file=sys.stderr, flush=True)
     shown = sorted(set(images) & set(labels))
     if not shown:
         raise BagError(f"bag {bag} holds no image with its label")
@@ -99,7 +112,9 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
     metrics: dict[str, Any] = {
         "bag": str(bag), "agent": str(system_path) if system_path is not None else None, "loop": "mnist_drawing",
         "mode": run.custom.get("mode"), "dt": run.dt, "recorded_steps": int(len(run.steps)),
-        "missing_steps": len(run.missing_steps), "episode_steps": episode_steps, "episodes": len(complete),
+        "missing_steps": len(run.missing_steps), "publishers": run.provenance.to_dict(),
+        "recording": recording_summary(run.custom),
+        "episode_steps": episode_steps, "episodes": len(complete),
         "incomplete_episodes": len(shown) - len(complete), "reset_steps": [int(k) for k in complete],
         "labels": y.tolist(),
         "live": {"metric": "drawing_mse", "errors": live_err.tolist(), "drawing_mse": float(live_err.mean()),

@@ -3,27 +3,34 @@ the task's metrics, and compare with the offline simulation of the same agent.
 
 Works on our bags and on any rosbag2 MCAP bag with the loop's topics (``bptsb_ros/ros/TOPICS.md``):
 the body layout comes from the ``body/markers`` topic (spring endpoints, fixed/movable/CMP colours),
-time from the header stamps (sim time of step k = k·dt exactly).
+time from the header stamps (sim time of step k = k·dt exactly). Only the messages of the node that owns each
+topic are used (``body_sim`` for the body's state; :mod:`bptsb_ros.analysis.provenance`): messages of other
+publishers are ignored and reported (``publishers`` in the metrics), a step with two different states from the
+body fails the replay, and a bag that does not record publishers is read whole with a warning.
 """
 
 from __future__ import annotations
 
 import errno
 import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import read_metadata
-from bptsb_ros.bags.reader import list_topics, read_messages
+from bptsb_ros.bags.reader import list_topics, read_published
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute, dt_to_ns
 
 LOOPS_CLOSED = ("lissajous_closed", "locomotion_closed")
 #: loops whose body awaits the wind of every step from ``wind_source``
 LOOPS_WIND = ("locomotion_headwind", "lissajous_switching")
+#: node name (any namespace) of the body simulator, the owner of the body's topics
+BODY_NODE = "body_sim"
 
 
 @dataclass
@@ -48,6 +55,7 @@ class BagRun:
     custom: dict[str, str] = field(default_factory=dict)
     wind: dict[int, tuple[float, float]] = field(default_factory=dict)
     perturbations: dict[int, np.ndarray] = field(default_factory=dict)
+    provenance: Provenance = field(default_factory=Provenance)
 
     @property
     def missing_steps(self) -> list[int]:
@@ -66,7 +74,7 @@ class BagRun:
         lengths = None if self.spring_lengths is None else self.spring_lengths[sl]
         rest = None if self.rest_length is None else self.rest_length[sl]
         return BagRun(self.dt, self.steps[sl], self.positions[sl], lengths, rest, self.springs, self.fixed,
-                      self.cmp_index, self.inputs, self.custom, self.wind, self.perturbations)
+                      self.cmp_index, self.inputs, self.custom, self.wind, self.perturbations, self.provenance)
 
     def wind_series(self, last: int) -> np.ndarray | None:
         """(last + 1, 2) wind [N] in force at steps 0..last from ``env/wind``, or None without wind messages;
@@ -89,14 +97,33 @@ def _topic(key: str) -> str:
     return absolute(TOPICS[key].name)
 
 
-def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = False) -> BagRun:
-    """Read the body topics of a bag into a :class:`BagRun` (``skip_damaged``: skip chunks failing their CRC)."""
+def expected_publishers(loop: str | None, body_node: str = BODY_NODE) -> dict[str, str | None]:
+    """Topic -> the node that owns it in ``loop`` (None: any publisher): the body's topics are ``body_node``'s,
+    ``task/input`` is ``task_input``'s, and ``env/wind`` is ``wind_source``'s in the loops that await it (a user may
+    publish wind in the others)."""
+    owners: dict[str, str | None] = {_topic(k): body_node for k in ("positions", "spring_lengths", "rest_length",
+                                                                    "markers", "perturbation")}
+    owners[_topic("task_input")] = "task_input"
+    owners[_topic("wind")] = "wind_source" if loop in LOOPS_WIND else None
+    return owners
+
+
+def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = False, body_node: str = BODY_NODE,
+             loop: str | None = None) -> BagRun:
+    """Read the body topics of a bag into a :class:`BagRun` (``skip_damaged``: skip chunks failing their CRC).
+
+    Only the messages of each topic's owner are used (:func:`expected_publishers` for ``loop``, default the bag's
+    ``custom_data`` loop; the body is the node named ``body_node``); ``provenance`` reports the others. Raises
+    :class:`BagError` when a step has two different messages from the owner.
+    """
     topics = list_topics(bag)
     pos_topic = _topic("positions")
     if pos_topic not in topics:
         raise BagError(f"bag {bag} has no {pos_topic} topic (geometry_msgs/PoseArray); topics: {', '.join(topics)}")
     wanted = [t for t in (_topic(k) for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input",
                                               "wind", "perturbation")) if t in topics]
+    custom = bag_custom_data(bag)
+    own = OwnMessages(bag, expected_publishers(loop or custom.get("loop"), body_node))
     wind_ns: dict[int, tuple[float, float]] = {}
     kicks_ns: dict[int, np.ndarray] = {}
     pos: dict[int, np.ndarray] = {}
@@ -104,25 +131,30 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     rests: dict[int, np.ndarray] = {}
     inputs_ns: dict[int, float] = {}
     markers = None
-    for topic, _type, _t, msg in read_messages(bag, wanted, skip_damaged=skip_damaged):
+    for (topic, _type, _t, msg), publisher in read_published(bag, wanted, skip_damaged=skip_damaged):
+        if not own.keep(topic, publisher):
+            continue
         if topic == pos_topic:
-            pos[_stamp_ns(msg)] = np.array([(p.position.x, p.position.y) for p in msg.poses])
+            own.put(pos, _stamp_ns(msg), np.array([(p.position.x, p.position.y) for p in msg.poses]), topic, publisher)
         elif topic == _topic("spring_lengths"):
-            lengths[_stamp_ns(msg)] = np.asarray(msg.position, dtype=np.float64)
+            own.put(lengths, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
         elif topic == _topic("rest_length"):
-            rests[_stamp_ns(msg)] = np.asarray(msg.position, dtype=np.float64)
+            own.put(rests, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
         elif topic == _topic("markers") and markers is None:
             markers = msg
         elif topic == _topic("task_input") and len(msg.position):
-            inputs_ns[_stamp_ns(msg)] = float(msg.position[0])
+            own.put(inputs_ns, _stamp_ns(msg), float(msg.position[0]), topic, publisher)
         elif topic == _topic("wind"):
-            wind_ns[_stamp_ns(msg)] = (float(msg.vector.x), float(msg.vector.y))
+            own.put(wind_ns, _stamp_ns(msg), (float(msg.vector.x), float(msg.vector.y)), topic, publisher)
         elif topic == _topic("perturbation"):
             kick = np.asarray(msg.position, dtype=np.float64)
             if kick.size % 2 or not np.isfinite(kick).all():
                 raise BagError(f"bag {bag}: a {topic} message holds {kick.size} values (x, y per movable mass "
                                "expected, all finite)")
-            kicks_ns[_stamp_ns(msg)] = kick.reshape(-1, 2)
+            own.put(kicks_ns, _stamp_ns(msg), kick.reshape(-1, 2), topic, publisher)
+    if not pos and own.report.foreign.get(pos_topic):
+        raise BagError(f"bag {bag} has no {pos_topic} messages from {body_node}, only from "
+                       + ", ".join(f"{name} ({n})" for name, n in own.report.foreign[pos_topic].most_common()))
     if not pos:
         raise BagError(f"bag {bag} has no messages on {pos_topic}")
     stamps = np.array(sorted(pos))
@@ -136,7 +168,6 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     steps = (stamps + dt_ns // 2) // dt_ns  # nearest step, as ros.topics.stamp_to_step
     positions = np.stack([pos[s] for s in stamps])
     springs, fixed, cmp = _layout_from_markers(markers, positions)
-    custom = bag_custom_data(bag)
 
     def stack(d: dict[int, np.ndarray]) -> np.ndarray | None:
         return np.stack([d[s] for s in stamps]) if d and all(s in d for s in stamps) else None
@@ -144,7 +175,15 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     return BagRun(dt_ns / NS_PER_S, steps, positions, stack(lengths), stack(rests), springs, fixed, cmp,
                   {int((s + dt_ns // 2) // dt_ns): u for s, u in inputs_ns.items()}, custom,
                   {int((s + dt_ns // 2) // dt_ns): w for s, w in wind_ns.items()},
-                  {int((s + dt_ns // 2) // dt_ns): d for s, d in kicks_ns.items()})
+                  {int((s + dt_ns // 2) // dt_ns): d for s, d in kicks_ns.items()}, own.report)
+
+
+def recording_summary(custom: dict[str, str]) -> dict[str, Any]:
+    """What the recorder says it lost (``dropped_messages`` None: it did not count, an older recorder)."""
+    from bptsb_ros.bags.recording import recorded_loss
+
+    total, by_topic, complete = recorded_loss(custom)
+    return {"dropped_messages": total, "dropped_by_topic": by_topic, "recording_complete": complete}
 
 
 def bag_custom_data(bag: str | Path) -> dict[str, str]:
@@ -287,8 +326,12 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
 
 
 def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = None, task: str | None = None,
-           loop: str | None = None, gif: bool = True, skip_damaged: bool = False) -> dict[str, Any]:
+           loop: str | None = None, gif: bool = True, skip_damaged: bool = False,
+           body_node: str = BODY_NODE) -> dict[str, Any]:
     """Analyse a bag; writes metrics.json, plots and an animation to ``out_dir``; returns the metrics.
+
+    Only the messages of ``body_node`` (and of the other topics' owners) are used; ``publishers`` in the metrics
+    reports the foreign and duplicate messages left out (warnings on stderr too).
 
     The agent is loaded only from ``agent_dir``, never from a path read from the bag: a bag is untrusted
     data. The agent the bag names (its ``custom_data``) is reported as ``bag_agent`` so the user can pass it.
@@ -301,20 +344,24 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
     if (loop or custom.get("loop")) == "mnist_drawing":  # episodes of drawings: analysis/mnist_replay.py
         from bptsb_ros.analysis.mnist_replay import replay_mnist
 
-        return replay_mnist(bag, out_dir, agent_dir, gif=gif, skip_damaged=skip_damaged)
+        return replay_mnist(bag, out_dir, agent_dir, gif=gif, skip_damaged=skip_damaged, body_node=body_node)
     named = custom.get("agent") if custom.get("agent") not in (None, "", "fresh") else None
     config: dict[str, Any] = {}
     if agent_dir is not None:
         from bptsb_ros.training.checkpoint import read_checkpoint
 
         config = read_checkpoint(agent_dir)["config"]
-    run = read_run(bag, dt=float(config["body"]["dt"]) if config else None, skip_damaged=skip_damaged)
+    run = read_run(bag, dt=float(config["body"]["dt"]) if config else None, skip_damaged=skip_damaged,
+                   body_node=body_node, loop=loop)
+    for line in run.provenance.warnings(bag):
+        print(line, file=sys.stderr, flush=True)
     task = task or config.get("task")
     loop = loop or run.custom.get("loop")
     metrics: dict[str, Any] = {"bag": str(bag), "agent": str(agent_dir) if agent_dir else None,
                                **({"bag_agent": named} if named and agent_dir is None else {}), "loop": loop,
                                "mode": run.custom.get("mode"), "dt": run.dt, "recorded_steps": int(len(run.steps)),
-                               "missing_steps": len(run.missing_steps)}
+                               "missing_steps": len(run.missing_steps), "publishers": run.provenance.to_dict(),
+                               "recording": recording_summary(run.custom)}
     segment = run.rows(run.longest_contiguous())
     if metrics["missing_steps"]:
         metrics["metric_steps"] = [int(segment.steps[0]), int(segment.steps[-1])]

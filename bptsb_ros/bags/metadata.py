@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
 import yaml
@@ -189,3 +189,25 @@ def read_metadata(bag_dir: str | Path) -> BagMetadata:
         return BagMetadata.from_dict(data[ROOT_KEY])
     except BagError as exc:
         raise BagError(f"{path}: {exc}; {hint}") from None
+
+
+def bag_file(bag_dir: str | Path, relative: str) -> Path:
+    """The storage file that ``metadata.yaml`` names ``relative`` (data, never a path to follow anywhere), inside
+    ``bag_dir``. Raise :class:`BagError` for a name that is empty, absolute, has a ``..`` part, or resolves
+    (through symbolic links) outside the bag directory: ``bag info`` and ``replay`` never read such a file."""
+    bag_dir = Path(bag_dir)
+    text = str(relative)
+    parts = PurePosixPath(text).parts + PureWindowsPath(text).parts
+    if (not text.strip() or "\0" in text or PurePosixPath(text).is_absolute() or PureWindowsPath(text).is_absolute()
+            or PureWindowsPath(text).drive or ".." in parts):
+        raise BagError(f"{bag_dir / METADATA_FILENAME} lists the storage file {bounded_repr(text, 120)}, which is "
+                       "not a file name inside the bag directory; refusing to read it")
+    path = bag_dir / text
+    try:
+        inside = path.resolve().is_relative_to(bag_dir.resolve())
+    except (OSError, RuntimeError):  # a symbolic link loop
+        inside = False
+    if not inside:
+        raise BagError(f"{bag_dir / METADATA_FILENAME} lists the storage file {bounded_repr(text, 120)}, which leads "
+                       "outside the bag directory (a symbolic link); refusing to read it")
+    return path

@@ -30,9 +30,11 @@ from mcap.stream_reader import get_chunk_data_stream
 from mcap.summary import Summary
 
 from bptsb_ros.bags.errors import BagError
-from bptsb_ros.bags.metadata import METADATA_FILENAME, BagMetadata, TopicInfo, read_metadata
+from bptsb_ros.bags.metadata import METADATA_FILENAME, BagMetadata, TopicInfo, bag_file, read_metadata
 from bptsb_ros.bags.msgdefs import get_message_class
+from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, names_from_record
 from bptsb_ros.bags.qos import qos_profiles_from_value
+from bptsb_ros.bags.recording import RECORDING_RECORD, recorded_loss
 from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
 
 
@@ -60,6 +62,15 @@ class TopicSeries:
         return (self.t_ns - self.t_ns[0]) / 1e9 if len(self.t_ns) else np.zeros(0)
 
 
+@dataclass(frozen=True)
+class PublisherCount:
+    """``count`` messages of ``topic`` came from ``publisher`` (None: the bag does not say who sent them)."""
+
+    topic: str
+    publisher: PublisherId | None
+    count: int
+
+
 @dataclass
 class BagInfo:
     """Summary of a bag, as ``ros2 bag info`` shows it. Times in ns since the Unix epoch, sizes in bytes."""
@@ -78,6 +89,13 @@ class BagInfo:
     profile: str = ""
     library: str = ""
     damaged_chunks: list[str] = field(default_factory=list)
+    #: messages per topic and publisher, from the MCAP channels (publisher None: not recorded)
+    publishers: list[PublisherCount] = field(default_factory=list)
+    #: messages the recorder lost (None: it did not count, an older recorder), per topic, and whether its final
+    #: drain completed (``custom_data`` ``dropped_messages``, ``dropped_by_topic``, ``recording_complete``)
+    dropped_messages: int | None = None
+    dropped_by_topic: dict[str, int] = field(default_factory=dict)
+    recording_complete: bool = True
 
     @property
     def duration_ns(self) -> int:
@@ -94,7 +112,9 @@ def mcap_files(path: str | Path) -> list[Path]:
     metadata = read_metadata(path)
     if metadata.storage_identifier != "mcap":
         raise BagError(f"{path} uses storage {metadata.storage_identifier!r}; only 'mcap' bags are supported")
-    files = [path / rel for rel in metadata.relative_file_paths]
+    files = [bag_file(path, rel) for rel in metadata.relative_file_paths]
+    if not files:
+        raise BagError(f"{path}/{METADATA_FILENAME} lists no storage file")
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
         raise BagError(f"{path}/{METADATA_FILENAME} lists files that do not exist: {', '.join(missing)}")
@@ -176,6 +196,23 @@ class _McapFile:
             return f"{type(exc).__name__}: {str(exc)[:160]}"
         return ""
 
+    def publishers(self) -> dict[int, PublisherId | None]:
+        """Channel id -> the publisher its metadata names (None: not recorded), with the node names of the
+        ``bptsb_ros.publishers`` record where it has them."""
+        names: dict[str, str] = {}
+        if any(PublisherId.from_channel_metadata(ch.metadata) for ch in self.summary.channels.values()):
+            try:
+                for record in self.reader.iter_metadata():
+                    if record.name == PUBLISHERS_RECORD:
+                        names.update(names_from_record(record.metadata))
+            except Exception:  # noqa: BLE001 - an unreadable record: keep the names of the channels
+                names = {}
+        out: dict[int, PublisherId | None] = {}
+        for cid, ch in self.summary.channels.items():
+            publisher = PublisherId.from_channel_metadata(ch.metadata)
+            out[cid] = None if publisher is None else publisher.renamed(names.get(publisher.gid, ""))
+        return out
+
     def drop_chunks(self, damaged: list[DamagedChunk]) -> bool:
         """Leave ``damaged`` out of the summary the reader iterates; False when no chunk is left."""
         offsets = {d.offset for d in damaged}
@@ -224,7 +261,8 @@ def read_messages(
     skip_damaged: bool = False,
 ) -> Iterator[BagMessage]:
     """Iterate the messages of a bag: in receive-time order within each MCAP file, file after file (the files
-    of a bag written by one recorder follow each other in time).
+    of a bag written by one recorder follow each other in time). Every message of a topic comes back, whoever
+    published it; :func:`read_published` also says who did.
 
     :param path: bag directory or ``.mcap`` file.
     :param topics: topics to read (all when ``None``); a topic the bag does not have raises :class:`BagError`.
@@ -234,6 +272,35 @@ def read_messages(
     :param skip_damaged: skip chunks that fail their CRC check (with a warning on stderr) instead of raising
         :class:`BagError` naming them.
     """
+    classes: dict[str, type] = {}
+    for schema, channel, message, _ in _records(path, topics, start_ns, end_ns, skip_damaged):
+        yield _decode(schema, channel, message, raw, classes)
+
+
+class PublishedMessage(NamedTuple):
+    """A message and who published it: ``publisher`` is None when the bag does not say (its channel has no
+    ``publisher_gid``: see :mod:`bptsb_ros.bags.publishers`)."""
+
+    message: BagMessage
+    publisher: PublisherId | None
+
+
+def read_published(
+    path: str | Path,
+    topics: Iterable[str] | None = None,
+    *,
+    raw: bool = False,
+    skip_damaged: bool = False,
+) -> Iterator[PublishedMessage]:
+    """Like :func:`read_messages`, with each message's publisher (GID and node, from its channel)."""
+    classes: dict[str, type] = {}
+    for schema, channel, message, publisher in _records(path, topics, None, None, skip_damaged):
+        yield PublishedMessage(_decode(schema, channel, message, raw, classes), publisher)
+
+
+def _records(
+    path: str | Path, topics: Iterable[str] | None, start_ns: int | None, end_ns: int | None, skip_damaged: bool
+) -> Iterator[tuple[Schema | None, Channel, Message, PublisherId | None]]:
     files = mcap_files(path)
     wanted = None if topics is None else list(dict.fromkeys([topics] if isinstance(topics, str) else topics))
     if wanted is not None:
@@ -241,7 +308,6 @@ def read_messages(
         unknown = [t for t in wanted if t not in available]
         if unknown:
             raise BagError(f"topic(s) not in bag {path}: {', '.join(unknown)}; available: {', '.join(available)}")
-    classes: dict[str, type] = {}
     for file in files:
         with _McapFile(file) as mf:
             damaged = mf.damaged_chunks()
@@ -252,10 +318,11 @@ def read_messages(
             if damaged and not mf.drop_chunks(damaged):
                 continue
             try:
+                publishers = mf.publishers()
                 for schema, channel, message in mf.reader.iter_messages(
                     topics=wanted, starting_at=start_ns, ending_before=end_ns, log_time_order=True
                 ):
-                    yield _decode(schema, channel, message, raw, classes)
+                    yield schema, channel, message, publishers.get(channel.id)
             except BagError:
                 raise
             except Exception as exc:
@@ -373,6 +440,7 @@ def bag_info(path: str | Path) -> BagInfo:
     files = mcap_files(path)
     metadata: BagMetadata | None = read_metadata(path) if path.is_dir() else None
     chunk_count, compressions, topics, damaged = 0, set(), {}, []
+    by_publisher: dict[tuple[str, str], PublisherCount] = {}
     start, end, count, profile, library = None, None, 0, "", ""
     for file in files:
         with _McapFile(file) as mf:
@@ -385,7 +453,13 @@ def bag_info(path: str | Path) -> BagInfo:
                 start = stats.message_start_time if start is None else min(start, stats.message_start_time)
                 end = stats.message_end_time if end is None else max(end, stats.message_end_time)
                 count += stats.message_count
+            publishers = mf.publishers()
             for cid, ch in summary.channels.items():
+                publisher = publishers.get(cid)
+                key = (ch.topic, publisher.gid if publisher else "")
+                n = stats.channel_message_counts.get(cid, 0) if stats is not None else 0
+                old = by_publisher.get(key)
+                by_publisher[key] = PublisherCount(ch.topic, publisher, n + (old.count if old else 0))
                 info = topics.setdefault(ch.topic, TopicInfo(
                     name=ch.topic, msgtype=summary.schemas[ch.schema_id].name if ch.schema_id else "",
                     offered_qos_profiles=qos_profiles_from_value(ch.metadata.get("offered_qos_profiles")),
@@ -394,21 +468,36 @@ def bag_info(path: str | Path) -> BagInfo:
                 ))
                 if stats is not None:
                     info.message_count += stats.channel_message_counts.get(cid, 0)
+    custom = metadata.custom_data if metadata is not None else _recording_record(files[0])
+    dropped, by_topic, complete = recorded_loss(custom)
+    loss = {"dropped_messages": dropped, "dropped_by_topic": by_topic, "recording_complete": complete}
     if metadata is not None:
         return BagInfo(
             path=path, files=files, size_bytes=sum(f.stat().st_size for f in files),
             storage_identifier=metadata.storage_identifier, ros_distro=metadata.ros_distro,
             start_ns=metadata.starting_time_ns, end_ns=metadata.end_time_ns, message_count=metadata.message_count,
             topics=metadata.topics, chunk_count=chunk_count, chunk_compressions=sorted(compressions),
-            profile=profile, library=library, damaged_chunks=damaged,
+            profile=profile, library=library, damaged_chunks=damaged, publishers=list(by_publisher.values()), **loss,
         )
     return BagInfo(
         path=path, files=files, size_bytes=sum(f.stat().st_size for f in files), storage_identifier="mcap",
         ros_distro=_ros_distro_record(files[0]), start_ns=start or 0, end_ns=end or 0, message_count=count,
         topics=list(topics.values()),
         chunk_count=chunk_count, chunk_compressions=sorted(compressions), profile=profile, library=library,
-        damaged_chunks=damaged,
+        damaged_chunks=damaged, publishers=list(by_publisher.values()), **loss,
     )
+
+
+def _recording_record(file: Path) -> dict[str, str]:
+    """The recorder's loss entries (``bptsb_ros.recording`` record) of a lone MCAP file; {} without them."""
+    with _McapFile(file) as mf:
+        try:
+            for record in mf.reader.iter_metadata():
+                if record.name == RECORDING_RECORD:
+                    return {str(k)[:64]: str(v)[:4096] for k, v in record.metadata.items()}
+        except Exception:  # noqa: BLE001 - an unreadable record: no loss entries
+            return {}
+    return {}
 
 
 def _ros_distro_record(file: Path) -> str:
@@ -439,6 +528,19 @@ def _stamp(ns: int) -> str:
     return f"{when:%b %d %Y %H:%M:%S}.{ns % 1_000_000_000:09d} UTC ({ns // 1_000_000_000}.{ns % 1_000_000_000:09d})"
 
 
+def _publisher_lines(counts: list[PublisherCount]) -> list[str]:
+    """``Publishers:`` lines (topic: node (GID) count, ...) when the bag records who sent its messages."""
+    if not any(c.publisher is not None for c in counts):
+        return ["Publishers:        not recorded (messages cannot be attributed to their senders)"]
+    lines = []
+    for topic in dict.fromkeys(c.topic for c in counts):
+        parts = [f"{c.publisher.name} [{c.publisher.gid}] {c.count}" if c.publisher else f"unknown {c.count}"
+                 for c in counts if c.topic == topic and (c.count or c.publisher)]
+        if parts:
+            lines.append(("Publishers:        " if not lines else " " * 19) + f"{topic}: " + ", ".join(parts))
+    return lines
+
+
 def format_info(info: BagInfo) -> str:
     """Render :class:`BagInfo` the way ``ros2 bag info`` lays it out."""
     pad = " " * 19
@@ -462,6 +564,11 @@ def format_info(info: BagInfo) -> str:
                      f"Serialization Format: {t.serialization_format}")
     if not info.topics:
         lines.append("Topic information: (none)")
+    lines += _publisher_lines(info.publishers)
+    if info.dropped_messages is not None:
+        parts = ", ".join(f"{t} {n}" for t, n in info.dropped_by_topic.items())
+        lines.append(f"Lost messages:     {info.dropped_messages}" + (f" ({parts})" if parts else "")
+                     + ("" if info.recording_complete else "; the recorder's final drain was cut short"))
     for i, text in enumerate(info.damaged_chunks):
         lines.append(("DAMAGED:           " if i == 0 else pad) + text)
     if info.damaged_chunks:

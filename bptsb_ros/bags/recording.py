@@ -1,13 +1,30 @@
-"""ROS-free logic of the recorder node: its parameters, which topics to record, and with which QoS.
+"""ROS-free logic of the recorder node: its parameters, which topics to record and with which QoS, what it lost,
+and how far it has recorded a lockstep run.
 
 The node (:mod:`bptsb_ros.ros.recorder`) is a thin rclpy adapter over this module and
 :class:`bptsb_ros.bags.writer.BagWriter`, so everything here is testable without a ROS graph.
+
+**Losses** (:class:`LossCount`). DDS numbers the messages of each publisher (writer) 1, 2, 3, ...; a recorded
+message whose sequence number jumps past the previous one of the same publisher means the messages in between
+were published and never recorded (overwritten in the publisher's or the recorder's history). The middleware also
+reports messages it knows it lost (``message_lost`` events: a reliable publisher gave up on them). A topic's drop
+count is the larger of the two (they see the same losses from two sides), plus the messages still arriving when
+the stop timeout cut the final drain short (unknown: at least one). The totals go into the bag (``custom_data``
+``dropped_messages`` and ``dropped_by_topic``, JSON) and decide the recorder's exit status.
+
+**Acknowledgements** (:class:`StepAck`, lockstep). The recorder publishes on ``ack_topic`` the sim time t_j up to
+which it has taken a message of every ``ack_topics`` topic (the loop's per-step topics, whose first field is a
+header stamp or a Clock): ``body_sim`` waits for it before announcing a step too far ahead (``recorder_window``),
+so no message of the run is ever overwritten before the recorder has it.
 """
 
 from __future__ import annotations
 
+import json
+import struct
+from collections import Counter
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from bptsb_ros.bags.qos import QosProfile
@@ -36,7 +53,14 @@ RECORDER_PARAMS: tuple[Param, ...] = (
     Param("stop_timeout", 8.0, "Longest time in seconds spent taking in-flight messages after SIGINT/SIGTERM "
           "before the bag is closed (below the launcher's default --grace of 10 s).", "float", positive=True),
     Param("custom_data", [], "'key=value' strings stored in custom_data of metadata.yaml (the recorder adds "
-          "log_time: sim or system).", "str_list"),
+          "log_time: sim or system, and dropped_messages / dropped_by_topic).", "str_list"),
+    Param("allow_loss", False, "exit 0 even when messages were lost (counted in the bag either way); false: exit 1 "
+          "when any was", "bool"),
+    Param("ack_topic", "", "lockstep: publish on this topic (rosgraph_msgs/Clock, reliable, transient-local, depth 1) "
+          "the sim time up to which every ack_topics topic is recorded, for body_sim's wait_for_recorder; empty: "
+          "no acknowledgements", "str"),
+    Param("ack_topics", [], "the per-step topics whose recording ack_topic acknowledges (messages stamped by a "
+          "header or a Clock; relative names resolve in the recorder's namespace)", "str_list"),
     LOG_LEVEL,
 )
 
@@ -57,6 +81,9 @@ class RecorderConfig:
     drain_quiet: float
     stop_timeout: float
     custom_data: dict[str, str]
+    allow_loss: bool = False
+    ack_topic: str = ""
+    ack_topics: tuple[str, ...] = ()
 
     @classmethod
     def from_values(cls, values: dict[str, Any], namespace: str = "/") -> RecorderConfig:
@@ -65,6 +92,8 @@ class RecorderConfig:
         bag_path = str(values["bag_path"]).strip()
         if not bag_path:
             raise ParameterError("parameter 'bag_path' is required (e.g. -p bag_path:=bags/run1)")
+        if values["ack_topic"] and not values["ack_topics"]:
+            raise ParameterError("parameter 'ack_topic' needs 'ack_topics': the per-step topics it acknowledges")
         return cls(
             bag_path=bag_path,
             topics=tuple(dict.fromkeys(absolute_topic(t, "topics", namespace) for t in values["topics"])),
@@ -78,6 +107,9 @@ class RecorderConfig:
             drain_quiet=float(values["drain_quiet"]),
             stop_timeout=float(values["stop_timeout"]),
             custom_data=parse_custom_data(values["custom_data"]),
+            allow_loss=bool(values["allow_loss"]),
+            ack_topic=absolute_topic(values["ack_topic"], "ack_topic", namespace) if values["ack_topic"] else "",
+            ack_topics=tuple(dict.fromkeys(absolute_topic(t, "ack_topics", namespace) for t in values["ack_topics"])),
         )
 
 
@@ -144,3 +176,121 @@ def incompatible_offers(offered: list[QosProfile], requested: tuple[str, str]) -
         if (reliability == "reliable" and p.reliability == "best_effort")
         or (durability == "transient_local" and p.durability == "volatile")
     ]
+
+
+#: MCAP metadata record of the recorder's loss entries (the same as in ``custom_data``)
+RECORDING_RECORD = "bptsb_ros.recording"
+#: rmw's "sequence numbers unsupported" value
+SEQUENCE_UNSUPPORTED = 2**64 - 1
+
+
+@dataclass
+class LossCount:
+    """Messages a recording lost, per topic (see the module docstring). Sequence numbers are per publisher GID."""
+
+    gaps: Counter = field(default_factory=Counter)
+    lost_events: Counter = field(default_factory=Counter)
+    cut_short: bool = False
+    _last: dict[tuple[str, str], int] = field(default_factory=dict)
+
+    def see(self, topic: str, publisher: str, sequence: int) -> int:
+        """Count a recorded message with ``sequence`` (0 or unsupported: not numbered) from ``publisher``; return
+        how many messages before it were skipped."""
+        if sequence <= 0 or sequence == SEQUENCE_UNSUPPORTED:
+            return 0
+        key = (topic, publisher)
+        last = self._last.get(key)
+        self._last[key] = sequence if last is None else max(last, sequence)
+        if last is None or sequence <= last + 1:
+            return 0
+        self.gaps[topic] += sequence - last - 1
+        return sequence - last - 1
+
+    def lost(self, topic: str, count: int) -> None:
+        """``count`` more messages the middleware reports lost on ``topic``."""
+        if count > 0:
+            self.lost_events[topic] += count
+
+    def by_topic(self) -> dict[str, int]:
+        """Messages lost per topic: the larger of sequence gaps and middleware reports."""
+        return {t: max(self.gaps[t], self.lost_events[t]) for t in sorted(set(self.gaps) | set(self.lost_events))
+                if max(self.gaps[t], self.lost_events[t]) > 0}
+
+    @property
+    def total(self) -> int:
+        return sum(self.by_topic().values())
+
+    @property
+    def any(self) -> bool:
+        """Whether anything was lost (a drain cut short counts, the number being unknown)."""
+        return self.total > 0 or self.cut_short
+
+    def custom_data(self) -> dict[str, str]:
+        """The ``custom_data`` entries of the bag: ``dropped_messages`` (total), ``dropped_by_topic`` (JSON) and
+        ``recording_complete`` (``false`` when the final drain was cut short)."""
+        return {"dropped_messages": str(self.total), "dropped_by_topic": json.dumps(self.by_topic()),
+                "recording_complete": "false" if self.cut_short else "true"}
+
+
+def recorded_loss(custom_data: dict[str, str]) -> tuple[int | None, dict[str, int], bool]:
+    """(total, per topic, complete) from a bag's ``custom_data`` (total None: the recorder did not count)."""
+    if "dropped_messages" not in custom_data:
+        return None, {}, True
+    try:
+        total = int(custom_data["dropped_messages"])
+        raw = json.loads(custom_data.get("dropped_by_topic") or "{}")
+        per_topic = {str(k)[:256]: int(v) for k, v in raw.items()} if isinstance(raw, dict) else {}
+    except (ValueError, TypeError):
+        return None, {}, True
+    return total, per_topic, custom_data.get("recording_complete", "true") != "false"
+
+
+#: types whose serialized form starts with a stamp: a Clock, or a std_msgs/Header as first field
+STAMPED_TYPES = frozenset({
+    "rosgraph_msgs/msg/Clock", "geometry_msgs/msg/PoseArray", "sensor_msgs/msg/JointState",
+    "geometry_msgs/msg/Vector3Stamped", "geometry_msgs/msg/PointStamped", "geometry_msgs/msg/PoseStamped",
+    "diagnostic_msgs/msg/DiagnosticArray", "sensor_msgs/msg/Image", "std_msgs/msg/Header",
+})
+
+
+def cdr_stamp_ns(data: bytes) -> int:
+    """The stamp [ns] at the start of a CDR message of a :data:`STAMPED_TYPES` type: after the 4-byte encapsulation
+    header (byte 1: 1 little-endian, 0 big-endian) an int32 sec and a uint32 nanosec. Raises ValueError for a
+    message too short to hold one."""
+    if len(data) < 12:
+        raise ValueError(f"a {len(data)}-byte message holds no stamp")
+    sec, nanosec = struct.unpack_from("<iI" if data[1] & 1 else ">iI", data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+class StepAck:
+    """How far a lockstep run is recorded: the smallest, over ``topics``, of the newest stamp taken on it [ns]
+    (None until every topic has a message). Topics of other types than :data:`STAMPED_TYPES` cannot be
+    acknowledged (``refuse`` them)."""
+
+    def __init__(self, topics: Iterable[str]) -> None:
+        self.newest: dict[str, int | None] = dict.fromkeys(topics)
+        self.published: int | None = None
+
+    def refuse(self, topic: str) -> None:
+        """Leave ``topic`` out (its type carries no stamp)."""
+        self.newest.pop(topic, None)
+
+    def see(self, topic: str, data: bytes) -> None:
+        if topic in self.newest:
+            stamp = cdr_stamp_ns(data)
+            old = self.newest[topic]
+            self.newest[topic] = stamp if old is None else max(old, stamp)
+
+    def value(self) -> int | None:
+        if not self.newest or any(v is None for v in self.newest.values()):
+            return None
+        return min(v for v in self.newest.values() if v is not None)
+
+    def due(self) -> int | None:
+        """The acknowledgement to publish now (it advanced since the last one), or None; marks it published."""
+        value = self.value()
+        if value is None or (self.published is not None and value <= self.published):
+            return None
+        self.published = value
+        return value

@@ -47,6 +47,7 @@ from bptsb_ros.bags.metadata import (
     read_metadata,
     write_metadata,
 )
+from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, names_from_record
 from bptsb_ros.bags.qos import qos_profiles_from_value
 from bptsb_ros.bags.writer import CUSTOM_DATA_RECORD, DEFAULT_CHUNK_SIZE, McapStream
 from bptsb_ros.safe_files import UnsafeFileError, open_regular
@@ -140,6 +141,7 @@ class _Scan:
         self.out = out
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
+        self.publishers: dict[int, PublisherId | None] = {}
         self.custom_data: dict[str, str] = {}
         self.messages = 0
         self.chunks = 0
@@ -216,6 +218,9 @@ class _Scan:
             if record.name == CUSTOM_DATA_RECORD:
                 self.custom_data.update(record.metadata)
                 self.out.add_metadata(record.name, record.metadata)
+            elif record.name == PUBLISHERS_RECORD:  # node names learnt after the publishers' first messages
+                for gid, name in names_from_record(record.metadata).items():
+                    self.out.name_publisher(PublisherId(gid).renamed(name))
             elif record.name == "rosbag2" and "serialized_metadata" in record.metadata:
                 try:
                     parsed = load_untrusted_yaml(record.metadata["serialized_metadata"], "rosbag2 metadata record")
@@ -255,21 +260,23 @@ class _Scan:
         if known is not None and known.msgtype != schema.name:
             raise BagError(f"topic {channel.topic} appears with two types ({known.msgtype}, {schema.name})")
         self.channels[channel.id] = channel
-        if known is None:
-            info = TopicInfo(
-                name=channel.topic, msgtype=schema.name,
-                offered_qos_profiles=qos_profiles_from_value(channel.metadata.get("offered_qos_profiles")),
-                type_description_hash=channel.metadata.get("topic_type_hash", ""),
-                serialization_format=channel.message_encoding,
-            )
-            schema_id = self.out.add_schema(schema.name, schema.encoding, schema.data.decode())
-            self.out.add_channel(info, schema_id, dict(channel.metadata))
+        publisher = PublisherId.from_channel_metadata(channel.metadata)
+        self.publishers[channel.id] = publisher
+        info = TopicInfo(
+            name=channel.topic, msgtype=schema.name,
+            offered_qos_profiles=qos_profiles_from_value(channel.metadata.get("offered_qos_profiles")),
+            type_description_hash=channel.metadata.get("topic_type_hash", ""),
+            serialization_format=channel.message_encoding,
+        )
+        schema_id = self.out.add_schema(schema.name, schema.encoding, schema.data.decode())
+        self.out.add_channel(info, schema_id, dict(channel.metadata), publisher)
 
     def _message(self, message: Message) -> None:
         channel = self.channels.get(message.channel_id)
         if channel is None:
             raise BagError(f"message on unknown channel {message.channel_id}")
-        self.out.add_message(channel.topic, message.data, message.log_time, message.publish_time, message.sequence)
+        self.out.add_message(channel.topic, message.data, message.log_time, message.publish_time, message.sequence,
+                             self.publishers[message.channel_id])
         self.messages += 1
 
 

@@ -1,10 +1,13 @@
 """ROS-free writer of rosbag2 bag directories with one MCAP file (``<bag>/metadata.yaml`` + ``<bag>/<bag>_0.mcap``).
 
 The MCAP file follows what ``rosbag2_storage_mcap`` (Jazzy) writes: profile ``ros2``; one schema per message type
-with encoding ``ros2msg`` and the full definition text (see :mod:`bptsb_ros.bags.msgdefs`); one channel per topic
-with message encoding ``cdr`` and channel metadata ``offered_qos_profiles`` (YAML) and ``topic_type_hash``
-(``RIHS01_...``); messages with log time = receive time; a ``rosbag2`` metadata record holding the serialized
-bag metadata; chunk indexes, message indexes, statistics and summary offsets.
+with encoding ``ros2msg`` and the full definition text (see :mod:`bptsb_ros.bags.msgdefs`); channels with message
+encoding ``cdr`` and channel metadata ``offered_qos_profiles`` (YAML) and ``topic_type_hash`` (``RIHS01_...``);
+messages with log time = receive time; a ``rosbag2`` metadata record holding the serialized bag metadata; chunk
+indexes, message indexes, statistics and summary offsets. A message written with its publisher's identity goes to
+the channel of its (topic, publisher), whose metadata also names the publisher (:mod:`bptsb_ros.bags.publishers`);
+one written without goes to the topic's plain channel. A topic that never got a message still gets its plain
+channel when the bag is closed.
 
 Chunks are compressed with zstd by default (every MCAP reader — rosbag2, Foxglove, ``mcap``, ``rosbags`` —
 supports it; rosbag2 writes uncompressed chunks unless told otherwise). A chunk is closed when it reaches
@@ -26,6 +29,7 @@ from mcap.writer import CompressionType, Writer
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import BagMetadata, FileInfo, TopicInfo, write_metadata
 from bptsb_ros.bags.msgdefs import MessageDefinition, message_definition, normalize_type, type_description_hash
+from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, base_channel_metadata
 from bptsb_ros.bags.qos import QosProfile, qos_profiles_to_yaml
 
 DEFAULT_CHUNK_SIZE = 768 * 1024  # bytes, the rosbag2_storage_mcap default
@@ -60,7 +64,9 @@ def check_stream_options(chunk_size: int, compression: str) -> None:
 class McapStream:
     """An MCAP ``ros2``-profile stream of schemas, channels and messages, with per-topic bookkeeping.
 
-    Shared by :class:`BagWriter` and the recovery tool so both write identical files. Times are in ns.
+    Shared by :class:`BagWriter` and the recovery tool so both write identical files. Times are in ns. Channels
+    are keyed by (topic, publisher GID), '' for the topic's plain channel; each is registered when its first
+    message (or :meth:`add_channel`) needs it.
     """
 
     def __init__(
@@ -74,8 +80,14 @@ class McapStream:
             # Written up front so that a recovered bag keeps it; metadata.yaml gets it again on close.
             self._writer.add_metadata(CUSTOM_DATA_RECORD, dict(custom_data))
         self._schemas: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
+        self._topic_schema: dict[str, int] = {}
+        self._topic_metadata: dict[str, dict[str, str]] = {}
+        self._channels: dict[tuple[str, str], int] = {}
         self.topics: dict[str, TopicInfo] = {}
+        #: publisher GID -> identity (the latest name known), for the ``bptsb_ros.publishers`` record
+        self.publishers: dict[str, PublisherId] = {}
+        #: messages per (topic, publisher GID), '' for messages without an identity
+        self.channel_counts: dict[tuple[str, str], int] = {}
         self.start_ns: int | None = None
         self.end_ns: int | None = None
         self.message_count = 0
@@ -88,22 +100,52 @@ class McapStream:
             self._schemas[name] = self._writer.register_schema(name=name, encoding=encoding, data=text.encode())
         return self._schemas[name]
 
-    def add_channel(self, info: TopicInfo, schema_id: int, metadata: dict[str, str]) -> None:
-        self._channels[info.name] = self._writer.register_channel(
-            topic=info.name, message_encoding=info.serialization_format, schema_id=schema_id, metadata=metadata
-        )
-        self.topics[info.name] = info
+    def add_topic(self, info: TopicInfo, schema_id: int, metadata: dict[str, str]) -> None:
+        """Add a topic (its channels are registered when needed); adding a known topic again is a no-op."""
+        if info.name not in self.topics:
+            self.topics[info.name] = info
+            self._topic_schema[info.name] = schema_id
+            self._topic_metadata[info.name] = base_channel_metadata(metadata)
 
-    def add_message(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int, sequence: int) -> None:
-        channel_id = self._channels.get(topic)
+    def add_channel(self, info: TopicInfo, schema_id: int, metadata: dict[str, str],
+                    publisher: PublisherId | None = None) -> None:
+        """Add the topic if new and register the channel of (topic, ``publisher``) now."""
+        self.add_topic(info, schema_id, metadata)
+        self._channel(info.name, publisher)
+
+    def name_publisher(self, publisher: PublisherId) -> None:
+        """Record (or update) the node name of a publisher GID for the ``bptsb_ros.publishers`` record."""
+        known = self.publishers.get(publisher.gid)
+        if known is None or publisher.node:
+            self.publishers[publisher.gid] = publisher
+
+    def _channel(self, topic: str, publisher: PublisherId | None) -> int:
+        key = (topic, publisher.gid if publisher is not None else "")
+        channel_id = self._channels.get(key)
         if channel_id is None:
+            metadata = dict(self._topic_metadata[topic])
+            if publisher is not None:
+                metadata.update(publisher.channel_metadata())
+                self.name_publisher(publisher)
+            channel_id = self._channels[key] = self._writer.register_channel(
+                topic=topic, message_encoding=self.topics[topic].serialization_format,
+                schema_id=self._topic_schema[topic], metadata=metadata,
+            )
+        return channel_id
+
+    def add_message(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int, sequence: int,
+                    publisher: PublisherId | None = None) -> None:
+        """Append one message to the channel of (topic, ``publisher``)."""
+        if topic not in self.topics:
             raise BagError(f"topic {topic!r} was not added to the bag; call add_topic first")
         if log_time_ns < 0:
             raise BagError(f"negative timestamp {log_time_ns} ns on {topic}")
         self._writer.add_message(
-            channel_id=channel_id, log_time=log_time_ns, data=data, publish_time=publish_time_ns,
-            sequence=sequence & 0xFFFFFFFF,
+            channel_id=self._channel(topic, publisher), log_time=log_time_ns, data=data,
+            publish_time=publish_time_ns, sequence=sequence & 0xFFFFFFFF,
         )
+        key = (topic, publisher.gid if publisher is not None else "")
+        self.channel_counts[key] = self.channel_counts.get(key, 0) + 1
         self.topics[topic].message_count += 1
         self.message_count += 1
         self.start_ns = log_time_ns if self.start_ns is None else min(self.start_ns, log_time_ns)
@@ -123,8 +165,18 @@ class McapStream:
             custom_data=dict(custom_data),
         )
 
-    def finish(self, metadata: BagMetadata) -> None:
-        """Write the ``rosbag2`` metadata record, the summary and the footer."""
+    def finish(self, metadata: BagMetadata, records: dict[str, dict[str, str]] | None = None) -> None:
+        """Give every topic without a channel its plain one, write the ``bptsb_ros.publishers`` record (when a
+        message had an identity), ``records`` (name -> string map), the ``rosbag2`` metadata record, the summary
+        and the footer."""
+        channelled = {topic for topic, _ in self._channels}
+        for topic in self.topics:
+            if topic not in channelled:
+                self._channel(topic, None)
+        if self.publishers:
+            self._writer.add_metadata(PUBLISHERS_RECORD, {gid: p.name for gid, p in sorted(self.publishers.items())})
+        for name, data in (records or {}).items():
+            self._writer.add_metadata(name, dict(data))
         self._writer.add_metadata("rosbag2", {"serialized_metadata": metadata.to_yaml(root=False)})
         self._writer.finish()
         self._stream.flush()
@@ -227,22 +279,40 @@ class BagWriter:
             type_description_hash=type_description_hash(msgtype) if type_hash is None else type_hash,
         )
         schema_id = self._mcap.add_schema(msgtype, definition.encoding, definition.text)
-        self._mcap.add_channel(info, schema_id, {
+        self._mcap.add_topic(info, schema_id, {
             "offered_qos_profiles": qos_profiles_to_yaml(profiles),
             "topic_type_hash": info.type_description_hash,
         })
 
     def write(
-        self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None, sequence: int = 0
+        self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None, sequence: int = 0,
+        publisher: PublisherId | None = None,
     ) -> None:
         """Append one CDR-serialized message; ``log_time_ns`` is the receive time (ns), ``publish_time_ns``
-        the send time (defaults to the receive time)."""
+        the send time (defaults to the receive time), ``sequence`` the publisher's sequence number and
+        ``publisher`` who sent it (its channel of the topic; None: the topic's plain channel)."""
         self._check_open()
         self._mcap.add_message(
             topic, bytes(data), int(log_time_ns),
-            int(log_time_ns if publish_time_ns is None else publish_time_ns), int(sequence),
+            int(log_time_ns if publish_time_ns is None else publish_time_ns), int(sequence), publisher,
         )
         self.flush_if_due()
+
+    def name_publisher(self, publisher: PublisherId) -> None:
+        """Tell the bag the node name of a publisher GID learnt after its first message (the closing
+        ``bptsb_ros.publishers`` record keeps it)."""
+        self._check_open()
+        self._mcap.name_publisher(publisher)
+
+    @property
+    def publisher_counts(self) -> dict[tuple[str, str], int]:
+        """Messages written per (topic, publisher GID), '' for those without an identity."""
+        return dict(self._mcap.channel_counts)
+
+    def set_custom_data(self, values: dict[str, str]) -> None:
+        """Add or replace ``custom_data`` entries of ``metadata.yaml`` (written on close)."""
+        self._check_open()
+        self._custom_data.update({str(k): str(v) for k, v in values.items()})
 
     def write_message(self, topic: str, msg: Any, log_time_ns: int) -> None:
         """Serialize an rclpy message object with CDR and append it; adds the topic from the message type if new."""
@@ -273,13 +343,14 @@ class BagWriter:
         """The bag metadata as of now."""
         return self._mcap.bag_metadata(self.mcap_path.name, self._custom_data)
 
-    def close(self) -> BagMetadata:
-        """Finish the MCAP file (summary, indexes, footer) and write ``metadata.yaml``. Idempotent."""
+    def close(self, records: dict[str, dict[str, str]] | None = None) -> BagMetadata:
+        """Finish the MCAP file (``records``: extra metadata records, name -> string map; summary, indexes,
+        footer) and write ``metadata.yaml``. Idempotent."""
         if self._closed:
             return self.metadata()
         metadata = self.metadata()
         try:
-            self._mcap.finish(metadata)
+            self._mcap.finish(metadata, records)
         finally:
             self._file.close()
             self._closed = True

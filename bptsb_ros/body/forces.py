@@ -43,7 +43,8 @@ def spring_forces(
 
     Args:
         r: (B, M, 2) movable positions [m].  v: (B, M, 2) movable velocities [m/s].
-        gather, scatter: incidence operators from ``incidence_operators`` (movable columns only).
+        gather: incidence operator from ``incidence_operators`` (movable columns only).
+        scatter: incidence operator from ``incidence_operators`` (movable columns only).
         fixed_offset: (E, 2) contribution of the fixed masses to r_i − r_j (constant: they never move).
         k: (E,) spring constants [N/m].  d: (E,) damping coefficients [N·s/m].
         rest_length: (E,) or (B, E) rest length in force [m].

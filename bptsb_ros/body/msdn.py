@@ -294,7 +294,10 @@ class MSDN(nn.Module):
         """W steps in one compiled call, without autograd (the numba backend's forward).
 
         Args:
-            r0, v0, a0: (B, M, 2) start state.  rest_lengths: (W, E) or (W, B', E) with B' ∈ {1, B} [m].
+            r0: (B, M, 2) start positions [m].
+            v0: (B, M, 2) start velocities [m/s].
+            a0: (B, M, 2) start accelerations [m/s²].
+            rest_lengths: (W, E) or (W, B', E) with B' ∈ {1, B} [m].
             external_forces: (W, M, 2) or (W, B', M, 2) [N], or None.
 
         Returns:

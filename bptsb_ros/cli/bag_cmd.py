@@ -55,6 +55,15 @@ def _info(args: argparse.Namespace) -> int:
              "offered_qos_profiles": [q.to_dict() for q in t.offered_qos_profiles]}
             for t in info.topics
         ],
+        "dropped_messages": info.dropped_messages,
+        "dropped_by_topic": info.dropped_by_topic,
+        "recording_complete": info.recording_complete,
+        "publishers": [
+            {"topic": c.topic, "count": c.count,
+             **({"gid": c.publisher.gid, "node": c.publisher.node, "namespace": c.publisher.namespace}
+                if c.publisher else {"gid": None})}
+            for c in info.publishers
+        ],
     }, indent=2))
     return 0
 

@@ -11,15 +11,60 @@ NAME = "bench"
 HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of the standard workloads "
         "(Lissajous, NARMA, locomotion batch 20, MNIST-like batch 100, forward sweeps batch 1000) on both body "
         "backends (torch, numba), batch scaling and the numba compile time; MNIST training images/s of every "
-        "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON.")
+        "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON. "
+        "With --soak: soak the live recording instead (a realtime and a lockstep recorded run under CPU load; "
+        "steps published, messages recorded, drops counted).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="1 s per measurement and fewer batch sizes")
     parser.add_argument("--out", required=True, help="JSON file to write")
+    soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.soak; runs bptsb launch "
+                                     "lissajous_open --bag on this ROS_DOMAIN_ID)")
+    soak.add_argument("--soak", action="store_true", help="run the recording soak instead of the physics benchmarks")
+    soak.add_argument("--realtime-seconds", type=float, default=60.0, metavar="S",
+                      help="wall seconds of the realtime run (0: skip it; default 60)")
+    soak.add_argument("--realtime-busy", type=int, default=1, metavar="N",
+                      help="spinning processes during the realtime run (default 1: one core kept busy)")
+    soak.add_argument("--lockstep-seconds", type=float, default=10.0, metavar="S",
+                      help="sim seconds of the lockstep run (0: skip it; default 10)")
+    soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
+                      help="spinning processes during the lockstep run (default 8)")
+    soak.add_argument("--workdir", default="", metavar="DIR", help="bags and launch logs of the soak (default: a new "
+                      "temporary directory, kept)")
+
+
+def _soak(args: argparse.Namespace) -> int:
+    import math
+
+    from bptsb_ros.soak import run_soak
+
+    for name in ("realtime_seconds", "lockstep_seconds"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value >= 0):
+            print(f"error: --{name.replace('_', '-')} must be >= 0, got {value}", file=sys.stderr)
+            return 2
+    if args.realtime_busy < 0 or args.lockstep_busy < 0:
+        print("error: --realtime-busy and --lockstep-busy must be >= 0", file=sys.stderr)
+        return 2
+    workdir = Path(args.workdir) if args.workdir else None
+    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
+        print(f"error: --workdir {workdir} exists and is not empty", file=sys.stderr)
+        return 2
+    report = run_soak(args.realtime_seconds, args.lockstep_seconds, args.realtime_busy, args.lockstep_busy, workdir,
+                      progress=lambda m: print(m, file=sys.stderr, flush=True))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2))
+    print(json.dumps(report, indent=2))
+    failed = [r for k in ("realtime", "lockstep") if isinstance(r := report.get(k), dict)
+              and (r.get("error") or r.get("launch_exit_code"))]
+    return 1 if failed else 0
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.soak:
+        return _soak(args)
     from bptsb_ros.bench import run_benchmarks, workload_table
 
     report = run_benchmarks(quick=args.quick, progress=lambda m: print(m, file=sys.stderr, flush=True))
@@ -31,7 +76,10 @@ def run(args: argparse.Namespace) -> int:
                         for b, v in report["batch_scaling"].items())
     print(f"Lissajous training, body-steps/s by batch size: {scaling}")
     if "ipc" in report:
-        print(f"{report['ipc']['workload']}: {report['ipc']['seconds']} s")
+        for row in (report["ipc"], report["ipc"].get("reservoir")):
+            if row:
+                print(f"{row['workload']}: {row['seconds']} s (orthogonalise_linear: "
+                      f"{row.get('seconds_orthogonalise_linear')} s)")
     first = report["numba_first_call"]
     print(f"numba first call (s): empty cache {first['cold_compile']}, cached {first['cached']}")
     sched = report["narma_paper_schedule"]

@@ -24,10 +24,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-degree", type=int, default=3)
     parser.add_argument("--max-delay", type=int, default=20, help="longest input delay [task steps]")
     parser.add_argument("--washout", type=int, default=100, help="samples discarded at the start")
-    parser.add_argument("--surrogates", type=int, default=200, help="shuffled-input surrogates for the threshold")
-    parser.add_argument("--threshold", choices=("degree-max", "function-max", "none"), default="degree-max",
-                        help="degree-max: keep a capacity above the largest surrogate capacity of its degree; "
-                             "function-max: above the largest of the same basis function")
+    parser.add_argument("--min-delay", type=int, default=0, help="shortest input delay [task steps]")
+    parser.add_argument("--surrogates", type=int, default=1000,
+                        help="shuffled-input surrogates per degree tuple for the threshold")
+    parser.add_argument("--threshold", choices=("tuple-max", "none"), default="tuple-max",
+                        help="tuple-max: keep a capacity above the largest surrogate capacity of its degree tuple "
+                             "(e.g. (2, 1)) times --threshold-scale; none: raw capacities")
+    parser.add_argument("--threshold-scale", type=float, default=1.0, help="factor on the surrogate maximum")
+    parser.add_argument("--no-rank-cap", dest="rank_cap", action="store_false",
+                        help="do not drop the smallest capacities while the total exceeds the rank")
+    parser.add_argument("--orthogonalise-linear", action="store_true",
+                        help="a linearity test, not the reference's definition: make the degree >= 2 functions "
+                             "orthogonal in-sample to the degree-1 ones first (a linear system then has none)")
     parser.add_argument("--per-column", action="store_true",
                         help="--input: also the IPC of every state column on its own")
     parser.add_argument("--tau", type=int, default=0, help="--bag: steps per input (default: inferred)")
@@ -126,8 +134,9 @@ def run(args: argparse.Namespace) -> int:
         if getattr(u, "ndim", 0) == 1:  # other shapes: ipc_groups names them
             _check_basis(args.max_degree, args.max_delay, len(u) - max(args.washout, args.max_delay))
         res = ipc_groups(u, groups, labels, max_degree=args.max_degree, max_delay=args.max_delay,
-                         washout=args.washout, surrogates=args.surrogates, threshold=args.threshold, seed=args.seed,
-                         progress=True)
+                         min_delay=args.min_delay, washout=args.washout, surrogates=args.surrogates,
+                         threshold=args.threshold, threshold_scale=args.threshold_scale, rank_cap=args.rank_cap,
+                         orthogonalise_linear=args.orthogonalise_linear, seed=args.seed, progress=True)
     except (IPCError, BagError) as err:
         print(f"bptsb ipc: {err}", file=sys.stderr)
         return 2

@@ -29,8 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "\n\nEach node is a process `python -m bptsb_ros.ros.<node> --ros-args ...`; with --bag the recorder runs "
         "too and is stopped last.\nIn lockstep the run lasts --duration seconds of sim time (body_sim exits after "
         "the last step); in realtime\n--duration wall seconds. Ctrl-C stops every node (SIGINT, then SIGTERM/SIGKILL "
-        "after --grace). Exit status 0 only if\nevery node exited cleanly. Children get "
-        "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless it is set, and inherit ROS_DOMAIN_ID."
+        "after --grace). Exit status 0 only if\nevery node exited cleanly and the recording lost nothing (--allow-loss "
+        "accepts a lossy one; the bag counts the losses either way).\nA lockstep body waits for the recorder, so a "
+        "lockstep recording cannot lose a message. Children get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless it\n"
+        "is set, and inherit ROS_DOMAIN_ID."
     )
     parser.add_argument("loop", choices=sorted(LOOPS), metavar="LOOP", help="loop to run: " + ", ".join(LOOPS))
     parser.add_argument("--agent", default="", metavar="RUN_DIR",
@@ -38,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=finite_float, default=0.0, metavar="SECONDS",
                         help="run length: sim seconds (lockstep) or wall seconds (realtime); 0 = until Ctrl-C")
     parser.add_argument("--bag", default="", metavar="DIR", help="record every loop topic to this rosbag2 MCAP bag")
+    parser.add_argument("--allow-loss", action="store_true",
+                        help="with --bag: a recording that lost messages (realtime under load) does not fail the run; "
+                             "the losses are counted in the bag and reported either way")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="timing mode")
     parser.add_argument("--rate-scale", type=finite_float, default=1.0, help="realtime: sim seconds per wall second")
     parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
@@ -351,6 +356,41 @@ def _perturbation_problem(args: argparse.Namespace) -> str:
     return problem.replace("perturb_at:=", "--perturb-at ").replace("perturb_sigma:=", "--perturb-sigma ")
 
 
+def _check_recording(launcher: Launcher, rows: list[tuple[str, str]], bag: Path, summary_path: Path,
+                     allow_loss: bool) -> list[tuple[str, str]]:
+    """Count what the recording lost (:func:`bptsb_ros.bags.loss.recording_loss`: the recorder's count and the body's
+    published messages against the bag), add it to the body summary as ``recording``, and make the recorder's row
+    say so: ``ok`` only when nothing was lost; a loss fails the run unless ``allow_loss``."""
+    import json
+
+    from bptsb_ros.bags.errors import BagError
+    from bptsb_ros.bags.loss import recording_loss
+
+    summary = None
+    try:
+        summary = json.loads(summary_path.read_text()) if summary_path.is_file() else None
+    except (OSError, ValueError):
+        summary = None
+    published = summary.get("published_messages") if isinstance(summary, dict) else None
+    try:
+        loss = recording_loss(bag, published if isinstance(published, dict) else None)
+    except BagError as err:
+        launcher.failures.append(f"recorder: the bag cannot be checked for losses: {err}")
+        return rows
+    if isinstance(summary, dict):
+        summary["recording"] = {**loss.to_dict(), "allowed": allow_loss}
+        summary_path.write_text(json.dumps(summary, indent=2) + "\n")
+    if not loss.any:
+        return rows
+    launcher.failures[:] = [f for f in launcher.failures if not f.startswith("recorder: failed (exit 1)")]
+    if allow_loss:
+        verdict = f"{loss.describe()} (allowed by --allow-loss)"
+    else:
+        verdict = f"failed: {loss.describe()}"
+        launcher.failures.append(f"recorder: {loss.describe()} (--allow-loss accepts a lossy recording)")
+    return [(name, verdict if name == "recorder" else v) for name, v in rows]
+
+
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.launch_loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
@@ -441,7 +481,8 @@ def run(args: argparse.Namespace) -> int:
     recorder = None
     if args.bag:
         params = with_stream("recorder", recorder_parameters(loop, args.bag, mode=args.mode, agent=args.agent,
-                                                             open_loop_steps=args.open_loop_steps))
+                                                             open_loop_steps=args.open_loop_steps,
+                                                             allow_loss=args.allow_loss))
         recorder = Child("recorder", node_argv("recorder", params, extra["recorder"]), log_dir / "recorder.log")
         children.append(recorder)
 
@@ -472,6 +513,8 @@ def run(args: argparse.Namespace) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     rows = launcher.results()
+    if args.bag and recorder is not None:
+        rows = _check_recording(launcher, rows, Path(args.bag), summary_path, args.allow_loss)
     print("[launch] node exit status:", file=sys.stderr)
     for name, verdict in rows:
         print(f"[launch]   {name:<15} {verdict}", file=sys.stderr)

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
 NAME = "simulate"
 HELP = (
     "Simulate a trained agent (--agent RUN_DIR) or a fresh body (--shape) headless and write the trajectory as "
-    ".npz (keys documented in bptsb_ros/sim/trajectory.py and the README); optionally a GIF.\n"
+    ".npz (keys documented in bptsb_ros/sim/trajectory.py and docs/simulation-files.md); optionally a GIF.\n"
     "A fresh body starts at rest in its layout with k ~ U(1,100), d ~ U(0,10) drawn from --seed: --perturb "
     "displaces its movable masses at t = 0, --swg-amplitude modulates its rest lengths, --wind pushes it. "
     "--shape caterpillar runs in the locomotion environment (gravity, air drag, soft ground). An agent runs "

@@ -186,7 +186,7 @@ def run(ctx: Context) -> None:
     delays = ctx.pick(smoke=(1, 8, 17), short=(1, 4, 8, 12, 17), paper=tuple(range(1, 18)))
     seeds = [ctx.seed + i for i in range(ctx.pick(smoke=1, short=2, paper=5))]
     eval_inputs = ctx.pick(smoke=150, short=800, paper=3000)
-    surrogates = ctx.pick(smoke=5, short=50, paper=200)
+    surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     max_delay = ctx.pick(smoke=10, short=20, paper=20)
     washout = ctx.pick(smoke=30, short=100, paper=100)
     config = config_name(ctx.scale)

@@ -14,7 +14,7 @@ each only where the systems compared learned (NMSE < 1); see :func:`claims`.
 
 ``paper`` scale: the paper's schedule, 40,000 SGD epochs with the authors' learning rates (config/narma.yaml;
 the paper's table, 10× higher, is its profile ``paper_table``), every update through the authors' guard.
-``short``: Adam (config/narma_adam.yaml) for a few hundred epochs — what converges on this machine.
+``short``: Adam (config/narma_adam.yaml) for a few hundred epochs — what converges in minutes on 2 cores.
 """
 
 from __future__ import annotations

@@ -188,7 +188,7 @@ def run(ctx: Context) -> None:
     stages = ctx.pick(smoke=(0, 1), short=(0, 30, 100, 300), paper=(0, 400, 4000, 40000))
     eval_inputs = ctx.pick(smoke=250, short=2000, paper=4000)
     max_delay = ctx.pick(smoke=10, short=20, paper=20)
-    surrogates = ctx.pick(smoke=5, short=50, paper=200)
+    surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     washout = ctx.pick(smoke=30, short=100, paper=100)
     config = config_name(ctx.scale)
     extra = ("narma.n_inputs=40", "narma.washout=10", "narma.train_end=30") if ctx.scale == "smoke" else ()
@@ -278,4 +278,5 @@ def run(ctx: Context) -> None:
     ctx.figure(_save(fig, ctx.out_dir / "narma_ipc.png"))
     ctx.result.details = {"config": config, "stages": list(stages), "eval_inputs": eval_inputs, "washout": washout,
                           "max_delay": max_delay, "max_degree": 3, "surrogates": surrogates,
-                          "threshold": "degree-max", "jobs": results, "ipc": summary, "notes": notes}
+                          "threshold": res.settings["threshold"],
+                          "definition": res.settings["definition"], "jobs": results, "ipc": summary, "notes": notes}

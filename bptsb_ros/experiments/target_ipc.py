@@ -175,7 +175,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
 
     samples = ctx.pick(smoke=1500, short=6000, paper=10000)
-    surrogates = ctx.pick(smoke=10, short=100, paper=200)
+    surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     max_delay, washout = 20, 100
     w = np.random.default_rng(ctx.seed).uniform(0.0, 1.0, samples)
     ys = targets(w)
@@ -208,7 +208,8 @@ def run(ctx: Context) -> None:
     ctx.result.claims.extend(claims(numbers))
     notes: list[str] = []
     ctx.result.details = {"notes": notes, "samples": samples, "washout": washout, "max_delay": max_delay,
-                          "max_degree": 3, "surrogates": surrogates, "threshold": "degree-max",
+                          "max_degree": 3, "surrogates": surrogates, "threshold": res.settings["threshold"],
+                          "definition": res.settings["definition"],
                           "inputs": "w ~ U(0,1); NARMA2/NARMA10 u = w/2, expanded NARMA and memory u = w; "
                                     "IPC input 2w−1",
                           "profiles": profile}

@@ -10,6 +10,14 @@ state and RViz/Foxglove markers, and integrates the rest-length and force comman
 * ``realtime``: a wall-clock loop at rate_scale/dt that uses the newest command and reports
   jitter, deadline misses, command age and latency on ``/diagnostics`` and at shutdown.
 
+With ``wait_for_recorder`` (lockstep runs recorded by ``bptsb launch``) the body also waits, before announcing step
+k, until the recorder acknowledged on ``recorder/ack`` that it has recorded every per-step topic up to step
+k − ``recorder_window``: no more than ``recorder_window`` + 1 messages of a topic are ever unrecorded, fewer than the
+``qos_depth`` a reliable publisher keeps for retransmission, so none can be overwritten before the recorder has it.
+A slow recorder slows the run; one that makes no progress for ``recorder_timeout`` is left behind (logged; the
+recording then counts what it loses). The summary counts the messages published per topic once stepping began
+(``published_messages``; empty for a run stopped during startup) so a launcher can compare them with the bag.
+
 With ``reset_every`` = E > 0 (loop ``mnist_drawing``) the body also takes resets on ``body/reset`` at steps k with
 k % E == 0 (awaited there with ``reset`` in ``wait_for``): the state of step k is then the body at rest at layout +
 the reset's displacement, from which the following steps integrate (``TOPICS.md``, "Resets").
@@ -67,6 +75,7 @@ from bptsb_ros.ros.topics import (
     BODY_OUTPUTS,
     COMMAND_SOURCES,
     DEFAULT_QOS_DEPTH,
+    RECORDER_ACK,
     TOPICS,
     absolute,
     dt_to_ns,
@@ -106,6 +115,16 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "and the safe command is used", "float", positive=True),
     Param("max_command_age", 0.1, "realtime: oldest usable command [sim s]; older ones are stale", "float",
           positive=True),
+    Param("wait_for_recorder", False, "lockstep: before announcing step k, wait until the recorder acknowledged on "
+          "topics.recorder_ack that it has recorded step k - recorder_window (a lockstep recording then loses "
+          "nothing)", "bool"),
+    Param("recorder_window", 0, "lockstep with wait_for_recorder: steps the body may run ahead of the recorder's "
+          "acknowledgement, below qos_depth; 0: qos_depth / 2", "int", minimum=0),
+    Param("recorder_timeout", 30.0, "lockstep with wait_for_recorder: wall seconds without progress of the recorder's "
+          "acknowledgement before the body goes on without waiting (logged; the recording counts what it loses)",
+          "float", positive=True),
+    Param("recorder_publishers", ["recorder"], "node names allowed to acknowledge on topics.recorder_ack; an "
+          "acknowledgement is ignored while another node publishes there", "str_list"),
     Param("final_ack_timeout", 5.0, "at exit, wall seconds to wait until reliable subscribers (the recorder) "
           "acknowledged every message", "float", minimum=0.0),
     Param("marker_every", 5, "publish body/markers every this many steps", "int", minimum=1, dynamic=True),
@@ -147,7 +166,7 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "stop (end the run cleanly); an ERROR diagnostic is published either way", "str",
           choices=DIVERGENCE_POLICIES),
 ) + tuple(Param(f"topics.{key}", TOPICS[key].name, f"topic name of {TOPICS[key].type}", "str")
-          for key in PUBLISHED + SUBSCRIBED)
+          for key in PUBLISHED + SUBSCRIBED + (RECORDER_ACK,))
 
 
 def perturb_step(at: float, dt: float, max_steps: int) -> int:
@@ -263,8 +282,22 @@ class BodySim(Node):
         self.throttle = Throttle(1.0)
         self.clock_sent: dict[int, float] = {}
         self.callbacks = 0
+        self.published: dict[str, int] = {}  # topic name -> messages published since stepping began
+        self._counting = False  # stepping began (startup complete or given up on): publications are counted
+        self.recorder_window = p["recorder_window"] or max(1, depth // 2)
+        if p["recorder_window"] >= depth:
+            raise ParameterError(f"parameter 'recorder_window': {p['recorder_window']} must be below qos_depth "
+                                 f"({depth}): the recorder must get every message before its publisher forgets it")
+        if p["wait_for_recorder"] and p["mode"] != "lockstep":
+            raise ParameterError("parameter 'wait_for_recorder': only a lockstep body can wait for the recorder")
+        self.recorder_acked = -1  # newest step the recorder acknowledged
+        self.recorder_silent = False
+        self.recorder_waits = 0
+        self.recorder_wait_s = 0.0
+        self.recorder_rule = PublisherRule("recorder_ack", tuple(p["recorder_publishers"]))
+        self.recorder_ack_rejected = 0
 
-        topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED}
+        topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED + (RECORDER_ACK,)}
         self.topic_names = topic
         sq = m.state_qos(depth)
         self.pubs: dict[str, Publisher] = {
@@ -288,6 +321,9 @@ class BodySim(Node):
             "reset": self.create_subscription(JointState, topic["reset_cmd"],
                                               lambda msg: self._on_command("reset", msg), sq),
         }
+        self.ack_sub = None
+        if p["wait_for_recorder"]:  # the recorder's latest acknowledgement (transient-local, depth 1)
+            self.ack_sub = self.create_subscription(Clock, topic[RECORDER_ACK], self._on_recorder_ack, m.ack_qos())
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
@@ -349,6 +385,25 @@ class BodySim(Node):
         propagated yet reads ``UNKNOWN_NODE``)."""
         infos = self.get_publishers_info_by_topic(self.subs[source].topic_name)
         return [(info.node_namespace, info.node_name) for info in infos]
+
+    def _on_recorder_ack(self, msg: Clock) -> None:
+        """The recorder has every per-step message up to the acknowledged step (used while only the allowed
+        recorder publishes acknowledgements)."""
+        self.callbacks += 1
+        infos = self.get_publishers_info_by_topic(self.ack_sub.topic_name)
+        if self.recorder_rule.untrusted([(i.node_namespace, i.node_name) for i in infos]):
+            self.recorder_ack_rejected += 1
+            self._warn("reject:recorder_ack", f"ignored an acknowledgement on {self.ack_sub.topic_name}: it has "
+                       "publishers not in recorder_publishers")
+            return
+        self.recorder_acked = max(self.recorder_acked, m.step_of(msg.clock, self.dt_ns))
+
+    def _publish(self, key: str, msg: Any) -> None:
+        """Publish on the body's topic ``key`` and count it."""
+        pub = self.pubs[key]
+        pub.publish(msg)
+        if self._counting:
+            self.published[pub.topic_name] = self.published.get(pub.topic_name, 0) + 1
 
     def _on_wind(self, msg: Vector3Stamped) -> None:
         if "wind" in self.wait_sources:  # a synchronised wind source: stamped per step, like a command
@@ -420,7 +475,7 @@ class BodySim(Node):
         self.perturbation_count += 1
         if len(self.perturbed) < LISTED_PERTURBATIONS:
             self.perturbed.append(step)
-        self.pubs["perturbation"].publish(m.joint_state(step, self.dt_ns, self.dof_names, position=disp,
+        self._publish("perturbation", m.joint_state(step, self.dt_ns, self.dof_names, position=disp,
                                                         frame_id=self.p["frame_id"]))
         self.get_logger().info(f"step {step}: movable masses displaced (largest |d| {np.abs(disp).max():.4g} m)")
 
@@ -468,7 +523,7 @@ class BodySim(Node):
         self.clock_sent[step] = time.monotonic()
         self.clock_sent.pop(step - 2 * self.p["qos_depth"], None)
         self.next_step = step
-        self.pubs["clock"].publish(m.clock_msg(step, self.dt_ns))
+        self._publish("clock", m.clock_msg(step, self.dt_ns))
 
     def _command(self, step: int) -> tuple[torch.Tensor, torch.Tensor | None, bool]:
         """Rest length (E,), external force (M, 2) or None, and whether a safe value replaced a command."""
@@ -504,17 +559,17 @@ class BodySim(Node):
         length = state.length[0].numpy()
         rest_np = rest.reshape(-1).numpy()
         frame = self.p["frame_id"]
-        self.pubs["positions"].publish(m.pose_array(k, ns, full, frame))
-        self.pubs["mass_states"].publish(m.joint_state(
+        self._publish("positions", m.pose_array(k, ns, full, frame))
+        self._publish("mass_states", m.joint_state(
             k, ns, self.dof_names, position=r.reshape(-1), velocity=state.v[0].numpy().reshape(-1),
             effort=m.effort_from_acceleration(state.a[0].numpy(), self.mass), frame_id=frame))
-        self.pubs["spring_lengths"].publish(m.joint_state(k, ns, self.spring_names, position=length))
-        self.pubs["rest_length"].publish(m.joint_state(k, ns, self.spring_names, position=rest_np))
+        self._publish("spring_lengths", m.joint_state(k, ns, self.spring_names, position=length))
+        self._publish("rest_length", m.joint_state(k, ns, self.spring_names, position=rest_np))
         f = np.zeros(2 * body.n_movable) if force is None else force.reshape(-1).numpy()
-        self.pubs["external_force"].publish(m.joint_state(k, ns, self.dof_names, effort=f, frame_id=frame))
+        self._publish("external_force", m.joint_state(k, ns, self.dof_names, effort=f, frame_id=frame))
         if k % self.p["marker_every"] == 0:
             strain = length / np.maximum(rest_np, 1e-12) - 1.0
-            self.pubs["markers"].publish(m.body_markers(k, ns, full, self.springs, self.fixed,
+            self._publish("markers", m.body_markers(k, ns, full, self.springs, self.fixed,
                                                         body.topology.cmp_index, strain, frame, self.mass_diameter))
 
     def _maybe_diagnostics(self, force: bool = False, error: str = "") -> None:
@@ -538,7 +593,7 @@ class BodySim(Node):
                          for k, v in summary.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = m.stamp(self.stats.steps, self.dt_ns)
-        self.pubs["diagnostics"].publish(msg)
+        self._publish("diagnostics", msg)
 
     def summary(self) -> dict[str, Any]:
         """Run summary: mode, steps, timing statistics and command counts per source."""
@@ -563,6 +618,10 @@ class BodySim(Node):
         out["perturbation_pending"] = len(self.perturbations.pending)
         out["rejected_total"] = total
         out["divergences"] = self.divergence.events
+        if self.p["wait_for_recorder"]:
+            out.update(recorder_waits=self.recorder_waits, recorder_wait_s=self.recorder_wait_s,
+                       recorder_acked_step=self.recorder_acked, recorder_ack_rejected=self.recorder_ack_rejected)
+        out["published_messages"] = dict(self.published)
         return out
 
     # -- run --------------------------------------------------------------------------------------
@@ -576,6 +635,8 @@ class BodySim(Node):
                         if any(name == UNKNOWN_NODE for _, name in self._publisher_names(s))]
             missing += [f"{n} subscriber(s) on {t} (have {have})" for t, n in self.wait_subscribers
                         if (have := self._subscriber_count(t)) < n]
+            if self.ack_sub is not None and self.ack_sub.get_publisher_count() < 1:
+                missing.append(f"the recorder's acknowledgements on {self.ack_sub.topic_name}")
             if not missing:
                 self.get_logger().info("startup complete: brains and subscribers present; running")
                 return
@@ -607,6 +668,39 @@ class BodySim(Node):
             if now >= deadline or all(self.silent[s] for s in missing):
                 return
             self.executor_.spin_once(timeout_sec=min(0.05, deadline - now))
+
+    def _await_recorder(self, step: int) -> None:
+        """``wait_for_recorder``: process callbacks until the recorder acknowledged step − ``recorder_window``; go
+        on without it once its acknowledgement made no progress for ``recorder_timeout`` (it is then silent until
+        it acknowledges again)."""
+        if self.ack_sub is None:
+            return
+        need = step - self.recorder_window
+        if self.recorder_acked >= need:
+            if self.recorder_silent:
+                self.recorder_silent = False
+                self.get_logger().info(f"the recorder caught up (acknowledged step {self.recorder_acked}); waiting "
+                                       "for it again")
+            return
+        if self.recorder_silent:
+            self._drain()
+            return
+        self.recorder_waits += 1
+        started = progress = time.monotonic()
+        seen = self.recorder_acked
+        while not self.stop and self.recorder_acked < need:
+            self.executor_.spin_once(timeout_sec=0.05)
+            now = time.monotonic()
+            if self.recorder_acked > seen:
+                seen, progress = self.recorder_acked, now
+            elif now - progress > self.p["recorder_timeout"]:
+                self.recorder_silent = True
+                self.get_logger().error(
+                    f"recorder silent: no acknowledgement progress for {self.p['recorder_timeout']:g} s (it has step "
+                    f"{self.recorder_acked}, step {step} needs {need}); the body goes on without waiting, and the "
+                    "recording counts the messages it loses")
+                break
+        self.recorder_wait_s += time.monotonic() - started
 
     def _advance(self, state: BodyState | None, rest: torch.Tensor, force: torch.Tensor | None) -> BodyState:
         with torch.no_grad():
@@ -695,6 +789,9 @@ class BodySim(Node):
         step = 0
         last = time.monotonic()
         while not self.stop and (self.max_steps == 0 or step <= self.max_steps):
+            self._await_recorder(step)
+            if self.stop:
+                break
             self._publish_clock(step)
             self._await(step)
             if self.stop:
@@ -776,6 +873,7 @@ class BodySim(Node):
         p = self.p
         self._wait_startup()
         self._started = time.monotonic()  # start of stepping: realtime silence is counted from here
+        self._counting = not self.stop  # a run stopped during startup published nothing a recorder had to get
         code = EXIT_OK
         try:
             if p["mode"] == "lockstep":
@@ -795,6 +893,7 @@ class BodySim(Node):
         self.get_logger().info(f"{why} after {summary['steps']} steps ({summary['sim_time']:.3f} s sim time)\n"
                                + summary_text(summary))
         self._maybe_diagnostics(force=True)
+        summary["published_messages"] = dict(self.published)  # the final diagnostics included
         self._wait_acked(timeout=self.p["final_ack_timeout"])
         if self.p["summary_path"]:
             path = Path(self.p["summary_path"])
@@ -808,6 +907,8 @@ def summary_text(summary: dict[str, Any]) -> str:
     0 are left out (``rejected=0`` when all of a group are; the JSON summary keeps every counter); every other
     key appears exactly once."""
     def fmt(value: Any) -> str:
+        if isinstance(value, dict):
+            return "{" + ", ".join(f"{k} {v}" for k, v in value.items()) + "}"
         return f"{value:.4g}" if isinstance(value, float) else str(value)
 
     lines: dict[str, list[str]] = {"run": []}

@@ -44,6 +44,13 @@ def command_qos(depth: int) -> QoSProfile:
     return state_qos(depth)
 
 
+def ack_qos() -> QoSProfile:
+    """The recorder's acknowledgements (``recorder/ack``): reliable, transient-local, keep-last 1 — only the latest
+    counts, and a body that subscribes after the recorder's last one still gets it."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
 def stamp(step: int, dt_ns: int) -> Time:
     """builtin_interfaces/Time of step ``step``."""
     sec, nanosec = step_to_stamp(step, dt_ns)

@@ -179,6 +179,9 @@ READ_ONLY_REASONS: dict[str, str] = {
                     "set"),
     **dict.fromkeys(("flush_period", "drain_quiet", "stop_timeout"), "part of the recorder's guarantee of what "
                     "survives a kill or a stop; fixed for the whole recording"),
+    **dict.fromkeys(("wait_for_recorder", "recorder_window", "recorder_timeout", "recorder_publishers", "ack_topic",
+                     "ack_topics", "allow_loss"), "part of the guarantee that the recording is complete (or its "
+                    "losses counted and reported); fixed for the whole run"),
 }
 #: Reason of a read-only parameter missing from :data:`READ_ONLY_REASONS`.
 DEFAULT_READ_ONLY_REASON = "read once, when the node starts"

@@ -7,15 +7,28 @@ Run it as ``python -m bptsb_ros.ros.recorder --ros-args -p bag_path:=bags/run1 -
 Every ``discovery_period`` it looks at the graph; each selected topic that has a publisher gets a raw subscription
 (serialized CDR bytes, never re-encoded) with the QoS that matches all its publishers (reliable only if all are
 reliable, transient-local only if all are) and a history of ``queue_depth``. The publishers' offered QoS profiles
-and the type hash go into the bag. Each message is stamped with its receive time: the middleware's receive
+and the type hash go into the bag. Each message is taken with its publisher's GID (:mod:`bptsb_ros.ros.take`) and
+written to the MCAP channel of its (topic, publisher), named after the publisher's node as the ROS graph reports it
+(:mod:`bptsb_ros.bags.publishers`): a message forged by another node on ``body/positions`` is in the bag, and
+marked as that node's. Every message waiting on a subscription is taken in one executor call.
+
+Each message is stamped with its receive time: the middleware's receive
 timestamp (system clock, ns since the epoch), or, when ``use_sim_time`` is true (``ros2 bag record
 --use-sim-time``; the launchers set it for lockstep runs), the node clock, which follows ``/clock``: the bag's
 timeline is then sim time, so a 10 s lockstep run lasts 10 s in ``ros2 bag info``, ``ros2 bag play`` and
 Foxglove however long it took. ``custom_data`` key ``log_time`` says which: ``sim`` or ``system``.
 
-On SIGINT or SIGTERM it stops discovery and the flush timer, keeps taking the messages still in flight (one
-per executor call) until a wait of ``drain_quiet`` seconds brings none (at most ``stop_timeout`` in all), then
-finalizes the bag (summary, indexes, ``metadata.yaml``) and exits 0. Killed outright, it leaves the chunks written
+Losses are counted (:class:`bptsb_ros.bags.recording.LossCount`): a jump in a publisher's sequence numbers, and
+the middleware's ``message_lost`` reports. With ``ack_topic`` set (lockstep runs of ``bptsb launch``) the recorder
+also publishes how far it has recorded the run (:class:`~bptsb_ros.bags.recording.StepAck`); ``body_sim`` with
+``wait_for_recorder`` does not run further ahead than ``recorder_window`` steps, so a lockstep recording cannot lose
+a message however slow the recorder is (it slows the run instead).
+
+On SIGINT or SIGTERM it stops discovery and the flush timer and keeps taking every message published before the
+stop signal (publisher's source time; later ones are not part of the recording) until none has come for
+``drain_quiet`` seconds; ``stop_timeout`` caps that, and a drain cut short counts as a loss. Then it finalizes the
+bag (summary, indexes, ``metadata.yaml`` with ``custom_data`` ``dropped_messages`` and ``dropped_by_topic``) and
+exits 0, or 1 when anything was lost (unless ``allow_loss``). Killed outright, it leaves the chunks written
 so far (closed at least every ``flush_period``); ``bptsb bag recover`` restores them. Log lines
 ``Recording to ...`` and, with explicit ``topics``, ``All <n> requested topics subscribed`` tell a launcher when it
 is ready; one ``Subscribed to <topic> [<type>]`` line per topic is logged at DEBUG (``-p log_level:=debug``).
@@ -28,21 +41,30 @@ import signal
 import sys
 import threading
 import time
+from collections import Counter
 from typing import Any
 
 import rclpy
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
 
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.msgdefs import get_message_class
+from bptsb_ros.bags.publishers import UNKNOWN_NODE, PublisherId, gid_text
 from bptsb_ros.bags.qos import QosProfile
 from bptsb_ros.bags.recording import (
     RECORDER_PARAMS,
+    RECORDING_RECORD,
+    SEQUENCE_UNSUPPORTED,
+    STAMPED_TYPES,
+    LossCount,
     RecorderConfig,
+    StepAck,
     incompatible_offers,
     select_topics,
     subscription_policies,
@@ -50,6 +72,11 @@ from bptsb_ros.bags.recording import (
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.ros.params import ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import exit_process, ignore_stop_signals, unblock_interrupt
+from bptsb_ros.ros.take import GidTaker, TakenInfo, batch_executor_class, gid_take_problem, rclpy_take
+
+#: most messages taken from one subscription in one executor call (then the other subscriptions and timers)
+BATCH = 200
+EXIT_LOST = 1
 
 
 class RecorderNode(Node):
@@ -69,13 +96,32 @@ class RecorderNode(Node):
         self._policies: dict[str, tuple[str, str]] = {}
         self._publisher_counts: dict[str, int] = {}
         self._warned: set[str] = set()
+        self._identities: dict[str, dict[str, PublisherId]] = {}  # topic -> GID -> publisher (from the graph)
+        self._takers: list[GidTaker] = []
+        self._gid_problem = gid_take_problem()
         self.received = 0
+        self.after_stop = 0  # messages published after the stop signal, not recorded
+        self.loss = LossCount()
+        self._loss_logs: Counter = Counter()
+        self._stop_ns: int | None = None
+        self.ack = StepAck(self.config.ack_topics)
+        self._ack_pub = None
         try:
+            if self.config.ack_topic:  # the latest acknowledgement, also for a body that subscribes late
+                from rosgraph_msgs.msg import Clock as ClockMsg
+
+                self._ack_class = ClockMsg
+                self._ack_pub = self.create_publisher(ClockMsg, self.config.ack_topic, QoSProfile(
+                    history=QoSHistoryPolicy.KEEP_LAST, depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
+                    durability=QoSDurabilityPolicy.TRANSIENT_LOCAL))
             self.get_logger().info(
                 f"Recording to {self.writer.path} ("
                 + (f"{len(self.config.topics)} topics" if self.config.topics else "all topics")
                 + f"; log times: {'sim time from /clock' if self._use_sim_time else 'system time'})"
             )
+            if self._gid_problem:
+                self.get_logger().warning(f"publisher GIDs cannot be taken here ({self._gid_problem}): messages are "
+                                          "recorded without their publishers' identities")
             self._discover()
             # steady-clock timers: on sim time the node clock stands still until the first /clock, and the body
             # publishes that only once the recorder has subscribed
@@ -94,9 +140,37 @@ class RecorderNode(Node):
             elif topic not in self._skipped:
                 self._subscribe(topic, types)
 
+    def _learn_publishers(self, topic: str) -> None:
+        """Map the GIDs of ``topic``'s publishers to their nodes (from the graph); a publisher whose node the graph
+        names only now is renamed in the bag."""
+        known = self._identities.setdefault(topic, {})
+        for info in self.get_publishers_info_by_topic(topic):
+            gid = gid_text(info.endpoint_gid)
+            node = "" if info.node_name == UNKNOWN_NODE else info.node_name
+            old = known.get(gid)
+            if old is None or (node and not old.node):
+                known[gid] = PublisherId(gid, node, info.node_namespace if node else "")
+                if old is not None:
+                    self.writer.name_publisher(known[gid])
+
+    def _publisher(self, topic: str, raw_gid: bytes) -> PublisherId | None:
+        """The publisher of a message from its GID bytes (None without them)."""
+        if not raw_gid:
+            return None
+        gid = gid_text(raw_gid)
+        publisher = self._identities.get(topic, {}).get(gid)
+        if publisher is None:  # its first message: ask the graph
+            self._learn_publishers(topic)
+            publisher = self._identities[topic].setdefault(gid, PublisherId(gid))
+        return publisher
+
     def _check_new_publishers(self, topic: str) -> None:
-        """Warn once when a publisher that joined later offers less than the subscription requests."""
+        """Learn the nodes of new publishers; warn once when one that joined later offers less than the
+        subscription requests."""
         count = self.count_publishers(topic)
+        unnamed = any(not p.node for p in self._identities.get(topic, {}).values())
+        if count != self._publisher_counts.get(topic) or unnamed:
+            self._learn_publishers(topic)
         if count == self._publisher_counts.get(topic) or topic in self._warned:
             return
         self._publisher_counts[topic] = count
@@ -136,68 +210,153 @@ class RecorderNode(Node):
             reliability=QoSReliabilityPolicy[reliability.upper()],
             durability=QoSDurabilityPolicy[durability.upper()],
         )
-        self._recorded[topic] = self.create_subscription(
-            msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True
-        )
+        if topic in self.config.ack_topics and msgtype not in STAMPED_TYPES:
+            self.get_logger().error(f"ack_topics: {topic} [{msgtype}] carries no stamp; not acknowledged")
+            self.ack.refuse(topic)
+        events = SubscriptionEventCallbacks(message_lost=functools.partial(self._on_lost, topic))
+        sub = self.create_subscription(msg_class, topic, functools.partial(self._on_batch, topic), qos, raw=True,
+                                       event_callbacks=events)
+        sub.bptsb_take_batch = self._batch_taker(sub)  # served by batch_executor_class()
+        self._recorded[topic] = sub
+        self._learn_publishers(topic)
         self.get_logger().debug(f"Subscribed to {topic} [{msgtype}] ({reliability}, {durability})")
         if self.config.topics and all(t in self._recorded for t in self.config.topics):
             self.get_logger().info(f"All {len(self.config.topics)} requested topics subscribed")
 
-    def _on_message(self, topic: str, data: bytes, info: dict[str, Any]) -> None:
-        if self._use_sim_time:
-            stamp = self.get_clock().now().nanoseconds
-        else:
-            stamp = info.get("received_timestamp") or time.time_ns()
-        self.writer.write(topic, data, stamp, info.get("source_timestamp") or stamp,
-                          info.get("publication_sequence_number") or 0)
-        self.received += 1
+    def _batch_taker(self, sub: Subscription) -> Any:
+        """The function that takes up to :data:`BATCH` waiting messages of ``sub`` (with their GIDs if it can)."""
+        taker: GidTaker | None = None
+        if not self._gid_problem:
+            taker = GidTaker(sub)
+            self._takers.append(taker)
 
-    def stop_timers(self) -> None:
-        """Stop looking for new topics and stop the flush timer (the stop sequence has begun): from now on the
-        executor only has subscriptions to serve, so an executor call that handled nothing means no message was
-        ready. ``BagWriter.write`` still flushes when ``flush_period`` is due."""
+        def take_batch() -> list[tuple[bytes, TakenInfo]]:
+            batch = []
+            for _ in range(BATCH):
+                got = taker.take() if taker is not None else rclpy_take(sub)
+                if got is None:
+                    break
+                batch.append(got)
+            return batch
+
+        return take_batch
+
+    def _on_batch(self, topic: str, batch: list[tuple[bytes, TakenInfo]]) -> None:
+        for data, info in batch:
+            if self._stop_ns is not None and info.source_timestamp > self._stop_ns:
+                self.after_stop += 1  # published after the stop signal: not part of the recording
+                continue
+            if self._use_sim_time:
+                stamp = self.get_clock().now().nanoseconds
+            else:
+                stamp = info.received_timestamp or time.time_ns()
+            sequence = info.publication_sequence_number
+            sequence = 0 if sequence == SEQUENCE_UNSUPPORTED else sequence
+            publisher = self._publisher(topic, info.publisher_gid)
+            self.writer.write(topic, data, stamp, info.source_timestamp or stamp, sequence, publisher)
+            self.received += 1
+            # sequence numbers are per publisher: without its GID (rclpy's take) only message_lost reports count
+            skipped = self.loss.see(topic, publisher.gid, sequence) if publisher is not None else 0
+            if skipped:
+                self._warn_loss(topic, f"{skipped} messages of {publisher.name} before sequence number {sequence} "
+                                       "were never recorded")
+            if self._ack_pub is not None:
+                try:
+                    self.ack.see(topic, data)
+                except ValueError as exc:
+                    self.get_logger().error(f"ack_topics: {topic}: {exc}; not acknowledged any more")
+                    self.ack.refuse(topic)
+        self._publish_ack()
+
+    def _publish_ack(self) -> None:
+        due = self.ack.due() if self._ack_pub is not None else None
+        if due is not None:
+            msg = self._ack_class()
+            msg.clock.sec, msg.clock.nanosec = divmod(due, 1_000_000_000)
+            self._ack_pub.publish(msg)
+
+    def _on_lost(self, topic: str, info: QoSMessageLostInfo) -> None:
+        self.loss.lost(topic, int(info.total_count_change))
+        self._warn_loss(topic, f"the middleware lost {info.total_count_change} messages")
+
+    def _warn_loss(self, topic: str, text: str) -> None:
+        """Log a loss on ``topic`` (the first one of each topic, then every 100th time)."""
+        self._loss_logs[topic] += 1
+        if self._loss_logs[topic] % 100 == 1:
+            self.get_logger().error(f"LOST messages on {topic}: {text} (lost so far on {topic}: "
+                                    f"{self.loss.by_topic().get(topic, 0)})")
+
+    def begin_stop(self, stop_ns: int) -> None:
+        """The stop sequence has begun (signal at ``stop_ns``, system time): stop looking for new topics and stop
+        the flush timer (``BagWriter.write`` still flushes when ``flush_period`` is due); from now on messages
+        published after ``stop_ns`` are not recorded."""
+        self._stop_ns = stop_ns
         self._discovery_timer.cancel()
         self._flush_timer.cancel()
 
-    def close(self) -> None:
-        """Finalize the bag and log what it holds."""
+    def close(self) -> int:
+        """Finalize the bag (with what was lost) and log what it holds; return the exit status: 0, or
+        :data:`EXIT_LOST` when messages were lost and ``allow_loss`` is false."""
         missing = [t for t in self.config.topics if t not in self._recorded]
         if missing:
             self.get_logger().warning(f"Requested topics never recorded (no publisher seen): {', '.join(missing)}")
-        metadata = self.writer.close()
+        lost = self.loss.custom_data()
+        self.writer.set_custom_data(lost)
+        metadata = self.writer.close(records={RECORDING_RECORD: lost})
+        self.release()
         counts = "".join(f"\n  {t.message_count:>8}  {t.name}" for t in metadata.topics) or " (no topics)"
-        self.get_logger().info(f"Bag {self.writer.path} closed: {metadata.message_count} messages{counts}")
+        self.get_logger().info(f"Bag {self.writer.path} closed: {metadata.message_count} messages{counts}"
+                               + (f"\n  ({self.after_stop} published after the stop signal, not recorded)"
+                                  if self.after_stop else ""))
+        if not self.loss.any:
+            return 0
+        what = ", ".join(f"{t} {n}" for t, n in self.loss.by_topic().items())
+        text = (f"the recording LOST {self.loss.total} messages" + (f" ({what})" if what else "")
+                + ("; the final drain was cut short by stop_timeout, more may be missing" if self.loss.cut_short
+                   else ""))
+        if self.config.allow_loss:
+            self.get_logger().warning(text + " (allowed: allow_loss)")
+            return 0
+        self.get_logger().error(text + "; exiting with status 1 (allow_loss:=true accepts a lossy recording)")
+        return EXIT_LOST
+
+    def release(self) -> None:
+        """Free the take buffers."""
+        for taker in self._takers:
+            taker.close()
 
 
-def _drain(executor: SingleThreadedExecutor, node: RecorderNode) -> None:
-    """Take the messages still in flight after the stop signal.
+def _drain(executor: SingleThreadedExecutor, node: RecorderNode, stop_ns: int) -> None:
+    """Take the messages still waiting or in flight after the stop signal (at ``stop_ns``, system time).
 
-    ``spin_once`` handles at most one callback, so this loops ``spin_once(timeout_sec=drain_quiet)`` and stops
-    only when a call took no message, i.e. nothing became ready for ``drain_quiet`` seconds however long the
-    backlog is. The timers are cancelled first, so a call that ran a timer never counts as a quiet one.
-    ``stop_timeout`` caps the whole drain (the launcher's --grace is longer).
+    Every executor call takes all waiting messages of a subscription (:func:`bptsb_ros.ros.take.batch_executor_class`),
+    so a backlog of thousands drains in a fraction of a second. The drain ends once no message published before the
+    signal has come for ``drain_quiet`` seconds (wall time since the last one, whatever else the executor did);
+    ``stop_timeout`` caps it, and a drain cut short is counted as a loss.
     """
-    node.stop_timers()
-    started = time.monotonic()
-    deadline = started + node.config.stop_timeout
+    node.begin_stop(stop_ns)
+    quiet, cap = node.config.drain_quiet, node.config.stop_timeout
+    started = last = time.monotonic()
     taken = node.received
     while True:
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            node.get_logger().warning(
-                f"stop_timeout: still taking messages after {node.config.stop_timeout:g} s "
-                f"({node.received - taken} taken since the stop signal); closing the bag, later ones are lost"
-            )
-            return
         before = node.received
-        executor.spin_once(timeout_sec=min(node.config.drain_quiet, remaining))
-        if node.received == before:
+        executor.spin_once(timeout_sec=min(quiet, 0.05))
+        now = time.monotonic()
+        if node.received != before:
+            last = now
+        elif now - last >= quiet:
+            return
+        if now - started >= cap:
+            node.loss.cut_short = True
+            node.get_logger().error(
+                f"stop_timeout: still taking messages published before the stop signal after {cap:g} s "
+                f"({node.received - taken} taken since); closing the bag, the recording is incomplete")
             return
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the recorder until SIGINT/SIGTERM; return 0 on a clean stop, 2 for bad parameters or arguments
-    (``--help`` lists the parameters)."""
+    """Run the recorder until SIGINT/SIGTERM; return 0 on a clean stop, 1 when messages were lost (unless
+    ``allow_loss``), 2 for bad parameters or arguments (``--help`` lists the parameters)."""
     from bptsb_ros.ros.runtime import check_cli
 
     code = check_cli("recorder", sys.argv[1:] if args is None else list(args), RECORDER_PARAMS, __doc__ or "")
@@ -205,8 +364,15 @@ def main(args: list[str] | None = None) -> int:
         unblock_interrupt()
         return code
     stop = threading.Event()
+    stop_ns: list[int] = []  # system time of the first stop signal
+
+    def on_stop(*_: object) -> None:
+        if not stop_ns:
+            stop_ns.append(time.time_ns())
+        stop.set()
+
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, on_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     unblock_interrupt()  # a stop requested during startup (held pending by the launcher) arrives now
     node: RecorderNode | None = None
     code: int | None = None  # set once the recorder has finished (an exception leaves it None and propagates)
@@ -217,22 +383,22 @@ def main(args: list[str] | None = None) -> int:
             print(f"recorder: {exc}", file=sys.stderr)
             code = 2
             return code
-        executor = SingleThreadedExecutor()
+        executor = batch_executor_class()()
         executor.add_node(node)
         try:
             while not stop.is_set():
                 executor.spin_once(timeout_sec=0.05)
-            _drain(executor, node)
+            _drain(executor, node, stop_ns[0] if stop_ns else time.time_ns())
         except ExternalShutdownException:
             pass
-        node.close()
-        code = 0
+        code = node.close()
         return code
     finally:
         ignore_stop_signals()  # stopping already: a late SIGINT/SIGTERM must not kill the cleanup
         if node is not None:
             if not node.writer.closed:
                 node.writer.close()
+            node.release()
             node.destroy_node()
         rclpy.try_shutdown()
         if args is None and code is not None:  # run as a program: exit at once (see runtime.exit_process)

@@ -10,7 +10,7 @@ body, and recovery when the live simulation diverges anyway. ``body_sim`` calls 
   no sender identity per message, so while any other node publishes on the topic, every command on it is
   rejected (``untrusted_publisher``) and the body runs on the safe command: an intruder can stop the brain
   from steering, never steer itself. Node names can be forged by anyone on the domain; SROS2 (DDS security)
-  is what authenticates publishers (see the README).
+  is what authenticates publishers (see docs/ros/security.md).
 * :class:`DivergenceRecovery` — when a step diverges (non-finite or runaway state), either restore the last
   good state and integrate the step with the safe command (``restore``; if that diverges too, the body is put
   back to its initial layout at rest; if even that diverges, the run stops) or stop the run cleanly

@@ -45,6 +45,7 @@ TOPICS: dict[str, Topic] = {
         Topic("image", "camera/image", "sensor_msgs/msg/Image"),
         Topic("label", "camera/label", "sensor_msgs/msg/JointState"),
         Topic("reset_cmd", "body/reset", "sensor_msgs/msg/JointState"),
+        Topic("recorder_ack", "recorder/ack", "rosgraph_msgs/msg/Clock"),
     )
 }
 
@@ -52,6 +53,9 @@ TOPICS: dict[str, Topic] = {
 BODY_OUTPUTS: tuple[str, ...] = ("clock", "positions", "mass_states", "spring_lengths", "rest_length",
                                  "external_force", "markers", "diagnostics", "perturbation")
 BODY_INPUTS: tuple[str, ...] = ("rest_length_cmd", "force_cmd", "wind", "perturb_cmd", "reset_cmd")
+
+#: Key of the recorder's acknowledgements (``body_sim`` with ``wait_for_recorder`` subscribes to it).
+RECORDER_ACK = "recorder_ack"
 
 #: Command sources the body can wait for in lockstep, by the topic key they arrive on.
 COMMAND_SOURCES: dict[str, str] = {"rest_length": "rest_length_cmd", "force": "force_cmd", "wind": "wind",

@@ -5,7 +5,7 @@ finish drawing, were set in advance" and that every drawing starts at the CMP's 
 designed here and shipped as data (``digit_targets.json`` beside this module, written by
 ``python -m bptsb_ros.tasks.digits``; a test checks the file equals what this code makes).
 
-Design (see the README, "MNIST drawing"):
+Design (see docs/experiments/mnist.md, "Target digits"):
 
 * **one pen stroke per digit**, in the order a person writes it; where a person lifts the pen (the bar of a
   4) the CMP cannot, so the stroke retraces the shortest way (4: down, across, up the right bar, down).

@@ -287,7 +287,7 @@ def label_maps(system: ImageToBody, base_displacement: torch.Tensor, *, half_wid
     Args:
         base_displacement: (D, M, 2) trained initial displacements, one per original label (D = 10: the
             best test sample of each digit).
-        half_width: Δ runs over [−half_width, half_width] [m] in each direction.
+        half_width: Δ runs from −half_width to half_width [m] in each direction.
         grid: cells per axis (odd, so Δ = 0 is a cell).
         masses: movable-mass rows to shift (default every one except the CMP).
 

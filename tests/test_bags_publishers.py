@@ -1,0 +1,136 @@
+"""Publisher identities in bags (planted with the package's writer): per-publisher channels, what replay uses
+(the body's own messages), what it reports (foreign, duplicate) and when it refuses (two different body states for
+one step); bags without identities; recovery keeps them; metadata.yaml cannot point outside its bag."""
+
+from __future__ import annotations
+
+import argparse
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from bptsb_ros.analysis.replay import read_run
+from bptsb_ros.bags.errors import BagError
+from bptsb_ros.bags.publishers import PublisherId
+from bptsb_ros.bags.reader import bag_info, format_info, read_messages, read_published
+from bptsb_ros.bags.recover import recover_bag
+from bptsb_ros.bags.writer import BagWriter
+from bptsb_ros.cli import replay_cmd
+from bptsb_ros.ros import messages as m
+
+DT_NS = 10_000_000
+STEPS = 20
+BODY = PublisherId("01.0f.aa.00.00.00.00.00.00.00.00.00.00.00.01.03", "body_sim", "/")
+FORGER = PublisherId("01.0f.bb.00.00.00.00.00.00.00.00.00.00.00.01.03", "forger", "/evil")
+BODY_TWIN = PublisherId("01.0f.cc.00.00.00.00.00.00.00.00.00.00.00.01.03", "body_sim", "/")  # a forged name
+
+
+def _state(k: int) -> np.ndarray:
+    """Positions (3, 2) [m] of step k: mass 2 moves 1 mm per step."""
+    return np.array([[-1.0, 0.0], [1.0, 0.0], [0.0, 0.001 * k]])
+
+
+def _bag(path: Path, extra: list[tuple[int, np.ndarray, PublisherId | None]] = (),
+         body: PublisherId | None = BODY) -> Path:
+    """A bag of /body/positions for steps 0..STEPS from ``body`` (None: no identities), plus ``extra`` messages
+    (step, positions, publisher), each written right after the body's message of that step."""
+    from rclpy.serialization import serialize_message
+
+    with BagWriter(path) as w:
+        w.add_topic("/body/positions", "geometry_msgs/msg/PoseArray")
+        for k in range(STEPS + 1):
+            w.write("/body/positions", serialize_message(m.pose_array(k, DT_NS, _state(k), "msdn")), k * DT_NS + 1,
+                    publisher=body)
+            for step, pos, who in extra:
+                if step == k:
+                    w.write("/body/positions", serialize_message(m.pose_array(step, DT_NS, pos, "msdn")),
+                            k * DT_NS + 2, publisher=who)
+    return path
+
+
+def test_foreign_publishers_are_ignored_and_reported(tmp_path: Path) -> None:
+    forged = [(k, np.full((3, 2), 9.0), FORGER) for k in (3, 4, 5)]
+    repeat = [(7, _state(7), BODY)]  # the body's own state of step 7, once more: a duplicate
+    bag = _bag(tmp_path / "b", forged + repeat)
+    run = read_run(bag)
+    assert run.steps.tolist() == list(range(STEPS + 1))
+    np.testing.assert_array_equal(run.positions, np.stack([_state(k) for k in range(STEPS + 1)]))
+    report = run.provenance.to_dict()
+    assert report["checked"] is True
+    assert report["foreign"] == {"/body/positions": {"/evil/forger": 3}} and report["foreign_messages"] == 3
+    assert report["duplicates"] == {"/body/positions": 1}
+    assert report["used"] == {"/body/positions": {"/body_sim": STEPS + 2}}
+    # the bag itself: one channel per publisher, named in its metadata; readers that merge by topic see all 25
+    with open(bag / "b_0.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    names = {c.id: (c.metadata["publisher_node"], c.metadata["publisher_namespace"]) for c in summary.channels.values()}
+    assert sorted(names.values()) == [("body_sim", "/"), ("forger", "/evil")]
+    assert sorted(summary.statistics.channel_message_counts.values()) == [3, STEPS + 2]
+    assert len(list(read_messages(bag))) == STEPS + 5
+    assert "/body/positions: /body_sim [01.0f.aa" in format_info(bag_info(bag))
+
+
+def test_two_different_body_states_for_one_step_fail_loudly(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = _bag(tmp_path / "twin", [(5, _state(5) + 0.5, BODY_TWIN)])
+    with pytest.raises(BagError, match=r"two different /body/positions messages for the same step \(stamp 50000000 "
+                                       r"ns\), from /body_sim \[01\.0f\.aa.*\] and /body_sim \[01\.0f\.cc"):
+        read_run(bag)
+    same_gid = _bag(tmp_path / "same", [(5, _state(5) + 0.5, BODY)])  # the body itself says two things
+    with pytest.raises(BagError, match="two different /body/positions messages"):
+        read_run(same_gid)
+    parser = argparse.ArgumentParser()  # `bptsb replay BAG`, as the CLI dispatches it
+    replay_cmd.add_arguments(parser)
+    code = replay_cmd.run(parser.parse_args([str(bag), "--out", str(tmp_path / "o"), "--task", "locomotion",
+                                             "--no-gif"]))
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "two different /body/positions messages" in err, err
+
+
+def test_bag_without_identities_is_read_with_a_warning(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag = _bag(tmp_path / "old", body=None)
+    assert all(p.publisher is None for p in read_published(bag))
+    run = read_run(bag)
+    assert run.provenance.checked is False and run.steps.tolist() == list(range(STEPS + 1))
+    from bptsb_ros.analysis.replay import replay
+
+    metrics = replay(bag, tmp_path / "out", gif=False)  # no task: no metric, no plots
+    assert metrics["publishers"]["checked"] is False
+    assert "publishers cannot be checked" in capsys.readouterr().err
+    assert "Publishers:        not recorded" in format_info(bag_info(bag))
+    conflicting = _bag(tmp_path / "old2", [(4, _state(4) + 1.0, None)], body=None)
+    with pytest.raises(BagError, match="the bag does not record their publishers"):
+        read_run(conflicting)
+
+
+def test_recovery_keeps_the_publishers(tmp_path: Path) -> None:
+    bag = _bag(tmp_path / "r", [(k, np.full((3, 2), 9.0), FORGER) for k in (1, 2)])
+    mcap = bag / "r_0.mcap"
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: len(data) - 200])  # the summary and footer torn off
+    (bag / "metadata.yaml").unlink()
+    recover_bag(bag)
+    assert Counter(p.publisher for p in read_published(bag)) == {BODY: STEPS + 1, FORGER: 2}
+
+
+@pytest.mark.parametrize("name, ok", [
+    ("b_0.mcap", True), ("./b_0.mcap", True),  # what rosbag2 writes, and the same name spelled with ./
+    ("../b/b_0.mcap", False),  # names this very file, through the parent: refused all the same
+    ("../../etc/passwd", False), ("/etc/passwd", False), ("", False), ("link_0.mcap", False),
+])
+def test_metadata_cannot_point_outside_the_bag(tmp_path: Path, name: str, ok: bool) -> None:
+    bag = _bag(tmp_path / "b")
+    outside = tmp_path / "outside.mcap"
+    outside.write_bytes((bag / "b_0.mcap").read_bytes())
+    (bag / "link_0.mcap").symlink_to(outside)  # inside the bag by name, outside by what it leads to
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("path: b_0.mcap", f"path: '{name}'")
+                    .replace("- b_0.mcap", f"- '{name}'"))
+    if ok:
+        assert bag_info(bag).message_count == STEPS + 1 and len(read_run(bag).steps) == STEPS + 1
+        return
+    for read in (bag_info, read_run, lambda b: list(read_messages(b))):
+        with pytest.raises(BagError, match="not a file name inside the bag directory|leads outside the bag"):
+            read(bag)
