@@ -118,7 +118,12 @@ def test_target_ipc_smoke(tmp_path):
     for name, p in prof.items():
         assert rows[(name, "IPC degree 2")] == pytest.approx(p["by_degree"][1])
         assert sum(p["by_degree"]) == pytest.approx(p["total"])
-    assert len(data["claims"]) == 5 and (tmp_path / "target_ipc.png").is_file()
+    # the claims read the run's own profiles (their verdicts on planted numbers: tests/test_claims_timeseries.py)
+    claims = data["claims"]
+    assert len(claims) == 4 and claims[0]["holds"] is True  # the memory target is u(t − 8) itself
+    share1 = prof["NARMA2"]["by_degree"][0] / prof["NARMA2"]["total"]
+    assert f"NARMA2: degree-1 share {share1:.3f}" in claims[1]["evidence"]
+    assert (tmp_path / "target_ipc.png").is_file()
 
 
 def _states(run_dir, epochs):
@@ -151,12 +156,16 @@ def test_narma_emulation_smoke(tmp_path):
             assert st["positions"].shape == (len(u), 17, 2)
             ours = rows[f"{brain.upper()} + {body} (N_mov 17)"]
             assert ours == pytest.approx(_nmse(_cmp_y(st)[washout:], st["target"][washout:]))
-    claims = {c["claim"]: c["holds"] for c in data["claims"]}
+    # each comparison only between systems that learned (NMSE < 1); one false comparison makes the claim false
+    def pair(better, worse):
+        a, b = rows[f"{better} (N_mov 17)"], rows[f"{worse} (N_mov 17)"]
+        return None if max(a, b) >= 1 else a < b
+
     bodies = ("double-circle", "multiple-circle")
-    mlp = all(rows[f"MLP + {b} (N_mov 17)"] < rows[f"LIL + {b} (N_mov 17)"] for b in bodies)
-    mc = all(rows[f"{br} + multiple-circle (N_mov 17)"] < rows[f"{br} + double-circle (N_mov 17)"]
-             for br in ("LIL", "MLP"))
-    assert list(claims.values()) == [mlp, mc]
+    mlp = [pair(f"MLP + {b}", f"LIL + {b}") for b in bodies]
+    mc = [pair(f"{br} + multiple-circle", f"{br} + double-circle") for br in ("LIL", "MLP")]
+    expected = [False if False in v else None if None in v else True for v in (mlp, mc)]
+    assert [c["holds"] for c in data["claims"]] == expected
     assert (tmp_path / "narma_emulation.png").is_file()
 
 
@@ -177,11 +186,19 @@ def test_narma_ipc_smoke(tmp_path):
     def nonlinear(label):
         return sum(ipc_sum[label]["by_degree"][1:])
 
-    grows = all(nonlinear(f"{b} output, epoch 1") > nonlinear(f"{b} output, epoch 0") for b in ("LIL", "MLP"))
-    assert data["claims"][0]["holds"] == grows
-    mlp3, lil3 = rows[("MLP output, epoch 1", "IPC degree 3")], rows[("LIL output, epoch 1", "IPC degree 3")]
+    # degrees 2 and 3 each grow, read only where the system learned (NMSE < 1 at the last stage)
+    def grows(b):
+        first, last = ipc_sum[f"{b} output, epoch 0"]["by_degree"], ipc_sum[f"{b} output, epoch 1"]["by_degree"]
+        learned = rows[(f"{b} output, epoch 1", "NMSE (held-out)")] < 1
+        return (last[1] > first[1] and last[2] > first[2]) if learned else None
+
+    both = [grows(b) for b in ("LIL", "MLP")]
+    assert data["claims"][1]["holds"] == (False if False in both else None if None in both else True)
+    mlp3 = rows[("MLP output, epoch 1", "IPC degree 3")]
     assert mlp3 == pytest.approx(ipc_sum["MLP output, epoch 1"]["by_degree"][2])
-    assert data["claims"][1]["holds"] == (mlp3 > lil3)
+    # every bar (outputs, masses, target) within 0.1 of the rank of one
+    assert data["claims"][5]["holds"] == all(abs(v["total"] - 1) <= 0.1 + 1e-9 for v in ipc_sum.values())
+    assert len(data["claims"]) == 6
     assert (tmp_path / "narma_ipc.png").is_file()
 
 
@@ -196,8 +213,12 @@ def test_memory_task_smoke(tmp_path):
             assert d["nmse"][body][i][0] == pytest.approx(_nmse(_cmp_y(st)[w:], st["target"][w:]))
     # the multiple circle's CMP neighbours from its springs, by hand: the innermost ring, masses 32-35 of 37
     assert d["cmp_neighbours"]["multiple-circle"] == [32, 33, 34, 35]
-    mean = {b: np.mean(d["nmse"][b]) for b in ("double-circle", "multiple-circle")}
-    assert data["claims"][1]["holds"] == bool(mean["multiple-circle"] < mean["double-circle"])
+    # "generally smaller": at more than half of the Δt, read only where every system learned (mean NMSE < 1)
+    mean = {b: np.mean(d["nmse"][b], axis=1) for b in ("double-circle", "multiple-circle")}
+    wins = int(np.sum(mean["multiple-circle"] < mean["double-circle"]))
+    learned = max(mean["double-circle"].max(), mean["multiple-circle"].max()) < 1
+    assert data["claims"][1]["holds"] == ((2 * wins > len(d["delays"])) if learned else None)
+    assert len(data["claims"]) == 6
     assert {p.rsplit("/", 1)[-1] for p in data["figures"]} == {"memory_error.png", "memory_ipc.png"}
 
 
@@ -223,7 +244,7 @@ def test_zero_bias_relu_mlp_is_linear_on_nonnegative_input_only():
 
 def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
     """At paper scale the LIL + multiple circle blew up under the paper's SGD rates (update 11): such a system is a
-    result (no emulation: counted as an infinite error, named in the claims), not a failed experiment."""
+    result (no emulation: named in the claims, which it makes not testable), not a failed experiment."""
     from bptsb_ros.experiments import timeseries
     from bptsb_ros.training.trainer import TrainingDiverged
 
@@ -241,6 +262,8 @@ def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
     assert data["details"]["diverged"] == {
         "LIL + multiple-circle (N_mov 17)": "TrainingDiverged: update 11: simulation diverged at step 3000"}
     claims = data["claims"]
-    # the MLP beats a LIL that blew up; the LIL's multiple circle cannot beat its double circle
-    assert claims[0]["holds"] == (rows["MLP + double-circle (N_mov 17)"] < rows["LIL + double-circle (N_mov 17)"])
-    assert claims[1]["holds"] is False and "diverged" in claims[1]["evidence"]
+    # a system that blew up learned nothing: the comparisons with it are not testable (and the smoke scale's others,
+    # 1 epoch, learned nothing either), and the evidence says why
+    assert [c["holds"] for c in claims] == [None, None]
+    assert all("LIL + multiple-circle (N_mov 17): training diverged (TrainingDiverged: update 11" in c["evidence"]
+               for c in claims)

@@ -7,28 +7,156 @@ training (a job of ``bptsb_ros.sweep``, run in parallel). The error is the NMSE 
 Figures: (a) error vs Δt, mean ± std over seeds, per body; (b) input, target and outputs at Δt = 8; (c) the IPC of
 the output and of every movable mass's x and y at Δt = 8, with F₁(u(t−8)) in red.
 
-Claims (computed):
-
-* the error grows with Δt in both bodies (Spearman rank correlation of the mean error with Δt ≥ :data:`RHO_MIN`);
-* the multiple-circle body has the smaller error on average over Δt;
-* at Δt = 8 the per-mass F₁(u(t−8)) capacity is largest at the masses joined to the CMP (multiple circle: the
-  mean over the CMP's neighbours exceeds the mean over the other movable masses, the CMP itself excluded).
+Claims: :func:`claims`, each the sentence of the supplement it tests (quoted there) with its premise (the systems
+it compares learned, NMSE < 1).
 """
 
 from __future__ import annotations
 
-from bptsb_ros.experiments.registry import Context, experiment
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
+import numpy as np
+
+from bptsb_ros.experiments.claim_rules import at_most
+from bptsb_ros.experiments.registry import Context, experiment
+from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.timeseries_claims import RANK_TOL, all_of, fmt, not_learned, rank_reached
+
+__all__ = ["EQUAL_TOL", "FOCUS_DELAY", "RHO_MIN", "MemoryNumbers", "claims", "run", "spearman"]
+
+#: Spearman rank correlation of the mean error with Δt at or above which (inclusive) "the larger Δt, the larger
+#: the error" holds: a monotone trend up to noise (1 is strictly monotone; one swap of neighbours in 5 gives 0.9)
 RHO_MIN = 0.8
 FOCUS_DELAY = 8
+#: the output's F₁(u(t−Δt)) capacity "does not equal" the target's when they differ by more than this
+EQUAL_TOL = 0.1
+BODY_NAMES = ("double-circle", "multiple-circle")
 
 
 def spearman(x, y) -> float:
     """Spearman rank correlation (no ties expected)."""
-    import numpy as np
-
     rx, ry = np.argsort(np.argsort(x)), np.argsort(np.argsort(y))
     return float(np.corrcoef(rx, ry)[0, 1])
+
+
+@dataclass(frozen=True)
+class MemoryNumbers:
+    """What the claims of memory-task rest on.
+
+    delays: (D,) the Δt trained; nmse: body (``"double-circle"``, ``"multiple-circle"``) → (D, S) held-out NMSE per
+    Δt and seed; focus: the Δt of the IPC figure (8); the IPC is that of each body's first seed at Δt = focus:
+    output_f1, body → the output's F₁(u(t−focus)) capacity; target_f1, the target's; per_mass_f1, multiple
+    circle's movable mass id (the CMP excluded) → its F₁(u(t−focus)) capacity (the larger of its x and y);
+    cmp_neighbours, the multiple circle's masses joined to the CMP by a spring; totals, every IPC bar's total
+    capacity (label → total; every bar is a 1-D state set)."""
+
+    delays: Sequence[int]
+    nmse: Mapping[str, Sequence[Sequence[float]]]
+    focus: int
+    output_f1: Mapping[str, float]
+    target_f1: float
+    per_mass_f1: Mapping[int, float]
+    cmp_neighbours: Sequence[int]
+    totals: Mapping[str, float]
+
+
+def claims(n: MemoryNumbers) -> list[Claim]:
+    """The supplement ("Memory task"), on its figure:
+
+    1. "The larger the delayed time step Δt, the larger the reconstruction error, regardless of the body shape": for
+       each body the Spearman correlation of the mean error (over seeds) with Δt ≥ :data:`RHO_MIN`.
+    2. "The systems with a multiple-circle structure generally tended to have smaller errors than those with a
+       double-circle structure": the multiple circle's mean error is smaller (strictly) at more than half of the Δt.
+    3. "The system with multiple circles can emulate the target time-series more accurately" (Δt = 8, panel (b)):
+       the multiple circle's mean error at Δt = focus is smaller (strictly).
+    4. "In the double-circle structure, the output IPC does not equal the target IPC even after sufficient training
+       epochs, while the multiple-circle body can reproduce most of it": the target's IPC is F₁(u(t−8)) alone, so
+       the double circle's output F₁(u(t−8)) differs from the target's by more than :data:`EQUAL_TOL`, and the
+       multiple circle's is more than half the target's.
+    5. "Focusing on the IPC of each mass point in the multiple-circle body, we can see that the profiles of the time
+       delay Δt=8 at the mass points with IDs 14, 15, and 16 are relatively large. These mass points are located at
+       the innermost part of the circles and connected to the CMP directly": the mean F₁(u(t−8)) capacity of the
+       masses joined to the CMP exceeds that of the other movable masses (the CMP excluded).
+    6. Caption: "The total capacity reached the rank of one in all cases": every IPC bar within :data:`RANK_TOL`
+       of 1 (inclusive). No premise.
+
+    Premise of 1-5: the systems each reads learned (NMSE < 1): 1 and 2 every (body, Δt) (mean over seeds), 3 both
+    bodies at Δt = focus (mean over seeds), 4 and 5 the first-seed systems whose IPC they read.
+    """
+    delays = list(n.delays)
+    if len(delays) < 2 or n.focus not in delays:
+        raise ValueError(f"need at least two Δt including the focus {n.focus}, got {delays}")
+    err = {b: np.asarray(n.nmse[b], float) for b in BODY_NAMES}
+    mean = {b: err[b].mean(axis=1) for b in BODY_NAMES}
+    fi = delays.index(n.focus)
+
+    def system(b: str, dt: int) -> str:
+        return f"LIL + {b} at Δt = {dt}"
+
+    every = {b: {system(b, dt): float(mean[b][i]) for i, dt in enumerate(delays)} for b in BODY_NAMES}
+    out: list[Claim] = []
+
+    verdicts, parts = [], []
+    for b in BODY_NAMES:
+        rho = spearman(np.array(delays), mean[b])
+        premise = not_learned(every[b])
+        verdicts.append(None if premise else at_most(RHO_MIN, rho))
+        parts.append(f"{b}: ρ = {rho:.2f}" + (f" (not testable: {premise} (mean over seeds))" if premise else ""))
+    out.append(Claim(f"the error grows with Δt in both bodies (Spearman ρ of the mean error with Δt ≥ {RHO_MIN})",
+                     all_of(verdicts), "; ".join(parts)))
+
+    text = "the multiple-circle body generally has the smaller error (at more than half of the Δt, mean over seeds)"
+    premise = not_learned({**every["double-circle"], **every["multiple-circle"]})
+    if premise:
+        out.append(Claim.not_testable(text, f"{premise} (mean over seeds)"))
+    else:
+        wins = [dt for i, dt in enumerate(delays) if mean["multiple-circle"][i] < mean["double-circle"][i]]
+        out.append(Claim(text, 2 * len(wins) > len(delays),
+                         f"smaller at {len(wins)} of {len(delays)} Δt ({wins}); mean NMSE over Δt: multiple-circle "
+                         f"{fmt(float(mean['multiple-circle'].mean()))}, double-circle "
+                         f"{fmt(float(mean['double-circle'].mean()))}"))
+
+    text = f"at Δt = {n.focus} the multiple circle emulates the target more accurately (smaller NMSE, mean over seeds)"
+    premise = not_learned({system(b, n.focus): float(mean[b][fi]) for b in BODY_NAMES})
+    if premise:
+        out.append(Claim.not_testable(text, f"{premise} (mean over seeds)"))
+    else:
+        out.append(Claim(text, bool(mean["multiple-circle"][fi] < mean["double-circle"][fi]),
+                         f"NMSE: multiple-circle {fmt(float(mean['multiple-circle'][fi]))}, double-circle "
+                         f"{fmt(float(mean['double-circle'][fi]))}"))
+
+    first = {b: float(err[b][fi, 0]) for b in BODY_NAMES}
+    focus = f"F₁(u(t−{n.focus}))"
+    text = (f"at Δt = {n.focus} the double circle's output IPC does not equal the target's (its {focus} off by > "
+            f"{EQUAL_TOL:g}) while the multiple circle's reproduces most of it (> half the target's {focus})")
+    premise = not_learned({f"{system(b, n.focus)} (first seed)": first[b] for b in BODY_NAMES})
+    if premise:
+        out.append(Claim.not_testable(text, premise))
+    else:
+        dc, mc = n.output_f1["double-circle"], n.output_f1["multiple-circle"]
+        holds = abs(dc - n.target_f1) > EQUAL_TOL and mc > 0.5 * n.target_f1
+        out.append(Claim(text, bool(holds), f"output {focus}: double-circle {fmt(dc)}, multiple-circle {fmt(mc)}; "
+                                            f"target {fmt(n.target_f1)}"))
+
+    text = (f"multiple circle, Δt = {n.focus}: the per-mass {focus} capacity is largest at the masses joined to the "
+            "CMP (their mean exceeds the other movable masses' mean)")
+    near = [c for i, c in n.per_mass_f1.items() if i in n.cmp_neighbours]
+    far = [c for i, c in n.per_mass_f1.items() if i not in n.cmp_neighbours]
+    if not near or not far:
+        raise ValueError("the multiple circle's movable masses must include masses joined to the CMP and others")
+    premise = not_learned({f"{system('multiple-circle', n.focus)} (first seed)": first["multiple-circle"]})
+    if premise:
+        out.append(Claim.not_testable(text, premise))
+    else:
+        out.append(Claim(text, bool(np.mean(near) > np.mean(far)),
+                         f"joined to the CMP {sorted(n.cmp_neighbours)}: mean {fmt(float(np.mean(near)))} (max "
+                         f"{fmt(max(near))}); others: mean {fmt(float(np.mean(far)))} (max {fmt(max(far))})"))
+
+    holds, evidence = rank_reached(n.totals)
+    out.append(Claim(f"the total capacity reaches the rank of one in all cases (every IPC bar at Δt = {n.focus}; "
+                     f"|total − 1| ≤ {RANK_TOL:g})", holds, evidence))
+    return out
 
 
 @experiment(
@@ -41,8 +169,6 @@ def spearman(x, y) -> float:
                         "backend) × 17 Δt × 2 bodies × 5 seeds, / workers: ≈ 20 h on 2 workers"},
 )
 def run(ctx: Context) -> None:
-    import numpy as np
-
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
     from bptsb_ros.experiments.timeseries import (
@@ -82,13 +208,7 @@ def run(ctx: Context) -> None:
             ctx.row(f"LIL + {b} (N_mov {N_MOV})", f"NMSE at Δt = {dt} (mean of {len(seeds)} seeds)", "1",
                     float(err[b][i].mean()))
     rho = {b: spearman(np.array(delays), err[b].mean(axis=1)) for b in BODIES}
-    ctx.claim(f"the error grows with Δt in both bodies (Spearman ρ ≥ {RHO_MIN})",
-              all(r >= RHO_MIN for r in rho.values()),
-              "; ".join(f"{b}: ρ = {r:.2f}" for b, r in rho.items()))
     avg = {b: float(err[b].mean()) for b in BODIES}
-    ctx.claim("the multiple-circle body has a smaller error than the double circle on average over Δt",
-              avg["multiple-circle"] < avg["double-circle"],
-              f"mean NMSE: multiple-circle {avg['multiple-circle']:.3g}, double-circle {avg['double-circle']:.3g}")
 
     # IPC at Δt = 8 (first seed): the output and every movable coordinate, both bodies, one call
     focus = FOCUS_DELAY if FOCUS_DELAY in delays else delays[len(delays) // 2]
@@ -119,18 +239,15 @@ def run(ctx: Context) -> None:
         cmp = int(states[b]["cmp_index"])
         per_mass[b] = {i: float(max(res.capacity[res.group(f"{b}: mass {i} {a}"), f] for a in "xy"))
                        for i in movable if i != cmp}
-    mc = per_mass["multiple-circle"]
-    near = [c for i, c in mc.items() if i in cmp_neighbours["multiple-circle"]]
-    far = [c for i, c in mc.items() if i not in cmp_neighbours["multiple-circle"]]
-    ctx.claim(f"multiple circle, Δt = {focus}: the per-mass F₁(u(t−{focus})) capacity is largest at the masses joined "
-              "to the CMP (their mean exceeds the other movable masses' mean)",
-              bool(near and far and np.mean(near) > np.mean(far)),
-              f"joined to the CMP {cmp_neighbours['multiple-circle']}: mean {np.mean(near):.3g} (max {max(near):.3g}); "
-              f"others: mean {np.mean(far):.3g} (max {max(far):.3g})")
     out_f = {b: float(res.capacity[res.group(f"{b}: output (CMP y)"), f]) for b in BODIES}
     for b in BODIES:
         ctx.row(f"LIL + {b} (N_mov {N_MOV}), Δt = {focus}", f"output F₁(u(t−{focus})) capacity", "1", out_f[b],
                 "target: 1")
+    ctx.result.claims.extend(claims(MemoryNumbers(
+        delays=tuple(delays), nmse={b: err[b].tolist() for b in BODIES}, focus=focus, output_f1=out_f,
+        target_f1=float(res.capacity[res.group("target"), f]), per_mass_f1=per_mass["multiple-circle"],
+        cmp_neighbours=cmp_neighbours["multiple-circle"],
+        totals={lab: float(res.total[res.group(lab)]) for lab in res.labels})))
 
     # figures (a) error vs Δt, (b) Δt = focus series, (c) IPC
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
