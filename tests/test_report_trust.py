@@ -337,3 +337,15 @@ def test_report_error_for_the_api(tmp_path):
     (tmp_path / "R_figures").mkdir()
     with pytest.raises(ReportError, match="not made by bptsb report"):
         build_report(tmp_path / "runs", tmp_path / "R.md")
+
+
+@pytest.mark.parametrize(("command", "shown"), [
+    ("bptsb reproduce mnist-pca --data /srv/lab/data/mnist", "bptsb reproduce mnist-pca --data …/mnist"),
+    ("bptsb reproduce x --out runs/x --data data/mnist", "bptsb reproduce x --out runs/x --data data/mnist"),
+    ("bptsb train /home/u/a.yaml --out /tmp/r", "bptsb train …/a.yaml --out …/r"),
+    ("bptsb reproduce x --set a=1/2", "bptsb reproduce x --set a=1/2"),
+])
+def test_report_shows_commands_without_absolute_paths(command: str, shown: str) -> None:
+    from bptsb_ros.analysis.report import portable_command
+
+    assert portable_command(command) == shown

@@ -131,12 +131,22 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
     return out
 
 
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~-])/(?:[^\s/]+/)*([^\s/]+)")
+
+
+def portable_command(command: str) -> str:
+    """``command`` with every absolute path shortened to ``…/`` and its last component: where the data lay on
+    the machine that ran it is no part of how to reproduce it (``--data /srv/x/mnist`` → ``--data …/mnist``)."""
+    return _ABSOLUTE_PATH.sub(lambda m: f"…/{m.group(1)}", command)
+
+
 def _provenance_lines(prov: dict[str, Any]) -> list[str]:
     lines = []
     if prov.get("command"):
         sha = str(prov.get("git_commit") or "")
         commit = f" at commit `{sha}`" if _GIT_SHA.fullmatch(sha) else (f" at commit {md_text(sha)}" if sha else "")
-        lines += ["", md_pre(prov["command"]), "", f"({md_text(prov.get('machine', ''))}{commit}.)"]
+        command = portable_command(str(prov["command"]))
+        lines += ["", md_pre(command), "", f"({md_text(prov.get('machine', ''))}{commit}.)"]
     for key, value in prov.items():
         if key not in ("command", "git_commit", "machine", "python"):
             lines.append(f"- {md_text(key)}: {md_text(value)}")
