@@ -18,6 +18,7 @@ included) to at most ``MAX_YAML_NODES`` nodes, every float must be finite, and e
 from __future__ import annotations
 
 import copy
+import difflib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -208,13 +209,65 @@ def safe_yaml(text: str, what: str) -> Any:
         raise ConfigError(str(err)) from None
 
 
+def _section_model(path: Sequence[Any]) -> type[BaseModel] | None:
+    """The model of the config section at ``path`` (``()``: the whole config); None where ``path`` is no section."""
+    model: type[BaseModel] = ExperimentConfig
+    for part in path:
+        field = model.model_fields.get(part) if isinstance(part, str) else None
+        annotation = field.annotation if field is not None else None
+        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+            return None
+        model = annotation
+    return model
+
+
+def config_keys() -> list[str]:
+    """Every valid dotted key of an experiment config, sections and values (``training``, ``training.lr.k``)."""
+    keys: list[str] = []
+
+    def walk(path: list[str]) -> None:
+        for name in _section_model(path).model_fields:
+            keys.append(".".join([*path, name]))
+            if _section_model([*path, name]) is not None:
+                walk([*path, name])
+
+    walk([])
+    return keys
+
+
+def did_you_mean(path: Sequence[Any]) -> str:
+    """``"; did you mean training.lr.phase?"`` for the unknown key at ``path``, ``""`` when no valid key is close.
+
+    Its last part is matched (difflib.get_close_matches) against the keys of the same section (cutoff 0.6) and,
+    for a key put in the wrong section (``body.amplitude``), against the last parts of every other valid dotted
+    key (stricter, cutoff 0.8); the closer of the two wins."""
+    if not path:
+        return ""
+    name, parent = str(path[-1]), [str(p) for p in path[:-1]]
+    section = _section_model(parent)
+    siblings = {n: ".".join([*parent, n]) for n in [*(section.model_fields if section else ()),
+                                                  *([] if parent else ["profiles"])]}
+    others: dict[str, str] = {}
+    for key in config_keys():
+        head, _, last = key.rpartition(".")
+        if head != ".".join(parent):
+            others.setdefault(last, key)
+    best, score = "", 0.0
+    for names, cutoff in ((siblings, 0.6), (others, 0.8)):
+        for match in difflib.get_close_matches(name, list(names), n=1, cutoff=cutoff):
+            ratio = difflib.SequenceMatcher(None, name, match).ratio()
+            if ratio > score:
+                best, score = names[match], ratio
+    return f"; did you mean {best}?" if best else ""
+
+
 def _format_errors(err: ValidationError, source: str) -> str:
     lines = []
     for e in err.errors():
         loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
         msg = e["msg"]
         if e["type"] == "extra_forbidden":
-            msg = "unknown key"
+            msg = "unknown key" + did_you_mean(e["loc"])
         lines.append(f"  {loc}: {msg} (got {echo(e.get('input'))})")
     return f"invalid configuration {source}:\n" + "\n".join(lines)
 
@@ -228,6 +281,23 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if not path:
         raise ConfigError(f"override {echo(text)} has an empty key")
     return path, safe_yaml(raw, f"override {echo(key)}")
+
+
+def _shown_key(path: Sequence[str]) -> str:
+    key = ".".join(path)
+    return key if key.isprintable() and len(key) <= ECHO_CHARS else echo(key)
+
+
+def check_override_key(path: Sequence[str]) -> None:
+    """Raise ConfigError (one line, with a "did you mean" where a valid key is close) unless ``path`` names a
+    key or section of an experiment config (anything under ``profiles`` is the file's own business)."""
+    if path[0] == "profiles":
+        return
+    for i, part in enumerate(path):
+        if _section_model(path[:i]) is None:
+            raise ConfigError(f"override {_shown_key(path)}: {_shown_key(path[:i])} is a value, not a section")
+        if part not in _section_model(path[:i]).model_fields:
+            raise ConfigError(f"override {_shown_key(path[:i + 1])}: unknown key{did_you_mean(path[:i + 1])}")
 
 
 Overrides = Sequence[str] | Mapping[str, Any]
@@ -264,6 +334,7 @@ def apply_overrides(data: dict, overrides: Overrides) -> dict:
 
 def _apply_items(data: dict, items: list[tuple[list[str], Any, str]]) -> dict:
     for path, value, text in items:
+        check_override_key(path)
         node = data
         for part in path[:-1]:
             child = node.setdefault(part, {})

@@ -8,10 +8,13 @@ and bounds the text length; :func:`bounded_repr` bounds what an error message re
 
 from __future__ import annotations
 
+import re
 import reprlib
 from typing import Any
 
 import yaml
+
+_TAG = re.compile(r"tag '([^']*)'")
 
 
 class UntrustedYamlError(ValueError):
@@ -73,6 +76,11 @@ def load_untrusted_yaml(text: str | bytes, what: str, *, max_bytes: int = 1 << 2
         return yaml.load(text, Loader=loader)  # noqa: S506 - a SafeLoader subclass
     except UntrustedYamlError as err:
         raise UntrustedYamlError(f"{what}: {err}") from None
+    except yaml.constructor.ConstructorError as err:  # a tag such as !!python/object: plain data only
+        tag = _TAG.search(str(err.problem or ""))
+        shown = bounded_repr(tag.group(1) if tag else str(err.problem), 120)
+        raise UntrustedYamlError(f"{what} uses the YAML tag {shown}, which is not plain data (only safe YAML "
+                                 "is read)") from None
     except yaml.YAMLError as err:
         raise UntrustedYamlError(f"{what} is not valid YAML: {bounded_repr(str(err), 300)}") from None
 

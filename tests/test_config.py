@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import pytest
+import yaml
 
 from bptsb_ros.config import ConfigError, load_config, validate
 
@@ -102,4 +103,50 @@ def test_profiles_merge_over_the_file_and_bad_ones_name_the_problem(tmp_path):
         load_config(p)
     p.write_text("task: lissajous\nprofile: x\n")
     with pytest.raises(ConfigError, match=r"profile 'x' is not defined .*\(defined: none\)"):
+        load_config(p)
+
+
+@pytest.mark.parametrize("key, suggestion", [
+    ("sim_tme", "sim_time"), ("trainig", "training"), ("training.lr.phaze", "training.lr.phase"),
+    ("lissajous.alfa", "lissajous.alpha"), ("body.amplitude", "brain.amplitude"),  # in the wrong section
+])
+def test_a_near_miss_key_suggests_the_valid_one(tmp_path, key, suggestion):
+    *sections, last = key.split(".")
+    p = tmp_path / "c.yaml"
+    p.write_text("task: lissajous\n" + "".join(f"{'  ' * i}{s}:\n" for i, s in enumerate(sections))
+                 + f"{'  ' * len(sections)}{last}: 1\n")
+    with pytest.raises(ConfigError, match=rf"{key.replace('.', '[.]')}: unknown key; did you mean "
+                                          rf"{suggestion.replace('.', '[.]')}\?"):
+        load_config(p)
+    # the same key as a --set override: one line, the same suggestion
+    with pytest.raises(ConfigError) as err:
+        load_config(EXPERIMENTS[0], [f"{key}=1"])
+    assert str(err.value) == f"override {key}: unknown key; did you mean {suggestion}?"
+
+
+@pytest.mark.parametrize("key", ["xyzzy", "training.lr.spring", "narma.quux", "feedback.zz"])
+def test_a_far_key_suggests_nothing(tmp_path, key):
+    with pytest.raises(ConfigError) as err:
+        load_config(EXPERIMENTS[0], [f"{key}=1"])
+    assert str(err.value) == f"override {key}: unknown key"
+    nested: object = 1
+    for part in reversed(key.split(".")):
+        nested = {part: nested}
+    p = tmp_path / "c.yaml"
+    p.write_text(yaml.safe_dump({"task": "lissajous", **nested}))
+    with pytest.raises(ConfigError, match=f"{key.replace('.', '[.]')}: unknown key") as err:
+        load_config(p)
+    assert "did you mean" not in str(err.value)
+
+
+def test_an_override_past_a_value_is_not_a_section():
+    with pytest.raises(ConfigError, match=r"^override body\.dt\.x: body\.dt is a value, not a section$"):
+        load_config(EXPERIMENTS[0], ["body.dt.x=1"])
+
+
+def test_a_yaml_tag_is_refused_naming_it(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("task: !!python/object/apply:os.system [echo hi]\n")
+    with pytest.raises(ConfigError, match=r"uses the YAML tag 'tag:yaml\.org,2002:python/object/apply:os\.system', "
+                                          r"which is not plain data"):
         load_config(p)

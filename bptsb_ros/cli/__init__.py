@@ -25,6 +25,7 @@ SUBCOMMANDS = (
     "sweep",
     "data",
     "ipc",
+    "config",
 )
 
 
