@@ -21,9 +21,7 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 import re
-import tempfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +30,7 @@ from typing import Any, NamedTuple
 import yaml
 
 from bptsb_ros.config import MAX_CONFIG_BYTES, ConfigError, ExperimentConfig, echo, safe_yaml, validate
-from bptsb_ros.safe_files import UnsafeFileError, open_regular, read_regular
+from bptsb_ros.safe_files import UnsafeFileError, open_regular, read_regular, write_text_atomic
 
 MARKER = "# written by bptsb config import from the authors' config; `bptsb config import --force` may replace it"
 """First line of every file :func:`write_output` writes; a file without it is never overwritten."""
@@ -687,14 +685,7 @@ def write_output(text: str, out: str | Path, force: bool = False) -> Path:
         if not force:
             raise ImportFailure(f"{_shown(str(out))} exists (written by bptsb config import); pass --force to "
                                 "replace it")
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(out, text)
     return out
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import stat
+import tempfile
 from pathlib import Path
 from typing import BinaryIO
 
@@ -57,3 +58,16 @@ def read_regular(path: str | Path, max_bytes: int) -> bytes:
             raise UnsafeFileError(f"{path} holds {max(size, len(data))} bytes, more than the maximum of "
                                   f"{max_bytes} bytes")
     return data
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``path`` atomically: a unique temporary file beside it, then a rename (a crash never leaves half a
+    file, and the temporary file is removed on any failure)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -18,7 +18,6 @@ from __future__ import annotations
 import os
 import re
 import sys
-import tempfile
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -26,6 +25,7 @@ from typing import Any
 from bptsb_ros.analysis.markdown import md_link_target, md_pre, md_text
 from bptsb_ros.analysis.owned_folder import OwnedFolder, OwnedFolderError
 from bptsb_ros.experiments.result import RESULT_FILE, ResultError, claim_mark, read_result
+from bptsb_ros.safe_files import write_text_atomic
 
 #: the first line of every page the report writes (an HTML comment: invisible when rendered)
 PAGE_MARKER = "<!-- written by bptsb report: rerunning `bptsb report` replaces this page -->"
@@ -184,14 +184,7 @@ def _check_page(out: Path) -> None:
 def _write_page(out: Path, text: str) -> None:
     """Write ``out`` atomically (a unique temporary file beside it, then a rename)."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(out, text)
 
 
 def _anchor(r: dict[str, Any]) -> str:
