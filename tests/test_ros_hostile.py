@@ -153,7 +153,8 @@ def test_divergence_with_on_divergence_stop_ends_the_run_with_a_finalised_bag(tm
 
 
 def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp_path, ros_env, ros_domain_id):
-    """A node named ``forger`` publishes /body/positions (all masses at (7, 7)) for every step of a lockstep run:
+    """A node named ``forger`` publishes /body/positions (all masses at (7, 7)) for every step of a lockstep run,
+    from the moment it sees the recorder (3 s of simulated time, so discovery under load leaves it many steps):
     the bag keeps its messages on a channel marked with its node and GID, next to the body's; replay uses only
     body_sim's, reports the forger's by name and count, and the replayed run equals the offline one."""
     import subprocess
@@ -188,7 +189,7 @@ def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp
     forger.subscribe(Clock, "/clock", m.state_qos(100), on_clock)
     bag = tmp_path / "bag"
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--agent", str(run),
-                             "--duration", "1", "--bag", str(bag), "--timeout", "120"],
+                             "--duration", "3", "--bag", str(bag), "--timeout", "120"],
                             env=env_for(ros_env), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         assert forger.spin_until(lambda: proc.poll() is not None, 150)
@@ -201,13 +202,13 @@ def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp
     assert proc.returncode == 0, out[-4000:]
     metrics = replay(bag, tmp_path / "replay", run, gif=False)
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9  # the forged states are not used
-    assert metrics["recorded_steps"] == 101 and metrics["missing_steps"] == 0
+    assert metrics["recorded_steps"] == 301 and metrics["missing_steps"] == 0
     from bptsb_ros.bags.reader import read_published
 
     by_node: dict[str, list[int]] = {}
     for (_, _, _, msg), publisher in read_published(bag, ["/body/positions"]):
         by_node.setdefault(publisher.name, []).append(m.step_of(msg.header.stamp, DT_NS))
-    assert sorted(by_node["/body_sim"]) == list(range(101))
+    assert sorted(by_node["/body_sim"]) == list(range(301))
     assert set(by_node) == {"/body_sim", "/forger"} and len(by_node["/forger"]) >= 50, {k: len(v) for k, v in
                                                                                        by_node.items()}
     with open(bag / "bag_0.mcap", "rb") as f:  # the forger's channel, read without our reader
