@@ -117,6 +117,9 @@ setup(
         "matplotlib",
         "tqdm",
         "mcap>=1.6",
+        # decodes bag messages without ROS (bags.decode); 0.10.8 ships the Jazzy types, and bags.decode calls the
+        # typestore's per-type CDR deserialisers (Typestore.get_msgdef), whose signature 0.10.8-0.11 share
+        "rosbags>=0.10.8,<0.12",
         "imageio",
         "pillow",
         "distributed",  # bptsb sweep --scheduler: jobs on a Dask cluster; LocalCluster in the tests
@@ -131,7 +134,6 @@ setup(
         "dev": [
             "pytest>=8",
             "ruff==0.17.6",
-            "rosbags",
             "colcon-core",
             "colcon-ros",
             # make docs: the documentation site and its API reference

@@ -5,7 +5,8 @@ A bag is a directory ``<name>/`` holding ``metadata.yaml`` (rosbag2 Jazzy format
 indexed), readable by ``ros2 bag``, Foxglove, the ``mcap`` library and ``rosbags``.
 
 - :class:`BagWriter` (:mod:`.writer`) writes one; the recorder node (:mod:`bptsb_ros.ros.recorder`) uses it.
-- :func:`read_messages`, :func:`read_arrays`, :func:`bag_info` (:mod:`.reader`) read one back.
+- :func:`read_messages`, :func:`read_arrays`, :func:`bag_info` (:mod:`.reader`) read one back, decoding messages
+  with rclpy where it is installed and with rosbags from the bag's own schemas where it is not (:mod:`.decode`).
 - :func:`recover_bag` (:mod:`.recover`) rebuilds one left unfinished by a killed recorder.
 """
 

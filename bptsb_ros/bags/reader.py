@@ -4,9 +4,10 @@ Every chunk's CRC is verified before any message is read: a damaged chunk is an 
 byte offset and its time range (``bptsb bag recover`` rebuilds the file from the intact chunks), or, with
 ``skip_damaged=True`` (``--skip-damaged``), skipped with a warning on stderr.
 
-Messages come back as ``(topic, msgtype, timestamp_ns, message)`` with the message deserialized by rclpy from
-its CDR bytes (no ROS graph needed), or as raw bytes with ``raw=True``. :func:`read_arrays` stacks given
-topics into numpy arrays for analysis.
+Messages come back as ``(topic, msgtype, timestamp_ns, message)`` with the message deserialized from its CDR
+bytes (no ROS graph needed): by rclpy where it is installed, else by rosbags from the bag's own schema
+(:mod:`bptsb_ros.bags.decode`: same field names and values, so no ROS install is needed to analyse a bag), or as
+raw bytes with ``raw=True``. :func:`read_arrays` stacks given topics into numpy arrays for analysis.
 """
 
 from __future__ import annotations
@@ -29,9 +30,9 @@ from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.summary import Summary
 
+from bptsb_ros.bags.decode import MessageDecoder
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import METADATA_FILENAME, BagMetadata, TopicInfo, bag_file, read_metadata
-from bptsb_ros.bags.msgdefs import get_message_class
 from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, names_from_record
 from bptsb_ros.bags.qos import qos_profiles_from_value
 from bptsb_ros.bags.recording import RECORDING_RECORD, recorded_loss
@@ -39,7 +40,8 @@ from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
 
 
 class BagMessage(NamedTuple):
-    """One message: ``timestamp_ns`` is the receive (log) time in ns; ``message`` is an rclpy message or bytes."""
+    """One message: ``timestamp_ns`` is the receive (log) time in ns; ``message`` is an rclpy or rosbags message
+    (:mod:`bptsb_ros.bags.decode`), or the CDR bytes."""
 
     topic: str
     msgtype: str
@@ -259,6 +261,7 @@ def read_messages(
     start_ns: int | None = None,
     end_ns: int | None = None,
     skip_damaged: bool = False,
+    decoder: str = "auto",
 ) -> Iterator[BagMessage]:
     """Iterate the messages of a bag: in receive-time order within each MCAP file, file after file (the files
     of a bag written by one recorder follow each other in time). Every message of a topic comes back, whoever
@@ -266,15 +269,17 @@ def read_messages(
 
     :param path: bag directory or ``.mcap`` file.
     :param topics: topics to read (all when ``None``); a topic the bag does not have raises :class:`BagError`.
-    :param raw: yield the CDR bytes instead of deserialized rclpy messages.
+    :param raw: yield the CDR bytes instead of deserialized messages.
     :param start_ns: first receive time to include (ns, inclusive).
     :param end_ns: receive time to stop at (ns, exclusive).
     :param skip_damaged: skip chunks that fail their CRC check (with a warning on stderr) instead of raising
         :class:`BagError` naming them.
+    :param decoder: ``auto`` (rclpy where it knows the message type, else rosbags), ``rclpy`` or ``rosbags``
+        (:mod:`bptsb_ros.bags.decode`).
     """
-    classes: dict[str, type] = {}
+    decode = MessageDecoder(decoder)
     for schema, channel, message, _ in _records(path, topics, start_ns, end_ns, skip_damaged):
-        yield _decode(schema, channel, message, raw, classes)
+        yield _decode(schema, channel, message, raw, decode)
 
 
 class PublishedMessage(NamedTuple):
@@ -291,11 +296,12 @@ def read_published(
     *,
     raw: bool = False,
     skip_damaged: bool = False,
+    decoder: str = "auto",
 ) -> Iterator[PublishedMessage]:
     """Like :func:`read_messages`, with each message's publisher (GID and node, from its channel)."""
-    classes: dict[str, type] = {}
+    decode = MessageDecoder(decoder)
     for schema, channel, message, publisher in _records(path, topics, None, None, skip_damaged):
-        yield PublishedMessage(_decode(schema, channel, message, raw, classes), publisher)
+        yield PublishedMessage(_decode(schema, channel, message, raw, decode), publisher)
 
 
 def _records(
@@ -330,19 +336,16 @@ def _records(
 
 
 def _decode(
-    schema: Schema | None, channel: Channel, message: Message, raw: bool, classes: dict[str, type]
+    schema: Schema | None, channel: Channel, message: Message, raw: bool, decode: MessageDecoder
 ) -> BagMessage:
     msgtype = schema.name if schema is not None else ""
     if raw:
         return BagMessage(channel.topic, msgtype, message.log_time, message.data)
     if channel.message_encoding != "cdr":
         raise BagError(f"topic {channel.topic} has message encoding {channel.message_encoding!r}, not 'cdr'")
-    cls = classes.get(msgtype)
-    if cls is None:
-        cls = classes[msgtype] = get_message_class(msgtype)
-    from rclpy.serialization import deserialize_message
-
-    return BagMessage(channel.topic, msgtype, message.log_time, deserialize_message(message.data, cls))
+    if schema is None:
+        raise BagError(f"topic {channel.topic} has no schema: its messages cannot be decoded (raw=True reads them)")
+    return BagMessage(channel.topic, msgtype, message.log_time, decode(schema, message.data))
 
 
 # -- arrays ------------------------------------------------------------------------------------------------------
@@ -405,18 +408,19 @@ def read_arrays(
     *,
     converters: dict[str, Callable[[Any], np.ndarray]] | None = None,
     skip_damaged: bool = False,
+    decoder: str = "auto",
 ) -> dict[str, TopicSeries]:
     """Read topics into stacked arrays: ``{topic: TopicSeries}`` with ``values`` of shape (K, ...).
 
     ``converters`` maps a topic to a function ``message -> ndarray`` overriding :func:`to_array`. Every message
-    of a topic must convert to the same shape.
+    of a topic must convert to the same shape. ``decoder``: as for :func:`read_messages`.
     """
     topics = [topics] if isinstance(topics, str) else list(topics)
     converters = converters or {}
     rows: dict[str, list[np.ndarray]] = {t: [] for t in topics}
     times: dict[str, list[int]] = {t: [] for t in topics}
     types: dict[str, str] = dict.fromkeys(topics, "")
-    for topic, msgtype, t_ns, msg in read_messages(path, topics, skip_damaged=skip_damaged):
+    for topic, msgtype, t_ns, msg in read_messages(path, topics, skip_damaged=skip_damaged, decoder=decoder):
         convert = converters.get(topic)
         rows[topic].append(np.asarray(convert(msg) if convert else to_array(msgtype, msg), dtype=np.float64))
         times[topic].append(t_ns)
