@@ -152,6 +152,7 @@ ROSDEP_KEYS: dict[str, str | None] = {
     "numpy": "python3-numpy", "yaml": "python3-yaml", "pydantic": "python3-pydantic",
     "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "PIL": "python3-pil", "numba": "python3-numba",
     "sklearn": "python3-sklearn", "torch": None, "mcap": None, "distributed": None,
+    "threadpoolctl": None,
 }
 
 
