@@ -226,3 +226,36 @@ def test_reproduce_cli_passes_the_scheduler(tmp_path, marks, monkeypatch, cluste
     assert main(["reproduce", "closed-loop-schemes", "--scale", "smoke", "--out", str(tmp_path / "bad"),
                  "--workers", "-1"]) == 2
     assert "--workers must be a whole number >= 0" in capsys.readouterr().err
+
+
+def _square(x: int, run_dir: Path) -> dict:
+    (run_dir / "out.txt").write_text(str(x * x))
+    return {"square": x * x}
+
+
+def test_locomotion_agents_are_adopted_only_from_own_reproduce_runs(tmp_path):
+    """Finished jobs of a sibling `bptsb reproduce` run are copied in (and not run again); a sibling that is not
+    such a run, and a record of another job, are not."""
+    import functools
+
+    from bptsb_ros.experiments.locomotion_common import AGENTS_DIR, adopt_sibling_agents
+    from bptsb_ros.experiments.registry import RUN_MARKER
+    from bptsb_ros.sweep import Job, run_sweep
+
+    def jobs(*xs):
+        return [Job(f"seed-{x}", functools.partial(_square, x)) for x in xs]
+
+    for name, xs, marked in (("a", (1,), True), ("b", (2,), False)):
+        run_sweep(jobs(*xs), tmp_path / name / AGENTS_DIR, workers=0, threads=None)
+        if marked:
+            (tmp_path / name / RUN_MARKER).write_text("bptsb reproduce x\n")
+    # a sibling run holding seed-3's directory with the record of another job (x = 4 under the name seed-3)
+    run_sweep([Job("seed-3", functools.partial(_square, 4))], tmp_path / "d" / AGENTS_DIR, workers=0, threads=None)
+    (tmp_path / "d" / RUN_MARKER).write_text("bptsb reproduce x\n")
+    out = tmp_path / "c"
+    out.mkdir()
+    where = out / AGENTS_DIR
+    assert adopt_sibling_agents(jobs(1, 2, 3), where, out, lambda m: None) == ["seed-1"]
+    res = run_sweep(jobs(1, 2, 3), where, workers=0, threads=None)
+    assert res.skipped == ["seed-1"] and res.results()["seed-3"] == {"square": 9}
+    assert (where / "jobs" / "seed-1" / "out.txt").read_text() == "1"

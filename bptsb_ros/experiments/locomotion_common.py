@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import os
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -88,13 +89,15 @@ def train_agents(ctx: Any, settings: AgentSettings, seeds: list[int]) -> SweepRe
 def adopt_sibling_agents(jobs: list[Job], where: Path, out_dir: Path, log) -> list[str]:
     """Copy into ``where/jobs/`` every job of ``jobs`` not finished there that a sibling run
     (``out_dir/../*/agents``) finished (a valid record with this job's key); returns the names copied. Only
-    regular files are copied (symbolic links are left behind)."""
+    siblings that are ``bptsb reproduce`` runs of this user are read (a shared parent such as ``/tmp`` may hold
+    anyone's directories), and only regular files are copied (symbolic links are left behind)."""
+    from bptsb_ros.experiments.registry import RUN_MARKER
     from bptsb_ros.sweep import finished_record, job_key
 
     here = Path(out_dir).resolve()
     try:
         siblings = [p / AGENTS_DIR for p in sorted(here.parent.iterdir())
-                    if p.resolve() != here and (p / AGENTS_DIR / "jobs").is_dir()]
+                    if p.resolve() != here and _own_run(p, RUN_MARKER) and (p / AGENTS_DIR / "jobs").is_dir()]
     except OSError:
         return []
     copied = []
@@ -114,6 +117,17 @@ def adopt_sibling_agents(jobs: list[Job], where: Path, out_dir: Path, log) -> li
             copied.append(job.name)
             break
     return copied
+
+
+def _own_run(path: Path, marker: str) -> bool:
+    """``path`` is a directory of an earlier ``bptsb reproduce`` run (it holds ``marker``) owned by this user."""
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    owner = getattr(os, "getuid", None)
+    return path.is_dir() and not path.is_symlink() and (path / marker).is_file() and (
+        owner is None or st.st_uid == owner())
 
 
 def forward_agent_job(settings: AgentSettings, seed: int, run_dir: Path) -> dict[str, Any]:
