@@ -123,6 +123,7 @@ setup(
         "imageio",
         "pillow",
         "distributed",  # bptsb sweep --scheduler: jobs on a Dask cluster; LocalCluster in the tests
+        "threadpoolctl",  # one BLAS/OpenMP thread inside every job of the runner (local and Dask workers)
         "scikit-learn",
     ],
     extras_require={

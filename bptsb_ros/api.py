@@ -260,8 +260,8 @@ def run_experiment(name: str, *, scale: Literal["smoke", "short", "paper"] = "sm
         force: replace an earlier ``bptsb reproduce`` run in ``out``.
         resume: continue an unfinished run in ``out`` (needs ``out``).
         progress: progress bars on stderr.
-        workers: local worker processes for experiments with independent trainings (None: the CPUs; 0: this
-            process).
+        workers: local worker processes for the experiment's independent trainings (None: the CPUs, at smoke
+            scale this process; 0: this process); ``result.provenance["jobs"]`` records where they ran.
         scheduler: a Dask scheduler address to run those trainings on instead.
         data: the data directory of experiments that read a data set (MNIST).
         split: the MNIST train/test split ("auto", "paper", "test-8k-2k").

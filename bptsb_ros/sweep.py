@@ -8,7 +8,8 @@ is the callable for ``bptsb sweep CONFIG``: train one config with overrides and 
 Layout of a sweep directory::
 
     OUT/jobs/NAME/        one run directory per job (whatever the job writes)
-    OUT/jobs/NAME/job.json  {"name", "key", "status": "done"|"failed", "wall_s", "result"|"error", "files"},
+    OUT/jobs/NAME/job.json  {"name", "key", "status": "done"|"failed", "wall_s", "result"|"error", "files",
+                          "ran_on": {"host", "pid", "dask_worker"}},
                           written last
     OUT/sweep.json        every job's record, in job order
     OUT/sweep.csv         the same as a table: name, status, wall_s, error, then the result keys
@@ -21,12 +22,14 @@ status ``done``, the job's name, its ``key`` (a hash of what the job is: its cal
 trusted: the job runs again (with one line saying why). Failed and unfinished jobs run again. A job that raises
 is recorded as failed with its error and traceback; the other jobs go on.
 
-Where jobs run: ``workers`` local processes (``concurrent.futures`` with the ``spawn`` start method,
-one torch thread each), or, with ``scheduler="tcp://HOST:8786"``, the workers of an existing Dask distributed
-cluster (a lab cluster or SLURM through dask-jobqueue; docs, "Reproducing"). Cluster workers must import
-``bptsb_ros`` and see ``OUT`` on a shared file system. The scheduler address is ``tcp://HOST:PORT`` or
-``HOST:PORT``; connecting gives up after ``connect_timeout`` seconds, whatever the other end does
-(:mod:`bptsb_ros.dask_connect`).
+Where jobs run (:mod:`bptsb_ros.runner`, the one runner of the package): ``workers`` local processes
+(``concurrent.futures`` with the ``spawn`` start method; 0: this process), or, with
+``scheduler="tcp://HOST:8786"``, the workers of an existing Dask distributed cluster (a lab cluster or SLURM
+through dask-jobqueue; docs, "Reproducing"). Cluster workers must import ``bptsb_ros`` and see ``OUT`` on a
+shared file system. The scheduler address is ``tcp://HOST:PORT`` or ``HOST:PORT``; connecting gives up after
+``connect_timeout`` seconds, whatever the other end does (:mod:`bptsb_ros.dask_connect`). Inside every job,
+local or on the cluster, BLAS/OpenMP and torch run one thread (``threads``), and the record names where the
+job ran (``ran_on``).
 """
 
 from __future__ import annotations
@@ -37,19 +40,18 @@ import functools
 import hashlib
 import json
 import math
-import multiprocessing
 import os
 import re
 import sys
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bptsb_ros.rundir_lock import LOCK_NAME, hold_run_dir
+from bptsb_ros.runner import Placement, RunInfo, connect_placement, ran_on, run_calls
 
 JOB_FILE = "job.json"
 SWEEP_JSON = "sweep.json"
@@ -105,6 +107,14 @@ class SweepResult:
     out_dir: Path
     records: list[dict[str, Any]]
     skipped: list[str] = field(default_factory=list)
+    #: where the jobs that ran this time ran (None: built by hand)
+    info: RunInfo | None = None
+
+    def provenance(self) -> dict[str, Any]:
+        """What this sweep used, for a result's provenance: :meth:`RunInfo.to_json` plus the jobs reused."""
+        out = self.info.to_json() if self.info is not None else {}
+        out["reused"] = len(self.skipped)
+        return out
 
     @property
     def failed(self) -> list[dict[str, Any]]:
@@ -251,19 +261,16 @@ def _manifest(run_dir: Path) -> dict[str, int]:
     return files
 
 
-def execute_job(job: Job, run_dir: str | Path, torch_threads: int | None = None,
-                key: str | None = None) -> dict[str, Any]:
+def execute_job(job: Job, run_dir: str | Path, key: str | None = None) -> dict[str, Any]:
     """Run one job in ``run_dir`` and write its ``job.json``; never raises for the job's own errors.
 
     ``key``: :func:`job_key` of ``job`` (computed here if not given; the sweep passes the one it checks against).
+    The record names where the job ran (``ran_on``: host, process id, Dask worker address or None). Threads are
+    the runner's business (:func:`bptsb_ros.runner.call_limited` wraps this call).
     """
     run_dir = Path(run_dir)
     key = key if key is not None else job_key(job)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if torch_threads:
-        import torch
-
-        torch.set_num_threads(torch_threads)
     t0 = time.perf_counter()
     try:
         result = job.fn(run_dir)
@@ -271,10 +278,10 @@ def execute_job(job: Job, run_dir: str | Path, torch_threads: int | None = None,
             raise TypeError(f"job {job.name!r} returned {type(result).__name__}, not a dict of results")
         record: dict[str, Any] = {"name": job.name, "key": key, "status": "done",
                                   "wall_s": round(time.perf_counter() - t0, 3), "result": _jsonable(result),
-                                  "files": _manifest(run_dir)}
+                                  "files": _manifest(run_dir), "ran_on": ran_on()}
     except Exception as err:  # noqa: BLE001 - a failing job is reported, the sweep goes on
         record = {"name": job.name, "key": key, "status": "failed", "wall_s": round(time.perf_counter() - t0, 3),
-                  "error": f"{type(err).__name__}: {err}", "traceback": traceback.format_exc()}
+                  "error": f"{type(err).__name__}: {err}", "traceback": traceback.format_exc(), "ran_on": ran_on()}
     tmp = run_dir / (JOB_FILE + ".tmp")
     tmp.write_text(json.dumps(record, indent=2))
     tmp.replace(run_dir / JOB_FILE)  # atomic: a killed job leaves no half-written record
@@ -333,7 +340,7 @@ def run_sweep(
     workers: int | None = None,
     scheduler: str | None = None,
     progress: Callable[[Progress], None] | None = None,
-    torch_threads: int | None = 1,
+    threads: int | None = 1,
     connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
     notice: Callable[[str], None] | None = None,
 ) -> SweepResult:
@@ -347,7 +354,8 @@ def run_sweep(
             :func:`bptsb_ros.dask_connect.scheduler_address`; or
             the ``inproc://`` address of an in-process cluster) to run the jobs on.
         progress: called with the counts after every change.
-        torch_threads: torch threads per job (1: as many jobs as cores without oversubscription; None: leave).
+        threads: BLAS/OpenMP and torch threads inside each job (1: as many jobs as cores without
+            oversubscription; None: leave them), for local and Dask workers alike (:mod:`bptsb_ros.runner`).
         connect_timeout: seconds to wait for the Dask scheduler to answer.
         notice: called with one line per job whose ``job.json`` claims it finished but is not trusted (the job
             runs again); default: printed to stderr.
@@ -366,7 +374,7 @@ def run_sweep(
         raise SweepError(f"job names must be distinct; repeated: {dup[:3]}")
     address = None
     if scheduler:
-        from bptsb_ros.dask_connect import connect, scheduler_address
+        from bptsb_ros.dask_connect import scheduler_address
 
         # inproc://: a LocalCluster(processes=False) of this very process (tests, notebooks); never from the CLI
         address = scheduler if scheduler.startswith("inproc://") else scheduler_address(scheduler)
@@ -389,7 +397,8 @@ def run_sweep(
                 else:
                     print(line, file=sys.stderr, flush=True)
         todo = [j for j in jobs if j.name not in records]
-        client = connect(address, connect_timeout) if address and todo else None
+        placement = Placement(workers, scheduler=address)
+        client = connect_placement(placement, connect_timeout) if address and todo else None
         try:
             (out / "jobs").mkdir(exist_ok=True)
             counts = {"done": len(records), "running": 0, "failed": 0}
@@ -399,74 +408,23 @@ def run_sweep(
                 if progress is not None:
                     progress(Progress(len(jobs), counts["done"], running, counts["failed"]))
 
-            def finish(record: dict[str, Any]) -> None:
-                records[record["name"]] = record
+            def finish(i: int, record: Any, where: dict[str, Any] | None, error: BaseException | None) -> None:
+                job = todo[i]
+                if error is not None:  # execute_job never raises: the worker process died or the task was lost
+                    record = {"name": job.name, "status": "failed", "wall_s": None,
+                              "error": f"worker failed: {type(error).__name__}: {error}"}
+                records[job.name] = record
                 counts["done" if record["status"] == "done" else "failed"] += 1
 
             report(0)
-            if client is not None:
-                _run_dask(todo, out, client, keys, torch_threads, finish, report)
-            elif todo and workers == 0:
-                for job in todo:
-                    report(1)
-                    finish(execute_job(job, out / "jobs" / job.name, torch_threads, keys[job.name]))
-                report(0)
-            elif todo:
-                _run_pool(todo, out, workers or _cpus(), torch_threads, keys, finish, report)
+            calls = [(job.name, execute_job, (job, str(out / "jobs" / job.name), keys[job.name])) for job in todo]
+            info = run_calls(calls, placement, threads=threads, client=client, on_done=finish, report=report)
         finally:
             if client is not None:
                 client.close()
         ordered = [records[n] for n in names]
         write_tables(out, ordered)
-    return SweepResult(out, ordered, skipped)
-
-
-def _cpus() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
-def _run_pool(todo: list[Job], out: Path, workers: int, threads: int | None, keys: dict[str, str],
-              finish: Callable[[dict[str, Any]], None], report: Callable[[int], None]) -> None:
-    workers = max(1, min(workers, len(todo)))
-    ctx = multiprocessing.get_context("spawn")  # no forked torch/ROS state in the workers
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        pending = {pool.submit(execute_job, job, out / "jobs" / job.name, threads, keys[job.name]): job for job in todo}
-        report(min(workers, len(pending)))
-        while pending:
-            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                job = pending.pop(fut)
-                try:
-                    finish(fut.result())
-                except Exception as err:  # noqa: BLE001 - the worker process itself died
-                    finish({"name": job.name, "status": "failed", "wall_s": None,
-                            "error": f"worker process failed: {type(err).__name__}: {err}"})
-            report(min(workers, len(pending)))
-
-
-def _run_dask(todo: list[Job], out: Path, client: Any, keys: dict[str, str], threads: int | None,
-              finish: Callable[[dict[str, Any]], None], report: Callable[[int], None]) -> None:
-    from distributed import as_completed
-
-    stamp = time.time_ns()  # fresh task keys: a resumed sweep never reuses an old result held by the cluster
-    futures = {client.submit(execute_job, job, str(out / "jobs" / job.name), threads, keys[job.name],
-                             key=f"bptsb-{job.name}-{stamp}", pure=False): job for job in todo}
-
-    def running() -> int:
-        try:
-            return min(len(futures), sum(len(v) for v in client.processing().values()))
-        except Exception:  # noqa: BLE001 - counts only
-            return 0
-
-    report(running())
-    for fut in as_completed(list(futures)):
-        job = futures.pop(fut)
-        try:
-            finish(fut.result())
-        except Exception as err:  # noqa: BLE001 - the worker died or the task was lost
-            finish({"name": job.name, "status": "failed", "wall_s": None,
-                    "error": f"dask task failed: {type(err).__name__}: {err}"})
-        report(running())
+    return SweepResult(out, ordered, skipped, info)
 
 
 def write_tables(out: str | Path, records: list[dict[str, Any]]) -> tuple[Path, Path]:

@@ -140,7 +140,8 @@ def test_smoke_runs_match_their_records(tmp_path):
     """The three experiments at smoke scale, sharing their agents; every row and claim recomputed."""
     _, cl = run_experiment("locomotion-closed-loop-20", scale="smoke", out_dir=tmp_path / "cl", progress=False,
                            workers=0, log=lambda m: None)
-    sweep = json.loads(next(tmp_path.glob("_locomotion-agents-*/sweep.json")).read_text())
+    assert not list(tmp_path.glob("_locomotion-agents-*")) and sorted(p.name for p in tmp_path.iterdir()) == ["cl"]
+    sweep = json.loads((tmp_path / "cl" / "agents" / "sweep.json").read_text())  # inside --out
     recs = [r["result"] for r in sweep["records"]]
     assert len(recs) == 2 and sweep["done"] == 2
     count = sum(r["open_speed"] > 0 and r["closed_speed"] >= 0.7 * r["open_speed"] for r in recs)
@@ -155,6 +156,13 @@ def test_smoke_runs_match_their_records(tmp_path):
 
     _, pe = run_experiment("locomotion-perturbation", scale="smoke", out_dir=tmp_path / "pe", progress=False,
                            workers=0, log=lambda m: None)
+    # the agents of the sibling run were copied in and reused, none trained again; the provenance says so
+    assert cl["provenance"]["jobs"] == [{"what": "locomotion agents", "scheduler": "this process", "workers": 1,
+                                         "jobs": 2, "ran_in": 1, "reused": 0}]
+    assert pe["provenance"]["jobs"] == [{"what": "locomotion agents", "scheduler": "this process", "workers": 0,
+                                         "jobs": 0, "ran_in": 0, "reused": 2}]
+    copied = json.loads((tmp_path / "pe" / "agents" / "sweep.json").read_text())
+    assert [r["result"] for r in copied["records"]] == recs
     d = pe["details"]
     assert len(d["sigmas"]) == 11 and d["noise_seeds_per_sigma"] == 3
     mean = {k: np.array(v) for k, v in d["return_rate_mean"].items()}

@@ -214,12 +214,11 @@ def _redraw(system, images: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
 PROBE_N, PROBE_CHANCE = 15, 2 / 15
 
 
-def test_mnist_pca_smoke(tiny_mnist, tmp_path, monkeypatch):
+def test_mnist_pca_smoke(tiny_mnist, tmp_path):
     """Silhouettes recomputed with numpy (SVD for PCA, the silhouette by its definition) from the saved system;
     the claims' verdicts recomputed from them and the rows."""
     from bptsb_ros.tasks.mnist_drawing import load_system
 
-    monkeypatch.setenv("BPTSB_WORKERS", "1")
     data, images, labels = tiny_mnist
     out = tmp_path / "pca"
     result = reproduce("mnist-pca", data, out)
@@ -268,10 +267,9 @@ def best_draw_own_digit(errs: np.ndarray, labels: np.ndarray) -> bool:
     return all(int(errs[i].argmin()) == d for d, i in enumerate(best))
 
 
-def test_mnist_labelmap_smoke(tiny_mnist, tmp_path, monkeypatch):
+def test_mnist_labelmap_smoke(tiny_mnist, tmp_path):
     from bptsb_ros.tasks.mnist_drawing import load_system
 
-    monkeypatch.setenv("BPTSB_WORKERS", "1")
     data, images, labels = tiny_mnist
     result = reproduce("mnist-labelmap", data, tmp_path / "lm")
     system = load_system(tmp_path / "lm" / "systems" / "mlp-multiple_circle-37.pt")[0]
@@ -293,10 +291,9 @@ def verdicts_of(result: dict) -> list[bool | None]:
     return [c["holds"] for c in result["claims"]]
 
 
-def test_mnist_specific100_smoke(tiny_mnist, tmp_path, monkeypatch):
+def test_mnist_specific100_smoke(tiny_mnist, tmp_path):
     from bptsb_ros.tasks.mnist_drawing import load_system
 
-    monkeypatch.setenv("BPTSB_WORKERS", "1")
     data, _, _ = tiny_mnist
     result = reproduce("mnist-specific100", data, tmp_path / "sp")
     assert "20 images (2 per digit" in result["provenance"]["data"]
@@ -346,8 +343,7 @@ def test_mnist_specific100_smoke(tiny_mnist, tmp_path, monkeypatch):
     assert got[6:] == labelmap_verdicts(sizes, best_draw_own_digit(errs, y))[:2]
 
 
-def test_mnist_readout_smoke(tiny_mnist, tmp_path, monkeypatch):
-    monkeypatch.setenv("BPTSB_WORKERS", "1")
+def test_mnist_readout_smoke(tiny_mnist, tmp_path):
     data, _, _ = tiny_mnist
     result = reproduce("mnist-readout", data, tmp_path / "ro")
     acc = {r["system"]: r["ours"] for r in result["rows"]}

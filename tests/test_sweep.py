@@ -63,7 +63,7 @@ def test_bad_job_names_are_refused(tmp_path):
 def test_local_pool_failure_and_resume(tmp_path):
     values = [0, 1, 2, 3, 4]
     seen = []
-    res = run_sweep(_jobs(values), tmp_path, workers=2, progress=seen.append, torch_threads=None)
+    res = run_sweep(_jobs(values), tmp_path, workers=2, progress=seen.append, threads=None)
     _check_tables(tmp_path, values)
     assert [r["name"] for r in res.failed] == ["x3"]
     assert "ValueError" in res.failed[0]["error"] and "Traceback" in res.failed[0]["traceback"]
@@ -75,7 +75,7 @@ def test_local_pool_failure_and_resume(tmp_path):
 
     # a sweep killed while x4 ran: x4 left its directory but no job.json
     (tmp_path / "jobs" / "x4" / JOB_FILE).unlink()
-    res = run_sweep(_jobs(values), tmp_path, workers=2, torch_threads=None)
+    res = run_sweep(_jobs(values), tmp_path, workers=2, threads=None)
     assert sorted(res.skipped) == ["x0", "x1", "x2"]
     assert [_calls(tmp_path, f"x{v}") for v in values] == [1, 1, 1, 2, 2]  # failed and unfinished ran again
     _check_tables(tmp_path, values)

@@ -186,7 +186,7 @@ def _record(out: Path, name: str) -> dict:
 def test_only_a_genuine_finished_record_is_reused(tmp_path):
     out = tmp_path
     values = list(range(12))
-    run_sweep(_jobs(values), out, workers=0, torch_threads=None)
+    run_sweep(_jobs(values), out, workers=0, threads=None)
     assert all(_calls(out, f"x{v}") == 1 for v in values)
     good = _record(out, "x0")
     assert set(good) >= {"name", "key", "status", "wall_s", "result", "files"}
@@ -208,7 +208,7 @@ def test_only_a_genuine_finished_record_is_reused(tmp_path):
     (out / "jobs" / "x12").mkdir()
     plant("x12", {"status": "done", "name": "x12", "wall_s": 1, "result": {}})  # a job that never ran
     notices: list[str] = []
-    res = run_sweep(_jobs([*values, 12]), out, workers=0, torch_threads=None, notice=notices.append)
+    res = run_sweep(_jobs([*values, 12]), out, workers=0, threads=None, notice=notices.append)
     rerun = [f"x{v}" for v in range(1, 11)] + ["x12"]
     assert sorted(res.skipped) == ["x0", "x11"]  # the genuine records, reused
     assert sorted(n.split(":")[0] for n in notices) == sorted(rerun)  # one line per untrusted record
@@ -222,7 +222,7 @@ def test_only_a_genuine_finished_record_is_reused(tmp_path):
 def test_a_bare_done_status_is_not_trusted(tmp_path, capsys):
     (tmp_path / "jobs" / "x4").mkdir(parents=True)
     (tmp_path / "jobs" / "x4" / JOB_FILE).write_text('{"status": "done"}')
-    res = run_sweep(_jobs([4]), tmp_path, workers=0, torch_threads=None)
+    res = run_sweep(_jobs([4]), tmp_path, workers=0, threads=None)
     assert res.skipped == [] and res.results()["x4"] == {"square": 16}
     assert _calls(tmp_path, "x4") == 1
     line = _one_line(capsys.readouterr().err)  # the default notice: one line on stderr
@@ -230,9 +230,9 @@ def test_a_bare_done_status_is_not_trusted(tmp_path, capsys):
 
 
 def test_a_record_of_other_arguments_is_not_reused(tmp_path):
-    run_sweep(_jobs([2]), tmp_path, workers=0, torch_threads=None)
+    run_sweep(_jobs([2]), tmp_path, workers=0, threads=None)
     # the same name, another argument (as another --set or --seed would be): its record is not this job's
-    res = run_sweep([Job("x2", functools.partial(_counting_job, 3))], tmp_path, workers=0, torch_threads=None)
+    res = run_sweep([Job("x2", functools.partial(_counting_job, 3))], tmp_path, workers=0, threads=None)
     assert res.skipped == [] and res.results()["x2"] == {"square": 9}
     assert _calls(tmp_path, "x2") == 2
 

@@ -148,9 +148,22 @@ def _provenance_lines(prov: dict[str, Any]) -> list[str]:
         command = portable_command(str(prov["command"]))
         lines += ["", md_pre(command), "", f"({md_text(prov.get('machine', ''))}{commit}.)"]
     for key, value in prov.items():
-        if key not in ("command", "git_commit", "machine", "python"):
+        if key == "jobs" and isinstance(value, list):
+            lines += [f"- jobs: {md_text(_jobs_line(batch))}" for batch in value]
+        elif key not in ("command", "git_commit", "machine", "python"):
             lines.append(f"- {md_text(key)}: {md_text(value)}")
     return lines
+
+
+def _jobs_line(batch: object) -> str:
+    """One batch of ``provenance.jobs`` (:class:`bptsb_ros.runner.RunInfo`) in words; anything else as it is."""
+    if not isinstance(batch, dict):
+        return str(batch)
+    text = (f"{batch.get('what', 'jobs')}: {batch.get('jobs')} on {batch.get('scheduler')} "
+            f"({batch.get('workers')} workers, ran in {batch.get('ran_in')} processes")
+    if batch.get("reused"):
+        text += f", {batch['reused']} reused"
+    return text + ")"
 
 
 def _unique_dir(name: str, used: set[str]) -> str:

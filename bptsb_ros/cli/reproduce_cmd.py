@@ -34,7 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None,
-                       help="experiments with independent trainings: local worker processes (default: the CPUs)")
+                       help="the experiment's independent trainings: N local worker processes, 0: this process "
+                            "(default: the CPUs; --scale smoke: this process)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="... or the Dask distributed scheduler to run them on (tcp://HOST:8786)")
 

@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import DRAWS_NMSE
-from bptsb_ros.experiments.jobs import run_jobs
 from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded, train_single_curve
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
@@ -186,8 +185,8 @@ def run(ctx: Context) -> None:
     jobs = [(str(ctx.out_dir / f"curve{ci}_seed{s}"), (CURVES[ci].alpha, CURVES[ci].beta, CURVES[ci].delta), s,
              pre_time, add_time, eval_periods, scheme1_time) for ci, s in grid]
     ctx.log(f"closed-loop-schemes: {len(jobs)} jobs (preliminary {pre_time} s, schemes {add_time} s)")
-    results = run_jobs(scheme_job, jobs, workers=ctx.pick(smoke=1, short=2, paper=2),
-                       names=[f"curve {CURVES[ci]} seed {s}" for ci, s in grid])
+    results = ctx.run_jobs(scheme_job, jobs,
+                           names=[f"curve {CURVES[ci]} seed {s}" for ci, s in grid])
     table = {k: np.full((n_curves, seeds), np.nan) for k in ("before", "scheme1", "scheme2", "scheme3")}
     for (ci, s), res in zip(grid, results, strict=True):
         for k in table:

@@ -30,7 +30,6 @@ import torch
 
 from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, periodicity
 from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, at_most, draws, fmt, longest_run
-from bptsb_ros.experiments.jobs import run_jobs
 from bptsb_ros.experiments.lissajous_agents import (
     TrainedAgent,
     load_trained,
@@ -324,7 +323,7 @@ def run_switching(ctx: Context) -> None:
              settings["hold"], published) for name, published in variants.values()]
     ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing), the paper's wind "
             "and the published code's wind as two jobs")
-    summaries = run_jobs(switching_job, jobs, workers=ctx.pick(smoke=1, short=2, paper=2), names=list(variants))
+    summaries = ctx.run_jobs(switching_job, jobs, names=list(variants))
     seg = ctx.pick(smoke=6, short=15, paper=20)  # periods per test segment
     transient = ctx.pick(smoke=2, short=5, paper=5)
     tests = {}
@@ -423,7 +422,7 @@ def run_bifurcation(ctx: Context) -> None:
              settings["hold"], published) for name, published in variants.values()]
     ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s), the paper's and the published "
             "wind as two jobs")
-    summaries = run_jobs(switching_job, jobs, workers=ctx.pick(smoke=1, short=2, paper=2), names=list(variants))
+    summaries = ctx.run_jobs(switching_job, jobs, names=list(variants))
     transient = ctx.pick(smoke=3, short=30, paper=100)
     record = ctx.pick(smoke=9, short=30, paper=50)
     winds = BIFURCATION_WINDS
@@ -559,7 +558,7 @@ def run_timing(ctx: Context) -> None:
     jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, timing, settings["sim_time"],
              settings["hold"], published) for _, name, timing, published in systems]
     ctx.log(f"lissajous-timing: {len(jobs)} switching trainings ({settings['sim_time']} s each) as jobs")
-    summaries = run_jobs(switching_job, jobs, workers=ctx.pick(smoke=1, short=2, paper=2),
+    summaries = ctx.run_jobs(switching_job, jobs,
                          names=[f"{label} timing" for label, *_ in systems])
     settle = ctx.pick(smoke=2, short=5, paper=5)
     run = ctx.pick(smoke=6, short=20, paper=30)

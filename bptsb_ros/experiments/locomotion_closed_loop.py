@@ -91,7 +91,7 @@ def settings_for(ctx: Context) -> tuple[AgentSettings, int]:
 def run(ctx: Context) -> None:
     settings, n_agents = settings_for(ctx)
     seeds = list(range(ctx.seed, ctx.seed + n_agents))
-    sweep = train_agents(ctx.out_dir, settings, seeds, workers=ctx.workers, scheduler=ctx.scheduler, log=ctx.log)
+    sweep = train_agents(ctx, settings, seeds)
     results = sweep.results()
     failed = {r["name"]: r.get("error") for r in sweep.failed}
     rows = [results[f"seed-{s}"] for s in seeds if f"seed-{s}" in results]
@@ -128,7 +128,7 @@ def run(ctx: Context) -> None:
         notes.append(f"Scale {ctx.scale}: {settings.sim_time:g} s of training per agent (paper 1000 s); the "
                      "open-loop speed a shorter training reaches is lower and the gait less settled.")
     ctx.result.details = {
-        "agents": n, "seeds": seeds, "settings": settings.__dict__, "agents_dir": str(sweep.out_dir),
+        "agents": n, "seeds": seeds, "settings": settings.__dict__, "agents_dir": sweep.out_dir.name,
         "failed_jobs": failed, "success_count": count, "handover_count": hand, "velocity_fl_count": vel,
         "best_variant_count": best,
         "per_agent": {s: {k: results[f"seed-{s}"][k] for k in ("open_speed", "closed_speed", "ratio", "success",

@@ -1,5 +1,5 @@
-"""What the locomotion population experiments share: the forward-trained agents (one sweep job per seed, in a
-directory every locomotion experiment of the same settings reuses), their closed-loop evaluation with the
+"""What the locomotion population experiments share: the forward-trained agents (one sweep job per seed, in
+``OUT/agents``; a run reuses the agents of a sibling run of the same settings), their closed-loop evaluation with the
 variants the paper's discussion suggests, and a batched simulation for populations of one agent under many
 conditions (perturbations, wind values) that never aborts the batch for one diverging member.
 
@@ -11,6 +11,8 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import os
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -23,7 +25,7 @@ from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.brains import FeedbackLayer, SineWaveGenerator
 from bptsb_ros.config import FeedbackConfig
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
-from bptsb_ros.sweep import Job, SweepResult, run_sweep
+from bptsb_ros.sweep import Job, SweepResult
 
 #: closed-loop / open-loop speed at or above which a closed loop counts as autonomous locomotion (paper)
 SUCCESS_RATIO = 0.7
@@ -60,27 +62,72 @@ class AgentSettings:
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
 
+#: the agents' sweep directory inside an experiment's ``--out``
+AGENTS_DIR = "agents"
+
+
 def agents_dir(out_dir: Path, settings: AgentSettings) -> Path:
-    """Where the agents of ``settings`` live: beside the experiment directory, shared by the locomotion
-    experiments that run into the same parent (``runs/reproduce/``); a sweep there resumes, so agents trained
-    by one experiment are reused by the next."""
-    return Path(out_dir).resolve().parent / f"_locomotion-agents-{settings.key()}"
+    """Where the agents of a run live: ``OUT/agents`` (a sweep: ``jobs/seed-N/`` per agent; it resumes).
+    ``settings`` name no directory: a run trains agents of one settings, and a job's key names them."""
+    return Path(out_dir) / AGENTS_DIR
 
 
-def train_agents(out_dir: Path, settings: AgentSettings, seeds: list[int], *, workers: int | None,
-                 scheduler: str | None, log) -> SweepResult:
-    """Train (or reuse) one forward agent per seed as sweep jobs; returns the sweep's records."""
+def train_agents(ctx: Any, settings: AgentSettings, seeds: list[int]) -> SweepResult:
+    """Train (or reuse) one forward agent per seed as sweep jobs in ``OUT/agents``, where the run's
+    ``--workers`` / ``--scheduler`` say (``ctx``: the experiment's ``Context``); returns the sweep's records.
+
+    Agents another locomotion experiment finished with the same settings and seed, in a run beside this one
+    (``OUT/../*/agents``: the default layout ``runs/reproduce/NAME``), are copied in first and kept (the sweep
+    checks them as it checks its own records), so the experiments share their agents without writing outside
+    their own ``--out``."""
     jobs = [Job(f"seed-{s}", functools.partial(forward_agent_job, settings, s)) for s in seeds]
-    where = agents_dir(out_dir, settings)
-    log(f"locomotion agents: {len(seeds)} seeds in {where} ({scheduler or f'{workers} workers'})")
-    last = [""]
+    where = agents_dir(ctx.out_dir, settings)
+    adopt_sibling_agents(jobs, where, ctx.out_dir, ctx.log)
+    return ctx.sweep(jobs, where, what="locomotion agents")
 
-    def show(p) -> None:
-        if p.line() != last[0]:
-            last[0] = p.line()
-            log(p.line())
 
-    return run_sweep(jobs, where, workers=workers, scheduler=scheduler, progress=show)
+def adopt_sibling_agents(jobs: list[Job], where: Path, out_dir: Path, log) -> list[str]:
+    """Copy into ``where/jobs/`` every job of ``jobs`` not finished there that a sibling run
+    (``out_dir/../*/agents``) finished (a valid record with this job's key); returns the names copied. Only
+    siblings that are ``bptsb reproduce`` runs of this user are read (a shared parent such as ``/tmp`` may hold
+    anyone's directories), and only regular files are copied (symbolic links are left behind)."""
+    from bptsb_ros.experiments.registry import RUN_MARKER
+    from bptsb_ros.sweep import finished_record, job_key
+
+    here = Path(out_dir).resolve()
+    try:
+        siblings = [p / AGENTS_DIR for p in sorted(here.parent.iterdir())
+                    if p.resolve() != here and _own_run(p, RUN_MARKER) and (p / AGENTS_DIR / "jobs").is_dir()]
+    except OSError:
+        return []
+    copied = []
+    for job in jobs:
+        key = job_key(job)
+        dest = where / "jobs" / job.name
+        if finished_record(job, dest, key)[0] is not None:
+            continue
+        for sib in siblings:
+            src = sib / "jobs" / job.name
+            if src.is_symlink() or finished_record(job, src, key)[0] is None:
+                continue
+            if dest.exists():
+                shutil.rmtree(dest)
+            shutil.copytree(src, dest, ignore=lambda d, names: [n for n in names if Path(d, n).is_symlink()])
+            log(f"locomotion agents: {job.name} reused from {sib.parent.name}")
+            copied.append(job.name)
+            break
+    return copied
+
+
+def _own_run(path: Path, marker: str) -> bool:
+    """``path`` is a directory of an earlier ``bptsb reproduce`` run (it holds ``marker``) owned by this user."""
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    owner = getattr(os, "getuid", None)
+    return path.is_dir() and not path.is_symlink() and (path / marker).is_file() and (
+        owner is None or st.st_uid == owner())
 
 
 def forward_agent_job(settings: AgentSettings, seed: int, run_dir: Path) -> dict[str, Any]:

@@ -152,8 +152,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.training.trainer import train
 
     settings, _ = settings_for(ctx)
-    sweep = train_agents(ctx.out_dir, settings, [ctx.seed], workers=0 if ctx.scheduler is None else ctx.workers,
-                         scheduler=ctx.scheduler, log=ctx.log)
+    sweep = train_agents(ctx, settings, [ctx.seed])
     if sweep.failed:
         raise RuntimeError(f"the forward agent failed: {sweep.failed[0].get('error')}")
     forward_dir = sweep.out_dir / "jobs" / f"seed-{ctx.seed}"

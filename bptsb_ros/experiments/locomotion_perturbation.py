@@ -134,7 +134,7 @@ def run(ctx: Context) -> None:
     n_noise = ctx.pick(smoke=3, short=100, paper=100)
     before_s, after_s = ctx.pick(smoke=(1.0, 2.0), short=(10.0, 20.0), paper=(20.0, 80.0))
     max_agents = ctx.pick(smoke=1, short=8, paper=20)
-    sweep = train_agents(ctx.out_dir, settings, seeds, workers=ctx.workers, scheduler=ctx.scheduler, log=ctx.log)
+    sweep = train_agents(ctx, settings, seeds)
     results = sweep.results()
     ok = [s for s in seeds if f"seed-{s}" in results and results[f"seed-{s}"]["success"]]
     fallback = not ok

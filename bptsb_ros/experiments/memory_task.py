@@ -200,8 +200,7 @@ def run(ctx: Context) -> None:
                 jobs.append(Job(f"{body}_dt{dt}_s{seed}", NarmaJob(config, tuple(over), seed, (epochs,), eval_inputs,
                                                                    washout=washout)))
     ctx.log(f"memory-task: {len(jobs)} trainings ({config}, {epochs} epochs) as parallel jobs")
-    results = run_jobs(jobs, ctx.out_dir / "sweep", ctx.log,
-                       workers=ctx.pick(smoke=0, short=None, paper=None))
+    results = run_jobs(ctx, jobs, ctx.out_dir / "sweep")
     err = {b: np.array([[results[f"{b}_dt{dt}_s{s}"]["nmse"] for s in seeds] for dt in delays]) for b in BODIES}
     for b in BODIES:
         for i, dt in enumerate(delays):

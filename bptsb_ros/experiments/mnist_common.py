@@ -1,6 +1,6 @@
 """What the MNIST experiments share: the data (``--data DIR`` / ``$BPTSB_MNIST_DIR``, ``--split``; at paper
 scale ``auto`` is the paper's 60,000 / 10,000 split), the bodies by the paper's N_mov, training several systems
-as independent jobs in a process pool, and the trained drawing systems on disk.
+as independent jobs (``--workers`` / ``--scheduler``), and the trained drawing systems on disk.
 
 Trained drawing systems are written to ``RUN_DIR/systems/<brain>-<shape>-<nodes>.pt`` (spec + state dicts,
 read back with ``torch.load(weights_only=True)``) with the scale, seed and data split they were trained
@@ -12,7 +12,6 @@ records where its system came from.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,9 +21,6 @@ import numpy as np
 
 from bptsb_ros.data.mnist import Split, load_split
 from bptsb_ros.experiments.registry import Context
-
-#: environment variable capping the worker processes of independent trainings
-WORKERS_ENV = "BPTSB_WORKERS"
 
 
 @dataclass(frozen=True)
@@ -93,21 +89,12 @@ def _call_with_kwargs(fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any:
     return fn(**kwargs)
 
 
-def run_jobs(fn: Callable[..., Any], jobs: list[dict[str, Any]], log: Callable[[str], None]) -> list[Any]:
-    """Run independent trainings ``fn(**job)`` through the experiments' process pool (:func:`jobs.run_jobs`: one
-    torch and BLAS thread per worker, a failure names its job), one worker per core or ``$BPTSB_WORKERS``, at
-    most one per job; results in job order. With one worker the jobs run in this process."""
-    from bptsb_ros.experiments import jobs as pool
-    from bptsb_ros.threads import configure_threads
-
-    limit = os.environ.get(WORKERS_ENV)
-    workers = min(len(jobs), int(limit) if limit else pool._available_cpus()) or 1
-    if workers == 1:
-        configure_threads(1, "torch")
-    else:
-        log(f"{len(jobs)} trainings in a pool of {workers} processes")
-    return pool.run_jobs(_call_with_kwargs, [(fn, job) for job in jobs], workers=workers,
-                         names=[f"training {i}" for i in range(len(jobs))])
+def run_jobs(ctx: Context, fn: Callable[..., Any], jobs: list[dict[str, Any]]) -> list[Any]:
+    """Run independent trainings ``fn(**job)`` where the run's ``--workers`` / ``--scheduler`` say
+    (:meth:`Context.run_jobs`: one torch and BLAS thread per job, a failure names its job); results in job
+    order."""
+    return ctx.run_jobs(_call_with_kwargs, [(fn, job) for job in jobs],
+                        names=[f"training {i}" for i in range(len(jobs))], what=getattr(fn, "__name__", "trainings"))
 
 
 def train_drawing_job(spec_json: dict[str, Any], seed: int, train_x: np.ndarray, train_y: np.ndarray,
@@ -158,10 +145,9 @@ def obtain_drawing_system(ctx: Context, spec, data: Data, *, epochs: int, batch:
         return system, evaluate_drawing(system, data.test_x, data.test_y), f"reused {reuse}"
     path = ctx.out_dir / "systems" / f"{spec.name}.pt"
     ctx.log(f"training {spec.name} for {epochs} epochs on {len(data.train_y)} images")
-    res = run_jobs(train_drawing_job, [dict(spec_json=spec.to_json(), seed=ctx.seed, train_x=data.train_x,
-                                            train_y=data.train_y, test_x=data.test_x, test_y=data.test_y,
-                                            epochs=epochs, batch=batch, checkpoint=str(path), meta=meta)],
-                   ctx.log)[0]
+    res = run_jobs(ctx, train_drawing_job, [dict(spec_json=spec.to_json(), seed=ctx.seed, train_x=data.train_x,
+                                                 train_y=data.train_y, test_x=data.test_x, test_y=data.test_y,
+                                                 epochs=epochs, batch=batch, checkpoint=str(path), meta=meta)])[0]
     system, _ = load_system(path)
     evaluation = {k: res[k] for k in ("errors", "drawings", "brain", "displacement")}
     g = res["guard"]

@@ -127,7 +127,7 @@ def run(ctx: Context) -> None:
                  test_x=data.test_x, test_y=data.test_y, epochs=s["epochs"], batch=BATCH,
                  checkpoint=str(ctx.out_dir / "systems" / f"{spec.name}.pt"), meta=meta) for spec in specs]
     ctx.log(f"mnist-drawing: training {len(specs)} systems for {s['epochs']} epochs on {len(data.train_y)} images")
-    results = run_jobs(train_drawing_job, jobs, ctx.log)
+    results = run_jobs(ctx, train_drawing_job, jobs)
     label = {spec.name: system_label(b, n) for b, n, spec in chosen}
     mean = {}
     per_digit = {}

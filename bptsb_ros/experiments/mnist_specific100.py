@@ -163,7 +163,7 @@ def run(ctx: Context) -> None:
     jobs = [dict(spec_json=sp.to_json(), seed=ctx.seed, train_x=x, train_y=y, test_x=x, test_y=y, epochs=epochs,
                  batch=BATCH, checkpoint=str(ctx.out_dir / "systems" / f"{sp.name}.pt"), meta=meta) for sp in specs]
     ctx.log(f"mnist-specific100: {len(specs)} systems, {epochs} epochs on {len(y)} images")
-    results = dict(zip([sp.name for sp in specs], run_jobs(train_drawing_job, jobs, ctx.log)))
+    results = dict(zip([sp.name for sp in specs], run_jobs(ctx, train_drawing_job, jobs)))
     label = {}
     mean = {}
     skill = {}

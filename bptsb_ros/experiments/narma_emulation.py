@@ -110,8 +110,7 @@ def run(ctx: Context) -> None:
                                             ctx.seed, (epochs,), eval_inputs, washout=washout))
             for body, brain in SYSTEMS]
     ctx.log(f"narma-emulation: {len(jobs)} trainings ({config}, {epochs} epochs) as parallel jobs")
-    results = run_jobs(jobs, ctx.out_dir / "sweep", ctx.log,
-                       workers=ctx.pick(smoke=0, short=None, paper=None), diverged_ok=True)
+    results = run_jobs(ctx, jobs, ctx.out_dir / "sweep", diverged_ok=True)
     errors: dict[tuple[str, str], float] = {}
     series = {}
     diverged = {(body, brain): results[f"{brain}_{body}"]["diverged"] for body, brain in SYSTEMS

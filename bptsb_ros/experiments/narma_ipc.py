@@ -195,8 +195,7 @@ def run(ctx: Context) -> None:
     jobs = [Job(brain, NarmaJob(config, tuple(narma_overrides(ctx.scale, last, "double-circle", brain, extra)),
                                 ctx.seed, tuple(stages), eval_inputs, washout=washout)) for brain in BRAINS]
     ctx.log(f"narma-ipc: {len(jobs)} trainings ({config}, states at epochs {stages}) as parallel jobs")
-    results = run_jobs(jobs, ctx.out_dir / "sweep", ctx.log,
-                       workers=ctx.pick(smoke=0, short=None, paper=None))
+    results = run_jobs(ctx, jobs, ctx.out_dir / "sweep")
 
     groups, labels = [], []
     u = target = None

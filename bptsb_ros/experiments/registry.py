@@ -17,7 +17,7 @@ import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +34,7 @@ from bptsb_ros.experiments.result import (
     write_result,
 )
 from bptsb_ros.rundir_lock import LOCK_NAME, dir_is_empty, hold_run_dir
+from bptsb_ros.runner import Placement
 
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
@@ -78,8 +79,8 @@ class Context:
     out_dir: Path
     result: ExperimentResult
     progress: bool = True
-    #: where independent trainings run (``bptsb_ros.sweep``): local worker processes (None: the CPUs
-    #: available, 0: in this process) or a Dask scheduler address
+    #: where independent trainings run (:mod:`bptsb_ros.runner`): local worker processes (None: the CPUs
+    #: available, at smoke scale this process; 0: this process) or a Dask scheduler address
     workers: int | None = None
     scheduler: str | None = None
     log: Callable[[str], None] = field(default=lambda msg: print(msg, file=sys.stderr, flush=True))
@@ -91,6 +92,56 @@ class Context:
     def pick(self, *, smoke: T, short: T, paper: T) -> T:
         """The setting for this run's scale."""
         return {"smoke": smoke, "short": short, "paper": paper}[self.scale]
+
+    def placement(self) -> Placement:
+        """Where this run's independent jobs go: ``--scheduler``, else ``--workers`` processes; without either,
+        one per CPU, except at smoke scale, where the jobs run in this process (they take less time than
+        starting a worker)."""
+        workers = self.workers
+        if workers is None and self.scheduler is None and self.scale == "smoke":
+            workers = 0
+        return Placement(workers, self.scheduler)
+
+    def run_jobs(self, fn: Callable[..., Any], jobs: Sequence[tuple], *, names: Sequence[str] | None = None,
+                 what: str | None = None) -> list[Any]:
+        """``fn(*args)`` for every ``args`` of ``jobs`` where :meth:`placement` says (one BLAS and torch thread
+        each); results in job order; a failure raises ``JobFailed`` naming the job. ``what`` names the batch in
+        the provenance, which records where the jobs ran (default: the function's name)."""
+        from bptsb_ros.runner import run_jobs
+
+        what = what or getattr(fn, "__name__", "jobs")
+        placement = self.placement()
+        if len(jobs) > 1 or placement.scheduler:
+            self.log(f"{what}: {len(jobs)} jobs on {self._where(placement, len(jobs))}")
+        results, info = run_jobs(fn, jobs, placement, names=names)
+        self.result.provenance.setdefault("jobs", []).append({"what": what, **info.to_json()})
+        return results
+
+    def sweep(self, jobs: Sequence[Any], out_dir: Path, *, what: str = "jobs") -> Any:
+        """Run ``jobs`` (``bptsb_ros.sweep.Job``) as a resumable sweep in ``out_dir`` where :meth:`placement`
+        says; progress lines go to :attr:`log`; the provenance records where they ran. Returns the
+        ``SweepResult`` (failed jobs are in its records, not raised)."""
+        from bptsb_ros.sweep import run_sweep
+
+        placement = self.placement()
+        self.log(f"{what}: {len(jobs)} jobs in {out_dir} on {self._where(placement, len(jobs))}")
+        last = [""]
+
+        def show(p) -> None:
+            if p.line() != last[0]:
+                last[0] = p.line()
+                self.log(p.line())
+
+        res = run_sweep(jobs, out_dir, workers=placement.workers, scheduler=placement.scheduler, progress=show)
+        self.result.provenance.setdefault("jobs", []).append({"what": what, **res.provenance()})
+        return res
+
+    @staticmethod
+    def _where(placement: Placement, jobs: int) -> str:
+        if placement.scheduler:
+            return f"the Dask scheduler {placement.scheduler}"
+        n = placement.pool_size(jobs)
+        return "this process" if n == 0 else f"a local pool of {n} process{'es' if n > 1 else ''}"
 
     def row(self, system: str, metric: str, unit: str, ours: float | None, paper: float | str | None = None) -> None:
         self.result.rows.append(Row(system, metric, unit, ours, paper))
@@ -192,6 +243,8 @@ def execute_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_di
     (experiments whose trainings are sweep jobs keep the finished jobs).
     """
     exp = get_experiment(name)
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise ExperimentError(f"--workers must be a whole number >= 0 (0: in this process), got {workers!r}")
     if scale not in SCALES:
         raise ExperimentError(f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
     out = Path(out_dir) if out_dir is not None else Path("runs") / "reproduce" / name
@@ -244,6 +297,9 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
         "python": platform.python_version(),
         "machine": f"{platform.machine()}, {_cpu_count()} cores",
         "git_commit": _git_commit(),
+        # what the independent jobs really used, one entry per batch (Context.run_jobs / Context.sweep):
+        # scheduler (its address, "local pool" or "this process"), workers, jobs, ran_in (distinct processes)
+        "jobs": [],
     }
     ctx = Context(scale, int(seed), out, result, progress=progress, workers=workers, scheduler=scheduler,
                   data_dir=None if data_dir is None else Path(data_dir), split=split)

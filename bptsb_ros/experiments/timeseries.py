@@ -112,22 +112,12 @@ class NarmaJob:
         return out
 
 
-def run_jobs(jobs: list[Any], out_dir: Path, log, workers: int | None = None,
-             diverged_ok: bool = False) -> dict[str, dict[str, Any]]:
-    """Run independent jobs (``bptsb_ros.sweep.Job``) in a local process pool (``workers``: default one per
-    CPU; 0 runs them one after another in this process, for smoke runs where starting workers costs more than
-    the jobs). Every failure is an error, except, with ``diverged_ok``, a training that diverged: its result is
+def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False) -> dict[str, dict[str, Any]]:
+    """Run independent jobs (``bptsb_ros.sweep.Job``) as a resumable sweep in ``out_dir``, where the run's
+    ``--workers`` / ``--scheduler`` say (``ctx``: the experiment's ``Context``, :meth:`Context.sweep`). Every
+    failure is an error, except, with ``diverged_ok``, a training that diverged: its result is
     ``{"diverged": message}`` (SGD can blow a system up beyond what the update guard can undo; that is a result)."""
-    from bptsb_ros.sweep import run_sweep
-
-    last = [""]
-
-    def progress(p) -> None:
-        if p.line() != last[0]:
-            last[0] = p.line()
-            log(p.line())
-
-    res = run_sweep(jobs, out_dir, workers=workers, progress=progress)
+    res = ctx.sweep(jobs, out_dir, what="trainings")
     diverged = {f["name"]: {"diverged": str(f.get("error")).split(";")[0]} for f in res.failed
                 if diverged_ok and str(f.get("error", "")).startswith("TrainingDiverged")}
     failed = [f for f in res.failed if f["name"] not in diverged]
