@@ -62,6 +62,7 @@ LEARN_MORE = "tests/test_trainers_learn_more.py::"
 L_LISS = LEARN + "test_lissajous_trainer_reports_the_window_loss_and_one_sgd_step_lowers_it"
 L_LOCO = LEARN + "test_locomotion_trainer_reports_the_speed_loss_after_the_warm_up_and_one_step_lowers_it"
 L_HEADWIND = LEARN + "test_headwind_trainer_pushes_with_the_periodic_wind_against_a_constant_target"
+L_CLAMP = LEARN + "test_lissajous_trainer_projects_the_body_parameters_onto_non_negative_values"
 L_NARMA = LEARN + "test_narma_trainer_reports_the_loss_after_the_washout_and_one_step_lowers_it"
 L_DRAW = (LEARN_MORE + "test_drawing_loss_per_batch_and_the_epoch_loss_weighted_by_batch_size",
           LEARN_MORE + "test_drawing_sgd_step_at_the_paper_rates_and_a_few_steps_lower_the_loss")
@@ -645,6 +646,18 @@ MUTANTS: tuple[Mutant, ...] = (
            '{"name": "d", "params": [body.d], "lr": lr.d}',
            '{"name": "d", "params": [body.d], "lr": lr.k}',
            "the damping coefficients stepped with the spring constants' rate", (L_LISS, L_LOCO, L_NARMA)),
+    Mutant("trainer-no-projection", "bptsb_ros/training/trainer.py",
+           "                agent.body.clamp_parameters_()",
+           "                pass",
+           "train() no longer projects k, d, l onto ≥ 0 after a step", (L_CLAMP,)),
+    Mutant("trainer-mnist-drawing-no-projection", "bptsb_ros/tasks/mnist_drawing.py",
+           "                opt.step()\n                system.body.clamp_parameters_()",
+           "                opt.step()",
+           "the MNIST drawing no longer projects k, d, l onto ≥ 0", L_DRAW),
+    Mutant("trainer-scheme1-no-projection", "bptsb_ros/training/closed_loop_schemes.py",
+           "            body.clamp_parameters_()\n        if failure is None:\n            state = s.detach()",
+           "            pass\n        if failure is None:\n            state = s.detach()",
+           "scheme 1 no longer projects k, d, l onto ≥ 0", (L_S1,)),
     Mutant("trainer-lissajous-targets-early", "bptsb_ros/tasks/lissajous.py",
            "self.target(self.window_times(k0))",
            "self.target(self.window_times(k0 - 1))",

@@ -100,6 +100,20 @@ def test_lissajous_trainer_reports_the_window_loss_and_one_sgd_step_lowers_it():
     assert float(after) < 0.9 * float(hand), (float(after), float(hand))
 
 
+def test_lissajous_trainer_projects_the_body_parameters_onto_non_negative_values():
+    """Damping coefficients planted near 0 (d ~ U(0, 1e-3)): the SGD step takes some below 0 and the trainer sets
+    those to exactly 0 (the paper: parameters never go below zero)."""
+    cfg = load_config(CONFIG / "lissajous_single.yaml", [
+        "dtype=float64", f"training.update_steps={W_LISS}", f"sim_time={W_LISS * 0.01}", "feedback.enabled=false",
+        "lissajous.eval_periods=1", "body.d_init=[0.0, 0.001]"])
+    a0 = fresh_agent(cfg)
+    s0 = lissajous_start(a0)
+    res = train(cfg, None, progress=False)
+    check_sgd_step(a0, res.agent, lambda a: lissajous_loss(a, s0)[0], LISSAJOUS_LR)
+    zero = int((res.agent.body.d == 0).sum())
+    assert 0 < zero < res.agent.body.d.numel(), zero
+
+
 def test_lissajous_trainer_carries_the_state_and_the_clock_to_the_next_window():
     """Window 2's loss: the trained parameters from the state window 1 ended in, at steps W+1 .. 2W."""
     one = train(lissajous_cfg(1), None, progress=False)
