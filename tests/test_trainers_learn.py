@@ -17,13 +17,12 @@ refits) and the learning-rate tables are in ``tests/test_trainers_learn_more.py`
 
 from __future__ import annotations
 
-import copy
 import math
 
 import numpy as np
 import pytest
 import torch
-from trainer_episodes import CONFIG, F64, fresh_agent, lissajous_start, swg_run, swg_signal
+from trainer_episodes import CONFIG, F64, check_sgd, fresh_agent, lissajous_start, swg_run, swg_signal
 
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.config import load_config
@@ -39,26 +38,6 @@ def named(agent) -> dict[str, torch.nn.Parameter]:
     else:
         out.update({f"brain.{n}": p for n, p in brain.named_parameters()})
     return out
-
-
-def check_sgd_step(before, after, loss_fn, lr: dict[str, float]) -> None:
-    """``after``'s parameters are ``before``'s moved by −lr·∂loss/∂θ (body kinds clamped at 0), every kind moved.
-
-    ``loss_fn(agent)`` is the independent loss; ``lr`` maps k, d, l, amplitude, phase, brain to a rate."""
-    a = copy.deepcopy(before)
-    params = named(a)
-    for p in params.values():
-        p.requires_grad_(True)
-        p.grad = None
-    loss_fn(a).backward()
-    got = named(after)
-    for name, p in params.items():
-        rate = lr["brain" if name.startswith("brain.") else name]
-        expected = p.detach() - rate * p.grad
-        if name in ("k", "d", "l"):
-            expected = expected.clamp(min=0.0)
-        assert float((got[name].detach() - p.detach()).abs().max()) > 0, f"{name} did not move"
-        torch.testing.assert_close(got[name].detach(), expected, rtol=1e-7, atol=1e-10, msg=name)
 
 
 # -- Lissajous, single curve ---------------------------------------------------------------------------------
@@ -96,7 +75,7 @@ def test_lissajous_trainer_reports_the_window_loss_and_one_sgd_step_lowers_it():
         hand, _ = lissajous_loss(a0, s0)
         after, _ = lissajous_loss(res.agent, s0)
     assert res.losses == pytest.approx([float(hand)], rel=1e-10)
-    check_sgd_step(a0, res.agent, lambda a: lissajous_loss(a, s0)[0], LISSAJOUS_LR)
+    check_sgd(a0, named, lambda a: lissajous_loss(a, s0)[0], res.agent, LISSAJOUS_LR)
     assert float(after) < 0.9 * float(hand), (float(after), float(hand))
 
 
@@ -109,7 +88,7 @@ def test_lissajous_trainer_projects_the_body_parameters_onto_non_negative_values
     a0 = fresh_agent(cfg)
     s0 = lissajous_start(a0)
     res = train(cfg, None, progress=False)
-    check_sgd_step(a0, res.agent, lambda a: lissajous_loss(a, s0)[0], LISSAJOUS_LR)
+    check_sgd(a0, named, lambda a: lissajous_loss(a, s0)[0], res.agent, LISSAJOUS_LR)
     zero = int((res.agent.body.d == 0).sum())
     assert 0 < zero < res.agent.body.d.numel(), zero
 
@@ -157,7 +136,7 @@ def test_locomotion_trainer_reports_the_speed_loss_after_the_warm_up_and_one_ste
         hand = locomotion_loss(a0, s0, WARMUP * W_LOC)
     res = train(cfg, None, progress=False)
     assert res.losses == pytest.approx([float(hand)], rel=1e-10)
-    check_sgd_step(a0, res.agent, lambda a: locomotion_loss(a, s0, WARMUP * W_LOC), LOCOMOTION_LR)
+    check_sgd(a0, named, lambda a: locomotion_loss(a, s0, WARMUP * W_LOC), res.agent, LOCOMOTION_LR)
     with torch.no_grad():
         after = locomotion_loss(res.agent, s0, WARMUP * W_LOC)
     assert float(after) < 0.9 * float(hand), (float(after), float(hand))
@@ -226,7 +205,7 @@ def test_narma_trainer_reports_the_loss_after_the_washout_and_one_step_lowers_it
         hand = narma_loss(a0, u, target)
         after = narma_loss(res.agent, u, target)
     assert res.losses == pytest.approx([float(hand)], rel=1e-10)
-    check_sgd_step(a0, res.agent, lambda a: narma_loss(a, u, target), NARMA_LR)
+    check_sgd(a0, named, lambda a: narma_loss(a, u, target), res.agent, NARMA_LR)
     assert float(after) < 0.9 * float(hand), (float(after), float(hand))
     # the reported metric: NMSE = mean((out − y)²) / var(y) on the held-out sequence's test samples train_end ..
     u_eval = np.random.default_rng(99).uniform(0.0, 1.0, N_IN)
@@ -279,5 +258,5 @@ def test_headwind_trainer_pushes_with_the_periodic_wind_against_a_constant_targe
     with torch.no_grad():
         hand, after = loss(a0), loss(res.agent)
     assert res.losses == pytest.approx([float(hand)], rel=1e-10)
-    check_sgd_step(a0, res.agent, loss, HEADWIND_LR)
+    check_sgd(a0, named, loss, res.agent, HEADWIND_LR)
     assert float(after) < 0.999 * float(hand), (float(after), float(hand))  # measured: −0.5 % at these small rates

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from trainer_episodes import CONFIG, F64, lissajous_start, swg_run, swg_signal
+from trainer_episodes import CONFIG, F64, check_sgd, lissajous_start, swg_run, swg_signal
 
 from bptsb_ros.agent import build_agent
 from bptsb_ros.config import LearningRates, load_config
@@ -69,27 +69,6 @@ def test_module_rate_tables_are_the_papers():
 
 
 # -- helpers -----------------------------------------------------------------------------------------------------
-def check_sgd(before, params_of, loss_fn, after, lr: dict[str, float], *, adam: bool = False) -> None:
-    """``params_of(after)`` = ``params_of(before)`` moved by one SGD step −η·∂L/∂θ (``adam``: Adam's first step,
-    −η·g/(|g| + ε), ε = 1e-8), body kinds k, d, l projected onto ≥ 0; every kind moved. ``loss_fn(model)`` is the
-    independent loss; η = ``lr[name before the first dot]``."""
-    model = copy.deepcopy(before)
-    params = params_of(model)
-    for p in params.values():
-        p.requires_grad_(True)
-        p.grad = None
-    loss_fn(model).backward()
-    got = params_of(after)
-    for name, p in params.items():
-        rate = lr[name.split(".")[0]]
-        step = p.grad / (p.grad.abs() + 1e-8) if adam else p.grad
-        expected = p.detach() - rate * step
-        if name in ("k", "d", "l"):
-            expected = expected.clamp(min=0.0)
-        assert float((got[name].detach() - p.detach()).abs().max()) > 0, f"{name} did not move"
-        torch.testing.assert_close(got[name].detach(), expected, rtol=1e-7, atol=1e-10, msg=name)
-
-
 def release(body, disp: torch.Tensor, steps: int) -> torch.Tensor:
     """Every movable mass's position (steps + 1, B, M, 2) of a body released at rest from ``disp`` (B, M, 2)."""
     s = body.initial_state(disp.shape[0], displacement=disp)
