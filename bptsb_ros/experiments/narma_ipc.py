@@ -181,22 +181,19 @@ def claims(n: NarmaIpcNumbers) -> list[Claim]:
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
-    from bptsb_ros.experiments.timeseries import NarmaJob, config_name, load_states, narma_overrides, run_jobs
+    from bptsb_ros.experiments.timeseries import NarmaJob, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
 
-    last = ctx.pick(smoke=1, short=300, paper=40000)
-    stages = ctx.pick(smoke=(0, 1), short=(0, 30, 100, 300), paper=(0, 400, 4000, 40000))
-    eval_inputs = ctx.pick(smoke=250, short=2000, paper=4000)
-    max_delay = ctx.pick(smoke=10, short=20, paper=20)
+    last, stages, eval_inputs = ctx.settings["epochs"], ctx.settings["stages"], ctx.settings["eval_inputs"]
+    max_delay = ctx.settings["max_delay"]
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
-    washout = ctx.pick(smoke=30, short=100, paper=100)
-    config = config_name(ctx.scale)
-    extra = ("narma.n_inputs=40", "narma.washout=10", "narma.train_end=30") if ctx.scale == "smoke" else ()
+    washout = ctx.settings["washout"]
+    config, extra = ctx.settings["config"], ctx.settings["config_overrides"]
     jobs = [Job(brain, NarmaJob(config, tuple(narma_overrides(ctx.scale, last, "double-circle", brain, extra)),
                                 ctx.seed, tuple(stages), eval_inputs, washout=washout)) for brain in BRAINS]
     ctx.log(f"narma-ipc: {len(jobs)} trainings ({config}, states at epochs {stages}) as parallel jobs")
     results = run_jobs(jobs, ctx.out_dir / "sweep", ctx.log,
-                       workers=ctx.pick(smoke=0, short=None, paper=None))
+                       workers=0 if ctx.scale == "smoke" else None)
 
     groups, labels = [], []
     u = target = None
