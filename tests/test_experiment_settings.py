@@ -41,7 +41,8 @@ PLANTED: dict[str, dict[str, tuple]] = {
     "mnist-readout": {**_MNIST, "epochs": (1, 2, 100)},
     "narma-emulation": {"epochs": (1, 120, 40000), "eval_inputs": (150, 1000, 3000), "washout": (30, 100, 100),
                         **_NARMA_CONFIG},
-    "narma-ipc": {"epochs": (1, 300, 40000), "stages": ((0, 1), (0, 30, 100, 300), (0, 400, 4000, 40000)),
+    # its `last = ctx.pick(smoke=1, short=300, paper=40000)` was the last stage (the training's length): no setting
+    "narma-ipc": {"stages": ((0, 1), (0, 30, 100, 300), (0, 400, 4000, 40000)),
                   "eval_inputs": (250, 2000, 4000), "max_delay": (10, 20, 20), "washout": (30, 100, 100),
                   **_NARMA_CONFIG},
     "memory-task": {"epochs": (1, 60, 40000), "delays": ((1, 8, 17), (1, 4, 8, 12, 17), tuple(range(1, 18))),
@@ -185,23 +186,31 @@ def test_overrides_are_typed_as_the_setting_and_unknown_keys_refused():
             resolve_settings("memory-task", "smoke", bad)
 
 
+def test_a_rule_across_settings_is_checked_before_the_training(tmp_path):
+    for stages in ("[1, 5]", "[0, 5, 3]", "[0, 5, 5]"):
+        with pytest.raises(SettingsError, match="stages must start at 0 .* and grow"):
+            run_experiment("narma-ipc", scale="smoke", out_dir=tmp_path / "x", force=True, progress=False,
+                           settings=[f"stages={stages}"])
+    assert not (tmp_path / "x" / "sweep").exists()
+
+
 def test_show_config_prints_the_resolved_settings_and_runs_nothing(capsys, tmp_path):
     out = tmp_path / "never"
     assert main(["reproduce", "narma-ipc", "--show-config", "--scale", "paper", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     shown = yaml.safe_load(text)
-    assert shown == {"epochs": 40000, "stages": [0, 400, 4000, 40000], "eval_inputs": 4000, "max_delay": 20,
+    assert shown == {"stages": [0, 400, 4000, 40000], "eval_inputs": 4000, "max_delay": 20,
                      "washout": 100, "config": "narma", "config_overrides": []}
-    assert re.search(r"^epochs: 40000 +# ", text, re.M)  # each setting with its help text
+    assert re.search(r"^eval_inputs: 4000 +# held-out inputs", text, re.M)  # each setting with its help text
     assert not out.exists()
-    assert main(["reproduce", "narma-ipc", "--show-config", "--scale", "smoke", "--set", "epochs=3"]) == 0
+    assert main(["reproduce", "narma-ipc", "--show-config", "--scale", "smoke", "--set", "washout=3"]) == 0
     text = capsys.readouterr().out
     smoke = yaml.safe_load(text)
-    assert smoke["epochs"] == 3 and smoke["stages"] == [0, 1] and smoke["config_overrides"] == _NARMA_SMOKE
-    assert re.search(r"^epochs: 3 +# .*\(--set\)$", text, re.M) and "washout: 30 " in text
-    assert main(["reproduce", "narma-ipc", "--show-config", "--set", "epoks=3"]) == 2
+    assert smoke["washout"] == 3 and smoke["stages"] == [0, 1] and smoke["config_overrides"] == _NARMA_SMOKE
+    assert re.search(r"^washout: 3 +# .*\(--set\)$", text, re.M) and re.search(r"^max_delay: 10 +# [^(]*$", text, re.M)
+    assert main(["reproduce", "narma-ipc", "--show-config", "--set", "wahsout=3"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "unknown setting of narma-ipc; did you mean epochs?" in err
+    assert "\n" not in err and "unknown setting of narma-ipc; did you mean washout?" in err
 
 
 # -- the record in result.json and the report ------------------------------------------------------------------

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bptsb_ros.experiments.experiment_settings import SettingsError
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import RANK_TOL, all_of, fmt, not_learned, rank_reached
@@ -184,7 +185,10 @@ def run(ctx: Context) -> None:
     from bptsb_ros.experiments.timeseries import NarmaJob, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
 
-    last, stages, eval_inputs = ctx.settings["epochs"], ctx.settings["stages"], ctx.settings["eval_inputs"]
+    stages, eval_inputs = ctx.settings["stages"], ctx.settings["eval_inputs"]
+    if not stages or stages[0] != 0 or list(stages) != sorted(set(stages)):
+        raise SettingsError(f"narma-ipc: stages must start at 0 (the untrained system) and grow, got {list(stages)}")
+    last = stages[-1]
     max_delay = ctx.settings["max_delay"]
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     washout = ctx.settings["washout"]
