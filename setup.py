@@ -99,7 +99,7 @@ setup(
     description="Backpropagation through soft body (BPTSB): differentiable mass-spring-damper bodies and "
     "their brains, trained offline in torch and run live as ROS 2 nodes recorded to MCAP.",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
-    package_data={PACKAGE: ["py.typed", "ros/TOPICS.md", "tasks/digit_targets.json"]},
+    package_data={PACKAGE: ["py.typed", "ros/TOPICS.md", "tasks/digit_targets.json", "experiments/settings/*.yaml"]},
     python_requires=">=3.11",
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -248,7 +248,8 @@ def run_experiment(name: str, *, scale: Literal["smoke", "short", "paper"] = "sm
                    out: str | os.PathLike[str] | None = None, force: bool = False, resume: bool = False,
                    progress: bool = False, workers: int | None = None, scheduler: str | None = None,
                    data: str | os.PathLike[str] | None = None, split: str = "auto",
-                   log: Callable[[str], None] | None = None) -> ExperimentResult:
+                   log: Callable[[str], None] | None = None,
+                   settings: Mapping[str, Any] | None = None) -> ExperimentResult:
     """Run one of the paper's experiments (what ``bptsb reproduce NAME`` runs) and return its result.
 
     Args:
@@ -266,6 +267,9 @@ def run_experiment(name: str, *, scale: Literal["smoke", "short", "paper"] = "sm
         data: the data directory of experiments that read a data set (MNIST).
         split: the MNIST train/test split ("auto", "paper", "test-8k-2k").
         log: receives the experiment's log lines (default: stderr).
+        settings: overrides of the experiment's settings at ``scale`` (as ``bptsb reproduce --set``), e.g.
+            ``{"epochs": 3}``; each checked against the setting's type (``bptsb reproduce NAME --show-config``
+            lists them).
 
     Returns:
         The result: ``rows`` (our numbers beside the paper's), ``claims`` (each ``holds`` True, False or None:
@@ -273,17 +277,18 @@ def run_experiment(name: str, *, scale: Literal["smoke", "short", "paper"] = "sm
 
     Raises:
         ExperimentError: unknown name or scale, ``out`` holds something else, or ``resume`` without ``out``.
+        SettingsError: an override names no setting of the experiment or has the wrong type.
     """
     from bptsb_ros.experiments.registry import ExperimentError, execute_experiment
 
-    settings: dict[str, Any] = {"scale": scale, "seed": seed, "force": force, "resume": resume, "progress": progress,
-                                "log": log, "workers": workers, "scheduler": scheduler, "data_dir": data,
-                                "split": split}
+    options: dict[str, Any] = {"scale": scale, "seed": seed, "force": force, "resume": resume, "progress": progress,
+                               "log": log, "workers": workers, "scheduler": scheduler, "data_dir": data,
+                               "split": split, "settings": settings}
     if out is not None:
-        return execute_experiment(name, out_dir=out, **settings)[1]
+        return execute_experiment(name, out_dir=out, **options)[1]
     if resume:
         raise ExperimentError("resume continues an unfinished run in a directory; give out=")
     with tempfile.TemporaryDirectory(prefix="bptsb-experiment-") as tmp:
-        _, result = execute_experiment(name, out_dir=Path(tmp) / "run", **settings)
+        _, result = execute_experiment(name, out_dir=Path(tmp) / "run", **options)
     result.figures = []  # they were in the temporary directory
     return result

@@ -4,8 +4,9 @@ Every distinct system the MNIST experiments train is timed with the experiments'
 functions (``train_drawing`` / ``evaluate_drawing``, ``train_readout`` / ``accuracy``), batch 50, on synthetic
 28 × 28 images (no data set needed: the cost does not depend on the pixel values), one torch thread, as one
 worker of the experiments' process pool runs. The paper-schedule estimate multiplies these rates by the work
-of each experiment at ``--scale paper`` (60,000 training / 10,000 test images; epochs from the experiments'
-``PAPER_EPOCHS``) and packs the independent trainings onto ``workers`` processes (longest first). It assumes a
+of each experiment at ``--scale paper`` (60,000 training / 10,000 test images; epochs, images per digit and
+label-map grids from the experiments' paper settings, ``experiments/settings/<name>.yaml``) and packs the
+independent trainings onto ``workers`` processes (longest first). It assumes a
 worker runs as fast in the pool as alone; on a loaded machine it does not (see ``load_average``).
 """
 
@@ -129,29 +130,34 @@ def paper_estimates(rates: dict[str, dict[str, float]], workers: int) -> dict[st
     from bptsb_ros.experiments import mnist_drawing as dr
     from bptsb_ros.experiments import mnist_readout as ro
     from bptsb_ros.experiments import mnist_specific100 as sp
-    from bptsb_ros.experiments.mnist_analysis import PAPER_GRID
+    from bptsb_ros.experiments.experiment_settings import resolve_settings
+
+    paper = {name: resolve_settings(name, "paper") for name in ("mnist-drawing", "mnist-labelmap", "mnist-specific100",
+                                                                "mnist-readout")}
+    drawing_epochs, readout_epochs = paper["mnist-drawing"]["epochs"], paper["mnist-readout"]["epochs"]
+    sp_epochs, sp_per_digit = paper["mnist-specific100"]["epochs"], paper["mnist-specific100"]["per_digit"]
 
     def drawing(label: str, epochs: int, n_train: int, n_test: int) -> float:
         r = rates[label]
         return epochs * n_train / r["train_images_per_s"] + n_test / r["forward_images_per_s"]
 
     mlp17 = dr.system_label("mlp", 17)
-    label_map_bodies = 16 * 10 * PAPER_GRID ** 2  # the N_mov 17 body: 16 placed masses
+    label_map_bodies = 16 * 10 * paper["mnist-labelmap"]["grid"] ** 2  # the N_mov 17 body: 16 placed masses
     label_maps = label_map_bodies / rates[mlp17]["forward_images_per_s"]
-    mlp17_training = drawing(mlp17, dr.PAPER_EPOCHS, PAPER_TRAIN_IMAGES, PAPER_TEST_IMAGES)
+    mlp17_training = drawing(mlp17, drawing_epochs, PAPER_TRAIN_IMAGES, PAPER_TEST_IMAGES)
     jobs: dict[str, list[float]] = {
-        "mnist-drawing": [drawing(dr.system_label(b, n), dr.PAPER_EPOCHS, PAPER_TRAIN_IMAGES, PAPER_TEST_IMAGES)
+        "mnist-drawing": [drawing(dr.system_label(b, n), drawing_epochs, PAPER_TRAIN_IMAGES, PAPER_TEST_IMAGES)
                           for b, n, _ in dr.systems()],
         "mnist-pca": [mlp17_training],
         "mnist-labelmap": [mlp17_training + label_maps],
-        "mnist-specific100": [drawing(dr.system_label(b, n, shape), sp.PAPER_EPOCHS, 10 * sp.PER_DIGIT,
-                                      10 * sp.PER_DIGIT) for b, shape, n, _ in sp.systems()],
+        "mnist-specific100": [drawing(dr.system_label(b, n, shape), sp_epochs, 10 * sp_per_digit,
+                                      10 * sp_per_digit) for b, shape, n, _ in sp.systems()],
         "mnist-readout": [],
     }
     for _, _, _, label, _ in ro.systems():
         r = rates[f"readout: {label}"]
-        evaluated = ro.PAPER_EPOCHS * PAPER_TEST_IMAGES + PAPER_TRAIN_IMAGES + PAPER_TEST_IMAGES
-        jobs["mnist-readout"].append(ro.PAPER_EPOCHS * PAPER_TRAIN_IMAGES / r["train_images_per_s"]
+        evaluated = readout_epochs * PAPER_TEST_IMAGES + PAPER_TRAIN_IMAGES + PAPER_TEST_IMAGES
+        jobs["mnist-readout"].append(readout_epochs * PAPER_TRAIN_IMAGES / r["train_images_per_s"]
                                      + evaluated / r["forward_images_per_s"])
     out: dict[str, Any] = {}
     for name, times in jobs.items():

@@ -73,12 +73,14 @@ def test_narma_and_memory_default_to_the_authors_rates_and_offer_the_paper_table
     """Hand values: the authors' timeseries/expandedNARMA.yaml and memory.yaml (k 1e3, d 1e2, l 1, brain 1e-2)
     and the paper's learning-rate table, row "Time-series emulation" (k 1e4, d 1e3, l 1e1, brain 1e-1)."""
     from bptsb_ros.experiments.common import packaged_config
-    from bptsb_ros.experiments.timeseries import config_name, narma_overrides
+    from bptsb_ros.experiments.experiment_settings import resolve_settings
+    from bptsb_ros.experiments.timeseries import narma_overrides
 
     lr = load_config(NARMA).training.lr
     assert (lr.k, lr.d, lr.l, lr.brain) == (1e3, 1e2, 1.0, 1e-2)
-    memory = packaged_config(config_name("paper"), narma_overrides("paper", 1, "double-circle", "lil",
-                                                                   ("narma.target=memory", "narma.delay=8")))
+    paper_config = resolve_settings("memory-task", "paper")["config"]
+    memory = packaged_config(paper_config, narma_overrides("paper", 1, "double-circle", "lil",
+                                                           ("narma.target=memory", "narma.delay=8")))
     assert memory.narma.target == "memory" and memory.training.lr == lr and memory.training.reject_factor == 10
     cfg = load_config(NARMA, ["profile=paper_table"])
     lr = cfg.training.lr

@@ -111,6 +111,7 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
         lines += ["", f"## {r['experiment']} ({r['scale']}, seed {r['seed']})", "",
                   f"Paper: {md_text(r['paper_ref'])}. Wall time {_duration(r['wall_s'])}."]
         lines += _provenance_lines(r.get("provenance") or {})
+        lines += _settings_lines(r.get("settings") or {})
         if r["rows"]:
             lines += ["", "| system | metric | ours | paper | unit |", "|---|---|---|---|---|"]
             lines += [f"| {md_text(row['system'])} | {md_text(row['metric'])} | {_fmt(row['ours'])} | "
@@ -164,6 +165,20 @@ def _jobs_line(batch: object) -> str:
     if batch.get("reused"):
         text += f", {batch['reused']} reused"
     return text + ")"
+
+
+def _settings_lines(settings: dict[str, Any]) -> list[str]:
+    """One line naming the settings the run used (``epochs = 3, n_train = null``), if it recorded them."""
+    if not settings:
+        return []
+    shown = ", ".join(f"{key} = {_setting_text(value)}" for key, value in settings.items())
+    return [f"- settings: {md_text(shown)}"]
+
+
+def _setting_text(value: Any) -> str:
+    if isinstance(value, list):
+        return "[" + ", ".join(_setting_text(v) for v in value) + "]"
+    return "null" if value is None else str(value).lower() if isinstance(value, bool) else str(value)
 
 
 def _unique_dir(name: str, used: set[str]) -> str:

@@ -18,6 +18,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scale", choices=("smoke", "short", "paper"), default="short",
                         help="smoke: seconds (tests); short: minutes on 2 cores; paper: the paper's settings")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
+                        help="override one of the experiment's settings at this scale (repeatable; the value is "
+                             "YAML, checked as the setting's type; --show-config lists them)")
+    parser.add_argument("--show-config", action="store_true",
+                        help="print the experiment's settings at --scale (with --set applied) and exit")
     parser.add_argument("--out", default=None, help="run directory (default runs/reproduce/NAME)")
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--force", action="store_true", help="replace an existing result.json in --out")
@@ -44,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.config import ConfigError
     from bptsb_ros.dask_connect import scheduler_address
     from bptsb_ros.data.mnist import MnistError
-    from bptsb_ros.experiments import ExperimentError, experiments, run_experiment
+    from bptsb_ros.experiments import ExperimentError, experiments, get_experiment, run_experiment
+    from bptsb_ros.experiments.experiment_settings import SettingsError, resolve_settings
     from bptsb_ros.experiments.result import claim_mark
     from bptsb_ros.rundir_lock import RunDirLocked
     from bptsb_ros.sweep import SchedulerError, SweepError
@@ -57,16 +63,23 @@ def run(args: argparse.Namespace) -> int:
     if not args.name:
         print("bptsb reproduce: name an experiment (bptsb reproduce --list)", file=sys.stderr)
         return 2
+    if args.show_config:
+        try:
+            print(resolve_settings(get_experiment(args.name).name, args.scale, args.settings).show(), end="")
+        except (ExperimentError, SettingsError) as err:
+            print(f"bptsb reproduce: {err}", file=sys.stderr)
+            return 2
+        return 0
     try:
         scheduler = scheduler_address(args.scheduler) if args.scheduler is not None else None
         path, result = run_experiment(args.name, scale=args.scale, seed=args.seed, out_dir=args.out,
                                       force=args.force, resume=args.resume, progress=not args.no_progress,
-                                      workers=args.workers,
-                                      scheduler=scheduler, data_dir=args.data, split=args.split)
+                                      workers=args.workers, scheduler=scheduler, data_dir=args.data,
+                                      split=args.split, settings=args.settings)
     except (SchedulerError, RunDirLocked) as err:  # runtime failures: the arguments were fine
         print(f"bptsb reproduce: {err}", file=sys.stderr)
         return 1
-    except (ExperimentError, ConfigError, SweepError, MnistError) as err:
+    except (ExperimentError, SettingsError, ConfigError, SweepError, MnistError) as err:
         print(f"bptsb reproduce: {err}", file=sys.stderr)
         return 2
     for row in result["rows"]:

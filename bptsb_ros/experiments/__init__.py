@@ -1,9 +1,11 @@
 """The paper's experiments, each runnable by name (``bptsb reproduce NAME --scale smoke|short|paper``).
 
-``registry.py`` holds the registry and the runner, ``result.py`` the result.json schema, and each other
+``registry.py`` holds the registry and the runner, ``result.py`` the result.json schema,
+``experiment_settings.py`` the reader of ``settings/<experiment>.yaml`` (what each scale means), and each other
 module one experiment (or a family of experiments sharing their training).
 """
 
+from bptsb_ros.experiments.experiment_settings import Settings, SettingsError, resolve_settings
 from bptsb_ros.experiments.registry import (
     Context,
     Experiment,
@@ -22,10 +24,13 @@ __all__ = [
     "ExperimentError",
     "ExperimentResult",
     "ResultError",
+    "Settings",
+    "SettingsError",
     "experiment",
     "experiments",
     "get_experiment",
     "read_result",
+    "resolve_settings",
     "run_experiment",
     "validate_result",
 ]

@@ -175,12 +175,9 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
 )
 @single_threaded
 def run(ctx: Context) -> None:
-    n_curves = ctx.pick(smoke=1, short=3, paper=3)
-    seeds = ctx.pick(smoke=1, short=2, paper=5)
-    pre_time = ctx.pick(smoke=5, short=200, paper=2000)
-    add_time = ctx.pick(smoke=3, short=50, paper=1000)
-    eval_periods = ctx.pick(smoke=2, short=10, paper=10)
-    scheme1_time = ctx.pick(smoke=3, short=50, paper=2000)
+    n_curves, seeds = ctx.settings["n_curves"], ctx.settings["n_seeds"]
+    pre_time, add_time = ctx.settings["pretrain_time"], ctx.settings["add_time"]
+    eval_periods, scheme1_time = ctx.settings["eval_periods"], ctx.settings["scheme1_time"]
     grid = [(ci, s) for ci in range(n_curves) for s in range(ctx.seed, ctx.seed + seeds)]
     jobs = [(str(ctx.out_dir / f"curve{ci}_seed{s}"), (CURVES[ci].alpha, CURVES[ci].beta, CURVES[ci].delta), s,
              pre_time, add_time, eval_periods, scheme1_time) for ci, s in grid]

@@ -79,9 +79,7 @@ def claims(n: ClosedLoopNumbers) -> list[Claim]:
 def run(ctx: Context) -> None:
     from bptsb_ros.training.trainer import train
 
-    sim_time = ctx.pick(smoke=10, short=1000, paper=2000)
-    fit_time = ctx.pick(smoke=10, short=100, paper=100)
-    periods = ctx.pick(smoke=2, short=10, paper=10)
+    sim_time, fit_time, periods = ctx.settings["sim_time"], ctx.settings["fit_time"], ctx.settings["eval_periods"]
     cfg = packaged_config("lissajous_single", [f"sim_time={sim_time}", f"feedback.fit_time={fit_time}",
                                                f"lissajous.eval_periods={periods}"], seed=ctx.seed)
     ctx.log(f"lissajous-closed-loop: training {sim_time} s of simulated time, seed {ctx.seed}")

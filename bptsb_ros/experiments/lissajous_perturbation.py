@@ -167,14 +167,11 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
 )
 @single_threaded
 def run(ctx: Context) -> None:
-    sim_time = ctx.pick(smoke=10, short=1000, paper=2000)
-    seeds = ctx.pick(smoke=6, short=100, paper=100)
-    run_periods = ctx.pick(smoke=6, short=50, paper=300)
-    eval_periods = ctx.pick(smoke=3, short=10, paper=10)
-    settle = ctx.pick(smoke=2, short=10, paper=10)
+    sim_time, seeds, run_periods = ctx.settings["sim_time"], ctx.settings["n_seeds"], ctx.settings["run_periods"]
+    eval_periods, settle = ctx.settings["eval_periods"], ctx.settings["settle_periods"]
     ctx.log(f"lissajous-perturbation: training the single-curve agent ({sim_time} s, seed {ctx.seed})")
     trained = train_single_curve(ctx.out_dir / "agent", sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
-                                 fit_time=ctx.pick(smoke=10, short=100, paper=100))
+                                 fit_time=ctx.settings["fit_time"])
     ctx.log(f"lissajous-perturbation: {len(SIGMAS)} σ × {seeds} seeds, {run_periods} periods, open and closed loop")
     res = perturbation_errors(trained, seeds, settle=settle, run=run_periods, eval_periods=eval_periods)
     n_s = len(SIGMAS)

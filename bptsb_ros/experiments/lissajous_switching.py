@@ -275,15 +275,14 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, curve_on: tuple[float, 
 
 
 def _pretrain(ctx: Context) -> TrainedAgent:
-    sim_time = ctx.pick(smoke=5, short=1000, paper=2000)
+    sim_time = ctx.settings["pretrain_time"]
     ctx.log(f"{ctx.result.experiment}: preliminary single-curve training ({sim_time} s, seed {ctx.seed})")
     return train_single_curve(ctx.out_dir / "pretrained", sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
                               fit_time=10, eval_periods=2)
 
 
 def _switching_settings(ctx: Context) -> dict[str, Any]:
-    return {"sim_time": ctx.pick(smoke=5, short=2000, paper=30000),
-            "hold": ctx.pick(smoke=(2, 3), short=(3, 8), paper=(3, 8))}
+    return {"sim_time": ctx.settings["switching_time"], "hold": ctx.settings["hold"]}
 
 
 def _trained_switching(ctx: Context, pre: TrainedAgent, name: str, curve_on: Curve, timing: str | int,
@@ -316,7 +315,7 @@ def _shift_of(trained: TrainedAgent) -> float:
 def run_switching(ctx: Context) -> None:
     pre = _pretrain(ctx)
     settings = _switching_settings(ctx)
-    pre_err = _curve_error(pre, CURVE_1, ctx.pick(smoke=3, short=10, paper=10))
+    pre_err = _curve_error(pre, CURVE_1, ctx.settings["pretrain_eval_periods"])
     curve = (CURVE_SWITCH.alpha, CURVE_SWITCH.beta, CURVE_SWITCH.delta)
     variants = {"paper wind (F, 0)": ("switching", False), "published wind (15·F, 1)": ("switching_published", True)}
     jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, "random", settings["sim_time"],
@@ -324,8 +323,8 @@ def run_switching(ctx: Context) -> None:
     ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing), the paper's wind "
             "and the published code's wind as two jobs")
     summaries = ctx.run_jobs(switching_job, jobs, names=list(variants))
-    seg = ctx.pick(smoke=6, short=15, paper=20)  # periods per test segment
-    transient = ctx.pick(smoke=2, short=5, paper=5)
+    seg = ctx.settings["segment_periods"]  # periods per test segment
+    transient = ctx.settings["transient_periods"]
     tests = {}
     for (label, (name, published)), summary in zip(variants.items(), summaries, strict=True):
         sw = load_trained(ctx.out_dir / name, summary)
@@ -423,8 +422,7 @@ def run_bifurcation(ctx: Context) -> None:
     ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s), the paper's and the published "
             "wind as two jobs")
     summaries = ctx.run_jobs(switching_job, jobs, names=list(variants))
-    transient = ctx.pick(smoke=3, short=30, paper=100)
-    record = ctx.pick(smoke=9, short=30, paper=50)
+    transient, record = ctx.settings["transient_periods"], ctx.settings["record_periods"]
     winds = BIFURCATION_WINDS
     main_label = next(iter(variants))
     details: dict[str, Any] = {"seed": ctx.seed, "winds": winds, "transient_periods": transient,
@@ -560,9 +558,7 @@ def run_timing(ctx: Context) -> None:
     ctx.log(f"lissajous-timing: {len(jobs)} switching trainings ({settings['sim_time']} s each) as jobs")
     summaries = ctx.run_jobs(switching_job, jobs,
                          names=[f"{label} timing" for label, *_ in systems])
-    settle = ctx.pick(smoke=2, short=5, paper=5)
-    run = ctx.pick(smoke=6, short=20, paper=30)
-    last = ctx.pick(smoke=2, short=5, paper=5)
+    settle, run, last = ctx.settings["settle_periods"], ctx.settings["run_periods"], ctx.settings["last_periods"]
     out: dict[str, dict] = {}
     for (label, name, timing, published), summary in zip(systems, summaries, strict=True):
         trained = load_trained(ctx.out_dir / name, summary)

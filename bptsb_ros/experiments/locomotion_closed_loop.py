@@ -12,7 +12,7 @@ SWG to the FL over a few seconds) and another FL state (the mass velocities).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -71,12 +71,12 @@ def claims(n: ClosedLoopCounts) -> list[Claim]:
 
 def settings_for(ctx: Context) -> tuple[AgentSettings, int]:
     """The agents' settings and how many agents, for this scale (shared with the perturbation experiment)."""
-    settings = ctx.pick(
-        smoke=AgentSettings(sim_time=4, warmup_windows=1, fit_time=4, eval_time=2, handover_time=1, gait_time=1),
-        short=AgentSettings(sim_time=200, warmup_windows=100, fit_time=100, eval_time=20, handover_time=5),
-        paper=AgentSettings(sim_time=1000, warmup_windows=100, fit_time=100, eval_time=100, handover_time=5),
-    )
-    return settings, ctx.pick(smoke=2, short=20, paper=20)
+    return agent_settings(ctx), ctx.settings["n_agents"]
+
+
+def agent_settings(ctx: Context) -> AgentSettings:
+    """The agents' training and evaluation settings: the :class:`AgentSettings` fields of ``ctx.settings``."""
+    return AgentSettings(**{f.name: ctx.settings[f.name] for f in fields(AgentSettings)})
 
 
 @experiment(

@@ -21,7 +21,7 @@ import torch
 
 from bptsb_ros.experiments.claim_rules import at_most
 from bptsb_ros.experiments.common import packaged_config
-from bptsb_ros.experiments.locomotion_closed_loop import settings_for
+from bptsb_ros.experiments.locomotion_closed_loop import agent_settings
 from bptsb_ros.experiments.locomotion_common import batched_centre_x, late_speed, task_state, train_agents
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
@@ -151,7 +151,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
     from bptsb_ros.training.trainer import train
 
-    settings, _ = settings_for(ctx)
+    settings = agent_settings(ctx)
     sweep = train_agents(ctx, settings, [ctx.seed])
     if sweep.failed:
         raise RuntimeError(f"the forward agent failed: {sweep.failed[0].get('error')}")
@@ -160,10 +160,8 @@ def run(ctx: Context) -> None:
     if not v_max > 0:
         raise RuntimeError(f"the forward agent does not move forward (speed {v_max:.3g} m/s); no target v_max/2")
     target = v_max / 2
-    sim_time = ctx.pick(smoke=4, short=2000, paper=10000)
-    period = ctx.pick(smoke=4.0, short=20.0, paper=20.0)
-    eval_periods = ctx.pick(smoke=1, short=3, paper=5)
-    sweep_time = ctx.pick(smoke=2.0, short=20.0, paper=50.0)
+    sim_time, period = ctx.settings["switching_time"], ctx.settings["wind_period"]
+    eval_periods, sweep_time = ctx.settings["eval_periods"], ctx.settings["sweep_time"]
     force = -1.0
     cfg = packaged_config("locomotion_headwind", [f"sim_time={sim_time}", f"locomotion.target_speed={target}",
                                                   f"locomotion.wind_period={period}",

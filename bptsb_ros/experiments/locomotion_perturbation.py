@@ -131,9 +131,8 @@ def run(ctx: Context) -> None:
 
     settings, n_agents = settings_for(ctx)
     seeds = list(range(ctx.seed, ctx.seed + n_agents))
-    n_noise = ctx.pick(smoke=3, short=100, paper=100)
-    before_s, after_s = ctx.pick(smoke=(1.0, 2.0), short=(10.0, 20.0), paper=(20.0, 80.0))
-    max_agents = ctx.pick(smoke=1, short=8, paper=20)
+    n_noise, max_agents = ctx.settings["n_noise"], ctx.settings["max_agents"]
+    before_s, after_s = ctx.settings["before_time"], ctx.settings["after_time"]
     sweep = train_agents(ctx, settings, seeds)
     results = sweep.results()
     ok = [s for s in seeds if f"seed-{s}" in results and results[f"seed-{s}"]["success"]]

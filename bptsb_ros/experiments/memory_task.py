@@ -175,22 +175,17 @@ def run(ctx: Context) -> None:
         BODIES,
         N_MOV,
         NarmaJob,
-        config_name,
         load_states,
         narma_overrides,
         run_jobs,
     )
     from bptsb_ros.sweep import Job
 
-    epochs = ctx.pick(smoke=1, short=60, paper=40000)
-    delays = ctx.pick(smoke=(1, 8, 17), short=(1, 4, 8, 12, 17), paper=tuple(range(1, 18)))
-    seeds = [ctx.seed + i for i in range(ctx.pick(smoke=1, short=2, paper=5))]
-    eval_inputs = ctx.pick(smoke=150, short=800, paper=3000)
+    epochs, delays, eval_inputs = ctx.settings["epochs"], ctx.settings["delays"], ctx.settings["eval_inputs"]
+    seeds = [ctx.seed + i for i in range(ctx.settings["n_seeds"])]
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
-    max_delay = ctx.pick(smoke=10, short=20, paper=20)
-    washout = ctx.pick(smoke=30, short=100, paper=100)
-    config = config_name(ctx.scale)
-    extra = ("narma.n_inputs=40", "narma.washout=10", "narma.train_end=30") if ctx.scale == "smoke" else ()
+    max_delay, washout = ctx.settings["max_delay"], ctx.settings["washout"]
+    config, extra = ctx.settings["config"], ctx.settings["config_overrides"]
     jobs = []
     for body in BODIES:
         for dt in delays:

@@ -14,8 +14,6 @@ from bptsb_ros.experiments.registry import Context
 
 #: the published labelmap config's ``deltaScale: 5``, read as: shifts span ±size/deltaScale (±0.8 m for size 4)
 DELTA_SCALE = 5.0
-#: label-map cells per axis at paper scale (ours: neither the paper nor the configs give the resolution)
-PAPER_GRID = 41
 
 
 def pca_analysis(ctx: Context, evaluation: dict[str, np.ndarray], labels: np.ndarray, title: str,

@@ -31,15 +31,11 @@ BRAINS = ("lil", "mlp")
 N_MOV = (17, 65)
 SHAPE = "multiple_circle"
 BATCH = 50
-#: the authors' config (MNIST/training.yaml ``epoch: 50``); the paper gives no epoch count for the drawing
-PAPER_EPOCHS = 50
 
 
 def scale_settings(ctx: Context) -> dict[str, int | None]:
     """Training images, test images and epochs for the run's scale (None: every image of the split)."""
-    return {"n_train": ctx.pick(smoke=50, short=None, paper=None),
-            "n_test": ctx.pick(smoke=30, short=None, paper=None),
-            "epochs": ctx.pick(smoke=1, short=3, paper=PAPER_EPOCHS)}
+    return {key: ctx.settings[key] for key in ("n_train", "n_test", "epochs")}
 
 
 def systems() -> list[tuple[str, int, object]]:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt
-from bptsb_ros.experiments.mnist_analysis import PAPER_GRID, labelmap_analysis
+from bptsb_ros.experiments.mnist_analysis import labelmap_analysis
 from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
 from bptsb_ros.experiments.mnist_drawing import BATCH, SHAPE, scale_settings, system_label, system_meta
 from bptsb_ros.experiments.registry import Context, experiment
@@ -147,7 +147,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.tasks.mnist_drawing import SystemSpec
 
     s = scale_settings(ctx)
-    grid = ctx.pick(smoke=3, short=15, paper=PAPER_GRID)
+    grid = ctx.settings["grid"]
     data = load_data(ctx, s["n_train"], s["n_test"])
     spec = SystemSpec(brain="mlp", shape=SHAPE, nodes=body_nodes(SHAPE, N_MOV))
     reuse = ctx.out_dir.parent / "mnist-drawing" / "systems" / f"{spec.name}.pt"

@@ -29,8 +29,6 @@ from bptsb_ros.experiments.result import Claim
 SYSTEMS = ((None, 0, 91.18), ("double_circle", 17, 95.69), ("double_circle", 65, 96.77),
            ("multiple_circle", 17, 95.36), ("multiple_circle", 65, 96.22))
 BATCH = 50
-#: "These systems were optimized for 100 epochs" (supplement)
-PAPER_EPOCHS = 100
 #: "the systems that included bodies achieved higher than 95% accuracy"
 BODY_ACCURACY = 0.95
 #: "the differences in body structure had little effect ... when the number of system states was the same": the
@@ -128,9 +126,7 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_curves
 
-    n_train = ctx.pick(smoke=50, short=None, paper=None)
-    n_test = ctx.pick(smoke=30, short=None, paper=None)
-    epochs = ctx.pick(smoke=1, short=2, paper=PAPER_EPOCHS)
+    n_train, n_test, epochs = ctx.settings["n_train"], ctx.settings["n_test"], ctx.settings["epochs"]
     data = load_data(ctx, n_train, n_test)
     chosen = systems()
     jobs = [dict(shape=shape, nodes=nodes, seed=ctx.seed, train_x=data.train_x, train_y=data.train_y,

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 from bptsb_ros.experiments.claim_rules import fmt
-from bptsb_ros.experiments.mnist_analysis import PAPER_GRID, labelmap_analysis, pca_analysis
+from bptsb_ros.experiments.mnist_analysis import labelmap_analysis, pca_analysis
 from bptsb_ros.experiments.mnist_claims import (
     Check,
     Separation,
@@ -43,9 +43,6 @@ BRAINS = ("lil", "mlp")
 #: the body of the PCA and label maps (supplement Fig. S(b)/(c)): MLP + multiple circle N_mov 17
 ANALYSED = ("mlp", "multiple_circle", 17)
 BATCH = 50
-#: epochs at paper scale (ours: the paper and the configs give none; 2 updates per epoch on 100 images)
-PAPER_EPOCHS = 1000
-PER_DIGIT = 10
 #: "high accuracy in drawing the label numbers": at least this share of the drawings nearest to their own target
 HIGH_ACCURACY = 0.9
 
@@ -150,9 +147,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.tasks.digits import load_targets
     from bptsb_ros.tasks.mnist_drawing import load_system
 
-    per_digit = ctx.pick(smoke=2, short=PER_DIGIT, paper=PER_DIGIT)
-    epochs = ctx.pick(smoke=1, short=150, paper=PAPER_EPOCHS)
-    grid = ctx.pick(smoke=3, short=15, paper=PAPER_GRID)
+    per_digit, epochs, grid = ctx.settings["per_digit"], ctx.settings["epochs"], ctx.settings["grid"]
     data = load_data(ctx, None, 0)
     x, y = specific_images(data.train_x, data.train_y, per_digit, ctx.seed)
     ctx.result.provenance["data"] = (f"{10 * per_digit} images ({per_digit} per digit, seed {ctx.seed}) from the "

@@ -137,8 +137,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.sim.blocks import block_positions
 
     one_torch_thread()
-    blocks = ctx.pick(smoke=800, short=3000, paper=5000)
-    max_delay = ctx.pick(smoke=10, short=20, paper=20)
+    blocks, max_delay = ctx.settings["blocks"], ctx.settings["max_delay"]
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     washout = 100
     rng = np.random.default_rng(ctx.seed)

@@ -97,15 +97,12 @@ def run(ctx: Context) -> None:
     import numpy as np
 
     from bptsb_ros.analysis.plots import _save, plt
-    from bptsb_ros.experiments.timeseries import NarmaJob, config_name, load_states, narma_overrides, run_jobs
+    from bptsb_ros.experiments.timeseries import NarmaJob, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
     from bptsb_ros.tasks.narma import nmse
 
-    epochs = ctx.pick(smoke=1, short=120, paper=40000)
-    eval_inputs = ctx.pick(smoke=150, short=1000, paper=3000)
-    washout = ctx.pick(smoke=30, short=100, paper=100)
-    config = config_name(ctx.scale)
-    extra = ("narma.n_inputs=40", "narma.washout=10", "narma.train_end=30") if ctx.scale == "smoke" else ()
+    epochs, eval_inputs, washout = ctx.settings["epochs"], ctx.settings["eval_inputs"], ctx.settings["washout"]
+    config, extra = ctx.settings["config"], ctx.settings["config_overrides"]
     jobs = [Job(f"{brain}_{body}", NarmaJob(config, tuple(narma_overrides(ctx.scale, epochs, body, brain, extra)),
                                             ctx.seed, (epochs,), eval_inputs, washout=washout))
             for body, brain in SYSTEMS]

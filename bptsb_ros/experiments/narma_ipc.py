@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bptsb_ros.experiments.experiment_settings import SettingsError
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import RANK_TOL, all_of, fmt, not_learned, rank_reached
@@ -181,17 +182,17 @@ def claims(n: NarmaIpcNumbers) -> list[Claim]:
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
-    from bptsb_ros.experiments.timeseries import NarmaJob, config_name, load_states, narma_overrides, run_jobs
+    from bptsb_ros.experiments.timeseries import NarmaJob, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
 
-    last = ctx.pick(smoke=1, short=300, paper=40000)
-    stages = ctx.pick(smoke=(0, 1), short=(0, 30, 100, 300), paper=(0, 400, 4000, 40000))
-    eval_inputs = ctx.pick(smoke=250, short=2000, paper=4000)
-    max_delay = ctx.pick(smoke=10, short=20, paper=20)
+    stages, eval_inputs = ctx.settings["stages"], ctx.settings["eval_inputs"]
+    if not stages or stages[0] != 0 or list(stages) != sorted(set(stages)):
+        raise SettingsError(f"narma-ipc: stages must start at 0 (the untrained system) and grow, got {list(stages)}")
+    last = stages[-1]
+    max_delay = ctx.settings["max_delay"]
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
-    washout = ctx.pick(smoke=30, short=100, paper=100)
-    config = config_name(ctx.scale)
-    extra = ("narma.n_inputs=40", "narma.washout=10", "narma.train_end=30") if ctx.scale == "smoke" else ()
+    washout = ctx.settings["washout"]
+    config, extra = ctx.settings["config"], ctx.settings["config_overrides"]
     jobs = [Job(brain, NarmaJob(config, tuple(narma_overrides(ctx.scale, last, "double-circle", brain, extra)),
                                 ctx.seed, tuple(stages), eval_inputs, washout=washout)) for brain in BRAINS]
     ctx.log(f"narma-ipc: {len(jobs)} trainings ({config}, states at epochs {stages}) as parallel jobs")

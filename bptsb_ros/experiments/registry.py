@@ -1,7 +1,8 @@
 """Every paper experiment that ``bptsb reproduce`` can run, by name.
 
 An experiment is a function ``run(ctx: Context) -> None`` registered with :func:`experiment`. It reads its
-settings for the chosen scale from ``ctx`` (:meth:`Context.pick`), writes its figures into ``ctx.out_dir``
+settings for the chosen scale from ``ctx.settings`` (its packaged ``settings/<name>.yaml`` with the run's
+``--set`` overrides: :mod:`~bptsb_ros.experiments.experiment_settings`), writes its figures into ``ctx.out_dir``
 and records rows, claims and figures on ``ctx.result``. The runner (:func:`run_experiment`) times it and
 writes ``result.json``.
 
@@ -17,12 +18,13 @@ import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
+from bptsb_ros.experiments.experiment_settings import Overrides, Settings, resolve_settings
 from bptsb_ros.experiments.result import (
     EXPERIMENT_SLUG,
     MAX_SLUG_LEN,
@@ -60,8 +62,6 @@ MODULES: tuple[str, ...] = (
     "bptsb_ros.experiments.locomotion_headwind",
 )
 
-T = TypeVar("T")
-
 #: written into every run directory; ``--force`` replaces only directories that hold it
 RUN_MARKER = ".bptsb-reproduce"
 
@@ -88,10 +88,8 @@ class Context:
     data_dir: Path | None = None
     #: the train/test split to use (``--split``; what it means is the experiment's data loader's business)
     split: str = "auto"
-
-    def pick(self, *, smoke: T, short: T, paper: T) -> T:
-        """The setting for this run's scale."""
-        return {"smoke": smoke, "short": short, "paper": paper}[self.scale]
+    #: the experiment's settings at this scale, ``--set`` overrides applied (``ctx.settings["epochs"]``)
+    settings: Mapping[str, Any] = field(default_factory=dict)
 
     def placement(self) -> Placement:
         """Where this run's independent jobs go: ``--scheduler``, else ``--workers`` processes; without either,
@@ -218,14 +216,14 @@ def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: s
                    force: bool = False, resume: bool = False, progress: bool = True,
                    log: Callable[[str], None] | None = None, workers: int | None = None,
                    scheduler: str | None = None, data_dir: str | Path | None = None,
-                   split: str = "auto") -> tuple[Path, dict[str, Any]]:
+                   split: str = "auto", settings: Overrides | None = None) -> tuple[Path, dict[str, Any]]:
     """Run one experiment and write ``out_dir/result.json``; returns (its path, its content).
 
     Arguments as :func:`execute_experiment`, which returns the :class:`ExperimentResult` itself.
     """
     path, result = execute_experiment(name, scale=scale, seed=seed, out_dir=out_dir, force=force, resume=resume,
                                       progress=progress, log=log, workers=workers, scheduler=scheduler,
-                                      data_dir=data_dir, split=split)
+                                      data_dir=data_dir, split=split, settings=settings)
     return path, result.to_json()
 
 
@@ -233,20 +231,22 @@ def execute_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_di
                        force: bool = False, resume: bool = False, progress: bool = True,
                        log: Callable[[str], None] | None = None, workers: int | None = None,
                        scheduler: str | None = None, data_dir: str | Path | None = None,
-                       split: str = "auto") -> tuple[Path, ExperimentResult]:
+                       split: str = "auto", settings: Overrides | None = None) -> tuple[Path, ExperimentResult]:
     """Run one experiment and write ``out_dir/result.json``; returns (its path, the result).
 
     ``workers``/``scheduler`` say where experiments with independent trainings run them (``bptsb_ros.sweep``);
     ``data_dir`` and ``split`` are passed to experiments that read a data set (MNIST). A non-empty ``out_dir``
     (an earlier run) is kept unless ``force``, which removes it first, and only if it is an earlier run (it holds
     :data:`RUN_MARKER`); a failed run writes no result.json. ``resume`` continues such an unfinished run in place
-    (experiments whose trainings are sweep jobs keep the finished jobs).
+    (experiments whose trainings are sweep jobs keep the finished jobs). ``settings`` overrides the experiment's
+    packaged settings (``--set`` texts ``key=value`` or a mapping; SettingsError before anything is touched).
     """
     exp = get_experiment(name)
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
         raise ExperimentError(f"--workers must be a whole number >= 0 (0: in this process), got {workers!r}")
     if scale not in SCALES:
         raise ExperimentError(f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
+    resolved = resolve_settings(exp.name, scale, settings)
     out = Path(out_dir) if out_dir is not None else Path("runs") / "reproduce" / name
     if resume and not (out / RUN_MARKER).is_file():
         raise ExperimentError(f"--resume continues an unfinished `bptsb reproduce` run, and {out} is not one "
@@ -259,12 +259,13 @@ def execute_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_di
         except OSError as err:
             raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
         return _run_locked(exp, out, scale=scale, seed=seed, force=force, resume=resume, progress=progress,
-                           log=log, workers=workers, scheduler=scheduler, data_dir=data_dir, split=split)
+                           log=log, workers=workers, scheduler=scheduler, data_dir=data_dir, split=split,
+                           settings=resolved)
 
 
 def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: bool, resume: bool, progress: bool,
                 log: Callable[[str], None] | None, workers: int | None, scheduler: str | None,
-                data_dir: str | Path | None, split: str) -> tuple[Path, dict[str, Any]]:
+                data_dir: str | Path | None, split: str, settings: Settings) -> tuple[Path, ExperimentResult]:
     """:func:`run_experiment` once this process holds ``out``'s lock."""
     name = exp.name
     if resume:
@@ -285,12 +286,13 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
         (out / RUN_MARKER).write_text(f"bptsb reproduce {name}\n")
     except OSError as err:
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
-    result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed))
+    result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed), settings=settings.to_json())
     command = f"bptsb reproduce {name} --scale {scale} --seed {seed}" + (" --resume" if resume else "")
     if data_dir is not None:
         command += f" --data {data_dir}"
     if split != "auto":
         command += f" --split {split}"
+    command += "".join(f" {arg}" for arg in settings.override_args())
     result.provenance = {
         "command": command + (f" --scheduler {scheduler}" if scheduler else f" --workers {workers}"
                               if workers is not None else ""),
@@ -302,7 +304,7 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
         "jobs": [],
     }
     ctx = Context(scale, int(seed), out, result, progress=progress, workers=workers, scheduler=scheduler,
-                  data_dir=None if data_dir is None else Path(data_dir), split=split)
+                  data_dir=None if data_dir is None else Path(data_dir), split=split, settings=settings)
     if log is not None:
         ctx.log = log
     t0 = time.perf_counter()

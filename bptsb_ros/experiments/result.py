@@ -6,8 +6,10 @@ Schema (every experiment writes exactly this, plus the optional ``details`` and 
      "rows":   [{"system": str, "metric": str, "unit": str, "ours": float|null, "paper": float|str|null}],
      "claims": [{"claim": str, "holds": bool|null, "evidence": str}],
      "figures": [str],            # paths relative to the run directory
-     "details": {...},            # optional: per-seed values, settings, anything a reader may want
-     "provenance": {...}}         # optional: command, package version, git commit, split of the data
+     "details": {...},            # optional: per-seed values, anything a reader may want
+     "provenance": {...},         # optional: command, package version, git commit, split of the data
+     "settings": {name: value}}   # optional: the experiment's settings the run used (scale + --set);
+                                  # each value null, a bool, a finite number, a text or a list of those
 
 ``experiment`` is a slug (``[a-z0-9][a-z0-9_-]*``: it names folders of the report); ``wall_s``, ``seed`` and
 the numbers of ``rows`` are finite (NaN and ±Infinity are refused, in the file and in the schema).
@@ -99,6 +101,8 @@ class ExperimentResult:
     figures: list[str] = field(default_factory=list)
     details: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
+    #: the experiment's resolved settings (``ctx.settings``), as JSON values
+    settings: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
@@ -156,6 +160,8 @@ def validate_result(data: Any, source: str = "result") -> None:
     for key in ("details", "provenance"):
         if key in data and not isinstance(data[key], dict):
             raise ResultError(f"{source}: {key} must be an object, got {type(data[key]).__name__}")
+    if "settings" in data:
+        _check_settings(data["settings"], source)
     if data["scale"] not in SCALES:
         raise ResultError(f"{source}: scale must be one of {', '.join(SCALES)}, got {data['scale']!r}")
     for i, row in enumerate(data["rows"]):
@@ -179,6 +185,21 @@ def validate_result(data: Any, source: str = "result") -> None:
     for i, fig in enumerate(data["figures"]):
         if not isinstance(fig, str) or Path(fig).is_absolute() or ".." in Path(fig).parts:
             raise ResultError(f"{source}: figures[{i}] must be a path inside the run directory, got {fig!r}")
+
+
+def _setting_scalar(value: Any) -> bool:
+    return value is None or isinstance(value, (bool, str)) or _finite(value)
+
+
+def _check_settings(settings: Any, source: str) -> None:
+    """``settings``: an object of name → null, bool, finite number, text, or a list of those."""
+    if not isinstance(settings, dict):
+        raise ResultError(f"{source}: settings must be an object, got {type(settings).__name__}")
+    for key, value in settings.items():
+        ok = _setting_scalar(value) or (isinstance(value, list) and all(_setting_scalar(v) for v in value))
+        if not ok:
+            raise ResultError(f"{source}: settings.{key:.80} must be null, a bool, a finite number, a text or a "
+                              f"list of those, got {value!r:.80}")
 
 
 def _finite(value: Any) -> bool:

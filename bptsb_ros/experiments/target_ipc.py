@@ -174,7 +174,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, to_unit_interval
     from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
 
-    samples = ctx.pick(smoke=1500, short=6000, paper=10000)
+    samples = ctx.settings["samples"]
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     max_delay, washout = 20, 100
     w = np.random.default_rng(ctx.seed).uniform(0.0, 1.0, samples)

@@ -52,13 +52,6 @@ def narma_overrides(scale: str, epochs: int, body: str, brain: str, extra: tuple
             f"narma.brain_input={BRAIN_INPUT}", *extra]
 
 
-def config_name(scale: str) -> str:
-    """``paper``: the paper's SGD schedule (config/narma.yaml: the authors' learning rates, k 1e3, d 1e2, l 1,
-    brain 1e-2, from their expandedNARMA.yaml and memory.yaml); otherwise Adam (config/narma_adam.yaml), which
-    converges in hundreds of epochs."""
-    return "narma" if scale == "paper" else "narma_adam"
-
-
 @dataclass(frozen=True)
 class NarmaJob:
     """Train one time-series system (a sweep job) and record its block-end states on a long held-out input.

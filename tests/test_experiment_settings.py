@@ -1,0 +1,266 @@
+"""Experiment settings as data (``bptsb_ros/experiments/settings/<name>.yaml``): the values every experiment ran
+with before they moved out of the code, the loader's validation, ``--show-config``, ``--set`` and the record in
+result.json."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+import yaml
+
+from bptsb_ros.analysis.report import build_report
+from bptsb_ros.cli import main
+from bptsb_ros.experiments import run_experiment
+from bptsb_ros.experiments.experiment_settings import (
+    SETTINGS_DIR,
+    SettingsError,
+    parse_settings,
+    resolve_settings,
+)
+from bptsb_ros.experiments.registry import _REGISTRY, Context, experiment, experiments
+from bptsb_ros.experiments.result import ResultError, validate_result
+
+_NARMA_SMOKE = ["narma.n_inputs=40", "narma.washout=10", "narma.train_end=30"]
+_MNIST = {"n_train": (50, None, None), "n_test": (30, None, None)}
+_AGENT = {"sim_time": (4, 200, 1000), "warmup_windows": (1, 100, 100), "fit_time": (4, 100, 100),
+          "eval_time": (2, 20, 100), "handover_time": (1, 5, 5), "gait_time": (1, 2.0, 2.0)}
+_SWITCHING = {"pretrain_time": (5, 1000, 2000), "switching_time": (5, 2000, 30000),
+              "hold": ((2, 3), (3, 8), (3, 8))}
+_NARMA_CONFIG = {"config": ("narma_adam", "narma_adam", "narma"), "config_overrides": (_NARMA_SMOKE, [], [])}
+
+#: (smoke, short, paper) of every setting, copied by hand from the ``ctx.pick(smoke=..., short=..., paper=...)``
+#: calls (and the scale-dependent config choice of the time-series experiments) of the experiment code before the
+#: settings moved into data files; lists were tuples there
+PLANTED: dict[str, dict[str, tuple]] = {
+    "mnist-drawing": {**_MNIST, "epochs": (1, 3, 50)},
+    "mnist-pca": {**_MNIST, "epochs": (1, 3, 50)},
+    "mnist-labelmap": {**_MNIST, "epochs": (1, 3, 50), "grid": (3, 15, 41)},
+    "mnist-specific100": {"per_digit": (2, 10, 10), "epochs": (1, 150, 1000), "grid": (3, 15, 41)},
+    "mnist-readout": {**_MNIST, "epochs": (1, 2, 100)},
+    "narma-emulation": {"epochs": (1, 120, 40000), "eval_inputs": (150, 1000, 3000), "washout": (30, 100, 100),
+                        **_NARMA_CONFIG},
+    # its `last = ctx.pick(smoke=1, short=300, paper=40000)` was the last stage (the training's length): no setting
+    "narma-ipc": {"stages": ((0, 1), (0, 30, 100, 300), (0, 400, 4000, 40000)),
+                  "eval_inputs": (250, 2000, 4000), "max_delay": (10, 20, 20), "washout": (30, 100, 100),
+                  **_NARMA_CONFIG},
+    "memory-task": {"epochs": (1, 60, 40000), "delays": ((1, 8, 17), (1, 4, 8, 12, 17), tuple(range(1, 18))),
+                    "n_seeds": (1, 2, 5), "eval_inputs": (150, 800, 3000), "max_delay": (10, 20, 20),
+                    "washout": (30, 100, 100), **_NARMA_CONFIG},
+    "target-ipc": {"samples": (1500, 6000, 10000)},
+    "msdn-nonlinearity": {"blocks": (800, 3000, 5000), "max_delay": (10, 20, 20)},
+    "lissajous-closed-loop": {"sim_time": (10, 1000, 2000), "fit_time": (10, 100, 100), "eval_periods": (2, 10, 10)},
+    "lissajous-perturbation": {"sim_time": (10, 1000, 2000), "fit_time": (10, 100, 100), "n_seeds": (6, 100, 100),
+                               "run_periods": (6, 50, 300), "eval_periods": (3, 10, 10), "settle_periods": (2, 10, 10)},
+    "lissajous-switching": {**_SWITCHING, "pretrain_eval_periods": (3, 10, 10), "segment_periods": (6, 15, 20),
+                            "transient_periods": (2, 5, 5)},
+    "lissajous-bifurcation": {**_SWITCHING, "transient_periods": (3, 30, 100), "record_periods": (9, 30, 50)},
+    "lissajous-timing": {**_SWITCHING, "settle_periods": (2, 5, 5), "run_periods": (6, 20, 30),
+                         "last_periods": (2, 5, 5)},
+    "closed-loop-schemes": {"n_curves": (1, 3, 3), "n_seeds": (1, 2, 5), "pretrain_time": (5, 200, 2000),
+                            "add_time": (3, 50, 1000), "eval_periods": (2, 10, 10), "scheme1_time": (3, 50, 2000)},
+    "locomotion-closed-loop-20": {**_AGENT, "n_agents": (2, 20, 20)},
+    "locomotion-perturbation": {**_AGENT, "n_agents": (2, 20, 20), "n_noise": (3, 100, 100),
+                                "before_time": (1.0, 10.0, 20.0), "after_time": (2.0, 20.0, 80.0),
+                                "max_agents": (1, 8, 20)},
+    "locomotion-headwind": {**_AGENT, "switching_time": (4, 2000, 10000), "wind_period": (4.0, 20.0, 20.0),
+                            "eval_periods": (1, 3, 5), "sweep_time": (2.0, 20.0, 50.0)},
+}
+
+
+def _as_code_had_it(value):
+    return tuple(value) if isinstance(value, list) else value
+
+
+@pytest.mark.parametrize("name", sorted(PLANTED))
+@pytest.mark.parametrize("scale_index, scale", list(enumerate(("smoke", "short", "paper"))))
+def test_packaged_settings_are_the_values_the_code_ran_with(name, scale_index, scale):
+    loaded = resolve_settings(name, scale)
+    expected = {key: _as_code_had_it(values[scale_index]) for key, values in PLANTED[name].items()}
+    assert dict(loaded) == expected
+    for key, value in expected.items():  # 4 stays an int, 4.0 a float (an agent's key hashes them)
+        assert type(loaded[key]) is type(value), (name, scale, key)
+
+
+def test_every_experiment_has_a_settings_file_and_every_file_an_experiment():
+    names = set(experiments())
+    assert names == set(PLANTED)
+    assert {p.stem for p in SETTINGS_DIR.glob("*.yaml")} == names
+
+
+# -- the loader's validation: the accepted edge and just past it -----------------------------------------------
+
+_SPEC = {"epochs": {"type": "int", "min": 1, "help": "training epochs"},
+         "n_train": {"type": "int", "nullable": True, "min": 1, "help": "images (null: all)"},
+         "rate": {"type": "float", "min": 0.0, "max": 1.0, "help": "a share"},
+         "hold": {"type": "list[int]", "length": 2, "min": 1, "help": "range"},
+         "config": {"type": "str", "help": "packaged config"}}
+_GOOD = {"epochs": 1, "n_train": None, "rate": 1, "hold": [1, 3], "config": "narma"}
+
+
+def _doc(**scale_changes) -> dict:
+    scales = {s: dict(_GOOD) for s in ("smoke", "short", "paper")}
+    scales["short"].update(scale_changes)
+    return {"settings": json.loads(json.dumps(_SPEC)), **scales}
+
+
+def test_loader_accepts_the_edges():
+    parsed = parse_settings(_doc(), "x.yaml")
+    short = parsed.values["short"]
+    assert short["epochs"] == 1 and short["n_train"] is None and short["hold"] == (1, 3)
+    assert short["rate"] == 1.0 and type(short["rate"]) is float  # a float setting given as an int
+    assert parse_settings(_doc(rate=0, n_train=1), "x.yaml").values["short"]["rate"] == 0.0
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"epochs": 0}, r"x.yaml: short.epochs must be ≥ 1, got 0"),
+    ({"epochs": 1.5}, r"short.epochs must be an integer, got 1.5"),
+    ({"epochs": True}, r"short.epochs must be an integer, got True"),
+    ({"epochs": None}, r"short.epochs must be an integer, got None"),
+    ({"n_train": 0}, r"short.n_train must be ≥ 1"),
+    ({"rate": 1.01}, r"short.rate must be ≤ 1"),
+    ({"rate": -0.01}, r"short.rate must be ≥ 0"),
+    ({"rate": "0.5"}, r"short.rate must be a number"),
+    ({"hold": [1, 3, 4]}, r"short.hold must be a list of 2 items, got 3"),
+    ({"hold": [0, 3]}, r"short.hold\[0\] must be ≥ 1"),
+    ({"hold": 3}, r"short.hold must be a list"),
+    ({"config": 3}, r"short.config must be a text"),
+    ({"epoch": 1}, r"short.epoch: unknown setting; did you mean epochs\?"),
+])
+def test_loader_refuses_just_past_the_edge(changes, message):
+    with pytest.raises(SettingsError, match=message) as err:
+        parse_settings(_doc(**changes), "x.yaml")
+    assert "\n" not in str(err.value)
+
+
+def test_loader_refuses_a_scale_that_lacks_a_setting_or_a_bad_declaration():
+    doc = _doc()
+    del doc["paper"]["rate"]
+    with pytest.raises(SettingsError, match="x.yaml: paper lacks the setting rate"):
+        parse_settings(doc, "x.yaml")
+    doc = _doc()
+    del doc["short"]
+    with pytest.raises(SettingsError, match="x.yaml: no short settings"):
+        parse_settings(doc, "x.yaml")
+    doc = _doc()
+    doc["smoek"] = doc.pop("smoke")
+    with pytest.raises(SettingsError, match="x.yaml: smoek: unknown section; did you mean smoke"):
+        parse_settings(doc, "x.yaml")
+    doc = _doc()
+    doc["settings"]["epochs"]["type"] = "integer"
+    with pytest.raises(SettingsError, match="settings.epochs.type must be one of"):
+        parse_settings(doc, "x.yaml")
+    doc = _doc()
+    del doc["settings"]["epochs"]["help"]
+    with pytest.raises(SettingsError, match="settings.epochs needs a help text"):
+        parse_settings(doc, "x.yaml")
+    doc = _doc()
+    doc["settings"]["epochs"]["mni"] = 1
+    with pytest.raises(SettingsError, match="settings.epochs.mni: unknown key; did you mean min"):
+        parse_settings(doc, "x.yaml")
+
+
+def test_loader_refuses_a_file_that_is_not_plain_data(tmp_path):
+    path = tmp_path / "x.yaml"
+    path.write_text("settings: !!python/object/apply:os.system ['true']\n")
+    with pytest.raises(SettingsError, match="x.yaml"):
+        parse_settings(path.read_text(), str(path))
+
+
+# -- --set and --show-config -----------------------------------------------------------------------------------
+
+def test_overrides_are_typed_as_the_setting_and_unknown_keys_refused():
+    got = resolve_settings("memory-task", "smoke", ["epochs=7", "delays=[2, 3]", "config=narma"])
+    assert got["epochs"] == 7 and got["delays"] == (2, 3) and got["config"] == "narma"
+    assert got["eval_inputs"] == 150  # the rest as packaged
+    assert resolve_settings("mnist-drawing", "short", {"n_train": 100})["n_train"] == 100
+    assert resolve_settings("mnist-drawing", "smoke", ["n_train=null"])["n_train"] is None
+    assert type(resolve_settings("locomotion-headwind", "smoke", ["wind_period=5"])["wind_period"]) is float
+    for bad, message in (["epoch=7"], r"--set epoch: unknown setting of memory-task; did you mean epochs\?"), \
+            (["epochs=7.5"], r"--set epochs must be an integer, got 7.5"), \
+            (["epochs=0"], r"--set epochs must be ≥ 1, got 0"), \
+            (["epochs"], r"--set epochs must look like key=value"), \
+            ({"epochs": "7"}, r"--set epochs must be an integer, got '7'"):
+        with pytest.raises(SettingsError, match=message):
+            resolve_settings("memory-task", "smoke", bad)
+
+
+def test_a_rule_across_settings_is_checked_before_the_training(tmp_path):
+    for stages in ("[1, 5]", "[0, 5, 3]", "[0, 5, 5]"):
+        with pytest.raises(SettingsError, match="stages must start at 0 .* and grow"):
+            run_experiment("narma-ipc", scale="smoke", out_dir=tmp_path / "x", force=True, progress=False,
+                           settings=[f"stages={stages}"])
+    assert not (tmp_path / "x" / "sweep").exists()
+
+
+def test_show_config_prints_the_resolved_settings_and_runs_nothing(capsys, tmp_path):
+    out = tmp_path / "never"
+    assert main(["reproduce", "narma-ipc", "--show-config", "--scale", "paper", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    shown = yaml.safe_load(text)
+    assert shown == {"stages": [0, 400, 4000, 40000], "eval_inputs": 4000, "max_delay": 20,
+                     "washout": 100, "config": "narma", "config_overrides": []}
+    assert re.search(r"^eval_inputs: 4000 +# held-out inputs", text, re.M)  # each setting with its help text
+    assert not out.exists()
+    assert main(["reproduce", "narma-ipc", "--show-config", "--scale", "smoke", "--set", "washout=3"]) == 0
+    text = capsys.readouterr().out
+    smoke = yaml.safe_load(text)
+    assert smoke["washout"] == 3 and smoke["stages"] == [0, 1] and smoke["config_overrides"] == _NARMA_SMOKE
+    assert re.search(r"^washout: 3 +# .*\(--set\)$", text, re.M) and re.search(r"^max_delay: 10 +# [^(]*$", text, re.M)
+    assert main(["reproduce", "narma-ipc", "--show-config", "--set", "wahsout=3"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "unknown setting of narma-ipc; did you mean washout?" in err
+
+
+# -- the record in result.json and the report ------------------------------------------------------------------
+
+@pytest.fixture
+def toy_with_settings(tmp_path, monkeypatch):
+    """A toy experiment whose settings file is planted: it reports ``ctx.settings['gain'] · seed``."""
+    folder = tmp_path / "settings"
+    folder.mkdir()
+    (folder / "toy-settings.yaml").write_text(
+        "settings:\n  gain: {type: int, min: 1, help: what the seed is multiplied by}\n"
+        "  label: {type: str, help: the row's system}\n"
+        "smoke: {gain: 2, label: toy}\nshort: {gain: 3, label: toy}\npaper: {gain: 5, label: toy}\n")
+    monkeypatch.setattr("bptsb_ros.experiments.experiment_settings.SETTINGS_DIR", folder)
+
+    def run(ctx: Context) -> None:
+        ctx.row(ctx.settings["label"], "gain × seed", "1", ctx.settings["gain"] * ctx.seed)
+
+    experiment("toy-settings", paper_ref="Table 0", summary="planted settings", durations={})(run)
+    yield "toy-settings"
+    _REGISTRY.pop("toy-settings", None)
+
+
+def test_result_json_records_the_settings_and_the_report_shows_them(tmp_path, toy_with_settings):
+    runs = tmp_path / "runs"
+    path, data = run_experiment(toy_with_settings, scale="short", seed=2, out_dir=runs / "a", progress=False,
+                                settings=["gain=7"])
+    on_disk = json.loads(path.read_text())
+    assert on_disk["settings"] == {"gain": 7, "label": "toy"}
+    assert on_disk["rows"][0]["ours"] == 14.0  # 7 × 2: the run used the override
+    assert on_disk["provenance"]["command"].endswith("--set gain=7")
+    _, plain = run_experiment(toy_with_settings, scale="paper", seed=2, out_dir=runs / "b", progress=False)
+    assert plain["settings"] == {"gain": 5, "label": "toy"} and plain["rows"][0]["ours"] == 10.0
+    assert main(["reproduce", toy_with_settings, "--scale", "smoke", "--seed", "3", "--out", str(runs / "c"),
+                 "--set", "label=cli"]) == 0
+    assert json.loads((runs / "c" / "result.json").read_text())["rows"][0] == {
+        "system": "cli", "metric": "gain × seed", "unit": "1", "ours": 6.0, "paper": None}
+    text = build_report(runs, tmp_path / "R.md").read_text()
+    assert "- settings: gain = 7, label = toy" in text and "- settings: gain = 5, label = toy" in text
+
+
+@pytest.mark.parametrize("settings, ok", [({"gain": 7, "hold": [1, 2], "n": None, "c": "x"}, True),
+                                           ({"gain": {"nested": 1}}, False), ([1, 2], False),
+                                           ({"gain": [[1]]}, False)])
+def test_result_schema_checks_the_settings_record(settings, ok):
+    good = {"experiment": "e", "paper_ref": "Fig. 1", "scale": "smoke", "seed": 0, "wall_s": 1.0,
+            "rows": [], "claims": [], "figures": [], "settings": settings}
+    if ok:
+        validate_result(good)
+    else:
+        with pytest.raises(ResultError, match="settings"):
+            validate_result(good)
+
