@@ -639,8 +639,10 @@ def test_claim_holds_must_be_a_bool(holds, evidence, accepted):
 
 # -- body/msdn.py and training/guard.py ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("dt, accepted", [(TINY, True), (0.0, False), (-TINY, False)])
+@pytest.mark.parametrize("dt, accepted", [(TINY, True), (1.0, True), (0.0, False), (-TINY, False), (math.nan, False),
+                                          (math.inf, False)])
 def test_msdn_dt_edges(dt, accepted):
+    """dt must be a positive number of seconds: NaN (which compares False with everything) and inf are not."""
     _verdict(accepted, ValueError, lambda: MSDN(double_circle(7), dt=dt), "dt must be")
 
 
