@@ -646,6 +646,19 @@ def test_msdn_dt_edges(dt, accepted):
     _verdict(accepted, ValueError, lambda: MSDN(double_circle(7), dt=dt), "dt must be")
 
 
+@pytest.mark.parametrize("dt, ns", [(1e-9, 1), (0.01, 10_000_000), (2.0, 2_000_000_000), (0.0, None), (-1e-9, None),
+                                    (1.5e-9, None), (math.nan, None), (math.inf, None), (1e300, None)])
+def test_dt_to_ns_edges(dt, ns):
+    """A ROS time step is a whole, positive, finite number of nanoseconds; anything else is one ValueError."""
+    from bptsb_ros.ros.topics import dt_to_ns
+
+    if ns is not None:
+        assert dt_to_ns(dt) == ns
+    else:
+        with pytest.raises(ValueError, match="dt must be"):
+            dt_to_ns(dt)
+
+
 def _optimizer():
     return torch.optim.SGD([torch.zeros(1, requires_grad=True)], lr=1.0)
 
