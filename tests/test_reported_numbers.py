@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from bptsb_ros.analysis.report import _duration, _fmt, find_results
+from bptsb_ros.analysis.report import _duration, _fmt, build_report, find_results
 from bptsb_ros.experiments.lissajous_switching import phase_locked_nmse, segment_errors
 
 
@@ -117,3 +117,21 @@ def test_results_in_the_papers_order_then_scale_then_directory(tmp_path):
         _plant(tmp_path / "runs", directory, experiment, scale)
     found = find_results(tmp_path / "runs")
     assert [p.parent.name for p, _ in found] == EXPECTED
+
+
+def test_report_page_in_that_order_with_its_numbers(tmp_path):
+    for i, (directory, experiment, scale) in enumerate(PLANTED):
+        _plant(tmp_path / "runs", directory, experiment, scale, ours=9999.5 + i, wall_s=60.0 * i)
+    text = build_report(tmp_path / "runs", tmp_path / "R.md").read_text()
+    by_dir = {d: (e, s, i) for i, (d, e, s) in enumerate(PLANTED)}
+    headings = [line for line in text.splitlines() if line.startswith("## ")]
+    assert headings == [f"## {by_dir[d][0]} ({by_dir[d][1]}, seed 0)" for d in EXPECTED]
+    summary = [line.split(" | ")[0] for line in text.splitlines() if line.startswith("| [")]
+    assert summary == [f"| [{by_dir[d][0]}](#{by_dir[d][0]}-{by_dir[d][1]}-seed-0)" for d in EXPECTED]
+    sections = dict(zip(EXPECTED, text.split("\n## ")[1:], strict=True))
+    # planted: ours = 9999.5 + i, wall time 60 s × i, i the directory's index in PLANTED (hand-formatted below)
+    shown = {"a": ("1.000e+04", "0 s"), "b": ("1.000e+04", "60 s"), "c": ("1.000e+04", "2.0 min"),
+             "d": ("1.000e+04", "3.0 min"), "e": ("1.000e+04", "4.0 min"), "f": ("1.000e+04", "5.0 min"),
+             "g": ("1.001e+04", "6.0 min"), "a2": ("1.001e+04", "7.0 min"), "h": ("1.001e+04", "8.0 min")}
+    for d, (ours, wall) in shown.items():
+        assert f"| s | m | {ours} | — | u |" in sections[d] and f"Wall time {wall}." in sections[d], d
