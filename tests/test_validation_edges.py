@@ -723,3 +723,33 @@ def test_launch_max_wind_param(value, accepted):
                    "must be finite and > 0")
     if accepted:
         assert out == float(value)
+
+
+@pytest.mark.parametrize("flag, value, accepted", [
+    ("--duration", "0", True), ("--duration", "-1e-9", False),
+    ("--rate-scale", "1e-9", True), ("--rate-scale", "0", False), ("--rate-scale", "-1", False),
+    ("--grace", "1e-9", True), ("--grace", "0", False),
+])
+def test_launch_run_settings_before_any_node(capsys, flag, value, accepted):
+    # --perturb-at -1 is refused on purpose: an accepted value gets as far as that check, and no node starts
+    assert cli_main(["launch", "lissajous_open", f"{flag}={value}", "--perturb-at=-1"]) == 2
+    err = capsys.readouterr().err.strip()
+    if accepted:
+        assert err == "error: --perturb-at -1: must be >= 0 (sim seconds)"
+    else:
+        assert err == "error: --duration must be >= 0, --rate-scale and --grace > 0"
+
+
+@pytest.mark.parametrize("functions, max_bytes, accepted, match", [
+    # basis of max_degree 2, max_delay 2, by hand: degree 1: u(t−0..2), 3 functions; degree 2: P2 of each of the
+    # 3 delays and the 3 products of two delays, 6. Total 9; the largest degree, 6 functions × 10 samples × 8 B.
+    (9, 480, True, ""), (8, 480, False, "is a basis of 9 functions, more than the maximum of 8"),
+    (9, 479, False, r"the degree-2 basis \(6 functions × 10 samples\) needs"),
+])
+def test_ipc_cli_basis_bounds(monkeypatch, functions, max_bytes, accepted, match):
+    from bptsb_ros.cli import ipc_cmd
+
+    assert ipc_cmd.basis_size(2, 2) == [3, 6]
+    monkeypatch.setattr(ipc_cmd, "MAX_BASIS_FUNCTIONS", functions)
+    monkeypatch.setattr(ipc_cmd, "MAX_BASIS_BYTES", max_bytes)
+    _verdict(accepted, IPCError, lambda: ipc_cmd._check_basis(2, 2, samples=10), match)
