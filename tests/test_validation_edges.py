@@ -291,6 +291,20 @@ def test_wind_force_finite(force, accepted):
     _verdict(accepted, WindScheduleError, lambda: WindSchedule("constant", force=force), "two finite numbers")
 
 
+@pytest.mark.parametrize("period, steps", [(0.006, 1), (0.0051, 1), (0.005, None), (0.004, None), (0.015, 2)])
+def test_wind_switching_period_rounds_to_whole_steps(period, steps):
+    """The period is counted in whole steps of dt = 0.01 s (round half to even, Python's round): 0.6 and 0.51
+    steps are one step, exactly half a step (0.5 → 0) is none and refused, 1.5 steps are two."""
+    schedule = WindSchedule("switching", period=period, hold_periods=(1, 1), timing="fixed")
+    if steps is None:
+        with pytest.raises(WindScheduleError, match=r"is at most half a time step \(0.01 s\)"):
+            schedule.blowing(5, 0.01)
+        return
+    # hold (1, 1), switch phase 0: segments of exactly one period, starting off
+    expected = np.resize(np.repeat([0.0, 1.0], steps), 9)
+    np.testing.assert_array_equal(schedule.blowing(8, 0.01), expected)
+
+
 def _table(tmp_path, body: str, **kw):
     path = tmp_path / "wind.csv"
     path.write_text("t,fx,fy\n" + body)
