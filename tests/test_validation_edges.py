@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import math
+import re
 import struct
 
 import numpy as np
@@ -767,3 +768,32 @@ def test_ipc_cli_basis_bounds(monkeypatch, functions, max_bytes, accepted, match
     monkeypatch.setattr(ipc_cmd, "MAX_BASIS_FUNCTIONS", functions)
     monkeypatch.setattr(ipc_cmd, "MAX_BASIS_BYTES", max_bytes)
     _verdict(accepted, IPCError, lambda: ipc_cmd._check_basis(2, 2, samples=10), match)
+
+
+# -- ros/params.py: the node parameters' bounds ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("spec, value, accepted, match", [
+    ({"kind": "float", "positive": True}, 1e-9, True, ""),
+    ({"kind": "float", "positive": True}, 0.0, False, "must be > 0"),
+    ({"kind": "float", "positive": True}, -1e-9, False, "must be > 0"),
+    ({"kind": "float", "minimum": 0.0}, 0.0, True, ""),
+    ({"kind": "float", "minimum": 0.0}, -1e-9, False, "must be >= 0"),
+    ({"kind": "float", "maximum": 2.0}, 2.0, True, ""),
+    ({"kind": "float", "maximum": 2.0}, 2.0 + 1e-9, False, "must be <= 2"),
+    ({"kind": "float", "minimum": -1.0, "maximum": 1.0}, -1.0, True, ""),
+    ({"kind": "float", "minimum": -1.0, "maximum": 1.0}, -1.0 - 1e-9, False, "must be >= -1"),
+    ({"kind": "int", "minimum": 1}, 1, True, ""), ({"kind": "int", "minimum": 1}, 0, False, "must be >= 1"),
+    ({"kind": "float"}, math.inf, False, "must be finite"), ({"kind": "float"}, -math.inf, False, "must be finite"),
+    ({"kind": "float_list", "size": 2}, [1.0, 2.0], True, ""),
+    ({"kind": "float_list", "size": 2}, [1.0], False, "must have 2 values, got 1"),
+    ({"kind": "float_list", "size": 2}, [1.0, 2.0, 3.0], False, "must have 2 values, got 3"),
+    ({"kind": "float_list", "size": 2}, [1.0, math.nan], False, "must be finite"),
+])
+def test_node_parameter_bounds(spec, value, accepted, match):
+    from bptsb_ros.ros.params import Param, ParameterError
+
+    default = [0.0, 0.0] if spec["kind"] == "float_list" else (1 if spec["kind"] == "int" else 1.0)
+    p = Param("x", default, "x [unit]", **spec)
+    out = _verdict(accepted, ParameterError, lambda: p.validate(value), re.escape(f"parameter 'x' {match}"))
+    if accepted:
+        assert out == value
