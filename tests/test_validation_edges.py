@@ -542,8 +542,9 @@ def _idx(dims: tuple[int, ...], data: bytes) -> bytes:
     return struct.pack(f">BBBB{len(dims)}i", 0, 0, 8, len(dims), *dims) + data
 
 
-def _mnist_dir(tmp_path, labels: list[int], sums_lines=None):
-    images = _idx((len(labels), 28, 28), bytes(len(labels) * 784))
+def _mnist_dir(tmp_path, labels: list[int], sums_lines=None, n_images: int | None = None):
+    n_images = len(labels) if n_images is None else n_images
+    images = _idx((n_images, 28, 28), bytes(n_images * 784))
     lab = _idx((len(labels),), bytes(labels))
     (tmp_path / mnist.TEST_IMAGES).write_bytes(images)
     (tmp_path / mnist.TEST_LABELS).write_bytes(lab)
@@ -560,6 +561,15 @@ def test_mnist_label_digit_edge(tmp_path, label, accepted):
                    f"labels must be digits 0-9, found {label}")
     if accepted:
         assert out[1].tolist() == [0, label, 3] and out[2] is False
+
+
+@pytest.mark.parametrize("n_images, accepted", [(3, True), (2, False), (4, False)])
+def test_mnist_image_and_label_counts_match(tmp_path, n_images, accepted):
+    d = _mnist_dir(tmp_path, [1, 2, 3], n_images=n_images)
+    out = _verdict(accepted, MnistError, lambda: read_pair(d, mnist.TEST_IMAGES, mnist.TEST_LABELS),
+                   f"holds {n_images} images but {mnist.TEST_LABELS} has shape \\(3,\\)")
+    if accepted:
+        assert out[0].shape == (3, 28, 28)
 
 
 @pytest.mark.parametrize("form, accepted", [
