@@ -106,10 +106,11 @@ PLANTED = [
     ("a", "lissajous-closed-loop", "smoke"), ("b", "mnist-pca", "short"), ("c", "mnist-pca", "paper"),
     ("d", "zz-own", "paper"), ("e", "aa-own", "smoke"), ("f", "lissajous-closed-loop", "paper"),
     ("g", "mnist-drawing", "smoke"), ("a2", "mnist-pca", "short"), ("h", "narma-emulation", "short"),
+    ("i", "lissajous-closed-loop", "short"),
 ]
 # the paper's order (Fig. 2 MNIST drawing, then its PCA, Fig. 3 NARMA, Fig. 4 Lissajous), then experiments of no
 # paper by name; within one experiment paper, short, smoke; then the directory
-EXPECTED = ["g", "c", "a2", "b", "h", "f", "a", "e", "d"]
+EXPECTED = ["g", "c", "a2", "b", "h", "f", "i", "a", "e", "d"]
 
 
 def test_results_in_the_papers_order_then_scale_then_directory(tmp_path):
@@ -132,6 +133,7 @@ def test_report_page_in_that_order_with_its_numbers(tmp_path):
     # planted: ours = 9999.5 + i, wall time 60 s × i, i the directory's index in PLANTED (hand-formatted below)
     shown = {"a": ("1.000e+04", "0 s"), "b": ("1.000e+04", "60 s"), "c": ("1.000e+04", "2.0 min"),
              "d": ("1.000e+04", "3.0 min"), "e": ("1.000e+04", "4.0 min"), "f": ("1.000e+04", "5.0 min"),
-             "g": ("1.001e+04", "6.0 min"), "a2": ("1.001e+04", "7.0 min"), "h": ("1.001e+04", "8.0 min")}
+             "g": ("1.001e+04", "6.0 min"), "a2": ("1.001e+04", "7.0 min"), "h": ("1.001e+04", "8.0 min"),
+             "i": ("1.001e+04", "9.0 min")}
     for d, (ours, wall) in shown.items():
         assert f"| s | m | {ours} | — | u |" in sections[d] and f"Wall time {wall}." in sections[d], d
