@@ -52,8 +52,13 @@ def test_channel_rejects_out_of_bounds_and_future_commands(mode):
     assert ch.offer(3, np.array([1.0, -1.0]), 3, 0.0).reason == "out_of_bounds"
     assert ch.offer(5, np.array([1.0, 1.0]), 3, 0.0).reason == "too_far_ahead"  # two steps beyond the next
     assert ch.offer(4, np.array([1.0, 2.0]), 3, 0.0) is None  # the step after the next one is fine
-    assert ch.offer(3, np.array([1.0, 1.0]), 3, 0.0) is None or mode == "realtime"
+    late = ch.offer(3, np.array([1.0, 1.0]), 3, 0.0)  # the next step, offered after the one beyond it
+    if mode == "lockstep":  # buffered by step: step 3 is still to come, so it is queued beside step 4
+        assert late is None and ch.has(3) and ch.has(4)
+    else:  # realtime takes the newest: a command older than the latest accepted is stale
+        assert late.reason == "stale" and "not newer than the latest (4)" in late.message
     counts = ch.counts()
+    assert counts["rejected_stale"] == (1 if mode == "realtime" else 0)
     assert counts["rejected_out_of_bounds"] == counts["rejected_too_far_ahead"] == 1
     assert ch.reject(3, "untrusted_publisher", "x").reason == "untrusted_publisher"
     assert ch.counts()["rejected_untrusted_publisher"] == 1

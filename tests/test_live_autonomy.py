@@ -117,7 +117,7 @@ def test_agent_wind_and_node_parameters():
         schedule_from_parameters(liss, {}, {**defaults, "timing": "150"})
     with pytest.raises(ParameterError, match="schedule"):
         schedule_from_parameters({"task": "narma"}, {}, defaults)
-    with pytest.raises(ParameterError, match="shorter than half a time step"):
+    with pytest.raises(ParameterError, match="is at most half a time step"):
         schedule_from_parameters(liss, {}, {**defaults, "period": "0.004"}, 0.01)
     with pytest.raises(ParameterError, match="hold_periods"):
         schedule_from_parameters(liss, {}, {**defaults, "hold_periods": "²,3"})

@@ -186,7 +186,9 @@ def test_closed_loop_without_agent_fails_at_launch_time(tmp_path, ros_env):
                 f"bag:={tmp_path / 'bag'}"], env, timeout=60)
     text = out.stdout + out.stderr
     assert out.returncode != 0, text
-    assert "agent" in text and "required" in text.lower() or "needs agent:=RUN_DIR" in text, text
+    # ros2 launch refuses it itself: the argument has no default (our own "needs agent:=RUN_DIR" check is for an
+    # empty value, which ros2 launch cannot pass)
+    assert "missing required argument 'agent'" in text, text
     assert "[body_sim-1]" not in text and not (tmp_path / "bag").exists()  # no node started, nothing recorded
     assert time.monotonic() - started < 30
 
@@ -247,9 +249,8 @@ def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
     assert proc.returncode == 0, text[-4000:]
     assert "interrupted twice" not in text and "Traceback" not in text, text[-4000:]
     assert "stopped by SIGINT after" in text and "rest-length commands" in text
-    for node in ("body_sim-1", "swg_brain-2", "recorder-3"):
-        assert f"[INFO] [{node.split('-')[0]}" in text or node in text
-        assert "process has finished cleanly [pid" in text
+    for node in ("body_sim-1", "swg_brain-2", "recorder-3"):  # each node by name, not just one of them
+        assert f"[INFO] [{node}]: process has finished cleanly [pid" in text, text[-4000:]
     assert "exit code 1" not in text and (bag / "metadata.yaml").is_file()
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["custom_data"]["log_time"] == "sim"

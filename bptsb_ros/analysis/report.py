@@ -40,15 +40,19 @@ class ReportError(RuntimeError):
 
 
 def _fmt(value: Any) -> str:
+    """A table cell: — for None, a text escaped, 0, else 4 significant digits: plain in [10⁻³, 10⁴) and
+    scientific (``1.235e+05``) outside, and for the values just below 10⁴ that round to it (9999.5 → 1.000e+04,
+    not 4-digit ``g``'s ``1e+04``)."""
     if value is None:
         return "—"
     if isinstance(value, str):
         return md_text(value)
     if value == 0:
         return "0"
-    if abs(value) >= 1e4 or abs(value) < 1e-3:
+    plain = f"{value:.4g}"
+    if abs(value) >= 1e4 or abs(value) < 1e-3 or "e" in plain:
         return f"{value:.3e}"
-    return f"{value:.4g}"
+    return plain
 
 
 def find_results(runs_dir: Path) -> list[tuple[Path, dict[str, Any]]]:

@@ -19,6 +19,7 @@ vector is a constant folded into ``fixed_offset``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -106,8 +107,8 @@ class MSDN(nn.Module):
         if backend not in BACKENDS:
             raise ValueError(f"backend must be 'numba' or 'torch', got {backend!r}")
         self.backend: Backend = backend
-        if dt <= 0:
-            raise ValueError(f"dt must be positive, got {dt}")
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be finite and positive, got {dt}")
         self.topology = topology
         self.dt = float(dt)
         self.integrator: Integrator = integrator

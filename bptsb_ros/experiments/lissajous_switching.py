@@ -247,6 +247,18 @@ def phase_locked_nmse(cmp: np.ndarray, target: np.ndarray) -> float:
     return err / ms if math.isfinite(err) else float("nan")
 
 
+def segment_errors(cmp: np.ndarray, target: np.ndarray, windows: dict[str, tuple[int, int]]) -> dict[str, dict]:
+    """Per segment ``label: (a, b)`` (steps a..b−1) of a (T, 2) CMP trajectory and its (T, 2) target: the
+    phase-locked MSE [m²], that MSE / the mean square of *that segment's* target about *its own* centre (a wind
+    segment's figure is displaced, so the whole run's centre would overstate its size), and the step count."""
+    out = {}
+    for label, (a, b) in windows.items():
+        err = float(np.mean((cmp[a:b] - target[a:b]) ** 2))
+        ms = float(np.mean((target[a:b] - target[a:b].mean(0)) ** 2))  # mean square about the figure's centre
+        out[label] = {"mse": err, "nmse": err / ms, "steps": b - a}
+    return out
+
+
 # -- training (jobs) -----------------------------------------------------------------------------------------
 def switching_job(run_dir: str, pre_dir: str, seed: int, curve_on: tuple[float, float, float],
                   timing: str | int, sim_time: float, hold: tuple[int, int], published_wind: bool = False) -> dict:
@@ -381,12 +393,10 @@ def _switching_test(sw: TrainedAgent, shift: float, published: bool, seg: int, t
     target = switch_targets(CURVE_1, CURVE_SWITCH, sw.amplitude, sw.omega, shift)(t, wind)
     windows = {"before (no wind)": (transient * period, on_at), "wind": (on_at + transient * period, off_at),
                "after (no wind)": (off_at + transient * period, steps + 1)}
-    seg_out = {}
+    seg_out = segment_errors(cmp, target, windows)
     for label, (a, b) in windows.items():
-        err = float(np.mean((cmp[a:b] - target[a:b]) ** 2))
-        ms = float(np.mean((target[a:b] - target[a:b].mean(0)) ** 2))  # mean square about the figure's centre
         fx, fy = dominant_frequency(cmp[a:b], dt)
-        seg_out[label] = {"mse": err, "nmse": err / ms, "f_x": float(fx), "f_y": float(fy), "steps": b - a}
+        seg_out[label].update(f_x=float(fx), f_y=float(fy))
     return {"segments": seg_out, "cmp": cmp, "r": r, "t": t, "wind": wind, "target": target, "windows": windows,
             "wind_on_step": on_at, "wind_off_step": off_at}
 

@@ -10,6 +10,7 @@ converts back to its step index without rounding error.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 NS_PER_S = 1_000_000_000
@@ -80,9 +81,9 @@ def absolute(name: str, namespace: str = "/") -> str:
 
 
 def dt_to_ns(dt: float) -> int:
-    """Time step [s] → whole nanoseconds; raises ValueError unless dt is a positive multiple of 1 ns."""
-    if not dt > 0:
-        raise ValueError(f"dt must be positive, got {dt}")
+    """Time step [s] → whole nanoseconds; raises ValueError unless dt is a finite positive multiple of 1 ns."""
+    if not (math.isfinite(dt) and dt > 0 and math.isfinite(dt * NS_PER_S)):
+        raise ValueError(f"dt must be finite and positive, got {dt}")
     ns = round(dt * NS_PER_S)
     if ns <= 0 or abs(dt * NS_PER_S - ns) > 1e-3:
         raise ValueError(f"dt must be a whole number of nanoseconds, got {dt!r} s")

@@ -169,8 +169,8 @@ class WindSchedule:
             horizon = max(steps, 2 * (len(cached[1]) if cached is not None and cached[0] == dt else 1024))
             period = int(round(self.period / dt))
             if period < 1:
-                raise WindScheduleError(f"the switching period {self.period:g} s is shorter than half a time step "
-                                        f"({dt:g} s)")
+                raise WindScheduleError(f"the switching period {self.period:g} s is at most half a time step "
+                                        f"({dt:g} s): it rounds to no whole step")
             timing: Any = self.timing if self.timing in ("random", "fixed") else int(self.timing)
             pattern = wind_schedule(horizon, period, np.random.default_rng(self.seed), hold_periods=self.hold_periods,
                                     timing=timing, start_on=self.start_on)
