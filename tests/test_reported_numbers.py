@@ -137,3 +137,22 @@ def test_report_page_in_that_order_with_its_numbers(tmp_path):
              "i": ("1.001e+04", "9.0 min")}
     for d, (ours, wall) in shown.items():
         assert f"| s | m | {ours} | — | u |" in sections[d] and f"Wall time {wall}." in sections[d], d
+
+
+def test_paper_order_does_not_depend_on_which_experiment_module_was_imported_first():
+    """Another test (or a user's script) may import an experiment module before the registry lists them all."""
+    import subprocess
+    import sys
+
+    code = ("import importlib\n"
+            "for m in ('locomotion_headwind', 'narma_ipc', 'lissajous_switching', 'mnist_readout'):\n"
+            "    importlib.import_module('bptsb_ros.experiments.' + m)\n"
+            "from bptsb_ros.experiments.registry import experiments\n"
+            "print(' '.join(experiments()))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    # the paper's order, typed from its figures (Fig. 2 MNIST, Fig. 3 time series, Fig. 4 Lissajous, locomotion)
+    assert out == ["mnist-drawing", "mnist-pca", "mnist-labelmap", "mnist-specific100", "mnist-readout",
+                   "narma-emulation", "narma-ipc", "memory-task", "target-ipc", "msdn-nonlinearity",
+                   "lissajous-closed-loop", "lissajous-perturbation", "lissajous-switching", "lissajous-bifurcation",
+                   "lissajous-timing", "closed-loop-schemes", "locomotion-closed-loop-20", "locomotion-perturbation",
+                   "locomotion-headwind"]

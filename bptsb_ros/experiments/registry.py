@@ -190,10 +190,14 @@ def experiment(name: str, *, paper_ref: str, summary: str, durations: dict[str, 
 
 
 def experiments() -> dict[str, Experiment]:
-    """All experiments, in paper order."""
+    """All experiments, in paper order: the order of :data:`MODULES` (whatever order the modules were imported
+    in), then registration order within a module; experiments of other modules (tests, plug-ins) follow."""
     for module in MODULES:
         importlib.import_module(module)
-    return dict(_REGISTRY)
+    rank = {module: i for i, module in enumerate(MODULES)}
+    ordered = sorted(enumerate(_REGISTRY.items()),
+                     key=lambda item: (rank.get(item[1][1].run.__module__, len(rank)), item[0]))
+    return {name: exp for _, (name, exp) in ordered}
 
 
 def get_experiment(name: str) -> Experiment:
