@@ -450,14 +450,17 @@ def test_realtime_perturbation_lands_on_its_step_and_a_stale_one_is_rejected():
 
 
 def test_realtime_wall_duration_and_quiet_source():
-    c = core(mode="realtime", wait_for=["rest_length"], wall_duration=0.1, command_timeout=0.05)
+    c = core(mode="realtime", wait_for=["rest_length"], wall_duration=0.1, command_timeout=0.055)
     port = FakePort(c)
     BodyLoop(c, port).run()
     assert [o.state.step for o in port.outputs] == list(range(11))  # due at 0.01 .. 0.11 s, the last within 0.1 s
     assert port.clocks == list(range(11))
     silent = [e.text for e in c.events if e.level == "error"]
-    assert silent == ["brain silent: no rest_length command for 0.05 s; the body keeps running with the safe "
+    assert silent == ["brain silent: no rest_length command for 0.055 s; the body keeps running with the safe "
                       "command (trained rest lengths, zero force) until commands resume"]
+    # silent from step 5 (due at 0.06 s, past the timeout counted from the start); steps 0..4 warn instead
+    assert [e.text for e in c.events if e.key == "stale:rest_length"] == [
+        f"no usable rest_length command at step {k}: using the safe command" for k in range(5)]
 
 
 def test_recorder_gate_waits_and_gives_up_without_progress():
@@ -487,3 +490,33 @@ def test_stop_request_and_summary_file(tmp_path):
     write_summary(tmp_path / "a" / "s.json", c.summary())
     s = json.loads((tmp_path / "a" / "s.json").read_text())
     assert s["steps"] == 0 and s["mode"] == "lockstep" and s["rejected_total"] == 0
+
+
+def test_startup_waits_for_what_is_missing_then_gives_up_at_the_timeout():
+    c = core(startup_timeout=1.0)
+    port = FakePort(c)
+    BodyLoop(c, port).wait_startup(lambda: ["a brain"] if port.t < 0.3 else [])
+    assert 0.3 <= port.t < 0.4 and port.logs[-1] == ("info", "startup complete: brains and subscribers present; "
+                                                     "running")
+    port = FakePort(c)
+    BodyLoop(c, port).wait_startup(lambda: ["a publisher on /brain/rest_length"])
+    assert 1.0 < port.t < 1.1
+    assert port.logs[-1] == ("warning", "startup: still missing a publisher on /brain/rest_length after 1 s; "
+                                        "starting anyway")
+
+
+def test_diagnostic_level_and_end_text():
+    c = core(wait_for=["rest_length"])
+    assert c.status(c.summary())[0] == "OK"
+    c.offer_command("rest_length", 0, BASE[:-1], 0.0)  # one rejection
+    level, message, values = c.status(c.summary())
+    assert level == "WARN" and "1 rejected commands" in message and ("rest_length_rejected_wrong_length", "1") in values
+    assert c.status(c.summary(), error="step 3 diverged")[:2] == ("ERROR", "step 3 diverged")
+    quiet = core()
+    quiet.integrate(None, 0)  # nothing awaited: not a safe-command step
+    assert quiet.status(quiet.summary())[0] == "OK"
+    c.integrate(None, 0)  # awaited rest length missing: the safe command
+    assert c.summary()["safe_command_steps"] == 1
+    assert c.end_text(c.summary(), False, None).startswith("finished after 0 steps (0.000 s sim time)\n")
+    assert c.end_text(c.summary(), True, None).startswith("stopped: the simulation diverged after")
+    assert c.end_text(c.summary(), False, "SIGINT").startswith("stopped by SIGINT after")

@@ -470,15 +470,22 @@ class BodyCore:
         out["published_messages"] = dict(self.published)
         return out
 
-    def status(self, summary: Mapping[str, Any], error: str = "") -> tuple[str, str]:
-        """Level (OK, WARN or ERROR) and message of the loop's diagnostic status for ``summary``; ``error``: an
-        ERROR status with that message."""
+    def status(self, summary: Mapping[str, Any], error: str = "") -> tuple[str, str, list[tuple[str, str]]]:
+        """Level (OK, WARN or ERROR), message and key/value texts of the loop's diagnostic status for ``summary``;
+        ``error``: an ERROR status with that message."""
         late = summary["deadline_misses"] or summary["safe_command_steps"] or summary["rejected_total"]
         level = "ERROR" if error else "WARN" if late else "OK"
+        values = [(k, f"{v:.6g}" if isinstance(v, float) else str(v)) for k, v in summary.items()]
         return level, error or (
             f"{self.p['mode']}: step {summary['steps']}, {summary['deadline_misses']} deadline misses, "
             f"{summary['safe_command_steps']} safe-command steps, {summary['rejected_total']} rejected commands, "
-            f"{summary['divergences']} divergences")
+            f"{summary['divergences']} divergences"), values
+
+    def end_text(self, summary: Mapping[str, Any], diverged: bool, stop_reason: str | None) -> str:
+        """The log lines at the end of a run: why it ended, after how many steps, and :func:`summary_text`."""
+        why = ("stopped: the simulation diverged" if diverged else
+               f"stopped by {stop_reason}" if stop_reason else "finished")
+        return f"{why} after {summary['steps']} steps ({summary['sim_time']:.3f} s sim time)\n" + summary_text(summary)
 
     def describe(self, source: str, trained: bool) -> str:
         """The startup line: which body, timing mode and length, awaited sources and accepted commands."""

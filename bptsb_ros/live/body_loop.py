@@ -16,6 +16,7 @@ graph in ``body_sim``; plain Python objects and a fake clock in the tests.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Protocol
 
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
@@ -79,6 +80,22 @@ class BodyLoop:
                 port.log("error", str(err))
             return True
         return False
+
+    def wait_startup(self, missing: Callable[[], list[str]]) -> None:
+        """Before the first step: handle messages until ``missing()`` (what the run still lacks: brains,
+        subscribers, the recorder) is empty, or ``startup_timeout`` passed (then start anyway, the silent sources
+        on the safe command)."""
+        port, timeout = self.port, self.core.p["startup_timeout"]
+        deadline = port.now() + timeout
+        while not port.stopped():
+            lacking = missing()
+            if not lacking:
+                port.log("info", "startup complete: brains and subscribers present; running")
+                return
+            if port.now() > deadline:
+                port.log("warning", f"startup: still missing {'; '.join(lacking)} after {timeout:g} s; starting anyway")
+                return
+            self.spin_for(POLL_S)
 
     def _more(self, step: int) -> bool:
         return not self.port.stopped() and (self.core.max_steps == 0 or step <= self.core.max_steps)

@@ -1,26 +1,10 @@
 """``body_sim``: the soft-body simulator node, thin glue over :mod:`bptsb_ros.live` (every step is ``MSDN.step``).
 
-It loads a body (trained agent or fresh shape), publishes ``/clock`` (it is the simulator), the body state and
-RViz/Foxglove markers, and hands the brains' commands to :class:`~bptsb_ros.live.body_core.BodyCore` (``TOPICS.md``
-lists every topic). :class:`~bptsb_ros.live.body_loop.BodyLoop` runs the steps in either timing mode:
-
-* ``lockstep``: before integrating step k the body publishes ``/clock`` t_k and waits for the commands stamped t_k
-  from every source in ``wait_for``; a live run equals the offline simulation of the same agent.
-* ``realtime``: a wall-clock loop at rate_scale/dt that uses the newest command and reports jitter, deadline
-  misses, command age and latency on ``/diagnostics`` and at shutdown.
-
-With ``wait_for_recorder`` the body also waits, before announcing step k, until the recorder acknowledged on
-``recorder/ack`` every per-step topic up to step k − ``recorder_window`` (below the ``qos_depth`` a reliable
-publisher keeps, so nothing is overwritten before the recorder has it). The summary counts the messages published
-per topic once stepping began (``published_messages``) so a launcher can compare them with the bag.
-
-With ``reset_every`` = E > 0 (loop ``mnist_drawing``) the body takes resets on ``body/reset`` at steps k with
-k % E == 0: the state of step k is then the body at rest at layout + the reset's displacement.
-
-Bad commands (wrong length, NaN/inf, out of physical bounds, stale, stamped beyond the next step, or sent while a
-node not in ``command_publishers`` publishes on the topic) are rejected with a log line and counted; a brain that
-stops sending is replaced by the safe command (trained rest lengths, zero force); a step that diverges is handled
-by ``on_divergence``. The rules live in ``bptsb_ros.live`` (ROS-free); this node asks the ROS graph who publishes.
+It loads a body (trained agent or fresh shape), publishes ``/clock`` (it is the simulator), the body state, markers
+and ``/diagnostics``, and hands each message on its input topics (``TOPICS.md``) to
+:class:`~bptsb_ros.live.body_core.BodyCore`, which holds the rules (timing modes ``lockstep``, equal to the offline
+simulation, and ``realtime``; bad commands rejected and counted; the safe command for a silent brain; resets,
+perturbations, divergence recovery; waiting for the recorder). The node asks the ROS graph who publishes.
 """
 
 from __future__ import annotations
@@ -40,7 +24,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
-from bptsb_ros.live.body_core import BodyCore, Event, StepOutput, summary_text, write_summary
+from bptsb_ros.live.body_core import BodyCore, Event, StepOutput, write_summary
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import PARAMS, PUBLISHED, SUBSCRIBED, UNKNOWN_NODE, parse_wait_for_subscribers
 from bptsb_ros.ros import messages as m
@@ -54,6 +38,10 @@ NODE = "body_sim"
 OUTPUTS = (("clock", Clock), ("positions", PoseArray), ("mass_states", JointState), ("spring_lengths", JointState),
            ("rest_length", JointState), ("external_force", JointState), ("markers", MarkerArray),
            ("diagnostics", DiagnosticArray), ("perturbation", JointState))
+#: (source, message type, topic key) of every input the body takes
+INPUTS = (("rest_length", JointState, "rest_length_cmd"), ("force", JointState, "force_cmd"),
+          ("wind", Vector3Stamped, "wind"), ("perturbation", JointState, "perturb_cmd"),
+          ("reset", JointState, "reset_cmd"))
 
 
 class BodySim(Node):
@@ -67,25 +55,16 @@ class BodySim(Node):
         agent, trained = load_source(p)
         self.throttle = Throttle(1.0)
         self.core = core = BodyCore(agent, p, sink=self._on_event)
-        self.body, self.dt_ns = core.body, core.dt_ns
-        topo = core.body.topology
+        self.body, self.dt_ns, topo = core.body, core.dt_ns, core.body.topology
         self.springs, self.fixed = np.asarray(topo.springs), np.asarray(topo.fixed)
         self.mass_diameter = 0.04 * float(np.ptp(topo.positions, axis=0).max() or 1.0)
-        self.callbacks = 0
-        self._intruders: dict[str, tuple[int, float, list[str]]] = {}
-        self.topic_names = topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED + (RECORDER_ACK,)}
+        self.callbacks, self._intruders = 0, {}  # _intruders: source -> (publisher count, when, untrusted names)
+        topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED + (RECORDER_ACK,)}
         sq = m.state_qos(p["qos_depth"])
         self.pubs = {key: self.create_publisher(kind, topic[key], sq) for key, kind in OUTPUTS}
-        self.subs = {
-            "rest_length": self.create_subscription(JointState, topic["rest_length_cmd"],
-                                                    lambda msg: self._on_command("rest_length", msg), sq),
-            "force": self.create_subscription(JointState, topic["force_cmd"],
-                                              lambda msg: self._on_command("force", msg), sq),
-            "wind": self.create_subscription(Vector3Stamped, topic["wind"], self._on_wind, sq),
-            "perturbation": self.create_subscription(JointState, topic["perturb_cmd"], self._on_perturb, sq),
-            "reset": self.create_subscription(JointState, topic["reset_cmd"],
-                                              lambda msg: self._on_command("reset", msg), sq),
-        }
+        self._own = {absolute(pub.topic_name, self.get_namespace()): pub for pub in self.pubs.values()}
+        self.subs = {src: self.create_subscription(kind, topic[key], lambda msg, src=src: self._on_input(src, msg), sq)
+                     for src, kind, key in INPUTS}
         self.ack_sub = None
         if p["wait_for_recorder"]:  # the recorder's latest acknowledgement (transient-local, depth 1)
             self.ack_sub = self.create_subscription(Clock, topic[RECORDER_ACK], self._on_recorder_ack, m.ack_qos())
@@ -105,35 +84,28 @@ class BodySim(Node):
             self.diagnostics(error=event.text)
 
     # -- intake: messages -> core ------------------------------------------------------------------------------
-    def _on_command(self, source: str, msg: JointState) -> None:
+    def _on_input(self, source: str, msg: JointState | Vector3Stamped) -> None:
+        """A message on ``source``'s topic, as values stamped with a step, to the core (with the graph's verdict on
+        its topic's publishers); an unsynchronised wind holds from the next step on."""
         self.callbacks += 1
-        now = time.monotonic()
-        self.core.offer_command(source, m.step_of(msg.header.stamp, self.dt_ns),
-                                m.as_array(msg.effort if source == "force" else msg.position), now, list(msg.name),
-                                self._untrusted(source, now), self.subs[source].topic_name)
-
-    def _on_wind(self, msg: Vector3Stamped) -> None:
-        self.callbacks += 1
-        xy = [msg.vector.x, msg.vector.y]
-        if not self.core.wind_synchronised:
-            self.core.offer_wind(xy)
-            return
-        now = time.monotonic()
-        self.core.offer_command("wind", m.step_of(msg.header.stamp, self.dt_ns), xy, now, None,
-                                self._untrusted("wind", now), self.subs["wind"].topic_name)
-
-    def _on_perturb(self, msg: JointState) -> None:
-        self.callbacks += 1
-        now = time.monotonic()
-        self.core.offer_perturbation(m.step_of(msg.header.stamp, self.dt_ns), m.as_array(msg.position), now,
-                                     list(msg.name), self._untrusted("perturbation", now),
-                                     self.subs["perturbation"].topic_name)
+        now, topic = time.monotonic(), self.subs[source].topic_name
+        step = m.step_of(msg.header.stamp, self.dt_ns)
+        if source == "wind":
+            values, names = [msg.vector.x, msg.vector.y], None
+            if not self.core.wind_synchronised:
+                self.core.offer_wind(values)
+                return
+        else:
+            values, names = m.as_array(msg.effort if source == "force" else msg.position), list(msg.name)
+        if source == "perturbation":
+            self.core.offer_perturbation(step, values, now, names, self._untrusted(source, now), topic)
+        else:
+            self.core.offer_command(source, step, values, now, names, self._untrusted(source, now), topic)
 
     def _on_recorder_ack(self, msg: Clock) -> None:
         self.callbacks += 1
-        gate = self.core.recorder
         self.core.recorder_ack(m.step_of(msg.clock, self.dt_ns),
-                               gate.rule.untrusted(self._publisher_names(self.ack_sub.topic_name)))
+                               self.core.recorder.rule.untrusted(self._publisher_names(self.ack_sub.topic_name)))
 
     def _untrusted(self, source: str, now: float) -> list[str]:
         """Publishers on ``source``'s topic that its publisher rule does not allow; the graph is queried again when
@@ -162,11 +134,10 @@ class BodySim(Node):
         self.executor_.spin_once(timeout_sec=timeout)
 
     def drain(self) -> None:
-        while True:
+        before = -1
+        while self.callbacks != before:  # until a spin handled nothing
             before = self.callbacks
             self.executor_.spin_once(timeout_sec=0.0)
-            if self.callbacks == before:
-                return
 
     def publisher_gone(self, source: str) -> bool:
         return self.subs[source].get_publisher_count() == 0
@@ -219,50 +190,36 @@ class BodySim(Node):
             return
         self.next_diagnostics = now + self.p["diagnostics_period"]
         summary = self.core.summary()
-        level, message = self.core.status(summary, error)
+        level, message, values = self.core.status(summary, error)
         status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), name=f"{self.get_name()}: loop",
-                                  hardware_id=self.body.topology.name, message=message)
-        status.values = [KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v))
-                         for k, v in summary.items()]
+                                  hardware_id=self.body.topology.name, message=message,
+                                  values=[KeyValue(key=k, value=v) for k, v in values])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = m.stamp(self.core.stats.steps, self.dt_ns)
         self._publish("diagnostics", msg)
 
     # -- run ---------------------------------------------------------------------------------------------------
-    def _wait_startup(self) -> None:
-        """Wait until every awaited brain publishes (with its node name known) and every listed topic has its
-        subscribers, or ``startup_timeout`` passed."""
-        deadline = time.monotonic() + self.p["startup_timeout"]
+    def _startup_missing(self) -> list[str]:
+        """What the first step still waits for: a publisher (with its node name known) on every awaited source's
+        topic, the listed subscribers, the recorder's acknowledgements."""
         waited = [self.subs[s] for s in self.core.wait_sources]
-        while not self.stop:
-            missing = [f"a publisher on {s.topic_name}" for s in waited if s.get_publisher_count() < 1]
-            missing += [f"the node names of the publishers on {s.topic_name}" for s in waited
-                        if any(name == UNKNOWN_NODE for _, name in self._publisher_names(s.topic_name))]
-            missing += [f"{n} subscriber(s) on {t} (have {have})" for t, n in self.wait_subscribers
-                        if (have := self._subscriber_count(t)) < n]
-            if self.ack_sub is not None and self.ack_sub.get_publisher_count() < 1:
-                missing.append(f"the recorder's acknowledgements on {self.ack_sub.topic_name}")
-            if not missing:
-                self.get_logger().info("startup complete: brains and subscribers present; running")
-                return
-            if time.monotonic() > deadline:
-                self.get_logger().warning(f"startup: still missing {'; '.join(missing)} after "
-                                          f"{self.p['startup_timeout']:g} s; starting anyway")
-                return
-            self.loop.spin_for(0.05)
+        missing = [f"a publisher on {s.topic_name}" for s in waited if s.get_publisher_count() < 1]
+        missing += [f"the node names of the publishers on {s.topic_name}" for s in waited
+                    if any(name == UNKNOWN_NODE for _, name in self._publisher_names(s.topic_name))]
+        missing += [f"{n} subscriber(s) on {t} (have {have})" for t, n in self.wait_subscribers
+                    if (have := self._subscriber_count(t)) < n]
+        if self.ack_sub is not None and self.ack_sub.get_publisher_count() < 1:
+            missing.append(f"the recorder's acknowledgements on {self.ack_sub.topic_name}")
+        return missing
 
     def _subscriber_count(self, topic: str) -> int:
-        ns = self.get_namespace()
-        for key, pub in self.pubs.items():
-            if absolute(self.topic_names[key], ns) == absolute(topic, ns):
-                return pub.get_subscription_count()
-        return self.count_subscribers(topic)
+        pub = self._own.get(absolute(topic, self.get_namespace()))  # our own publisher's count, if it is ours
+        return pub.get_subscription_count() if pub else self.count_subscribers(topic)
 
     def _wait_acked(self, timeout: float) -> None:
         """Wait (up to ``timeout`` in all; 0: not at all) until reliable subscribers acknowledged every message,
         polling the publishers in turn, 10 ms each, so one dead subscriber cannot use up the time of the others."""
-        started = time.monotonic()
-        poll = Duration(nanoseconds=10_000_000)
+        started, poll = time.monotonic(), Duration(nanoseconds=10_000_000)
         pending = [pub for pub in self.pubs.values() if pub.get_subscription_count() > 0] if timeout > 0 else []
         while pending and time.monotonic() < started + timeout:
             pending = [pub for pub in pending if not pub.wait_for_all_acked(poll)]
@@ -272,13 +229,10 @@ class BodySim(Node):
                 f"within {time.monotonic() - started:.2f} s (final_ack_timeout {timeout:g} s)")
 
     def run(self) -> int:
-        self._wait_startup()
+        self.loop.wait_startup(self._startup_missing)
         diverged = self.loop.run()
-        why = ("stopped: the simulation diverged" if diverged else
-               f"stopped by {self.stop.reason}" if self.stop else "finished")
         summary = self.core.summary()
-        self.get_logger().info(f"{why} after {summary['steps']} steps ({summary['sim_time']:.3f} s sim time)\n"
-                               + summary_text(summary))
+        self.get_logger().info(self.core.end_text(summary, diverged, self.stop.reason))
         self.diagnostics(force=True)
         summary["published_messages"] = dict(self.core.published)  # the final diagnostics included
         self._wait_acked(timeout=self.p["final_ack_timeout"])
