@@ -520,3 +520,57 @@ def test_diagnostic_level_and_end_text():
     assert c.end_text(c.summary(), False, None).startswith("finished after 0 steps (0.000 s sim time)\n")
     assert c.end_text(c.summary(), True, None).startswith("stopped: the simulation diverged after")
     assert c.end_text(c.summary(), False, "SIGINT").startswith("stopped by SIGINT after")
+
+
+# -- the feedback brain's commands -----------------------------------------------------------------------------
+def fitted_agent(state: str):
+    """A lissajous agent whose feedback layer (state ``state``) carries planted weights W (E, F + 1)."""
+    from bptsb_ros.agent import build_agent
+    from bptsb_ros.config import validate
+
+    a = build_agent(validate({"task": "lissajous", "seed": 0, "dtype": "float64", "feedback": {"state": state}}))
+    layer = a.feedback
+    w = 0.01 * np.random.default_rng(3).standard_normal(tuple(layer.weight.shape))
+    layer.load_fit(w)
+    for module in a.modules().values():  # frozen, as the nodes hold it
+        module.requires_grad_(False)
+    return a, layer.weight.detach().numpy().copy()  # undriven rows zeroed by load_fit
+
+
+def test_feedback_commands_route_clock_and_state_and_compute_the_layer_by_hand():
+    from bptsb_ros.live.feedback import FeedbackCommands
+
+    a, w = fitted_agent("spring_length")
+    base = a.body.l.numpy()
+    closed = FeedbackCommands(a, open_loop=0)
+    assert closed.on_clock(0) is not None and np.array_equal(closed.on_clock(0).numpy(), base)
+    assert closed.on_clock(1) is None  # answered by the state of step 0
+    s = base * 1.1  # spring lengths of some step
+    rest = closed.on_state(4, s)
+    np.testing.assert_allclose(rest[0].numpy(), base * (1 + w[:, :-1] @ s + w[:, -1]), rtol=0, atol=1e-13)
+    assert closed.on_state(4, s[:-1]) == "ignored spring lengths of step 4: 47 values, expected 48"
+
+    swg = a.brain
+    opened = FeedbackCommands(a, open_loop=3)
+    with torch.no_grad():
+        amp, phase, drv = swg.amplitude.numpy(), swg.phase.numpy(), swg.driven.numpy()
+    for k in (0, 3):  # the SWG's l·(1 + A sin(ω k dt + φ)) on driven springs
+        expected = base * (1 + drv * amp * np.sin(swg.omega * k * a.body.dt + phase))
+        np.testing.assert_allclose(opened.on_clock(k).numpy(), expected, rtol=0, atol=1e-12)
+    assert opened.on_clock(4) is None
+    assert opened.on_state(2, s) is None and opened.on_state(3, s) is not None  # the layer answers step 4 on
+
+
+def test_feedback_acceleration_features_are_effort_over_mass():
+    from bptsb_ros.live.feedback import FeedbackCommands
+
+    a, w = fitted_agent("acceleration")
+    with torch.no_grad():  # planted unequal masses (the paper's are all 1, where a = F / m = F · m)
+        a.body.mass.copy_(torch.linspace(0.5, 2.0, a.body.mass.numel(), dtype=a.body.mass.dtype))
+    mass = a.body.mass.numpy()
+    assert mass.shape == (M2 // 2,)
+    effort = np.linspace(-1.0, 1.0, M2)
+    feats = FeedbackCommands(a).features(effort)
+    np.testing.assert_array_equal(feats[0].numpy(), (effort.reshape(-1, 2) / mass[:, None]).reshape(-1))
+    assert FeedbackCommands(a).on_state(0, effort[:-2]) == ("ignored mass states (acceleration) of step 0: 24 values, "
+                                                            "expected 26")
