@@ -185,7 +185,7 @@ def test_apply_changes_validates_and_refuses_as_a_whole():
 
 # -- run summary ------------------------------------------------------------------------------------------
 def test_body_summary_is_a_few_readable_lines():
-    from bptsb_ros.live.body_core import summary_text
+    from bptsb_ros.live.summary import summary_text
 
     summary = {"mode": "lockstep", "dt": 0.01, "sim_time": 1.0, "steps": 100, "jitter_ms_mean": 0.123456,
                "jitter_ms_max": 2.0, "command_age_steps_max": 1.0, "rest_length_accepted": 100,

@@ -4,8 +4,10 @@
   perturbations, resets, stamped with steps), its step (``MSDN.step``), divergence recovery, counters and run summary;
 * ``body_loop`` — :class:`~bptsb_ros.live.body_loop.BodyLoop`: the lockstep and realtime step loops, awaiting
   commands and the recorder, through a :class:`~bptsb_ros.live.body_loop.BodyPort` (the node, or a fake in tests);
-* ``body_params`` — the body's parameter specs; ``channels`` — command validation, buffering and timing statistics;
-  ``safety`` — command bounds, the publisher rule, divergence recovery;
+* ``body_params`` — the body's parameter specs; ``summary`` — the run summary as text and JSON; ``channels`` —
+  command validation, buffering and timing statistics; ``safety`` — command bounds, the publisher rule, divergence
+  recovery;
+* ``feedback`` — what ``feedback_brain`` commands: which step the clock or the state answers, and the layer's output;
 * ``loops`` and ``mnist_loop`` — the loops ``bptsb launch`` and ``launch/*.launch.py`` start (nodes, parameters,
   wiring), and the MNIST image stream's plan.
 

@@ -185,8 +185,9 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
         agent: trained agent run directory; empty: a fresh agent of the loop's task with ``seed``.
         duration: ``body_sim`` run length: sim seconds in lockstep, wall seconds from the first step in realtime.
         open_loop_steps: feedback brain: SWG steps before the feedback layer takes over.
-        perturb_at, perturb_sigma, perturb_seed: ``body_sim`` displaces the movable masses by N(0, σ²) at sim time
-            ``perturb_at`` [s] (negative: never).
+        perturb_at: ``body_sim`` displaces the movable masses at this sim time [s] (negative: never).
+        perturb_sigma: standard deviation σ [m] of that displacement, N(0, σ²) per coordinate.
+        perturb_seed: seed of its standard-normal pattern.
     """
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":

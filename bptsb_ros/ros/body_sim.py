@@ -24,9 +24,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
-from bptsb_ros.live.body_core import BodyCore, Event, StepOutput, write_summary
+from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import PARAMS, PUBLISHED, SUBSCRIBED, UNKNOWN_NODE, parse_wait_for_subscribers
+from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import load_source
 from bptsb_ros.ros.params import declare_parameters
@@ -65,9 +66,8 @@ class BodySim(Node):
         self._own = {absolute(pub.topic_name, self.get_namespace()): pub for pub in self.pubs.values()}
         self.subs = {src: self.create_subscription(kind, topic[key], lambda msg, src=src: self._on_input(src, msg), sq)
                      for src, kind, key in INPUTS}
-        self.ack_sub = None
-        if p["wait_for_recorder"]:  # the recorder's latest acknowledgement (transient-local, depth 1)
-            self.ack_sub = self.create_subscription(Clock, topic[RECORDER_ACK], self._on_recorder_ack, m.ack_qos())
+        self.ack_sub = self.create_subscription(Clock, topic[RECORDER_ACK], self._on_recorder_ack, m.ack_qos()) \
+            if p["wait_for_recorder"] else None  # the recorder's latest acknowledgement (transient-local, depth 1)
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
