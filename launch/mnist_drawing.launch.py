@@ -13,7 +13,7 @@ open_loop_steps, perturb_at, perturb_sigma, perturb_seed (``ros2 launch bptsb_ro
 --show-args``).
 """
 
-from bptsb_ros.launch_loops import ros_launch_description
+from bptsb_ros.live.loops import ros_launch_description
 
 
 def generate_launch_description():

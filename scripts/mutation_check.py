@@ -52,6 +52,7 @@ TASKS = "tests/test_tasks.py"
 # path to the kernel (float64, 1e-12), which is how a mutant of the torch path is caught.
 BODY = ("tests/test_physics.py", "tests/test_simulate.py", "tests/test_kernel.py")
 MNIST_LIVE = "tests/test_mnist_live.py"
+LIVE_CORE = "tests/test_live_core.py"
 CLAIMS_SWG = "tests/test_claims_swg.py"
 CLAIMS_MNIST = "tests/test_claims_mnist.py"
 CLAIMS_TS = "tests/test_claims_timeseries.py"
@@ -144,19 +145,19 @@ MUTANTS: tuple[Mutant, ...] = (
            "replay's trajectory_mse_shift_min ×2",
            ("tests/test_replay.py::test_replay_lissajous_metric_of_a_planted_run",)),
     # -- issue 8 §5: the live MNIST loop ----------------------------------------------------------------
-    Mutant("mnist-live-no-reset", "bptsb_ros/ros/body_sim.py",
+    Mutant("mnist-live-no-reset", "bptsb_ros/live/body_core.py",
            "return None if cmd is None else torch.from_numpy(cmd.values)",
            "return None",
-           "body_sim ignores every accepted reset", (MNIST_LIVE,)),
-    Mutant("mnist-live-await-every-step", "bptsb_ros/ros/body_sim.py",
+           "body_sim ignores every accepted reset", (LIVE_CORE, MNIST_LIVE)),
+    Mutant("mnist-live-await-every-step", "bptsb_ros/live/body_core.py",
            "if not self.silent[s] and self.channels[s].due(step)",
            "if not self.silent[s]",
-           "body_sim awaits a reset at every step, not only at reset steps", (MNIST_LIVE,)),
+           "body_sim awaits a reset at every step, not only at reset steps", (LIVE_CORE, MNIST_LIVE)),
     Mutant("mnist-live-pixels-256", "bptsb_ros/tasks/mnist_live.py",
            "astype(np.float32) / 255.0)",
            "astype(np.float32) / 256.0)",
            "live pixels / 256 instead of / 255", (MNIST_LIVE,)),
-    Mutant("mnist-live-reset-bound-x10", "bptsb_ros/ros/safety.py",
+    Mutant("mnist-live-reset-bound-x10", "bptsb_ros/live/safety.py",
            "far = np.flatnonzero(norm > self.max_displacement)",
            "far = np.flatnonzero(norm > 10 * self.max_displacement)",
            "reset displacement bound ×10", (MNIST_LIVE,)),
@@ -224,11 +225,12 @@ MUTANTS: tuple[Mutant, ...] = (
            "v = torch.zeros_like(r)",
            "a perturbation also stops the masses", ("tests/test_live_autonomy.py::test_simulate_perturbed_equals_a_"
                                                     "step_by_step_loop",)),
-    Mutant("live-perturb-rest", "bptsb_ros/ros/body_sim.py",
-           "return self.body.displaced(state, d, rest, force)",
-           "return self.body.displaced(state, d, self.base, force)",
+    Mutant("live-perturb-rest", "bptsb_ros/live/body_core.py",
+           "kicked = self.body.displaced(new, d, rest, force)",
+           "kicked = self.body.displaced(new, d, self.base, force)",
            "the live perturbation recomputes a with the trained instead of the commanded rest lengths",
-           ("tests/test_live_autonomy.py::test_live_perturbation_equals_offline_and_replay_reports_the_return",)),
+           (f"{LIVE_CORE}::test_perturbation_displaces_its_step_only_with_the_commanded_rest_lengths",
+            "tests/test_live_autonomy.py::test_live_perturbation_equals_offline_and_replay_reports_the_return")),
     Mutant("wind-periodic-half", "bptsb_ros/tasks/locomotion.py",
            "return np.mod(t + 0.5 * dt, period) >= 0.5 * period",
            "return np.mod(t - 0.5 * dt, period) >= 0.5 * period",

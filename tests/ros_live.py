@@ -56,7 +56,7 @@ def bptsb(args: list[str], ros_env: dict[str, str], timeout: float = 180) -> sub
 
 def start_node(node: str, params: dict[str, Any], ros_env: dict[str, str], log: Path) -> subprocess.Popen:
     """Start ``python -m bptsb_ros.ros.<node> --ros-args -p ...``, output to ``log``."""
-    from bptsb_ros.launch_loops import format_parameter
+    from bptsb_ros.live.loops import format_parameter
 
     argv = [sys.executable, "-m", f"bptsb_ros.ros.{node}", "--ros-args"]
     for name, value in params.items():

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from bptsb_ros.analysis.replay import read_run
+from bptsb_ros.analysis.bag_run import read_run
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.publishers import PublisherId
 from bptsb_ros.bags.reader import bag_info, format_info, read_messages, read_published

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bptsb_ros.ros.lockstep import CommandChannel
-from bptsb_ros.ros.safety import (
+from bptsb_ros.live.channels import CommandChannel
+from bptsb_ros.live.safety import (
     CommandLimits,
     DivergenceRecovery,
     PublisherRule,

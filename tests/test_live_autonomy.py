@@ -325,7 +325,7 @@ def test_live_perturbation_equals_offline_and_replay_reports_the_return(tmp_path
 
 
 def test_launch_refuses_a_perturbation_without_its_time(tmp_path, ros_env):
-    from bptsb_ros.launch_loops import LOOPS, LaunchArgumentError, resolve_arguments
+    from bptsb_ros.live.loops import LOOPS, LaunchArgumentError, resolve_arguments
 
     out = bptsb(["launch", "lissajous_open", "--duration", "1", "--perturb-sigma", "0.2"], ros_env)
     assert out.returncode == 2 and "--perturb-at" in out.stdout
@@ -334,56 +334,6 @@ def test_launch_refuses_a_perturbation_without_its_time(tmp_path, ros_env):
     late = bptsb(["launch", "lissajous_open", "--duration", "1", "--perturb-at", "2", "--perturb-sigma", "0.2"],
                  ros_env)
     assert late.returncode != 0 and "after the run's last step" in late.stdout
-
-
-def test_perturbation_topic_in_realtime(tmp_path, ros_env, ros_domain_id):
-    """A user's message on body/perturb stamped for a future step is applied exactly at that step; stale, wrong-size,
-    NaN and out-of-bounds ones are rejected and counted, and the run goes on."""
-    import subprocess
-    import sys
-
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from ros_live import REPO, Probe, env_for
-    from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import JointState
-
-    from bptsb_ros.bags.reader import read_messages
-    from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.topics import mass_dof_names
-
-    agent = fresh_agent("lissajous")
-    names = mass_dof_names(agent.body.movable_index.tolist())
-    bag = tmp_path / "bag"
-    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--mode", "realtime",
-                             "--duration", "4", "--bag", str(bag)], env=env_for(ros_env), cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    probe = Probe(ros_domain_id, "perturb_probe")
-    try:
-        pub = probe.node.create_publisher(JointState, "/body/perturb", QoSProfile(depth=10,
-                                          reliability=ReliabilityPolicy.RELIABLE))
-        probe.subscribe(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        assert Probe.wait_matched([pub], 60), "body_sim never subscribed to /body/perturb"
-        assert probe.spin_until(lambda: any(c.clock.sec * 10**9 + c.clock.nanosec >= 10 * DT_NS_DEFAULT
-                                            for c in probe.messages["/clock"]), 60)
-        disp = 0.05 * np.arange(len(names), dtype=np.float64) / len(names)
-        for step, values, with_names in ((300, disp, True), (1, disp, True), (310, disp[:-1], False),
-                                         (320, np.where(np.arange(len(names)) == 2, np.nan, disp), True),
-                                         (330, disp + 1e3, True)):
-            pub.publish(m.joint_state(step, DT_NS_DEFAULT, names if with_names else [], position=values))
-        probe.spin_until(lambda: False, 0.5)
-    finally:
-        probe.close()
-        out, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 0, out[-4000:]
-    summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
-    assert summary["perturbation_steps"] == [300]
-    assert (summary["perturbation_accepted"], summary["perturbation_rejected_stale"],
-            summary["perturbation_rejected_wrong_length"], summary["perturbation_rejected_non_finite"],
-            summary["perturbation_rejected_out_of_bounds"]) == (1, 1, 1, 1, 1)
-    kicks = [(stamp_ns(msg.header.stamp), np.asarray(msg.position)) for *_, msg in read_messages(
-        bag, ["/body/perturbation"])]
-    assert len(kicks) == 1 and kicks[0][0] == 300 * DT_NS_DEFAULT
-    np.testing.assert_array_equal(kicks[0][1], disp)
 
 
 def _read_table_in_subprocess(path, timeout: float = 30) -> subprocess.CompletedProcess:
@@ -428,8 +378,8 @@ def test_wind_table_beyond_max_wind_is_refused_at_startup(tmp_path, capsys):
     checked against the body's max_wind by read_table, by wind_source and by `bptsb launch` before starting."""
     from bptsb_ros.cli import main
     from bptsb_ros.cli.launch_cmd import _wind_limit
+    from bptsb_ros.live.safety import DEFAULT_MAX_WIND
     from bptsb_ros.ros.params import ParameterError
-    from bptsb_ros.ros.safety import DEFAULT_MAX_WIND
     from bptsb_ros.ros.wind_source import PARAMS, schedule_from_parameters
     from bptsb_ros.sim.wind_schedule import WindScheduleError, read_table
 

@@ -1,7 +1,7 @@
-"""The live "see a digit, draw it" loop (issue 8 §5): the image stream's schedule, the body's resets (awaited at the
-stated steps, bad ones rejected and counted), a whole ``bptsb launch mnist_drawing`` run equal to the offline
-drawing of the same system and images, and its replay's per-digit errors. Planted data: a tiny IDX set written
-here and a small seeded, untrained float64 system."""
+"""The live "see a digit, draw it" loop (issue 8 §5): the image stream's schedule, the reset channel's rules (the
+body's use of them is tested without DDS in ``test_live_core.py``), a whole ``bptsb launch mnist_drawing`` run equal
+to the offline drawing of the same system and images, and its replay's per-digit errors. Planted data: a tiny IDX
+set written here and a small seeded, untrained float64 system."""
 
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ import json
 import numpy as np
 import pytest
 import torch
-from ros_live import Probe, bag_positions, bptsb, stamp_ns, start_node, stop
+from ros_live import bag_positions, bptsb, stamp_ns
 
 from bptsb_ros.data.mnist import MnistError, encode_idx
-from bptsb_ros.ros.lockstep import CommandChannel
-from bptsb_ros.ros.safety import CommandLimits
+from bptsb_ros.live.channels import CommandChannel
+from bptsb_ros.live.safety import CommandLimits
 from bptsb_ros.tasks.digits import load_targets
 from bptsb_ros.tasks.mnist_drawing import ImageToBody, SystemSpec, save_system
 from bptsb_ros.tasks.mnist_live import pixels, read_stream, shown_image
@@ -96,7 +96,7 @@ def test_reset_channel_takes_only_scheduled_bounded_displacements():
 
 
 def test_plan_stream_checks_the_launch_arguments(tmp_path):
-    from bptsb_ros.launch_mnist import StreamError, plan_stream, stream_parameters
+    from bptsb_ros.live.mnist_loop import StreamError, plan_stream, stream_parameters
 
     images, labels, _ = write_stream(tmp_path)
     write_system(tmp_path / "sys.pt")
@@ -179,68 +179,6 @@ def test_mnist_drawing_live_equals_offline_and_replays(tmp_path, ros_env):
     assert (tmp_path / "replay" / "drawings.png").is_file()
     alone = replay(bag, tmp_path / "replay_alone", None, gif=False)  # no system: the CMP from the markers
     assert "offline" not in alone and alone["live"]["per_digit"] == pytest.approx(hand, rel=1e-9)
-
-
-def test_body_rejects_and_counts_bad_resets(tmp_path, ros_env, ros_domain_id):
-    """A probe answers /clock at steps 0 and 10 (reset_every 10): first five bad resets for step 0, then good ones.
-    Each bad one is rejected and counted by reason; the state of a reset step is the body at rest at layout +
-    displacement, exactly."""
-    from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.messages import pose_array_positions
-    from bptsb_ros.ros.topics import mass_dof_names
-
-    system = write_system(tmp_path / "sys.pt")
-    body = system.body
-    movable = body.movable_index.tolist()
-    names = mass_dof_names(movable)
-    good = {0: np.linspace(-0.2, 0.2, 2 * len(movable)), 10: np.linspace(0.15, -0.1, 2 * len(movable))}
-    summary = tmp_path / "summary.json"
-    probe = Probe(ros_domain_id)
-    from geometry_msgs.msg import PoseArray
-    from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import JointState
-
-    pub = probe.node.create_publisher(JointState, "/body/reset", m.command_qos(100))
-
-    def on_clock(msg) -> None:
-        k = m.step_of(msg.clock, DT_NS)
-        if k == 0:
-            for step, values, joint_names in (
-                    (0, good[0][:-1], names[:-1]),  # wrong_length
-                    (0, np.where(np.arange(len(names)) == 2, np.nan, good[0]), names),  # non_finite
-                    (0, np.full(len(names), 100.0), names),  # out_of_bounds: 141 m from rest
-                    (1, good[0], names),  # off_schedule
-                    (0, good[0], [f"spring_{i}" for i in range(len(names))])):  # wrong_names
-                pub.publish(m.joint_state(step, DT_NS, joint_names, position=values))
-        if k in good:
-            pub.publish(m.joint_state(k, DT_NS, names, position=good[k]))
-
-    probe.subscribe(Clock, "/clock", m.state_qos(100), on_clock)
-    probe.subscribe(PoseArray, "/body/positions", m.state_qos(100))
-    params = {"agent": str(tmp_path / "sys.pt"), "wait_for": ["reset"], "reset_every": 10, "max_steps": 15,
-              "command_publishers": ["*"], "wait_for_subscribers": ["/clock:1", "/body/positions:1"],
-              "command_timeout": 20.0, "final_ack_timeout": 2.0, "summary_path": str(summary)}
-    proc = start_node("body_sim", params, ros_env, tmp_path / "body.log")
-    try:
-        assert probe.spin_until(lambda: len(probe.messages["/body/positions"]) == 16 or proc.poll() is not None, 120)
-        assert proc.wait(timeout=60) == 0, (tmp_path / "body.log").read_text()[-3000:]
-    finally:
-        stop(proc)
-        probe.close()
-    counts = json.loads(summary.read_text())
-    assert "brain silent" not in (tmp_path / "body.log").read_text()  # no wait for a reset between reset steps
-    for reason in ("wrong_length", "non_finite", "out_of_bounds", "off_schedule", "wrong_names"):
-        assert counts[f"reset_rejected_{reason}"] == 1, reason
-    assert counts["reset_accepted"] == 2 and counts["safe_command_steps"] == 0 and counts["steps"] == 15
-    pos = np.stack([pose_array_positions(p) for p in probe.messages["/body/positions"]])
-    layout = body.positions0.numpy()
-    for k, d in good.items():
-        expected = layout.copy()
-        expected[movable] += d.reshape(-1, 2)
-        np.testing.assert_allclose(pos[k], expected, rtol=0, atol=1e-12)
-    with torch.no_grad():
-        drawn = system.release(torch.from_numpy(good[0]).view(1, -1, 2), 9, states=True)[0]
-    np.testing.assert_allclose(pos[:10][:, movable], drawn.numpy(), rtol=0, atol=1e-9)
 
 
 class _Payload:

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from bptsb_ros.analysis.replay import read_run, replay
+from bptsb_ros.analysis.bag_run import read_run
+from bptsb_ros.analysis.replay import replay
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.config import load_config

@@ -1,8 +1,9 @@
-"""A hostile publisher on the body's domain (issue 6, finding 3): commands outside physical bounds (rest
-lengths -1 and 1e30, wind 1e30) are rejected and counted; a command that makes the body diverge (a force
-of 1e11 N, let through by a loosened ``max_force``) is survived (last good state + safe command, an ERROR
-diagnostic); a node that is not an allowed publisher can neither take over the body with commands stamped
-ahead nor have any command integrated."""
+"""A hostile publisher on the body's domain (issue 6, finding 3), where only the live graph can tell: a node that is
+not an allowed publisher can neither take over the body with commands stamped ahead nor have any command
+integrated (body_sim asks the ROS graph who publishes); ``on_divergence: stop`` ends a launched run with a
+finalised bag; a forged ``/body/positions`` publisher is recorded as foreign. The rules themselves (bounds,
+wrong size, NaN, stale, divergence recovery, perturbation and reset checks) are tested without DDS in
+``test_live_core.py``."""
 
 from __future__ import annotations
 
@@ -15,9 +16,10 @@ DT_NS = 10_000_000
 STEPS = 8
 
 
-def test_body_survives_hostile_commands(tmp_path, ros_env, ros_domain_id):
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-    from geometry_msgs.msg import Vector3Stamped
+def test_an_untrusted_publisher_never_steers_the_body(tmp_path, ros_env, ros_domain_id):
+    """The brain ``test_brain`` is the allowed publisher; from step 5 a node ``intruder`` stamps its own rest
+    lengths for steps 5..10: none is integrated (the body runs on the brain's commands or the safe command). A
+    perturbation sent on body/perturb at step 0 for step 3 is applied there (the topic's wiring)."""
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
 
@@ -34,21 +36,13 @@ def test_body_survives_hostile_commands(tmp_path, ros_env, ros_domain_id):
     intruder: list[Probe] = []
     cq = m.command_qos(100)
     rest_pub = brain.node.create_publisher(JointState, "/brain/rest_length", cq)
-    wind_pub = brain.node.create_publisher(Vector3Stamped, "/env/wind", cq)
-    force_pub = brain.node.create_publisher(JointState, "/brain/force", cq)
+    perturb_pub = brain.node.create_publisher(JointState, "/body/perturb", cq)
 
     def on_clock(msg: Clock) -> None:
         k = m.step_of(msg.clock, DT_NS)
         if k == 0:
-            assert Probe.wait_matched([rest_pub, wind_pub, force_pub], 10.0)
-            wind = Vector3Stamped()
-            wind.vector.x = 1e30
-            wind_pub.publish(wind)
-            rest_pub.publish(m.joint_state(0, DT_NS, names, position=-base))  # negative rest lengths
-        if k == 1:
-            rest_pub.publish(m.joint_state(1, DT_NS, names, position=np.full_like(base, 1e30)))
-        if k == 2:  # within the (loosened) force bound, but the body cannot integrate it: the step diverges
-            force_pub.publish(m.joint_state(2, DT_NS, dofs, effort=np.full(len(dofs), 1e11)))
+            assert Probe.wait_matched([rest_pub, perturb_pub], 10.0)
+            perturb_pub.publish(m.joint_state(3, DT_NS, dofs, position=np.full(len(dofs), 0.01)))
         if k == 5:  # a node that is not an allowed publisher joins and stamps commands ahead of the brain
             intruder.append(Probe(ros_domain_id, "intruder"))
             pub = intruder[0].node.create_publisher(JointState, "/brain/rest_length", cq)
@@ -60,14 +54,12 @@ def test_body_survives_hostile_commands(tmp_path, ros_env, ros_domain_id):
     sq = m.state_qos(100)
     brain.subscribe(Clock, "/clock", sq, on_clock)
     brain.subscribe(JointState, "/body/rest_length", sq)
-    brain.subscribe(DiagnosticArray, "/diagnostics", sq)
     summary = tmp_path / "summary.json"
     body = start_node("body_sim", {
         # command_timeout outlasts the intruder's discovery: the brain's step-5 command waits for it (below)
         "task": "lissajous", "max_steps": STEPS, "wait_for": ["rest_length"], "command_timeout": 8.0,
-        "wait_for_subscribers": ["/clock:1", "/body/rest_length:1", "/diagnostics:1"],
+        "wait_for_subscribers": ["/clock:1", "/body/rest_length:1"],
         "summary_path": str(summary), "final_ack_timeout": 1.0, "command_publishers": ["test_brain"],
-        "max_force": 1e12,
     }, ros_env, tmp_path / "body.log")
     try:
         assert brain.spin_until(lambda: body.poll() is not None, 90)
@@ -79,26 +71,14 @@ def test_body_survives_hostile_commands(tmp_path, ros_env, ros_domain_id):
             probe.close()
     log = (tmp_path / "body.log").read_text()
     assert body.returncode == 0, log
-    for line in ("rejected wind [1e+30, 0.0]: value 1e+30 at index 0 outside [-1000, 1000] N",
-                 "rejected rest_length command for step 0: value -",
-                 "outside (0, 56.5685] m",  # default: 10 × the diagonal of the 4 m × 4 m layout, 40√2
-                 "step 2 diverged", "restored the last good state (step 1) and integrated step 2 with the safe command",
-                 "also has publisher(s) not in command_publishers ("):
-        assert line in log, f"missing log line: {line}\n{log}"
+    assert "/brain/rest_length also has publisher(s) not in command_publishers (/intruder)" in log, log
     applied = np.array([np.asarray(msg.position) for msg in brain.messages["/body/rest_length"]])
     assert len(applied) == STEPS + 1
-    np.testing.assert_array_equal(applied[:2], good[:2])
-    np.testing.assert_array_equal(applied[2], base)  # the diverged step, redone with the safe command
-    np.testing.assert_array_equal(applied[3:5], good[3:5])
+    np.testing.assert_array_equal(applied[:5], good[:5])  # before the intruder: the brain's commands
     assert not any(np.array_equal(row, evil) for row in applied), "an intruder's command was integrated"
     assert all(np.array_equal(row, good[k]) or np.array_equal(row, base) for k, row in enumerate(applied))
-    errors = [s for msg in brain.messages["/diagnostics"] for s in msg.status if s.level == DiagnosticStatus.ERROR]
-    assert errors and "step 2 diverged" in errors[0].message
     counts = json.loads(summary.read_text())
-    assert counts["wind_rejected_out_of_bounds"] == 1 and counts["rest_length_rejected_out_of_bounds"] == 2
-    assert counts["divergences"] == 1 and counts["rest_length_rejected_untrusted_publisher"] >= 1
-    assert counts["force_accepted"] == 1
-    assert counts["rejected_total"] >= 4
+    assert counts["rest_length_rejected_untrusted_publisher"] >= 1 and counts["perturbation_steps"] == [3]
 
 
 def test_divergence_with_on_divergence_stop_ends_the_run_with_a_finalised_bag(tmp_path, ros_env, ros_domain_id):

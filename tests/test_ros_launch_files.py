@@ -22,7 +22,7 @@ import pytest
 import yaml
 from ros_live import REPO, env_for, save_fitted_agent
 
-from bptsb_ros.launch_loops import (
+from bptsb_ros.live.loops import (
     LOOPS,
     LaunchArgumentError,
     launch_arguments,
@@ -142,7 +142,7 @@ def test_launch_description_declares_the_nodes_statically(ros_env):
 import json
 from launch.actions import DeclareLaunchArgument, RegisterEventHandler
 from launch_ros.actions import Node
-from bptsb_ros.launch_loops import ros_launch_description
+from bptsb_ros.live.loops import ros_launch_description
 out = {}
 for loop in ("lissajous_closed", "narma"):
     d = ros_launch_description(loop)

@@ -84,7 +84,8 @@ def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
     """SWG + wind_source in lockstep: the wind switches on at the stated steps and the run equals the offline
     simulation under the same schedule; replay compares and shades the wind periods."""
     from bptsb_ros.agent import build_agent
-    from bptsb_ros.analysis.replay import read_run, replay, wind_periods
+    from bptsb_ros.analysis.bag_run import read_run
+    from bptsb_ros.analysis.replay import replay, wind_periods
     from bptsb_ros.bags.reader import read_messages
     from bptsb_ros.config import validate
     from bptsb_ros.sim.rollout import simulate_open_loop

@@ -185,7 +185,7 @@ def test_apply_changes_validates_and_refuses_as_a_whole():
 
 # -- run summary ------------------------------------------------------------------------------------------
 def test_body_summary_is_a_few_readable_lines():
-    from bptsb_ros.ros.body_sim import summary_text
+    from bptsb_ros.live.summary import summary_text
 
     summary = {"mode": "lockstep", "dt": 0.01, "sim_time": 1.0, "steps": 100, "jitter_ms_mean": 0.123456,
                "jitter_ms_max": 2.0, "command_age_steps_max": 1.0, "rest_length_accepted": 100,
@@ -389,7 +389,7 @@ def test_feedback_gain_and_noise_perturb_the_fitted_layer():
     import torch
 
     from bptsb_ros.brains.feedback import FeedbackLayer
-    from bptsb_ros.ros.feedback_brain import perturbed_rest_length
+    from bptsb_ros.live.feedback import perturbed_rest_length
 
     layer = FeedbackLayer(3, 2, dtype=torch.float64)
     w = np.array([[0.1, -0.2, 0.3, 0.05], [0.0, 0.4, -0.1, -0.02]])

@@ -36,13 +36,13 @@ def test_ctrl_c_during_startup_is_a_clean_stop(tmp_path, ros_env):
         assert f"[launch]   {node:<15} ok" in out, out
 
 
-#: runs the real entry point, but delivers SIGINT to itself the moment launch_cmd imports launch_loops (the
+#: runs the real entry point, but delivers SIGINT to itself the moment launch_cmd imports live.loops (the
 #: import that takes seconds on a loaded machine): deterministic, where a timed signal would race the imports
 _INTERRUPT_DURING_IMPORTS = """
 import os, runpy, signal, sys
 class Finder:
     def find_spec(self, name, path=None, target=None):
-        if name == "bptsb_ros.launch_loops":
+        if name == "bptsb_ros.live.loops":
             sys.meta_path.remove(self)
             os.kill(os.getpid(), signal.SIGINT)
         return None

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bptsb_ros.launch_loops import LOOPS, format_parameter, node_parameters, startup_subscribers, topic_names
-from bptsb_ros.ros.lockstep import CommandChannel, TimingStats
+from bptsb_ros.live.channels import CommandChannel, TimingStats
+from bptsb_ros.live.loops import LOOPS, format_parameter, node_parameters, startup_subscribers, topic_names
 from bptsb_ros.ros.params import Param, ParameterError, validate_values
 from bptsb_ros.ros.topics import TOPICS, dt_to_ns, stamp_to_step, step_to_stamp
 
@@ -150,7 +150,7 @@ def test_topic_table_documents_every_topic():
 
 
 def test_timing_stats_keep_bounded_windows():
-    from bptsb_ros.ros.lockstep import RunningStats
+    from bptsb_ros.live.channels import RunningStats
 
     series = RunningStats([5.0, 1.0, 2.0, 3.0], window=3)
     assert len(series) == 4 and series.mean == pytest.approx(2.75) and series.max == 5.0
@@ -162,7 +162,7 @@ def test_timing_stats_keep_bounded_windows():
 
 
 def test_recorder_parameters_describe_the_run():
-    from bptsb_ros.launch_loops import log_dir_of_bag, recorder_parameters
+    from bptsb_ros.live.loops import log_dir_of_bag, recorder_parameters
 
     params = recorder_parameters(LOOPS["lissajous_closed"], "bags/x", mode="realtime", agent="runs/a",
                                  open_loop_steps=30)

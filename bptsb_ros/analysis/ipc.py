@@ -508,7 +508,7 @@ def bag_series(bag: str | Path, tau: int | None = None) -> BagSeries:
     "immediately after the final step" (the paper). Blocks are taken consecutively from the start and stop
     at the first missing step or input.
     """
-    from bptsb_ros.analysis.replay import read_run
+    from bptsb_ros.analysis.bag_run import read_run
     from bptsb_ros.bags.errors import BagError
 
     run = read_run(bag)

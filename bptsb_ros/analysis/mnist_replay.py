@@ -73,7 +73,7 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
     """Analyse a ``mnist_drawing`` bag; writes ``metrics.json`` and ``drawings.png`` (and ``replay.gif``) to
     ``out_dir`` and returns the metrics. With ``system_path`` (the system file, never a path from the bag) the
     recorded images are drawn offline too and compared."""
-    from bptsb_ros.analysis.replay import _animate, read_run, recording_summary
+    from bptsb_ros.analysis.bag_run import animate_run, read_run, recording_summary
     from bptsb_ros.tasks.mnist_drawing import DigitTargets
     from bptsb_ros.tasks.mnist_live import load_system_as, pixels
 
@@ -145,7 +145,7 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
                                                                           .numpy() for d in range(10)],
                                 y.numpy(), live_err, run.dt, [int(k) for k in complete])]
     if gif and len(run.springs):
-        files.append(_animate(out_dir / "replay.gif", run))
+        files.append(animate_run(out_dir / "replay.gif", run))
     metrics["files"] = [str(f) for f in files]
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics

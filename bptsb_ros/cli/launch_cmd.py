@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import IO
 
 from bptsb_ros.cli.common import finite_float
-from bptsb_ros.launch_loops import LOOPS, format_parameter, loops_help
+from bptsb_ros.live.loops import LOOPS, bag_target_problem, format_parameter, loops_help
 
 NAME = "launch"
 HELP = "start a live loop (body_sim + brains [+ recorder]) as separate ROS 2 processes"
@@ -283,28 +283,6 @@ class Launcher:
         return rows
 
 
-def _bag_target_problem(bag: Path) -> str:
-    """Why ``bag`` cannot receive a new recording ('' when it can): it exists and is not an empty directory,
-    or its parent cannot be created or written (checked before any node starts)."""
-    if bag.exists():
-        if not bag.is_dir():
-            return "exists and is not a directory"
-        if any(bag.iterdir()):
-            return "exists and is not empty"
-    parent = bag.absolute().parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        return f"cannot create {parent}: {err.strerror or err}"
-    where = bag if bag.is_dir() else parent
-    try:  # a real write: permission bits say nothing for root or on a read-only file system
-        with tempfile.TemporaryFile(dir=where):
-            pass
-    except OSError as err:
-        return f"cannot write in {where}: {err.strerror or err}"
-    return ""
-
-
 def _extra_value(items: list[str], name: str) -> str | None:
     """The value of the last ``name:=VALUE`` of one node's ``--param`` items (a YAML scalar, quotes removed)."""
     from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
@@ -323,7 +301,7 @@ def _wind_limit(extra: dict[str, list[str]]) -> float:
     """body_sim's max_wind [N] (its default, or ``--param body_sim:max_wind:=X``), passed on to wind_source; a
     wind_source file table is checked against it here, before any node starts (the body would reject every wind
     beyond it: a run without wind). Raises ValueError naming the row and the limit."""
-    from bptsb_ros.ros.safety import DEFAULT_MAX_WIND
+    from bptsb_ros.live.safety import DEFAULT_MAX_WIND
     from bptsb_ros.sim.wind_schedule import WindScheduleError, read_table
 
     text = _extra_value(extra.get("body_sim", []), "max_wind")
@@ -347,7 +325,7 @@ def _wind_limit(extra: dict[str, list[str]]) -> float:
 
 def _perturbation_problem(args: argparse.Namespace) -> str:
     """Why --perturb-at/--perturb-sigma cannot be run ('' when they can), before any node starts."""
-    from bptsb_ros.launch_loops import perturbation_problem
+    from bptsb_ros.live.loops import perturbation_problem
 
     if args.perturb_at is not None and args.perturb_at < 0:
         return f"--perturb-at {args.perturb_at:g}: must be >= 0 (sim seconds)"
@@ -392,12 +370,12 @@ def _check_recording(launcher: Launcher, rows: list[tuple[str, str]], bag: Path,
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.launch_loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
+    from bptsb_ros.live.loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
     loop = LOOPS[args.loop]
     plan = None
     if loop.name == "mnist_drawing":  # --agent is a system file: checked with the stream, before any node starts
-        from bptsb_ros.launch_mnist import StreamError, plan_stream
+        from bptsb_ros.live.mnist_loop import StreamError, plan_stream
 
         if args.mode != "lockstep":
             print("error: mnist_drawing resets the body at stated steps, which needs --mode lockstep", file=sys.stderr)
@@ -431,7 +409,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"error: --agent: {err}", file=sys.stderr)
             return 2
     if args.bag:
-        problem = _bag_target_problem(Path(args.bag))
+        problem = bag_target_problem(Path(args.bag))
         if problem:
             print(f"error: --bag {args.bag}: {problem}", file=sys.stderr)
             return 2
@@ -464,7 +442,7 @@ def run(args: argparse.Namespace) -> int:
     def with_stream(executable: str, params: dict) -> dict:
         if plan is None:
             return params
-        from bptsb_ros.launch_mnist import stream_parameters
+        from bptsb_ros.live.mnist_loop import stream_parameters
 
         return stream_parameters(plan, executable, params, recording=bool(args.bag), duration=args.duration)
 

@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "is loaded (a path stored in the bag is only printed, never loaded: bags are untrusted data)")
     parser.add_argument("--task", choices=("lissajous", "locomotion", "narma"), default=None,
                         help="task whose metric to compute (default: the agent's)")
-    from bptsb_ros.launch_loops import LOOPS  # ROS-free: keeps --help fast
+    from bptsb_ros.live.loops import LOOPS  # ROS-free: keeps --help fast
 
     parser.add_argument("--loop", default=None, choices=sorted(LOOPS),
                         help="loop that was run (default: from the bag's custom_data)")

@@ -18,8 +18,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 
+from bptsb_ros.live.channels import RunningStats
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
-from bptsb_ros.ros.lockstep import RunningStats
 from bptsb_ros.ros.params import LOG_LEVEL, OnChange, Param, ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle
 from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns

@@ -20,19 +20,17 @@ from __future__ import annotations
 import sys
 import time
 
-import numpy as np
 import torch
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
-from bptsb_ros.brains.feedback import FeedbackLayer
+from bptsb_ros.live.feedback import FeedbackCommands
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.topics import feedback_state_key, spring_names
-from bptsb_ros.sim.rollout import swg_rest_lengths
 
 NODE = "feedback_brain"
 PARAMS = (
@@ -62,12 +60,9 @@ class FeedbackBrain(BrainNode):
         self.open_loop = int(p["open_loop_steps"])
         if self.open_loop and not isinstance(agent.brain, SineWaveGenerator):
             raise ParameterError("parameter 'open_loop_steps': > 0 needs an SWG agent")
-        body = agent.body
-        self.base = body.l.detach()
-        self.names = spring_names(body.topology.n_springs)
+        self.commands = FeedbackCommands(agent, self.open_loop, p["noise_seed"])
+        self.names = spring_names(agent.body.topology.n_springs)
         self.state_type = agent.feedback.state_type
-        self.mass = body.mass.detach().double().numpy()  # (M,) movable masses: effort → acceleration
-        self.rng = np.random.default_rng(p["noise_seed"])
         self.pub = self.output(JointState, p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.create_subscription(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         state_topic = p[f"topics.{feedback_state_key(self.state_type)}"]
@@ -83,59 +78,20 @@ class FeedbackBrain(BrainNode):
     def _on_clock(self, msg: Clock) -> None:
         started = time.monotonic()
         step = m.step_of(msg.clock, self.dt_ns)
-        if step > self.open_loop:
-            return  # answered by _on_state
-        if self.open_loop == 0:
-            self._send(step, self.base, started)
-            return
-        with torch.no_grad():
-            rest = swg_rest_lengths(self.agent.body, self.agent.brain, step, 1)[0]
-        self._send(step, rest, started)
+        rest = self.commands.on_clock(step)
+        if rest is not None:
+            self._send(step, rest, started)
 
     def _on_state(self, msg: JointState) -> None:
         started = time.monotonic()
         step = m.step_of(msg.header.stamp, self.dt_ns)
-        if step < self.open_loop:
-            return
-        features = self._features(msg, step)
-        if features is None:
-            return
-        with torch.no_grad():
-            rest = perturbed_rest_length(self.agent.feedback, self.base, features, self.p["gain"], self.p["noise"],
-                                         self.rng)
-        self._send(step + 1, rest, started)
-
-    def _features(self, msg: JointState, step: int) -> torch.Tensor | None:
-        """The feedback layer's state features (1, F) from a state message, laid out as ``state_features``:
-        spring lengths (E), or the flattened movable positions, velocities or accelerations (2M); None (and a
-        throttled warning) if the message has the wrong number of values."""
-        body = self.agent.body
-        if self.state_type == "spring_length":
-            x, expected, what = m.as_array(msg.position), body.topology.n_springs, "spring lengths"
-        else:
-            field = {"position": msg.position, "velocity": msg.velocity, "acceleration": msg.effort}[self.state_type]
-            x, expected, what = m.as_array(field), 2 * body.n_movable, f"mass states ({self.state_type})"
-        if x.size != expected:
-            self.warn(f"bad_state:{self.state_type}", f"ignored {what} of step {step}: {x.size} values, expected "
-                      f"{expected}")
-            return None
-        if self.state_type == "acceleration":
-            x = m.acceleration_from_effort(x, self.mass)
-        return torch.from_numpy(x).to(self.base.dtype).unsqueeze(0)
-
-
-def perturbed_rest_length(layer: FeedbackLayer, base: torch.Tensor, features: torch.Tensor, gain: float,
-                          noise: float, rng: np.random.Generator) -> torch.Tensor:
-    """Rest lengths (1, E) [m] l·(1 + g·W·[s + ε, 1]) with ε ~ N(0, noise²) per feature, drawn from ``rng`` only when
-    ``noise`` > 0; ``gain`` 1 and ``noise`` 0 give ``layer.rest_length_from_features`` exactly.
-
-    Args:
-        base: (E,) trained rest lengths l [m]; features: (1, F) state features s, laid out as ``state_features``.
-    """
-    if noise > 0:
-        features = features + torch.from_numpy(rng.standard_normal(features.shape[1]) * noise).to(features.dtype)
-    rest = layer.rest_length_from_features(base, features)
-    return rest if gain == 1.0 else base + gain * (rest - base)
+        field = {"spring_length": msg.position, "position": msg.position, "velocity": msg.velocity,
+                 "acceleration": msg.effort}[self.state_type]
+        rest = self.commands.on_state(step, m.as_array(field), self.p["gain"], self.p["noise"])
+        if isinstance(rest, str):
+            self.warn(f"bad_state:{self.state_type}", rest)
+        elif rest is not None:
+            self._send(step + 1, rest, started)
 
 
 def main(args: list[str] | None = None) -> int:

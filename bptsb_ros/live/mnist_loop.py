@@ -81,7 +81,7 @@ def plan_stream(agent: str, images: str, labels: str, first: int = 0, count: int
 
 def stream_parameters(plan: StreamPlan, executable: str, params: dict[str, ParamValue], *, recording: bool,
                       duration: float) -> dict[str, ParamValue]:
-    """``params`` of one node of the loop (from ``launch_loops.node_parameters`` or ``recorder_parameters``) with
+    """``params`` of one node of the loop (from ``loops.node_parameters`` or ``recorder_parameters``) with
     what the stream adds."""
     out = dict(params)
     if executable == "body_sim":

@@ -10,6 +10,7 @@ answers the body state; ``mlp_brain`` answers ``task/input``; commands go back t
 
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -184,8 +185,9 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
         agent: trained agent run directory; empty: a fresh agent of the loop's task with ``seed``.
         duration: ``body_sim`` run length: sim seconds in lockstep, wall seconds from the first step in realtime.
         open_loop_steps: feedback brain: SWG steps before the feedback layer takes over.
-        perturb_at, perturb_sigma, perturb_seed: ``body_sim`` displaces the movable masses by N(0, σ²) at sim time
-            ``perturb_at`` [s] (negative: never).
+        perturb_at: ``body_sim`` displaces the movable masses at this sim time [s] (negative: never).
+        perturb_sigma: standard deviation σ [m] of that displacement, N(0, σ²) per coordinate.
+        perturb_seed: seed of its standard-normal pattern.
     """
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":
@@ -287,7 +289,7 @@ def launch_arguments(loop: Loop) -> dict[str, tuple[str | None, str]]:
     if loop.needs_agent:
         args["agent"] = (None, REQUIRED_AGENT)
     if loop.name == "mnist_drawing":
-        from bptsb_ros.launch_mnist import STREAM_ARGUMENTS
+        from bptsb_ros.live.mnist_loop import STREAM_ARGUMENTS
 
         args["agent"] = (None, "MNIST system file (systems/<name>.pt of the MNIST drawing experiment; required)")
         args.update(STREAM_ARGUMENTS)
@@ -305,8 +307,8 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
     import math
 
     agent = values.get("agent", "")
-    if loop.name == "mnist_drawing":  # agent is a system file, not a run directory: launch_mnist checks it
-        from bptsb_ros.launch_mnist import StreamError
+    if loop.name == "mnist_drawing":  # agent is a system file, not a run directory: mnist_loop checks it
+        from bptsb_ros.live.mnist_loop import StreamError
 
         if values.get("mode", "lockstep") != "lockstep":
             raise LaunchArgumentError(f"mode:={values['mode']}: mnist_drawing resets the body at stated steps, "
@@ -358,12 +360,32 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
         except CheckpointError as err:
             raise LaunchArgumentError(f"agent:={agent}: {err}") from None
     if values.get("bag"):
-        from bptsb_ros.cli.launch_cmd import _bag_target_problem
-
-        problem = _bag_target_problem(Path(values["bag"]))
+        problem = bag_target_problem(Path(values["bag"]))
         if problem:
             raise LaunchArgumentError(f"bag:={values['bag']}: {problem}")
     return loop, common
+
+
+def bag_target_problem(bag: Path) -> str:
+    """Why ``bag`` cannot receive a new recording ('' when it can): it exists and is not an empty directory,
+    or its parent cannot be created or written (checked before any node starts)."""
+    if bag.exists():
+        if not bag.is_dir():
+            return "exists and is not a directory"
+        if any(bag.iterdir()):
+            return "exists and is not empty"
+    parent = bag.absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        return f"cannot create {parent}: {err.strerror or err}"
+    where = bag if bag.is_dir() else parent
+    try:  # a real write: permission bits say nothing for root or on a read-only file system
+        with tempfile.TemporaryFile(dir=where):
+            pass
+    except OSError as err:
+        return f"cannot write in {where}: {err.strerror or err}"
+    return ""
 
 
 def loop_node_parameters(loop_name: str, executable: str, values: dict[str, str]) -> dict[str, ParamValue]:
@@ -380,16 +402,16 @@ def loop_node_parameters(loop_name: str, executable: str, values: dict[str, str]
         summary_path = str(log_dir_of_bag(bag) / "body_summary.json") if bag and executable == "body_sim" else ""
         params = node_parameters(loop, executable, summary_path=summary_path, **common)
     if loop_name == "mnist_drawing":
-        from bptsb_ros.launch_mnist import stream_parameters
+        from bptsb_ros.live.mnist_loop import stream_parameters
 
         params = stream_parameters(mnist_stream_plan(values), executable, params, recording=bool(bag),
                                    duration=common["duration"])
     return params
 
 
-def mnist_stream_plan(values: dict[str, str]):  # -> launch_mnist.StreamPlan
+def mnist_stream_plan(values: dict[str, str]):  # -> mnist_loop.StreamPlan
     """The checked stream of an ``mnist_drawing`` launch from its arguments (strings); raises StreamError."""
-    from bptsb_ros.launch_mnist import StreamError, plan_stream
+    from bptsb_ros.live.mnist_loop import StreamError, plan_stream
 
     numbers = {}
     for name in ("first", "count", "episode_steps"):
@@ -408,7 +430,7 @@ def params_file_text(executable: str, params: dict[str, ParamValue]) -> str:
     for name, value in params.items():
         if value != []:
             lines.append(f"    {name}: {yaml_value(value)}")
-    return f"# {executable}: written by bptsb_ros.launch_loops from the launch arguments\n" + "\n".join(lines) + "\n"
+    return f"# {executable}: written by bptsb_ros.live.loops from the launch arguments\n" + "\n".join(lines) + "\n"
 
 
 def node_exit_verdict(executable: str, returncode: int, shutting_down: bool) -> str:
@@ -446,7 +468,6 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
     exits 0; when any node exits otherwise (a brain that cannot start, a crash, a failed stop) the whole loop is
     shut down and the launch exits non-zero (:func:`node_exit_verdict`).
     """
-    import tempfile
 
     from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
     from launch.condition import Condition

@@ -12,7 +12,7 @@ A :class:`CommandChannel` holds one command kind (rest lengths or forces):
 * ``realtime``: the body takes the newest command; one older than the newest accepted, or older
   than ``max_age_steps`` when it arrives or is used, is *stale*.
 
-Wrong-length, non-finite and out-of-bounds commands (``bounds``, see ``bptsb_ros.ros.safety``) are rejected in
+Wrong-length, non-finite and out-of-bounds commands (``bounds``, see ``bptsb_ros.live.safety``) are rejected in
 both modes, and so is a command stamped more than ``max_ahead`` steps after the next step (a node cannot
 claim future steps before the brain answers them). Rejected commands never reach the
 integrator; :meth:`CommandChannel.offer` returns a :class:`Rejection` so the node can log it.

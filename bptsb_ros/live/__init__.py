@@ -1,0 +1,15 @@
+"""The live loop without ROS: what the nodes of :mod:`bptsb_ros.ros` do, as plain Python that tests drive directly.
+
+* ``body_core`` — :class:`~bptsb_ros.live.body_core.BodyCore`: the live body's intake (commands, wind,
+  perturbations, resets, stamped with steps), its step (``MSDN.step``), divergence recovery, counters and run summary;
+* ``body_loop`` — :class:`~bptsb_ros.live.body_loop.BodyLoop`: the lockstep and realtime step loops, awaiting
+  commands and the recorder, through a :class:`~bptsb_ros.live.body_loop.BodyPort` (the node, or a fake in tests);
+* ``body_params`` — the body's parameter specs; ``summary`` — the run summary as text and JSON; ``channels`` —
+  command validation, buffering and timing statistics; ``safety`` — command bounds, the publisher rule, divergence
+  recovery;
+* ``feedback`` — what ``feedback_brain`` commands: which step the clock or the state answers, and the layer's output;
+* ``loops`` and ``mnist_loop`` — the loops ``bptsb launch`` and ``launch/*.launch.py`` start (nodes, parameters,
+  wiring), and the MNIST image stream's plan.
+
+Nothing here imports rclpy or message types; ``body_sim`` and the brains convert messages and call these.
+"""
