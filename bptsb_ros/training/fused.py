@@ -1,0 +1,196 @@
+"""The fused training path (``training.backend: fused``): a Lissajous training window — SWG rest lengths, body,
+loss and the gradient of every trained parameter — as one numba call, and the SGD update of every parameter
+group, with the projection of k, d, l onto [0, ∞), as another (:mod:`bptsb_ros.training.fused_kernel`).
+
+No autograd: the parameters are only the body's (k, d, l) and the SWG's (A, φ), updated in place through numpy
+views of the same tensors the optimiser holds, so the :class:`~bptsb_ros.training.guard.UpdateGuard` saves,
+restores and divides the rates exactly as on the other paths (the rates are read from the optimiser's groups at
+every update). The equations and their order are the numba path's; results agree with it to rounding
+(tests/test_fused.py: gradients to 1e-12 in float64, parameters after many updates to 1e-10).
+
+What it covers: the Lissajous single-curve task (``LissajousTask``) with SGD (no momentum, weight decay,
+dampening or Nesterov) and the hand-derived adjoint, on CPU. The feedback layer of a Lissajous agent is fitted
+after training, outside every training window, so it does not stand in the way. Anything else —
+locomotion (its speed loss, wind and warm-up), switching, NARMA, Adam, ``training.adjoint: false`` — trains on
+the numba path, and the trainer says so in one line (:func:`fused_unsupported`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState
+from bptsb_ros.brains import SineWaveGenerator
+from bptsb_ros.sim.clock import steps_per_period
+from bptsb_ros.training import fused_kernel
+from bptsb_ros.training.fused_kernel import OUT_GRADS_OK, OUT_LOSS, OUT_STATE_OK, PARAMETERS
+
+#: SGD options the fused update implements (their torch defaults); any other value falls back
+_SGD_DEFAULTS = {"momentum": 0, "dampening": 0, "weight_decay": 0, "nesterov": False, "maximize": False}
+
+
+def fused_unsupported(task, optimizer: torch.optim.Optimizer, *, adjoint: bool = True) -> str | None:
+    """Why the fused path cannot train ``task`` with ``optimizer`` (one phrase), or None when it can."""
+    from bptsb_ros.tasks.lissajous import LissajousTask
+
+    if type(task) is not LissajousTask:
+        return f"it covers the Lissajous single-curve task, not {getattr(task, 'name', type(task).__name__)!r}"
+    if not adjoint:
+        return "training.adjoint is false (plain autograd was asked for)"
+    return _optimizer_unsupported(optimizer) or _body_unsupported(task.agent.body, task.agent.brain)
+
+
+def _optimizer_unsupported(optimizer: torch.optim.Optimizer) -> str | None:
+    if type(optimizer) is not torch.optim.SGD:
+        return f"it implements plain SGD, the optimiser is {type(optimizer).__name__}"
+    for group in optimizer.param_groups:
+        for key, default in _SGD_DEFAULTS.items():
+            if group.get(key, default) != default:
+                return f"it implements plain SGD, the optimiser has {key} = {group[key]}"
+    return None
+
+
+def _body_unsupported(body: MSDN, brain) -> str | None:
+    if not isinstance(brain, SineWaveGenerator):
+        return f"it needs an SWG brain, not {type(brain).__name__}"
+    if body.k.device.type != "cpu":
+        return "it runs on CPU"
+    if body.k.dtype not in _NUMPY:
+        return f"it runs in float32 or float64, not {body.k.dtype}"
+    return None
+
+
+class FusedSwgWindow:
+    """One body (batch 1) and its SWG trained window by window: :meth:`window` measures loss and gradients,
+    :meth:`step` applies the SGD update of ``optimizer``'s groups in place.
+
+    Args:
+        body, swg: the trained modules (their k, d, l, A, φ are updated in place).
+        optimizer: plain SGD over (some of) those parameters; a parameter in no group is not trained.
+        window: W, steps per window.
+        target: (X, Y, α, β, δ, ω) of the Lissajous target x = X cos(αω t), y = Y sin(βω t + δ) [m, rad/s].
+        cmp: the CMP's row among the movable masses.
+    """
+
+    def __init__(self, body: MSDN, swg: SineWaveGenerator, optimizer: torch.optim.Optimizer, window: int,
+                 target: tuple[float, float, float, float, float, float], cmp: int) -> None:
+        why = _optimizer_unsupported(optimizer) or _body_unsupported(body, swg)
+        if why:
+            raise ValueError(f"the fused path cannot train this: {why}")
+        if cmp < 0:
+            raise ValueError("the fused Lissajous window needs a body with a central mass point")
+        if window < 1:
+            raise ValueError(f"window must be >= 1 step, got {window}")
+        self.body, self.swg, self.optimizer, self.steps, self.cmp = body, swg, optimizer, int(window), int(cmp)
+        self.tensors = (body.k, body.d, body.l, swg.amplitude, swg.phase)
+        self.dtype = body.k.dtype
+        np_dtype = _NUMPY[self.dtype]
+        # (group index, parameter index) of every trained parameter: by index, because the guard's restore
+        # (``optimizer.load_state_dict``) replaces the group dicts
+        self._slots: list[tuple[int, int]] = []
+        for g, group in enumerate(optimizer.param_groups):
+            for p in group["params"]:
+                index = next((i for i, t in enumerate(self.tensors) if t is p), None)
+                if index is None:
+                    raise ValueError("the fused path trains only the body's k, d, l and the SWG's amplitude and "
+                                     "phase; the optimiser holds another parameter")
+                self._slots.append((g, index))
+        self.active = np.zeros(len(PARAMETERS), dtype=np.bool_)
+        for _, index in self._slots:
+            self.active[index] = True
+        self.lr = np.zeros(len(PARAMETERS), dtype=np_dtype)
+        n = steps_per_period(swg.omega, body.dt)
+        self.clock = np.array([0.0 if n is None else float(n), 0.0 if n is None else 2 * math.pi / n,
+                               swg.omega * body.dt / (2 * math.pi)], dtype=np.float64)
+        x_amp, y_amp, alpha, beta, delta, omega = (float(v) for v in target)
+        self.target = np.array([x_amp, y_amp, alpha * omega, beta * omega, delta, body.dt], dtype=np.float64)
+        w, m, e = self.steps, body.n_movable, body.topology.n_springs
+        z = np.zeros
+        self.work = {
+            "rest": z((w, 1, e), np_dtype), "ext": z((w, 0, m, 2), np_dtype),
+            "r_out": z((w, 1, m, 2), np_dtype), "v_out": z((w, 1, m, 2), np_dtype),
+            "a_out": z((w, 1, m, 2), np_dtype), "len_out": z((w, 1, e), np_dtype),
+            "g_r": z((w, 1, m, 2), np_dtype), "g_none4": z((0, 0, 0, 0), np_dtype), "g_none3": z((0, 0, 0), np_dtype),
+            "lam_r": z((1, m, 2), np_dtype), "lam_v": z((1, m, 2), np_dtype), "lam_a": z((1, m, 2), np_dtype),
+            "g_kb": z((1, e), np_dtype), "g_db": z((1, e), np_dtype), "g_rest": z((w, 1, e), np_dtype),
+            "g_ext": z((0, 0, 0, 0), np_dtype),
+            "sin_t": z(w, np_dtype), "cos_t": z(w, np_dtype), "cph": z(e, np_dtype), "sph": z(e, np_dtype),
+            "tgt": z((w, 2), np_dtype),
+        }
+        #: the last window's gradients (5, E), rows in ``PARAMETERS`` order
+        self.grads = z((len(PARAMETERS), e), np_dtype)
+        self.out = z(3, np.float64)
+        self.unit = np.array([0.0, 1.0, 2.0, 1.0 / (2 * w)], dtype=np_dtype)
+
+    def _views(self) -> list[np.ndarray]:
+        """numpy views sharing memory with the parameter tensors (taken afresh: a restore copies in place, but
+        a module may be given new tensors)."""
+        return [t.detach().numpy() for t in self.tensors]
+
+    def window(self, state: BodyState) -> tuple[float, bool, BodyState]:
+        """Simulate W steps from ``state`` (B = 1) with the current parameters: (loss, gradients finite, the
+        final state). The gradients are in :attr:`grads`. A window that diverged raises SimulationDiverged
+        (``MSDN.check_finite``'s message) and leaves nothing changed."""
+        body, w = self.body, self.work
+        np_dtype = _NUMPY[self.dtype]
+        k, d, l, amp, phase = self._views()
+        driven = self.swg.driven.numpy().astype(np_dtype)
+        r0, v0, a0 = (np.ascontiguousarray(x.detach().numpy(), dtype=np_dtype) for x in (state.r, state.v, state.a))
+        if r0.shape[0] != 1:
+            raise ValueError(f"the fused window trains one body, got a state of batch {r0.shape[0]}")
+        _, _, offset, mass, coef = body.kernel_constants(self.dtype)
+        fused_kernel.lissajous_window(
+            r0, v0, a0, k, d, l, amp, phase, driven, int(state.step), self.clock, self.target, self.cmp, coef,
+            self.unit, body.integrator == "verlet", bool(body.environment.ground_clamp), body.spring_i, body.spring_j,
+            offset, mass, w["rest"], w["ext"], w["r_out"], w["v_out"], w["a_out"], w["len_out"], w["g_r"],
+            w["g_none4"], w["g_none3"], w["lam_r"], w["lam_v"], w["lam_a"], w["g_kb"], w["g_db"], w["g_rest"],
+            w["g_ext"], w["sin_t"], w["cos_t"], w["cph"], w["sph"], w["tgt"], self.grads, self.out)
+        final = BodyState(*(torch.from_numpy(w[key][-1].copy()) for key in ("r_out", "v_out", "a_out", "len_out")),
+                          state.step + self.steps)
+        if not self.out[OUT_STATE_OK]:
+            body.check_finite(final)  # raises with the step and the parameter ranges
+            raise AssertionError("the fused window flagged a state that MSDN.check_finite accepts")
+        return float(self.out[OUT_LOSS]), bool(self.out[OUT_GRADS_OK]), final
+
+    def step(self) -> None:
+        """SGD with each group's current rate on the last window's gradients, then k, d, l ← max(·, 0)."""
+        groups = self.optimizer.param_groups
+        for g, index in self._slots:
+            self.lr[index] = groups[g]["lr"]
+        fused_kernel.sgd_update(*self._views(), self.grads, self.lr, self.active)
+
+    def gradients(self) -> dict[str, torch.Tensor]:
+        """The last window's gradients by parameter name, as tensors (copies)."""
+        return {name: torch.from_numpy(self.grads[i].copy()) for i, name in enumerate(PARAMETERS)}
+
+
+class FusedLissajousTraining:
+    """The fused path driving a ``LissajousTask``: :meth:`update_loss` runs the task's next window (advancing its
+    carried state as ``SwgWindowTask.run_window`` does) and returns (loss, gradients finite); :meth:`step` updates."""
+
+    def __init__(self, task, optimizer: torch.optim.Optimizer) -> None:
+        agent = task.agent
+        lc, brain, body = agent.config["lissajous"], agent.config["brain"], agent.config["body"]
+        amp = float(lc["amplitude_fraction"]) * float(body["size"])  # as tasks.lissajous.target_from_config
+        target = (amp, amp, float(lc["alpha"]), float(lc["beta"]), float(lc["delta"]), float(brain["omega"]))
+        self.task = task
+        self.fused = FusedSwgWindow(agent.body, agent.brain, optimizer, task.window, target, agent.body.cmp_local)
+
+    def update_loss(self, index: int) -> tuple[float, bool]:
+        del index
+        loss, grads_ok, final = self.fused.window(self.task.state)
+        self.task.state = final
+        return loss, grads_ok
+
+    def step(self) -> None:
+        self.fused.step()
+
+
+def fused_training(task, optimizer: torch.optim.Optimizer, *, adjoint: bool = True
+                   ) -> tuple[FusedLissajousTraining | None, str | None]:
+    """The fused path for ``task`` (and the reason it is None when the task or optimiser is not covered)."""
+    why = fused_unsupported(task, optimizer, adjoint=adjoint)
+    return (None, why) if why else (FusedLissajousTraining(task, optimizer), None)

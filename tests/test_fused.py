@@ -1,0 +1,209 @@
+"""The fused training path (``training.backend: fused``, bptsb_ros/training/fused.py) against the autograd paths:
+one Lissajous window's loss and gradients equal plain autograd through ``MSDN.step`` (torch backend) and the numba
+path to 1e-12 in float64, with the exact clock of a whole-step period and of a fractional one; central finite
+differences of the fused loss; whole trainings (guard rejections and rate divisions included) give the numba
+path's parameters and loss curve; the projection of k, d, l; divergence; the fallback line."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bptsb_ros.agent import build_agent
+from bptsb_ros.body.msdn import SimulationDiverged
+from bptsb_ros.config import ConfigError, ExperimentConfig, validate
+from bptsb_ros.tasks import get_task
+from bptsb_ros.training.fused import PARAMETERS, FusedSwgWindow, fused_training, fused_unsupported
+from bptsb_ros.training.optim import make_optimizer
+from bptsb_ros.training.trainer import train
+
+F64 = torch.float64
+#: a small double circle (13 masses, 24 springs), 40-step windows
+SMALL = {"task": "lissajous", "dtype": "float64", "body": {"nodes": 13},
+         "training": {"update_steps": 40}, "feedback": {"enabled": False}, "lissajous": {"eval_periods": 1}}
+
+
+def _cfg(**changes) -> ExperimentConfig:
+    data = {key: (dict(value) if isinstance(value, dict) else value) for key, value in SMALL.items()}
+    for dotted, value in changes.items():
+        *head, last = dotted.split("__")
+        node = data
+        for part in head:
+            node = node.setdefault(part, {})
+        node[last] = value
+    return validate(data)
+
+
+def _build(cfg: ExperimentConfig):
+    torch.manual_seed(cfg.seed)
+    agent = build_agent(cfg)
+    return agent, get_task(cfg.task)(agent, cfg), make_optimizer(agent, cfg.training)
+
+
+def _params(agent) -> dict[str, torch.Tensor]:
+    b, s = agent.body, agent.brain
+    return {"k": b.k, "d": b.d, "l": b.l, "amplitude": s.amplitude, "phase": s.phase}
+
+
+def _autograd_window(cfg: ExperimentConfig, windows: int = 1):
+    """Loss and gradients of the last of ``windows`` windows through the task's own autograd path."""
+    agent, task, _ = _build(cfg)
+    for _ in range(windows):
+        for p in _params(agent).values():
+            p.grad = None
+        loss, _ = task.update_loss(0)
+        loss.backward()
+    return float(loss.detach()), {n: p.grad.clone() for n, p in _params(agent).items()}, task.state
+
+
+def _fused_window(cfg: ExperimentConfig, windows: int = 1):
+    agent, task, opt = _build(cfg)
+    fused, why = fused_training(task, opt)
+    assert why is None
+    for _ in range(windows):
+        loss, ok = fused.update_loss(0)
+    assert ok
+    return loss, fused.fused.gradients(), task.state
+
+
+@pytest.mark.parametrize(("reference", "omega"), [("torch", 2 * math.pi), ("numba", 2 * math.pi), ("torch", 5.0)],
+                         ids=["torch-autograd", "numba", "torch-autograd-fractional-period"])
+def test_one_window_loss_and_gradients_equal_the_autograd_paths(reference, omega):
+    # omega 5 rad/s: the period is 125.66 steps, the clock's fractional branch (2π·frac(k·c)); three windows, so
+    # the clock runs past the start and the carried state is used
+    ref_cfg = _cfg(training__backend=reference, training__adjoint=reference != "torch", brain__omega=omega)
+    loss_ref, grads_ref, state_ref = _autograd_window(ref_cfg, windows=3)
+    loss, grads, state = _fused_window(_cfg(training__backend="fused", brain__omega=omega), windows=3)
+    assert loss == pytest.approx(loss_ref, rel=1e-12, abs=0)
+    for name in PARAMETERS:
+        scale = float(grads_ref[name].abs().max())
+        assert scale > 0, name
+        assert float((grads[name] - grads_ref[name]).abs().max()) <= 1e-12 * scale, name
+    for a, b in ((state.r, state_ref.r), (state.v, state_ref.v), (state.a, state_ref.a),
+                 (state.length, state_ref.length)):
+        assert torch.allclose(a, b, rtol=0, atol=1e-12)
+    assert state.step == state_ref.step == 3 * 40
+
+
+def test_gradients_match_central_finite_differences():
+    agent, task, opt = _build(_cfg(training__backend="fused"))
+    fused = FusedSwgWindow(agent.body, agent.brain, opt, 40, (0.2, 0.2, 1.0, 2.0, 0.0, 2 * math.pi),
+                           agent.body.cmp_local)
+    state = task.state
+    fused.window(state)
+    grads = fused.gradients()
+    for name, index, h in (("k", 3, 1e-4), ("phase", 5, 1e-6), ("l", 0, 1e-7), ("amplitude", 7, 1e-6)):
+        p = _params(agent)[name]
+        with torch.no_grad():
+            p[index] += h
+            up = fused.window(state)[0]
+            p[index] -= 2 * h
+            down = fused.window(state)[0]
+            p[index] += h
+        fd = (up - down) / (2 * h)
+        assert abs(float(grads[name][index])) > 1e-6, name
+        assert float(grads[name][index]) == pytest.approx(fd, rel=1e-5), name
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_training_gives_the_same_parameters_and_losses(backend):
+    # 25 updates at rates high enough that d hits its bound 0 (the projection acts) and the guard rejects loss
+    # spikes (reject_factor 2) and divides the rates (patience 2): 6 rejections, 2 divisions
+    changes = dict(sim_time=10.0, training__lr={"k": 3e4, "d": 1e4, "l": 10.0, "amplitude": 10.0, "phase": 100.0},
+                   training__reject_factor=2.0, training__reject_patience=2)
+    ref = train(_cfg(training__backend=backend, **changes), None, progress=False)
+    res = train(_cfg(training__backend="fused", **changes), None, progress=False)
+    assert res.metrics["backend"] == "fused" and "backend_fallback" not in res.metrics
+    assert len(res.losses) == 25
+    events = [(e["update"], e["reason"], e["divided"]) for e in res.metrics["guard"]["events"]]
+    assert events == [(e["update"], e["reason"], e["divided"]) for e in ref.metrics["guard"]["events"]]
+    assert len(events) >= 3 and any(divided for _, _, divided in events)
+    np.testing.assert_allclose(res.losses, ref.losses, rtol=1e-10, atol=0)
+    assert res.metrics["guard"]["rates"] == pytest.approx(ref.metrics["guard"]["rates"], rel=1e-15)
+    for name, p in _params(res.agent).items():
+        p, q = p.detach(), _params(ref.agent)[name].detach()
+        assert float((p - q).abs().max()) <= 1e-10 * max(1.0, float(q.abs().max())), name
+    body = res.agent.body
+    assert float(body.d.detach().min()) == 0.0  # the projection acted
+    assert float(torch.cat([body.k, body.d, body.l]).detach().min()) >= 0.0
+
+
+def test_one_update_is_sgd_per_group_then_the_projection():
+    agent, task, opt = _build(_cfg(training__backend="fused", training__lr__l=0.0, training__lr__k=1e7))
+    fused, _ = fused_training(task, opt)
+    before = {n: p.detach().clone() for n, p in _params(agent).items()}
+    fused.update_loss(0)
+    grads = fused.fused.gradients()
+    opt.param_groups[1]["lr"] *= 0.1  # a division by the guard is read at the step
+    fused.step()
+    rates = {"k": 1e7, "d": 1e2, "l": 0.0, "amplitude": 1e1, "phase": 1e2}
+    for name, p in _params(agent).items():
+        expected = before[name] - rates[name] * grads[name]
+        if name in ("k", "d", "l"):
+            expected = expected.clamp(min=0)
+        assert torch.equal(p.detach(), expected), name
+    assert float(agent.body.k.detach().min()) == 0.0 and float((before["k"] - 1e7 * grads["k"]).min()) < 0
+    assert torch.equal(agent.body.l, before["l"])  # lr 0: not in the optimiser, not trained
+
+
+def test_a_diverged_window_raises_as_the_numba_path_does_and_keeps_the_state():
+    messages = []
+    for backend in ("numba", "fused"):
+        agent, task, opt = _build(_cfg(training__backend=backend))
+        with torch.no_grad():
+            agent.body.k.mul_(1e6)  # ω·Δt ≫ 2: the integrator explodes within the window
+        start = task.state
+        with pytest.raises(SimulationDiverged) as err:
+            if backend == "fused":
+                fused_training(task, opt)[0].update_loss(0)
+            else:
+                task.update_loss(0)
+        assert task.state is start
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
+
+
+def test_unsupported_configs_fall_back_with_one_line(capsys):
+    res = train(_cfg(training__backend="fused", training__optimizer="adam", sim_time=0.8), None, progress=False)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "training.backend fused" in line]
+    assert lines == ["training.backend fused: it implements plain SGD, the optimiser is Adam; training on the numba "
+                     "path instead"]
+    assert res.metrics["backend"] == "numba" and "Adam" in res.metrics["backend_fallback"]
+    loco = validate({"task": "locomotion", "body": {"shape": "caterpillar", "nodes": 10},
+                     "training": {"update_steps": 200, "backend": "fused"}})
+    _, task, opt = _build(loco)
+    assert "not 'locomotion'" in fused_unsupported(task, opt)
+    _, task, opt = _build(_cfg(training__backend="fused"))
+    assert fused_unsupported(task, opt) is None
+    assert "adjoint" in fused_unsupported(task, opt, adjoint=False)
+
+
+def test_the_backend_key_is_validated():
+    with pytest.raises(ConfigError, match="training.backend"):
+        validate({"task": "lissajous", "training": {"backend": "fuse"}})
+    assert build_agent(_cfg(training__backend="fused")).body.backend == "numba"  # the body simulates on numba
+
+
+def test_float32_window_agrees_with_the_numba_path_to_float32_rounding():
+    loss_ref, grads_ref, _ = _autograd_window(_cfg(dtype="float32", training__backend="numba"))
+    loss, grads, _ = _fused_window(_cfg(dtype="float32", training__backend="fused"))
+    assert grads["k"].dtype == torch.float32
+    assert loss == pytest.approx(loss_ref, rel=1e-5)
+    for name in PARAMETERS:
+        scale = float(grads_ref[name].abs().max())
+        assert float((grads[name] - grads_ref[name]).abs().max()) <= 1e-4 * scale, name
+
+
+def test_the_bench_runner_times_the_bench_workload():
+    from bptsb_ros.bench import WORKLOADS, _setup, fused_runner
+
+    w = WORKLOADS["lissajous"]
+    _, _, state, run_window = _setup(w, True, F64, "numba")
+    window, _, state0 = fused_runner(w, F64)
+    loss_ref, final_ref = run_window(state)
+    loss, final = window(state0)
+    assert loss == pytest.approx(float(loss_ref.detach()), rel=1e-12)
+    assert torch.allclose(final.r, final_ref.r, rtol=0, atol=1e-12)
