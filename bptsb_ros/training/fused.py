@@ -124,35 +124,49 @@ class FusedSwgWindow:
         self.grads = z((len(PARAMETERS), e), np_dtype)
         self.out = z(3, np.float64)
         self.unit = np.array([0.0, 1.0, 2.0, 1.0 / (2 * w)], dtype=np_dtype)
+        _, _, offset, mass, coef = body.kernel_constants(self.dtype)  # copies of buffers that training never changes
+        self._fixed = (self.clock, self.target, self.cmp, coef.copy(), self.unit, body.integrator == "verlet",
+                       bool(body.environment.ground_clamp), body.spring_i, body.spring_j, offset.copy(), mass.copy())
+        self._work_args = tuple(self.work[key] for key in (
+            "rest", "ext", "r_out", "v_out", "a_out", "len_out", "g_r", "g_none4", "g_none3", "lam_r", "lam_v",
+            "lam_a", "g_kb", "g_db", "g_rest", "g_ext", "sin_t", "cos_t", "cph", "sph", "tgt"))
+        self._views_key: tuple[int, ...] | None = None
+        self._views_cache: tuple[np.ndarray, ...] = ()
+        self._last: tuple[BodyState | None, tuple[np.ndarray, ...]] = (None, ())
 
-    def _views(self) -> list[np.ndarray]:
-        """numpy views sharing memory with the parameter tensors (taken afresh: a restore copies in place, but
-        a module may be given new tensors)."""
-        return [t.detach().numpy() for t in self.tensors]
+    def _views(self) -> tuple[np.ndarray, ...]:
+        """numpy views sharing memory with the parameter tensors (a restore or a checkpoint load copies into them
+        in place; taken afresh should a tensor's storage change)."""
+        key = tuple(t.data_ptr() for t in self.tensors)
+        if key != self._views_key:
+            self._views_cache = tuple(t.detach().numpy() for t in self.tensors)
+            self._views_key = key
+        return self._views_cache
+
+    def _start(self, state: BodyState) -> tuple[np.ndarray, ...]:
+        """The start state as C-contiguous numpy arrays (those of the last final state without a copy)."""
+        if state is self._last[0]:
+            return self._last[1]
+        np_dtype = _NUMPY[self.dtype]
+        arrays = tuple(np.ascontiguousarray(x.detach().numpy(), dtype=np_dtype) for x in (state.r, state.v, state.a))
+        if arrays[0].shape[0] != 1:
+            raise ValueError(f"the fused window trains one body, got a state of batch {arrays[0].shape[0]}")
+        return arrays
 
     def window(self, state: BodyState) -> tuple[float, bool, BodyState]:
         """Simulate W steps from ``state`` (B = 1) with the current parameters: (loss, gradients finite, the
         final state). The gradients are in :attr:`grads`. A window that diverged raises SimulationDiverged
         (``MSDN.check_finite``'s message) and leaves nothing changed."""
         body, w = self.body, self.work
-        np_dtype = _NUMPY[self.dtype]
-        k, d, l, amp, phase = self._views()
-        driven = self.swg.driven.numpy().astype(np_dtype)
-        r0, v0, a0 = (np.ascontiguousarray(x.detach().numpy(), dtype=np_dtype) for x in (state.r, state.v, state.a))
-        if r0.shape[0] != 1:
-            raise ValueError(f"the fused window trains one body, got a state of batch {r0.shape[0]}")
-        _, _, offset, mass, coef = body.kernel_constants(self.dtype)
-        fused_kernel.lissajous_window(
-            r0, v0, a0, k, d, l, amp, phase, driven, int(state.step), self.clock, self.target, self.cmp, coef,
-            self.unit, body.integrator == "verlet", bool(body.environment.ground_clamp), body.spring_i, body.spring_j,
-            offset, mass, w["rest"], w["ext"], w["r_out"], w["v_out"], w["a_out"], w["len_out"], w["g_r"],
-            w["g_none4"], w["g_none3"], w["lam_r"], w["lam_v"], w["lam_a"], w["g_kb"], w["g_db"], w["g_rest"],
-            w["g_ext"], w["sin_t"], w["cos_t"], w["cph"], w["sph"], w["tgt"], self.grads, self.out)
-        final = BodyState(*(torch.from_numpy(w[key][-1].copy()) for key in ("r_out", "v_out", "a_out", "len_out")),
-                          state.step + self.steps)
+        r0, v0, a0 = self._start(state)
+        fused_kernel.lissajous_window(r0, v0, a0, *self._views(), self.swg.driven.numpy(), int(state.step),
+                                      *self._fixed, *self._work_args, self.grads, self.out)
+        last = tuple(w[key][-1].copy() for key in ("r_out", "v_out", "a_out", "len_out"))
+        final = BodyState(*(torch.from_numpy(x) for x in last), state.step + self.steps)
         if not self.out[OUT_STATE_OK]:
             body.check_finite(final)  # raises with the step and the parameter ranges
             raise AssertionError("the fused window flagged a state that MSDN.check_finite accepts")
+        self._last = (final, last[:3])
         return float(self.out[OUT_LOSS]), bool(self.out[OUT_GRADS_OK]), final
 
     def step(self) -> None:

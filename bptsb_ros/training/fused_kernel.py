@@ -17,7 +17,7 @@ torch or autograd, what the numba path does through ~40 torch calls and the auto
    cos φ_e Σ_t g_te A_e cos θ_t with g_te = ∂L/∂l_te · l_e · m_e, u_te = sin θ_t cos φ_e + cos θ_t sin φ_e.
 
 Shapes (numpy, one float dtype throughout, C-contiguous; a batch of one body; W steps, M movable masses,
-E springs): r0, v0, a0 (1, M, 2); k, d, l, amplitude, phase, driven (E,) (driven: 0 or 1); the work arrays
+E springs): r0, v0, a0 (1, M, 2); k, d, l, amplitude, phase (E,); driven (E,) bool; the work arrays
 of :class:`bptsb_ros.training.fused.FusedSwgWindow`. The parameter order of ``grads`` and of the update is
 :data:`PARAMETERS`.
 
@@ -72,7 +72,7 @@ def _lissajous_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, 
         row = rest[t, 0]
         for e in range(n_springs):
             s = amp[e] * (sin_t[t] * cph[e] + cos_t[t] * sph[e])
-            row[e] = l[e] * (one + s * driven[e])
+            row[e] = l[e] * (one + s * (one if driven[e] else zero))
     # 3: the body
     kernel._forward_serial(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verlet, clamp,
                            r_out, v_out, a_out, len_out)
@@ -106,6 +106,7 @@ def _lissajous_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, 
                            lam_r, lam_v, lam_a, g_kb, g_db, g_rest, g_ext)
     ok = True
     for e in range(n_springs):
+        mask = one if driven[e] else zero  # SineWaveGenerator: signal × driven (a bool mask as 1, 0)
         g_l = zero
         g_amp = zero
         acc_sin = zero
@@ -113,8 +114,8 @@ def _lissajous_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, 
         for t in range(n_steps):
             g = g_rest[t, 0, e]
             u = sin_t[t] * cph[e] + cos_t[t] * sph[e]
-            g_l += g * (one + (amp[e] * u) * driven[e])
-            gs = g * l[e] * driven[e]
+            g_l += g * (one + (amp[e] * u) * mask)
+            gs = g * l[e] * mask
             g_amp += gs * u
             gu = gs * amp[e]
             acc_sin += gu * sin_t[t]
