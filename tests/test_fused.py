@@ -207,3 +207,18 @@ def test_the_bench_runner_times_the_bench_workload():
     loss, final = window(state0)
     assert loss == pytest.approx(float(loss_ref.detach()), rel=1e-12)
     assert torch.allclose(final.r, final_ref.r, rtol=0, atol=1e-12)
+
+
+def test_the_bench_table_has_a_fused_row_with_its_ratios():
+    from bptsb_ros.bench import workload_table
+
+    def m(train):
+        return {"forward_steps_per_s": 10.0, "train_steps_per_s": train, "peak_rss_mib": 1.0}
+
+    report = {"workloads": {"lissajous": {"batch": 1, "torch": m(100.0), "numba": m(1000.0), "fused": m(8000.0),
+                                          "numba_over_torch": 10.0, "fused_over_numba": 8.0, "fused_over_torch": 80.0},
+                            "narma": {"batch": 1, "torch": m(1.0), "numba": m(2.0), "numba_over_torch": 2.0}}}
+    rows = workload_table(report).splitlines()
+    assert [r for r in rows if "fused" in r] == ["| lissajous | 1 | fused | 10.0 | 8000.0 | – | 80.0 (fused / numba "
+                                                 "8.0) | 1.0 |"]
+    assert len(rows) == 2 + 5

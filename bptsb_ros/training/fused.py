@@ -68,7 +68,8 @@ class FusedSwgWindow:
     :meth:`step` applies the SGD update of ``optimizer``'s groups in place.
 
     Args:
-        body, swg: the trained modules (their k, d, l, A, φ are updated in place).
+        body: the trained body (its k, d, l are updated in place).
+        swg: its SWG (amplitude A and phase φ updated in place).
         optimizer: plain SGD over (some of) those parameters; a parameter in no group is not trained.
         window: W, steps per window.
         target: (X, Y, α, β, δ, ω) of the Lissajous target x = X cos(αω t), y = Y sin(βω t + δ) [m, rad/s].
