@@ -222,3 +222,20 @@ def test_the_bench_table_has_a_fused_row_with_its_ratios():
     assert [r for r in rows if "fused" in r] == ["| lissajous | 1 | fused | 10.0 | 8000.0 | – | 80.0 (fused / numba "
                                                  "8.0) | 1.0 |"]
     assert len(rows) == 2 + 5
+
+
+def test_a_resumed_fused_run_equals_the_uninterrupted_one(tmp_path):
+    from bptsb_ros.training.checkpoint import read_checkpoint
+
+    changes = dict(training__reject_factor=2.0, training__lr__k=3e4)
+    full = train(_cfg(training__backend="fused", sim_time=4.0, **changes), tmp_path / "a", progress=False)
+    train(_cfg(training__backend="fused", sim_time=2.0, **changes), tmp_path / "b", progress=False)
+    resumed = train(_cfg(training__backend="fused", sim_time=4.0, **changes), tmp_path / "b", resume=True,
+                    progress=False)
+    assert len(full.losses) == 10 and np.array_equal(resumed.losses, full.losses)  # bit for bit
+    for name, p in _params(full.agent).items():
+        assert torch.equal(p, _params(resumed.agent)[name]), name
+    a, b = (read_checkpoint(tmp_path / x)["extra"]["task_state"] for x in ("a", "b"))
+    assert a["step"] == b["step"] == 400
+    for key in ("r", "v", "a", "length"):
+        assert torch.equal(a[key], b[key]), key
