@@ -239,3 +239,15 @@ def test_a_resumed_fused_run_equals_the_uninterrupted_one(tmp_path):
     assert a["step"] == b["step"] == 400
     for key in ("r", "v", "a", "length"):
         assert torch.equal(a[key], b[key]), key
+
+
+def test_the_feedback_layer_is_fitted_after_fused_training_as_after_numba_training():
+    # the FL is fitted outside every training window: the fused path applies with it enabled
+    runs = {b: train(_cfg(training__backend=b, sim_time=2.0, feedback__enabled=True, feedback__fit_time=5.0), None,
+                     progress=False) for b in ("numba", "fused")}
+    assert runs["fused"].metrics["backend"] == "fused" and "feedback_fit" in runs["fused"].metrics
+    w_ref, w = (runs[b].agent.feedback.weight.detach() for b in ("numba", "fused"))
+    assert float(w_ref.abs().max()) > 0
+    assert torch.allclose(w, w_ref, rtol=1e-9, atol=1e-12)
+    closed = [runs[b].metrics["evaluation"]["closed_loop_shift_min_mse"] for b in ("numba", "fused")]
+    assert closed[1] == pytest.approx(closed[0], rel=1e-9)
