@@ -251,3 +251,25 @@ def test_the_feedback_layer_is_fitted_after_fused_training_as_after_numba_traini
     assert torch.allclose(w, w_ref, rtol=1e-9, atol=1e-12)
     closed = [runs[b].metrics["evaluation"]["closed_loop_shift_min_mse"] for b in ("numba", "fused")]
     assert closed[1] == pytest.approx(closed[0], rel=1e-9)
+
+
+def test_the_bench_report_holds_the_fused_ratios_and_target(monkeypatch):
+    from bptsb_ros import bench, bench_mnist
+
+    planted = {"torch": 100.0, "numba": 1000.0, "fused": 4000.0}  # train steps/s: fused / numba 4 < 5
+
+    def fake(w, adjoint, dtype="float32", min_seconds=3.0, backend="torch", numba_cache=None):
+        rate = planted[backend] if adjoint else 50.0
+        return {"forward_steps_per_s": 1.0, "forward_body_steps_per_s": float(w.batch), "train_steps_per_s": rate,
+                "train_body_steps_per_s": rate * w.batch, "peak_rss_mib": 1.0, "first_call_s": 0.0}
+
+    monkeypatch.setattr(bench, "measure_isolated", fake)
+    monkeypatch.setattr(bench, "measure_compile", lambda min_seconds: {})
+    monkeypatch.setattr(bench, "_ipc_entry", lambda quick, progress: {})
+    monkeypatch.setattr(bench_mnist, "run_isolated", lambda quick: {"systems": {}})
+    report = bench.run_benchmarks(quick=True, progress=lambda _: None)
+    liss = report["workloads"]["lissajous"]
+    assert liss["fused"]["train_steps_per_s"] == 4000.0
+    assert liss["fused_over_numba"] == 4.0 and liss["fused_over_torch"] == 40.0
+    assert all("fused" not in e for n, e in report["workloads"].items() if n != "lissajous")
+    assert report["targets"]["lissajous_fused_over_numba_train"] == {"target": 5.0, "measured": 4.0, "met": False}
