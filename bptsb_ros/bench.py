@@ -123,13 +123,13 @@ def fused_runner(w: Workload, dtype: torch.dtype):
     """The workload of :func:`_setup` (numba body, same parameters, rates and start) on the fused path: the same
     loss, mean of CMP², is the fused Lissajous loss with a zero target. Returns (window(state) → (loss, final),
     step(), start state)."""
-    from bptsb_ros.training.fused import FusedSwgWindow
+    from bptsb_ros.training.fused import FusedSwgWindow, LissajousLoss
 
     if w.brain != "swg" or w.batch != 1:
         raise ValueError(f"the fused path trains one SWG body; workload {w.name} has brain {w.brain}, batch {w.batch}")
     body, opt, state0, run_window = _setup(w, True, dtype, "numba")
     swg = run_window.swg
-    fused = FusedSwgWindow(body, swg, opt, w.window, (0.0, 0.0, 1.0, 1.0, 0.0, swg.omega), body.cmp_local)
+    fused = FusedSwgWindow(body, swg, opt, w.window, LissajousLoss(0.0, 0.0, 1.0, 1.0, 0.0, swg.omega, body.cmp_local))
 
     def window(state):
         loss, _ok, final = fused.window(state)

@@ -16,7 +16,7 @@ from bptsb_ros.agent import build_agent
 from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.config import ConfigError, ExperimentConfig, validate
 from bptsb_ros.tasks import get_task
-from bptsb_ros.training.fused import PARAMETERS, FusedSwgWindow, fused_training, fused_unsupported
+from bptsb_ros.training.fused import PARAMETERS, FusedSwgWindow, LissajousLoss, fused_training, fused_unsupported
 from bptsb_ros.training.optim import make_optimizer
 from bptsb_ros.training.trainer import train
 
@@ -90,8 +90,8 @@ def test_one_window_loss_and_gradients_equal_the_autograd_paths(reference, omega
 
 def test_gradients_match_central_finite_differences():
     agent, task, opt = _build(_cfg(training__backend="fused"))
-    fused = FusedSwgWindow(agent.body, agent.brain, opt, 40, (0.2, 0.2, 1.0, 2.0, 0.0, 2 * math.pi),
-                           agent.body.cmp_local)
+    fused = FusedSwgWindow(agent.body, agent.brain, opt, 40,
+                           LissajousLoss(0.2, 0.2, 1.0, 2.0, 0.0, 2 * math.pi, agent.body.cmp_local))
     state = task.state
     fused.window(state)
     grads = fused.gradients()
@@ -175,7 +175,9 @@ def test_unsupported_configs_fall_back_with_one_line(capsys):
     loco = validate({"task": "locomotion", "body": {"shape": "caterpillar", "nodes": 10},
                      "training": {"update_steps": 200, "backend": "fused"}})
     _, task, opt = _build(loco)
-    assert "not 'locomotion'" in fused_unsupported(task, opt)
+    assert fused_unsupported(task, opt) is None  # locomotion is covered
+    _, task, opt = _build(validate({"task": "narma", "brain": {"type": "lil"}, "training": {"backend": "fused"}}))
+    assert "not 'narma'" in fused_unsupported(task, opt)
     _, task, opt = _build(_cfg(training__backend="fused"))
     assert fused_unsupported(task, opt) is None
     assert "adjoint" in fused_unsupported(task, opt, adjoint=False)
@@ -273,3 +275,52 @@ def test_the_bench_report_holds_the_fused_ratios_and_target(monkeypatch):
     assert liss["fused_over_numba"] == 4.0 and liss["fused_over_torch"] == 40.0
     assert all("fused" not in e for n, e in report["workloads"].items() if n != "lissajous")
     assert report["targets"]["lissajous_fused_over_numba_train"] == {"target": 5.0, "measured": 4.0, "met": False}
+
+
+#: a small locomotion run as config/locomotion_forward.yaml (caterpillar, environment, the floor that gives traction,
+#: its rates) with 40-step windows of two 20-step speed blocks and two warm-up windows
+LOCO = {"task": "locomotion", "dtype": "float64",
+        "body": {"shape": "caterpillar", "nodes": 10, "environment": "locomotion", "ground_clamp": True},
+        "brain": {"amplitude": 0.4}, "training": {"update_steps": 40}, "feedback": {"enabled": False},
+        "locomotion": {"speed_block": 20, "warmup_windows": 2, "eval_time": 0.5}}
+LOCO_LR = {"k": 1e2, "d": 1.0, "l": 0.1, "amplitude": 1e-3, "phase": 1e-2}
+LOCO_CASES = {  # name: overrides — the ramp (ours), the published velocity, headwind blowing half of every 0.3 s
+    "ramp": {},
+    "before_velocity": {"locomotion": {"loss_velocity": "before", "target_slope": 0.002}},
+    "periodic_headwind": {"locomotion": {"wind_force": -0.7, "wind_period": 0.3, "target_speed": 0.05}},
+}
+
+
+def _loco(name: str, **top) -> ExperimentConfig:
+    data = {key: (dict(value) if isinstance(value, dict) else value) for key, value in LOCO.items()}
+    for section, values in {**LOCO_CASES[name], **top}.items():
+        if isinstance(values, dict):
+            data[section] = {**data.get(section, {}), **values}
+        else:
+            data[section] = values
+    return validate(data)
+
+
+@pytest.mark.parametrize("case", list(LOCO_CASES))
+def test_locomotion_window_loss_and_gradients_equal_the_autograd_paths(case):
+    loss, grads, state = _fused_window(_loco(case, training={"update_steps": 40, "backend": "fused"}), windows=2)
+    for reference in ("torch", "numba"):
+        cfg = _loco(case, training={"update_steps": 40, "backend": reference, "adjoint": reference != "torch"})
+        loss_ref, grads_ref, state_ref = _autograd_window(cfg, windows=2)
+        assert loss == pytest.approx(loss_ref, rel=1e-12, abs=0), reference
+        for name in PARAMETERS:
+            scale = float(grads_ref[name].abs().max())
+            assert scale > 0, (reference, name)
+            assert float((grads[name] - grads_ref[name]).abs().max()) <= 1e-12 * scale, (reference, name)
+        assert torch.allclose(state.v, state_ref.v, rtol=0, atol=1e-12) and state.step == state_ref.step == 160
+
+
+def test_locomotion_training_gives_the_numba_paths_parameters():
+    changes = {"sim_time": 4.0, "training": {"update_steps": 40, "reject_factor": 3.0, "lr": LOCO_LR}}
+    runs = {b: train(_loco("periodic_headwind", **{**changes, "training": {**changes["training"], "backend": b}}),
+                     None, progress=False) for b in ("numba", "fused")}
+    assert runs["fused"].metrics["backend"] == "fused" and len(runs["fused"].losses) == 10
+    np.testing.assert_allclose(runs["fused"].losses, runs["numba"].losses, rtol=1e-10, atol=0)
+    for name, p in _params(runs["fused"].agent).items():
+        p, q = p.detach(), _params(runs["numba"].agent)[name].detach()
+        assert float((p - q).abs().max()) <= 1e-10 * max(1.0, float(q.abs().max())), name

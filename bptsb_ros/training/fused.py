@@ -18,6 +18,7 @@ the numba path, and the trainer says so in one line (:func:`fused_unsupported`).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -35,9 +36,11 @@ _SGD_DEFAULTS = {"momentum": 0, "dampening": 0, "weight_decay": 0, "nesterov": F
 def fused_unsupported(task, optimizer: torch.optim.Optimizer, *, adjoint: bool = True) -> str | None:
     """Why the fused path cannot train ``task`` with ``optimizer`` (one phrase), or None when it can."""
     from bptsb_ros.tasks.lissajous import LissajousTask
+    from bptsb_ros.tasks.locomotion import LocomotionTask
 
-    if type(task) is not LissajousTask:
-        return f"it covers the Lissajous single-curve task, not {getattr(task, 'name', type(task).__name__)!r}"
+    if type(task) not in (LissajousTask, LocomotionTask):
+        return (f"it covers the Lissajous single-curve and locomotion tasks, not "
+                f"{getattr(task, 'name', type(task).__name__)!r}")
     if not adjoint:
         return "training.adjoint is false (plain autograd was asked for)"
     return _optimizer_unsupported(optimizer) or _body_unsupported(task.agent.body, task.agent.brain)
@@ -63,6 +66,35 @@ def _body_unsupported(body: MSDN, brain) -> str | None:
     return None
 
 
+@dataclass(frozen=True)
+class LissajousLoss:
+    """``LissajousTask``'s loss: mean over the window's steps and x, y of (CMP − target)², target x = X cos(αω t),
+    y = Y sin(βω t + δ) [m; ω rad/s]; ``cmp``: the CMP's row among the movable masses."""
+
+    x_amp: float
+    y_amp: float
+    alpha: float
+    beta: float
+    delta: float
+    omega: float
+    cmp: int
+
+
+@dataclass(frozen=True)
+class LocomotionLoss:
+    """``LocomotionTask``'s loss: mean over blocks of ``block`` steps of (block-mean of the mean x-velocity −
+    target)²; target = ``target_speed`` [m/s] when given, else ``slope`` × (block end − training's first step)·Δt;
+    ``before``: each step's velocity before its update (the published code); ``wind_force`` [N] along x on every
+    mass while the wind blows (``wind_period`` [s]: calm for its first half; 0: always)."""
+
+    block: int
+    slope: float
+    target_speed: float | None
+    before: bool
+    wind_force: float
+    wind_period: float
+
+
 class FusedSwgWindow:
     """One body (batch 1) and its SWG trained window by window: :meth:`window` measures loss and gradients,
     :meth:`step` applies the SGD update of ``optimizer``'s groups in place.
@@ -72,20 +104,35 @@ class FusedSwgWindow:
         swg: its SWG (amplitude A and phase φ updated in place).
         optimizer: plain SGD over (some of) those parameters; a parameter in no group is not trained.
         window: W, steps per window.
-        target: (X, Y, α, β, δ, ω) of the Lissajous target x = X cos(αω t), y = Y sin(βω t + δ) [m, rad/s].
-        cmp: the CMP's row among the movable masses.
+        loss: the task's loss (:class:`LissajousLoss` or :class:`LocomotionLoss`).
     """
 
     def __init__(self, body: MSDN, swg: SineWaveGenerator, optimizer: torch.optim.Optimizer, window: int,
-                 target: tuple[float, float, float, float, float, float], cmp: int) -> None:
+                 loss: LissajousLoss | LocomotionLoss) -> None:
         why = _optimizer_unsupported(optimizer) or _body_unsupported(body, swg)
         if why:
             raise ValueError(f"the fused path cannot train this: {why}")
-        if cmp < 0:
-            raise ValueError("the fused Lissajous window needs a body with a central mass point")
         if window < 1:
             raise ValueError(f"window must be >= 1 step, got {window}")
-        self.body, self.swg, self.optimizer, self.steps, self.cmp = body, swg, optimizer, int(window), int(cmp)
+        w, m, e = int(window), body.n_movable, body.topology.n_springs
+        wind = False
+        if isinstance(loss, LissajousLoss):
+            if not 0 <= loss.cmp < m:
+                raise ValueError("the fused Lissajous window needs a body with a central mass point")
+            self.kind, self.cmp = fused_kernel.LISSAJOUS, int(loss.cmp)
+            self.target = np.array([loss.x_amp, loss.y_amp, loss.alpha * loss.omega, loss.beta * loss.omega,
+                                    loss.delta, body.dt], dtype=np.float64)
+            scales = (1.0 / (2 * w), 0.0, 0.0)
+        else:
+            if loss.block < 1 or w % loss.block:
+                raise ValueError(f"the window ({w} steps) must be a whole number of speed blocks ({loss.block})")
+            self.kind, self.cmp, wind = fused_kernel.LOCOMOTION, 0, loss.wind_force != 0
+            constant = math.nan if loss.target_speed is None else float(loss.target_speed)
+            #: [block, training's first step (set by the caller), slope, Δt, constant, before, wind, wind period]
+            self.target = np.array([loss.block, 0.0, loss.slope, body.dt, constant, float(loss.before),
+                                    loss.wind_force, loss.wind_period], dtype=np.float64)
+            scales = (1.0 / (w // loss.block), float(loss.block), float(m))
+        self.body, self.swg, self.optimizer, self.steps = body, swg, optimizer, w
         self.tensors = (body.k, body.d, body.l, swg.amplitude, swg.phase)
         self.dtype = body.k.dtype
         np_dtype = _NUMPY[self.dtype]
@@ -106,30 +153,30 @@ class FusedSwgWindow:
         n = steps_per_period(swg.omega, body.dt)
         self.clock = np.array([0.0 if n is None else float(n), 0.0 if n is None else 2 * math.pi / n,
                                swg.omega * body.dt / (2 * math.pi)], dtype=np.float64)
-        x_amp, y_amp, alpha, beta, delta, omega = (float(v) for v in target)
-        self.target = np.array([x_amp, y_amp, alpha * omega, beta * omega, delta, body.dt], dtype=np.float64)
-        w, m, e = self.steps, body.n_movable, body.topology.n_springs
         z = np.zeros
+        lissajous = self.kind == fused_kernel.LISSAJOUS
         self.work = {
-            "rest": z((w, 1, e), np_dtype), "ext": z((w, 0, m, 2), np_dtype),
+            "rest": z((w, 1, e), np_dtype), "ext": z((w, 1 if wind else 0, m, 2), np_dtype),
             "r_out": z((w, 1, m, 2), np_dtype), "v_out": z((w, 1, m, 2), np_dtype),
             "a_out": z((w, 1, m, 2), np_dtype), "len_out": z((w, 1, e), np_dtype),
-            "g_r": z((w, 1, m, 2), np_dtype), "g_none4": z((0, 0, 0, 0), np_dtype), "g_none3": z((0, 0, 0), np_dtype),
+            "g_r": z((w if lissajous else 0, 1, m, 2), np_dtype), "g_v": z((0 if lissajous else w, 1, m, 2), np_dtype),
+            "g_none4": z((0, 0, 0, 0), np_dtype), "g_none3": z((0, 0, 0), np_dtype),
             "lam_r": z((1, m, 2), np_dtype), "lam_v": z((1, m, 2), np_dtype), "lam_a": z((1, m, 2), np_dtype),
             "g_kb": z((1, e), np_dtype), "g_db": z((1, e), np_dtype), "g_rest": z((w, 1, e), np_dtype),
-            "g_ext": z((0, 0, 0, 0), np_dtype),
+            "g_ext": z((w, 1, m, 2) if wind else (0, 0, 0, 0), np_dtype),
             "sin_t": z(w, np_dtype), "cos_t": z(w, np_dtype), "cph": z(e, np_dtype), "sph": z(e, np_dtype),
             "tgt": z((w, 2), np_dtype),
         }
         #: the last window's gradients (5, E), rows in ``PARAMETERS`` order
         self.grads = z((len(PARAMETERS), e), np_dtype)
         self.out = z(3, np.float64)
-        self.unit = np.array([0.0, 1.0, 2.0, 1.0 / (2 * w)], dtype=np_dtype)
+        self.unit = np.array([0.0, 1.0, 2.0, *scales], dtype=np_dtype)
         _, _, offset, mass, coef = body.kernel_constants(self.dtype)  # copies of buffers that training never changes
-        self._fixed = (self.clock, self.target, self.cmp, coef.copy(), self.unit, body.integrator == "verlet",
-                       bool(body.environment.ground_clamp), body.spring_i, body.spring_j, offset.copy(), mass.copy())
+        self._fixed = (self.kind, self.clock, self.target, self.cmp, coef.copy(), self.unit,
+                       body.integrator == "verlet", bool(body.environment.ground_clamp), body.spring_i, body.spring_j,
+                       offset.copy(), mass.copy())
         self._work_args = tuple(self.work[key] for key in (
-            "rest", "ext", "r_out", "v_out", "a_out", "len_out", "g_r", "g_none4", "g_none3", "lam_r", "lam_v",
+            "rest", "ext", "r_out", "v_out", "a_out", "len_out", "g_r", "g_v", "g_none4", "g_none3", "lam_r", "lam_v",
             "lam_a", "g_kb", "g_db", "g_rest", "g_ext", "sin_t", "cos_t", "cph", "sph", "tgt"))
         self._views_key: tuple[int, ...] | None = None
         self._views_cache: tuple[np.ndarray, ...] = ()
@@ -160,8 +207,8 @@ class FusedSwgWindow:
         (``MSDN.check_finite``'s message) and leaves nothing changed."""
         body, w = self.body, self.work
         r0, v0, a0 = self._start(state)
-        fused_kernel.lissajous_window(r0, v0, a0, *self._views(), self.swg.driven.numpy(), int(state.step),
-                                      *self._fixed, *self._work_args, self.grads, self.out)
+        fused_kernel.swg_window(r0, v0, a0, *self._views(), self.swg.driven.numpy(), int(state.step),
+                                *self._fixed, *self._work_args, self.grads, self.out)
         last = tuple(w[key][-1].copy() for key in ("r_out", "v_out", "a_out", "len_out"))
         final = BodyState(*(torch.from_numpy(x) for x in last), state.step + self.steps)
         if not self.out[OUT_STATE_OK]:
@@ -182,20 +229,33 @@ class FusedSwgWindow:
         return {name: torch.from_numpy(self.grads[i].copy()) for i, name in enumerate(PARAMETERS)}
 
 
-class FusedLissajousTraining:
-    """The fused path driving a ``LissajousTask``: :meth:`update_loss` runs the task's next window (advancing its
-    carried state as ``SwgWindowTask.run_window`` does) and returns (loss, gradients finite); :meth:`step` updates."""
+class FusedSwgTraining:
+    """The fused path driving a ``LissajousTask`` or ``LocomotionTask``: :meth:`update_loss` runs the task's next
+    window (advancing its carried state as ``SwgWindowTask.run_window`` does; locomotion: after its warm-up,
+    ``task.prepare``) and returns (loss, gradients finite); :meth:`step` updates."""
 
     def __init__(self, task, optimizer: torch.optim.Optimizer) -> None:
+        from bptsb_ros.tasks.lissajous import LissajousTask
+
         agent = task.agent
-        lc, brain, body = agent.config["lissajous"], agent.config["brain"], agent.config["body"]
-        amp = float(lc["amplitude_fraction"]) * float(body["size"])  # as tasks.lissajous.target_from_config
-        target = (amp, amp, float(lc["alpha"]), float(lc["beta"]), float(lc["delta"]), float(brain["omega"]))
-        self.task = task
-        self.fused = FusedSwgWindow(agent.body, agent.brain, optimizer, task.window, target, agent.body.cmp_local)
+        loss: LissajousLoss | LocomotionLoss
+        if isinstance(task, LissajousTask):
+            lc, brain, body = agent.config["lissajous"], agent.config["brain"], agent.config["body"]
+            amp = float(lc["amplitude_fraction"]) * float(body["size"])  # as tasks.lissajous.target_from_config
+            loss = LissajousLoss(amp, amp, float(lc["alpha"]), float(lc["beta"]), float(lc["delta"]),
+                                 float(brain["omega"]), agent.body.cmp_local)
+        else:
+            loc = task.cfg.locomotion
+            loss = LocomotionLoss(loc.speed_block, loc.target_slope, loc.target_speed, loc.loss_velocity == "before",
+                                  loc.wind_force, loc.wind_period)
+        self.task, self.locomotion = task, isinstance(loss, LocomotionLoss)
+        self.fused = FusedSwgWindow(agent.body, agent.brain, optimizer, task.window, loss)
 
     def update_loss(self, index: int) -> tuple[float, bool]:
         del index
+        if self.locomotion:
+            self.task.prepare()  # the warm-up windows, once (idempotent)
+            self.fused.target[1] = float(self.task.train_start_step)
         loss, grads_ok, final = self.fused.window(self.task.state)
         self.task.state = final
         return loss, grads_ok
@@ -205,7 +265,7 @@ class FusedLissajousTraining:
 
 
 def fused_training(task, optimizer: torch.optim.Optimizer, *, adjoint: bool = True
-                   ) -> tuple[FusedLissajousTraining | None, str | None]:
+                   ) -> tuple[FusedSwgTraining | None, str | None]:
     """The fused path for ``task`` (and the reason it is None when the task or optimiser is not covered)."""
     why = fused_unsupported(task, optimizer, adjoint=adjoint)
-    return (None, why) if why else (FusedLissajousTraining(task, optimizer), None)
+    return (None, why) if why else (FusedSwgTraining(task, optimizer), None)

@@ -40,22 +40,28 @@ from bptsb_ros.body.kernel import _JIT, _renamed
 
 #: the trained parameters, in the order of ``grads`` rows and of the SGD rates
 PARAMETERS = ("k", "d", "l", "amplitude", "phase")
+#: the losses: ``kind`` 0 Lissajous, 1 locomotion
+LISSAJOUS, LOCOMOTION = 0, 1
 #: ``clock``: [N (0: the period is no whole number of steps), 2π/N, cycles per step ωΔt/2π]
-#: ``target``: [X, Y, αω, βω, δ, Δt]; ``out`` after a window: [loss, state finite, grads finite]
+#: ``target``, Lissajous: [X, Y, αω, βω, δ, Δt]; locomotion: [block, training's first step, slope, Δt, constant
+#: target speed (NaN: the ramp), 1 if the loss reads each step's velocity before its update, wind force, wind period]
+#: ``out`` after a window: [loss, state finite, grads finite]
 OUT_LOSS, OUT_STATE_OK, OUT_GRADS_OK = 0, 1, 2
 #: the divergence limit of ``MSDN.check_finite`` [m]
 POSITION_LIMIT = 1e6
 
 
-def _lissajous_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, clock, target, cmp, coef, unit,
-                           verlet, clamp, si, sj, offset, mass, rest, ext, r_out, v_out, a_out, len_out,
-                           g_r, g_none4, g_none3, lam_r, lam_v, lam_a, g_kb, g_db, g_rest, g_ext,
-                           sin_t, cos_t, cph, sph, tgt, grads, out):  # pragma: no cover - compiled
+def _swg_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, kind, clock, target, cmp, coef, unit,
+                     verlet, clamp, si, sj, offset, mass, rest, ext, r_out, v_out, a_out, len_out,
+                     g_r, g_v, g_none4, g_none3, lam_r, lam_v, lam_a, g_kb, g_db, g_rest, g_ext,
+                     sin_t, cos_t, cph, sph, tgt, grads, out):  # pragma: no cover - compiled
+    """One window: rest lengths, (wind,) body, loss, gradients. ``g_r`` (Lissajous) or ``g_v`` (locomotion) is the
+    (W, 1, M, 2) loss gradient buffer, the other a 0-step array; ``ext`` (W, 1, M, 2) is filled with the wind when
+    it has a batch axis of 1 (locomotion with wind), else (W, 0, M, 2)."""
     n_steps, n_springs, n_mov = rest.shape[0], k.shape[0], r0.shape[1]
     zero, one, two, inv_n = unit[0], unit[1], unit[2], unit[3]
     period, step_angle, cycles_per_step = clock[0], clock[1], clock[2]
     n_period = np.int64(period)
-    x_amp, y_amp, ax, by, delta, dt = target[0], target[1], target[2], target[3], target[4], target[5]
     # 1-2: clock, SWG signal, rest lengths
     for e in range(n_springs):
         cph[e] = math.cos(phase[e])
@@ -73,6 +79,14 @@ def _lissajous_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, 
         for e in range(n_springs):
             s = amp[e] * (sin_t[t] * cph[e] + cos_t[t] * sph[e])
             row[e] = l[e] * (one + s * (one if driven[e] else zero))
+    if kind == LOCOMOTION and ext.shape[1] > 0:  # tasks.locomotion.wind_blowing: calm, then blowing, per period
+        dt, wind, wind_period = target[3], target[6], target[7]
+        for t in range(n_steps):
+            tt = np.float64(first_step + 1 + t) * dt
+            on = wind_period <= 0 or (tt + 0.5 * dt) % wind_period >= 0.5 * wind_period
+            for m in range(n_mov):
+                ext[t, 0, m, 0] = wind if on else 0.0
+                ext[t, 0, m, 1] = 0.0
     # 3: the body
     kernel._forward_serial(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verlet, clamp,
                            r_out, v_out, a_out, len_out)
@@ -89,20 +103,14 @@ def _lissajous_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, 
         out[OUT_LOSS] = np.nan
         out[OUT_GRADS_OK] = 0.0
         return
-    # 4: loss and its gradient on the CMP rows (the other rows of g_r stay zero)
-    total = 0.0
-    for t in range(n_steps):
-        tt = np.float64(first_step + 1 + t) * dt
-        tgt[t, 0] = x_amp * math.cos(ax * tt)
-        tgt[t, 1] = y_amp * math.sin(by * tt + delta)
-        for c in range(2):
-            diff = r_out[t, 0, cmp, c] - tgt[t, c]
-            total += np.float64(diff) * np.float64(diff)
-            g_r[t, 0, cmp, c] = inv_n * (two * diff)
-    out[OUT_LOSS] = total / (2 * n_steps)
+    # 4: loss and its gradient (the rows of g_r / g_v the loss does not read stay zero)
+    if kind == LISSAJOUS:
+        out[OUT_LOSS] = _lissajous_loss(r_out, first_step, target, cmp, inv_n, two, tgt, g_r)
+    else:
+        out[OUT_LOSS] = _locomotion_loss(v0, v_out, first_step, target, unit, tgt, g_v)
     # 5: the body's adjoint, then through the SWG
-    kernel._adjoint_serial(r0, v0, a0, k, d, rest, 0, si, sj, offset, mass, coef, verlet, clamp,
-                           r_out, v_out, a_out, len_out, g_r, g_none4, g_none4, g_none3,
+    kernel._adjoint_serial(r0, v0, a0, k, d, rest, ext.shape[1], si, sj, offset, mass, coef, verlet, clamp,
+                           r_out, v_out, a_out, len_out, g_r, g_v, g_none4, g_none3,
                            lam_r, lam_v, lam_a, g_kb, g_db, g_rest, g_ext)
     ok = True
     for e in range(n_springs):
@@ -131,6 +139,56 @@ def _lissajous_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, 
     out[OUT_GRADS_OK] = 1.0 if ok else 0.0
 
 
+def _lissajous_loss_impl(r_out, first_step, target, cmp, inv_n, two, tgt, g_r):  # pragma: no cover - compiled
+    """mean over steps and x, y of (CMP − target)² (returned, accumulated in float64); writes ∂L/∂r on the CMP rows."""
+    n_steps = r_out.shape[0]
+    x_amp, y_amp, ax, by, delta, dt = target[0], target[1], target[2], target[3], target[4], target[5]
+    total = 0.0
+    for t in range(n_steps):
+        tt = np.float64(first_step + 1 + t) * dt
+        tgt[t, 0] = x_amp * math.cos(ax * tt)
+        tgt[t, 1] = y_amp * math.sin(by * tt + delta)
+        for c in range(2):
+            diff = r_out[t, 0, cmp, c] - tgt[t, c]
+            total += np.float64(diff) * np.float64(diff)
+            g_r[t, 0, cmp, c] = inv_n * (two * diff)
+    return total / (2 * n_steps)
+
+
+def _locomotion_loss_impl(v0, v_out, first_step, target, unit, tgt, g_v):  # pragma: no cover - compiled
+    """``LocomotionTask``'s loss: mean over blocks of (block-mean of the mean x-velocity − target)² (returned, in
+    float64); writes ∂L/∂v' on the x rows. ``unit``: [0, 1, 2, 1/blocks, block, M] in the model dtype."""
+    n_steps, n_mov = v_out.shape[0], v_out.shape[2]
+    zero, two, inv_blocks, block_f, n_mov_f = unit[0], unit[2], unit[3], unit[4], unit[5]
+    block = np.int64(target[0])
+    start, slope, dt, constant, before = target[1], target[2], target[3], target[4], target[5] > 0
+    total = 0.0
+    for b in range(n_steps // block):
+        speed = zero
+        for t in range(b * block, (b + 1) * block):
+            s = zero
+            for m in range(n_mov):
+                if before:
+                    s += v0[0, m, 0] if t == 0 else v_out[t - 1, 0, m, 0]
+                else:
+                    s += v_out[t, 0, m, 0]
+            speed += s / n_mov_f
+        speed = speed / block_f
+        if math.isnan(constant):  # the ramp: slope × (block end − training's first step) × Δt
+            tgt[b, 0] = slope * (np.float64(first_step + block * (b + 1)) - start) * dt
+        else:
+            tgt[b, 0] = constant
+        diff = speed - tgt[b, 0]
+        total += np.float64(diff) * np.float64(diff)
+        g_step = inv_blocks * (two * diff) / block_f / n_mov_f
+        for t in range(b * block, (b + 1) * block):
+            row = t - 1 if before else t
+            if row >= 0:
+                for m in range(n_mov):
+                    g_v[row, 0, m, 0] = g_step
+    return total / (n_steps // block)
+
+
 def _sgd_impl(k, d, l, amp, phase, grads, lr, active):  # pragma: no cover - compiled
     """p ← p − lr_p·∂L/∂p for every active parameter (``PARAMETERS`` order), then k, d, l ← max(·, 0) (NaN kept:
     ``torch.clamp_``), in place. ``lr``: (5,) in the parameters' dtype; ``active``: (5,) bool."""
@@ -148,5 +206,7 @@ def _sgd_impl(k, d, l, amp, phase, grads, lr, active):  # pragma: no cover - com
 
 
 _TAG = "_" + hashlib.sha256(Path(kernel.__file__).read_bytes()).hexdigest()[:12]
-lissajous_window = njit(**_JIT)(_renamed(_lissajous_window_impl, _TAG))
+_lissajous_loss = njit(**_JIT)(_lissajous_loss_impl)
+_locomotion_loss = njit(**_JIT)(_locomotion_loss_impl)
+swg_window = njit(**_JIT)(_renamed(_swg_window_impl, _TAG))
 sgd_update = njit(**_JIT)(_renamed(_sgd_impl, _TAG))
