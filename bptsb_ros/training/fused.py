@@ -1,4 +1,4 @@
-"""The fused training path (``training.backend: fused``): a Lissajous training window — SWG rest lengths, body,
+"""The fused training path (``training.backend: fused``): an SWG training window — SWG rest lengths, body,
 loss and the gradient of every trained parameter — as one numba call, and the SGD update of every parameter
 group, with the projection of k, d, l onto [0, ∞), as another (:mod:`bptsb_ros.training.fused_kernel`).
 
@@ -8,11 +8,13 @@ restores and divides the rates exactly as on the other paths (the rates are read
 every update). The equations and their order are the numba path's; results agree with it to rounding
 (tests/test_fused.py: gradients to 1e-12 in float64, parameters after many updates to 1e-10).
 
-What it covers: the Lissajous single-curve task (``LissajousTask``) with SGD (no momentum, weight decay,
-dampening or Nesterov) and the hand-derived adjoint, on CPU. The feedback layer of a Lissajous agent is fitted
-after training, outside every training window, so it does not stand in the way. Anything else —
-locomotion (its speed loss, wind and warm-up), switching, NARMA, Adam, ``training.adjoint: false`` — trains on
-the numba path, and the trainer says so in one line (:func:`fused_unsupported`).
+What it covers: the Lissajous single-curve task (``LissajousTask``: CMP position loss) and locomotion
+(``LocomotionTask``: the speed-block loss, its ramp or constant target, velocity after or before each step's
+update, the periodic headwind, the warm-up), with SGD (no momentum, weight decay, dampening or Nesterov) and the
+hand-derived adjoint, on CPU. The feedback layer of an SWG agent is fitted after training, outside every training
+window, so it does not stand in the way. Anything else — Lissajous switching (its own training loop), NARMA and
+MNIST, Adam, ``training.adjoint: false`` — trains on the numba path, and the trainer says so in one line
+(:func:`fused_unsupported`).
 """
 
 from __future__ import annotations

@@ -9,9 +9,11 @@ torch or autograd, what the numba path does through ~40 torch calls and the auto
 2. the rest lengths l_te = l_e·(1 + m_e·A_e·(sin θ_t cos φ_e + cos θ_t sin φ_e)) (``SineWaveGenerator``,
    m: the driven mask), in the model dtype;
 3. the body over the window (``kernel._forward_serial``, the numba path's own forward);
-4. the Lissajous loss L = mean over steps and x, y of (CMP − target)², the target x = X cos(αω t),
-   y = Y sin(βω t + δ) at t = k_t·Δt in float64 cast to the model dtype (``tasks/lissajous.py``), and its
-   gradient ∂L/∂r = (1/2W)·2(CMP − target) on the CMP rows;
+4. the task's loss and its gradient w.r.t. the trajectory: Lissajous, L = mean over steps and x, y of
+   (CMP − target)², the target x = X cos(αω t), y = Y sin(βω t + δ) at t = k_t·Δt in float64 cast to the model
+   dtype (``tasks/lissajous.py``), ∂L/∂r = (1/2W)·2(CMP − target) on the CMP rows; locomotion
+   (``tasks/locomotion.py``), L = mean over blocks of (block-mean of the mean x-velocity − target)², ∂L/∂v' on
+   the x rows (with the periodic headwind written into the external forces before step 3);
 5. the body's adjoint (``kernel._adjoint_serial``) → ∂L/∂k, ∂L/∂d and ∂L/∂l_te, and through step 2
    ∂L/∂l_e = Σ_t ∂L/∂l_te (1 + s_te), ∂L/∂A_e = Σ_t g_te u_te, ∂L/∂φ_e = −sin φ_e Σ_t g_te A_e sin θ_t +
    cos φ_e Σ_t g_te A_e cos θ_t with g_te = ∂L/∂l_te · l_e · m_e, u_te = sin θ_t cos φ_e + cos θ_t sin φ_e.
