@@ -324,3 +324,16 @@ def test_locomotion_training_gives_the_numba_paths_parameters():
     for name, p in _params(runs["fused"].agent).items():
         p, q = p.detach(), _params(runs["numba"].agent)[name].detach()
         assert float((p - q).abs().max()) <= 1e-10 * max(1.0, float(q.abs().max())), name
+
+
+def test_only_the_trained_parameters_gradients_must_be_finite():
+    # as UpdateGuard.gradients_finite: a parameter outside the optimiser (lr 0) does not count
+    _, task, opt = _build(_cfg(training__backend="fused", training__lr__amplitude=0.0))
+    fused, _ = fused_training(task, opt)
+    _, ok = fused.update_loss(0)
+    assert ok and fused.fused.gradients_finite()
+    rows = {name: i for i, name in enumerate(PARAMETERS)}
+    fused.fused.grads[rows["amplitude"], 2] = math.nan  # planted: not trained
+    assert fused.fused.gradients_finite()
+    fused.fused.grads[rows["phase"], 2] = math.inf  # planted: trained
+    assert not fused.fused.gradients_finite()

@@ -217,7 +217,13 @@ class FusedSwgWindow:
             body.check_finite(final)  # raises with the step and the parameter ranges
             raise AssertionError("the fused window flagged a state that MSDN.check_finite accepts")
         self._last = (final, last[:3])
-        return float(self.out[OUT_LOSS]), bool(self.out[OUT_GRADS_OK]), final
+        grads_ok = bool(self.out[OUT_GRADS_OK]) or self.gradients_finite()  # the kernel checks all five
+        return float(self.out[OUT_LOSS]), grads_ok, final
+
+    def gradients_finite(self) -> bool:
+        """True when the last window's gradients of the optimiser's parameters are finite (as
+        ``UpdateGuard.gradients_finite``: a parameter in no group does not count)."""
+        return bool(np.isfinite(self.grads[self.active]).all())
 
     def step(self) -> None:
         """SGD with each group's current rate on the last window's gradients, then k, d, l ← max(·, 0)."""
