@@ -337,3 +337,33 @@ def test_only_the_trained_parameters_gradients_must_be_finite():
     assert fused.fused.gradients_finite()
     fused.fused.grads[rows["phase"], 2] = math.inf  # planted: trained
     assert not fused.fused.gradients_finite()
+
+
+@pytest.mark.parametrize("published", [False, True], ids=["wind", "published-wind"])
+def test_switching_training_gives_the_numba_paths_losses_and_parameters(published):
+    from bptsb_ros.tasks.lissajous_switching import (
+        CURVE_1,
+        CURVE_SWITCH,
+        switch_targets,
+        train_switching,
+        wind_schedule,
+    )
+
+    schedule = wind_schedule(400, 100, np.random.default_rng(3), hold_periods=(1, 1))
+    assert 0 < schedule.mean() < 1  # the wind blows part of the time
+    target = switch_targets(CURVE_1, CURVE_SWITCH, 0.2, 2 * math.pi, 0.1)
+    runs = {}
+    for backend in ("numba", "fused"):
+        agent, task, _ = _build(_cfg(training__backend=backend))
+        runs[backend] = (agent, train_switching(agent, task.state, schedule, target, window=40, reject_factor=2.0,
+                                                published_wind=published))
+    (ref_agent, ref), (agent, res) = runs["numba"], runs["fused"]
+    assert len(res.losses) == 10
+    np.testing.assert_allclose(res.losses, ref.losses, rtol=1e-10, atol=0)
+    assert [e["update"] for e in res.guard["events"]] == [e["update"] for e in ref.guard["events"]]
+    for name, p in _params(agent).items():
+        p, q = p.detach(), _params(ref_agent)[name].detach()
+        assert not torch.equal(q, _params(_build(_cfg())[0])[name].detach()), name  # trained
+        assert float((p - q).abs().max()) <= 1e-10 * max(1.0, float(q.abs().max())), name
+    assert res.state.step == ref.state.step == 400
+    assert torch.allclose(res.state.r, ref.state.r, rtol=0, atol=1e-10)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState
+from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.sim.clock import steps_per_period
 from bptsb_ros.training import fused_kernel
@@ -97,6 +97,14 @@ class LocomotionLoss:
     wind_period: float
 
 
+@dataclass(frozen=True)
+class GivenTargetLoss:
+    """Lissajous switching's loss: mean over steps and x, y of (CMP − target)², the target (W, 2) [m] and the
+    external forces (W, M, 2) [N] written by the caller before every window (:meth:`FusedSwgWindow.set_inputs`)."""
+
+    cmp: int
+
+
 class FusedSwgWindow:
     """One body (batch 1) and its SWG trained window by window: :meth:`window` measures loss and gradients,
     :meth:`step` applies the SGD update of ``optimizer``'s groups in place.
@@ -106,11 +114,11 @@ class FusedSwgWindow:
         swg: its SWG (amplitude A and phase φ updated in place).
         optimizer: plain SGD over (some of) those parameters; a parameter in no group is not trained.
         window: W, steps per window.
-        loss: the task's loss (:class:`LissajousLoss` or :class:`LocomotionLoss`).
+        loss: the task's loss (:class:`LissajousLoss`, :class:`LocomotionLoss` or :class:`GivenTargetLoss`).
     """
 
     def __init__(self, body: MSDN, swg: SineWaveGenerator, optimizer: torch.optim.Optimizer, window: int,
-                 loss: LissajousLoss | LocomotionLoss) -> None:
+                 loss: LissajousLoss | LocomotionLoss | GivenTargetLoss) -> None:
         why = _optimizer_unsupported(optimizer) or _body_unsupported(body, swg)
         if why:
             raise ValueError(f"the fused path cannot train this: {why}")
@@ -118,12 +126,17 @@ class FusedSwgWindow:
             raise ValueError(f"window must be >= 1 step, got {window}")
         w, m, e = int(window), body.n_movable, body.topology.n_springs
         wind = False
-        if isinstance(loss, LissajousLoss):
+        if isinstance(loss, (LissajousLoss, GivenTargetLoss)):
             if not 0 <= loss.cmp < m:
                 raise ValueError("the fused Lissajous window needs a body with a central mass point")
-            self.kind, self.cmp = fused_kernel.LISSAJOUS, int(loss.cmp)
-            self.target = np.array([loss.x_amp, loss.y_amp, loss.alpha * loss.omega, loss.beta * loss.omega,
-                                    loss.delta, body.dt], dtype=np.float64)
+            self.cmp = int(loss.cmp)
+            if isinstance(loss, LissajousLoss):
+                self.kind = fused_kernel.LISSAJOUS
+                self.target = np.array([loss.x_amp, loss.y_amp, loss.alpha * loss.omega, loss.beta * loss.omega,
+                                        loss.delta, body.dt], dtype=np.float64)
+            else:
+                self.kind, wind = fused_kernel.GIVEN_TARGET, True
+                self.target = np.zeros(6, dtype=np.float64)
             scales = (1.0 / (2 * w), 0.0, 0.0)
         else:
             if loss.block < 1 or w % loss.block:
@@ -156,7 +169,7 @@ class FusedSwgWindow:
         self.clock = np.array([0.0 if n is None else float(n), 0.0 if n is None else 2 * math.pi / n,
                                swg.omega * body.dt / (2 * math.pi)], dtype=np.float64)
         z = np.zeros
-        lissajous = self.kind == fused_kernel.LISSAJOUS
+        lissajous = self.kind != fused_kernel.LOCOMOTION  # a CMP position loss: the gradient w.r.t. r
         self.work = {
             "rest": z((w, 1, e), np_dtype), "ext": z((w, 1 if wind else 0, m, 2), np_dtype),
             "r_out": z((w, 1, m, 2), np_dtype), "v_out": z((w, 1, m, 2), np_dtype),
@@ -206,7 +219,15 @@ class FusedSwgWindow:
     def window(self, state: BodyState) -> tuple[float, bool, BodyState]:
         """Simulate W steps from ``state`` (B = 1) with the current parameters: (loss, gradients finite, the
         final state). The gradients are in :attr:`grads`. A window that diverged raises SimulationDiverged
-        (``MSDN.check_finite``'s message) and leaves nothing changed."""
+        (``MSDN.check_finite``'s message)."""
+        loss, grads_ok, final, failure = self.run(state)
+        if failure is not None:
+            raise SimulationDiverged(failure)
+        return loss, grads_ok, final
+
+    def run(self, state: BodyState) -> tuple[float, bool, BodyState, str | None]:
+        """:meth:`window` without raising: (loss, gradients finite, final state, None), or for a diverged window
+        (its loss, False, its final state, ``MSDN.check_finite``'s message)."""
         body, w = self.body, self.work
         r0, v0, a0 = self._start(state)
         fused_kernel.swg_window(r0, v0, a0, *self._views(), self.swg.driven.numpy(), int(state.step),
@@ -214,11 +235,23 @@ class FusedSwgWindow:
         last = tuple(w[key][-1].copy() for key in ("r_out", "v_out", "a_out", "len_out"))
         final = BodyState(*(torch.from_numpy(x) for x in last), state.step + self.steps)
         if not self.out[OUT_STATE_OK]:
-            body.check_finite(final)  # raises with the step and the parameter ranges
+            try:
+                body.check_finite(final)
+            except SimulationDiverged as err:
+                return float(self.out[OUT_LOSS]), False, final, str(err)
             raise AssertionError("the fused window flagged a state that MSDN.check_finite accepts")
         self._last = (final, last[:3])
         grads_ok = bool(self.out[OUT_GRADS_OK]) or self.gradients_finite()  # the kernel checks all five
-        return float(self.out[OUT_LOSS]), grads_ok, final
+        return float(self.out[OUT_LOSS]), grads_ok, final, None
+
+    def set_inputs(self, target: torch.Tensor, forces: torch.Tensor) -> None:
+        """The next window's target (W, 2) [m] and external forces (W, M, 2) or (W, 1, M, 2) [N] (``GivenTargetLoss``),
+        cast to the model dtype."""
+        if self.kind != fused_kernel.GIVEN_TARGET:
+            raise ValueError("set_inputs is for the GivenTargetLoss window")
+        w = self.work
+        np.copyto(w["tgt"], target.detach().numpy(), casting="same_kind")
+        np.copyto(w["ext"], forces.detach().numpy().reshape(w["ext"].shape), casting="same_kind")
 
     def gradients_finite(self) -> bool:
         """True when the last window's gradients of the optimiser's parameters are finite (as

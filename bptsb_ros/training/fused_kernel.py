@@ -42,8 +42,9 @@ from bptsb_ros.body.kernel import _JIT, _renamed
 
 #: the trained parameters, in the order of ``grads`` rows and of the SGD rates
 PARAMETERS = ("k", "d", "l", "amplitude", "phase")
-#: the losses: ``kind`` 0 Lissajous, 1 locomotion
-LISSAJOUS, LOCOMOTION = 0, 1
+#: the losses: ``kind`` 0 Lissajous, 1 locomotion, 2 the CMP against a target the caller writes into ``tgt``
+#: (Lissajous switching; its wind forces, too, are the caller's, in ``ext``)
+LISSAJOUS, LOCOMOTION, GIVEN_TARGET = 0, 1, 2
 #: ``clock``: [N (0: the period is no whole number of steps), 2π/N, cycles per step ωΔt/2π]
 #: ``target``, Lissajous: [X, Y, αω, βω, δ, Δt]; locomotion: [block, training's first step, slope, Δt, constant
 #: target speed (NaN: the ramp), 1 if the loss reads each step's velocity before its update, wind force, wind period]
@@ -101,15 +102,14 @@ def _swg_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, kind, 
                     and abs(x) <= POSITION_LIMIT):
                 state_ok = False
     out[OUT_STATE_OK] = 1.0 if state_ok else 0.0
-    if not state_ok:  # the trainer reports the divergence; no loss, no gradients
-        out[OUT_LOSS] = np.nan
+    # 4: loss and its gradient (the rows of g_r / g_v the loss does not read stay zero)
+    if kind == LOCOMOTION:
+        out[OUT_LOSS] = _locomotion_loss(v0, v_out, first_step, target, unit, tgt, g_v)
+    else:
+        out[OUT_LOSS] = _lissajous_loss(r_out, first_step, target, cmp, inv_n, two, kind == GIVEN_TARGET, tgt, g_r)
+    if not state_ok:  # the caller reports the divergence; no gradients
         out[OUT_GRADS_OK] = 0.0
         return
-    # 4: loss and its gradient (the rows of g_r / g_v the loss does not read stay zero)
-    if kind == LISSAJOUS:
-        out[OUT_LOSS] = _lissajous_loss(r_out, first_step, target, cmp, inv_n, two, tgt, g_r)
-    else:
-        out[OUT_LOSS] = _locomotion_loss(v0, v_out, first_step, target, unit, tgt, g_v)
     # 5: the body's adjoint, then through the SWG
     kernel._adjoint_serial(r0, v0, a0, k, d, rest, ext.shape[1], si, sj, offset, mass, coef, verlet, clamp,
                            r_out, v_out, a_out, len_out, g_r, g_v, g_none4, g_none3,
@@ -141,15 +141,17 @@ def _swg_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, kind, 
     out[OUT_GRADS_OK] = 1.0 if ok else 0.0
 
 
-def _lissajous_loss_impl(r_out, first_step, target, cmp, inv_n, two, tgt, g_r):  # pragma: no cover - compiled
-    """mean over steps and x, y of (CMP − target)² (returned, accumulated in float64); writes ∂L/∂r on the CMP rows."""
+def _lissajous_loss_impl(r_out, first_step, target, cmp, inv_n, two, given, tgt, g_r):  # pragma: no cover - compiled
+    """mean over steps and x, y of (CMP − target)² (returned, accumulated in float64); writes ∂L/∂r on the CMP rows.
+    ``given``: the caller wrote the target into ``tgt`` (W, 2), else the Lissajous curve of ``target``."""
     n_steps = r_out.shape[0]
     x_amp, y_amp, ax, by, delta, dt = target[0], target[1], target[2], target[3], target[4], target[5]
     total = 0.0
     for t in range(n_steps):
-        tt = np.float64(first_step + 1 + t) * dt
-        tgt[t, 0] = x_amp * math.cos(ax * tt)
-        tgt[t, 1] = y_amp * math.sin(by * tt + delta)
+        if not given:
+            tt = np.float64(first_step + 1 + t) * dt
+            tgt[t, 0] = x_amp * math.cos(ax * tt)
+            tgt[t, 1] = y_amp * math.sin(by * tt + delta)
         for c in range(2):
             diff = r_out[t, 0, cmp, c] - tgt[t, c]
             total += np.float64(diff) * np.float64(diff)
