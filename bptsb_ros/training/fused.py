@@ -12,9 +12,10 @@ What it covers: the Lissajous single-curve task (``LissajousTask``: CMP position
 (``LocomotionTask``: the speed-block loss, its ramp or constant target, velocity after or before each step's
 update, the periodic headwind, the warm-up), with SGD (no momentum, weight decay, dampening or Nesterov) and the
 hand-derived adjoint, on CPU. The feedback layer of an SWG agent is fitted after training, outside every training
-window, so it does not stand in the way. Anything else — Lissajous switching (its own training loop), NARMA and
-MNIST, Adam, ``training.adjoint: false`` — trains on the numba path, and the trainer says so in one line
-(:func:`fused_unsupported`).
+window, so it does not stand in the way. Lissajous switching (``tasks.lissajous_switching.train_switching``, its
+own loop) uses :class:`GivenTargetLoss`: its wind-dependent target and wind forces are written in before each
+window. Anything else — NARMA and MNIST, Adam, ``training.adjoint: false`` — trains on the numba path, and the
+trainer says so in one line (:func:`fused_unsupported`).
 """
 
 from __future__ import annotations
