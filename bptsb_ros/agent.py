@@ -57,6 +57,12 @@ def force_inputs(body: MSDN) -> torch.Tensor:
     return mask
 
 
+def body_backend(training_backend: str) -> str:
+    """The body's backend for a ``training.backend``: ``fused`` trains through compiled calls of its own and
+    simulates everything else (evaluation, feedback fit, live nodes) on the numba kernel."""
+    return "numba" if training_backend == "fused" else training_backend
+
+
 def build_agent(cfg: ExperimentConfig) -> Agent:
     """Fresh agent from a config: random k, d (seeded), rest lengths = geometry, fresh brain."""
     dtype = dtype_of(cfg.dtype)
@@ -67,7 +73,7 @@ def build_agent(cfg: ExperimentConfig) -> Agent:
     if b.ground_clamp:
         env = replace(env, ground_clamp=True)
     body = MSDN(topology, dt=b.dt, integrator=b.integrator, environment=env, k_init=b.k_init,
-                d_init=b.d_init, generator=gen, dtype=dtype, backend=cfg.training.backend)
+                d_init=b.d_init, generator=gen, dtype=dtype, backend=body_backend(cfg.training.backend))
     br = cfg.brain
     brain: Brain
     if br.type == "swg":

@@ -1,7 +1,9 @@
 """Benchmarks of the standard workloads: physics steps per second (forward alone; forward + backward
 + update) and peak memory, for both body backends side by side (torch: the reference; numba: the
-compiled window kernel), each measurement in its own process so its peak RSS is its own; and the MNIST
-systems' training throughput in images/s with the paper-schedule estimate (:mod:`bptsb_ros.bench_mnist`).
+compiled window kernel) and, for Lissajous training, the fused path (``training.backend: fused``: window,
+loss, gradients and update as compiled calls), each measurement in its own process so its peak RSS is its
+own; and the MNIST systems' training throughput in images/s with the paper-schedule estimate
+(:mod:`bptsb_ros.bench_mnist`).
 
 Speed is measured here, never asserted in a timed test. The numba kernels' first-call time (compile, or
 loading the on-disk cache) is measured separately and kept out of the steady-state figures.
@@ -28,6 +30,10 @@ PUBLISHED = {
     "narma": {"as_published": 97, "anomaly_mode_off": 707},
 }
 BACKENDS = ("torch", "numba")
+#: workloads also timed on the fused training path (``training.backend: fused``: SWG, batch 1)
+FUSED_WORKLOADS = ("lissajous",)
+#: the fused path's target: training steps/s ≥ this × the numba path's, in the same run
+FUSED_TARGET_RATIO = 5.0
 #: the paper's expanded-NARMA schedule: epochs × steps per epoch
 NARMA_PAPER_EPOCHS, NARMA_EPISODE_STEPS = 40_000, 3_000
 
@@ -109,12 +115,56 @@ def _setup(w: Workload, adjoint: bool, dtype: torch.dtype, backend: str = "numba
         loss = (win.r[:, :, cmp] ** 2).mean()
         return loss, win.final
 
+    run_window.swg = swg if w.brain == "swg" else None  # type: ignore[attr-defined] - for ``fused_runner``
     return body, opt, state0, run_window
+
+
+def fused_runner(w: Workload, dtype: torch.dtype):
+    """The workload of :func:`_setup` (numba body, same parameters, rates and start) on the fused path: the same
+    loss, mean of CMP², is the fused Lissajous loss with a zero target. Returns (window(state) → (loss, final),
+    step(), start state)."""
+    from bptsb_ros.training.fused import FusedSwgWindow, LissajousLoss
+
+    if w.brain != "swg" or w.batch != 1:
+        raise ValueError(f"the fused path trains one SWG body; workload {w.name} has brain {w.brain}, batch {w.batch}")
+    body, opt, state0, run_window = _setup(w, True, dtype, "numba")
+    swg = run_window.swg
+    fused = FusedSwgWindow(body, swg, opt, w.window, LissajousLoss(0.0, 0.0, 1.0, 1.0, 0.0, swg.omega, body.cmp_local))
+
+    def window(state):
+        loss, _ok, final = fused.window(state)
+        return loss, final
+
+    return window, fused.step, state0
+
+
+def _measure_fused(w: Workload, dtype: torch.dtype, min_seconds: float) -> dict[str, Any]:
+    """Training steps/s of the fused path (forward, loss, gradients and SGD update per window)."""
+    from bptsb_ros.threads import configure_threads
+
+    threads = configure_threads(w.batch, "numba")
+    window, step, state = fused_runner(w, dtype)
+    t0 = time.perf_counter()
+    window(state)
+    first_call = time.perf_counter() - t0
+    steps, t0 = 0, time.perf_counter()
+    while True:
+        _loss, state = window(state)
+        step()
+        steps += w.window
+        elapsed = time.perf_counter() - t0
+        if elapsed >= min_seconds:
+            break
+    train = steps / elapsed
+    return {"backend": "fused", "threads": threads, "first_call_s": round(first_call, 3),
+            "train_steps_per_s": round(train, 1), "train_body_steps_per_s": round(train * w.batch, 1)}
 
 
 def _measure(w: Workload, adjoint: bool, dtype: torch.dtype, min_seconds: float, backend: str) -> dict[str, Any]:
     from bptsb_ros.threads import configure_threads
 
+    if backend == "fused":
+        return _measure_fused(w, dtype, min_seconds)
     threads = configure_threads(w.batch, backend)
     body, opt, state, run_window = _setup(w, adjoint, dtype, backend)
     t0 = time.perf_counter()
@@ -228,6 +278,11 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
             entry["torch_autograd"] = measure_isolated(w, False, min_seconds=min_s, backend="torch")
         key = "forward_steps_per_s" if w.forward_only else "train_steps_per_s"
         entry["numba_over_torch"] = _ratio(entry["numba"].get(key), entry["torch"].get(key))
+        if name in FUSED_WORKLOADS:
+            progress(f"bench {name} (fused training path) ...")
+            entry["fused"] = measure_isolated(w, True, min_seconds=min_s, backend="fused")
+            entry["fused_over_numba"] = _ratio(entry["fused"].get(key), entry["numba"].get(key))
+            entry["fused_over_torch"] = _ratio(entry["fused"].get(key), entry["torch"].get(key))
         report["workloads"][name] = entry
     batches = (1, 64) if quick else (1, 16, 64, 256)
     base = WORKLOADS["lissajous"]
@@ -263,6 +318,9 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
     mnist_rates = [m["train_images_per_s"] for m in report["mnist"].get("systems", {}).values()]
     targets["mnist_slowest_system_train_images_per_s"] = (round(bench_mnist.TARGET_TRAIN_IMAGES_PER_S, 1),
                                                           min(mnist_rates) if mnist_rates else math.nan)
+    fused_ratio = wl["lissajous"].get("fused_over_numba")
+    targets["lissajous_fused_over_numba_train"] = (FUSED_TARGET_RATIO,
+                                                   math.nan if fused_ratio is None else fused_ratio)
     report["targets"] = {k: {"target": t, "measured": m, "met": bool(m >= t)} for k, (t, m) in targets.items()}
     rss = {n: (e["numba"].get("peak_rss_mib", math.nan), e["torch"].get("peak_rss_mib", math.nan))
            for n, e in wl.items()}
@@ -282,15 +340,19 @@ def _ipc_entry(quick: bool, progress) -> dict[str, Any]:
 
 
 def workload_table(report: dict[str, Any]) -> str:
-    """A Markdown table of the report (for the docs): one row per workload and backend."""
+    """A Markdown table of the report (for the docs): one row per workload and backend (fused: Lissajous only; its
+ratio column is fused / torch, with fused / numba beside it)."""
     rows = ["| workload | batch | backend | forward steps/s | train steps/s | train steps/s (plain autograd) "
             "| numba / torch | peak RSS MiB |",
             "|---|---|---|---|---|---|---|---|"]
     for name, e in report["workloads"].items():
-        for backend in BACKENDS:
+        for backend in (*BACKENDS, "fused"):
+            if backend not in e:
+                continue
             m = e[backend]
             autograd = e.get("torch_autograd", {}).get("train_steps_per_s", "–") if backend == "torch" else "–"
-            ratio = e["numba_over_torch"] if backend == "numba" else ""
+            fused_ratio = f"{e.get('fused_over_torch')} (fused / numba {e.get('fused_over_numba')})"
+            ratio = {"numba": e["numba_over_torch"], "fused": fused_ratio}.get(backend, "")
             fwd = m.get("forward_steps_per_s", m.get("error"))
             if e["batch"] > 1 and "forward_body_steps_per_s" in m:
                 fwd = f"{fwd} ({m['forward_body_steps_per_s']:.3g} body-steps/s)"
@@ -299,4 +361,5 @@ def workload_table(report: dict[str, Any]) -> str:
     return "\n".join(rows)
 
 
-__all__ = ["WORKLOADS", "Workload", "measure_compile", "measure_isolated", "run_benchmarks", "workload_table"]
+__all__ = ["WORKLOADS", "Workload", "fused_runner", "measure_compile", "measure_isolated", "run_benchmarks",
+           "workload_table"]

@@ -90,9 +90,11 @@ class TrainingConfig(_Strict):
     update_steps: int = Field(100, ge=1, description="truncated window length (updateTimeScale) [steps]")
     lr: LearningRates = LearningRates()
     adjoint: bool = Field(True, description="hand-derived backward (fast); False uses plain autograd")
-    backend: Literal["numba", "torch"] = Field(
-        "numba", description="body integration: numba (compiled window kernel, fastest on CPU) or torch (the "
-                             "reference; GPU)")
+    backend: Literal["numba", "torch", "fused"] = Field(
+        "numba", description="body integration: numba (compiled window kernel, fastest on CPU), torch (the "
+                             "reference; GPU) or fused (numba; an SWG training window, loss, gradients and "
+                             "the SGD update as compiled calls without autograd: Lissajous, switching and "
+                             "locomotion with SGD; anything else trains on numba)")
     reject_factor: float = Field(
         0.0, ge=0, description="the update guard's spike rule: reject (undo) an update whose loss exceeds factor × the "
                                "previous loss (the mean of the last 5 once there are 5); 0: off. Non-finite losses, "

@@ -271,14 +271,15 @@ def test_closed_loop_schemes_undo_a_planted_nan(scheme, monkeypatch):
     assert not _equal(seen[2], seen[1]) and _equal(seen[3], seen[1])  # update 1 undone (the FL too, scheme 3)
 
 
-def test_switching_training_undoes_a_planted_nan():
+@pytest.mark.parametrize("backend", ["numba", "fused"])
+def test_switching_training_undoes_a_planted_nan(backend):
     from bptsb_ros.tasks.lissajous_switching import train_switching
 
     agent, state = _lissajous_agent()
     seen: list[list[torch.Tensor]] = []
     schedule = np.zeros(401)
     schedule[150:] = 1.0
-    res = train_switching(agent, state, schedule, _planted_target(agent, seen, bad=2))
+    res = train_switching(agent, state, schedule, _planted_target(agent, seen, bad=2), backend=backend)
     assert len(res.losses) == 4 and res.losses[2] == res.losses[1]
     assert [(e["update"], e["reason"]) for e in res.guard["events"]] == [(2, "non-finite loss")]
     assert not _equal(seen[2], seen[1]) and _equal(seen[3], seen[1])

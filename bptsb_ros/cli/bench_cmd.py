@@ -10,7 +10,8 @@ from pathlib import Path
 NAME = "bench"
 HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of the standard workloads "
         "(Lissajous, NARMA, locomotion batch 20, MNIST-like batch 100, forward sweeps batch 1000) on both body "
-        "backends (torch, numba), batch scaling and the numba compile time; MNIST training images/s of every "
+        "backends (torch, numba), Lissajous training on the fused path, batch scaling and the numba compile time; "
+        "MNIST training images/s of every "
         "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON. "
         "With --soak: soak the live recording instead (a realtime and a lockstep recorded run under CPU load; "
         "steps published, messages recorded, drops counted).")

@@ -133,7 +133,7 @@ class SwitchingTraining:
 def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
                     target: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], *,
                     lr: LearningRates = SWITCHING_LR, window: int = 100, published_wind: bool = False,
-                    reject_factor: float = 0.0,
+                    reject_factor: float = 0.0, backend: str | None = None,
                     progress: Callable[[int, int, float], None] | None = None) -> SwitchingTraining:
     """Additional BPTSB training of an SWG agent under a wind schedule (in place; SGD, truncated windows).
 
@@ -145,6 +145,10 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
     non-finite loss or gradient undoes the previous update; the window's state is carried on only if finite).
     ``reject_factor`` 0 (default): no spike rule — the target switches curves with the wind, so a jump of the
     loss is expected here, and the authors' Lissajous training had none.
+
+    ``backend``: ``fused`` runs each window, its loss and gradients as one compiled call and the update as another
+    (:mod:`bptsb_ros.training.fused`; equal to rounding); anything else, the autograd path with the body's
+    backend. Default: the agent's ``training.backend``.
 
     Raises:
         SimulationDiverged: a failure the guard cannot undo (no update since the start or the last restore).
@@ -161,30 +165,47 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
     k_start = state.step
     updates = (len(schedule) - 1) // window
     state = state.detach()
+    if backend is None:
+        backend = str(agent.config.get("training", {}).get("backend", "numba"))
+    fused = None
+    if backend == "fused":
+        from bptsb_ros.training.fused import FusedSwgWindow, GivenTargetLoss
+
+        fused = FusedSwgWindow(body, swg, opt, window, GivenTargetLoss(body.cmp_local))
     for u in range(updates):
         first = state.step + 1
         rel = first - k_start
-        rest = swg_rest_lengths(body, swg, first, window)
         ext = forces[rel:rel + window].unsqueeze(1)  # (W, 1, M, 2)
-        win = rollout_window(body, state, rest, ext)
         t = step_times(first, window, body.dt)  # float64: the target's phase stays exact at large t
         wind = torch.as_tensor(schedule[rel:rel + window], dtype=dtype)
-        loss = ((win.r[:, 0, body.cmp_local] - target(t, wind).to(dtype)) ** 2).mean()
-        failure = None
-        try:
-            body.check_finite(win.final.detach())
-        except SimulationDiverged as err:
-            failure = str(err)
-        decision = guard.backward_and_review(u, loss, diverged=failure)
+        if fused is None:
+            rest = swg_rest_lengths(body, swg, first, window)
+            win = rollout_window(body, state, rest, ext)
+            loss = ((win.r[:, 0, body.cmp_local] - target(t, wind).to(dtype)) ** 2).mean()
+            final = win.final.detach()
+            failure = None
+            try:
+                body.check_finite(final)
+            except SimulationDiverged as err:
+                failure = str(err)
+            decision = guard.backward_and_review(u, loss, diverged=failure)
+        else:  # the window, loss and gradients in one compiled call
+            fused.set_inputs(target(t, wind), ext)
+            value, grads_ok, final, failure = fused.run(state)
+            guard.optimizer.zero_grad(set_to_none=True)  # as backward_and_review: no stale gradients
+            decision = guard.review(u, value, grads_finite=grads_ok, diverged=failure)
         if decision.stop:
             for module in agent.modules().values():
                 module.requires_grad_(False)
             raise SimulationDiverged(f"switching update {u}: {failure or decision.reason}; nothing to undo")
         if decision.accepted:
-            opt.step()
-            body.clamp_parameters_()
+            if fused is None:
+                opt.step()
+                body.clamp_parameters_()
+            else:
+                fused.step()
         if failure is None:
-            state = win.final.detach()
+            state = final
         if progress is not None:
             progress(u + 1, updates, guard.history[-1])
     for module in agent.modules().values():

@@ -18,7 +18,7 @@ from typing import Any
 import torch
 import yaml
 
-from bptsb_ros.agent import Agent, build_agent
+from bptsb_ros.agent import Agent, body_backend, build_agent
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
@@ -27,6 +27,7 @@ from bptsb_ros.tasks import get_task
 from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
+from bptsb_ros.training.fused import fused_training
 from bptsb_ros.training.guard import UpdateGuard
 from bptsb_ros.training.optim import make_optimizer
 
@@ -136,7 +137,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         elif not overwrite and not dir_is_empty(run_dir):
             raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
                               "replace it with --force, or choose another directory")
-    threads = configure_threads(1, cfg.training.backend)  # every task trains one small body: one thread
+    threads = configure_threads(1, body_backend(cfg.training.backend))  # every task trains one small body: one thread
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
     task = get_task(cfg.task)(agent, cfg)
@@ -178,6 +179,13 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
             guard.history[:] = [float(x) for x in extra["losses"]]
             guard.count = int(extra.get("rejections", 0))
     losses = guard.history  # the loss curve: a rejected update repeats the previous entry
+    fused, backend = None, tc.backend
+    if tc.backend == "fused":
+        fused, why = fused_training(task, optimizer, adjoint=tc.adjoint)
+        if fused is None:
+            backend = "numba"
+            print(f"training.backend fused: {why}; training on the numba path instead", file=sys.stderr)
+    fallback = {} if fused is not None or tc.backend != "fused" else {"backend_fallback": why}
     task.prepare()
     t_start = time.perf_counter()
     sim_steps = 0
@@ -232,24 +240,35 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     try:
         for i in range(start, total):
             loss: torch.Tensor | None = None
+            value: float | None = None
             failure: str | None = None
+            grads_ok = True
             try:
-                loss, _info = task.update_loss(i)
+                if fused is None:
+                    loss, _info = task.update_loss(i)
+                    value = float(loss.detach())
+                else:  # loss and gradients in one compiled call, no autograd
+                    value, grads_ok = fused.update_loss(i)
             except SimulationDiverged as err:
                 failure = str(err)
             sim_steps += getattr(task, "steps_per_update", tc.update_steps)
-            if loss is not None and math.isfinite(float(loss.detach())):
+            if value is not None and math.isfinite(value):
                 window_completed()
-            decision = guard.backward_and_review(i, loss, diverged=failure)
+            if fused is None:
+                decision = guard.backward_and_review(i, loss, diverged=failure)
+            else:
+                decision = guard.review(i, value, grads_finite=grads_ok, diverged=failure)
             if decision.stop:
-                why = failure or (f"loss is {float(loss.detach())}" if decision.reason == "non-finite loss"
-                                  else decision.reason)
+                why = failure or (f"loss is {value}" if decision.reason == "non-finite loss" else decision.reason)
                 ranges = "" if failure else f"; {agent.body.parameter_ranges()}"
                 raise diverged(i, f"{why}{ranges}; the guard has nothing to undo (no update since the start or the "
                                   "last restore)")
             if decision.accepted:
-                optimizer.step()
-                agent.body.clamp_parameters_()
+                if fused is None:
+                    optimizer.step()
+                    agent.body.clamp_parameters_()
+                else:  # SGD of every group and the projection of k, d, l, in place in one call
+                    fused.step()
             bar.update(1)
             if i % tc.log_every == 0:
                 bar.set_postfix(loss=f"{losses[-1]:.4g}")
@@ -263,7 +282,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
 
     metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": losses,
                                "updates": len(losses), "guard": guard.summary(), "train_seconds": elapsed,
-                               "backend": tc.backend,
+                               "backend": backend, **fallback,
                                "threads": threads,
                                "train_steps_per_second": sim_steps / elapsed if elapsed > 0 else None}
     try:
