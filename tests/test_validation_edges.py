@@ -27,9 +27,9 @@ from bptsb_ros.config import ConfigError, validate
 from bptsb_ros.data import mnist
 from bptsb_ros.data.mnist import MnistError, read_pair
 from bptsb_ros.experiments.result import MAX_SLUG_LEN, Claim, ResultError, validate_result
-from bptsb_ros.launch_loops import perturbation_problem
-from bptsb_ros.ros.lockstep import CommandChannel
-from bptsb_ros.ros.safety import CommandLimits, DivergenceRecovery, runaway
+from bptsb_ros.live.channels import CommandChannel
+from bptsb_ros.live.loops import perturbation_problem
+from bptsb_ros.live.safety import CommandLimits, DivergenceRecovery, runaway
 from bptsb_ros.sim import wind_schedule as ws
 from bptsb_ros.sim.perturbation import perturbation
 from bptsb_ros.sim.wind_schedule import WindSchedule, WindScheduleError, read_table
@@ -352,7 +352,7 @@ def test_wind_forces_steps(steps, accepted):
         assert out.tolist() == [[1.0, 2.0]]
 
 
-# -- ros/safety.py: command limits, runaway, divergence policy ---------------------------------------------------
+# -- live/safety.py: command limits, runaway, divergence policy ---------------------------------------------------
 
 @pytest.mark.parametrize("kw, accepted, match", [
     ({"max_rest_length": TINY}, True, ""),
@@ -431,7 +431,7 @@ def test_divergence_policy_names(policy, accepted):
     _verdict(accepted, ValueError, lambda: DivergenceRecovery(policy), "policy must be one of")
 
 
-# -- ros/lockstep.py: realtime age and the look-ahead ------------------------------------------------------------
+# -- live/channels.py: realtime age and the look-ahead ------------------------------------------------------------
 
 def _channel(mode: str = "realtime", **kw) -> CommandChannel:
     return CommandChannel("rest_length", 2, ["a", "b"], mode, **kw)
