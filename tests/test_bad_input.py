@@ -78,7 +78,7 @@ def test_train_never_replaces_a_run_without_force(tmp_path, capsys):
     assert main(["train", str(CONFIG), "--out", str(run), *TINY]) == 0
     checkpoint = (run / "checkpoint.pt").read_bytes()
     capsys.readouterr()
-    assert main(["train", str(CONFIG), "--out", str(run), "--seed", "5", *TINY]) == 2
+    assert main(["train", str(CONFIG), "--out", str(run), "--seed", "5", *TINY]) == 1  # --out's contents: runtime
     err = capsys.readouterr().err
     assert f"--out {run} already holds a run" in err and "--force" in err
     assert (run / "checkpoint.pt").read_bytes() == checkpoint  # nothing lost
@@ -88,7 +88,7 @@ def test_train_never_replaces_a_run_without_force(tmp_path, capsys):
 
 def test_resume_of_a_missing_run_leaves_nothing(tmp_path, capsys):
     run = tmp_path / "missing" / "run"
-    assert main(["train", str(CONFIG), "--out", str(run), "--resume", *TINY]) == 2
+    assert main(["train", str(CONFIG), "--out", str(run), "--resume", *TINY]) == 1
     assert "no checkpoint at" in capsys.readouterr().err
     assert not run.exists() and not run.parent.exists()
 
@@ -109,7 +109,7 @@ def test_unwritable_outputs_give_one_line(tmp_path, capsys):
     bag = tmp_path / "bag"
     _tiny_bag(bag)
     for out in ("/sys/kernel/bptsb_replay", str(a_file), str(a_file / "sub")):
-        assert main(["replay", str(bag), "--out", out, "--no-gif"]) == 2
+        assert main(["replay", str(bag), "--out", out, "--no-gif"]) == 1
         assert f"cannot write --out {out}" in _one_line_error(capsys)
     assert a_file.read_text() == "keep me"
 

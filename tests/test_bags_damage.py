@@ -87,7 +87,7 @@ def test_damaged_summary_is_rebuilt(bag, capsys) -> None:
     summary_start = struct.unpack_from("<Q", data, len(data) - 8 - 20)[0]  # footer: summary_start, offset, crc
     data[summary_start:summary_start + 16] = b"\xee" * 16
     mcap.write_bytes(bytes(data))
-    assert _cli(["info", str(path)]) == 2 and "bptsb bag recover" in capsys.readouterr().err
+    assert _cli(["info", str(path)]) == 1 and "bptsb bag recover" in capsys.readouterr().err
     report = recover_bag(path)
     assert not report.files[0].complete and "summary" in report.files[0].stop_reason
     assert report.files[0].messages == 20 and not report.files[0].dropped
@@ -105,7 +105,7 @@ def test_garbage_metadata_gives_one_line_and_is_rebuilt(bag, capsys, garbage) ->
         meta.write_bytes(garbage)
     before = meta.read_bytes()
     if garbage is not None:
-        assert _cli(["info", str(path)]) == 2
+        assert _cli(["info", str(path)]) == 1
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and "Traceback" not in err and "bptsb bag recover" in err, err
     report = recover_bag(path)

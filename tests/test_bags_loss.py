@@ -145,8 +145,8 @@ def test_soak_cli_checks_its_arguments(tmp_path: Path, capsys: pytest.CaptureFix
     report = json.loads(out.read_text())
     assert "realtime" not in report and "lockstep" not in report and report["cpu_count"] >= 1
     capsys.readouterr()
-    for bad, message in ((["--realtime-seconds", "-1"], "--realtime-seconds must be >= 0"),
-                         (["--lockstep-busy", "-1"], "must be >= 0"),
-                         (["--workdir", str(tmp_path)], "exists and is not empty")):
-        assert bench_cmd.run(parser.parse_args(nothing + bad)) == 2
+    for bad, message, code in ((["--realtime-seconds", "-1"], "--realtime-seconds must be >= 0", 2),
+                               (["--lockstep-busy", "-1"], "must be >= 0", 2),
+                               (["--workdir", str(tmp_path)], "exists and is not empty", 1)):  # on disk: runtime
+        assert bench_cmd.run(parser.parse_args(nothing + bad)) == code
         assert message in capsys.readouterr().err

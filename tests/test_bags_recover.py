@@ -142,7 +142,7 @@ def test_cli_recover_and_info(unfinished, tmp_path: Path, capsys: pytest.Capture
     shutil.copytree(src, bag)
     parser = argparse.ArgumentParser()
     bag_cmd.add_arguments(parser)
-    assert bag_cmd.run(parser.parse_args(["info", str(bag)])) == 2
+    assert bag_cmd.run(parser.parse_args(["info", str(bag)])) == 1
     assert "bptsb bag recover" in capsys.readouterr().err
     assert bag_cmd.run(parser.parse_args(["recover", str(bag)])) == 0
     out = capsys.readouterr().out
@@ -150,7 +150,7 @@ def test_cli_recover_and_info(unfinished, tmp_path: Path, capsys: pytest.Capture
     assert bag_cmd.run(parser.parse_args(["info", str(bag)])) == 0
     out = capsys.readouterr().out
     assert f"Messages:          {counts[-1]}" in out and "Topic: /a" in out
-    assert bag_cmd.run(parser.parse_args(["recover", str(tmp_path / "nope")])) == 2
+    assert bag_cmd.run(parser.parse_args(["recover", str(tmp_path / "nope")])) == 1
     assert "bag not found" in capsys.readouterr().err
 
 
@@ -169,7 +169,7 @@ def test_a_fifo_as_the_mcap_is_refused_without_blocking(tmp_path: Path) -> None:
     for target in (bag, bag / "bag_0.mcap"):
         out = subprocess.run([sys.executable, "-c", code, "bag", "recover", str(target)], capture_output=True,
                              text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(repo)})
-        assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr[-2000:]
+        assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr[-2000:]
         # the bag directory lists the FIFO as its file; the FIFO itself is neither a directory nor a file
         why = "bag_0.mcap is not a regular file" if target == bag else "is neither a bag directory nor a regular .mcap"
         assert why in out.stderr, out.stderr

@@ -158,10 +158,10 @@ def test_the_task_from_keys_or_task_option():
     ("task: Lissajous\nlissajous1: [1, 2, 0]\n", "lissajous1: expected \\[alpha, beta, p, q\\]"),
     ("task: Lissajous\nnodes: 24\n", "does not validate: body: double_circle needs an odd number"),
 ])
-def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, text, message):
+def test_bad_input_is_one_line_and_exit_1(tmp_path, capsys, text, message):
     path = tmp_path / "theirs.yaml"
     path.write_text(text)
-    assert main(["config", "import", str(path)]) == 2
+    assert main(["config", "import", str(path)]) == 1  # the file is at fault, not the arguments
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("bptsb config import: ")
     import re
@@ -199,20 +199,20 @@ def test_an_existing_out_is_replaced_only_with_force_and_only_if_ours(tmp_path, 
     foreign = tmp_path / "mine.yaml"
     foreign.write_text("task: lissajous\n")
     for extra in ([], ["--force"]):
-        assert main(["config", "import", str(theirs), "--out", str(foreign), *extra]) == 2
+        assert main(["config", "import", str(theirs), "--out", str(foreign), *extra]) == 1
         assert "was not written by bptsb config import" in capsys.readouterr().err
         assert foreign.read_text() == "task: lissajous\n"
     ours = tmp_path / "ours.yaml"
     assert main(["config", "import", str(theirs), "--out", str(ours)]) == 0
     first = ours.read_text()
     _write(theirs, dict(THEIR_SINGLE, simTime=10))
-    assert main(["config", "import", str(theirs), "--out", str(ours)]) == 2
+    assert main(["config", "import", str(theirs), "--out", str(ours)]) == 1
     assert "pass --force" in capsys.readouterr().err and ours.read_text() == first
     assert main(["config", "import", str(theirs), "--out", str(ours), "--force"]) == 0
     assert load_config(ours).sim_time == 10.0
     link = tmp_path / "link.yaml"
     link.symlink_to(ours)
-    assert main(["config", "import", str(theirs), "--out", str(link), "--force"]) == 2
+    assert main(["config", "import", str(theirs), "--out", str(link), "--force"]) == 1
     assert "symbolic link" in capsys.readouterr().err
 
 

@@ -157,7 +157,7 @@ def test_ipc_command_writes_json_and_figure(tmp_path, u):
     assert data2["states"][0]["total"] == pytest.approx(1.0, abs=1e-6)  # only u(t − 2) is left
     assert (tmp_path / "o" / "ipc.png").stat().st_size > 1000
     np.savez(tmp_path / "bad.npz", u=u * 3, states=x)
-    assert main(["ipc", "--input", str(tmp_path / "bad.npz"), "--out", str(tmp_path / "b")]) == 2
+    assert main(["ipc", "--input", str(tmp_path / "bad.npz"), "--out", str(tmp_path / "b")]) == 1
     assert not (tmp_path / "b" / "ipc.json").exists()
 
 
@@ -454,13 +454,13 @@ def test_ipc_npz_with_a_forged_shape_is_one_line(tmp_path, capsys):
     bad = tmp_path / "forged.npz"
     _npz_with_header(bad, "u", (2**40,), bytes(15_000))
     assert bad.stat().st_size < 20_000
-    assert main(["ipc", "--input", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert main(["ipc", "--input", str(bad), "--out", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err
     assert "array 'u': declares shape (1099511627776,) of float64 (8796093022208 bytes)" in err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
     # a shape the zip entry does not hold (100 declared, 10 present) is refused too
     _npz_with_header(bad, "u", (100,), bytes(80))
-    assert main(["ipc", "--input", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert main(["ipc", "--input", str(bad), "--out", str(tmp_path / "o")]) == 1
     assert "declares shape (100,) of float64 (800 bytes) but the zip entry holds 80 bytes" in capsys.readouterr().err
 
 
@@ -475,7 +475,7 @@ def test_ipc_npz_bomb_is_refused_by_its_declared_shape(tmp_path, capsys, monkeyp
     monkeypatch.setattr(safe_npz, "MAX_NPZ_BYTES", 8 * 2**20)
     rc, peak = _peak_bytes(lambda: main(["ipc", "--input", str(path), "--out", str(tmp_path / "o"), "--max-degree",
                                          "1", "--max-delay", "0", "--threshold", "none"]))
-    assert rc == 2 and peak < 4 * 2**20
+    assert rc == 1 and peak < 4 * 2**20
     assert "array 'u': declares shape (8388608,) of float64 (67108864 bytes), more than the 8388608 bytes" in (
         capsys.readouterr().err)
 
@@ -535,11 +535,11 @@ def test_ipc_refuses_a_basis_too_large_before_reading_anything(tmp_path, capsys,
     assert main([*args, "--out", str(tmp_path / "ok")]) == 0
     assert (tmp_path / "ok" / "ipc.json").exists()
     monkeypatch.setattr(ipc_cmd, "MAX_BASIS_FUNCTIONS", 19)
-    assert main([*args, "--out", str(tmp_path / "no1")]) == 2
+    assert main([*args, "--out", str(tmp_path / "no1")]) == 2  # the options alone ask too much
     assert "is a basis of 20 functions, more than the maximum of 19" in capsys.readouterr().err
     monkeypatch.setattr(ipc_cmd, "MAX_BASIS_FUNCTIONS", 20)
     monkeypatch.setattr(ipc_cmd, "MAX_BASIS_BYTES", 15 * 290 * 8 - 1)
-    assert main([*args, "--out", str(tmp_path / "no2")]) == 2
+    assert main([*args, "--out", str(tmp_path / "no2")]) == 1  # too much for this many samples
     assert "the degree-2 basis (15 functions × 290 samples)" in capsys.readouterr().err
     assert not (tmp_path / "no1").exists() and not (tmp_path / "no2").exists()
 
@@ -558,7 +558,7 @@ def test_ipc_checks_out_before_computing(tmp_path, capsys, u, monkeypatch):
     if os.path.isdir("/sys/kernel"):  # read-only even for root
         outs.append(("/sys/kernel/bptsb_ipc", "/sys/kernel is not writable"))
     for out, message in outs:
-        assert main(["ipc", "--input", str(tmp_path / "in.npz"), "--out", out, "--max-delay", "4"]) == 2
+        assert main(["ipc", "--input", str(tmp_path / "in.npz"), "--out", out, "--max-delay", "4"]) == 1
         err = capsys.readouterr().err
         assert f"cannot write --out {out}: {message}" in err and len(err.strip().splitlines()) == 1
     assert a_file.read_text() == "keep me"

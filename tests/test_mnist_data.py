@@ -159,7 +159,7 @@ def test_data_cli_verifies(tmp_path, capsys):
     assert main(["data", "mnist", "--dir", str(tmp_path), "--verify"]) == 0
     assert "custom IDX set" in capsys.readouterr().out
     (tmp_path / "MD5SUMS").write_text("not a checksum line\n")
-    assert main(["data", "mnist", "--dir", str(tmp_path), "--verify"]) == 2
+    assert main(["data", "mnist", "--dir", str(tmp_path), "--verify"]) == 1
     assert "md5sum format" in capsys.readouterr().err
 
 
@@ -248,9 +248,9 @@ def test_data_cli_unwritable_dir_is_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(mnist.urllib.request, "urlopen", offline)
     (tmp_path / "afile").write_text("x")
     for target in (tmp_path / "afile", tmp_path / "afile" / "sub"):
-        assert main(["data", "mnist", "--dir", str(target), "--test-only"]) == 2
+        assert main(["data", "mnist", "--dir", str(target), "--test-only"]) == 1
         err = capsys.readouterr().err
         assert f"{target}: not a writable directory" in err and len(err.strip().splitlines()) == 1
     assert (tmp_path / "afile").read_text() == "x"
-    assert main(["data", "mnist", "--dir", str(tmp_path / "new"), "--test-only"]) == 2  # writable: offline
+    assert main(["data", "mnist", "--dir", str(tmp_path / "new"), "--test-only"]) == 1  # writable: offline
     assert "offline (planted)" in capsys.readouterr().err and (tmp_path / "new").is_dir()

@@ -106,7 +106,7 @@ def test_every_mnist_experiment_is_listed(capsys):
 
 def test_missing_data_is_one_clear_error(tmp_path, monkeypatch, capsys):
     monkeypatch.delenv("BPTSB_MNIST_DIR", raising=False)
-    assert main(["reproduce", "mnist-drawing", "--scale", "smoke", "--out", str(tmp_path / "x")]) == 2
+    assert main(["reproduce", "mnist-drawing", "--scale", "smoke", "--out", str(tmp_path / "x")]) == 1
     assert "pass --data DIR or set BPTSB_MNIST_DIR" in capsys.readouterr().err
     assert not (tmp_path / "x" / "result.json").exists()
 
@@ -141,7 +141,7 @@ def test_paper_scale_means_the_papers_split(tmp_path, capsys):
     assert (len(data.train_y), len(data.test_y)) == (16, 4)
     out = tmp_path / "run"
     assert main(["reproduce", "mnist-readout", "--scale", "paper", "--data", str(test_only), "--out", str(out),
-                 "--no-progress"]) == 2
+                 "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert "split 'paper' needs train-images-idx3-ubyte" in err and len(err.strip().splitlines()) == 1
     assert not (out / "result.json").exists()

@@ -61,7 +61,7 @@ def test_a_foreign_figures_folder_is_refused_and_left_intact(tmp_path, capsys):
     (mine / "sub" / "data.bin").write_bytes(bytes(range(256)))
     before = _tree(mine)
     rc, err = _report(runs, tmp_path / "docs" / "R.md", capsys)
-    assert rc == 2 and len(err.strip().splitlines()) == 1 and "R_figures" in err and "not made by" in err
+    assert rc == 1 and len(err.strip().splitlines()) == 1 and "R_figures" in err and "not made by" in err
     assert _tree(mine) == before and not (tmp_path / "docs" / "R.md").exists()
 
 
@@ -73,7 +73,7 @@ def test_a_symlinked_figures_folder_is_refused(tmp_path, capsys):
     (tmp_path / "docs").mkdir()
     (tmp_path / "docs" / "R_figures").symlink_to(elsewhere)
     rc, err = _report(runs, tmp_path / "docs" / "R.md", capsys)
-    assert rc == 2 and "symbolic link" in err and list(elsewhere.iterdir()) == []
+    assert rc == 1 and "symbolic link" in err and list(elsewhere.iterdir()) == []
 
 
 def test_an_owned_folder_is_reused_and_a_hand_added_file_kept(tmp_path, capsys):
@@ -105,7 +105,7 @@ def test_a_hand_made_file_where_the_report_would_write_is_refused_by_name(tmp_pa
     _plant(runs / "a", _result(figures=["fig.png", "b.png"]), {"fig.png": FIG, "b.png": b"the run's b.png"})
     before, page_before = _tree(figs), page.read_bytes()
     rc, err = _report(runs, page, capsys)
-    assert rc == 2 and "b.png" in err and "not written by bptsb report" in err
+    assert rc == 1 and "b.png" in err and "not written by bptsb report" in err
     assert _tree(figs) == before and page.read_bytes() == page_before
 
 
@@ -118,7 +118,7 @@ def test_a_tampered_manifest_cannot_point_outside(tmp_path, capsys):
     manifest = page.parent / "R_figures" / MANIFEST
     manifest.write_text(json.dumps({"written_by": "bptsb report", "files": ["../../victim.txt"], "dirs": []}))
     rc, err = _report(runs, page, capsys)
-    assert rc == 2 and "victim.txt" in err and victim.read_bytes() == b"keep me"
+    assert rc == 1 and "victim.txt" in err and victim.read_bytes() == b"keep me"
 
 
 def test_a_page_not_written_by_the_report_is_not_overwritten(tmp_path, capsys):
@@ -128,7 +128,7 @@ def test_a_page_not_written_by_the_report_is_not_overwritten(tmp_path, capsys):
     notes.parent.mkdir()
     notes.write_bytes(b"# My reproduction notes\n\nhand-written\n")
     rc, err = _report(runs, notes, capsys)
-    assert rc == 2 and len(err.strip().splitlines()) == 1 and "not written by bptsb report" in err
+    assert rc == 1 and len(err.strip().splitlines()) == 1 and "not written by bptsb report" in err
     assert notes.read_bytes() == b"# My reproduction notes\n\nhand-written\n"
     assert not (notes.parent / "R_figures").exists()
     # its own page (the marker line), and a page from before the marker (title + "Made by" line), are replaced
@@ -140,7 +140,7 @@ def test_a_page_not_written_by_the_report_is_not_overwritten(tmp_path, capsys):
     assert _report(runs, legacy, capsys)[0] == 0 and "toy-trust" in legacy.read_text()
     link = tmp_path / "link.md"
     link.symlink_to(own)
-    assert _report(runs, link, capsys)[0] == 2
+    assert _report(runs, link, capsys)[0] == 1
 
 
 # --- 2. names from files are data: no path traversal, no symlinked figure ---------------------------------
@@ -167,7 +167,7 @@ def test_a_traversing_experiment_name_writes_nothing_outside(tmp_path, capsys):
     page = tmp_path / "a" / "b" / "c" / "R.md"
     _plant(tmp_path / "runs" / "x", _result(experiment="../../../escaped"))
     rc, err = _report(tmp_path / "runs", page, capsys)
-    assert rc == 2 and "experiment must be a name" in err
+    assert rc == 1 and "experiment must be a name" in err
     assert list(tmp_path.rglob("escaped*")) == [] and not page.exists()
 
 
@@ -268,7 +268,7 @@ def test_report_of_a_nan_wall_time_is_refused(tmp_path, capsys):
     run = _plant(tmp_path / "runs" / "a", _result())
     (run / "result.json").write_text((run / "result.json").read_text().replace('"wall_s": 1.0', '"wall_s": NaN'))
     rc, err = _report(tmp_path / "runs", tmp_path / "R.md", capsys)
-    assert rc == 2 and "result.json" in err and not (tmp_path / "R.md").exists()
+    assert rc == 1 and "result.json" in err and not (tmp_path / "R.md").exists()
 
 
 # --- 4. the third claim state: not testable ------------------------------------------------------------

@@ -122,7 +122,7 @@ def test_report_names_a_broken_result(tmp_path):
     bad.write_text('{"experiment": "x"}')
     with pytest.raises(ResultError, match="missing key"):
         build_report(tmp_path / "runs", tmp_path / "R.md")
-    assert main(["report", str(tmp_path / "runs"), "--out", str(tmp_path / "R.md")]) == 2
+    assert main(["report", str(tmp_path / "runs"), "--out", str(tmp_path / "R.md")]) == 1
     with pytest.raises(ResultError, match="no result.json"):
         build_report(tmp_path / "empty", tmp_path / "R.md")
 
@@ -149,5 +149,5 @@ def test_lissajous_closed_loop_smoke(tmp_path):
     assert data["claims"][1]["holds"] == ((rows[("FL (closed loop)", "error / target mean square")] < 0.1)
                                           if swg_draws else None)
     assert all((out / f).is_file() for f in data["figures"]) and len(data["figures"]) == 2
-    assert main(["reproduce", "lissajous-closed-loop", "--scale", "smoke", "--out", str(out)]) == 2
+    assert main(["reproduce", "lissajous-closed-loop", "--scale", "smoke", "--out", str(out)]) == 1
     assert Path(out / "agent" / "checkpoint.pt").is_file()

@@ -153,7 +153,7 @@ def test_divergence_is_an_error_naming_the_step(tmp_path, capsys) -> None:
     out = tmp_path / "bad.npz"
     code = simulate_cli(["--shape", "double_circle", "--steps", "500", "--dt", "0.5", "--perturb", "0.1",
                          "--out", str(out)])
-    assert code == 2
+    assert code == 1  # a runtime failure: the arguments were valid
     assert "diverged at step" in capsys.readouterr().err
     assert not out.exists()
 
@@ -204,22 +204,22 @@ def test_mlp_agent_and_closed_loop_reintegrate(tmp_path) -> None:
 
 def test_agent_errors_are_clear(tmp_path, capsys) -> None:
     out = str(tmp_path / "x.npz")
-    assert simulate_cli(["--agent", str(tmp_path / "nothing"), "--steps", "5", "--out", out]) == 2
+    assert simulate_cli(["--agent", str(tmp_path / "nothing"), "--steps", "5", "--out", out]) == 1
     assert "no checkpoint" in capsys.readouterr().err
     run_dir = save_agent(tmp_path, "narma.yaml")
-    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--loop", "closed", "--out", out]) == 2
+    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--loop", "closed", "--out", out]) == 1
     assert "no feedback layer" in capsys.readouterr().err
-    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--swg-amplitude", "0.2", "--out", out]) == 2
+    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--swg-amplitude", "0.2", "--out", out]) == 2  # usage
     assert "--shape only" in capsys.readouterr().err
     run_dir = save_agent(tmp_path, "lissajous_single.yaml")  # feedback layer never fitted
-    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--loop", "closed", "--out", out]) == 2
+    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--loop", "closed", "--out", out]) == 1
     assert "never fitted" in capsys.readouterr().err
     blocker = tmp_path / "a_file"
     blocker.write_text("")
-    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--out", str(blocker / "x.npz")]) == 2
+    assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--out", str(blocker / "x.npz")]) == 1
     assert "cannot write --out" in capsys.readouterr().err
     assert simulate_cli(["--agent", str(run_dir), "--steps", "5", "--out", out,
-                         "--gif", str(blocker / "x.gif")]) == 2
+                         "--gif", str(blocker / "x.gif")]) == 1
     assert "cannot write --gif" in capsys.readouterr().err
 
 

@@ -734,9 +734,9 @@ def test_simulate_checks_before_work(capsys, flag, value, accepted):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0
     if accepted:
-        assert err == "error: --out must end in .npz, got x.txt"
+        assert err == "bptsb simulate: --out must end in .npz, got x.txt"
     else:
-        assert err.startswith(f"error: {flag} must be")
+        assert err.startswith(f"bptsb simulate: {flag} must be")
 
 
 @pytest.mark.parametrize("value, accepted", [("1e-9", True), ("0", False), ("-1", False), ("inf", False),

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
 NAME = "bag"
 HELP = (
@@ -78,9 +77,11 @@ def _recover(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.bags.errors import BagError
+    from bptsb_ros.cli.common import fail
 
     try:
         return _recover(args) if args.bag_command == "recover" else _info(args)
-    except BagError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    except BagError as exc:  # a missing, unreadable or damaged bag
+        return fail(f"{NAME} {args.bag_command}", exc)
+    except OSError as exc:  # recover: the bag's directory is not writable
+        return fail(f"{NAME} {args.bag_command}", f"{exc.filename or args.bag}: {exc.strerror or exc}")

@@ -35,28 +35,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       "temporary directory, kept)")
 
 
+def _write(out: Path, report: dict) -> int | None:
+    """Write ``report`` as JSON to ``out``; None, or the exit status of a write that failed (after one line)."""
+    from bptsb_ros.cli.common import fail
+
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=2))
+    except OSError as err:
+        return fail(NAME, f"cannot write --out {out}: {err.strerror or err}")
+    return None
+
+
 def _soak(args: argparse.Namespace) -> int:
     import math
 
+    from bptsb_ros.cli.common import USAGE, fail
     from bptsb_ros.soak import run_soak
 
     for name in ("realtime_seconds", "lockstep_seconds"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value >= 0):
-            print(f"error: --{name.replace('_', '-')} must be >= 0, got {value}", file=sys.stderr)
-            return 2
+            return fail(NAME, f"--{name.replace('_', '-')} must be >= 0, got {value}", USAGE)
     if args.realtime_busy < 0 or args.lockstep_busy < 0:
-        print("error: --realtime-busy and --lockstep-busy must be >= 0", file=sys.stderr)
-        return 2
+        return fail(NAME, "--realtime-busy and --lockstep-busy must be >= 0", USAGE)
     workdir = Path(args.workdir) if args.workdir else None
     if workdir is not None and workdir.exists() and any(workdir.iterdir()):
-        print(f"error: --workdir {workdir} exists and is not empty", file=sys.stderr)
-        return 2
+        return fail(NAME, f"--workdir {workdir} exists and is not empty")  # what is on disk: a runtime failure
     report = run_soak(args.realtime_seconds, args.lockstep_seconds, args.realtime_busy, args.lockstep_busy, workdir,
                       progress=lambda m: print(m, file=sys.stderr, flush=True))
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2))
+    if (problem := _write(Path(args.out), report)) is not None:
+        return problem
     print(json.dumps(report, indent=2))
     failed = [r for k in ("realtime", "lockstep") if isinstance(r := report.get(k), dict)
               and (r.get("error") or r.get("launch_exit_code"))]
@@ -70,8 +79,8 @@ def run(args: argparse.Namespace) -> int:
 
     report = run_benchmarks(quick=args.quick, progress=lambda m: print(m, file=sys.stderr, flush=True))
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2))
+    if (problem := _write(out, report)) is not None:
+        return problem
     print(workload_table(report))
     scaling = "; ".join(f"B={b}: torch {v['torch']}, numba {v['numba']} (×{v['numba_over_torch']})"
                         for b, v in report["batch_scaling"].items())

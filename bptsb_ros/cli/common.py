@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
 
 DEFAULT_NODES = {"double_circle": 25, "multiple_circle": 17, "caterpillar": 10}
 """Default number of masses (fixed ones included) per body shape for ``--nodes``."""
@@ -18,3 +21,43 @@ def finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number, got {text[:40]!r}")
     return value
+
+
+USAGE = 2
+"""Exit status of a command whose arguments are invalid (argparse's own errors, option combinations, option
+values out of range, an unknown experiment name, an unknown ``--set`` key or a ``--set`` value of the wrong type)."""
+FAILURE = 1
+"""Exit status of a command whose arguments were fine but whose work failed: a bad or missing file (config, bag,
+checkpoint, result.json, MNIST data), training or simulation divergence, an unwritable output, a locked run
+directory, a failed scheduler connection."""
+
+
+class UsageError(ValueError):
+    """Raised by a subcommand's helpers when the command-line arguments themselves are at fault (exit ``USAGE``)."""
+
+
+def fail(command: str, message: object, code: int = FAILURE) -> int:
+    """Print ``bptsb <command>: <message>`` as one line to stderr and return ``code`` (the exit status).
+
+    ``message`` (an exception or a text) is flattened to one line: its lines, stripped, joined with ``"; "``.
+    """
+    text = "; ".join(s.strip() for s in str(message).splitlines() if s.strip()) or "failed"
+    print(f"bptsb {command}: {text}", file=sys.stderr)
+    return code
+
+
+def config_error_code(path: str | Path, overrides: Sequence[str] = (), seed: int | None = None) -> int:
+    """Exit status for a ConfigError from ``load_config(path, overrides, seed)``: ``FAILURE`` when the file alone
+    does not load (it is the file's fault), ``USAGE`` when it does (``--set`` or ``--seed`` broke it).
+
+    Called only after the error, so it costs one more read of a small YAML file.
+    """
+    from bptsb_ros.config import ConfigError, load_config
+
+    if not overrides and seed is None:
+        return FAILURE
+    try:
+        load_config(path)
+    except ConfigError:
+        return FAILURE
+    return USAGE

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import sys
 
 NAME = "config"
 HELP = (
@@ -41,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _import(args: argparse.Namespace) -> int:
+    from bptsb_ros.cli.common import fail
     from bptsb_ros.config_import import ImportFailure, import_file, write_output
 
     try:
@@ -50,12 +50,10 @@ def _import(args: argparse.Namespace) -> int:
             print(text, end="")
             return 0
         path = write_output(text, args.out, force=args.force)
-    except ImportFailure as err:
-        print(f"bptsb config import: {err}", file=sys.stderr)
-        return 2
+    except ImportFailure as err:  # the authors' file, or an --out that is not ours to replace
+        return fail("config import", err)
     except OSError as err:
-        print(f"bptsb config import: cannot write {args.out}: {err.strerror or err}", file=sys.stderr)
-        return 1
+        return fail("config import", f"cannot write {args.out}: {err.strerror or err}")
     print("\n".join(result.report_lines()))
     print(f"wrote {path}")
     return 0
@@ -64,6 +62,7 @@ def _import(args: argparse.Namespace) -> int:
 def _show(args: argparse.Namespace) -> int:
     import yaml
 
+    from bptsb_ros.cli.common import config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.experiments.common import config_dir
 
@@ -73,10 +72,8 @@ def _show(args: argparse.Namespace) -> int:
         else:
             path = args.config
         cfg = load_config(path, args.overrides)
-    except ConfigError as err:
-        print(f"bptsb config show: {'; '.join(s.strip() for s in str(err).splitlines() if s.strip())}",
-              file=sys.stderr)
-        return 2
+    except ConfigError as err:  # the file's fault (1), or the --set arguments' (2)
+        return fail("config show", err, config_error_code(path, args.overrides))
     print(f"# {path}, resolved" + (f" with --set {' '.join(args.overrides)}" if args.overrides else ""))
     print(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False, allow_unicode=True), end="")
     return 0

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 NAME = "data"
 HELP = ("Fetch and verify data sets. `bptsb data mnist --dir DIR` downloads the four MNIST IDX files "
@@ -21,6 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.cli.common import fail
     from bptsb_ros.data.mnist import MnistError, download, load_split
 
     try:
@@ -28,8 +28,7 @@ def run(args: argparse.Namespace) -> int:
             for path in download(args.dir, include_train=not args.test_only):
                 print(f"ok {path}")
         split = load_split(args.dir, args.split)
-    except MnistError as err:
-        print(f"bptsb data: {err}", file=sys.stderr)
-        return 2
+    except MnistError as err:  # a failed download, a bad or missing file, an unwritable --dir
+        return fail(NAME, err)
     print(f"verified ({'standard MNIST' if split.standard else 'custom IDX set'}): {split.description}")
     return 0

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import tempfile
 from pathlib import Path
 
@@ -77,6 +76,22 @@ def _check_basis(max_degree: int, max_delay: int, samples: int | None = None) ->
                        f"{MAX_BASIS_BYTES / 2**30:.0f} GiB; lower --max-degree or --max-delay or use fewer samples")
 
 
+def _option_problem(args: argparse.Namespace) -> str | None:
+    """Why the option values cannot make an IPC run (checked before any file is read), or None."""
+    if args.max_degree < 1:
+        return f"--max-degree must be >= 1, got {args.max_degree}"
+    for name in ("max_delay", "min_delay", "washout", "surrogates", "tau"):
+        if getattr(args, name) < 0:
+            return f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}"
+    if args.min_delay > args.max_delay:
+        return f"--min-delay ({args.min_delay}) must not exceed --max-delay ({args.max_delay})"
+    if args.threshold != "none" and args.surrogates < 1:
+        return f"--threshold {args.threshold} needs --surrogates >= 1"
+    if not (math.isfinite(args.threshold_scale) and args.threshold_scale >= 0):
+        return f"--threshold-scale must be a finite number >= 0, got {args.threshold_scale}"
+    return None
+
+
 def _check_out(out: Path) -> str | None:
     """Why ``out`` cannot become the output directory (checked before computing), or None when it can."""
     existing = out
@@ -117,14 +132,20 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.analysis.ipc import IPCError, bag_series, ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.plots import plot_ipc_bars
     from bptsb_ros.bags.errors import BagError
+    from bptsb_ros.cli.common import USAGE, fail
 
+    problem = _option_problem(args)
+    try:
+        _check_basis(args.max_degree, args.max_delay)  # the basis the options ask for is too large to compute
+    except IPCError as err:
+        problem = problem or str(err)
+    if problem is not None:
+        return fail(NAME, problem, USAGE)
     out = Path(args.out)
     problem = _check_out(out)
     if problem is not None:
-        print(f"bptsb ipc: cannot write --out {out}: {problem}", file=sys.stderr)
-        return 2
+        return fail(NAME, f"cannot write --out {out}: {problem}")
     try:
-        _check_basis(args.max_degree, args.max_delay)
         if args.input:
             u, groups, labels = _from_npz(args.input, args.per_column)
         else:
@@ -137,9 +158,8 @@ def run(args: argparse.Namespace) -> int:
                          min_delay=args.min_delay, washout=args.washout, surrogates=args.surrogates,
                          threshold=args.threshold, threshold_scale=args.threshold_scale, rank_cap=args.rank_cap,
                          orthogonalise_linear=args.orthogonalise_linear, seed=args.seed, progress=True)
-    except (IPCError, BagError) as err:
-        print(f"bptsb ipc: {err}", file=sys.stderr)
-        return 2
+    except (IPCError, BagError) as err:  # the .npz's or the bag's contents (too short, wrong shapes, too large)
+        return fail(NAME, err)
     data = res.to_json()
     data["source"] = {"input": args.input, "bag": args.bag}
     if args.bag:
@@ -152,8 +172,7 @@ def run(args: argparse.Namespace) -> int:
         (out / "ipc.json").write_text(json.dumps(data))
         plot_ipc_bars(out / "ipc.png", res, shown, title=f"IPC of {args.bag or args.input}")
     except OSError as err:  # --out was checked before computing; it changed since
-        print(f"bptsb ipc: cannot write --out {out}: {err.strerror or err}", file=sys.stderr)
-        return 1
+        return fail(NAME, f"cannot write --out {out}: {err.strerror or err}")
     for s in res.summary():
         degrees = ", ".join(f"deg {n}: {c:.3f}" for n, c in s["by_degree"].items())
         print(f"{s['label']}: total {s['total']:.3f} (rank {s['rank']}; {degrees})")

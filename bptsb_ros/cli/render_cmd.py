@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
-from bptsb_ros.cli.common import DEFAULT_NODES, finite_float
+from bptsb_ros.cli.common import DEFAULT_NODES, USAGE, fail, finite_float
 
 NAME = "render"
 HELP = (
@@ -34,17 +33,19 @@ def run(args: argparse.Namespace) -> int:
 
     nodes = DEFAULT_NODES[args.shape] if args.nodes is None else args.nodes
     if not str(args.out).lower().endswith((".png", ".svg", ".pdf")):
-        print(f"error: --out must end in .png, .svg or .pdf, got {args.out}", file=sys.stderr)
-        return 2
+        return fail(NAME, f"--out must end in .png, .svg or .pdf, got {args.out}", USAGE)
     if args.size <= 0:
-        print(f"error: --size must be positive, got {args.size}", file=sys.stderr)
-        return 2
+        return fail(NAME, f"--size must be positive, got {args.size}", USAGE)
     try:
         topology = build_shape(args.shape, nodes, size=args.size, neighbours=args.neighbours)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    path = render_topology(topology, args.out, mass_labels=not args.no_mass_labels,
-                           spring_labels=not args.no_spring_labels, dpi=args.dpi)
+    except ValueError as exc:  # --nodes or --neighbours out of range for the shape
+        return fail(NAME, exc, USAGE)
+    if args.dpi < 1:
+        return fail(NAME, f"--dpi must be >= 1, got {args.dpi}", USAGE)
+    try:
+        path = render_topology(topology, args.out, mass_labels=not args.no_mass_labels,
+                               spring_labels=not args.no_spring_labels, dpi=args.dpi)
+    except OSError as exc:
+        return fail(NAME, f"cannot write --out {args.out}: {exc.strerror or exc}")
     print(f"wrote {path} ({topology.n_masses} masses, {topology.n_springs} springs)")
     return 0

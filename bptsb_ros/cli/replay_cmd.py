@@ -34,17 +34,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.analysis.replay import replay
     from bptsb_ros.bags.errors import BagError
+    from bptsb_ros.cli.common import fail
     from bptsb_ros.training.checkpoint import CheckpointError
 
     try:
         metrics = replay(args.bag, args.out, args.agent, args.task, args.loop, gif=not args.no_gif,
                          skip_damaged=args.skip_damaged, body_node=args.body_node)
-    except (BagError, CheckpointError, ValueError) as err:
-        print(f"bptsb replay: {err}", file=sys.stderr)
-        return 2
+    except (BagError, CheckpointError, ValueError) as err:  # the bag's or the agent's contents
+        return fail(NAME, err)
     except OSError as err:
-        print(f"bptsb replay: cannot write --out {args.out}: {err.strerror or err}", file=sys.stderr)
-        return 2
+        return fail(NAME, f"cannot write --out {args.out}: {err.strerror or err}")
     shown = {k: v for k, v in metrics.items() if k != "files"}
     print(json.dumps(shown, indent=2, default=float))
     print("files: " + ", ".join(metrics["files"]))

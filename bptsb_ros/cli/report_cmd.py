@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 NAME = "report"
 HELP = "Gather the result.json of every `bptsb reproduce` run into one Markdown page with figures."
@@ -19,15 +18,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.analysis.report import ReportError, build_report
+    from bptsb_ros.cli.common import fail
     from bptsb_ros.experiments import ResultError
 
     try:
         path = build_report(args.runs_dir, args.out)
-    except (ResultError, ReportError) as err:  # a broken result.json; a page or folder that is not ours
-        print(f"bptsb report: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:
-        print(f"bptsb report: {err}", file=sys.stderr)
-        return 1
+    except (ResultError, ReportError, OSError) as err:  # a broken result.json; a page or folder that is not ours
+        return fail(NAME, err)
     print(f"wrote {path}")
     return 0

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
 NAME = "reproduce"
 HELP = ("Reproduce one experiment of the paper (--list names them): train, evaluate, compare with the paper's "
@@ -46,6 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.cli.common import USAGE, fail
     from bptsb_ros.config import ConfigError
     from bptsb_ros.dask_connect import scheduler_address
     from bptsb_ros.data.mnist import MnistError
@@ -53,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.experiments.experiment_settings import SettingsError, resolve_settings
     from bptsb_ros.experiments.result import claim_mark
     from bptsb_ros.rundir_lock import RunDirLocked
+    from bptsb_ros.runner import JobFailed
     from bptsb_ros.sweep import SchedulerError, SweepError
 
     if args.list:
@@ -61,27 +62,27 @@ def run(args: argparse.Namespace) -> int:
             print(f"{exp.name:28s} {exp.paper_ref}\n{'':28s} {exp.summary}\n{'':28s} ({times})")
         return 0
     if not args.name:
-        print("bptsb reproduce: name an experiment (bptsb reproduce --list)", file=sys.stderr)
-        return 2
+        return fail(NAME, "name an experiment (bptsb reproduce --list)", USAGE)
+    try:  # the arguments: the experiment's name, --set, --workers, --scheduler
+        exp = get_experiment(args.name)
+        settings = resolve_settings(exp.name, args.scale, args.settings)
+        if args.workers is not None and args.workers < 0:
+            raise ExperimentError(f"--workers must be a whole number >= 0 (0: in this process), "
+                                  f"got {args.workers}")
+        scheduler = scheduler_address(args.scheduler) if args.scheduler is not None else None
+    except (ExperimentError, SettingsError, SweepError) as err:
+        return fail(NAME, err, USAGE)
     if args.show_config:
-        try:
-            print(resolve_settings(get_experiment(args.name).name, args.scale, args.settings).show(), end="")
-        except (ExperimentError, SettingsError) as err:
-            print(f"bptsb reproduce: {err}", file=sys.stderr)
-            return 2
+        print(settings.show(), end="")
         return 0
     try:
-        scheduler = scheduler_address(args.scheduler) if args.scheduler is not None else None
         path, result = run_experiment(args.name, scale=args.scale, seed=args.seed, out_dir=args.out,
                                       force=args.force, resume=args.resume, progress=not args.no_progress,
                                       workers=args.workers, scheduler=scheduler, data_dir=args.data,
                                       split=args.split, settings=args.settings)
-    except (SchedulerError, RunDirLocked) as err:  # runtime failures: the arguments were fine
-        print(f"bptsb reproduce: {err}", file=sys.stderr)
-        return 1
-    except (ExperimentError, SettingsError, ConfigError, SweepError, MnistError) as err:
-        print(f"bptsb reproduce: {err}", file=sys.stderr)
-        return 2
+    except (SchedulerError, RunDirLocked, JobFailed, ExperimentError, SettingsError, ConfigError, SweepError,
+            MnistError, OSError) as err:  # the arguments were fine: --out, data, training, the scheduler, I/O
+        return fail(NAME, err)
     for row in result["rows"]:
         print(f"{row['system']:28s} {row['metric']:40s} ours {row['ours']!s:>12.12} paper {row['paper']!s:>10.10} "
               f"{row['unit']}")

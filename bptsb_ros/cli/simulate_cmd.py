@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
-from bptsb_ros.cli.common import DEFAULT_NODES, finite_float
+from bptsb_ros.cli.common import DEFAULT_NODES, USAGE, UsageError, fail, finite_float
 
 if TYPE_CHECKING:
     from bptsb_ros.sim.trajectory import Trajectory
@@ -68,35 +68,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def _fail(message: str) -> int:
-    print(f"error: {message}", file=sys.stderr)
-    return 2
+def _usage(message: str) -> int:
+    return fail(NAME, message, USAGE)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.steps < 1:
-        return _fail(f"--steps must be >= 1, got {args.steps}")
+        return _usage(f"--steps must be >= 1, got {args.steps}")
     if args.perturb < 0:
-        return _fail(f"--perturb must be >= 0, got {args.perturb}")
+        return _usage(f"--perturb must be >= 0, got {args.perturb}")
     if args.dt is not None and args.dt <= 0:
-        return _fail(f"--dt must be positive, got {args.dt}")
+        return _usage(f"--dt must be positive, got {args.dt}")
     if not str(args.out).endswith(".npz"):
-        return _fail(f"--out must end in .npz, got {args.out}")
+        return _usage(f"--out must end in .npz, got {args.out}")
     if args.gif is not None and not str(args.gif).lower().endswith(".gif"):
-        return _fail(f"--gif must end in .gif, got {args.gif}")
+        return _usage(f"--gif must end in .gif, got {args.gif}")
+    if args.agent and (args.swg_amplitude or args.ground_clamp or args.environment != "auto" or args.nodes is not None):
+        return _usage("--nodes, --swg-amplitude, --ground-clamp and --environment apply to --shape only")
 
     from bptsb_ros.body.msdn import SimulationDiverged
     from bptsb_ros.threads import configure_threads
+    from bptsb_ros.training.checkpoint import CheckpointError
 
     configure_threads(1, args.backend or "torch")  # one body: one thread (the kernel runs a batch of 1 serially)
     try:
         traj = _simulate_agent(args) if args.agent else _simulate_shape(args)
-    except (SimulationDiverged, ValueError) as exc:
-        return _fail(str(exc))
+    except UsageError as exc:  # --nodes / --size / --neighbours out of range for the shape
+        return _usage(str(exc))
+    except (SimulationDiverged, CheckpointError, ValueError) as exc:  # divergence; the agent's files
+        return fail(NAME, exc)
     try:
         path = traj.save_npz(args.out)
     except OSError as exc:
-        return _fail(f"cannot write --out {args.out}: {exc}")
+        return fail(NAME, f"cannot write --out {args.out}: {exc.strerror or exc}")
     print(f"wrote {path}: {traj.steps} steps of {traj.shape} ({traj.n_masses} masses, {traj.n_springs} springs, "
           f"{traj.dtype}, {traj.integrator})")
     if args.gif:
@@ -105,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             gif = animate_trajectory(traj, args.gif)
         except OSError as exc:
-            return _fail(f"cannot write --gif {args.gif}: {exc}")
+            return fail(NAME, f"cannot write --gif {args.gif}: {exc.strerror or exc}")
         print(f"wrote {gif}")
     return 0
 
@@ -137,7 +141,10 @@ def _simulate_shape(args: argparse.Namespace) -> Trajectory:
 
     dtype = dtype_of(args.dtype or "float32")
     nodes = DEFAULT_NODES[args.shape] if args.nodes is None else args.nodes
-    topology = build_shape(args.shape, nodes, size=args.size, neighbours=args.neighbours)
+    try:
+        topology = build_shape(args.shape, nodes, size=args.size, neighbours=args.neighbours)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     env_name = args.environment
     if env_name == "auto":
         env_name = "locomotion" if args.shape == "caterpillar" else "none"
@@ -170,17 +177,12 @@ def _simulate_agent(args: argparse.Namespace) -> Trajectory:
     from bptsb_ros.sim.agent_run import simulate_agent
     from bptsb_ros.training.checkpoint import CheckpointError, feedback_fitted, load_agent
 
-    if args.swg_amplitude or args.ground_clamp or args.environment != "auto" or args.nodes is not None:
-        raise ValueError("--nodes, --swg-amplitude, --ground-clamp and --environment apply to --shape only")
-    try:
-        agent = load_agent(args.agent, dtype=None if args.dtype is None else dtype_of(args.dtype))
-        if args.loop == "closed" and agent.feedback is None:
-            raise ValueError(f"{args.agent} has no feedback layer; run the open loop (--loop open)")
-        if args.loop == "closed" and not feedback_fitted(args.agent):
-            raise ValueError(f"the feedback layer of {args.agent} was never fitted (bptsb train fits it for SWG "
-                             "agents); run the open loop (--loop open)")
-    except CheckpointError as exc:
-        raise ValueError(str(exc)) from None
+    agent = load_agent(args.agent, dtype=None if args.dtype is None else dtype_of(args.dtype))
+    if args.loop == "closed" and agent.feedback is None:
+        raise CheckpointError(f"{args.agent} has no feedback layer; run the open loop (--loop open)")
+    if args.loop == "closed" and not feedback_fitted(args.agent):
+        raise CheckpointError(f"the feedback layer of {args.agent} was never fitted (bptsb train fits it for SWG "
+                              "agents); run the open loop (--loop open)")
     body = agent.body
     if args.dt is not None:
         body.dt = float(args.dt)

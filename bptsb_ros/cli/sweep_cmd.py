@@ -36,19 +36,26 @@ def _timeout(text: str) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.cli.common import USAGE, config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.dask_connect import scheduler_address
     from bptsb_ros.rundir_lock import RunDirLocked
     from bptsb_ros.sweep import DEFAULT_CONNECT_TIMEOUT, SchedulerError, SweepError, parse_seeds, run_sweep, train_jobs
 
-    try:
+    try:  # the arguments: --seeds, --workers, --scheduler, --connect-timeout
         seeds = parse_seeds(args.seeds)
         if args.workers is not None and args.workers < 0:
             raise SweepError(f"--workers must be >= 0, got {args.workers}")
         if args.connect_timeout is not None and args.scheduler is None:
             raise SweepError("--connect-timeout applies to --scheduler only")
         scheduler = scheduler_address(args.scheduler) if args.scheduler is not None else None
+    except SweepError as err:
+        return fail(NAME, err, USAGE)
+    try:
         load_config(args.config, args.overrides, seeds[0])  # a bad config fails here, once, not in every job
+    except ConfigError as err:  # the file's fault (1), or the --set arguments' (2)
+        return fail(NAME, err, config_error_code(args.config, args.overrides, seeds[0]))
+    try:
         jobs = train_jobs(args.config, seeds, args.overrides)
         last = [""]
 
@@ -60,12 +67,8 @@ def run(args: argparse.Namespace) -> int:
 
         result = run_sweep(jobs, args.out, workers=args.workers, scheduler=scheduler, progress=show,
                            connect_timeout=args.connect_timeout or DEFAULT_CONNECT_TIMEOUT)
-    except (SchedulerError, RunDirLocked) as err:  # runtime failures: the arguments were fine
-        print(f"bptsb sweep: {err}", file=sys.stderr)
-        return 1
-    except (SweepError, ConfigError) as err:
-        print(f"bptsb sweep: {err}", file=sys.stderr)
-        return 2
+    except (SchedulerError, RunDirLocked, SweepError, ConfigError, OSError) as err:  # the arguments were fine
+        return fail(NAME, err)
     if result.skipped:
         print(f"skipped {len(result.skipped)} finished job(s): {', '.join(result.skipped)}", file=sys.stderr)
     for rec in result.failed:

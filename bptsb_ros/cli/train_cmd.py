@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
 NAME = "train"
 HELP = "Train a brain-body agent with BPTSB from a YAML experiment config (config/*.yaml)."
@@ -24,27 +23,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bptsb_ros.cli.common import USAGE, config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.rundir_lock import RunDirLocked
     from bptsb_ros.training.checkpoint import CheckpointError
     from bptsb_ros.training.trainer import TrainingDiverged, train
 
     if args.resume and args.force:
-        print("bptsb train: --resume and --force exclude each other", file=sys.stderr)
-        return 2
+        return fail(NAME, "--resume and --force exclude each other", USAGE)
     try:
         cfg = load_config(args.config, args.overrides, args.seed)
+    except ConfigError as err:  # the file's fault (1), or the --set / --seed arguments' (2)
+        return fail(NAME, err, config_error_code(args.config, args.overrides, args.seed))
+    try:
         result = train(cfg, args.out, resume=args.resume, overwrite=args.force, progress=not args.no_progress)
-    except (ConfigError, CheckpointError, TrainingDiverged) as err:
-        print(f"bptsb train: {err}", file=sys.stderr)
-        return 2
-    except RunDirLocked as err:
-        print(f"bptsb train: {err}", file=sys.stderr)
-        return 1
+    except (ConfigError, CheckpointError, TrainingDiverged, RunDirLocked) as err:  # --out's contents, divergence
+        return fail(NAME, err)
     except OSError as err:
         where = f" {err.filename}" if err.filename else ""
-        print(f"bptsb train: cannot write{where}: {err.strerror or err}", file=sys.stderr)
-        return 2
+        return fail(NAME, f"cannot write{where}: {err.strerror or err}")
     m = result.metrics
     ev = m["evaluation"]
     losses = m["loss"]
