@@ -1,8 +1,8 @@
 """Exit codes of the ``bptsb`` subcommands: 2 for an invalid command line only, 1 for a runtime failure (a bad
 file, divergence, an unwritable output), each a single line ``bptsb <command>: ...`` on stderr.
 
-Every case is fast: bad files and temporary directories, no training. ``launch`` and ``run`` (the ROS 2 commands)
-are not covered here.
+Every case is fast: bad files and temporary directories, no training; the ``launch`` and ``run`` cases are refused
+before any node starts.
 """
 
 from __future__ import annotations
@@ -88,6 +88,13 @@ CASES = [
     ("config show", ["config", "show", "{bad}", "--set", "epochs=3"], FAILURE, "nokey"),
     ("config import", ["config", "import", "{theirs}"], FAILURE, "must be a mapping"),
     ("config import", ["config", "import", "{tmp}/missing.yaml"], FAILURE, "no such file"),
+    ("launch", ["launch", "lissajous_closed", "--duration", "1"], USAGE, "needs --agent"),
+    ("launch", ["launch", "lissajous_open", "--duration", "-1"], USAGE, "--duration must be >= 0"),
+    ("launch", ["launch", "narma", "--param", "swg_brain:x:=1"], USAGE, "not part of this loop"),
+    ("launch", ["launch", "lissajous_open", "--agent", "{tmp}/none"], FAILURE, "no such run directory"),
+    ("launch", ["launch", "lissajous_open", "--agent", "{afile}"], FAILURE, "--agent:"),
+    ("launch", ["launch", "lissajous_open", "--duration", "1", "--bag", "{afile}/bag"], FAILURE, "--bag"),
+    ("run", ["run", "body_sim", "-p", "x:=1"], USAGE, "must start with --ros-args"),
 ]
 
 

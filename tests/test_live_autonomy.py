@@ -405,10 +405,10 @@ def test_wind_table_beyond_max_wind_is_refused_at_startup(tmp_path, capsys):
     f.write_text("t,fx,fy\n0,0,1e30\n")
     args = ["launch", "locomotion_headwind", "--duration", "1", "--param", "wind_source:schedule:=file",
             "--param", f"wind_source:file:={f}", "--log-dir", str(tmp_path / "logs")]
-    assert main(args) == 2
+    assert main(args) == 1  # the file's content: a runtime failure
     err = capsys.readouterr().err.strip()
-    assert err == (f"error: wind file {f}, row 2: force (0, 1e+30) N is beyond the body's max_wind of 1000 N per "
-                   "component (every wind would be rejected)")
+    assert err == (f"bptsb launch: wind file {f}, row 2: force (0, 1e+30) N is beyond the body's max_wind of 1000 N "
+                   "per component (every wind would be rejected)")
     assert not (tmp_path / "logs").exists()  # refused before any node started
     # the other schedules: a force or calm beyond the limit, both sides
     const = {**defaults, "schedule": "constant", "force": 1000.0, "force_y": -1000.0}

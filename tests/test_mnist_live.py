@@ -204,5 +204,5 @@ def test_a_system_file_with_code_is_refused(tmp_path, capsys):
     code = main(["launch", "mnist_drawing", "--agent", str(tmp_path / "evil.pt"), "--images", images, "--labels",
                  labels, "--log-dir", str(tmp_path / "logs")])
     err = capsys.readouterr().err
-    assert code == 2 and "refused" in err and "GLOBAL exec" in err, err
+    assert code == 1 and err.startswith("bptsb launch: ") and "refused" in err and "GLOBAL exec" in err, err
     assert not marker.exists(), "the system file's payload ran"

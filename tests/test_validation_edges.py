@@ -760,9 +760,9 @@ def test_launch_run_settings_before_any_node(capsys, flag, value, accepted):
     assert cli_main(["launch", "lissajous_open", f"{flag}={value}", "--perturb-at=-1"]) == 2
     err = capsys.readouterr().err.strip()
     if accepted:
-        assert err == "error: --perturb-at -1: must be >= 0 (sim seconds)"
+        assert err == "bptsb launch: --perturb-at -1: must be >= 0 (sim seconds)"
     else:
-        assert err == "error: --duration must be >= 0, --rate-scale and --grace > 0"
+        assert err == "bptsb launch: --duration must be >= 0, --rate-scale and --grace > 0"
 
 
 @pytest.mark.parametrize("functions, max_bytes, accepted, match", [

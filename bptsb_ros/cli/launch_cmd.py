@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from bptsb_ros.cli.common import finite_float
+from bptsb_ros.cli.common import FAILURE, USAGE, fail, finite_float
 from bptsb_ros.live.loops import LOOPS, bag_target_problem, format_parameter, loops_help
 
 NAME = "launch"
@@ -300,9 +300,10 @@ def _extra_value(items: list[str], name: str) -> str | None:
 def _wind_limit(extra: dict[str, list[str]]) -> float:
     """body_sim's max_wind [N] (its default, or ``--param body_sim:max_wind:=X``), passed on to wind_source; a
     wind_source file table is checked against it here, before any node starts (the body would reject every wind
-    beyond it: a run without wind). Raises ValueError naming the row and the limit."""
+    beyond it: a run without wind). Raises ValueError naming the argument, or WindScheduleError (a ValueError) naming
+    the file's row and the limit."""
     from bptsb_ros.live.safety import DEFAULT_MAX_WIND
-    from bptsb_ros.sim.wind_schedule import WindScheduleError, read_table
+    from bptsb_ros.sim.wind_schedule import read_table
 
     text = _extra_value(extra.get("body_sim", []), "max_wind")
     try:
@@ -316,10 +317,7 @@ def _wind_limit(extra: dict[str, list[str]]) -> float:
         path = _extra_value(wind, "file")
         if not path:
             raise ValueError("--param wind_source:schedule:=file needs --param wind_source:file:=CSV")
-        try:
-            read_table(path, max_force=limit)
-        except WindScheduleError as err:
-            raise ValueError(str(err)) from None
+        read_table(path, max_force=limit)
     return limit
 
 
@@ -378,48 +376,43 @@ def run(args: argparse.Namespace) -> int:
         from bptsb_ros.live.mnist_loop import StreamError, plan_stream
 
         if args.mode != "lockstep":
-            print("error: mnist_drawing resets the body at stated steps, which needs --mode lockstep", file=sys.stderr)
-            return 2
+            return fail("launch", "mnist_drawing resets the body at stated steps, which needs --mode lockstep", USAGE)
         try:
             plan = plan_stream(args.agent, args.images, args.labels, args.first, args.count, args.episode_steps)
-        except StreamError as err:
-            print(f"error: {err}", file=sys.stderr)
-            return 2
+        except StreamError as err:  # the agent, images or labels files
+            return fail("launch", err, FAILURE)
     elif loop.needs_agent and not args.agent:
-        print(f"error: loop {loop.name} needs --agent RUN_DIR (a trained agent with a fitted feedback layer)",
-              file=sys.stderr)
-        return 2
+        return fail("launch", f"loop {loop.name} needs --agent RUN_DIR (a trained agent with a fitted feedback layer)",
+                    USAGE)
     if args.duration < 0 or args.rate_scale <= 0 or args.grace <= 0:
-        print("error: --duration must be >= 0, --rate-scale and --grace > 0", file=sys.stderr)
-        return 2
+        return fail("launch", "--duration must be >= 0, --rate-scale and --grace > 0", USAGE)
     problem = _perturbation_problem(args)
     if problem:
-        print(f"error: {problem}", file=sys.stderr)
-        return 2
+        return fail("launch", problem, USAGE)
     if args.agent and plan is None:
         if not Path(args.agent).exists():
-            print(f"error: --agent {args.agent}: no such run directory", file=sys.stderr)
-            return 2
+            return fail("launch", f"--agent {args.agent}: no such run directory", FAILURE)
         from bptsb_ros.training.checkpoint import CheckpointError, read_checkpoint
 
         try:
             read_checkpoint(args.agent)  # data only (weights_only): refused here before any node loads it
             loop = agent_loop(loop, args.agent)
         except CheckpointError as err:
-            print(f"error: --agent: {err}", file=sys.stderr)
-            return 2
+            return fail("launch", f"--agent: {err}", FAILURE)
     if args.bag:
         problem = bag_target_problem(Path(args.bag))
         if problem:
-            print(f"error: --bag {args.bag}: {problem}", file=sys.stderr)
-            return 2
+            return fail("launch", f"--bag {args.bag}: {problem}", FAILURE)
     nodes = ["body_sim"] + [b.executable for b in loop.brains] + (["recorder"] if args.bag else [])
+    from bptsb_ros.sim.wind_schedule import WindScheduleError
+
     try:
         extra = parse_extra(args.param, nodes)
         max_wind = _wind_limit(extra)
+    except WindScheduleError as err:  # the wind file's content
+        return fail("launch", err, FAILURE)
     except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        return fail("launch", err, USAGE)
     if args.log_dir:
         log_dir = Path(args.log_dir)
     elif args.bag:
@@ -429,8 +422,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         log_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        print(f"error: cannot create the log directory {log_dir}: {err.strerror or err}", file=sys.stderr)
-        return 2
+        return fail("launch", f"cannot create the log directory {log_dir}: {err.strerror or err}", FAILURE)
     summary_path = log_dir / "body_summary.json"
 
     common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,

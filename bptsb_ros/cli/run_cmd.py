@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import sys
+
+from bptsb_ros.cli.common import USAGE, fail
 
 NAME = "run"
 HELP = ("run one ROS 2 node: body_sim, swg_brain, mlp_brain, feedback_brain, task_input, recorder, image_streamer or "
@@ -38,8 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     ros_args = list(args.ros_args)
     if ros_args and ros_args[0] != "--ros-args":
-        print(f"error: arguments after the node name must start with --ros-args, got {ros_args[0]!r}", file=sys.stderr)
-        return 2
+        return fail("run", f"arguments after the node name must start with --ros-args, got {ros_args[0]!r}", USAGE)
     from bptsb_ros.ros.runtime import block_interrupt
 
     block_interrupt()  # Ctrl-C while the node imports and starts: a clean stop, not a traceback
