@@ -166,11 +166,11 @@ def plot_timing(path: Path, runs: dict[str, dict], *, period: int, target: Calla
         t = res["t"][-period - 1:]
         tgt = target(t, shifts[name])
         fails = np.flatnonzero(~conv)
-        examples = [(0, "n = 0 (trained)")]
+        examples = [(0, "trained")]
         if fails.size:
             examples.append((int(fails[len(fails) // 2]), "fails"))
         else:
-            examples.append((50, "n = 50"))
+            examples.append((50, "converges"))
         for ax, (n, label) in zip(axes[row, 1:], examples, strict=True):
             xy = res["cmp"][-3 * period - 1:, n]
             ax.plot(tgt[:, 0], tgt[:, 1], "--", color=TARGET, lw=1.0, label="(1,3,0) target")
