@@ -220,7 +220,9 @@ def caught(monkeypatch):
 
 @pytest.fixture(autouse=True)
 def _small(monkeypatch):
+    """Fewer panels, and the default formats (the test session asks for PNG only: tests/conftest.py)."""
     monkeypatch.setattr(figure_cases, "SMALL", True)
+    monkeypatch.delenv(style.FORMATS_ENV, raising=False)
 
 
 #: cases whose files are written for real and read back (rendering is most of a figure's cost: the others record
@@ -307,6 +309,17 @@ def test_save_refuses_a_path_that_is_not_png(tmp_path):
     with pytest.raises(ValueError, match=r"\.png"):
         style.save(fig, tmp_path / "x.pdf")
     plt.close(fig)
+
+
+def test_the_formats_can_be_chosen_and_a_bad_choice_is_named(tmp_path, monkeypatch):
+    monkeypatch.setenv(style.FORMATS_ENV, "png, svg")
+    png = figure_cases.loss(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["loss.png", "loss.svg"]
+    assert b"<svg" in png.with_suffix(".svg").read_bytes()
+    for bad in ("pdf", "png,jpg", "png,pdf,pdf"):
+        monkeypatch.setenv(style.FORMATS_ENV, bad)
+        with pytest.raises(ValueError, match=f"{style.FORMATS_ENV} must list png first.*{bad!r}"):
+            style.formats()
 
 
 def test_running_median_matches_a_loop():
