@@ -142,9 +142,9 @@ def plot_error_bars(path: Path, names: Sequence[str], errors: Sequence[float], s
     fig, ax = plt.subplots(figsize=size(DOUBLE * 0.6, 0.6))
     x = np.arange(len(names))
     ax.bar(x, errors, yerr=stds, color=[f"C{i % 7}" for i in range(len(names))], capsize=3)
-    for xi, e in zip(x, errors):
-        ax.annotate(f"{e:.3g}", (xi, e), xytext=(0, 2), textcoords="offset points", ha="center", va="bottom",
-                    fontsize=6.5)
+    for xi, e, sd in zip(x, errors, stds):  # the value above its error bar
+        ax.annotate(f"{e:.3g}", (xi, e + sd), xytext=(0, 2), textcoords="offset points", ha="center",
+                    va="bottom", fontsize=6.5)
     ax.set_xticks(x, names, rotation=20, ha="right")
     ax.set_xlabel("system")
     ax.set_ylabel("test drawing MSE [m²]")
