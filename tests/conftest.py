@@ -6,6 +6,8 @@ gives the session a private ROS domain, so parallel sessions and other machines 
 * ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` always; ``ROS_STATIC_PEERS`` is cleared.
 * ``ROS_DOMAIN_ID`` = ``BPTSB_TEST_DOMAIN_ID`` if set, else 100 + pid % 101 (a value in 100..200).
 * ``OMP_NUM_THREADS=1`` and ``MPLBACKEND=Agg`` unless already set (2 shared cores, no display).
+* ``BPTSB_FIGURE_FORMATS=png`` unless already set: the experiments' figures skip their PDF copy (half of a
+  figure's time); tests/test_figures.py unsets it and checks the PNG + PDF of every figure.
 
 Subprocesses started by tests inherit these through ``os.environ``; the ``ros_env`` fixture returns a copy
 for tests that build their own environment.
@@ -44,6 +46,7 @@ os.environ.pop("ROS_STATIC_PEERS", None)
 os.environ["ROS_DOMAIN_ID"] = str(SESSION_DOMAIN_ID)
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
+os.environ.setdefault("BPTSB_FIGURE_FORMATS", "png")
 
 
 def pytest_report_header(config: pytest.Config) -> str:

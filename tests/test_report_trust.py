@@ -349,3 +349,24 @@ def test_report_shows_commands_without_absolute_paths(command: str, shown: str) 
     from bptsb_ros.analysis.report import portable_command
 
     assert portable_command(command) == shown
+
+
+def test_a_figures_pdf_sibling_travels_with_it_under_the_same_checks(tmp_path, capsys):
+    """bptsb_ros.analysis.style.save writes a PDF beside each PNG: the report copies it and links it after the
+    image; a PNG without one is shown alone; a PDF reached through a symbolic link is neither copied nor linked."""
+    runs, page = tmp_path / "runs", tmp_path / "docs" / "R.md"
+    secret = tmp_path / "secret.pdf"
+    secret.write_bytes(b"%PDF SECRET")
+    run = _plant(runs / "a", _result(figures=["fig.png", "alone.png", "leak.png"]),
+                 {"fig.png": FIG, "fig.pdf": b"%PDF planted", "alone.png": FIG, "leak.png": FIG})
+    (run / "leak.pdf").symlink_to(secret)
+    rc, err = _report(runs, page, capsys)
+    assert rc == 0, err
+    figs = page.parent / "R_figures" / "toy-trust-smoke-seed0"
+    assert sorted(p.name for p in figs.iterdir()) == ["alone.png", "fig.pdf", "fig.png", "leak.png"]
+    assert (figs / "fig.pdf").read_bytes() == b"%PDF planted"
+    lines = [ln for ln in page.read_text().splitlines() if ln.startswith("![")]
+    assert lines == ["![fig](R_figures/toy-trust-smoke-seed0/fig.png) ([PDF](R_figures/toy-trust-smoke-seed0/fig.pdf))",
+                     "![alone](R_figures/toy-trust-smoke-seed0/alone.png)",
+                     "![leak](R_figures/toy-trust-smoke-seed0/leak.png)"]
+    assert b"SECRET" not in b"".join(p.read_bytes() for p in (page.parent / "R_figures").rglob("*") if p.is_file())

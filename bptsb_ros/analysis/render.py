@@ -9,10 +9,10 @@ import numpy as np
 from bptsb_ros.body.shapes import Topology
 
 FIXED_COLOR = "#5f5f5f"
-MOVABLE_COLOR = "#1f77b4"
-CMP_COLOR = "#d62728"
+MOVABLE_COLOR = "#0072B2"  # the style's blue, vermillion and green (Okabe-Ito: colour-blind safe)
+CMP_COLOR = "#D55E00"
 SPRING_COLOR = "#9a9a9a"
-SPRING_LABEL_COLOR = "#2c7f2c"
+SPRING_LABEL_COLOR = "#007350"
 
 
 def render_topology(
@@ -22,16 +22,22 @@ def render_topology(
     mass_labels: bool = True,
     spring_labels: bool = True,
     title: str | None = None,
-    dpi: int = 200,
+    dpi: int | None = None,
 ) -> Path:
-    """Write a labelled drawing of ``topology`` (positions in metres) to ``path`` (PNG, SVG or PDF).
+    """Write a labelled drawing of ``topology`` (positions in metres) to ``path`` (PNG, SVG or PDF), in the
+    package's figure style (:mod:`bptsb_ros.analysis.style`; ``dpi`` default its :data:`~bptsb_ros.analysis.style.DPI`).
 
     Masses are drawn as grey squares (fixed), blue circles (movable) and a red star (CMP), each with
     its index; springs as lines with their index (green, at the midpoint).
     """
-    import matplotlib
+    from bptsb_ros.analysis.style import DPI, RC, plt
 
-    matplotlib.use("Agg")
+    with plt.rc_context(RC):
+        return _render(topology, Path(path), mass_labels, spring_labels, title, DPI if dpi is None else dpi)
+
+
+def _render(topology: Topology, path: Path, mass_labels: bool, spring_labels: bool, title: str | None,
+            dpi: int) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
     from matplotlib.lines import Line2D
@@ -95,7 +101,6 @@ def render_topology(
     ax.set_title(title or f"{topology.name}: {topology.n_masses} masses ({n_mov} movable), "
                  f"{topology.n_springs} springs")
     fig.tight_layout()
-    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)

@@ -261,7 +261,8 @@ def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | N
                                   shade=wind_periods(run), shade_label="wind blowing"))
     elif task == "narma" and "u" in plots:
         files.append(P.plot_series(out_dir / "narma.png", {"input u": plots["u"], "target y": plots["y"],
-                                                          "live output": plots["out"]}, "sample", "value"))
+                                                          "live output": plots["out"]}, "sample [τ steps]",
+                                  "u [-]; target y, output (CMP y) [m]"))
     files += _autonomy_figures(out_dir, run, metrics, plots.get("autonomy", {}))
     if gif and len(run.springs):
         files.append(animate_run(out_dir / "replay.gif", run))

@@ -248,7 +248,9 @@ def safe_figure(run_dir: Path, rel: str) -> tuple[Path | None, str]:
 
 def _figure_lines(run_dir: Path, rels: list[str], dest: str, fig_root: Path, page_dir: Path,
                   copies: dict[str, Path], warn: Callable[[str], None]) -> list[str]:
-    """The page's lines for one result's figures; fills ``copies`` (path in the figures folder → source)."""
+    """The page's lines for one result's figures; fills ``copies`` (path in the figures folder → source).
+    A figure's PDF sibling (what :func:`bptsb_ros.analysis.style.save` writes beside each PNG) travels with it,
+    under the same checks, and is linked after the image; a figure without one is shown alone."""
     lines = []
     for rel in rels:
         src, why = safe_figure(run_dir, rel)
@@ -257,15 +259,26 @@ def _figure_lines(run_dir: Path, rels: list[str], dest: str, fig_root: Path, pag
                 warn(f"figure not copied: {why}")
             lines.append(f"- figure {md_text(rel)}: not shown ({md_text(why.removeprefix(str(run_dir) + os.sep))})")
             continue
-        if src.resolve().is_relative_to(page_dir.resolve()):  # already beside the page: link it where it is
-            target = Path(os.path.relpath(src, page_dir))
-        else:
-            flat = PurePosixPath(rel.replace("/", "_"))
-            name, n = f"{dest}/{flat}", 1
-            while name in copies:  # "a/b.png" and "a_b.png" of one run
-                n += 1
-                name = f"{dest}/{flat.stem}-{n}{flat.suffix}"
-            copies[name] = src
-            target = Path(os.path.relpath(fig_root / name, page_dir))
-        lines.append(f"![{md_text(PurePosixPath(rel).stem)}]({md_link_target(target.as_posix())})")
+        target = _place(src, rel, dest, fig_root, page_dir, copies)
+        line = f"![{md_text(PurePosixPath(rel).stem)}]({md_link_target(target)})"
+        pdf_rel = str(PurePosixPath(rel).with_suffix(".pdf"))
+        if PurePosixPath(rel).suffix.lower() != ".pdf" and pdf_rel not in rels:
+            pdf, _ = safe_figure(run_dir, pdf_rel)
+            if pdf is not None:
+                line += f" ([PDF]({md_link_target(_place(pdf, pdf_rel, dest, fig_root, page_dir, copies))}))"
+        lines.append(line)
     return lines
+
+
+def _place(src: Path, rel: str, dest: str, fig_root: Path, page_dir: Path, copies: dict[str, Path]) -> str:
+    """The page's link (POSIX, relative to the page) to the figure ``src``: where it lies when already beside the
+    page, else its copy in the figures folder (entered in ``copies``)."""
+    if src.resolve().is_relative_to(page_dir.resolve()):  # already beside the page: link it where it is
+        return Path(os.path.relpath(src, page_dir)).as_posix()
+    flat = PurePosixPath(rel.replace("/", "_"))
+    name, n = f"{dest}/{flat}", 1
+    while name in copies:  # "a/b.png" and "a_b.png" of one run
+        n += 1
+        name = f"{dest}/{flat.stem}-{n}{flat.suffix}"
+    copies[name] = src
+    return Path(os.path.relpath(fig_root / name, page_dir)).as_posix()

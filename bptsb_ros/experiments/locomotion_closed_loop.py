@@ -117,8 +117,14 @@ def run(ctx: Context) -> None:
     verdicts = claims(ClosedLoopCounts(np.array([r["open_speed"] for r in rows], dtype=float),
                                        np.array([bool(r["success"]) for r in rows], dtype=bool)))
     ctx.result.claims.extend(verdicts)
-    ctx.figure(_plot_gaits(ctx.out_dir / "gaits.png", sweep.out_dir, seeds, results, settings.gait_time))
-    ctx.figure(_plot_ratios(ctx.out_dir / "closed_open_ratio.png", seeds, results, settings))
+    from bptsb_ros.analysis.locomotion_plots import plot_closed_open_ratios, plot_gaits
+    ctx.figure(plot_gaits(ctx.out_dir / "gaits.png", {s: _load_gait(sweep.out_dir, s) for s in seeds},
+                          {s: results[f"seed-{s}"] for s in seeds if f"seed-{s}" in results}, settings.gait_time))
+    ctx.figure(plot_closed_open_ratios(
+        ctx.out_dir / "closed_open_ratio.png", seeds, {s: results.get(f"seed-{s}", {}) for s in seeds},
+        (("ratio", "FL on spring lengths (paper)"),
+         ("handover_ratio", f"{settings.handover_time:g} s SWG→FL transition"),
+         ("velocity_fl_ratio", "FL on velocities")), SUCCESS_RATIO))
     best = max(count, hand, vel)
     notes = []
     if verdicts[1].holds is False:
@@ -153,65 +159,10 @@ def _binomial_interval(n: int, p: float) -> tuple[int, int]:
     return lo, hi
 
 
-def _plot_gaits(path: Path, sweep_dir: Path, seeds: list[int], results: dict, duration: float) -> Path:
-    """One panel per agent: body snapshots over the stored gait, coloured by time (as the paper's table)."""
-    import matplotlib.pyplot as plt
-
-    n = len(seeds)
-    cols = min(5, n)
-    rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 2.2 * rows), squeeze=False)
-    cmap = plt.get_cmap("viridis")
-    for ax, seed in zip(axes.flat, seeds, strict=False):
-        gait = sweep_dir / "jobs" / f"seed-{seed}" / "gait.npz"
-        res = results.get(f"seed-{seed}")
-        if res is None or not gait.is_file():
-            ax.set_title(f"seed {seed}: failed", fontsize=8)
-            ax.axis("off")
-            continue
-        data = np.load(gait)
-        r, springs = data["r"], data["springs"]
-        frames = np.linspace(0, len(r) - 1, min(8, len(r))).astype(int)
-        for j, f in enumerate(frames):
-            c = cmap(j / max(len(frames) - 1, 1))
-            for a, b in springs:
-                ax.plot(r[f, [a, b], 0], r[f, [a, b], 1], color=c, lw=0.6)
-            ax.plot(r[f, :, 0], r[f, :, 1], "o", color=c, ms=1.5)
-        mark = "✓" if res["success"] else "✗"
-        ax.set_title(f"seed {seed}: {res['open_speed']:.2f} m/s, closed/open {res['ratio']:.2f} {mark}", fontsize=7)
-        ax.set_aspect("equal")
-        ax.tick_params(labelsize=6)
-        ax.axhline(0, color="0.5", lw=0.5)
-    for ax in list(axes.flat)[n:]:
-        ax.axis("off")
-    fig.supxlabel("x [m]")
-    fig.supylabel("y [m]")
-    fig.suptitle(f"open-loop (SWG) gaits: 8 snapshots over {duration:g} s after training, coloured by time "
-                 "(dark → light); title: open-loop speed, closed/open speed, success", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
-
-
-def _plot_ratios(path: Path, seeds: list[int], results: dict, settings: AgentSettings) -> Path:
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 3.2))
-    x = np.arange(len(seeds))
-    series = (("ratio", "FL on spring lengths (paper)"),
-              ("handover_ratio", f"{settings.handover_time:g} s SWG→FL transition"),
-              ("velocity_fl_ratio", "FL on velocities"))
-    for i, (key, label) in enumerate(series):
-        y = [results.get(f"seed-{s}", {}).get(key, np.nan) for s in seeds]
-        ax.bar(x + (i - 1) * 0.27, np.clip(np.nan_to_num(y, nan=0.0), -0.5, 1.5), 0.27, label=label)
-    ax.axhline(SUCCESS_RATIO, color="k", ls="--", lw=1, label=f"success: {SUCCESS_RATIO}")
-    ax.set_xticks(x, [str(s) for s in seeds], fontsize=7)
-    ax.set_xlabel("agent (seed)")
-    ax.set_ylabel("closed-loop / open-loop speed")
-    ax.legend(frameon=False, fontsize=7)
-    ax.grid(alpha=0.3, axis="y")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+def _load_gait(sweep_dir: Path, seed: int) -> dict | None:
+    """The stored open-loop gait of agent ``seed`` (r, springs, dt), or None where its job left none."""
+    gait = sweep_dir / "jobs" / f"seed-{seed}" / "gait.npz"
+    if not gait.is_file():
+        return None
+    with np.load(gait) as data:
+        return {k: data[k] for k in ("r", "springs", "dt")}

@@ -14,7 +14,6 @@ Claims, each with its criterion and premise: :func:`claims`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -207,8 +206,9 @@ def run(ctx: Context) -> None:
         ctx.row("after switching training", f"speed at F_wind = {f:g}", "m/s", float(v[np.isclose(winds, f)][0]))
     blocks = phase_blocks(traces["switching"]["t"], period)
     ctx.result.claims.extend(claims(HeadwindNumbers(target, sw, blocks, winds, v)))
-    ctx.figure(_plot_c(ctx.out_dir / "headwind_speed.png", traces, target, force, period))
-    ctx.figure(_plot_e(ctx.out_dir / "speed_vs_wind.png", winds, curves, target))
+    from bptsb_ros.analysis.locomotion_plots import plot_headwind_speed, plot_speed_vs_wind
+    ctx.figure(plot_headwind_speed(ctx.out_dir / "headwind_speed.png", traces, target, force, period))
+    ctx.figure(plot_speed_vs_wind(ctx.out_dir / "speed_vs_wind.png", winds, curves, target, TRAINED))
     ctx.figure(ctx.out_dir / "switching" / "loss.png")
     ctx.result.details = {
         "seed": ctx.seed, "v_max": v_max, "target": target, "switching_sim_time_s": sim_time, "wind_force": force,
@@ -222,50 +222,3 @@ def run(ctx: Context) -> None:
                   "'periodically'); the published code used −15 N plus a constant +1 N upward, we use the "
                   "paper's F_wind = −1 N along x."),
     }
-
-
-def _plot_c(path: Path, traces: dict, target: float, force: float, period: float) -> Path:
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 3.4))
-    labels = {"switching": "after switching training", "forward": "forward agent (before)"}
-    for i, (name, tr) in enumerate(traces.items()):
-        t = tr["t"] - tr["t0"]
-        ax.plot(t, tr["v"], color=f"C{i}", lw=1.2, label=labels[name], drawstyle="steps-pre")
-    tr = traces["switching"]
-    on = tr["on"]
-    step_t = np.arange(len(on)) * tr["dt"]
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(int), [0]])))
-    for j, (a, b) in enumerate(zip(edges[::2], edges[1::2], strict=True)):
-        ax.axvspan(step_t[a], step_t[min(b, len(step_t) - 1)], color="orange", alpha=0.25,
-                   label=f"headwind F = {force:g} N" if j == 0 else None)
-    ax.axhline(target, color="k", ls="--", lw=1, label="target v_max/2")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("forward speed [m/s], 1 s blocks")
-    ax.set_title(f"periodic headwind (period {period:g} s)", fontsize=9)
-    ax.legend(frameon=False, fontsize=7)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-def _plot_e(path: Path, winds: np.ndarray, curves: dict, target: float) -> Path:
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 3.4))
-    labels = {"switching": "after switching training", "forward": "forward agent (before)"}
-    for i, (name, v) in enumerate(curves.items()):
-        ax.plot(winds, v, "o-", ms=2.5, lw=1, color=f"C{i}", label=labels[name])
-    ax.axhline(target, color="k", ls="--", lw=1, label="target v_max/2")
-    for j, f in enumerate(TRAINED):
-        ax.axvline(f, color="orange" if f else "C9", lw=4, alpha=0.35, label="trained F_wind" if j == 0 else None)
-    ax.set_xlabel("F_wind [N] (negative: headwind)")
-    ax.set_ylabel("forward speed [m/s]")
-    ax.legend(frameon=False, fontsize=7)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path

@@ -12,7 +12,6 @@ of a ``before`` run of the loop; speed after: the last half of the ``after`` run
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -166,7 +165,9 @@ def run(ctx: Context) -> None:
             ctx.row(name, f"return rate at σ = {sg:.1f} m", "1", float(mean[loop][i]))
     ctx.result.claims.extend(claims(PerturbationRates(sigmas, mean["open"], mean["closed"],
                                                       all(v > 0 for v in v_before_open), not fallback)))
-    ctx.figure(_plot(ctx.out_dir / "return_rate.png", sigmas, rates, mean, example, chosen, before_s, dt))
+    from bptsb_ros.analysis.locomotion_plots import plot_return_rate
+    ctx.figure(plot_return_rate(ctx.out_dir / "return_rate.png", sigmas, rates, mean, example, chosen[0], before_s,
+                                dt))
     ctx.result.details = {
         "agents": chosen, "successful_agents": [] if fallback else ok, "settings": settings.__dict__,
         "fallback_best_agent": fallback, "noise_seeds_per_sigma": n_noise, "before_s": before_s, "after_s": after_s,
@@ -177,41 +178,3 @@ def run(ctx: Context) -> None:
         "notes": ("No agent's closed loop succeeded; the agent with the best closed/open ratio was perturbed instead."
                   if fallback else ""),
     }
-
-
-def _plot(path: Path, sigmas, rates, mean, example, chosen, before_s: float, dt: float) -> Path:
-    import matplotlib.pyplot as plt
-
-    from bptsb_ros.analysis.plots import moving_average
-
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6), gridspec_kw={"width_ratios": [1.3, 1]})
-    colours = {"open": "C0", "closed": "C3"}
-    names = {"open": "SWG (open loop)", "closed": "FL (closed loop)"}
-    for loop in ("open", "closed"):
-        x = example[loop]
-        before = np.diff(x["x_before"]) / dt
-        i = int(np.argmin(np.abs(sigmas - 0.5)))
-        n_noise = x["success"].shape[1]
-        after = np.diff(x["x_after"][:, i * n_noise]) / dt
-        v = np.concatenate([before, after])
-        t = np.arange(1, len(v) + 1) * dt
-        a1.plot(*moving_average(t, v, 100), color=colours[loop], lw=1, label=f"{names[loop]}, σ = 0.5 m, noise seed 0")
-    a1.axvspan(before_s - 0.1, before_s + 0.1, color="orange", alpha=0.5, label="perturbation")
-    a1.set_xlabel("time [s]")
-    a1.set_ylabel("forward speed [m/s], 1 s average")
-    a1.set_title(f"agent {chosen[0]}", fontsize=9)
-    a1.legend(frameon=False, fontsize=7)
-    a1.grid(alpha=0.3)
-    for loop in ("open", "closed"):
-        for r in rates[loop]:
-            a2.plot(sigmas, r, color=colours[loop], lw=0.5, alpha=0.35)
-        a2.plot(sigmas, mean[loop], "o-", color=colours[loop], label=f"{names[loop]}, mean of {len(rates[loop])}")
-    a2.set_xlabel("perturbation σ [m]")
-    a2.set_ylabel("return rate")
-    a2.set_ylim(-0.03, 1.03)
-    a2.legend(frameon=False, fontsize=7)
-    a2.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path

@@ -170,7 +170,7 @@ def claims(n: MemoryNumbers) -> list[Claim]:
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
-    from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
+    from bptsb_ros.analysis.timeseries_plots import IpcPanel, plot_ipc_panels, plot_memory_error
     from bptsb_ros.experiments.timeseries import (
         BODIES,
         N_MOV,
@@ -244,34 +244,18 @@ def run(ctx: Context) -> None:
         totals={lab: float(res.total[res.group(lab)]) for lab in res.labels})))
 
     # figures (a) error vs Δt, (b) Δt = focus series, (c) IPC
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-    for i, b in enumerate(BODIES):
-        axes[0].errorbar(delays, err[b].mean(axis=1), yerr=err[b].std(axis=1), marker="o", capsize=3,
-                         color=f"C{i}", label=f"LIL + {b}")
-    axes[0].set_xlabel("delay Δt [task steps]")
-    axes[0].set_ylabel("NMSE (held-out)")
-    axes[0].set_title(f"(a) memory task error, mean ± std over {len(seeds)} seed(s)", fontsize=9)
-    axes[0].legend(frameon=False, fontsize=8)
     t = np.arange(washout, min(washout + 60, len(u)))
-    axes[1].plot(t, states["double-circle"]["target"][t], "k--", lw=1.5, label=f"target u(t − {focus})")
-    for i, b in enumerate(BODIES):
+    outputs = {}
+    for b in BODIES:
         st = states[b]
-        cmp_local = list(st["movable"]).index(int(st["cmp_index"]))
-        axes[1].plot(t, st["positions"][t, cmp_local, 1], color=f"C{i}", lw=1, label=f"output, {b}")
-    axes[1].set_xlabel("task step t")
-    axes[1].set_ylabel("y (CMP y) [m]")
-    axes[1].set_title(f"(b) Δt = {focus}", fontsize=9)
-    axes[1].legend(frameon=False, fontsize=7)
-    ctx.figure(_save(fig, ctx.out_dir / "memory_error.png"))
-    fig, axes = plt.subplots(2, 1, figsize=(13, 8))
-    for ax, b in zip(axes, BODIES):
-        shown = [lab for lab in res.labels if lab.startswith(f"{b}:")] + ["target"]
-        rows = [res.group(lab) for lab in shown]
-        draw_ipc_bars(ax, [lab.replace(f"{b}: ", "") for lab in shown], res.capacity[rows], res.degrees,
-                      res.max_delays(), res.rank[rows], highlight=f)
-        ax.set_title(f"(c) IPC, LIL + {b}, Δt = {focus} (red: F₁(u(t−{focus})); CMP neighbours "
-                     f"{cmp_neighbours[b]})", fontsize=9)
-    ctx.figure(_save(fig, ctx.out_dir / "memory_ipc.png"))
+        outputs[b] = st["positions"][t, list(st["movable"]).index(int(st["cmp_index"])), 1]
+    ctx.figure(plot_memory_error(ctx.out_dir / "memory_error.png", delays, err, t, u,
+                                 states["double-circle"]["target"], outputs, focus))
+    ctx.figure(plot_ipc_panels(ctx.out_dir / "memory_ipc.png", [[IpcPanel.of(
+        res, [lab for lab in res.labels if lab.startswith(f"{b}:")] + ["target"],
+        f"(c) IPC, LIL + {b}, Δt = {focus} (black: F₁(u(t−{focus})); CMP neighbours {cmp_neighbours[b]})",
+        names=[lab.replace(f"{b}: ", "") for lab in res.labels if lab.startswith(f"{b}:")] + ["target"],
+        highlight=f)] for b in BODIES]))
     notes = [] if ctx.scale == "paper" else [f"{ctx.scale} scale: Δt in {list(delays)} only, {len(seeds)} seed(s), "
                                              f"{epochs} Adam epochs"]
     if min(rho.values()) < RHO_MIN:

@@ -142,11 +142,11 @@ def run(ctx: Context) -> None:
     names = [name for *_, name, _ in chosen]
     ctx.figure(plot_curves(ctx.out_dir / "accuracy.png",
                            {name: [100 * a for a in r["epoch_accuracy"]] for name, r in zip(names, results)},
-                           "test accuracy [%]", "MNIST readout: test accuracy after each epoch", xlabel="epoch",
+                           "test accuracy [%]", "MNIST readout: test accuracy after each epoch", xlabel="epoch [-]",
                            log=False))
     ctx.figure(plot_curves(ctx.out_dir / "training.png",
                            {name: r["losses"] for name, r in zip(names, results)},
-                           "batch cross-entropy", "MNIST readout: training loss (batch 50, Adam)"))
+                           "batch cross-entropy [nats]", "MNIST readout: training loss (batch 50, Adam)"))
     ctx.result.details = {"epochs": epochs, "batch": BATCH, "data": data.description,
                           "systems": {name: {"shape": shape, "nodes": nodes, "n_movable": n,
                                              "n_features": r["n_features"], "train_s": round(r["train_s"], 1),

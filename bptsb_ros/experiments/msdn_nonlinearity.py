@@ -132,7 +132,7 @@ def _bodies(seed: int):
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
-    from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
+    from bptsb_ros.analysis.timeseries_plots import IpcPanel, plot_ipc_panels
     from bptsb_ros.experiments.timeseries import one_torch_thread
     from bptsb_ros.sim.blocks import block_positions
 
@@ -145,8 +145,8 @@ def run(ctx: Context) -> None:
     v = to_unit_interval(u)
     scaled = np.stack([s * u for s in SCALES])  # (S, K): one batch member per input scale
     summary: dict[str, dict[str, dict]] = {}
-    fig, axes = plt.subplots(2, 1, figsize=(12, 7.5))
-    for (name, (body, forces)), ax in zip(_bodies(ctx.seed).items(), axes):
+    panels = []
+    for name, (body, forces) in _bodies(ctx.seed).items():
         ctx.log(f"msdn-nonlinearity: {name}, {blocks} inputs × τ {TAU} at scales {SCALES}")
         pos = block_positions(body, forces, scaled, TAU)  # (S, K, M, 2)
         movable = body.topology.movable
@@ -172,12 +172,9 @@ def run(ctx: Context) -> None:
                     "> 0 (double circle) / 0 (chain)")
             ctx.row(f"{name}, LIL scale {scale:g}", "rank of the states", "1", float(res.rank[g]))
         shown = [lab for lab in res.labels if lab.endswith(f"@{SCALES[-1]:g}") and not lab.startswith("all")]
-        rows = [res.group(lab) for lab in shown]
-        draw_ipc_bars(ax, [lab.rsplit(" @", 1)[0] for lab in shown], res.capacity[rows], res.degrees,
-                      res.max_delays(), res.rank[rows])
-        ax.set_title(f"{name}, untrained, LIL forces (scale {SCALES[-1]:g}): IPC of each movable coordinate",
-                     fontsize=9)
-    path = _save(fig, ctx.out_dir / "msdn_nonlinearity_ipc.png")
+        panels.append([IpcPanel.of(res, shown, f"{name}, untrained, LIL forces (scale {SCALES[-1]:g}): IPC of each "
+                                   "movable coordinate", names=[lab.rsplit(" @", 1)[0] for lab in shown])])
+    path = plot_ipc_panels(ctx.out_dir / "msdn_nonlinearity_ipc.png", panels)
     ctx.figure(path)
     numbers = NonlinearityNumbers(*({float(sc): BodyCapacity(v["degree_1"], v["degree_2plus"])
                                      for sc, v in summary[name].items()}

@@ -96,7 +96,7 @@ def claims(n: EmulationNumbers) -> list[Claim]:
 def run(ctx: Context) -> None:
     import numpy as np
 
-    from bptsb_ros.analysis.plots import _save, plt
+    from bptsb_ros.analysis.timeseries_plots import plot_narma_emulation
     from bptsb_ros.experiments.timeseries import NarmaJob, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
     from bptsb_ros.tasks.narma import nmse
@@ -133,23 +133,12 @@ def run(ctx: Context) -> None:
     ctx.result.claims.extend(verdicts)
 
     # Fig. 3(b): input, target and the four outputs on the held-out sequence, and the error table
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7), gridspec_kw={"height_ratios": [1, 2, 1.2]})
     u, target, _ = next(iter(series.values()))
-    t = np.arange(washout, min(washout + 100, len(u)))
-    axes[0].plot(t, u[t], color="0.3", lw=0.8)
-    axes[0].set_ylabel("input u")
-    axes[1].plot(t, target[t], "k--", lw=1.5, label="target")
-    for i, ((body, brain), (_, _, out)) in enumerate(series.items()):
-        axes[1].plot(t, out[t], color=f"C{i}", lw=1.0, label=system_name(body, brain))
-    axes[1].set_ylabel("y (CMP y) [m]")
-    axes[1].set_xlabel("task step t (τ = 20 simulation steps)")
-    axes[1].legend(fontsize=7, frameon=False, ncol=2)
-    names = [system_name(b, br) for b, br in series]  # systems whose training diverged have no output to draw
-    axes[2].barh(names, [errors[k] for k in series], color=[f"C{i}" for i in range(len(series))])
-    axes[2].set_xlabel("NMSE (held-out)")
-    axes[2].tick_params(axis="y", labelsize=7)
-    axes[0].set_title(f"expanded NARMA emulation ({config}, {epochs} epochs)", fontsize=9)
-    ctx.figure(_save(fig, ctx.out_dir / "narma_emulation.png"))
+    # systems whose training diverged have no output to draw
+    ctx.figure(plot_narma_emulation(ctx.out_dir / "narma_emulation.png", np.arange(washout, min(washout + 100, len(u))),
+                                    u, target, {system_name(*k): out for k, (_, _, out) in series.items()},
+                                    {system_name(*k): errors[k] for k in series},
+                                    f"expanded NARMA emulation ({config}, {epochs} epochs)"))
     notes = []
     if any(c.holds is False for c in verdicts):
         notes.append("one seed per system and a short Adam schedule: the ordering of close errors can flip "

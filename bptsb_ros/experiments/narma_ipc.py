@@ -181,7 +181,7 @@ def claims(n: NarmaIpcNumbers) -> list[Claim]:
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
-    from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
+    from bptsb_ros.analysis.timeseries_plots import IpcPanel, plot_ipc_panels
     from bptsb_ros.experiments.timeseries import NarmaJob, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
 
@@ -260,22 +260,16 @@ def run(ctx: Context) -> None:
     if verdicts[-1].holds is False:
         notes.append("totals deviate from the rank by the in-sample overlap of the basis functions (≈ 1/√T) and by "
                      "capacity beyond delay 20 / degree 3")
-    fig, axes = plt.subplots(len(BRAINS), 2, figsize=(15, 4.2 * len(BRAINS)),
-                             gridspec_kw={"width_ratios": [len(stages) + 1.5, 34]})
-    maxd = res.max_delays()
-    for row, brain in enumerate(BRAINS):
+    panels = []
+    for brain in BRAINS:
         left = [f"{brain.upper()} output, epoch {e}" for e in stages] + ["target"]
-        rows = [res.group(lab) for lab in left]
-        draw_ipc_bars(axes[row, 0], [lab.replace(f"{brain.upper()} output, ", "") for lab in left],
-                      res.capacity[rows], res.degrees, maxd, res.rank[rows], legend=False)
-        axes[row, 0].set_title(f"{brain.upper()}: output (CMP y) by training epoch", fontsize=9)
         right = [lab for lab in res.labels if lab.startswith(f"{brain.upper()} mass")]
-        rows = [res.group(lab) for lab in right]
-        draw_ipc_bars(axes[row, 1], [lab.replace(f"{brain.upper()} mass ", "") for lab in right],
-                      res.capacity[rows], res.degrees, maxd, res.rank[rows])
-        axes[row, 1].set_title(f"{brain.upper()} + double circle, epoch {stages[-1]}: each movable mass "
-                               "(index, axis)", fontsize=9)
-    ctx.figure(_save(fig, ctx.out_dir / "narma_ipc.png"))
+        panels.append([IpcPanel.of(res, left, f"{brain.upper()}: output (CMP y) by training epoch",
+                                   names=[lab.replace(f"{brain.upper()} output, ", "") for lab in left], legend=False),
+                       IpcPanel.of(res, right, f"{brain.upper()} + double circle, epoch {stages[-1]}: each movable "
+                                   "mass (index, axis)", names=[lab.replace(f"{brain.upper()} mass ", "")
+                                                                for lab in right])])
+    ctx.figure(plot_ipc_panels(ctx.out_dir / "narma_ipc.png", panels, width_ratios=[len(stages) + 3, 34]))
     ctx.result.details = {"config": config, "stages": list(stages), "eval_inputs": eval_inputs, "washout": washout,
                           "max_delay": max_delay, "max_degree": 3, "surrogates": surrogates,
                           "threshold": res.settings["threshold"],

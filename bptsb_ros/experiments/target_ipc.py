@@ -172,7 +172,8 @@ def targets(w: np.ndarray) -> dict[str, np.ndarray]:
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, to_unit_interval
-    from bptsb_ros.analysis.plots import _save, draw_ipc_bars, plt
+    from bptsb_ros.analysis.style import DOUBLE
+    from bptsb_ros.analysis.timeseries_plots import IpcPanel, plot_ipc_panels
 
     samples = ctx.settings["samples"]
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
@@ -195,11 +196,9 @@ def run(ctx: Context) -> None:
         for n in range(bd.shape[1]):
             ctx.row(name, f"IPC degree {n + 1}", "1", float(bd[g, n]))
         ctx.row(name, "IPC total (degree ≤ 3, delay ≤ 20)", "1", float(res.total[g]), "≤ 1 (rank)")
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    draw_ipc_bars(ax, res.labels, res.capacity, res.degrees, maxd, res.rank,
-                  highlight=res.index(((MEMORY_DELAY, 1),)))
-    ax.set_title(f"IPC of the target models (red: F₁(u(t−{MEMORY_DELAY})))", fontsize=9)
-    ctx.figure(_save(fig, ctx.out_dir / "target_ipc.png"))
+    ctx.figure(plot_ipc_panels(ctx.out_dir / "target_ipc.png", [[IpcPanel.of(
+        res, res.labels, f"IPC of the target models (black: F₁(u(t−{MEMORY_DELAY})))",
+        highlight=res.index(((MEMORY_DELAY, 1),)))]], row_height=3.0, width=DOUBLE * 0.7))
 
     terms = [tuple((int(d), int(o)) for d, o in t) for t in res.terms]
     numbers = TargetIpcNumbers({name: TargetProfile(

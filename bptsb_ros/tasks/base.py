@@ -27,6 +27,8 @@ class Task(ABC):
     name: str = ""
     #: one line naming the paper's metric and setting, printed beside the measured value
     paper_reference: str = ""
+    #: the training loss and its unit, as the loss figure's axis names it (e.g. "trajectory MSE [m²]")
+    loss_label: str = "loss [task units]"
 
     def __init__(self, agent: Agent, cfg: ExperimentConfig) -> None:
         self.agent = agent

@@ -63,6 +63,7 @@ def windowed_shift_error(traj: np.ndarray, target_fn, t0: float, dt: float, peri
 
 class LissajousTask(SwgWindowTask):
     name = "lissajous"
+    loss_label = "trajectory MSE [m²]"
     paper_reference = (
         "paper: double-circle N_mov=13, SWG, (α,β,δ)=(1,2,0), X=Y=size/20, update every 100 steps; "
         "metric: CMP trajectory MSE vs target (the paper shows trajectories, no number); the closed-loop "

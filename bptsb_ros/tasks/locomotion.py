@@ -51,6 +51,7 @@ def rollout_speed(rollout: Rollout, dt: float) -> float:
 
 class LocomotionTask(SwgWindowTask):
     name = "locomotion"
+    loss_label = "speed MSE [m²/s²]"
     paper_reference = (
         "paper: caterpillar 10 masses / 24 springs, SWG, target speed 0.004·t, update every 200 steps; "
         "metric: mean forward speed vs target; closed loop succeeds when speed ≥ 0.7 × open-loop speed "

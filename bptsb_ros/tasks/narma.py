@@ -91,6 +91,7 @@ def nmse(pred: np.ndarray, target: np.ndarray) -> float:
 
 class NarmaTask(Task):
     name = "narma"
+    loss_label = "output MSE [m²]"
     paper_reference = (
         "paper: double-circle N_mov=17, LIL or MLP brain, u~U(0,1) scaled to (0,20), τ=20 steps, output = y of "
         "the CMP; metric: NMSE of the output vs the expanded NARMA2 target (the paper's values are in a "
@@ -174,6 +175,7 @@ class NarmaTask(Task):
         n = self.cfg.narma
         path = out_dir / "narma.png"
         title = (f"memory task Δt = {n.delay}" if n.target == "memory" else f"expanded NARMA{n.order}")
-        plot_series(path, {"input u": e["u"], "target y": e["y"], "output (CMP y)": e["out"]}, "sample (τ steps)",
-                    "value", title=f"{title}, held-out sequence", shade=(n.train_end, n.n_inputs))
+        plot_series(path, {"input u": e["u"], "target y": e["y"], "output (CMP y)": e["out"]},
+                    "sample [τ steps]", "u [-]; target y, output (CMP y) [m]", title=f"{title}, held-out sequence",
+                    shade=(n.train_end, n.n_inputs))
         return [path]

@@ -325,7 +325,8 @@ def _write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
     from bptsb_ros.analysis.plots import plot_loss
 
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], metrics["name"])]
+    files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], task.loss_label,
+                                                     metrics["name"])]
     files += task.plots(run_dir)
     return files
 
