@@ -237,6 +237,15 @@ def test_schema_names_that_would_be_code_are_refused() -> None:
                  {"lab_msgs/msg/Ok": ([("C)#", "uint8", 1)], [])}):
         with pytest.raises(BagError, match="not a plain identifier"):
             check_typesdict(typs, "lab_msgs/msg/Ok")
+    # constant values and bounds are written into the generated source as they are: plain literals only
+    ok = {"lab_msgs/msg/Ok": ([("A", "uint8", 1), ("B", "float64", 0.5), ("S", "string", "x')#"),
+                               ("T", "bool", True)], [("x", (3, ((1, ("float64", 0)), 4))), ("s", (1, ("string", 8)))])}
+    check_typesdict(ok, "lab_msgs/msg/Ok")
+    for typs, why in (({"lab_msgs/msg/Ok": ([("C", "uint8", object())], [])}, "not a number, boolean or string"),
+                      ({"lab_msgs/msg/Ok": ([], [("x", (3, ((1, ("float64", 0)), "4]+[0")))])}, "not a whole number"),
+                      ({"lab_msgs/msg/Ok": ([], [("s", (1, ("string", 8.5)))])}, "not a whole number")):
+        with pytest.raises(BagError, match=why):
+            check_typesdict(typs, "lab_msgs/msg/Ok")
 
 
 # -- replay and ipc with rclpy unimportable -------------------------------------------------------------------

@@ -72,17 +72,28 @@ def _check_desc(desc: Any, msgtype: str) -> None:
         _check_name("type", desc[1], _TYPENAME, msgtype)
     elif node in (Nodetype.ARRAY, Nodetype.SEQUENCE):
         _check_desc(desc[1][0], msgtype)
+        _check_bound(desc[1][1], msgtype)
     else:
         _check_name("base type", desc[1][0], _IDENT, msgtype)
+        _check_bound(desc[1][1], msgtype)
+
+
+def _check_bound(bound: object, msgtype: str) -> None:
+    """An array length or string bound: written into rosbags' generated code as it is, so a plain int only."""
+    if type(bound) is not int and bound is not None:
+        raise BagError(f"the bag's schema of {msgtype} gives a bound {bound!r} that is not a whole number")
 
 
 def check_typesdict(typs: dict[str, Any], msgtype: str) -> None:
     """Refuse parsed types whose names could not be plain Python identifiers (rosbags turns them into code)."""
     for name, (consts, fields) in typs.items():
         _check_name("type", name, _TYPENAME, msgtype)
-        for fname, ftype, _value in consts:
+        for fname, ftype, value in consts:
             _check_name("constant", fname, _IDENT, msgtype)
             _check_name("constant type", ftype, _IDENT, msgtype)
+            if type(value) not in (bool, int, float, str):  # rosbags writes its repr() into the generated code
+                raise BagError(f"the bag's schema of {msgtype} gives constant {fname} a value of type "
+                               f"{type(value).__name__}, not a number, boolean or string")
         for fname, desc in fields:
             _check_name("field", fname, _IDENT, msgtype)
             _check_desc(desc, msgtype)
