@@ -380,6 +380,10 @@ def run_sweep(
         address = scheduler if scheduler.startswith("inproc://") else scheduler_address(scheduler)
     if not (_is_number(connect_timeout) and connect_timeout > 0):
         raise SweepError(f"the connect timeout must be a positive number of seconds, got {connect_timeout!r}")
+    try:  # before the lock: a bad worker count creates nothing
+        placement = Placement(workers, scheduler=address)
+    except ValueError as err:
+        raise SweepError(str(err)) from None
     out = Path(out_dir)
     with hold_run_dir(out):
         keys = {job.name: job_key(job) for job in jobs}
@@ -397,7 +401,6 @@ def run_sweep(
                 else:
                     print(line, file=sys.stderr, flush=True)
         todo = [j for j in jobs if j.name not in records]
-        placement = Placement(workers, scheduler=address)
         client = connect_placement(placement, connect_timeout) if address and todo else None
         try:
             (out / "jobs").mkdir(exist_ok=True)

@@ -227,6 +227,20 @@ def test_bad_schemas_and_messages_are_one_line_errors(tmp_path: Path) -> None:
         MessageDecoder("ros1")
 
 
+@pytest.mark.parametrize("text, why", [
+    ("lab_msgs/Loop child\n", "RecursionError"),  # a type that contains itself
+    ("lab_msgs/Missing child\n", "KeyError"),  # a nested type the schema never defines
+])
+def test_a_schema_whose_deserialiser_cannot_be_built_is_one_error(text, why) -> None:
+    from mcap.records import Schema
+
+    from bptsb_ros.bags.decode import rosbags_decoder
+
+    schema = Schema(id=1, name="lab_msgs/msg/Loop", encoding="ros2msg", data=text.encode())
+    with pytest.raises(BagError, match=f"schema of lab_msgs/msg/Loop cannot be used: {why}"):
+        rosbags_decoder(schema)
+
+
 def test_schema_names_that_would_be_code_are_refused() -> None:
     """rosbags compiles parsed types into Python source; a name that is not an identifier never reaches it."""
     field = (1, ("float64", 0))  # Nodetype.BASE

@@ -146,3 +146,14 @@ def test_a_config_error_is_blamed_on_its_source(tmp_path):
     assert config_error_code(bad, ["sim_time=20"]) == FAILURE  # the file does not load alone
     assert config_error_code(tmp_path / "missing.yaml", ["sim_time=20"]) == FAILURE
     assert config_error_code(CONFIG) == FAILURE  # no arguments to blame
+
+
+def test_an_experiment_that_fails_in_its_own_code_is_one_last_line(tmp_path, capsys):
+    """Jobs that all fail raise inside the experiment (not a CLI-checked error): exit 1, the failure as the last
+    line after the progress lines, no traceback, no result.json."""
+    args = ["reproduce", "narma-emulation", "--scale", "smoke", "--set", "config=nosuch", "--out", str(tmp_path / "o")]
+    assert main(args) == FAILURE
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1].startswith("bptsb reproduce: narma-emulation failed: 4 of 4 jobs failed")
+    assert "no packaged config named 'nosuch'" in err and not (tmp_path / "o" / "result.json").exists()

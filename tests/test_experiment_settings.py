@@ -264,3 +264,23 @@ def test_result_schema_checks_the_settings_record(settings, ok):
         with pytest.raises(ResultError, match="settings"):
             validate_result(good)
 
+
+
+@pytest.mark.parametrize("given, value, recorded", [
+    ("0.00001", 1e-05, "wind_period=1.0e-05"),  # json would write 1e-05, which YAML 1.1 reads as a text
+    ("2e1", 20.0, "wind_period=20.0"), ("-3E-2", None, None),  # exponent forms are numbers; below min refused
+    ("12.5", 12.5, "wind_period=12.5"),
+])
+def test_float_settings_read_exponents_and_the_recorded_set_reads_back(given, value, recorded):
+    from bptsb_ros.experiments.experiment_settings import SettingsError, resolve_settings
+
+    if value is None:
+        with pytest.raises(SettingsError, match="wind_period must be ≥ 0"):
+            resolve_settings("locomotion-headwind", "smoke", [f"wind_period={given}"])
+        return
+    s = resolve_settings("locomotion-headwind", "smoke", [f"wind_period={given}"])
+    assert s["wind_period"] == value and isinstance(s["wind_period"], float)
+    (arg,) = s.override_args()
+    assert arg == f"--set {recorded}"
+    again = resolve_settings("locomotion-headwind", "smoke", [arg.removeprefix("--set ")])
+    assert again["wind_period"] == value

@@ -123,3 +123,15 @@ def test_cli_trains_each_seed(tmp_path, repo_root, capsys):
     assert "skipped 2 finished job(s)" in capsys.readouterr().err
     assert main([*args[:-2], "--set", "locomotion.eval_time=-1"]) == 2
     assert "locomotion.eval_time" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("workers, ok", [(0, True), (-1, False), (True, False), (1.5, False)])
+def test_a_bad_worker_count_is_a_sweep_error_that_creates_nothing(tmp_path, workers, ok):
+    out = tmp_path / "new" / "sweep"
+    if ok:
+        res = run_sweep([], out, workers=workers)  # no jobs: nothing runs, the folder is the sweep's
+        assert res.failed == [] and out.is_dir()
+        return
+    with pytest.raises(SweepError, match="--workers must be a whole number >= 0"):
+        run_sweep([], out, workers=workers)
+    assert not (tmp_path / "new").exists()

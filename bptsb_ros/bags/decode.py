@@ -153,7 +153,11 @@ def rosbags_decoder(schema: Schema) -> Callable[[bytes], Any]:
         store = _jazzy_store()
         if msgtype not in store.types:
             raise BagError(f"the bag has no definition of {msgtype} and ROS 2 Jazzy has no such type")
-    msgdef = store.get_msgdef(msgtype)
+    try:  # rosbags generates the type's deserialiser here: a self-referencing or dangling schema fails in it
+        msgdef = store.get_msgdef(msgtype)
+    except Exception as exc:  # noqa: BLE001 - RecursionError, KeyError, TypesysError... from bag data
+        why = " ".join(str(exc).split())[:240]
+        raise BagError(f"the bag's schema of {msgtype} cannot be used: {type(exc).__name__}: {why}") from None
 
     def decode(data: bytes) -> Any:
         # rosbags' Typestore.deserialize_cdr refuses more than 3 trailing bytes; rclpy's serializer leaves up to 8

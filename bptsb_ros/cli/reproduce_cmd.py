@@ -83,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
     except (SchedulerError, RunDirLocked, JobFailed, ExperimentError, SettingsError, ConfigError, SweepError,
             MnistError, OSError) as err:  # the arguments were fine: --out, data, training, the scheduler, I/O
         return fail(NAME, err)
+    except (RuntimeError, ValueError) as err:  # raised by an experiment's own code: failed jobs, a bad setting
+        return fail(NAME, f"{args.name} failed: {err}")
     for row in result["rows"]:
         print(f"{row['system']:28s} {row['metric']:40s} ours {row['ours']!s:>12.12} paper {row['paper']!s:>10.10} "
               f"{row['unit']}")

@@ -106,6 +106,8 @@ class SettingSpec:
             return value
         if kind == "int" and (isinstance(value, bool) or not isinstance(value, int)):
             raise SettingsError(f"{where} must be an integer, got {got}")
+        if isinstance(value, str) and _FLOAT_TEXT.fullmatch(value.strip()):  # YAML 1.1 reads 1e-05 as a text
+            value = float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise SettingsError(f"{where} must be a number, got {got}")
         if self.min is not None and value < self.min:
@@ -113,6 +115,22 @@ class SettingSpec:
         if self.max is not None and value > self.max:
             raise SettingsError(f"{where} must be ≤ {_num(self.max)}, got {got}")
         return float(value) if kind == "float" else value
+
+
+#: a number in exponent form without a decimal point (``1e-05``, ``2E+3``), which YAML 1.1 leaves a text
+_FLOAT_TEXT = re.compile(r"[-+]?[0-9]+(?:\.[0-9]*)?[eE][-+]?[0-9]+")
+
+
+def _value_text(value: Any) -> str:
+    """``value`` (JSON data) as ``--set`` text that reads back as the same value (floats keep a decimal point,
+    so YAML 1.1 reads ``1.0e-05`` as a number, not the text ``1e-05``)."""
+    if isinstance(value, list):
+        return "[" + ",".join(_value_text(v) for v in value) + "]"
+    if isinstance(value, float):
+        text = repr(value)
+        mantissa, e, exponent = text.partition("e")
+        return f"{mantissa}.0e{exponent}" if e and "." not in mantissa else text
+    return json.dumps(value)
 
 
 @dataclass(frozen=True)
@@ -245,7 +263,7 @@ class Settings(Mapping[str, Any]):
         for key in self.overridden:
             value = self._values[key]
             plain = isinstance(value, str) and _yaml_reads_back(value)
-            text = value if plain else json.dumps(self.to_json()[key], separators=(",", ":"))
+            text = value if plain else _value_text(self.to_json()[key])
             args.append(f"--set {shlex.quote(f'{key}={text}')}")
         return args
 
