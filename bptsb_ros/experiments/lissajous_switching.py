@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, periodicity
+from bptsb_ros.config import LearningRates
 from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, at_most, draws, fmt, longest_run
 from bptsb_ros.experiments.lissajous_agents import (
     TrainedAgent,
@@ -81,6 +82,7 @@ class SwitchingNumbers:
     pre_nmse: float
     segments: dict[str, dict[str, float]]
     transient: int = 0
+    curve_on: str = "(2,1,π/2)"
 
 
 def switching_claims(n: SwitchingNumbers, tag: str = "") -> list[Claim]:
@@ -102,7 +104,7 @@ def switching_claims(n: SwitchingNumbers, tag: str = "") -> list[Claim]:
     pre_ok = draws(n.pre_nmse)
     pre_failed = (f"the single-curve agent did not draw (1,2,0) before the switching training (MSE / target mean "
                   f"square {fmt(n.pre_nmse)} ≥ {DRAWS_NMSE})")
-    drawn_text = (f"both curves are drawn{tag}: (1,2,0) without and (2,1,π/2) with wind (phase-locked MSE < "
+    drawn_text = (f"both curves are drawn{tag}: (1,2,0) without and {n.curve_on} with wind (phase-locked MSE < "
                   f"{DRAWS_NMSE} × target mean square in every segment of a test run, after a transient of "
                   f"{n.transient} periods)")
     drawn = all(draws(v["nmse"]) for v in seg.values())
@@ -201,6 +203,7 @@ class TimingNumbers:
     fixed_to_target: np.ndarray
     random_to_target: np.ndarray
     last: int = 0
+    curve_on: str = "(1,3,0)"
 
 
 def timing_claims(n: TimingNumbers, tag: str = "") -> list[Claim]:
@@ -217,7 +220,7 @@ def timing_claims(n: TimingNumbers, tag: str = "") -> list[Claim]:
     * fixed timing: a band of at least :data:`BAND_MIN` consecutive n does not converge.
     """
     fixed, rand = np.asarray(n.fixed_to_target, float), np.asarray(n.random_to_target, float)
-    crit = f"MSE to the (1,3,0) target < {DRAWS_NMSE} × target mean square over the last {n.last} periods"
+    crit = f"MSE to the {n.curve_on} target < {DRAWS_NMSE} × target mean square over the last {n.last} periods"
     out = []
     rand_text = f"the random-timing system converges to the trained trajectory for every n = 0…99{tag} ({crit})"
     if not draws(rand[0]):
@@ -260,55 +263,89 @@ def segment_errors(cmp: np.ndarray, target: np.ndarray, windows: dict[str, tuple
 
 
 # -- training (jobs) -----------------------------------------------------------------------------------------
-def switching_job(run_dir: str, pre_dir: str, seed: int, curve_on: tuple[float, float, float],
-                  timing: str | int, sim_time: float, hold: tuple[int, int], published_wind: bool = False) -> dict:
-    """Load the pretrained agent in ``pre_dir``, train it to switch to ``curve_on`` with wind, save it in
-    ``run_dir`` (checkpoint.pt with the final state); returns a summary. A top-level function: a pool job."""
+def variant_curve(variant: dict[str, Any]) -> Curve:
+    """The second curve of a variant: its ``curve_on`` (α, β, δ/π)."""
+    a, b, d = variant["curve_on"]
+    return Curve(float(a), float(b), float(d) * math.pi)
+
+
+def variant_lr(variant: dict[str, Any]) -> LearningRates:
+    """The switching learning rates of a variant: its ``lr`` (k, d, l, A, φ)."""
+    k, d, l, amp, ph = (float(v) for v in variant["lr"])
+    return LearningRates(k=k, d=d, l=l, amplitude=amp, phase=ph)
+
+
+def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any], timing: str | int,
+                  sim_time: float, hold: tuple[int, int]) -> dict:
+    """Load the pretrained agent in ``pre_dir``, train it to switch to the variant's ``curve_on`` with wind, save it
+    in ``run_dir`` (checkpoint.pt with the final state); returns a summary. A top-level function: a pool job.
+
+    ``variant`` (a settings variant, :mod:`~bptsb_ros.experiments.experiment_settings`): ``published_wind``,
+    ``curve_on``, ``hold`` (null: ``hold``), ``shift_of_size`` (null: the CMP's own mean wind shift,
+    :func:`wind_offset`), ``lr``, ``lr_decay``; its ``integrator`` is the pretrained agent's (``pre_dir``)."""
     from bptsb_ros.training.checkpoint import save_checkpoint
 
     pre = load_trained(Path(pre_dir), {})
     agent, period = pre.agent, pre.period
-    shift = wind_offset(agent, pre.state, 1.0, published=published_wind)
+    if agent.body.integrator != variant["integrator"]:
+        raise ValueError(f"variant {variant['label']!r} trains with the {variant['integrator']} integrator, but the "
+                         f"preliminary agent in {pre_dir} has {agent.body.integrator}")
+    published = bool(variant["published_wind"])
+    hold = tuple(variant["hold"] or hold)
+    if variant["shift_of_size"] is None:
+        shift = wind_offset(agent, pre.state, 1.0, published=published)
+    else:
+        shift = float(variant["shift_of_size"]) * float(agent.config["body"]["size"])
+    curve_on = variant_curve(variant)
     steps = int(round(sim_time / agent.dt))
     schedule = wind_schedule(steps, period, np.random.default_rng(seed), hold_periods=hold, timing=timing)
-    target = switch_targets(CURVE_1, Curve(*curve_on), pre.amplitude, pre.omega, shift)
-    res = train_switching(agent, pre.state, schedule, target, published_wind=published_wind)
+    target = switch_targets(CURVE_1, curve_on, pre.amplitude, pre.omega, shift)
+    res = train_switching(agent, pre.state, schedule, target, lr=variant_lr(variant), window=period,
+                          published_wind=published, lr_decay=bool(variant["lr_decay"]))
     s = res.state
+    curve = [curve_on.alpha, curve_on.beta, curve_on.delta]
     extra = {"task_state": {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step},
-             "losses": res.losses, "wind_shift_x": shift, "timing": str(timing), "curve_on": list(curve_on),
-             "published_wind": published_wind, "hold_periods": list(hold)}
+             "losses": res.losses, "wind_shift_x": shift, "timing": str(timing), "curve_on": curve,
+             "published_wind": published, "hold_periods": list(hold)}
     save_checkpoint(run_dir, agent, extra)
-    summary = {"wind_shift_x_m": shift, "updates": len(res.losses), "sim_time_s": sim_time, "timing": str(timing),
+    summary = {"variant": variant["label"], "wind_shift_x_m": shift, "updates": len(res.losses),
+               "sim_time_s": sim_time, "timing": str(timing), "curve_on": curve,
                "loss_first10": float(np.mean(res.losses[:10])), "loss_last10": float(np.mean(res.losses[-10:])),
-               "wind_on_fraction": float(schedule.mean()), "hold_periods": list(hold),
-               "published_wind": published_wind, "guard": res.guard}
+               "wind_on_fraction": float(schedule.mean()), "hold_periods": list(hold), "published_wind": published,
+               "integrator": agent.body.integrator, "lr_decay": bool(variant["lr_decay"]),
+               "lr_k_first": res.lr_k[0] if res.lr_k else None, "lr_k_last": res.lr_k[-1] if res.lr_k else None,
+               "guard": res.guard}
     Path(run_dir, "switching.json").write_text(json.dumps({**summary, "losses": res.losses}))
     return summary
 
 
-def _pretrain(ctx: Context) -> TrainedAgent:
+def _pretrain(ctx: Context, integrator: str = "verlet") -> TrainedAgent:
+    """The preliminary single-curve agent under ``integrator`` (run directory ``pretrained``, or
+    ``pretrained_<integrator>`` for another than verlet)."""
     sim_time = ctx.settings["pretrain_time"]
-    ctx.log(f"{ctx.result.experiment}: preliminary single-curve training ({sim_time} s, seed {ctx.seed})")
-    return train_single_curve(ctx.out_dir / "pretrained", sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
-                              fit_time=10, eval_periods=2)
+    ctx.log(f"{ctx.result.experiment}: preliminary single-curve training ({sim_time} s, seed {ctx.seed}, "
+            f"{integrator} integrator)")
+    name = "pretrained" if integrator == "verlet" else f"pretrained_{integrator}"
+    return train_single_curve(ctx.out_dir / name, sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
+                              fit_time=10, eval_periods=2, extra=[f"body.integrator={integrator}"])
+
+
+def _pretrain_variants(ctx: Context) -> dict[str, TrainedAgent]:
+    """One preliminary agent per integrator the variants use: variant name → its preliminary agent."""
+    pre: dict[str, TrainedAgent] = {}
+    for v in ctx.settings.variants.values():
+        if v["integrator"] not in pre:
+            pre[v["integrator"]] = _pretrain(ctx, v["integrator"])
+    return {name: pre[v["integrator"]] for name, v in ctx.settings.variants.items()}
 
 
 def _switching_settings(ctx: Context) -> dict[str, Any]:
     return {"sim_time": ctx.settings["switching_time"], "hold": ctx.settings["hold"]}
 
 
-def _trained_switching(ctx: Context, pre: TrainedAgent, name: str, curve_on: Curve, timing: str | int,
-                       settings: dict[str, Any]) -> tuple[TrainedAgent, dict]:
-    run_dir = ctx.out_dir / name
-    summary = switching_job(str(run_dir), str(pre.run_dir), ctx.seed, (curve_on.alpha, curve_on.beta, curve_on.delta),
-                            timing, settings["sim_time"], settings["hold"])
-    return load_trained(run_dir, summary), summary
-
-
-def _shift_of(trained: TrainedAgent) -> float:
-    from bptsb_ros.training.checkpoint import read_checkpoint
-
-    return float(read_checkpoint(trained.run_dir)["extra"]["wind_shift_x"])
+def _variant_suffix(ctx: Context, name: str) -> str:
+    """'' for the first (main) variant, else '_<name>' (figure names)."""
+    return "" if name == next(iter(ctx.settings.variants)) else f"_{name}"
 
 
 # -- lissajous-switching ---------------------------------------------------------------------------------------
@@ -325,56 +362,70 @@ def _shift_of(trained: TrainedAgent) -> float:
 )
 @single_threaded
 def run_switching(ctx: Context) -> None:
-    pre = _pretrain(ctx)
+    pres = _pretrain_variants(ctx)
     settings = _switching_settings(ctx)
-    pre_err = _curve_error(pre, CURVE_1, ctx.settings["pretrain_eval_periods"])
-    curve = (CURVE_SWITCH.alpha, CURVE_SWITCH.beta, CURVE_SWITCH.delta)
-    variants = {"paper wind (F, 0)": ("switching", False), "published wind (15·F, 1)": ("switching_published", True)}
-    jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, "random", settings["sim_time"],
-             settings["hold"], published) for name, published in variants.values()]
-    ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing), the paper's wind "
-            "and the published code's wind as two jobs")
-    summaries = ctx.run_jobs(switching_job, jobs, names=list(variants))
+    variants = ctx.settings.variants
+    pre_err = {name: _curve_error(pre, CURVE_1, ctx.settings["pretrain_eval_periods"]) for name, pre in pres.items()}
+    jobs = [(str(ctx.out_dir / name), str(pres[name].run_dir), ctx.seed, v, "random", settings["sim_time"],
+             settings["hold"]) for name, v in variants.items()]
+    ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing), "
+            f"{len(jobs)} variants as jobs: {', '.join(v['label'] for v in variants.values())}")
+    summaries = ctx.run_jobs(switching_job, jobs, names=[v["label"] for v in variants.values()])
     seg = ctx.settings["segment_periods"]  # periods per test segment
     transient = ctx.settings["transient_periods"]
     tests = {}
-    for (label, (name, published)), summary in zip(variants.items(), summaries, strict=True):
+    for (name, v), summary in zip(variants.items(), summaries, strict=True):
         sw = load_trained(ctx.out_dir / name, summary)
-        tests[label] = _switching_test(sw, summary["wind_shift_x_m"], published, seg, transient, ctx.seed)
-    main_label = next(iter(variants))
-    ctx.row("single-curve agent (before switching training)", "(1,2,0) MSE / target mean square", "1", pre_err)
-    for label, test in tests.items():
-        for seg_label, v in test["segments"].items():
-            ctx.row(f"{label}: CMP, {seg_label}", "phase-locked MSE / target mean square", "1", v["nmse"])
-            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency x", "Hz", v["f_x"],
-                    2.0 if seg_label == "wind" else 1.0)
-            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency y", "Hz", v["f_y"],
-                    1.0 if seg_label == "wind" else 2.0)
-    for label, test in tests.items():
-        tag = "" if label == main_label else f" [{label}]"
-        ctx.result.claims.extend(switching_claims(SwitchingNumbers(pre_err, test["segments"], transient), tag))
+        tests[name] = _switching_test(sw, summary["wind_shift_x_m"], bool(v["published_wind"]), seg, transient,
+                                      ctx.seed, variant_curve(v))
+    main_name = next(iter(variants))
+    for name, v in variants.items():
+        label = v["label"]
+        prefix = "" if name == main_name else f"{label}: "
+        if name == main_name or pres[name] is not pres[main_name]:
+            ctx.row(f"{prefix}single-curve agent (before switching training)", "(1,2,0) MSE / target mean square",
+                    "1", pre_err[name])
+        ctx.row(f"{label}: switching training", "loss, mean of the first 10 updates", "m²",
+                summaries[list(variants).index(name)]["loss_first10"])
+        ctx.row(f"{label}: switching training", "loss, mean of the last 10 updates", "m²",
+                summaries[list(variants).index(name)]["loss_last10"])
+        second = variant_curve(v)
+        for seg_label, s_v in tests[name]["segments"].items():
+            wind_seg = seg_label == "wind"
+            ctx.row(f"{label}: CMP, {seg_label}", "phase-locked MSE / target mean square", "1", s_v["nmse"])
+            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency x", "Hz", s_v["f_x"],
+                    second.alpha if wind_seg else CURVE_1.alpha)
+            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency y", "Hz", s_v["f_y"],
+                    second.beta if wind_seg else CURVE_1.beta)
+    for name, v in variants.items():
+        tag = "" if name == main_name else f" [{v['label']}]"
+        ctx.result.claims.extend(switching_claims(SwitchingNumbers(pre_err[name], tests[name]["segments"], transient,
+                                                                   str(variant_curve(v))), tag))
     from bptsb_ros.analysis.autonomy_plots import plot_switching_curves, plot_switching_dynamics
 
-    for label, test in tests.items():
-        suffix = "" if label == main_label else "_published"
+    for name, test in tests.items():
+        suffix = _variant_suffix(ctx, name)
         ctx.figure(plot_switching_curves(ctx.out_dir / f"switching_curves{suffix}.png", test["cmp"], test["target"],
-                                         test["wind"], test["windows"], title=label))
+                                         test["wind"], test["windows"], title=variants[name]["label"]))
         if not suffix:
-            on_at, period = test["wind_on_step"], pre.period
+            on_at, period = test["wind_on_step"], pres[name].period
             lo, hi = max(on_at - 3 * period, 0), min(on_at + 3 * period, len(test["wind"]))
             ctx.figure(plot_switching_dynamics(ctx.out_dir / "switching_dynamics.png", test["t"][lo:hi],
-                                               test["r"][lo:hi], test["wind"][lo:hi], pre.agent.body.cmp_local))
-    ctx.result.details = {"seed": ctx.seed, "switching_training": dict(zip(variants, summaries, strict=True)),
-                          "test_runs": {k: {"segment_periods": seg, "transient_periods": transient,
-                                            "wind_on_step": v["wind_on_step"], "wind_off_step": v["wind_off_step"],
-                                            "segments": v["segments"]} for k, v in tests.items()},
+                                               test["r"][lo:hi], test["wind"][lo:hi], pres[name].agent.body.cmp_local))
+    labels = [v["label"] for v in variants.values()]
+    ctx.result.details = {"seed": ctx.seed, "variants": ctx.settings.variants_json(),
+                          "switching_training": dict(zip(labels, summaries, strict=True)),
+                          "test_runs": {variants[k]["label"]: {
+                              "segment_periods": seg, "transient_periods": transient,
+                              "wind_on_step": v["wind_on_step"], "wind_off_step": v["wind_off_step"],
+                              "segments": v["segments"]} for k, v in tests.items()},
                           "criteria": {"draws_nmse": DRAWS_NMSE, "freq_tol_hz": FREQ_TOL},
                           "wind": "paper: F_wind·(1, 0) N on every movable mass; published code: (15·F_wind, 1) N",
                           "notes": _training_note(settings["sim_time"])}
 
 
 def _switching_test(sw: TrainedAgent, shift: float, published: bool, seg: int, transient: int,
-                    seed: int) -> dict[str, Any]:
+                    seed: int, curve_on: Curve = CURVE_SWITCH) -> dict[str, Any]:
     """Test run of a switching agent: no wind, wind, no wind (``seg`` periods each, switches at random phases);
     per segment after ``transient`` periods: phase-locked MSE / target mean square and dominant frequencies."""
     agent, period, dt = sw.agent, sw.period, sw.agent.dt
@@ -390,7 +441,7 @@ def _switching_test(sw: TrainedAgent, shift: float, published: bool, seg: int, t
     r = roll.r[:, 0].double().numpy()  # (T+1, M, 2)
     cmp = r[:, agent.body.cmp_local]
     t = (sw.state.step + np.arange(steps + 1)) * dt
-    target = switch_targets(CURVE_1, CURVE_SWITCH, sw.amplitude, sw.omega, shift)(t, wind)
+    target = switch_targets(CURVE_1, curve_on, sw.amplitude, sw.omega, shift)(t, wind)
     windows = {"before (no wind)": (transient * period, on_at), "wind": (on_at + transient * period, off_at),
                "after (no wind)": (off_at + transient * period, steps + 1)}
     seg_out = segment_errors(cmp, target, windows)
@@ -423,21 +474,21 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
 )
 @single_threaded
 def run_bifurcation(ctx: Context) -> None:
-    pre = _pretrain(ctx)
+    pres = _pretrain_variants(ctx)
     settings = _switching_settings(ctx)
-    curve = (CURVE_SWITCH.alpha, CURVE_SWITCH.beta, CURVE_SWITCH.delta)
-    variants = {"paper wind (F, 0)": ("switching", False), "published wind (15·F, 1)": ("switching_published", True)}
-    jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, "random", settings["sim_time"],
-             settings["hold"], published) for name, published in variants.values()]
-    ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s), the paper's and the published "
-            "wind as two jobs")
-    summaries = ctx.run_jobs(switching_job, jobs, names=list(variants))
+    variants = ctx.settings.variants
+    jobs = [(str(ctx.out_dir / name), str(pres[name].run_dir), ctx.seed, v, "random", settings["sim_time"],
+             settings["hold"]) for name, v in variants.items()]
+    ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s), {len(jobs)} variants as jobs")
+    summaries = ctx.run_jobs(switching_job, jobs, names=[v["label"] for v in variants.values()])
     transient, record = ctx.settings["transient_periods"], ctx.settings["record_periods"]
     winds = BIFURCATION_WINDS
-    main_label = next(iter(variants))
+    main_name = next(iter(variants))
     details: dict[str, Any] = {"seed": ctx.seed, "winds": winds, "transient_periods": transient,
-                               "record_periods": record, "periodicity_rtol": 1e-3}
-    for (label, (name, published)), summary in zip(variants.items(), summaries, strict=True):
+                               "record_periods": record, "periodicity_rtol": 1e-3,
+                               "variants": ctx.settings.variants_json()}
+    for (name, v), summary in zip(variants.items(), summaries, strict=True):
+        label, published, second = v["label"], bool(v["published_wind"]), variant_curve(v)
         sw = load_trained(ctx.out_dir / name, summary)
         period, body = sw.period, sw.agent.body
         pop = run_population(body, (transient + record) * period, repeat_state(sw.state, len(winds)),
@@ -461,19 +512,18 @@ def run_bifurcation(ctx: Context) -> None:
         t = (sw.state.step + transient * period + np.arange(cmp.shape[0])) * sw.agent.dt
         shift = float(summary["wind_shift_x_m"])
         trained_nmse = {}
-        for f, curve, dx in zip(TRAINED_WINDS, (CURVE_1, CURVE_SWITCH), (0.0, shift), strict=True):
+        for f, curve, dx in zip(TRAINED_WINDS, (CURVE_1, second), (0.0, shift), strict=True):
             i = int(np.argmin(np.abs(winds - f)))
             trained_nmse[f] = phase_locked_nmse(cmp[:, i], curve.target(t, sw.amplitude, sw.omega, dx))
             ctx.row(f"{label}: F_wind = {f:g} (trained)", f"phase-locked MSE to {curve} / target mean square", "1",
                     trained_nmse[f])
-        tag = "" if label == main_label else f" [{label}]"
+        tag = "" if name == main_name else f" [{label}]"
         ctx.result.claims.extend(bifurcation_claims(BifurcationNumbers(winds, per, trained_nmse), tag))
         from bptsb_ros.analysis.autonomy_plots import plot_bifurcation
 
         show = [-1.0, -0.5, 0.0, 0.4, 1.0, 1.5, 2.0]
-        suffix = "" if label == main_label else "_published"
-        ctx.figure(plot_bifurcation(ctx.out_dir / f"bifurcation{suffix}.png", winds, max_x, max_y, cmp, show, per,
-                                    title=label))
+        ctx.figure(plot_bifurcation(ctx.out_dir / f"bifurcation{_variant_suffix(ctx, name)}.png", winds, max_x,
+                                    max_y, cmp, show, per, title=label))
         details[label] = {"switching_training": summary, "period_multiple": per,
                           "trained_nmse": {f"{f:g}": v for f, v in trained_nmse.items()},
                           "maxima_x": [m.tolist() for m in max_x], "maxima_y": [m.tolist() for m in max_y]}
@@ -507,7 +557,7 @@ def _ranges(values: np.ndarray, step: float = 0.05) -> str:
 
 # -- lissajous-timing ----------------------------------------------------------------------------------------
 def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run: int, last: int,
-                       published: bool = False) -> dict[str, Any]:
+                       published: bool = False, curve: Curve = CURVE_TIMING) -> dict[str, Any]:
     """Switch the wind on at t0 + period·n/100 for n = 0…99 (one batched run of 100 rows); each row's MSE to the
     n = 0 row and to the target over the ``last`` periods (/ target mean square; inf for a row that diverged).
     A row converges to the trained trajectory when it draws the target (phase-locked, < :data:`DRAWS_NMSE`)."""
@@ -527,7 +577,7 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
     pop = run_population(body, steps, repeat_state(settled, 100), swg=agent.brain, wind=wind)
     cmp = pop.tracked[-(last * period):, :, 0].double().numpy()  # (T, 100, 2)
     t = (k0 + steps - last * period + 1 + np.arange(last * period)) * agent.dt
-    tgt = CURVE_TIMING.target(t, trained.amplitude, trained.omega, shift)
+    tgt = curve.target(t, trained.amplitude, trained.omega, shift)
     ms = float(np.mean((tgt - tgt.mean(0)) ** 2))
     to_ref = np.mean((cmp - cmp[:, :1]) ** 2, axis=(0, 2)) / ms
     to_target = np.mean((cmp - tgt[:, None]) ** 2, axis=(0, 2)) / ms
@@ -535,7 +585,7 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
     to_target[pop.diverged.numpy()] = np.inf
     full_t = (k0 + np.arange(steps + 1)) * agent.dt
     shift_err = windowed_shift_error_batch(
-        cmp, CURVE_TIMING.target(np.concatenate([t, t[-1] + agent.dt * np.arange(1, period + 1)]),
+        cmp, curve.target(np.concatenate([t, t[-1] + agent.dt * np.arange(1, period + 1)]),
                                  trained.amplitude, trained.omega, shift), period) / ms
     return {"n": n, "to_reference": to_ref, "to_target": to_target, "to_target_shift_min": shift_err,
             "converged": to_target < DRAWS_NMSE, "cmp": pop.tracked[:, :, 0].numpy(), "t": full_t,
@@ -556,47 +606,55 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
 )
 @single_threaded
 def run_timing(ctx: Context) -> None:
-    pre = _pretrain(ctx)
+    pres = _pretrain_variants(ctx)
     settings = _switching_settings(ctx)
-    curve = (CURVE_TIMING.alpha, CURVE_TIMING.beta, CURVE_TIMING.delta)
-    #: (label, run directory, timing, published wind); the first two are the paper's wind
-    systems = [("fixed", "fixed", "fixed", False), ("random", "random", "random", False),
-               ("fixed, published wind", "fixed_published", "fixed", True),
-               ("random, published wind", "random_published", "random", True)]
-    jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, timing, settings["sim_time"],
-             settings["hold"], published) for _, name, timing, published in systems]
+    variants = ctx.settings.variants
+    main_name = next(iter(variants))
+    #: (label, run directory, timing, variant name): fixed and random timing per variant
+    systems = [(timing if name == main_name else f"{timing}, {v['label']}",
+                timing if name == main_name else f"{timing}_{name}", timing, name)
+               for name, v in variants.items() for timing in ("fixed", "random")]
+    jobs = [(str(ctx.out_dir / run_name), str(pres[name].run_dir), ctx.seed, variants[name], timing,
+             settings["sim_time"], settings["hold"]) for _, run_name, timing, name in systems]
     ctx.log(f"lissajous-timing: {len(jobs)} switching trainings ({settings['sim_time']} s each) as jobs")
-    summaries = ctx.run_jobs(switching_job, jobs,
-                         names=[f"{label} timing" for label, *_ in systems])
+    summaries = ctx.run_jobs(switching_job, jobs, names=[f"{label} timing" for label, *_ in systems])
     settle, run, last = ctx.settings["settle_periods"], ctx.settings["run_periods"], ctx.settings["last_periods"]
     out: dict[str, dict] = {}
-    for (label, name, timing, published), summary in zip(systems, summaries, strict=True):
-        trained = load_trained(ctx.out_dir / name, summary)
+    for (label, run_name, timing, name), summary in zip(systems, summaries, strict=True):
+        trained = load_trained(ctx.out_dir / run_name, summary)
+        v = variants[name]
         out[label] = timing_convergence(trained, summary["wind_shift_x_m"], settle=settle, run=run, last=last,
-                                        published=published)
+                                        published=bool(v["published_wind"]), curve=variant_curve(v))
         conv = out[label]["converged"]
         ctx.row(f"{label} timing", "n converging to the trained trajectory", "count of 100", int(conv.sum()),
                 "100" if timing == "random" else "52 (fails for 22 ≤ n ≤ 69)")
-        ctx.row(f"{label} timing, n = 0", "MSE to the (1,3,0) target / target mean square", "1",
+        ctx.row(f"{label} timing, n = 0", f"MSE to the {variant_curve(v)} target / target mean square", "1",
                 float(out[label]["to_target"][0]))
-    for fixed, random_, tag in (("fixed", "random", ""), ("fixed, published wind", "random, published wind",
-                                                          " [published wind (15·F, 1)]")):
+        ctx.row(f"{label} timing: switching training", "loss, mean of the first 10 updates", "m²",
+                summary["loss_first10"])
+        ctx.row(f"{label} timing: switching training", "loss, mean of the last 10 updates", "m²",
+                summary["loss_last10"])
+    pairs = [(systems[2 * i][0], systems[2 * i + 1][0], name) for i, name in enumerate(variants)]
+    for fixed, random_, name in pairs:
+        tag = "" if name == main_name else f" [{variants[name]['label']}]"
         ctx.row(f"{fixed} timing", "longest band of failing n", "count", longest_run(~out[fixed]["converged"])[0],
                 "48 (22…69)")
         ctx.result.claims.extend(timing_claims(TimingNumbers(out[fixed]["to_target"], out[random_]["to_target"],
-                                                             last), tag))
+                                                             last, str(variant_curve(variants[name]))), tag))
     from bptsb_ros.analysis.autonomy_plots import plot_timing
 
     shifts = {label: summary["wind_shift_x_m"] for (label, *_), summary in zip(systems, summaries, strict=True)}
-    for keys, fname in ((("fixed", "random"), "timing.png"),
-                        (("fixed, published wind", "random, published wind"), "timing_published.png")):
-        ctx.figure(plot_timing(ctx.out_dir / fname, {k: out[k] for k in keys}, period=pre.period,
-                               target=lambda t, s: CURVE_TIMING.target(t, pre.amplitude, pre.omega, s),
+    for fixed, random_, name in pairs:
+        curve = variant_curve(variants[name])
+        ctx.figure(plot_timing(ctx.out_dir / f"timing{_variant_suffix(ctx, name)}.png",
+                               {k: out[k] for k in (fixed, random_)}, period=pres[name].period,
+                               target=lambda t, s, c=curve, p=pres[name]: c.target(t, p.amplitude, p.omega, s),
                                shifts=shifts))
     ctx.result.details = {
-        "seed": ctx.seed, "switching_training": {label: sm for (label, *_), sm in zip(systems, summaries, strict=True)},
+        "seed": ctx.seed, "variants": ctx.settings.variants_json(),
+        "switching_training": {label: sm for (label, *_), sm in zip(systems, summaries, strict=True)},
         "settle_periods": settle, "run_periods": run, "compare_last_periods": last,
-        "converged_criterion": f"phase-locked MSE(run_n, (1,3,0) target) / target mean square < {DRAWS_NMSE}",
+        "converged_criterion": f"phase-locked MSE(run_n, second-curve target) / target mean square < {DRAWS_NMSE}",
         **{f"{k}_to_reference": v["to_reference"] for k, v in out.items()},
         **{f"{k}_to_target": v["to_target"] for k, v in out.items()},
         **{f"{k}_converged": v["converged"] for k, v in out.items()},
