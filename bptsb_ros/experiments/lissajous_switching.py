@@ -6,6 +6,10 @@ BPTSB training with the paper's switching learning rates under a binary wind sch
 (:mod:`bptsb_ros.tasks.lissajous_switching`): without wind the target is (1,2,0), with F_wind = 1 the second
 curve displaced in x by the CMP's own mean wind shift (the paper displaces it by an amount it does not give).
 
+Each experiment runs every named variant of its settings file (``ctx.settings.variants``: the paper's wind, the
+published code's wind, the authors' published protocol; :func:`switching_job` reads a variant's second curve,
+wind, schedule, target displacement, rates, rate schedule and integrator) with its own rows, claims and figures.
+
 * lissajous-switching: second curve (2,1,π/2), random switch times. Claims (:func:`switching_claims`): both
   curves are drawn (phase-locked MSE / target mean square < :data:`DRAWS_NMSE` in every wind segment of a test
   run), the CMP's dominant x and y frequencies (FFT) swap with the wind, and the first curve's error grew through
@@ -353,7 +357,8 @@ def _variant_suffix(ctx: Context, name: str) -> str:
     "lissajous-switching",
     paper_ref="supplement 'Behavioral switching', Fig. (a), (b)",
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
-            "F_wind = 1; both curves drawn, CMP x/y frequencies (FFT) swap with the wind",
+            "F_wind = 1 (the authors' protocol: (2,1,π/4)), each settings variant a job; both curves drawn, CMP x/y "
+            "frequencies (FFT) swap with the wind",
     durations={"smoke": "≈ 20 s", "short": "455 s measured (1,000 s preliminary + 2 × 2,000 s switching training, "
                "the paper's and the published wind, 2 jobs)",
                "paper": "69 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
@@ -595,9 +600,9 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
 @experiment(
     "lissajous-timing",
     paper_ref="supplement 'Switching timing' and its figure",
-    summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing, paper's "
-            "and published wind (four jobs); the wind switched on at every n = 0…99 (one batched run each): which "
-            "runs converge",
+    summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing in each "
+            "settings variant (paper wind, published wind, the authors' protocol: six jobs); the wind switched on "
+            "at every n = 0…99 (one batched run each): which runs converge",
     durations={"smoke": "≈ 30 s",
                "short": "599 s measured (1,000 s preliminary + 4 × 2,000 s switching: fixed and random timing, the "
                         "paper's and the published wind; 4 jobs on 2 workers)",
