@@ -186,6 +186,8 @@ def test_lissajous_switching_smoke(tmp_path):
     assert tr["integrator"] == "published" and tr["hold_periods"] == [50, 50] and tr["wind_shift_x_m"] == 0.2
     assert tr["lr_decay"] and tr["lr_k_first"] == tr["lr_k_last"] == 1000.0  # 5 windows: no decay (≤ 1,000)
     assert rows[(f"{auth}: switching training", "loss, mean of the last 10 updates")] == tr["loss_last10"]
+    assert rows[(f"{auth}: switching training", "loss of the calm updates, first 10 % of the training")] == \
+        tr["loss_calm_first_share"]
     assert len(data["figures"]) == 4 and all((out / f).is_file() for f in data["figures"])
     for name in ("paper_wind", "published_wind", "authors", "pretrained", "pretrained_published"):
         assert (out / name / "checkpoint.pt").is_file(), name

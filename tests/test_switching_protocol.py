@@ -86,3 +86,18 @@ def test_switching_trainer_applies_the_decay_before_the_update_at_80_and_90_perc
     plain = train_switching(build_agent(cfg), LissajousTask(build_agent(cfg), cfg).state, schedule, target,
                             lr=variant_lr(AUTHORS), window=40, published_wind=True, backend="numba")
     assert plain.lr_k == [1000.0] * 10
+
+
+def test_loss_by_condition_splits_the_first_and_last_tenth_into_calm_and_windy_updates():
+    from bptsb_ros.experiments.lissajous_switching import loss_by_condition
+
+    window = 4
+    on = np.array([0, 1, 0, 1, 1, 0, 0, 1, 1, 0] * 2, float)  # 20 updates, windy as planted
+    schedule = np.concatenate([[0.0], np.repeat(on, window)])
+    schedule[1 + 1 * window] = 0.0  # update 1: 3 of 4 steps windy, still windy
+    losses = np.arange(20, dtype=float)
+    out = loss_by_condition(losses, schedule, window, share=0.1)  # 2 updates at each end
+    assert out == {"loss_calm_first_share": 0.0, "loss_windy_first_share": 1.0,
+                   "loss_calm_last_share": 19.0, "loss_windy_last_share": 18.0}
+    out = loss_by_condition(losses, schedule, window, share=0.25)  # 5 at each end: updates 0-4 and 15-19
+    assert out["loss_windy_first_share"] == (1 + 3 + 4) / 3 and out["loss_calm_last_share"] == (15 + 16 + 19) / 3

@@ -307,6 +307,7 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any]
     res = train_switching(agent, pre.state, schedule, target, lr=variant_lr(variant), window=period,
                           published_wind=published, lr_decay=bool(variant["lr_decay"]))
     s = res.state
+    by_condition = loss_by_condition(np.asarray(res.losses), schedule, period)
     curve = [curve_on.alpha, curve_on.beta, curve_on.delta]
     extra = {"task_state": {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step},
              "losses": res.losses, "wind_shift_x": shift, "timing": str(timing), "curve_on": curve,
@@ -318,9 +319,24 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any]
                "wind_on_fraction": float(schedule.mean()), "hold_periods": list(hold), "published_wind": published,
                "integrator": agent.body.integrator, "lr_decay": bool(variant["lr_decay"]),
                "lr_k_first": res.lr_k[0] if res.lr_k else None, "lr_k_last": res.lr_k[-1] if res.lr_k else None,
-               "guard": res.guard}
+               **by_condition, "guard": res.guard}
     Path(run_dir, "switching.json").write_text(json.dumps({**summary, "losses": res.losses}))
     return summary
+
+
+def loss_by_condition(losses: np.ndarray, schedule: np.ndarray, window: int, share: float = 0.1) -> dict[str, float]:
+    """Mean loss [m²] of the calm and of the windy updates in the first and in the last ``share`` of the training
+    (an update is windy when the wind blows over most of its window, steps 1 + u·window … (u + 1)·window of
+    ``schedule``); NaN where a part has no such update. Under a 50/50-window schedule the first updates are all
+    calm, so the first and last updates overall do not tell whether the loss fell; these do."""
+    n = len(losses)
+    on = schedule[1:1 + n * window].reshape(n, window).mean(1) > 0.5
+    part = max(1, int(round(share * n)))
+    out = {}
+    for where, sl in (("first", slice(0, part)), ("last", slice(n - part, n))):
+        for cond, mask in (("calm", ~on[sl]), ("windy", on[sl])):
+            out[f"loss_{cond}_{where}_share"] = float(losses[sl][mask].mean()) if mask.any() else float("nan")
+    return out
 
 
 def _pretrain(ctx: Context, integrator: str = "verlet") -> TrainedAgent:
@@ -394,6 +410,10 @@ def run_switching(ctx: Context) -> None:
                 summaries[list(variants).index(name)]["loss_first10"])
         ctx.row(f"{label}: switching training", "loss, mean of the last 10 updates", "m²",
                 summaries[list(variants).index(name)]["loss_last10"])
+        for cond in ("calm", "windy"):
+            for where in ("first", "last"):
+                ctx.row(f"{label}: switching training", f"loss of the {cond} updates, {where} 10 % of the training",
+                        "m²", summaries[list(variants).index(name)][f"loss_{cond}_{where}_share"])
         second = variant_curve(v)
         for seg_label, s_v in tests[name]["segments"].items():
             wind_seg = seg_label == "wind"
