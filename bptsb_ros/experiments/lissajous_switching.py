@@ -375,11 +375,12 @@ def _variant_suffix(ctx: Context, name: str) -> str:
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
             "F_wind = 1 (the authors' protocol: (2,1,π/4)), each settings variant a job; both curves drawn, CMP x/y "
             "frequencies (FFT) swap with the wind",
-    durations={"smoke": "≈ 20 s", "short": "455 s measured (1,000 s preliminary + 2 × 2,000 s switching training, "
-               "the paper's and the published wind, 2 jobs)",
+    durations={"smoke": "≈ 20 s", "short": "107 s measured 2026-12-02 on the 2-core machine shared with other work "
+               "(2 × 1,000 s preliminary, verlet and published integrator, + 3 × 2,000 s switching training, the "
+               "three variants, 3 jobs on 2 workers)",
                "paper": "69 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs); short: 24 s the same "
-                        "way"},
+                        "(2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs, before the authors' "
+                        "variant was added)"},
 )
 @single_threaded
 def run_switching(ctx: Context) -> None:
