@@ -363,6 +363,17 @@ def _switching_settings(ctx: Context) -> dict[str, Any]:
     return {"sim_time": ctx.settings["switching_time"], "hold": ctx.settings["hold"]}
 
 
+def _loss_rows(ctx: Context, system: str, summary: dict[str, Any]) -> None:
+    """Rows of a switching training's loss: first and last 10 updates, and calm / windy in the first and last 10 %
+    (:func:`loss_by_condition`)."""
+    ctx.row(system, "loss, mean of the first 10 updates", "m²", summary["loss_first10"])
+    ctx.row(system, "loss, mean of the last 10 updates", "m²", summary["loss_last10"])
+    for cond in ("calm", "windy"):
+        for where in ("first", "last"):
+            ctx.row(system, f"loss of the {cond} updates, {where} 10 % of the training", "m²",
+                    summary[f"loss_{cond}_{where}_share"])
+
+
 def _variant_suffix(ctx: Context, name: str) -> str:
     """'' for the first (main) variant, else '_<name>' (figure names)."""
     return "" if name == next(iter(ctx.settings.variants)) else f"_{name}"
@@ -407,14 +418,7 @@ def run_switching(ctx: Context) -> None:
         if name == main_name or pres[name] is not pres[main_name]:
             ctx.row(f"{prefix}single-curve agent (before switching training)", "(1,2,0) MSE / target mean square",
                     "1", pre_err[name])
-        ctx.row(f"{label}: switching training", "loss, mean of the first 10 updates", "m²",
-                summaries[list(variants).index(name)]["loss_first10"])
-        ctx.row(f"{label}: switching training", "loss, mean of the last 10 updates", "m²",
-                summaries[list(variants).index(name)]["loss_last10"])
-        for cond in ("calm", "windy"):
-            for where in ("first", "last"):
-                ctx.row(f"{label}: switching training", f"loss of the {cond} updates, {where} 10 % of the training",
-                        "m²", summaries[list(variants).index(name)][f"loss_{cond}_{where}_share"])
+        _loss_rows(ctx, f"{label}: switching training", summaries[list(variants).index(name)])
         second = variant_curve(v)
         for seg_label, s_v in tests[name]["segments"].items():
             wind_seg = seg_label == "wind"
@@ -491,12 +495,12 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
 @experiment(
     "lissajous-bifurcation",
     paper_ref="supplement 'Behavioral switching', Fig. (d)",
-    summary="the switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): maxima of the CMP's "
-            "x and y after a transient, period of each orbit",
-    durations={"smoke": "≈ 20 s", "short": "492 s measured (the switching trainings, paper's and published wind as 2 "
-               "jobs, then ≈ 20 s per sweep)",
+    summary="each settings variant's switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): "
+            "maxima of the CMP's x and y after a transient, period of each orbit",
+    durations={"smoke": "≈ 20 s", "short": "155 s measured 2026-12-02 on the 2-core machine shared with other work "
+               "(2 preliminary trainings, 3 switching trainings as jobs, then one sweep per variant)",
                "paper": "81 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (the "
-                        "paper-scale switching trainings)"},
+                        "paper-scale switching trainings, before the authors' variant was added)"},
 )
 @single_threaded
 def run_bifurcation(ctx: Context) -> None:
@@ -625,10 +629,11 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
             "settings variant (paper wind, published wind, the authors' protocol: six jobs); the wind switched on "
             "at every n = 0…99 (one batched run each): which runs converge",
     durations={"smoke": "≈ 30 s",
-               "short": "599 s measured (1,000 s preliminary + 4 × 2,000 s switching: fixed and random timing, the "
-                        "paper's and the published wind; 4 jobs on 2 workers)",
+               "short": "147 s measured 2026-12-02 on the 2-core machine shared with other work (2 × 1,000 s "
+                        "preliminary, verlet and published integrator, + 6 × 2,000 s switching: fixed and random "
+                        "timing in each of the three variants; 6 jobs on 2 workers)",
                "paper": "155 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(4 × 30,000 s of switching training, 2 workers)"},
+                        "(4 × 30,000 s of switching training, 2 workers, before the authors' variant was added)"},
 )
 @single_threaded
 def run_timing(ctx: Context) -> None:
@@ -656,10 +661,7 @@ def run_timing(ctx: Context) -> None:
                 "100" if timing == "random" else "52 (fails for 22 ≤ n ≤ 69)")
         ctx.row(f"{label} timing, n = 0", f"MSE to the {variant_curve(v)} target / target mean square", "1",
                 float(out[label]["to_target"][0]))
-        ctx.row(f"{label} timing: switching training", "loss, mean of the first 10 updates", "m²",
-                summary["loss_first10"])
-        ctx.row(f"{label} timing: switching training", "loss, mean of the last 10 updates", "m²",
-                summary["loss_last10"])
+        _loss_rows(ctx, f"{label} timing: switching training", summary)
     pairs = [(systems[2 * i][0], systems[2 * i + 1][0], name) for i, name in enumerate(variants)]
     for fixed, random_, name in pairs:
         tag = "" if name == main_name else f" [{variants[name]['label']}]"
