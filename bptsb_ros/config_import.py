@@ -310,7 +310,8 @@ def _lissajous2(value: Any, ctx: _Context) -> str:
         return "empty: no second curve (single-curve task)"
     a, b, delta = _curve("lissajous2", value)
     raise Unmappable(f"the switching task's second curve (alpha, beta, delta) = ({a:g}, {b:g}, {delta:.6g}): our "
-                     "lissajous config holds one curve; bptsb reproduce lissajous-switching sets (2, 1, pi/2)")
+                     "lissajous config holds one curve; bptsb reproduce lissajous-switching runs (2, 1, pi/2) as the "
+                     "paper says and this config's protocol as its variant 'authors'")
 
 
 def _noise(value: Any, ctx: _Context) -> Any:

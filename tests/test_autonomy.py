@@ -175,9 +175,22 @@ def test_lissajous_switching_smoke(tmp_path):
     drawn = all(s["nmse"] < 0.1 for s in seg.values())
     pre_draws = rows[("single-curve agent (before switching training)", "(1,2,0) MSE / target mean square")] < 0.1
     assert [c["holds"] for c in data["claims"][:2]] == ([drawn, swapped] if pre_draws else [None, None])
-    assert len(data["claims"]) == 6  # three claims for the paper's wind, three for the published code's
-    assert len(data["figures"]) == 3 and all((out / f).is_file() for f in data["figures"])
-    assert (out / "switching" / "checkpoint.pt").is_file() and (out / "switching_published" / "checkpoint.pt").is_file()
+    assert len(data["claims"]) == 9  # three claims each: paper wind, published wind, the authors' protocol
+    auth = "authors' protocol"
+    assert sum(f"[{auth}]" in c["claim"] for c in data["claims"]) == 3
+    assert "(2,1,0.25π) with wind" in data["claims"][6]["claim"]
+    auth_pre = rows[(f"{auth}: single-curve agent (before switching training)", "(1,2,0) MSE / target mean square")]
+    if auth_pre >= 0.1:  # its own preliminary agent (published integrator) is its claims' premise
+        assert [c["holds"] for c in data["claims"][6:]] == [None, None, None]
+    tr = data["details"]["switching_training"][auth]
+    assert tr["integrator"] == "published" and tr["hold_periods"] == [50, 50] and tr["wind_shift_x_m"] == 0.2
+    assert tr["lr_decay"] and tr["lr_k_first"] == tr["lr_k_last"] == 1000.0  # 5 windows: no decay (≤ 1,000)
+    assert rows[(f"{auth}: switching training", "loss, mean of the last 10 updates")] == tr["loss_last10"]
+    assert rows[(f"{auth}: switching training", "loss of the calm updates, first 10 % of the training")] == \
+        tr["loss_calm_first_share"]
+    assert len(data["figures"]) == 4 and all((out / f).is_file() for f in data["figures"])
+    for name in ("paper_wind", "published_wind", "authors", "pretrained", "pretrained_published"):
+        assert (out / name / "checkpoint.pt").is_file(), name
 
 
 def test_lissajous_bifurcation_smoke(tmp_path):
@@ -187,7 +200,7 @@ def test_lissajous_bifurcation_smoke(tmp_path):
     d, rows = data["details"], _rows(data)
     winds = np.array(d["winds"])
     assert len(winds) == 61 and winds[0] == -1.0 and winds[-1] == 2.0 and np.allclose(np.diff(winds), 0.05)
-    for i, label in enumerate(("paper wind (F, 0)", "published wind (15·F, 1)")):
+    for i, label in enumerate(("paper wind (F, 0)", "published wind (15·F, 1)", "authors' protocol")):
         per = np.array(d[label]["period_multiple"])
         assert rows[(f"{label}: F_wind grid", "values with a period-1 orbit (1 s)")] == np.sum(per == 1)
         learned = all(v is not None and v < 0.1 for v in d[label]["trained_nmse"].values())  # draws its curve at 0, 1
@@ -197,7 +210,8 @@ def test_lissajous_bifurcation_smoke(tmp_path):
         diverse = bool(np.sum(per[~trained] > 1) + np.sum(per[~trained] == 0) > 0)
         assert data["claims"][2 * i + 1]["holds"] == (diverse if learned and p1 else None)
         assert len(d[label]["maxima_x"]) == 61
-    assert len(data["figures"]) == 2
+    assert len(data["claims"]) == 6 and len(data["figures"]) == 3
+    assert d["authors' protocol"]["switching_training"]["curve_on"] == [2.0, 1.0, math.pi / 4]
 
 
 def test_lissajous_timing_smoke(tmp_path):
@@ -205,7 +219,9 @@ def test_lissajous_timing_smoke(tmp_path):
     assert main(["reproduce", "lissajous-timing", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
     data = read_result(out / "result.json")
     d, rows = data["details"], _rows(data)
-    for name in ("fixed", "random", "fixed, published wind", "random, published wind"):
+    systems = ("fixed", "random", "fixed, published wind (15·F, 1)", "random, published wind (15·F, 1)",
+               "fixed, authors' protocol", "random, authors' protocol")
+    for name in systems:
         to_ref = np.array([np.inf if v is None else v for v in d[f"{name}_to_reference"]])
         assert to_ref[0] == 0.0  # the n = 0 row is the reference
         to_target = np.array([np.inf if v is None else v for v in d[f"{name}_to_target"]])
@@ -218,8 +234,12 @@ def test_lissajous_timing_smoke(tmp_path):
         longest = max(longest, cur)
     assert rows[("fixed timing", "longest band of failing n")] == longest
     assert data["claims"][1]["holds"] == ((longest >= 5) if fixed_to_target[0] < 0.1 else None)
-    assert (out / "fixed" / "checkpoint.pt").is_file() and (out / "random_published" / "checkpoint.pt").is_file()
-    assert len(data["figures"]) == 2
+    assert (out / "fixed" / "checkpoint.pt").is_file() and (out / "random_published_wind" / "checkpoint.pt").is_file()
+    assert (out / "fixed_authors" / "checkpoint.pt").is_file() and (out / "random_authors" / "checkpoint.pt").is_file()
+    tr = d["switching_training"]["fixed, authors' protocol"]
+    assert tr["timing"] == "fixed" and tr["hold_periods"] == [50, 50] and tr["integrator"] == "published"
+    assert len(data["claims"]) == 6 and sum("[authors' protocol]" in c["claim"] for c in data["claims"]) == 2
+    assert len(data["figures"]) == 3
 
 
 # -- closed-loop schemes ---------------------------------------------------------------------------------------

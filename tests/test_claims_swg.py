@@ -127,6 +127,12 @@ def test_lissajous_switching_claims():
 def test_lissajous_switching_tag_names_the_variant():
     c = lsw.switching_claims(lsw.SwitchingNumbers(0.01, segments()), " [published wind (15·F, 1)]")
     assert all("[published wind (15·F, 1)]" in x.claim for x in c)
+    # the authors' protocol: the same functions, its own second curve named in the claim
+    a = lsw.switching_claims(lsw.SwitchingNumbers(0.01, segments(), 5, "(2,1,0.25π)"), " [authors' protocol]")
+    assert "(1,2,0) without and (2,1,0.25π) with wind" in a[0].claim and [x.holds for x in a] == [
+        x.holds for x in lsw.switching_claims(lsw.SwitchingNumbers(0.01, segments(), 5))]
+    t = lsw.timing_claims(lsw.TimingNumbers(np.zeros(100), np.zeros(100), 5, "(1,3,0.5π)"))
+    assert "MSE to the (1,3,0.5π) target" in t[0].claim
 
 
 # -- lissajous-bifurcation: [period 1 at the trained F, more diverse than trained] ------------------------------------

@@ -161,6 +161,50 @@ def test_loader_refuses_a_scale_that_lacks_a_setting_or_a_bad_declaration():
         parse_settings(doc, "x.yaml")
 
 
+_VSPEC = {"label": {"type": "str", "help": "row label"},
+          "hold": {"type": "list[int]", "length": 2, "min": 1, "nullable": True, "help": "periods (null: the scale's)"}}
+
+
+def test_variants_are_checked_like_the_settings_and_kept_in_file_order():
+    doc = {**_doc(), "variant_settings": json.loads(json.dumps(_VSPEC)),
+           "variants": {"zeta": {"label": "z", "hold": None}, "alpha": {"label": "a", "hold": [50, 50]}}}
+    parsed = parse_settings(doc, "x.yaml")
+    assert list(parsed.variants) == ["zeta", "alpha"]
+    assert parsed.variants["alpha"] == {"label": "a", "hold": (50, 50)} and parsed.variants["zeta"]["hold"] is None
+    bad = json.loads(json.dumps(doc))
+    del bad["variants"]["alpha"]["label"]
+    with pytest.raises(SettingsError, match="x.yaml: variants.alpha lacks the variant setting label"):
+        parse_settings(bad, "x.yaml")
+    bad = json.loads(json.dumps(doc))
+    bad["variants"]["alpha"]["hodl"] = [1, 2]
+    with pytest.raises(SettingsError, match="variants.alpha.hodl: unknown variant setting; did you mean hold"):
+        parse_settings(bad, "x.yaml")
+    bad = json.loads(json.dumps(doc))
+    bad["variants"]["alpha"]["hold"] = [0, 2]
+    with pytest.raises(SettingsError, match=r"variants.alpha.hold\[0\] must be ≥ 1"):
+        parse_settings(bad, "x.yaml")
+    bad = json.loads(json.dumps(doc))
+    del bad["variant_settings"]
+    with pytest.raises(SettingsError, match="x.yaml: variants need variant_settings"):
+        parse_settings(bad, "x.yaml")
+    bad = json.loads(json.dumps(doc))
+    bad["variants"] = {"Bad-Name": {"label": "a", "hold": None}}
+    with pytest.raises(SettingsError, match="variant names are lower-case words"):
+        parse_settings(bad, "x.yaml")
+
+
+def test_the_switching_experiments_declare_the_paper_and_the_authors_protocol():
+    for name in ("lissajous-switching", "lissajous-bifurcation", "lissajous-timing"):
+        v = resolve_settings(name, "smoke").variants
+        assert list(v) == ["paper_wind", "published_wind", "authors"]
+        a = v["authors"]  # the published code's protocol (published-code-facts.md), as planted by hand
+        assert a["hold"] == (50, 50) and a["shift_of_size"] == 0.05 and a["lr_decay"] is True
+        assert a["integrator"] == "published" and a["published_wind"] is True and a["lr"] == (1000, 100, 1, 1, 10)
+        assert v["paper_wind"]["hold"] is None and v["paper_wind"]["published_wind"] is False
+        expected_curve = (1, 3, 0) if name == "lissajous-timing" else (2, 1, 0.25)
+        assert a["curve_on"] == expected_curve
+
+
 def test_loader_refuses_a_file_that_is_not_plain_data(tmp_path):
     path = tmp_path / "x.yaml"
     path.write_text("settings: !!python/object/apply:os.system ['true']\n")

@@ -10,6 +10,19 @@ scale::
     short: {epochs: 3, n_train: null}
     paper: {epochs: 50, n_train: null}
 
+Named variants (profiles): an experiment that runs one protocol in several named ways (the paper's text, the
+authors' published code) declares the variants' own settings in ``variant_settings`` (same declaration format)
+and gives each variant every one of them under ``variants`` (the same at every scale: a variant is a protocol,
+not a size)::
+
+    variant_settings:
+      published_wind: {type: bool, help: "the published code's wind (15·F, 1)"}
+    variants:
+      paper: {published_wind: false}
+      authors: {published_wind: true}
+
+The experiment reads them in file order as ``ctx.settings.variants`` (name → values); result.json records them.
+
 Types: ``int``, ``float`` (an int is taken as a float), ``number`` (an int or a float, kept as written: a
 duration the code passes on as it is), ``str``, ``bool`` and ``list[T]`` of those (a tuple in the code).
 Declaration keys besides ``type`` and ``help``: ``min`` and ``max`` (inclusive; of every item of a list),
@@ -29,7 +42,7 @@ import math
 import re
 import shlex
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +51,7 @@ from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted
 #: the packaged settings files, one per experiment (``<experiment name>.yaml``)
 SETTINGS_DIR = Path(__file__).resolve().with_name("settings")
 SCALES = ("smoke", "short", "paper")
-SECTIONS = ("settings", *SCALES)
+SECTIONS = ("settings", *SCALES, "variant_settings", "variants")
 SCALAR_TYPES = ("int", "float", "number", "str", "bool")
 TYPES = (*SCALAR_TYPES, *(f"list[{t}]" for t in SCALAR_TYPES))
 SPEC_KEYS = ("type", "help", "min", "max", "length", "nullable")
@@ -140,6 +153,8 @@ class ParsedSettings:
     source: str
     specs: dict[str, SettingSpec]
     values: dict[str, dict[str, Any]]
+    variant_specs: dict[str, SettingSpec] = field(default_factory=dict)
+    variants: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 def _spec(name: Any, raw: Any, where: str) -> SettingSpec:
@@ -199,7 +214,38 @@ def parse_settings(doc: Any, source: str) -> ParsedSettings:
             if key not in given:
                 raise SettingsError(f"{source}: {scale} lacks the setting {key}")
         values[scale] = {key: spec.check(given[key], f"{source}: {scale}.{key}") for key, spec in specs.items()}
-    return ParsedSettings(source, specs, values)
+    variant_specs, variants = _parse_variants(doc, source)
+    return ParsedSettings(source, specs, values, variant_specs, variants)
+
+
+def _parse_variants(doc: Mapping, source: str) -> tuple[dict[str, SettingSpec], dict[str, dict[str, Any]]]:
+    """The ``variant_settings`` declarations and the checked ``variants`` (both absent: none)."""
+    declared, given = doc.get("variant_settings"), doc.get("variants")
+    if declared is None and given is None:
+        return {}, {}
+    if not isinstance(declared, Mapping) or not declared:
+        raise SettingsError(f"{source}: variants need variant_settings, mapping each variant setting's name to its "
+                            "type and help text")
+    if not isinstance(given, Mapping) or not given:
+        raise SettingsError(f"{source}: variant_settings need variants, mapping each variant's name to its values")
+    specs = {name: _spec(name, raw, f"{source}: variant_settings") for name, raw in declared.items()}
+    out: dict[str, dict[str, Any]] = {}
+    for name, values in given.items():
+        if not isinstance(name, str) or not SETTING_NAME.fullmatch(name):
+            raise SettingsError(f"{source}: variants: variant names are lower-case words ([a-z][a-z0-9_]*), got "
+                                f"{bounded_repr(name)}")
+        if not isinstance(values, Mapping):
+            raise SettingsError(f"{source}: variants.{name} must map every variant setting to its value, got "
+                                f"{bounded_repr(values)}")
+        for key in values:
+            if key not in specs:
+                raise SettingsError(f"{source}: variants.{name}.{_shown(key)}: unknown variant setting"
+                                    f"{_close(key, list(specs))}")
+        for key in specs:
+            if key not in values:
+                raise SettingsError(f"{source}: variants.{name} lacks the variant setting {key}")
+        out[name] = {key: spec.check(values[key], f"{source}: variants.{name}.{key}") for key, spec in specs.items()}
+    return specs, out
 
 
 def settings_path(experiment: str) -> Path:
@@ -231,11 +277,14 @@ class Settings(Mapping[str, Any]):
     """The resolved settings of one run (read-only): ``ctx.settings["epochs"]``."""
 
     def __init__(self, experiment: str, scale: str, values: Mapping[str, Any],
-                 specs: Mapping[str, SettingSpec] | None = None, overridden: Sequence[str] = ()) -> None:
+                 specs: Mapping[str, SettingSpec] | None = None, overridden: Sequence[str] = (),
+                 variants: Mapping[str, Mapping[str, Any]] | None = None) -> None:
         self.experiment, self.scale = experiment, scale
         self._values = dict(values)
         self.specs = dict(specs or {})
         self.overridden = tuple(overridden)
+        #: the named variants (file order), name → {variant setting: value}; empty when the file has none
+        self.variants: dict[str, dict[str, Any]] = {k: dict(v) for k, v in (variants or {}).items()}
 
     def __getitem__(self, key: str) -> Any:
         try:
@@ -256,6 +305,11 @@ class Settings(Mapping[str, Any]):
     def to_json(self) -> dict[str, Any]:
         """The values as JSON data (tuples as lists), for result.json."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in self._values.items()}
+
+    def variants_json(self) -> dict[str, dict[str, Any]]:
+        """The variants as JSON data (tuples as lists), for result.json."""
+        return {name: {k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}
+                for name, values in self.variants.items()}
 
     def override_args(self) -> list[str]:
         """``--set key=value`` arguments that reproduce the overridden values (shell-quoted where needed)."""
@@ -323,4 +377,4 @@ def resolve_settings(experiment: str, scale: str, overrides: Overrides | None = 
         values[key] = specs[key].check(value, where)
         if key not in overridden:
             overridden.append(key)
-    return Settings(experiment, scale, values, specs, overridden)
+    return Settings(experiment, scale, values, specs, overridden, parsed.variants if parsed else None)

@@ -6,6 +6,10 @@ BPTSB training with the paper's switching learning rates under a binary wind sch
 (:mod:`bptsb_ros.tasks.lissajous_switching`): without wind the target is (1,2,0), with F_wind = 1 the second
 curve displaced in x by the CMP's own mean wind shift (the paper displaces it by an amount it does not give).
 
+Each experiment runs every named variant of its settings file (``ctx.settings.variants``: the paper's wind, the
+published code's wind, the authors' published protocol; :func:`switching_job` reads a variant's second curve,
+wind, schedule, target displacement, rates, rate schedule and integrator) with its own rows, claims and figures.
+
 * lissajous-switching: second curve (2,1,π/2), random switch times. Claims (:func:`switching_claims`): both
   curves are drawn (phase-locked MSE / target mean square < :data:`DRAWS_NMSE` in every wind segment of a test
   run), the CMP's dominant x and y frequencies (FFT) swap with the wind, and the first curve's error grew through
@@ -29,6 +33,7 @@ import numpy as np
 import torch
 
 from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, periodicity
+from bptsb_ros.config import LearningRates
 from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, at_most, draws, fmt, longest_run
 from bptsb_ros.experiments.lissajous_agents import (
     TrainedAgent,
@@ -81,6 +86,7 @@ class SwitchingNumbers:
     pre_nmse: float
     segments: dict[str, dict[str, float]]
     transient: int = 0
+    curve_on: str = "(2,1,π/2)"
 
 
 def switching_claims(n: SwitchingNumbers, tag: str = "") -> list[Claim]:
@@ -102,7 +108,7 @@ def switching_claims(n: SwitchingNumbers, tag: str = "") -> list[Claim]:
     pre_ok = draws(n.pre_nmse)
     pre_failed = (f"the single-curve agent did not draw (1,2,0) before the switching training (MSE / target mean "
                   f"square {fmt(n.pre_nmse)} ≥ {DRAWS_NMSE})")
-    drawn_text = (f"both curves are drawn{tag}: (1,2,0) without and (2,1,π/2) with wind (phase-locked MSE < "
+    drawn_text = (f"both curves are drawn{tag}: (1,2,0) without and {n.curve_on} with wind (phase-locked MSE < "
                   f"{DRAWS_NMSE} × target mean square in every segment of a test run, after a transient of "
                   f"{n.transient} periods)")
     drawn = all(draws(v["nmse"]) for v in seg.values())
@@ -201,6 +207,7 @@ class TimingNumbers:
     fixed_to_target: np.ndarray
     random_to_target: np.ndarray
     last: int = 0
+    curve_on: str = "(1,3,0)"
 
 
 def timing_claims(n: TimingNumbers, tag: str = "") -> list[Claim]:
@@ -217,7 +224,7 @@ def timing_claims(n: TimingNumbers, tag: str = "") -> list[Claim]:
     * fixed timing: a band of at least :data:`BAND_MIN` consecutive n does not converge.
     """
     fixed, rand = np.asarray(n.fixed_to_target, float), np.asarray(n.random_to_target, float)
-    crit = f"MSE to the (1,3,0) target < {DRAWS_NMSE} × target mean square over the last {n.last} periods"
+    crit = f"MSE to the {n.curve_on} target < {DRAWS_NMSE} × target mean square over the last {n.last} periods"
     out = []
     rand_text = f"the random-timing system converges to the trained trajectory for every n = 0…99{tag} ({crit})"
     if not draws(rand[0]):
@@ -260,55 +267,116 @@ def segment_errors(cmp: np.ndarray, target: np.ndarray, windows: dict[str, tuple
 
 
 # -- training (jobs) -----------------------------------------------------------------------------------------
-def switching_job(run_dir: str, pre_dir: str, seed: int, curve_on: tuple[float, float, float],
-                  timing: str | int, sim_time: float, hold: tuple[int, int], published_wind: bool = False) -> dict:
-    """Load the pretrained agent in ``pre_dir``, train it to switch to ``curve_on`` with wind, save it in
-    ``run_dir`` (checkpoint.pt with the final state); returns a summary. A top-level function: a pool job."""
+def variant_curve(variant: dict[str, Any]) -> Curve:
+    """The second curve of a variant: its ``curve_on`` (α, β, δ/π)."""
+    a, b, d = variant["curve_on"]
+    return Curve(float(a), float(b), float(d) * math.pi)
+
+
+def variant_lr(variant: dict[str, Any]) -> LearningRates:
+    """The switching learning rates of a variant: its ``lr`` (k, d, l, A, φ)."""
+    k, d, l, amp, ph = (float(v) for v in variant["lr"])
+    return LearningRates(k=k, d=d, l=l, amplitude=amp, phase=ph)
+
+
+def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any], timing: str | int,
+                  sim_time: float, hold: tuple[int, int]) -> dict:
+    """Load the pretrained agent in ``pre_dir``, train it to switch to the variant's ``curve_on`` with wind, save it
+    in ``run_dir`` (checkpoint.pt with the final state); returns a summary. A top-level function: a pool job.
+
+    ``variant`` (a settings variant, :mod:`~bptsb_ros.experiments.experiment_settings`): ``published_wind``,
+    ``curve_on``, ``hold`` (null: ``hold``), ``shift_of_size`` (null: the CMP's own mean wind shift,
+    :func:`wind_offset`), ``lr``, ``lr_decay``; its ``integrator`` is the pretrained agent's (``pre_dir``)."""
     from bptsb_ros.training.checkpoint import save_checkpoint
 
     pre = load_trained(Path(pre_dir), {})
     agent, period = pre.agent, pre.period
-    shift = wind_offset(agent, pre.state, 1.0, published=published_wind)
+    if agent.body.integrator != variant["integrator"]:
+        raise ValueError(f"variant {variant['label']!r} trains with the {variant['integrator']} integrator, but the "
+                         f"preliminary agent in {pre_dir} has {agent.body.integrator}")
+    published = bool(variant["published_wind"])
+    hold = tuple(variant["hold"] or hold)
+    if variant["shift_of_size"] is None:
+        shift = wind_offset(agent, pre.state, 1.0, published=published)
+    else:
+        shift = float(variant["shift_of_size"]) * float(agent.config["body"]["size"])
+    curve_on = variant_curve(variant)
     steps = int(round(sim_time / agent.dt))
     schedule = wind_schedule(steps, period, np.random.default_rng(seed), hold_periods=hold, timing=timing)
-    target = switch_targets(CURVE_1, Curve(*curve_on), pre.amplitude, pre.omega, shift)
-    res = train_switching(agent, pre.state, schedule, target, published_wind=published_wind)
+    target = switch_targets(CURVE_1, curve_on, pre.amplitude, pre.omega, shift)
+    res = train_switching(agent, pre.state, schedule, target, lr=variant_lr(variant), window=period,
+                          published_wind=published, lr_decay=bool(variant["lr_decay"]))
     s = res.state
+    by_condition = loss_by_condition(np.asarray(res.losses), schedule, period)
+    curve = [curve_on.alpha, curve_on.beta, curve_on.delta]
     extra = {"task_state": {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step},
-             "losses": res.losses, "wind_shift_x": shift, "timing": str(timing), "curve_on": list(curve_on),
-             "published_wind": published_wind, "hold_periods": list(hold)}
+             "losses": res.losses, "wind_shift_x": shift, "timing": str(timing), "curve_on": curve,
+             "published_wind": published, "hold_periods": list(hold)}
     save_checkpoint(run_dir, agent, extra)
-    summary = {"wind_shift_x_m": shift, "updates": len(res.losses), "sim_time_s": sim_time, "timing": str(timing),
+    summary = {"variant": variant["label"], "wind_shift_x_m": shift, "updates": len(res.losses),
+               "sim_time_s": sim_time, "timing": str(timing), "curve_on": curve,
                "loss_first10": float(np.mean(res.losses[:10])), "loss_last10": float(np.mean(res.losses[-10:])),
-               "wind_on_fraction": float(schedule.mean()), "hold_periods": list(hold),
-               "published_wind": published_wind, "guard": res.guard}
+               "wind_on_fraction": float(schedule.mean()), "hold_periods": list(hold), "published_wind": published,
+               "integrator": agent.body.integrator, "lr_decay": bool(variant["lr_decay"]),
+               "lr_k_first": res.lr_k[0] if res.lr_k else None, "lr_k_last": res.lr_k[-1] if res.lr_k else None,
+               **by_condition, "guard": res.guard}
     Path(run_dir, "switching.json").write_text(json.dumps({**summary, "losses": res.losses}))
     return summary
 
 
-def _pretrain(ctx: Context) -> TrainedAgent:
+def loss_by_condition(losses: np.ndarray, schedule: np.ndarray, window: int, share: float = 0.1) -> dict[str, float]:
+    """Mean loss [m²] of the calm and of the windy updates in the first and in the last ``share`` of the training
+    (an update is windy when the wind blows over most of its window, steps 1 + u·window … (u + 1)·window of
+    ``schedule``); NaN where a part has no such update. Under a 50/50-window schedule the first updates are all
+    calm, so the first and last updates overall do not tell whether the loss fell; these do."""
+    n = len(losses)
+    on = schedule[1:1 + n * window].reshape(n, window).mean(1) > 0.5
+    part = max(1, int(round(share * n)))
+    out = {}
+    for where, sl in (("first", slice(0, part)), ("last", slice(n - part, n))):
+        for cond, mask in (("calm", ~on[sl]), ("windy", on[sl])):
+            out[f"loss_{cond}_{where}_share"] = float(losses[sl][mask].mean()) if mask.any() else float("nan")
+    return out
+
+
+def _pretrain(ctx: Context, integrator: str = "verlet") -> TrainedAgent:
+    """The preliminary single-curve agent under ``integrator`` (run directory ``pretrained``, or
+    ``pretrained_<integrator>`` for another than verlet)."""
     sim_time = ctx.settings["pretrain_time"]
-    ctx.log(f"{ctx.result.experiment}: preliminary single-curve training ({sim_time} s, seed {ctx.seed})")
-    return train_single_curve(ctx.out_dir / "pretrained", sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
-                              fit_time=10, eval_periods=2)
+    ctx.log(f"{ctx.result.experiment}: preliminary single-curve training ({sim_time} s, seed {ctx.seed}, "
+            f"{integrator} integrator)")
+    name = "pretrained" if integrator == "verlet" else f"pretrained_{integrator}"
+    return train_single_curve(ctx.out_dir / name, sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
+                              fit_time=10, eval_periods=2, extra=[f"body.integrator={integrator}"])
+
+
+def _pretrain_variants(ctx: Context) -> dict[str, TrainedAgent]:
+    """One preliminary agent per integrator the variants use: variant name → its preliminary agent."""
+    pre: dict[str, TrainedAgent] = {}
+    for v in ctx.settings.variants.values():
+        if v["integrator"] not in pre:
+            pre[v["integrator"]] = _pretrain(ctx, v["integrator"])
+    return {name: pre[v["integrator"]] for name, v in ctx.settings.variants.items()}
 
 
 def _switching_settings(ctx: Context) -> dict[str, Any]:
     return {"sim_time": ctx.settings["switching_time"], "hold": ctx.settings["hold"]}
 
 
-def _trained_switching(ctx: Context, pre: TrainedAgent, name: str, curve_on: Curve, timing: str | int,
-                       settings: dict[str, Any]) -> tuple[TrainedAgent, dict]:
-    run_dir = ctx.out_dir / name
-    summary = switching_job(str(run_dir), str(pre.run_dir), ctx.seed, (curve_on.alpha, curve_on.beta, curve_on.delta),
-                            timing, settings["sim_time"], settings["hold"])
-    return load_trained(run_dir, summary), summary
+def _loss_rows(ctx: Context, system: str, summary: dict[str, Any]) -> None:
+    """Rows of a switching training's loss: first and last 10 updates, and calm / windy in the first and last 10 %
+    (:func:`loss_by_condition`)."""
+    ctx.row(system, "loss, mean of the first 10 updates", "m²", summary["loss_first10"])
+    ctx.row(system, "loss, mean of the last 10 updates", "m²", summary["loss_last10"])
+    for cond in ("calm", "windy"):
+        for where in ("first", "last"):
+            ctx.row(system, f"loss of the {cond} updates, {where} 10 % of the training", "m²",
+                    summary[f"loss_{cond}_{where}_share"])
 
 
-def _shift_of(trained: TrainedAgent) -> float:
-    from bptsb_ros.training.checkpoint import read_checkpoint
-
-    return float(read_checkpoint(trained.run_dir)["extra"]["wind_shift_x"])
+def _variant_suffix(ctx: Context, name: str) -> str:
+    """'' for the first (main) variant, else '_<name>' (figure names)."""
+    return "" if name == next(iter(ctx.settings.variants)) else f"_{name}"
 
 
 # -- lissajous-switching ---------------------------------------------------------------------------------------
@@ -316,65 +384,78 @@ def _shift_of(trained: TrainedAgent) -> float:
     "lissajous-switching",
     paper_ref="supplement 'Behavioral switching', Fig. (a), (b)",
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
-            "F_wind = 1; both curves drawn, CMP x/y frequencies (FFT) swap with the wind",
-    durations={"smoke": "≈ 20 s", "short": "455 s measured (1,000 s preliminary + 2 × 2,000 s switching training, "
-               "the paper's and the published wind, 2 jobs)",
+            "F_wind = 1 (the authors' protocol: (2,1,π/4)), each settings variant a job; both curves drawn, CMP x/y "
+            "frequencies (FFT) swap with the wind",
+    durations={"smoke": "≈ 20 s", "short": "107 s measured 2026-12-02 on the 2-core machine shared with other work "
+               "(2 × 1,000 s preliminary, verlet and published integrator, + 3 × 2,000 s switching training, the "
+               "three variants, 3 jobs on 2 workers)",
                "paper": "69 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs); short: 24 s the same "
-                        "way"},
+                        "(2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs, before the authors' "
+                        "variant was added)"},
 )
 @single_threaded
 def run_switching(ctx: Context) -> None:
-    pre = _pretrain(ctx)
+    pres = _pretrain_variants(ctx)
     settings = _switching_settings(ctx)
-    pre_err = _curve_error(pre, CURVE_1, ctx.settings["pretrain_eval_periods"])
-    curve = (CURVE_SWITCH.alpha, CURVE_SWITCH.beta, CURVE_SWITCH.delta)
-    variants = {"paper wind (F, 0)": ("switching", False), "published wind (15·F, 1)": ("switching_published", True)}
-    jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, "random", settings["sim_time"],
-             settings["hold"], published) for name, published in variants.values()]
-    ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing), the paper's wind "
-            "and the published code's wind as two jobs")
-    summaries = ctx.run_jobs(switching_job, jobs, names=list(variants))
+    variants = ctx.settings.variants
+    pre_err = {name: _curve_error(pre, CURVE_1, ctx.settings["pretrain_eval_periods"]) for name, pre in pres.items()}
+    jobs = [(str(ctx.out_dir / name), str(pres[name].run_dir), ctx.seed, v, "random", settings["sim_time"],
+             settings["hold"]) for name, v in variants.items()]
+    ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing), "
+            f"{len(jobs)} variants as jobs: {', '.join(v['label'] for v in variants.values())}")
+    summaries = ctx.run_jobs(switching_job, jobs, names=[v["label"] for v in variants.values()])
     seg = ctx.settings["segment_periods"]  # periods per test segment
     transient = ctx.settings["transient_periods"]
     tests = {}
-    for (label, (name, published)), summary in zip(variants.items(), summaries, strict=True):
+    for (name, v), summary in zip(variants.items(), summaries, strict=True):
         sw = load_trained(ctx.out_dir / name, summary)
-        tests[label] = _switching_test(sw, summary["wind_shift_x_m"], published, seg, transient, ctx.seed)
-    main_label = next(iter(variants))
-    ctx.row("single-curve agent (before switching training)", "(1,2,0) MSE / target mean square", "1", pre_err)
-    for label, test in tests.items():
-        for seg_label, v in test["segments"].items():
-            ctx.row(f"{label}: CMP, {seg_label}", "phase-locked MSE / target mean square", "1", v["nmse"])
-            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency x", "Hz", v["f_x"],
-                    2.0 if seg_label == "wind" else 1.0)
-            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency y", "Hz", v["f_y"],
-                    1.0 if seg_label == "wind" else 2.0)
-    for label, test in tests.items():
-        tag = "" if label == main_label else f" [{label}]"
-        ctx.result.claims.extend(switching_claims(SwitchingNumbers(pre_err, test["segments"], transient), tag))
+        tests[name] = _switching_test(sw, summary["wind_shift_x_m"], bool(v["published_wind"]), seg, transient,
+                                      ctx.seed, variant_curve(v))
+    main_name = next(iter(variants))
+    for name, v in variants.items():
+        label = v["label"]
+        prefix = "" if name == main_name else f"{label}: "
+        if name == main_name or pres[name] is not pres[main_name]:
+            ctx.row(f"{prefix}single-curve agent (before switching training)", "(1,2,0) MSE / target mean square",
+                    "1", pre_err[name])
+        _loss_rows(ctx, f"{label}: switching training", summaries[list(variants).index(name)])
+        second = variant_curve(v)
+        for seg_label, s_v in tests[name]["segments"].items():
+            wind_seg = seg_label == "wind"
+            ctx.row(f"{label}: CMP, {seg_label}", "phase-locked MSE / target mean square", "1", s_v["nmse"])
+            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency x", "Hz", s_v["f_x"],
+                    second.alpha if wind_seg else CURVE_1.alpha)
+            ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency y", "Hz", s_v["f_y"],
+                    second.beta if wind_seg else CURVE_1.beta)
+    for name, v in variants.items():
+        tag = "" if name == main_name else f" [{v['label']}]"
+        ctx.result.claims.extend(switching_claims(SwitchingNumbers(pre_err[name], tests[name]["segments"], transient,
+                                                                   str(variant_curve(v))), tag))
     from bptsb_ros.analysis.autonomy_plots import plot_switching_curves, plot_switching_dynamics
 
-    for label, test in tests.items():
-        suffix = "" if label == main_label else "_published"
+    for name, test in tests.items():
+        suffix = _variant_suffix(ctx, name)
         ctx.figure(plot_switching_curves(ctx.out_dir / f"switching_curves{suffix}.png", test["cmp"], test["target"],
-                                         test["wind"], test["windows"], title=label))
+                                         test["wind"], test["windows"], title=variants[name]["label"]))
         if not suffix:
-            on_at, period = test["wind_on_step"], pre.period
+            on_at, period = test["wind_on_step"], pres[name].period
             lo, hi = max(on_at - 3 * period, 0), min(on_at + 3 * period, len(test["wind"]))
             ctx.figure(plot_switching_dynamics(ctx.out_dir / "switching_dynamics.png", test["t"][lo:hi],
-                                               test["r"][lo:hi], test["wind"][lo:hi], pre.agent.body.cmp_local))
-    ctx.result.details = {"seed": ctx.seed, "switching_training": dict(zip(variants, summaries, strict=True)),
-                          "test_runs": {k: {"segment_periods": seg, "transient_periods": transient,
-                                            "wind_on_step": v["wind_on_step"], "wind_off_step": v["wind_off_step"],
-                                            "segments": v["segments"]} for k, v in tests.items()},
+                                               test["r"][lo:hi], test["wind"][lo:hi], pres[name].agent.body.cmp_local))
+    labels = [v["label"] for v in variants.values()]
+    ctx.result.details = {"seed": ctx.seed, "variants": ctx.settings.variants_json(),
+                          "switching_training": dict(zip(labels, summaries, strict=True)),
+                          "test_runs": {variants[k]["label"]: {
+                              "segment_periods": seg, "transient_periods": transient,
+                              "wind_on_step": v["wind_on_step"], "wind_off_step": v["wind_off_step"],
+                              "segments": v["segments"]} for k, v in tests.items()},
                           "criteria": {"draws_nmse": DRAWS_NMSE, "freq_tol_hz": FREQ_TOL},
                           "wind": "paper: F_wind·(1, 0) N on every movable mass; published code: (15·F_wind, 1) N",
                           "notes": _training_note(settings["sim_time"])}
 
 
 def _switching_test(sw: TrainedAgent, shift: float, published: bool, seg: int, transient: int,
-                    seed: int) -> dict[str, Any]:
+                    seed: int, curve_on: Curve = CURVE_SWITCH) -> dict[str, Any]:
     """Test run of a switching agent: no wind, wind, no wind (``seg`` periods each, switches at random phases);
     per segment after ``transient`` periods: phase-locked MSE / target mean square and dominant frequencies."""
     agent, period, dt = sw.agent, sw.period, sw.agent.dt
@@ -390,7 +471,7 @@ def _switching_test(sw: TrainedAgent, shift: float, published: bool, seg: int, t
     r = roll.r[:, 0].double().numpy()  # (T+1, M, 2)
     cmp = r[:, agent.body.cmp_local]
     t = (sw.state.step + np.arange(steps + 1)) * dt
-    target = switch_targets(CURVE_1, CURVE_SWITCH, sw.amplitude, sw.omega, shift)(t, wind)
+    target = switch_targets(CURVE_1, curve_on, sw.amplitude, sw.omega, shift)(t, wind)
     windows = {"before (no wind)": (transient * period, on_at), "wind": (on_at + transient * period, off_at),
                "after (no wind)": (off_at + transient * period, steps + 1)}
     seg_out = segment_errors(cmp, target, windows)
@@ -414,30 +495,30 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
 @experiment(
     "lissajous-bifurcation",
     paper_ref="supplement 'Behavioral switching', Fig. (d)",
-    summary="the switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): maxima of the CMP's "
-            "x and y after a transient, period of each orbit",
-    durations={"smoke": "≈ 20 s", "short": "492 s measured (the switching trainings, paper's and published wind as 2 "
-               "jobs, then ≈ 20 s per sweep)",
+    summary="each settings variant's switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): "
+            "maxima of the CMP's x and y after a transient, period of each orbit",
+    durations={"smoke": "≈ 20 s", "short": "155 s measured 2026-12-02 on the 2-core machine shared with other work "
+               "(2 preliminary trainings, 3 switching trainings as jobs, then one sweep per variant)",
                "paper": "81 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (the "
-                        "paper-scale switching trainings)"},
+                        "paper-scale switching trainings, before the authors' variant was added)"},
 )
 @single_threaded
 def run_bifurcation(ctx: Context) -> None:
-    pre = _pretrain(ctx)
+    pres = _pretrain_variants(ctx)
     settings = _switching_settings(ctx)
-    curve = (CURVE_SWITCH.alpha, CURVE_SWITCH.beta, CURVE_SWITCH.delta)
-    variants = {"paper wind (F, 0)": ("switching", False), "published wind (15·F, 1)": ("switching_published", True)}
-    jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, "random", settings["sim_time"],
-             settings["hold"], published) for name, published in variants.values()]
-    ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s), the paper's and the published "
-            "wind as two jobs")
-    summaries = ctx.run_jobs(switching_job, jobs, names=list(variants))
+    variants = ctx.settings.variants
+    jobs = [(str(ctx.out_dir / name), str(pres[name].run_dir), ctx.seed, v, "random", settings["sim_time"],
+             settings["hold"]) for name, v in variants.items()]
+    ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s), {len(jobs)} variants as jobs")
+    summaries = ctx.run_jobs(switching_job, jobs, names=[v["label"] for v in variants.values()])
     transient, record = ctx.settings["transient_periods"], ctx.settings["record_periods"]
     winds = BIFURCATION_WINDS
-    main_label = next(iter(variants))
+    main_name = next(iter(variants))
     details: dict[str, Any] = {"seed": ctx.seed, "winds": winds, "transient_periods": transient,
-                               "record_periods": record, "periodicity_rtol": 1e-3}
-    for (label, (name, published)), summary in zip(variants.items(), summaries, strict=True):
+                               "record_periods": record, "periodicity_rtol": 1e-3,
+                               "variants": ctx.settings.variants_json()}
+    for (name, v), summary in zip(variants.items(), summaries, strict=True):
+        label, published, second = v["label"], bool(v["published_wind"]), variant_curve(v)
         sw = load_trained(ctx.out_dir / name, summary)
         period, body = sw.period, sw.agent.body
         pop = run_population(body, (transient + record) * period, repeat_state(sw.state, len(winds)),
@@ -461,19 +542,18 @@ def run_bifurcation(ctx: Context) -> None:
         t = (sw.state.step + transient * period + np.arange(cmp.shape[0])) * sw.agent.dt
         shift = float(summary["wind_shift_x_m"])
         trained_nmse = {}
-        for f, curve, dx in zip(TRAINED_WINDS, (CURVE_1, CURVE_SWITCH), (0.0, shift), strict=True):
+        for f, curve, dx in zip(TRAINED_WINDS, (CURVE_1, second), (0.0, shift), strict=True):
             i = int(np.argmin(np.abs(winds - f)))
             trained_nmse[f] = phase_locked_nmse(cmp[:, i], curve.target(t, sw.amplitude, sw.omega, dx))
             ctx.row(f"{label}: F_wind = {f:g} (trained)", f"phase-locked MSE to {curve} / target mean square", "1",
                     trained_nmse[f])
-        tag = "" if label == main_label else f" [{label}]"
+        tag = "" if name == main_name else f" [{label}]"
         ctx.result.claims.extend(bifurcation_claims(BifurcationNumbers(winds, per, trained_nmse), tag))
         from bptsb_ros.analysis.autonomy_plots import plot_bifurcation
 
         show = [-1.0, -0.5, 0.0, 0.4, 1.0, 1.5, 2.0]
-        suffix = "" if label == main_label else "_published"
-        ctx.figure(plot_bifurcation(ctx.out_dir / f"bifurcation{suffix}.png", winds, max_x, max_y, cmp, show, per,
-                                    title=label))
+        ctx.figure(plot_bifurcation(ctx.out_dir / f"bifurcation{_variant_suffix(ctx, name)}.png", winds, max_x,
+                                    max_y, cmp, show, per, title=label))
         details[label] = {"switching_training": summary, "period_multiple": per,
                           "trained_nmse": {f"{f:g}": v for f, v in trained_nmse.items()},
                           "maxima_x": [m.tolist() for m in max_x], "maxima_y": [m.tolist() for m in max_y]}
@@ -507,7 +587,7 @@ def _ranges(values: np.ndarray, step: float = 0.05) -> str:
 
 # -- lissajous-timing ----------------------------------------------------------------------------------------
 def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run: int, last: int,
-                       published: bool = False) -> dict[str, Any]:
+                       published: bool = False, curve: Curve = CURVE_TIMING) -> dict[str, Any]:
     """Switch the wind on at t0 + period·n/100 for n = 0…99 (one batched run of 100 rows); each row's MSE to the
     n = 0 row and to the target over the ``last`` periods (/ target mean square; inf for a row that diverged).
     A row converges to the trained trajectory when it draws the target (phase-locked, < :data:`DRAWS_NMSE`)."""
@@ -527,7 +607,7 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
     pop = run_population(body, steps, repeat_state(settled, 100), swg=agent.brain, wind=wind)
     cmp = pop.tracked[-(last * period):, :, 0].double().numpy()  # (T, 100, 2)
     t = (k0 + steps - last * period + 1 + np.arange(last * period)) * agent.dt
-    tgt = CURVE_TIMING.target(t, trained.amplitude, trained.omega, shift)
+    tgt = curve.target(t, trained.amplitude, trained.omega, shift)
     ms = float(np.mean((tgt - tgt.mean(0)) ** 2))
     to_ref = np.mean((cmp - cmp[:, :1]) ** 2, axis=(0, 2)) / ms
     to_target = np.mean((cmp - tgt[:, None]) ** 2, axis=(0, 2)) / ms
@@ -535,7 +615,7 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
     to_target[pop.diverged.numpy()] = np.inf
     full_t = (k0 + np.arange(steps + 1)) * agent.dt
     shift_err = windowed_shift_error_batch(
-        cmp, CURVE_TIMING.target(np.concatenate([t, t[-1] + agent.dt * np.arange(1, period + 1)]),
+        cmp, curve.target(np.concatenate([t, t[-1] + agent.dt * np.arange(1, period + 1)]),
                                  trained.amplitude, trained.omega, shift), period) / ms
     return {"n": n, "to_reference": to_ref, "to_target": to_target, "to_target_shift_min": shift_err,
             "converged": to_target < DRAWS_NMSE, "cmp": pop.tracked[:, :, 0].numpy(), "t": full_t,
@@ -545,58 +625,64 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
 @experiment(
     "lissajous-timing",
     paper_ref="supplement 'Switching timing' and its figure",
-    summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing, paper's "
-            "and published wind (four jobs); the wind switched on at every n = 0…99 (one batched run each): which "
-            "runs converge",
+    summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing in each "
+            "settings variant (paper wind, published wind, the authors' protocol: six jobs); the wind switched on "
+            "at every n = 0…99 (one batched run each): which runs converge",
     durations={"smoke": "≈ 30 s",
-               "short": "599 s measured (1,000 s preliminary + 4 × 2,000 s switching: fixed and random timing, the "
-                        "paper's and the published wind; 4 jobs on 2 workers)",
+               "short": "147 s measured 2026-12-02 on the 2-core machine shared with other work (2 × 1,000 s "
+                        "preliminary, verlet and published integrator, + 6 × 2,000 s switching: fixed and random "
+                        "timing in each of the three variants; 6 jobs on 2 workers)",
                "paper": "155 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(4 × 30,000 s of switching training, 2 workers)"},
+                        "(4 × 30,000 s of switching training, 2 workers, before the authors' variant was added)"},
 )
 @single_threaded
 def run_timing(ctx: Context) -> None:
-    pre = _pretrain(ctx)
+    pres = _pretrain_variants(ctx)
     settings = _switching_settings(ctx)
-    curve = (CURVE_TIMING.alpha, CURVE_TIMING.beta, CURVE_TIMING.delta)
-    #: (label, run directory, timing, published wind); the first two are the paper's wind
-    systems = [("fixed", "fixed", "fixed", False), ("random", "random", "random", False),
-               ("fixed, published wind", "fixed_published", "fixed", True),
-               ("random, published wind", "random_published", "random", True)]
-    jobs = [(str(ctx.out_dir / name), str(pre.run_dir), ctx.seed, curve, timing, settings["sim_time"],
-             settings["hold"], published) for _, name, timing, published in systems]
+    variants = ctx.settings.variants
+    main_name = next(iter(variants))
+    #: (label, run directory, timing, variant name): fixed and random timing per variant
+    systems = [(timing if name == main_name else f"{timing}, {v['label']}",
+                timing if name == main_name else f"{timing}_{name}", timing, name)
+               for name, v in variants.items() for timing in ("fixed", "random")]
+    jobs = [(str(ctx.out_dir / run_name), str(pres[name].run_dir), ctx.seed, variants[name], timing,
+             settings["sim_time"], settings["hold"]) for _, run_name, timing, name in systems]
     ctx.log(f"lissajous-timing: {len(jobs)} switching trainings ({settings['sim_time']} s each) as jobs")
-    summaries = ctx.run_jobs(switching_job, jobs,
-                         names=[f"{label} timing" for label, *_ in systems])
+    summaries = ctx.run_jobs(switching_job, jobs, names=[f"{label} timing" for label, *_ in systems])
     settle, run, last = ctx.settings["settle_periods"], ctx.settings["run_periods"], ctx.settings["last_periods"]
     out: dict[str, dict] = {}
-    for (label, name, timing, published), summary in zip(systems, summaries, strict=True):
-        trained = load_trained(ctx.out_dir / name, summary)
+    for (label, run_name, timing, name), summary in zip(systems, summaries, strict=True):
+        trained = load_trained(ctx.out_dir / run_name, summary)
+        v = variants[name]
         out[label] = timing_convergence(trained, summary["wind_shift_x_m"], settle=settle, run=run, last=last,
-                                        published=published)
+                                        published=bool(v["published_wind"]), curve=variant_curve(v))
         conv = out[label]["converged"]
         ctx.row(f"{label} timing", "n converging to the trained trajectory", "count of 100", int(conv.sum()),
                 "100" if timing == "random" else "52 (fails for 22 ≤ n ≤ 69)")
-        ctx.row(f"{label} timing, n = 0", "MSE to the (1,3,0) target / target mean square", "1",
+        ctx.row(f"{label} timing, n = 0", f"MSE to the {variant_curve(v)} target / target mean square", "1",
                 float(out[label]["to_target"][0]))
-    for fixed, random_, tag in (("fixed", "random", ""), ("fixed, published wind", "random, published wind",
-                                                          " [published wind (15·F, 1)]")):
+        _loss_rows(ctx, f"{label} timing: switching training", summary)
+    pairs = [(systems[2 * i][0], systems[2 * i + 1][0], name) for i, name in enumerate(variants)]
+    for fixed, random_, name in pairs:
+        tag = "" if name == main_name else f" [{variants[name]['label']}]"
         ctx.row(f"{fixed} timing", "longest band of failing n", "count", longest_run(~out[fixed]["converged"])[0],
                 "48 (22…69)")
         ctx.result.claims.extend(timing_claims(TimingNumbers(out[fixed]["to_target"], out[random_]["to_target"],
-                                                             last), tag))
+                                                             last, str(variant_curve(variants[name]))), tag))
     from bptsb_ros.analysis.autonomy_plots import plot_timing
 
     shifts = {label: summary["wind_shift_x_m"] for (label, *_), summary in zip(systems, summaries, strict=True)}
-    for keys, fname in ((("fixed", "random"), "timing.png"),
-                        (("fixed, published wind", "random, published wind"), "timing_published.png")):
-        ctx.figure(plot_timing(ctx.out_dir / fname, {k: out[k] for k in keys}, period=pre.period,
-                               target=lambda t, s: CURVE_TIMING.target(t, pre.amplitude, pre.omega, s),
+    for fixed, random_, name in pairs:
+        curve = variant_curve(variants[name])
+        ctx.figure(plot_timing(ctx.out_dir / f"timing{_variant_suffix(ctx, name)}.png",
+                               {k: out[k] for k in (fixed, random_)}, period=pres[name].period,
+                               target=lambda t, s, c=curve, p=pres[name]: c.target(t, p.amplitude, p.omega, s),
                                shifts=shifts))
     ctx.result.details = {
-        "seed": ctx.seed, "switching_training": {label: sm for (label, *_), sm in zip(systems, summaries, strict=True)},
+        "seed": ctx.seed, "variants": ctx.settings.variants_json(),
+        "switching_training": {label: sm for (label, *_), sm in zip(systems, summaries, strict=True)},
         "settle_periods": settle, "run_periods": run, "compare_last_periods": last,
-        "converged_criterion": f"phase-locked MSE(run_n, (1,3,0) target) / target mean square < {DRAWS_NMSE}",
+        "converged_criterion": f"phase-locked MSE(run_n, second-curve target) / target mean square < {DRAWS_NMSE}",
         **{f"{k}_to_reference": v["to_reference"] for k, v in out.items()},
         **{f"{k}_to_target": v["to_target"] for k, v in out.items()},
         **{f"{k}_converged": v["converged"] for k, v in out.items()},

@@ -32,7 +32,7 @@ from bptsb_ros.sim.clock import step_times
 from bptsb_ros.sim.population import wind_force
 from bptsb_ros.sim.rollout import swg_rest_lengths
 from bptsb_ros.training.guard import UpdateGuard
-from bptsb_ros.training.optim import make_optimizer
+from bptsb_ros.training.optim import divide_rates_, make_optimizer, step_decay_updates
 
 #: the paper's learning rates for switching (supplementary table, "Lissajous curves (switching)")
 SWITCHING_LR = LearningRates(k=1e3, d=1e2, l=1e0, amplitude=1e0, phase=1e1)
@@ -128,12 +128,15 @@ class SwitchingTraining:
     state: BodyState
     schedule: np.ndarray
     guard: dict[str, Any] = field(default_factory=dict)
+    #: the spring-stiffness learning rate in force at each update (the ÷10 schedule and the guard's cuts show here)
+    lr_k: list[float] = field(default_factory=list)
 
 
 def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
                     target: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], *,
                     lr: LearningRates = SWITCHING_LR, window: int = 100, published_wind: bool = False,
-                    reject_factor: float = 0.0, backend: str | None = None,
+                    reject_factor: float = 0.0, backend: str | None = None, lr_decay: bool = False,
+                    lr_decay_min_updates: int = 1000,
                     progress: Callable[[int, int, float], None] | None = None) -> SwitchingTraining:
     """Additional BPTSB training of an SWG agent under a wind schedule (in place; SGD, truncated windows).
 
@@ -149,6 +152,10 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
     ``backend``: ``fused`` runs each window, its loss and gradients as one compiled call and the update as another
     (:mod:`bptsb_ros.training.fused`; equal to rounding); anything else, the autograd path with the body's
     backend. Default: the agent's ``training.backend``.
+
+    ``lr_decay``: the published code's schedule: when there are more than ``lr_decay_min_updates`` updates
+    (windows), every learning rate is divided by 10 at update ``int(0.8·updates)`` and again at ``int(0.9·updates)``
+    (:func:`~bptsb_ros.training.optim.step_decay_updates`), on top of any cut by the guard.
 
     Raises:
         SimulationDiverged: a failure the guard cannot undo (no update since the start or the last restore).
@@ -172,7 +179,13 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
         from bptsb_ros.training.fused import FusedSwgWindow, GivenTargetLoss
 
         fused = FusedSwgWindow(body, swg, opt, window, GivenTargetLoss(body.cmp_local))
+    decay_at = step_decay_updates(updates, min_updates=lr_decay_min_updates) if lr_decay else []
+    lr_k: list[float] = []
+    k_group = next((g for g in opt.param_groups if g.get("name") == "k"), opt.param_groups[0])
     for u in range(updates):
+        for _ in range(decay_at.count(u)):
+            divide_rates_(opt, 10.0)
+        lr_k.append(float(k_group["lr"]))
         first = state.step + 1
         rel = first - k_start
         ext = forces[rel:rel + window].unsqueeze(1)  # (W, 1, M, 2)
@@ -210,4 +223,4 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
             progress(u + 1, updates, guard.history[-1])
     for module in agent.modules().values():
         module.requires_grad_(False)
-    return SwitchingTraining(guard.history, state, schedule, guard.summary())
+    return SwitchingTraining(guard.history, state, schedule, guard.summary(), lr_k)
