@@ -71,8 +71,8 @@ class BodySim(Node):
                      for src, kind, key in INPUTS}
         self.ack_sub = self.create_subscription(Clock, topic[RECORDER_ACK], self._on_recorder_ack, m.ack_qos()) \
             if p["wait_for_recorder"] else None  # the recorder's latest acknowledgement (transient-local, depth 1)
-        self.services = [self.create_service(Trigger, f"~/{name}", lambda _, res, name=name: self._on_call(name, res))
-                         for name in CALLS]
+        self.control_services = [self.create_service(Trigger, f"~/{name}", lambda _, res, name=name:
+                                                     self._on_call(name, res)) for name in CALLS]
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
