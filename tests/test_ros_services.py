@@ -1,6 +1,7 @@
 """The simulator services of a running ``body_sim`` through rclpy (one short lockstep run): ``~/step`` while
 paused advances exactly ``step_count`` steps and holds, ``~/reset`` and ``~/resume`` answer, and each call is on
-``/diagnostics`` (what a bag records). The semantics in detail are tested without DDS in ``test_sim_control``."""
+``/diagnostics`` (what a bag records). The semantics in detail are tested without DDS in ``test_sim_control``.
+And a real brain node that fell behind answers only the newest tick (the latch alone: ``test_newest``)."""
 
 from __future__ import annotations
 
@@ -53,3 +54,49 @@ def test_step_reset_resume_services_on_a_running_body(tmp_path, ros_env, ros_dom
         stop(body)
     s = json.loads(summary.read_text())
     assert s["steps"] == 30 and s["control_calls"] == 3 and s["paused"] is False
+
+
+def test_a_real_brain_behind_by_176_ticks_answers_only_the_newest(ros_domain_id):
+    """``swg_brain`` in this process (own context): 177 ``/clock`` ticks delivered before it spins; its loop
+    answers tick 276 only (the SWG value of step 276) and counts 176 dropped."""
+    import threading
+
+    import rclpy
+    import torch
+    from rclpy.duration import Duration
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+
+    from bptsb_ros.ros import messages as m
+    from bptsb_ros.ros.runtime import StopFlag
+    from bptsb_ros.ros.swg_brain import SwgBrain
+    from bptsb_ros.sim.rollout import swg_rest_lengths
+
+    rclpy.init(args=["--ros-args", "-p", "task:=lissajous", "-p", "startup_timeout:=10.0"], domain_id=ros_domain_id)
+    stop = StopFlag()
+    probe = Probe(ros_domain_id, "tick_probe")
+    try:
+        brain = SwgBrain(stop)
+        ticks = probe.node.create_publisher(Clock, "/clock", m.state_qos(1000))
+        probe.subscribe(JointState, "/brain/rest_length", m.command_qos(1000))
+        assert Probe.wait_matched([ticks, brain.pub], 20)
+        for k in range(100, 277):
+            ticks.publish(m.clock_msg(k, brain.dt_ns))
+        assert ticks.wait_for_all_acked(Duration(seconds=20))  # all 177 are in the brain's subscription
+        runner = threading.Thread(target=brain.run)
+        runner.start()
+        got = probe.messages["/brain/rest_length"]
+        assert probe.spin_until(lambda: bool(got), 20)
+        probe.spin_until(lambda: False, 0.5)
+        stop.set("test")
+        runner.join(timeout=20)
+        assert [m.step_of(msg.header.stamp, brain.dt_ns) for msg in got] == [276]
+        with torch.no_grad():
+            want = swg_rest_lengths(brain.agent.body, brain.agent.brain, 276, 1)[0].double().numpy()
+        assert list(got[0].position) == list(want)
+        assert sum(latch.dropped for latch in brain.latches) == 176
+        brain.destroy_node()
+    finally:
+        stop.set("test")
+        probe.close()
+        rclpy.shutdown()

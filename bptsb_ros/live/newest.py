@@ -50,13 +50,19 @@ class Newest:
         return True
 
 
+#: zero-timeout spins in a row that bring the latches nothing before a turn answers (other callbacks of the node,
+#: such as the sim-time clock subscription of ``use_sim_time``, take turns with the latches' messages)
+IDLE_SPINS = 2
+
+
 def pump(spin_once: Callable[[float], None], latches: Sequence[Newest], timeout: float) -> int:
     """One turn of a brain's loop: wait up to ``timeout`` [s] for a message (``spin_once(timeout)`` handles at most
-    one), then handle every message that is ready (``spin_once(0.0)`` until one handles no message for the
-    latches), then answer the newest message of each latch. Returns the number of answers."""
-    before = sum(latch.received for latch in latches)
+    one), then handle every message that is ready (``spin_once(0.0)`` until :data:`IDLE_SPINS` in a row bring the
+    latches no message), then answer the newest message of each latch. Returns the number of answers."""
     spin_once(timeout)
-    while (now := sum(latch.received for latch in latches)) != before:
-        before = now
+    before, idle = sum(latch.received for latch in latches), 0
+    while idle < IDLE_SPINS:
         spin_once(0.0)
+        now = sum(latch.received for latch in latches)
+        idle, before = (idle + 1 if now == before else 0), now
     return sum(latch.answer() for latch in latches)
