@@ -7,6 +7,10 @@
 * ``body_params`` — the body's parameter specs; ``summary`` — the run summary as text and JSON; ``channels`` —
   command validation, buffering and timing statistics; ``safety`` — command bounds, the publisher rule, divergence
   recovery;
+* ``sim_control`` — :class:`~bptsb_ros.live.sim_control.SimControl`: pause, resume, step N and reset of the body
+  (``body_sim``'s services) and their semantics in both timing modes;
+* ``newest`` — :class:`~bptsb_ros.live.newest.Newest` and :func:`~bptsb_ros.live.newest.pump`: a brain that fell
+  behind answers the newest tick of a backlog and drops the stale ones;
 * ``feedback`` — what ``feedback_brain`` commands: which step the clock or the state answers, and the layer's output;
 * ``loops`` and ``mnist_loop`` — the loops ``bptsb launch`` and ``launch/*.launch.py`` start (nodes, parameters,
   wiring), and the MNIST image stream's plan.

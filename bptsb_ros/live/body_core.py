@@ -17,8 +17,9 @@ Every input names the step it is in force at (a stamp t_k = k·dt):
 :meth:`BodyCore.integrate` takes the commands of step k (the safe command — trained rest lengths, no brain force —
 for an awaited source without one), applies a reset or integrates, checks the new state for divergence and
 recovers (``on_divergence``, :class:`~bptsb_ros.live.safety.DivergenceRecovery`) or stops (raises
-``SimulationDiverged``). What a node logs arrives as :class:`Event` records at ``sink``; :meth:`BodyCore.summary`
-is the run summary as plain data.
+``SimulationDiverged``). Pause, resume, step and reset calls go to :attr:`BodyCore.control`
+(:class:`~bptsb_ros.live.sim_control.SimControl`). What a node logs arrives as :class:`Event` records at ``sink``;
+:meth:`BodyCore.summary` is the run summary as plain data.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from bptsb_ros.live.safety import (
     rest_length_floor,
     runaway,
 )
+from bptsb_ros.live.sim_control import ControlCall, SimControl
 from bptsb_ros.live.summary import summary_text
 from bptsb_ros.ros.params import ParameterError, ParamValue
 from bptsb_ros.ros.topics import dt_to_ns, mass_dof_names, spring_names
@@ -60,12 +62,14 @@ SOURCES: tuple[str, ...] = ("rest_length", "force", "wind", "reset")
 @dataclass(frozen=True)
 class Event:
     """A line for the node's log. ``level``: info, warning or error; ``key``: throttle warnings of one kind
-    (empty: always logged); ``diagnostic``: also publish it as an ERROR diagnostic (a divergence)."""
+    (empty: always logged); ``diagnostic``: also publish it as an ERROR diagnostic (a divergence); ``control``: the
+    pause/resume/step/reset call it reports (published as a control diagnostic, recorded in bags)."""
 
     level: str
     text: str
     key: str = ""
     diagnostic: bool = False
+    control: ControlCall | None = None
 
 
 @dataclass
@@ -182,6 +186,8 @@ class BodyCore:
                 raise ParameterError(f"parameter 'wind': {problem}")
             self.wind = np.asarray(p["wind"], dtype=np.float64)
         self.next_step = 0
+        self.control = SimControl(p["paused"], sink=self._on_control)
+        self.resumed_at = -math.inf  # realtime: when a pause ended (silence is counted from then)
         self.stats = TimingStats()
         self.clock_sent: dict[int, float] = {}
         self.published: dict[str, int] = {}  # topic name -> messages published since stepping began
@@ -198,6 +204,9 @@ class BodyCore:
 
     def _emit(self, level: str, text: str, key: str = "", diagnostic: bool = False) -> None:
         self.sink(Event(level, text, key, diagnostic))
+
+    def _on_control(self, call: ControlCall) -> None:
+        self.sink(Event("info" if call.ok else "warning", f"{call.name}: {call.message}", control=call))
 
     # -- intake -----------------------------------------------------------------------------------------------
     @property
@@ -314,8 +323,8 @@ class BodyCore:
         """Realtime: ``source`` is silent once it sent nothing for ``command_timeout`` (counted from ``started``
         before its first command) or its publisher is ``gone``; warns when step ``step`` has no usable command."""
         ch, timeout = self.channels[source], self.p["command_timeout"]
-        last = ch.last_received
-        quiet = last is None or now - last > timeout
+        last, started = ch.last_received, max(started, self.resumed_at)  # a pause is no silence
+        quiet = last is None or now - max(last, self.resumed_at) > timeout
         if (quiet or gone) and not self.silent[source] and (last is not None or now > started + timeout):
             self.silence(source, f"no publisher left on {topic}" if gone else f"no {source} command for {timeout:g} s")
         if not ch.has(step) and not self.silent[source]:
@@ -364,7 +373,11 @@ class BodyCore:
         return runaway(state.v.numpy(), state.a.numpy(), self.body.dt)
 
     def _reset(self, step: int) -> torch.Tensor | None:
-        """The accepted reset (displacements (2M,) [m]) that takes effect at ``step``, or None."""
+        """The accepted reset (displacements (2M,) [m]) that takes effect at ``step``, or None; a ``reset`` call
+        (:attr:`control`) is a zero displacement: the layout."""
+        if self.control.take_reset():
+            self.channels["reset"].take(step)  # a queued body/reset of this step gives way to the call
+            return torch.zeros(2 * self.body.n_movable, dtype=torch.float64)
         if not self.channels["reset"].due(step):
             return None
         cmd = self.channels["reset"].take(step)
@@ -408,6 +421,7 @@ class BodyCore:
         if safe:
             self.stats.safe_steps += 1
         self.stats.steps = step
+        self.control.stepped(step)
         return out
 
     def _recover(self, state: BodyState | None, step: int,
@@ -462,6 +476,8 @@ class BodyCore:
         out["perturbation_pending"] = len(self.perturbations.pending)
         out["rejected_total"] = total
         out["divergences"] = self.divergence.events
+        out["paused"] = self.control.paused
+        out["control_calls"] = self.control.count
         if self.recorder is not None:
             r = self.recorder
             out.update(recorder_waits=r.waits, recorder_wait_s=r.wait_s, recorder_acked_step=r.acked,
@@ -475,7 +491,7 @@ class BodyCore:
         late = summary["deadline_misses"] or summary["safe_command_steps"] or summary["rejected_total"]
         level = "ERROR" if error else "WARN" if late else "OK"
         values = [(k, f"{v:.6g}" if isinstance(v, float) else str(v)) for k, v in summary.items()]
-        return level, error or (
+        return level, error or ("paused: " if self.control.paused else "") + (
             f"{self.p['mode']}: step {summary['steps']}, {summary['deadline_misses']} deadline misses, "
             f"{summary['safe_command_steps']} safe-command steps, {summary['rejected_total']} rejected commands, "
             f"{summary['divergences']} divergences"), values

@@ -11,6 +11,10 @@ graph in ``body_sim``; plain Python objects and a fake clock in the tests.
 * ``realtime``: step k is due at start + k·dt/``rate_scale`` wall seconds (a live change of ``rate_scale`` keeps
   the due time of the current step); the newest command is used; jitter (start − due), compute time and deadline
   misses (finished after the next step's due time) are counted; ``wall_duration`` > 0 ends the run.
+
+In both modes the loop holds at a step boundary while ``core.control`` is paused (:mod:`~bptsb_ros.live.sim_control`:
+pause, resume, step N, reset), handling messages and service calls; realtime shifts its schedule (and the end of
+``wall_duration``) by the time held.
 """
 
 from __future__ import annotations
@@ -97,6 +101,18 @@ class BodyLoop:
                 return
             self.spin_for(POLL_S)
 
+    def hold(self) -> float:
+        """While paused (and no ``step`` left): handle messages and calls, publish diagnostics; returns the wall
+        seconds held (0.0: not paused)."""
+        control, port = self.core.control, self.port
+        if not control.holding():
+            return 0.0
+        began = port.now()
+        while control.holding() and not port.stopped():
+            port.spin_once(POLL_S)
+            port.diagnostics()
+        return port.now() - began
+
     def _more(self, step: int) -> bool:
         return not self.port.stopped() and (self.core.max_steps == 0 or step <= self.core.max_steps)
 
@@ -122,6 +138,9 @@ class BodyLoop:
         step = 0
         last = port.now()
         while self._more(step):
+            self.hold()
+            if port.stopped():
+                break
             self.await_recorder(step)
             if port.stopped():
                 break
@@ -148,6 +167,9 @@ class BodyLoop:
         wall_end = start + core.p["wall_duration"] if core.p["wall_duration"] > 0 else math.inf
         step = 0
         while self._more(step):
+            held = self.hold()
+            if held:  # the paused time is not schedule: step k is due as long after now as it was at the pause
+                start, wall_end, core.resumed_at = start + held, wall_end + held, port.now()
             if core.period() != period:  # rate_scale changed live: keep this step's due time, new pace after it
                 start, period = start + step * (period - core.period()), core.period()
             due = start + step * period

@@ -93,6 +93,9 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("reset_every", 0, "resets (body/reset, loop mnist_drawing): the body takes a reset only at steps k with "
           "k % reset_every == 0 (with 'reset' in wait_for it waits for one there, lockstep only); the state of step k "
           "is then the body at rest at layout + displacement; 0: no resets", "int", minimum=0),
+    Param("paused", False, "start paused: the first step waits for the ~/resume or ~/step service", "bool"),
+    Param("step_count", 1, "steps one call of the ~/step service advances a paused body", "int", minimum=1,
+          dynamic=True),
     Param("on_divergence", "restore", "when a step diverges: restore (last good state + safe command, go on) or "
           "stop (end the run cleanly); an ERROR diagnostic is published either way", "str",
           choices=DIVERGENCE_POLICIES),

@@ -4,7 +4,9 @@ It loads a body (trained agent or fresh shape), publishes ``/clock`` (it is the 
 and ``/diagnostics``, and hands each message on its input topics (``TOPICS.md``) to
 :class:`~bptsb_ros.live.body_core.BodyCore`, which holds the rules (timing modes ``lockstep``, equal to the offline
 simulation, and ``realtime``; bad commands rejected and counted; the safe command for a silent brain; resets,
-perturbations, divergence recovery; waiting for the recorder). The node asks the ROS graph who publishes.
+perturbations, divergence recovery; waiting for the recorder). The node asks the ROS graph who publishes, and
+offers the simulator services ``~/pause``, ``~/resume``, ``~/step`` and ``~/reset`` (``std_srvs/srv/Trigger``;
+semantics in :mod:`bptsb_ros.live.sim_control`), each call reported on ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -17,21 +19,22 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray, Vector3Stamped
-from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import PARAMS, PUBLISHED, SUBSCRIBED, UNKNOWN_NODE, parse_wait_for_subscribers
+from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import load_source
 from bptsb_ros.ros.params import declare_parameters
-from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, run_node
+from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, log_line, run_node, wait_acked
 from bptsb_ros.ros.topics import RECORDER_ACK, absolute
 
 NODE = "body_sim"
@@ -68,6 +71,8 @@ class BodySim(Node):
                      for src, kind, key in INPUTS}
         self.ack_sub = self.create_subscription(Clock, topic[RECORDER_ACK], self._on_recorder_ack, m.ack_qos()) \
             if p["wait_for_recorder"] else None  # the recorder's latest acknowledgement (transient-local, depth 1)
+        self.control_services = [self.create_service(Trigger, f"~/{name}", lambda _, res, name=name:
+                                                     self._on_call(name, res)) for name in CALLS]
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
@@ -82,6 +87,14 @@ class BodySim(Node):
             self.log(event.level, event.text + (f" ({held} similar suppressed)" if held else ""))
         if event.diagnostic:
             self.diagnostics(error=event.text)
+        if event.control:
+            self._status("OK" if event.control.ok else "WARN", event.text, event.control.values(), "control")
+
+    def _on_call(self, name: str, res: Trigger.Response) -> Trigger.Response:
+        """A call of ``~/<name>`` (``~/step``: ``step_count`` steps) to the core's controls."""
+        self.callbacks += 1
+        res.success, res.message = self.core.control.call(name, self.p["step_count"])
+        return res
 
     # -- intake: messages -> core ------------------------------------------------------------------------------
     def _on_input(self, source: str, msg: JointState | Vector3Stamped) -> None:
@@ -146,13 +159,7 @@ class BodySim(Node):
         return self.subs[source].topic_name
 
     def log(self, level: str, text: str) -> None:
-        logger = self.get_logger()  # one call site per severity: rclpy refuses a site whose severity changes
-        if level == "error":
-            logger.error(text)
-        elif level == "warning":
-            logger.warning(text)
-        else:
-            logger.info(text)
+        log_line(self.get_logger(), level, text)
 
     def _publish(self, key: str, msg: Any) -> None:
         pub = self.pubs[key]
@@ -189,9 +196,11 @@ class BodySim(Node):
         if not force and not error and now < self.next_diagnostics:
             return
         self.next_diagnostics = now + self.p["diagnostics_period"]
-        summary = self.core.summary()
-        level, message, values = self.core.status(summary, error)
-        status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), name=f"{self.get_name()}: loop",
+        self._status(*self.core.status(self.core.summary(), error))
+
+    def _status(self, level: str, message: str, values: list[tuple[str, str]], name: str = "loop") -> None:
+        """Publish one DiagnosticStatus ``<node>: <name>`` stamped with the sim time of the last step."""
+        status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), name=f"{self.get_name()}: {name}",
                                   hardware_id=self.body.topology.name, message=message,
                                   values=[KeyValue(key=k, value=v) for k, v in values])
         msg = DiagnosticArray(status=[status])
@@ -216,18 +225,6 @@ class BodySim(Node):
         pub = self._own.get(absolute(topic, self.get_namespace()))  # our own publisher's count, if it is ours
         return pub.get_subscription_count() if pub else self.count_subscribers(topic)
 
-    def _wait_acked(self, timeout: float) -> None:
-        """Wait (up to ``timeout`` in all; 0: not at all) until reliable subscribers acknowledged every message,
-        polling the publishers in turn, 10 ms each, so one dead subscriber cannot use up the time of the others."""
-        started, poll = time.monotonic(), Duration(nanoseconds=10_000_000)
-        pending = [pub for pub in self.pubs.values() if pub.get_subscription_count() > 0] if timeout > 0 else []
-        while pending and time.monotonic() < started + timeout:
-            pending = [pub for pub in pending if not pub.wait_for_all_acked(poll)]
-        if pending:
-            self.get_logger().warning(
-                f"subscribers of {', '.join(pub.topic_name for pub in pending)} did not acknowledge every message "
-                f"within {time.monotonic() - started:.2f} s (final_ack_timeout {timeout:g} s)")
-
     def run(self) -> int:
         self.loop.wait_startup(self._startup_missing)
         diverged = self.loop.run()
@@ -235,7 +232,7 @@ class BodySim(Node):
         self.get_logger().info(self.core.end_text(summary, diverged, self.stop.reason))
         self.diagnostics(force=True)
         summary["published_messages"] = dict(self.core.published)  # the final diagnostics included
-        self._wait_acked(timeout=self.p["final_ack_timeout"])
+        wait_acked(self.get_logger(), list(self.pubs.values()), self.p["final_ack_timeout"])
         if self.p["summary_path"]:
             write_summary(self.p["summary_path"], summary)
         return EXIT_FAILURE if diverged else EXIT_OK

@@ -4,12 +4,16 @@ A brain is reactive: it answers ``/clock`` ticks or body states with commands st
 time of the step they are in force at (``TOPICS.md``). It runs on sim time: ``use_sim_time`` defaults to
 true for every brain (its log stamps and node clock follow the body's ``/clock``); ``-p use_sim_time:=false``
 still sets it off. The commands themselves never depend on it: every step comes from a message stamp.
+
+A brain that falls behind answers the newest tick only (:mod:`bptsb_ros.live.newest`): its loop handles every
+message that is ready, then answers the newest of each subscription made with :meth:`BrainNode.subscribe_newest`;
+the older ones are dropped (counted, and logged at the end).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from rclpy.duration import Duration
@@ -19,6 +23,7 @@ from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 
 from bptsb_ros.live.channels import RunningStats
+from bptsb_ros.live.newest import Newest, pump
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
 from bptsb_ros.ros.params import LOG_LEVEL, OnChange, Param, ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle
@@ -63,6 +68,7 @@ class BrainNode(Node):
         self.ready: set[Publisher] = set()
         self.compute = RunningStats()  # seconds per message; bounded memory in long runs
         self.throttle = Throttle(1.0)
+        self.latches: list[Newest] = []
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
         if not self.get_parameter("use_sim_time").value:
@@ -83,6 +89,12 @@ class BrainNode(Node):
         pub = self.create_publisher(msg_type, topic, qos)
         self.outputs.append(pub)
         return pub
+
+    def subscribe_newest(self, msg_type: type, topic: str, handler: Callable[[Any], None], qos: Any) -> None:
+        """Subscribe ``handler`` to ``topic`` so that it answers only the newest of the messages ready at once."""
+        latch = Newest(handler)
+        self.latches.append(latch)
+        self.create_subscription(msg_type, topic, latch.offer, qos)
 
     def publish_timed(self, pub: Publisher, msg: Any, started: float) -> None:
         """Record the compute time since ``started`` (monotonic seconds) and publish.
@@ -109,11 +121,12 @@ class BrainNode(Node):
     def run(self) -> int:
         """Spin until SIGINT/SIGTERM, then log a summary and let subscribers acknowledge the last messages."""
         while not self.stop:
-            self.executor_.spin_once(timeout_sec=0.1)
+            pump(lambda timeout: self.executor_.spin_once(timeout_sec=timeout), self.latches, 0.1)
         mean = 1e3 * self.compute.mean
         worst = 1e3 * self.compute.max if self.compute.count else 0.0
+        dropped = sum(latch.dropped for latch in self.latches)
         self.get_logger().info(f"stopped by {self.stop.reason}: published {self.sent} messages, compute mean "
-                               f"{mean:.3f} ms, max {worst:.3f} ms")
+                               f"{mean:.3f} ms, max {worst:.3f} ms; {dropped} stale messages dropped (fell behind)")
         for pub in self.outputs:
             if pub.get_subscription_count() and not pub.wait_for_all_acked(Duration(seconds=1)):
                 self.get_logger().warning(f"subscribers of {pub.topic_name} did not acknowledge every message "

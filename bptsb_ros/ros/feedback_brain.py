@@ -64,9 +64,9 @@ class FeedbackBrain(BrainNode):
         self.names = spring_names(agent.body.topology.n_springs)
         self.state_type = agent.feedback.state_type
         self.pub = self.output(JointState, p["topics.rest_length_cmd"], m.command_qos(self.depth))
-        self.create_subscription(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth))
+        self.subscribe_newest(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         state_topic = p[f"topics.{feedback_state_key(self.state_type)}"]
-        self.create_subscription(JointState, state_topic, self._on_state, m.state_qos(self.depth))
+        self.subscribe_newest(JointState, state_topic, self._on_state, m.state_qos(self.depth))
         self.get_logger().info(f"feedback layer of {self.source_text()}: state {self.state_type} from {state_topic}, "
                                f"{len(self.names)} springs, open loop for steps 0..{self.open_loop}, gain "
                                f"{p['gain']:g}, noise σ {p['noise']:g}")

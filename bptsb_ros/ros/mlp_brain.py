@@ -43,7 +43,7 @@ class MlpBrain(BrainNode):
         body = agent.body
         self.names = mass_dof_names(body.movable_index.tolist())
         self.pub = self.output(JointState, self.p["topics.force_cmd"], m.command_qos(self.depth))
-        self.create_subscription(JointState, self.p["topics.task_input"], self._on_input, m.state_qos(self.depth))
+        self.subscribe_newest(JointState, self.p["topics.task_input"], self._on_input, m.state_qos(self.depth))
         self.get_logger().info(f"{type(agent.brain).__name__} of {self.source_text()}: {self.n_in} input(s) × "
                                f"{self.scale:g} → forces on {body.n_movable} movable masses")
 

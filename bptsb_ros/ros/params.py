@@ -164,6 +164,7 @@ READ_ONLY_REASONS: dict[str, str] = {
                     "parameter services"),
     **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
     "frame_id": "viewers and the bag expect one frame for the whole run",
+    "paused": "only the start; the ~/pause and ~/resume services pause and resume the running body",
     **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale", "perturb_at", "perturb_sigma",
                      "perturb_seed", "schedule", "force", "force_y", "period", "schedule_seed", "hold_periods",
                      "timing", "start_on", "file"), "part of the run's definition "

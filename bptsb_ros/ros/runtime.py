@@ -26,7 +26,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
     from bptsb_ros.ros.params import Param
@@ -218,3 +218,29 @@ class Throttle:
             return False, 0
         self._last[key] = now
         return True, self._held.pop(key, 0)
+
+
+def log_line(logger: Any, level: str, text: str) -> None:
+    """One line at ``level`` (error, warning, else info); one call site per severity: rclpy refuses a site whose
+    severity changes."""
+    if level == "error":
+        logger.error(text)
+    elif level == "warning":
+        logger.warning(text)
+    else:
+        logger.info(text)
+
+
+def wait_acked(logger: Any, pubs: Sequence[Any], timeout: float) -> None:
+    """Wait (up to ``timeout`` [s] in all; 0: not at all) until the reliable subscribers of ``pubs`` acknowledged
+    every message, polling the publishers in turn, 10 ms each, so one dead subscriber cannot use up the time of the
+    others; a warning names the publishers still pending."""
+    from rclpy.duration import Duration
+
+    started, poll = time.monotonic(), Duration(nanoseconds=10_000_000)
+    pending = [pub for pub in pubs if pub.get_subscription_count() > 0] if timeout > 0 else []
+    while pending and time.monotonic() < started + timeout:
+        pending = [pub for pub in pending if not pub.wait_for_all_acked(poll)]
+    if pending:
+        logger.warning(f"subscribers of {', '.join(pub.topic_name for pub in pending)} did not acknowledge every "
+                       f"message within {time.monotonic() - started:.2f} s (final_ack_timeout {timeout:g} s)")

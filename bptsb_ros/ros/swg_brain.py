@@ -33,7 +33,7 @@ class SwgBrain(BrainNode):
                                  "brain; swg_brain needs an SWG agent (lissajous or locomotion)")
         self.names = spring_names(self.agent.body.topology.n_springs)
         self.pub = self.output(JointState, self.p["topics.rest_length_cmd"], m.command_qos(self.depth))
-        self.create_subscription(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
+        self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         self.get_logger().info(f"SWG of {self.source_text()}: {len(self.names)} springs, "
                                f"ω = {self.agent.brain.omega:.6g} rad/s")
 

@@ -44,7 +44,7 @@ class TaskInput(BrainNode):
         self._hold(int(cfg["narma"]["n_inputs"]))
         self.names = input_names(1)
         self.pub = self.output(JointState, self.p["topics.task_input"], m.command_qos(self.depth))
-        self.create_subscription(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
+        self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         self.get_logger().info(f"NARMA input u ~ U(0, 1), seed {self.seed}, held {self.tau} steps")
 
     def _hold(self, n_inputs: int) -> None:
