@@ -43,7 +43,8 @@ def test_forces_and_wind_are_bounded():
     assert wind.offer(np.array([10.0, -10.0])) is None
     assert "[-10, 10] N" in wind.offer(np.array([1e30, 0.0]))
     assert "NaN/inf" in wind.offer(np.array([np.nan, 0.0]))
-    assert wind.counts() == {"accepted": 1, "rejected_non_finite": 1, "rejected_out_of_bounds": 1}
+    assert wind.counts() == {"accepted": 1, "rejected_non_finite": 1, "rejected_out_of_bounds": 1,
+                             "rejected_untrusted_publisher": 0}
 
 
 @pytest.mark.parametrize("mode", ["lockstep", "realtime"])

@@ -144,6 +144,9 @@ def test_wind_messages_are_checked_and_hold_from_the_next_step():
     assert "outside [-10, 10] N" in c.offer_wind([10.0 + 1e-9, 0.0])
     assert c.offer_wind([10.0, -10.0]) is None
     assert c.summary()["wind_rejected_non_finite"] == 1 and c.summary()["wind_rejected_out_of_bounds"] == 1
+    # an unsynchronised wind follows the wind topic's publisher rule too (command_publishers: wind_source only)
+    assert "env/wind has publisher(s) not in command_publishers (/intruder)" in c.offer_wind([1.0, 0.0], ["/intruder"])
+    assert c.summary()["wind_rejected_untrusted_publisher"] == 1
     out = c.integrate(None, 0)
     np.testing.assert_array_equal(out.force.numpy(), np.tile([10.0, -10.0], (M2 // 2, 1)))
     with pytest.raises(ParameterError, match="parameter 'wind'"):

@@ -240,11 +240,12 @@ class BodyCore:
             self._emit("info", f"{source} commands resumed at step {step}")
         return None
 
-    def offer_wind(self, wind: Sequence[float] | np.ndarray) -> str | None:
+    def offer_wind(self, wind: Sequence[float] | np.ndarray, untrusted: Sequence[str] = (),
+                   topic: str = "env/wind") -> str | None:
         """An unsynchronised wind (x, y) [N] from the next step on; None if accepted, else why not (the previous
-        wind stays)."""
+        wind stays). ``untrusted``: publishers on its ``topic`` that ``command_publishers`` does not allow."""
         wind = np.asarray(wind, dtype=np.float64)
-        problem = self.wind_intake.offer(wind)
+        problem = self.wind_intake.offer(wind, untrusted, topic)
         if problem:
             self._emit("warning", f"{problem}; keeping the previous wind", "reject:wind")
             return problem

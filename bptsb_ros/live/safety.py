@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Generic, Literal, TypeVar
 
@@ -161,9 +161,14 @@ class WindIntake:
     accepted: int = 0
     rejected: Counter = field(default_factory=Counter)
 
-    def offer(self, wind: np.ndarray) -> str | None:
-        """None if ``wind`` is accepted, else the rejection message (counted by reason)."""
+    def offer(self, wind: np.ndarray, untrusted: Sequence[str] = (), topic: str = "env/wind") -> str | None:
+        """None if ``wind`` is accepted, else the rejection message (counted by reason); ``untrusted``: publishers
+        on its topic that the publisher rule does not allow (then every wind on it is rejected)."""
         wind = np.asarray(wind, dtype=np.float64)
+        if untrusted:
+            self.rejected["untrusted_publisher"] += 1
+            return (f"rejected wind {wind.tolist()}: {topic} has publisher(s) not in command_publishers "
+                    f"({', '.join(untrusted)})")
         if not np.isfinite(wind).all():
             self.rejected["non_finite"] += 1
             return f"rejected wind {wind.tolist()}: NaN/inf"
@@ -176,7 +181,8 @@ class WindIntake:
 
     def counts(self) -> dict[str, int]:
         return {"accepted": self.accepted, "rejected_non_finite": int(self.rejected["non_finite"]),
-                "rejected_out_of_bounds": int(self.rejected["out_of_bounds"])}
+                "rejected_out_of_bounds": int(self.rejected["out_of_bounds"]),
+                "rejected_untrusted_publisher": int(self.rejected["untrusted_publisher"])}
 
 
 def runaway(v: np.ndarray, a: np.ndarray, dt: float, limit: float = 1e6) -> str | None:

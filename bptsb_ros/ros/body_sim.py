@@ -106,7 +106,7 @@ class BodySim(Node):
         if source == "wind":
             values, names = [msg.vector.x, msg.vector.y], None
             if not self.core.wind_synchronised:
-                self.core.offer_wind(values)
+                self.core.offer_wind(values, self._untrusted(source, now), topic)
                 return
         else:
             values, names = m.as_array(msg.effort if source == "force" else msg.position), list(msg.name)
