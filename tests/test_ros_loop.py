@@ -212,3 +212,38 @@ def test_run_starts_one_node_and_validates_its_parameters(tmp_path, ros_env):
     assert json.loads(summary.read_text())["steps"] == 2
     bad = bptsb(["run", "body_sim", "--ros-args", "-p", "mode:=fast"], ros_env)
     assert bad.returncode == 2 and "parameter 'mode': 'fast' not allowed; choose from lockstep, realtime" in bad.stdout
+
+
+def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env):
+    """Two robots at once in one domain (``--namespace r1`` and ``r2``, different seeds): each bag holds exactly its
+    own robot's topics (its ``/rN/clock`` and ``/rN/diagnostics`` too), and each equals its own offline simulation."""
+    from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.ros.messages import pose_array_positions
+    from bptsb_ros.ros.topics import TOPICS
+    from bptsb_ros.sim.rollout import simulate_open_loop
+
+    results: dict[str, subprocess.CompletedProcess] = {}
+
+    def run(ns: str, seed: int) -> None:
+        results[ns] = bptsb(["launch", "lissajous_open", "--namespace", ns, "--seed", str(seed), "--duration", "1",
+                             "--bag", str(tmp_path / ns)], ros_env)
+
+    threads = [threading.Thread(target=run, args=(ns, seed)) for ns, seed in (("r1", 0), ("r2", 5))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for ns, seed in (("r1", 0), ("r2", 5)):
+        out = results[ns]
+        assert out.returncode == 0, out.stdout[-4000:]
+        bag = tmp_path / ns
+        names = {t.name for t in bag_info(bag).topics}
+        own = {f"/{ns}/{TOPICS[k].name.lstrip('/')}" for k in ("clock", "diagnostics", "positions", "rest_length_cmd")}
+        assert own <= names and all(n.startswith(f"/{ns}/") for n in names), names
+        pos = np.array([pose_array_positions(m) for *_, m in read_messages(bag, [f"/{ns}/body/positions"])])
+        agent = fresh_agent("lissajous", seed=seed)
+        ref = agent.body.full_positions(simulate_open_loop(agent, 100).r[:, 0]).numpy()
+        assert pos.shape == ref.shape and np.abs(pos - ref).max() <= 1e-9
+    first = fresh_agent("lissajous", seed=0)
+    # r2's bag is r2's run: robot r1's offline trajectory (seed 0) is not in it
+    assert np.abs(first.body.full_positions(simulate_open_loop(first, 100).r[:, 0]).numpy() - pos).max() > 1e-6

@@ -6,10 +6,17 @@ processes from :data:`LOOPS`, so the two ways of starting a loop cannot drift ap
 Topic wiring (default names, ``bptsb_ros/ros/TOPICS.md``): ``body_sim`` publishes ``/clock`` and the
 body state; time-driven brains (``swg_brain``, ``task_input``) answer ``/clock``; ``feedback_brain``
 answers the body state; ``mlp_brain`` answers ``task/input``; commands go back to ``body_sim``.
+
+Namespaces (several robots in one ROS domain): a loop started in namespace ``/r1`` (``bptsb launch --namespace r1``,
+``namespace:=r1`` or ``PushRosNamespace`` around a launch file) resolves every topic in it — also ``/clock`` and
+``/diagnostics``, remapped to ``/r1/clock`` and ``/r1/diagnostics`` (:func:`namespace_remaps`), so each robot keeps
+its own lockstep clock and its bag holds exactly its own topics. The startup waits and the recorder's topic list use
+the resolved names (:func:`loop_topic`). Frame ids are not namespaced: every body lives in its own ``msdn`` frame.
 """
 
 from __future__ import annotations
 
+import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -127,12 +134,48 @@ def agent_loop(loop: Loop, agent: str) -> Loop:
     return with_feedback_state(loop, state)
 
 
-def topic_names(keys: list[str], namespace: str = "/") -> list[str]:
-    """Absolute default names of topic keys."""
-    return [absolute(TOPICS[k].name, namespace) for k in keys]
+_NAMESPACE = re.compile(r"^(/?[A-Za-z_][A-Za-z0-9_]*)(/[A-Za-z_][A-Za-z0-9_]*)*/?$")
 
 
-def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True) -> list[str]:
+class NamespaceError(ValueError):
+    """A namespace that ROS would refuse; the message names it."""
+
+
+def normalize_namespace(namespace: str) -> str:
+    """``namespace`` as an absolute ROS namespace without a trailing slash (``r1`` → ``/r1``); '' or '/' → ''
+    (the root). Raises NamespaceError for a name ROS refuses (tokens of letters, digits and ``_``, not starting with
+    a digit, separated by single slashes)."""
+    if namespace in ("", "/"):
+        return ""
+    if not _NAMESPACE.match(namespace):
+        raise NamespaceError(f"namespace {namespace!r}: not a ROS namespace (names of letters, digits and _, not "
+                             "starting with a digit, separated by /)")
+    return "/" + namespace.strip("/")
+
+
+def loop_topic(key: str, namespace: str = "") -> str:
+    """Resolved name of topic ``key`` of a loop in ``namespace`` (normalized: '' or ``/r1``): relative names in it,
+    and, in a namespace, ``/clock`` and ``/diagnostics`` too (the nodes remap them, :func:`namespace_remaps`)."""
+    name = TOPICS[key].name
+    if not namespace:
+        return absolute(name)
+    return f"{namespace}/{name.lstrip('/')}"
+
+
+def namespace_remaps(namespace: str) -> list[tuple[str, str]]:
+    """Remappings of every node of a loop in ``namespace`` (normalized): its absolute topics (``/clock``, also the
+    sim-time subscription of every node, and ``/diagnostics``) into the namespace; none at the root."""
+    if not namespace:
+        return []
+    return [(TOPICS[k].name, loop_topic(k, namespace)) for k in TOPICS if TOPICS[k].name.startswith("/")]
+
+
+def topic_names(keys: list[str], namespace: str = "") -> list[str]:
+    """Resolved names of topic keys in ``namespace`` (normalized, :func:`loop_topic`)."""
+    return [loop_topic(k, namespace) for k in keys]
+
+
+def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True, namespace: str = "") -> list[str]:
     """``wait_for_subscribers`` entries for ``body_sim``: how many subscribers each topic must have.
 
     Body outputs count the recorder and every brain that subscribes (a node on sim time also has a
@@ -148,7 +191,7 @@ def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True) -
             counts["clock"] += 1
     for source in loop.wait_for:
         counts[COMMAND_SOURCES[source]] = counts.get(COMMAND_SOURCES[source], 0) + 1
-    return [f"{absolute(TOPICS[k].name)}:{n}" for k, n in counts.items() if n > 0]
+    return [f"{loop_topic(k, namespace)}:{n}" for k, n in counts.items() if n > 0]
 
 
 def output_subscribers(loop: Loop, executable: str, *, recording: bool) -> int:
@@ -178,7 +221,7 @@ def perturbation_problem(perturb_at: float, perturb_sigma: float, *, duration: f
 def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int = 0, mode: str = "lockstep",
                     duration: float = 0.0, rate_scale: float = 1.0, recording: bool = False,
                     open_loop_steps: int = 0, summary_path: str = "", perturb_at: float = -1.0,
-                    perturb_sigma: float = 0.0, perturb_seed: int = 0) -> dict[str, ParamValue]:
+                    perturb_sigma: float = 0.0, perturb_seed: int = 0, namespace: str = "") -> dict[str, ParamValue]:
     """ROS parameters of one node of ``loop`` (those that differ from the node's defaults).
 
     Args:
@@ -188,13 +231,14 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
         perturb_at: ``body_sim`` displaces the movable masses at this sim time [s] (negative: never).
         perturb_sigma: standard deviation σ [m] of that displacement, N(0, σ²) per coordinate.
         perturb_seed: seed of its standard-normal pattern.
+        namespace: the loop's namespace (normalized, :func:`normalize_namespace`): the names ``body_sim`` waits on.
     """
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":
         params.update({
             "mode": mode,
             "wait_for": list(loop.wait_for),
-            "wait_for_subscribers": startup_subscribers(loop, recording=recording),
+            "wait_for_subscribers": startup_subscribers(loop, recording=recording, namespace=namespace),
             "rate_scale": rate_scale,
         })
         if recording and mode == "lockstep":  # the recorder's acknowledgements pace the run: nothing is lost
@@ -221,21 +265,24 @@ def log_dir_of_bag(bag: str | Path) -> Path:
 
 
 def recorder_parameters(loop: Loop, bag: str, *, mode: str = "lockstep", agent: str = "",
-                        open_loop_steps: int = 0, allow_loss: bool = False) -> dict[str, ParamValue]:
+                        open_loop_steps: int = 0, allow_loss: bool = False, namespace: str = "",
+                        ) -> dict[str, ParamValue]:
     """ROS parameters of the recorder of ``loop``: every loop topic to ``bag``, log times from ``/clock`` in lockstep
     (``use_sim_time``: the bag's timeline is sim time; realtime keeps system time), and the run description in the
     bag's ``custom_data`` (keys ``loop``, ``mode``, ``agent`` — ``fresh`` without one — and ``open_loop_steps``,
     which ``bptsb replay`` reads for its offline comparison). In lockstep it acknowledges the per-step topics on
-    ``recorder/ack`` (``body_sim``'s ``wait_for_recorder``); ``allow_loss``: exit 0 even if messages were lost."""
+    ``recorder/ack`` (``body_sim``'s ``wait_for_recorder``); ``allow_loss``: exit 0 even if messages were lost.
+    ``namespace`` (normalized): the loop's namespace, whose resolved topic names are recorded."""
     params: dict[str, ParamValue] = {
         "bag_path": bag,
         "use_sim_time": mode == "lockstep",
-        "topics": topic_names(loop.topics()),
+        "topics": topic_names(loop.topics(), namespace),
         "custom_data": [f"loop={loop.name}", f"mode={mode}", f"agent={agent or 'fresh'}",
-                        f"open_loop_steps={open_loop_steps}"],
+                        f"open_loop_steps={open_loop_steps}"] + ([f"namespace={namespace}"] if namespace else []),
     }
     if mode == "lockstep":
-        params.update(ack_topic=absolute(TOPICS[RECORDER_ACK].name), ack_topics=topic_names(loop.step_topics()))
+        params.update(ack_topic=loop_topic(RECORDER_ACK, namespace),
+                      ack_topics=topic_names(loop.step_topics(), namespace))
     if allow_loss:
         params["allow_loss"] = True
     return params
