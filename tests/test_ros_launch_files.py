@@ -27,7 +27,9 @@ from bptsb_ros.live.loops import (
     LaunchArgumentError,
     launch_arguments,
     loop_node_parameters,
+    namespace_remaps,
     node_exit_verdict,
+    normalize_namespace,
     params_file_text,
     recorder_parameters,
     resolve_arguments,
@@ -58,6 +60,13 @@ def test_closed_loops_require_an_agent_and_open_loops_do_not():
     ({"rate_scale": "0"}, "rate_scale:=0: must be > 0"),
     ({"seed": "x"}, "seed:=x: not a number"),
     ({"agent": "/nonexistent/run"}, "agent:=/nonexistent/run: no such run directory"),
+    ({"log_level": "loud"}, "log_level:=loud: choose debug, info, warn, error, fatal"),
+    ({"rviz": "yes"}, "rviz:=yes: choose true or false"),
+    ({"params_file": "/nonexistent/p.yaml"}, "params_file:=/nonexistent/p.yaml: no such file"),
+    ({"namespace": "r1//x"}, "namespace:=r1//x: namespace 'r1//x': not a ROS namespace (names of letters, digits "
+                             "and _, not starting with a digit, separated by /)"),
+    ({"namespace": "1r"}, "namespace:=1r: namespace '1r': not a ROS namespace (names of letters, digits and _, not "
+                          "starting with a digit, separated by /)"),
 ])
 def test_bad_launch_arguments_are_named(values, message):
     with pytest.raises(LaunchArgumentError) as err:
@@ -83,10 +92,45 @@ def test_a_node_exit_decides_the_launch():
     assert node_exit_verdict("body_sim", 0, False) == "finished"
     assert node_exit_verdict("body_sim", 0, True) == "finished"
     assert node_exit_verdict("swg_brain", 0, True) == "stopped"
-    assert node_exit_verdict("recorder", 0, False).startswith("recorder exited with code 0 before the end")
+    # a clean exit while the launch does not stop: the node was interrupted from outside (SIGINT to the nodes, not to
+    # ros2 launch) -- no error; after body_sim finished it is part of the stop
+    assert node_exit_verdict("recorder", 0, False) == "interrupted"
+    assert node_exit_verdict("recorder", 0, False, body_finished=True) == "stopped"
+    assert node_exit_verdict("recorder", 1, False, body_finished=True).startswith("recorder exited with code 1")
     assert node_exit_verdict("feedback_brain", 2, False).startswith("feedback_brain exited with code 2 before")
     assert node_exit_verdict("body_sim", 1, False).startswith("body_sim exited with code 1")
     assert node_exit_verdict("swg_brain", -9, True) == "swg_brain exited with code -9 while the loop was stopping"
+
+
+def test_namespaced_launch_parameters_resolve_every_name_in_the_namespace(tmp_path):
+    """namespace:=r1: body_sim waits for subscribers on /r1/... names (its own /clock remapped to /r1/clock) and the
+    recorder records exactly /r1/... topics; at the root the names are the absolute defaults."""
+    values = {"bag": str(tmp_path / "bag"), "namespace": "r1"}
+    body = loop_node_parameters("lissajous_open", "body_sim", values)
+    waits = dict(e.rsplit(":", 1) for e in body["wait_for_subscribers"])
+    # /clock: the recorder, swg_brain's trigger and its sim-time clock; the command: body_sim and the recorder
+    assert waits["/r1/clock"] == "3" and waits["/r1/body/positions"] == "1" and waits["/r1/brain/rest_length"] == "2"
+    assert all(t.startswith("/r1/") for t in waits)
+    rec = loop_node_parameters("lissajous_open", "recorder", values)
+    assert "/r1/diagnostics" in rec["topics"] and "/r1/body/rest_length" in rec["topics"]
+    assert all(t.startswith("/r1/") for t in rec["topics"] + rec["ack_topics"] + [rec["ack_topic"]])
+    root = loop_node_parameters("lissajous_open", "recorder", {"bag": str(tmp_path / "b2")})
+    assert "/clock" in root["topics"] and "/body/positions" in root["topics"] and root["ack_topic"] == "/recorder/ack"
+    assert namespace_remaps("/r1") == [("/clock", "/r1/clock"), ("/diagnostics", "/r1/diagnostics")]
+    assert namespace_remaps("") == [] and normalize_namespace("/robot1/r1/") == "/robot1/r1"
+
+
+def test_rviz_config_is_installed_and_names_the_body_frame():
+    """config/bptsb.rviz: fixed frame msdn (body_sim's frame_id, no TF needed), the markers topic relative (it follows
+    the loop's namespace); setup.py installs config/*.rviz into share/bptsb_ros/config."""
+    from bptsb_ros.live.body_params import PARAMS
+
+    cfg = yaml.safe_load((REPO / "config" / "bptsb.rviz").read_text())["Visualization Manager"]
+    frame = next(p.default for p in PARAMS if p.name == "frame_id")
+    assert cfg["Global Options"]["Fixed Frame"] == frame
+    markers = next(d for d in cfg["Displays"] if d["Class"] == "rviz_default_plugins/MarkerArray")
+    assert markers["Topic"]["Value"] == "body/markers" and markers["Enabled"] is True
+    assert 'glob("config/*.rviz")' in (REPO / "setup.py").read_text()
 
 
 def test_lockstep_bags_are_recorded_on_sim_time():

@@ -247,3 +247,17 @@ def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env
     first = fresh_agent("lissajous", seed=0)
     # r2's bag is r2's run: robot r1's offline trajectory (seed 0) is not in it
     assert np.abs(first.body.full_positions(simulate_open_loop(first, 100).r[:, 0]).numpy() - pos).max() > 1e-6
+
+
+def test_a_loop_without_its_brain_fails_the_launch(tmp_path, ros_env):
+    """swg_brain publishes where body_sim does not listen: the body starts without it (startup_timeout), runs every
+    step on the safe command and exits 0 itself, but the launch fails with one line naming the silent brain."""
+    out = bptsb(["launch", "lissajous_open", "--duration", "0.3", "--log-dir", str(tmp_path / "logs"),
+                 "--param", "swg_brain:topics.rest_length_cmd:=/nowhere", "--param", "body_sim:startup_timeout:=1.0",
+                 "--param", "body_sim:command_timeout:=0.2"], ros_env)
+    assert out.returncode == 1, out.stdout[-4000:]
+    assert "body_sim        ok" in out.stdout  # the body itself ended cleanly: the launcher decides
+    summary = json.loads((tmp_path / "logs" / "body_summary.json").read_text())
+    assert summary["silent_brain_steps"] == {"rest_length": 31}
+    assert ("[launch] FAILED: body_sim ran on the safe command for lack of its brain (rest_length silent on 31 of "
+            "steps 0..30)") in out.stdout

@@ -320,7 +320,17 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
     "perturb_seed": ("0", "seed of the perturbation's standard-normal pattern"),
     "allow_loss": ("false", "with bag: a recording that lost messages still ends the launch cleanly (the bag counts "
                    "them either way); false: the recorder exits 1 and the launch fails"),
+    "namespace": ("", "ROS namespace of the loop (one robot of several in a domain), relative to any PushRosNamespace "
+                  "around the launch: every node runs in it and every topic resolves in it, /clock and /diagnostics "
+                  "remapped to NS/clock and NS/diagnostics; empty: the enclosing (default root) namespace"),
+    "log_level": ("info", "log level of every node (--ros-args --log-level): debug, info, warn, error or fatal"),
+    "params_file": ("", "a ROS 2 params file given to every node after the loop's own parameters (its values win; "
+                    "keys /** or the node names); empty: none"),
+    "rviz": ("false", "true: also start rviz2 with the package's config/bptsb.rviz (fixed frame msdn) in the loop's "
+             "namespace, where rviz2 is installed (otherwise a log line and the loop runs without it)"),
 }
+#: log levels of ``log_level:=`` (rcutils' names)
+LOG_LEVELS = ("debug", "info", "warn", "error", "fatal")
 #: ``agent`` of a loop that needs a trained agent: required (no default), so ``ros2 launch`` refuses to start
 #: without it
 REQUIRED_AGENT = "trained agent run directory (required: the closed loop runs the agent's fitted feedback layer)"
@@ -370,8 +380,17 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                                   "(bptsb train fits it)")
     if values.get("mode", "lockstep") not in ("lockstep", "realtime"):
         raise LaunchArgumentError(f"mode:={values['mode']}: choose lockstep or realtime")
-    if values.get("allow_loss", "false").lower() not in ("true", "false"):
-        raise LaunchArgumentError(f"allow_loss:={values['allow_loss']}: choose true or false")
+    for flag in ("allow_loss", "rviz"):
+        if values.get(flag, "false").lower() not in ("true", "false"):
+            raise LaunchArgumentError(f"{flag}:={values[flag]}: choose true or false")
+    if values.get("log_level", "info").lower() not in LOG_LEVELS:
+        raise LaunchArgumentError(f"log_level:={values['log_level']}: choose {', '.join(LOG_LEVELS)}")
+    if values.get("params_file") and not Path(values["params_file"]).is_file():
+        raise LaunchArgumentError(f"params_file:={values['params_file']}: no such file")
+    try:
+        namespace = normalize_namespace(values.get("namespace", ""))
+    except NamespaceError as err:
+        raise LaunchArgumentError(f"namespace:={values['namespace']}: {err}") from None
 
     def number(name: str, kind: type, ok, rule: str):
         text = values.get(name, LAUNCH_ARGUMENTS[name][0])
@@ -390,7 +409,7 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                   open_loop_steps=number("open_loop_steps", int, lambda v: v >= 0, ">= 0"),
                   perturb_at=number("perturb_at", float, lambda v: True, "a number"),
                   perturb_sigma=number("perturb_sigma", float, lambda v: v >= 0, ">= 0"),
-                  perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"))
+                  perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"), namespace=namespace)
     problem = perturbation_problem(common["perturb_at"], common["perturb_sigma"], duration=common["duration"],
                                    rate_scale=common["rate_scale"], mode=common["mode"])
     if problem:
@@ -444,7 +463,8 @@ def loop_node_parameters(loop_name: str, executable: str, values: dict[str, str]
     if executable == "recorder":
         params = recorder_parameters(loop, bag, mode=common["mode"], agent=common["agent"],
                                      open_loop_steps=common["open_loop_steps"],
-                                     allow_loss=values.get("allow_loss", "false").lower() == "true")
+                                     allow_loss=values.get("allow_loss", "false").lower() == "true",
+                                     namespace=common["namespace"])
     else:
         summary_path = str(log_dir_of_bag(bag) / "body_summary.json") if bag and executable == "body_sim" else ""
         params = node_parameters(loop, executable, summary_path=summary_path, **common)
@@ -480,14 +500,18 @@ def params_file_text(executable: str, params: dict[str, ParamValue]) -> str:
     return f"# {executable}: written by bptsb_ros.live.loops from the launch arguments\n" + "\n".join(lines) + "\n"
 
 
-def node_exit_verdict(executable: str, returncode: int, shutting_down: bool) -> str:
+def node_exit_verdict(executable: str, returncode: int, shutting_down: bool, body_finished: bool = False) -> str:
     """What the launch does when a node of the loop exits: ``finished`` (body_sim's clean end of the run: shut the
-    launch down, exit 0), ``stopped`` (a clean exit while the launch shuts down) or a failure message (the launch
-    shuts down and exits non-zero)."""
+    launch down, exit 0), ``stopped`` (a clean exit while the launch shuts down or after body_sim finished),
+    ``interrupted`` (another clean exit: the node was stopped from outside the launch, e.g. SIGINT sent to the
+    nodes and not to ``ros2 launch``; the launch shuts down, logs it as info and exits 0 — the body's summary still
+    decides whether the run counts) or a failure message (the launch shuts down and exits non-zero)."""
     if returncode == 0 and executable == "body_sim":
         return "finished"
-    if returncode == 0 and shutting_down:
+    if returncode == 0 and (shutting_down or body_finished):
         return "stopped"
+    if returncode == 0:
+        return "interrupted"
     if shutting_down:
         return f"{executable} exited with code {returncode} while the loop was stopping"
     return (f"{executable} exited with code {returncode} before the end of the run; the loop is broken, "
@@ -516,21 +540,44 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
     shut down and the launch exits non-zero (:func:`node_exit_verdict`).
     """
 
-    from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+    import json
+    import shutil
+
+    from launch.actions import (
+        DeclareLaunchArgument,
+        EmitEvent,
+        ExecuteProcess,
+        LogInfo,
+        OpaqueFunction,
+        RegisterEventHandler,
+    )
     from launch.condition import Condition
     from launch.event_handlers import OnProcessExit
     from launch.events import Shutdown
     from launch.substitution import Substitution
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
+    from launch_ros.utilities import make_namespace_absolute, prefix_namespace
 
+    from bptsb_ros.live.summary import brain_problem
     from launch import LaunchDescription
 
     loop = LOOPS[loop_name]
     arguments = launch_arguments(loop)
+    state: dict[str, object] = {"summary": "", "body_finished": False}
+
+    def namespace_of(context) -> str:
+        """The loops' namespace as launch_ros gives it to the nodes: ``namespace:=`` inside any PushRosNamespace."""
+        pushed = context.launch_configurations.get("ros_namespace")
+        try:
+            return normalize_namespace(make_namespace_absolute(prefix_namespace(
+                pushed, LaunchConfiguration("namespace").perform(context))) or "")
+        except NamespaceError:
+            return LaunchConfiguration("namespace").perform(context)  # resolve_arguments names it
 
     def values_of(context) -> dict[str, str]:
-        return {name: LaunchConfiguration(name).perform(context) for name in arguments}
+        values = {name: LaunchConfiguration(name).perform(context) for name in arguments}
+        return {**values, "namespace": namespace_of(context)}
 
     class NodeParamsFile(Substitution):
         """Path of a params file with one node's parameters, written when the launch performs it."""
@@ -544,6 +591,11 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
 
         def perform(self, context) -> str:
             params = loop_node_parameters(loop_name, self.executable, values_of(context))
+            if self.executable == "body_sim":  # the summary tells on_exit whether the brain was there
+                if not params.get("summary_path"):
+                    params["summary_path"] = str(Path(tempfile.mkdtemp(prefix=f"bptsb_{loop_name}_")) /
+                                                 "body_summary.json")
+                state["summary"] = params["summary_path"]
             handle, path = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_{self.executable}_", suffix=".yaml")
             with open(handle, "w") as out:
                 out.write(params_file_text(self.executable, params))
@@ -556,21 +608,76 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         except LaunchArgumentError as err:
             raise LaunchArgumentError(f"{loop_name}.launch.py: {err}") from None
 
+    class UserParamsFile(Substitution):
+        """``params_file:=`` for one node, or (none given) a second copy of the node's own parameters."""
+
+        def __init__(self, executable: str) -> None:
+            super().__init__()
+            self.own = NodeParamsFile(executable)
+
+        def describe(self) -> str:
+            return "<params_file:= of the launch, if any>"
+
+        def perform(self, context) -> str:
+            return LaunchConfiguration("params_file").perform(context) or self.own.perform(context)
+
+    class Remapped(Substitution):
+        """The target of ``/clock`` or ``/diagnostics`` (``key``) in the loop's namespace."""
+
+        def __init__(self, key: str) -> None:
+            super().__init__()
+            self.key = key
+
+        def describe(self) -> str:
+            return f"<{TOPICS[self.key].name} in the loop's namespace>"
+
+        def perform(self, context) -> str:
+            return loop_topic(self.key, namespace_of(context))
+
+    def body_problem() -> str:
+        try:
+            summary = json.loads(Path(str(state["summary"])).read_text())
+        except (OSError, ValueError):
+            return ""
+        return brain_problem(summary) if isinstance(summary, dict) else ""
+
     def on_exit(executable: str):
         def handler(event, context):
-            verdict = node_exit_verdict(executable, event.returncode, context.is_shutdown)
+            verdict = node_exit_verdict(executable, event.returncode, context.is_shutdown,
+                                        bool(state["body_finished"]))
             if verdict == "finished":
+                state["body_finished"] = True
+                problem = body_problem()
+                if problem:
+                    raise LoopNodeFailed(problem)
                 return [EmitEvent(event=Shutdown(reason="body_sim finished the run"))]
+            if verdict == "interrupted":
+                return [LogInfo(msg=f"{executable} stopped cleanly (interrupted from outside the launch); stopping "
+                                "the loop"), EmitEvent(event=Shutdown(reason=f"{executable} was interrupted"))]
             if verdict != "stopped":
                 raise LoopNodeFailed(verdict)
             return None
         return handler
 
+    def rviz(context, *args, **kwargs):
+        del args, kwargs
+        if LaunchConfiguration("rviz").perform(context).lower() != "true":
+            return None
+        if shutil.which("rviz2") is None:
+            return [LogInfo(msg="rviz:=true: rviz2 is not installed here; the loop runs without it")]
+        namespace = namespace_of(context)
+        remaps = [arg for src, dst in namespace_remaps(namespace) for arg in ("-r", f"{src}:={dst}")]
+        return [ExecuteProcess(cmd=["rviz2", "-d", str(rviz_config()), "--ros-args", "-r",
+                                    f"__ns:={namespace or '/'}", *remaps], name="rviz2", output="screen")]
+
     recording = Condition(predicate=lambda context: bool(LaunchConfiguration("bag").perform(context)))
     executables = ["body_sim"] + [b.executable for b in loop.brains] + ["recorder"]
+    remappings = [(TOPICS[k].name, Remapped(k)) for k in TOPICS if TOPICS[k].name.startswith("/")]
     nodes = [Node(package="bptsb_ros", executable=name, name=name, output="screen",
-                  parameters=[NodeParamsFile(name)], condition=recording if name == "recorder" else None,
-                  sigterm_timeout=str(STOP_GRACE_S))
+                  namespace=LaunchConfiguration("namespace"), remappings=remappings,
+                  parameters=[NodeParamsFile(name), UserParamsFile(name)],
+                  ros_arguments=["--log-level", LaunchConfiguration("log_level")],
+                  condition=recording if name == "recorder" else None, sigterm_timeout=str(STOP_GRACE_S))
              for name in executables]
     return LaunchDescription([
         *(DeclareLaunchArgument(name, description=text, **({} if default is None else {"default_value": default}))
@@ -579,4 +686,17 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         *nodes,
         *(RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit(name)))
           for node, name in zip(nodes, executables, strict=True)),
+        OpaqueFunction(function=rviz),
     ])
+
+
+def rviz_config() -> Path:
+    """The RViz config of the package (``config/bptsb.rviz``): the installed share copy, else the source tree's."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    except ImportError:
+        return Path(__file__).resolve().parents[2] / "config" / "bptsb.rviz"
+    try:
+        return Path(get_package_share_directory("bptsb_ros")) / "config" / "bptsb.rviz"
+    except PackageNotFoundError:
+        return Path(__file__).resolve().parents[2] / "config" / "bptsb.rviz"
