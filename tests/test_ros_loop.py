@@ -217,6 +217,7 @@ def test_run_starts_one_node_and_validates_its_parameters(tmp_path, ros_env):
 def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env):
     """Two robots at once in one domain (``--namespace r1`` and ``r2``, different seeds): each bag holds exactly its
     own robot's topics (its ``/rN/clock`` and ``/rN/diagnostics`` too), and each equals its own offline simulation."""
+    from bptsb_ros.analysis.bag_run import read_run
     from bptsb_ros.bags.reader import bag_info, read_messages
     from bptsb_ros.ros.messages import pose_array_positions
     from bptsb_ros.ros.topics import TOPICS
@@ -244,6 +245,9 @@ def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env
         agent = fresh_agent("lissajous", seed=seed)
         ref = agent.body.full_positions(simulate_open_loop(agent, 100).r[:, 0]).numpy()
         assert pos.shape == ref.shape and np.abs(pos - ref).max() <= 1e-9
+        run = read_run(bag)  # what bptsb replay reads: the bag's custom_data names the namespace
+        assert run.custom["namespace"] == f"/{ns}" and np.abs(run.positions - ref).max() <= 1e-9
+        assert run.rest_length is not None and run.rest_length.shape == (101, agent.body.topology.n_springs)
     first = fresh_agent("lissajous", seed=0)
     # r2's bag is r2's run: robot r1's offline trajectory (seed 0) is not in it
     assert np.abs(first.body.full_positions(simulate_open_loop(first, 100).r[:, 0]).numpy() - pos).max() > 1e-6
