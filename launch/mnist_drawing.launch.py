@@ -9,7 +9,8 @@ or duration:=SECONDS).
         bag:=bags/mnist
 
 Arguments: agent, images, labels, first, count, episode_steps, mode (lockstep only), duration, bag, seed, rate_scale,
-open_loop_steps, perturb_at, perturb_sigma, perturb_seed (``ros2 launch bptsb_ros mnist_drawing.launch.py
+open_loop_steps, perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, rviz
+(``ros2 launch bptsb_ros mnist_drawing.launch.py
 --show-args``).
 """
 

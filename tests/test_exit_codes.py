@@ -91,6 +91,7 @@ CASES = [
     ("launch", ["launch", "lissajous_closed", "--duration", "1"], USAGE, "needs --agent"),
     ("launch", ["launch", "lissajous_open", "--duration", "-1"], USAGE, "--duration must be >= 0"),
     ("launch", ["launch", "narma", "--param", "swg_brain:x:=1"], USAGE, "not part of this loop"),
+    ("launch", ["launch", "lissajous_open", "--namespace", "r1/2x"], USAGE, "'r1/2x': not a ROS"),
     ("launch", ["launch", "lissajous_open", "--agent", "{tmp}/none"], FAILURE, "no such run directory"),
     ("launch", ["launch", "lissajous_open", "--agent", "{afile}"], FAILURE, "--agent:"),
     ("launch", ["launch", "lissajous_open", "--duration", "1", "--bag", "{afile}/bag"], FAILURE, "--bag"),

@@ -391,7 +391,7 @@ def test_lockstep_silent_brain_gets_the_safe_command_until_it_resumes():
     applied = [o.rest.numpy() for o in port.outputs]
     for k in range(10):
         np.testing.assert_array_equal(applied[k], BASE if k in quiet else RESTS[k])
-    assert c.summary()["safe_command_steps"] == 3
+    assert c.summary()["safe_command_steps"] == 3 and c.summary()["silent_brain_steps"] == {"rest_length": 3}
     silent = [t for lvl, t in [(e.level, e.text) for e in c.events] if lvl == "error"]
     assert silent == ["brain silent: no rest_length command for step 3 within 0.5 s; the body keeps running with "
                       "the safe command (trained rest lengths, zero force) until commands resume"]
@@ -407,6 +407,23 @@ def test_lockstep_gone_publisher_is_silent_at_once():
     BodyLoop(c, port).run()
     assert port.t < 1.0 and c.summary()["safe_command_steps"] == 3
     assert any("no publisher left on /rest_length" in e.text for e in c.events)
+
+
+def test_a_run_without_its_brain_does_not_count():
+    """A brain that never publishes: every step on the safe command, counted as silent, and brain_problem names it
+    (the launchers fail such a run); a run whose brain answered every step has no problem."""
+    from bptsb_ros.live.summary import brain_problem
+
+    c = core(wait_for=["rest_length"], max_steps=4, command_timeout=0.05)
+    BodyLoop(c, FakePort(c)).run()
+    s = c.summary()
+    assert s["silent_brain_steps"] == {"rest_length": 5}
+    assert brain_problem(s) == ("body_sim ran on the safe command for lack of its brain (rest_length silent on 5 of "
+                                "steps 0..4): the loop did not run as launched")
+    ok = core(wait_for=["rest_length"], max_steps=4)
+    BodyLoop(ok, FakePort(ok, lambda port, k: port.send(0.001, lambda: ok.offer_command(
+        "rest_length", k, RESTS[k], port.now())))).run()
+    assert ok.summary()["silent_brain_steps"] == {"rest_length": 0} and brain_problem(ok.summary()) == ""
 
 
 def test_realtime_loop_schedule_jitter_misses_and_newest_command():

@@ -51,7 +51,7 @@ def _assert_ament_tree(prefix: Path, *, executables: tuple[str, ...]) -> None:
     assert filecmp.cmp(share / "package.xml", REPO_ROOT / "package.xml", shallow=False), (
         f"{share / 'package.xml'} differs from the source package.xml (reinstall: make venv)"
     )
-    for subdir, pattern in (("launch", "*.launch.py"), ("config", "*.yaml")):
+    for subdir, pattern in (("launch", "*.launch.py"), ("config", "*.yaml"), ("config", "*.rviz")):
         expected = _source_files(f"{subdir}/{pattern}")
         assert expected, f"the source tree has no {subdir}/{pattern}"
         installed = {p.name for p in (share / subdir).glob(pattern)}

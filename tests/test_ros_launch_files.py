@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import time
@@ -27,7 +28,9 @@ from bptsb_ros.live.loops import (
     LaunchArgumentError,
     launch_arguments,
     loop_node_parameters,
+    namespace_remaps,
     node_exit_verdict,
+    normalize_namespace,
     params_file_text,
     recorder_parameters,
     resolve_arguments,
@@ -58,6 +61,13 @@ def test_closed_loops_require_an_agent_and_open_loops_do_not():
     ({"rate_scale": "0"}, "rate_scale:=0: must be > 0"),
     ({"seed": "x"}, "seed:=x: not a number"),
     ({"agent": "/nonexistent/run"}, "agent:=/nonexistent/run: no such run directory"),
+    ({"log_level": "loud"}, "log_level:=loud: choose debug, info, warn, error, fatal"),
+    ({"rviz": "yes"}, "rviz:=yes: choose true or false"),
+    ({"params_file": "/nonexistent/p.yaml"}, "params_file:=/nonexistent/p.yaml: no such file"),
+    ({"namespace": "r1//x"}, "namespace:=r1//x: namespace 'r1//x': not a ROS namespace (names of letters, digits "
+                             "and _, not starting with a digit, separated by /)"),
+    ({"namespace": "1r"}, "namespace:=1r: namespace '1r': not a ROS namespace (names of letters, digits and _, not "
+                          "starting with a digit, separated by /)"),
 ])
 def test_bad_launch_arguments_are_named(values, message):
     with pytest.raises(LaunchArgumentError) as err:
@@ -83,10 +93,45 @@ def test_a_node_exit_decides_the_launch():
     assert node_exit_verdict("body_sim", 0, False) == "finished"
     assert node_exit_verdict("body_sim", 0, True) == "finished"
     assert node_exit_verdict("swg_brain", 0, True) == "stopped"
-    assert node_exit_verdict("recorder", 0, False).startswith("recorder exited with code 0 before the end")
+    # a clean exit while the launch does not stop: the node was interrupted from outside (SIGINT to the nodes, not to
+    # ros2 launch) -- no error; after body_sim finished it is part of the stop
+    assert node_exit_verdict("recorder", 0, False) == "interrupted"
+    assert node_exit_verdict("recorder", 0, False, body_finished=True) == "stopped"
+    assert node_exit_verdict("recorder", 1, False, body_finished=True).startswith("recorder exited with code 1")
     assert node_exit_verdict("feedback_brain", 2, False).startswith("feedback_brain exited with code 2 before")
     assert node_exit_verdict("body_sim", 1, False).startswith("body_sim exited with code 1")
     assert node_exit_verdict("swg_brain", -9, True) == "swg_brain exited with code -9 while the loop was stopping"
+
+
+def test_namespaced_launch_parameters_resolve_every_name_in_the_namespace(tmp_path):
+    """namespace:=r1: body_sim waits for subscribers on /r1/... names (its own /clock remapped to /r1/clock) and the
+    recorder records exactly /r1/... topics; at the root the names are the absolute defaults."""
+    values = {"bag": str(tmp_path / "bag"), "namespace": "r1"}
+    body = loop_node_parameters("lissajous_open", "body_sim", values)
+    waits = dict(e.rsplit(":", 1) for e in body["wait_for_subscribers"])
+    # /clock: the recorder, swg_brain's trigger and its sim-time clock; the command: body_sim and the recorder
+    assert waits["/r1/clock"] == "3" and waits["/r1/body/positions"] == "1" and waits["/r1/brain/rest_length"] == "2"
+    assert all(t.startswith("/r1/") for t in waits)
+    rec = loop_node_parameters("lissajous_open", "recorder", values)
+    assert "/r1/diagnostics" in rec["topics"] and "/r1/body/rest_length" in rec["topics"]
+    assert all(t.startswith("/r1/") for t in rec["topics"] + rec["ack_topics"] + [rec["ack_topic"]])
+    root = loop_node_parameters("lissajous_open", "recorder", {"bag": str(tmp_path / "b2")})
+    assert "/clock" in root["topics"] and "/body/positions" in root["topics"] and root["ack_topic"] == "/recorder/ack"
+    assert namespace_remaps("/r1") == [("/clock", "/r1/clock"), ("/diagnostics", "/r1/diagnostics")]
+    assert namespace_remaps("") == [] and normalize_namespace("/robot1/r1/") == "/robot1/r1"
+
+
+def test_rviz_config_is_installed_and_names_the_body_frame():
+    """config/bptsb.rviz: fixed frame msdn (body_sim's frame_id, no TF needed), the markers topic relative (it follows
+    the loop's namespace); setup.py installs config/*.rviz into share/bptsb_ros/config."""
+    from bptsb_ros.live.body_params import PARAMS
+
+    cfg = yaml.safe_load((REPO / "config" / "bptsb.rviz").read_text())["Visualization Manager"]
+    frame = next(p.default for p in PARAMS if p.name == "frame_id")
+    assert cfg["Global Options"]["Fixed Frame"] == frame
+    markers = next(d for d in cfg["Displays"] if d["Class"] == "rviz_default_plugins/MarkerArray")
+    assert markers["Topic"]["Value"] == "body/markers" and markers["Enabled"] is True
+    assert 'glob("config/*.rviz")' in (REPO / "setup.py").read_text()
 
 
 def test_lockstep_bags_are_recorded_on_sim_time():
@@ -148,6 +193,9 @@ for loop in ("lissajous_closed", "narma"):
     d = ros_launch_description(loop)
     nodes = [e for e in d.entities if isinstance(e, Node)]
     args = {e.name: e.default_value is not None for e in d.entities if isinstance(e, DeclareLaunchArgument)}
+    defaults = {e.name: "".join(t.perform(None) for t in e.default_value or []) for e in d.entities
+                if isinstance(e, DeclareLaunchArgument)}
+    out[loop + "_defaults"] = {k: defaults[k] for k in ("namespace", "log_level", "params_file", "rviz")}
     out[loop] = {"nodes": [n.node_executable for n in nodes], "conditional": [n.condition is not None for n in nodes],
                  "handlers": sum(isinstance(e, RegisterEventHandler) for e in d.entities), "has_default": args}
 print(json.dumps(out))
@@ -160,6 +208,8 @@ print(json.dumps(out))
     assert got["narma"]["conditional"] == [False, False, False, True]  # the recorder only with bag:=
     assert got["narma"]["handlers"] == 4  # one OnProcessExit per node
     assert got["lissajous_closed"]["has_default"]["agent"] is False and got["narma"]["has_default"]["agent"] is True
+    for loop in ("lissajous_closed", "narma"):  # the arguments every launch file takes, with their defaults
+        assert got[loop + "_defaults"] == {"namespace": "", "log_level": "info", "params_file": "", "rviz": "false"}
 
 
 def test_ros2_launch_print_lists_the_nodes(ros_env):
@@ -204,6 +254,74 @@ def test_a_dying_node_shuts_the_whole_launch_down_nonzero(tmp_path, ros_env):
     assert out.returncode != 0, text
     assert "exited with code 2 before the end of the run; the loop is broken" in text, text
     assert "startup complete" not in text  # body_sim was stopped while it waited for its brains
+
+
+WRAPPER = """
+from launch import LaunchDescription
+from launch.actions import GroupAction, IncludeLaunchDescription
+from launch.launch_description_sources import PythonLaunchDescriptionSource
+from launch_ros.actions import PushRosNamespace
+from ament_index_python.packages import get_package_share_directory
+
+
+def generate_launch_description():
+    path = get_package_share_directory("bptsb_ros") + "/launch/lissajous_open.launch.py"
+    return LaunchDescription([GroupAction([PushRosNamespace("robot2"), IncludeLaunchDescription(
+        PythonLaunchDescriptionSource(path), launch_arguments={BAG: BAG_PATH, "duration": "1", "seed": "5"}.items())])])
+"""
+
+
+def test_two_robots_in_one_domain_through_ros2_launch(tmp_path, ros_env):
+    """``namespace:=robot1`` and a launch file of one's own that includes the package's under
+    ``PushRosNamespace('robot2')``, at once in one domain: each launch ends cleanly, each bag holds exactly its own
+    robot's topics and each run equals its offline simulation."""
+    import numpy as np
+    from ros_live import fresh_agent
+
+    from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.ros.messages import pose_array_positions
+    from bptsb_ros.sim.rollout import simulate_open_loop
+
+    env = _tools_env(ros_env)
+    params = tmp_path / "robot1.yaml"  # params_file:= reaches body_sim in its namespace; its value wins
+    params.write_text("/**/body_sim:\n  ros__parameters:\n    marker_every: 20\n")
+    wrapper = tmp_path / "two.launch.py"
+    wrapper.write_text(WRAPPER.replace("BAG_PATH", repr(str(tmp_path / "robot2"))).replace("BAG", '"bag"'))
+    procs = {
+        "robot1": subprocess.Popen(["ros2", "launch", "bptsb_ros", "lissajous_open.launch.py", "namespace:=robot1",
+                                    "duration:=1", f"bag:={tmp_path / 'robot1'}", "log_level:=warn",
+                                    f"params_file:={params}", "rviz:=true"], env=env,
+                                   cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                   stdin=subprocess.DEVNULL),
+        "robot2": subprocess.Popen(["ros2", "launch", str(wrapper)], env=env, cwd=REPO, stdout=subprocess.PIPE,
+                                   stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL),
+    }
+    texts = {}
+    try:
+        for name, proc in procs.items():
+            texts[name] = proc.communicate(timeout=150)[0]
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    for robot, seed in (("robot1", 0), ("robot2", 5)):
+        assert procs[robot].returncode == 0, texts[robot][-4000:]
+        bag = tmp_path / robot
+        names = {t.name for t in bag_info(bag).topics}
+        assert {f"/{robot}/clock", f"/{robot}/diagnostics", f"/{robot}/body/positions"} <= names, names
+        assert all(n.startswith(f"/{robot}/") for n in names), names
+        pos = np.array([pose_array_positions(m) for *_, m in read_messages(bag, [f"/{robot}/body/positions"])])
+        agent = fresh_agent("lissajous", seed=seed)
+        ref = agent.body.full_positions(simulate_open_loop(agent, 100).r[:, 0]).numpy()
+        assert pos.shape == ref.shape and np.abs(pos - ref).max() <= 1e-9
+    assert "startup complete" not in texts["robot1"]  # log_level:=warn reached body_sim: no info lines
+    markers = {r: bag_info(tmp_path / r).topics for r in procs}
+    counts = {r: {t.name: t.message_count for t in topics}[f"/{r}/body/markers"] for r, topics in markers.items()}
+    assert counts["robot1"] == 6 and counts["robot2"] > 6  # steps 0, 20, ..., 100 with marker_every 20
+    if shutil.which("rviz2", path=env["PATH"]) is None:  # rviz:=true without rviz2: a line, and the loop runs
+        assert "rviz:=true: rviz2 is not installed here; the loop runs without it" in texts["robot1"]
+    assert "startup complete" in texts["robot2"]
 
 
 def _read_bag(bag: Path):

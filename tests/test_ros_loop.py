@@ -212,3 +212,56 @@ def test_run_starts_one_node_and_validates_its_parameters(tmp_path, ros_env):
     assert json.loads(summary.read_text())["steps"] == 2
     bad = bptsb(["run", "body_sim", "--ros-args", "-p", "mode:=fast"], ros_env)
     assert bad.returncode == 2 and "parameter 'mode': 'fast' not allowed; choose from lockstep, realtime" in bad.stdout
+
+
+def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env):
+    """Two robots at once in one domain (``--namespace r1`` and ``r2``, different seeds): each bag holds exactly its
+    own robot's topics (its ``/rN/clock`` and ``/rN/diagnostics`` too), and each equals its own offline simulation."""
+    from bptsb_ros.analysis.bag_run import read_run
+    from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.ros.messages import pose_array_positions
+    from bptsb_ros.ros.topics import TOPICS
+    from bptsb_ros.sim.rollout import simulate_open_loop
+
+    results: dict[str, subprocess.CompletedProcess] = {}
+
+    def run(ns: str, seed: int) -> None:
+        results[ns] = bptsb(["launch", "lissajous_open", "--namespace", ns, "--seed", str(seed), "--duration", "1",
+                             "--bag", str(tmp_path / ns)], ros_env)
+
+    threads = [threading.Thread(target=run, args=(ns, seed)) for ns, seed in (("r1", 0), ("r2", 5))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for ns, seed in (("r1", 0), ("r2", 5)):
+        out = results[ns]
+        assert out.returncode == 0, out.stdout[-4000:]
+        bag = tmp_path / ns
+        names = {t.name for t in bag_info(bag).topics}
+        own = {f"/{ns}/{TOPICS[k].name.lstrip('/')}" for k in ("clock", "diagnostics", "positions", "rest_length_cmd")}
+        assert own <= names and all(n.startswith(f"/{ns}/") for n in names), names
+        pos = np.array([pose_array_positions(m) for *_, m in read_messages(bag, [f"/{ns}/body/positions"])])
+        agent = fresh_agent("lissajous", seed=seed)
+        ref = agent.body.full_positions(simulate_open_loop(agent, 100).r[:, 0]).numpy()
+        assert pos.shape == ref.shape and np.abs(pos - ref).max() <= 1e-9
+        run = read_run(bag)  # what bptsb replay reads: the bag's custom_data names the namespace
+        assert run.custom["namespace"] == f"/{ns}" and np.abs(run.positions - ref).max() <= 1e-9
+        assert run.rest_length is not None and run.rest_length.shape == (101, agent.body.topology.n_springs)
+    first = fresh_agent("lissajous", seed=0)
+    # r2's bag is r2's run: robot r1's offline trajectory (seed 0) is not in it
+    assert np.abs(first.body.full_positions(simulate_open_loop(first, 100).r[:, 0]).numpy() - pos).max() > 1e-6
+
+
+def test_a_loop_without_its_brain_fails_the_launch(tmp_path, ros_env):
+    """swg_brain publishes where body_sim does not listen: the body starts without it (startup_timeout), runs every
+    step on the safe command and exits 0 itself, but the launch fails with one line naming the silent brain."""
+    out = bptsb(["launch", "lissajous_open", "--duration", "0.3", "--log-dir", str(tmp_path / "logs"),
+                 "--param", "swg_brain:topics.rest_length_cmd:=/nowhere", "--param", "body_sim:startup_timeout:=1.0",
+                 "--param", "body_sim:command_timeout:=0.2"], ros_env)
+    assert out.returncode == 1, out.stdout[-4000:]
+    assert "body_sim        ok" in out.stdout  # the body itself ended cleanly: the launcher decides
+    summary = json.loads((tmp_path / "logs" / "body_summary.json").read_text())
+    assert summary["silent_brain_steps"] == {"rest_length": 31}
+    assert ("[launch] FAILED: body_sim ran on the safe command for lack of its brain (rest_length silent on 31 of "
+            "steps 0..30)") in out.stdout

@@ -89,18 +89,19 @@ def _stamp_ns(msg: Any) -> int:
     return int(s.sec) * NS_PER_S + int(s.nanosec)
 
 
-def _topic(key: str) -> str:
-    return absolute(TOPICS[key].name)
+def _topic(key: str, namespace: str = "") -> str:
+    """Name of topic ``key`` in a bag of a loop run in ``namespace`` (the bag's ``custom_data`` ``namespace``)."""
+    return f"{namespace}/{TOPICS[key].name.lstrip('/')}" if namespace else absolute(TOPICS[key].name)
 
 
-def expected_publishers(loop: str | None, body_node: str = BODY_NODE) -> dict[str, str | None]:
+def expected_publishers(loop: str | None, body_node: str = BODY_NODE, namespace: str = "") -> dict[str, str | None]:
     """Topic -> the node that owns it in ``loop`` (None: any publisher): the body's topics are ``body_node``'s,
     ``task/input`` is ``task_input``'s, and ``env/wind`` is ``wind_source``'s in the loops that await it (a user may
     publish wind in the others)."""
-    owners: dict[str, str | None] = {_topic(k): body_node for k in ("positions", "spring_lengths", "rest_length",
-                                                                    "markers", "perturbation")}
-    owners[_topic("task_input")] = "task_input"
-    owners[_topic("wind")] = "wind_source" if loop in LOOPS_WIND else None
+    owners: dict[str, str | None] = {_topic(k, namespace): body_node for k in (
+        "positions", "spring_lengths", "rest_length", "markers", "perturbation")}
+    owners[_topic("task_input", namespace)] = "task_input"
+    owners[_topic("wind", namespace)] = "wind_source" if loop in LOOPS_WIND else None
     return owners
 
 
@@ -113,13 +114,15 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     :class:`BagError` when a step has two different messages from the owner.
     """
     topics = list_topics(bag)
-    pos_topic = _topic("positions")
+    custom = bag_custom_data(bag)
+    ns = custom.get("namespace", "")  # a loop run in a namespace (bptsb launch --namespace) has its topics in it
+    names = {key: _topic(key, ns) for key in TOPICS}
+    pos_topic = names["positions"]
     if pos_topic not in topics:
         raise BagError(f"bag {bag} has no {pos_topic} topic (geometry_msgs/PoseArray); topics: {', '.join(topics)}")
-    wanted = [t for t in (_topic(k) for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input",
+    wanted = [t for t in (names[k] for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input",
                                               "wind", "perturbation")) if t in topics]
-    custom = bag_custom_data(bag)
-    own = OwnMessages(bag, expected_publishers(loop or custom.get("loop"), body_node))
+    own = OwnMessages(bag, expected_publishers(loop or custom.get("loop"), body_node, ns))
     wind_ns: dict[int, tuple[float, float]] = {}
     kicks_ns: dict[int, np.ndarray] = {}
     pos: dict[int, np.ndarray] = {}
@@ -132,17 +135,17 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
             continue
         if topic == pos_topic:
             own.put(pos, _stamp_ns(msg), np.array([(p.position.x, p.position.y) for p in msg.poses]), topic, publisher)
-        elif topic == _topic("spring_lengths"):
+        elif topic == names["spring_lengths"]:
             own.put(lengths, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
-        elif topic == _topic("rest_length"):
+        elif topic == names["rest_length"]:
             own.put(rests, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
-        elif topic == _topic("markers") and markers is None:
+        elif topic == names["markers"] and markers is None:
             markers = msg
-        elif topic == _topic("task_input") and len(msg.position):
+        elif topic == names["task_input"] and len(msg.position):
             own.put(inputs_ns, _stamp_ns(msg), float(msg.position[0]), topic, publisher)
-        elif topic == _topic("wind"):
+        elif topic == names["wind"]:
             own.put(wind_ns, _stamp_ns(msg), (float(msg.vector.x), float(msg.vector.y)), topic, publisher)
-        elif topic == _topic("perturbation"):
+        elif topic == names["perturbation"]:
             kick = np.asarray(msg.position, dtype=np.float64)
             if kick.size % 2 or not np.isfinite(kick).all():
                 raise BagError(f"bag {bag}: a {topic} message holds {kick.size} values (x, y per movable mass "

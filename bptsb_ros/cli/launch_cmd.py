@@ -44,6 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --bag: a recording that lost messages (realtime under load) does not fail the run; "
                              "the losses are counted in the bag and reported either way")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="timing mode")
+    parser.add_argument("--namespace", default="", metavar="NS",
+                        help="ROS namespace of the loop (one robot of several in a domain): every node runs in it, "
+                             "every topic resolves in it, /clock and /diagnostics included (remapped to NS/clock and "
+                             "NS/diagnostics); default: the root namespace")
     parser.add_argument("--rate-scale", type=finite_float, default=1.0, help="realtime: sim seconds per wall second")
     parser.add_argument("--seed", type=int, default=0, help="seed of the fresh agent when --agent is not given")
     parser.add_argument("--open-loop-steps", type=int, default=0, metavar="W",
@@ -152,8 +156,16 @@ def child_env() -> dict[str, str]:
     return env
 
 
-def node_argv(executable: str, params: dict, extra: list[str]) -> list[str]:
+def node_argv(executable: str, params: dict, extra: list[str], namespace: str = "") -> list[str]:
+    """Command line of one node: its parameters, ``extra`` (``NAME:=VALUE``) and, in ``namespace`` (normalized),
+    ``__ns`` and the remappings of :func:`~bptsb_ros.live.loops.namespace_remaps`."""
+    from bptsb_ros.live.loops import namespace_remaps
+
     argv = [sys.executable, "-m", f"bptsb_ros.ros.{executable}", "--ros-args"]
+    if namespace:
+        argv += ["-r", f"__ns:={namespace}"]
+    for source, target in namespace_remaps(namespace):
+        argv += ["-r", f"{source}:={target}"]
     for name, value in params.items():
         argv += ["-p", format_parameter(name, value)]
     for item in extra:
@@ -367,6 +379,19 @@ def _check_recording(launcher: Launcher, rows: list[tuple[str, str]], bag: Path,
     return [(name, verdict if name == "recorder" else v) for name, v in rows]
 
 
+def _brain_problem(summary_path: Path) -> str:
+    """:func:`~bptsb_ros.live.summary.brain_problem` of the body summary ('' without a readable one)."""
+    import json
+
+    from bptsb_ros.live.summary import brain_problem
+
+    try:
+        summary = json.loads(summary_path.read_text()) if summary_path.is_file() else None
+    except (OSError, ValueError):
+        return ""
+    return brain_problem(summary) if isinstance(summary, dict) else ""
+
+
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.live.loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
 
@@ -384,6 +409,12 @@ def run(args: argparse.Namespace) -> int:
     elif loop.needs_agent and not args.agent:
         return fail("launch", f"loop {loop.name} needs --agent RUN_DIR (a trained agent with a fitted feedback layer)",
                     USAGE)
+    from bptsb_ros.live.loops import NamespaceError, normalize_namespace
+
+    try:
+        namespace = normalize_namespace(args.namespace)
+    except NamespaceError as err:
+        return fail("launch", f"--namespace: {err}", USAGE)
     if args.duration < 0 or args.rate_scale <= 0 or args.grace <= 0:
         return fail("launch", "--duration must be >= 0, --rate-scale and --grace > 0", USAGE)
     problem = _perturbation_problem(args)
@@ -426,7 +457,8 @@ def run(args: argparse.Namespace) -> int:
     summary_path = log_dir / "body_summary.json"
 
     common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,
-                  rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps)
+                  rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps,
+                  namespace=namespace)
     brain_common = dict(common)
     common.update(perturb_at=-1.0 if args.perturb_at is None else args.perturb_at, perturb_sigma=args.perturb_sigma,
                   perturb_seed=args.perturb_seed)
@@ -440,20 +472,22 @@ def run(args: argparse.Namespace) -> int:
 
     children: list[Child] = []
     body_params = with_stream("body_sim", node_parameters(loop, "body_sim", summary_path=str(summary_path), **common))
-    body = Child("body_sim", node_argv("body_sim", body_params, extra["body_sim"]), log_dir / "body_sim.log")
+    body = Child("body_sim", node_argv("body_sim", body_params, extra["body_sim"], namespace),
+                 log_dir / "body_sim.log")
     children.append(body)
     for brain in loop.brains:
         params = with_stream(brain.executable, node_parameters(loop, brain.executable, **brain_common))
         if brain.executable == "wind_source":
             params["max_wind"] = max_wind
-        children.append(Child(brain.executable, node_argv(brain.executable, params, extra[brain.executable]),
+        children.append(Child(brain.executable, node_argv(brain.executable, params, extra[brain.executable], namespace),
                               log_dir / f"{brain.executable}.log"))
     recorder = None
     if args.bag:
         params = with_stream("recorder", recorder_parameters(loop, args.bag, mode=args.mode, agent=args.agent,
                                                              open_loop_steps=args.open_loop_steps,
-                                                             allow_loss=args.allow_loss))
-        recorder = Child("recorder", node_argv("recorder", params, extra["recorder"]), log_dir / "recorder.log")
+                                                             allow_loss=args.allow_loss, namespace=namespace))
+        recorder = Child("recorder", node_argv("recorder", params, extra["recorder"], namespace),
+                         log_dir / "recorder.log")
         children.append(recorder)
 
     stop_flag: list[str] = []
@@ -467,7 +501,8 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     launcher = Launcher(children, body, recorder, args.grace)
     domain = os.environ.get("ROS_DOMAIN_ID", "0 (default)")
-    print(f"[launch] {loop.name}: {', '.join(c.name for c in children)}; mode {args.mode}, "
+    print(f"[launch] {loop.name}: {', '.join(c.name for c in children)}"
+          f"{f' in namespace {namespace}' if namespace else ''}; mode {args.mode}, "
           f"duration {args.duration:g} s {'sim' if args.mode == 'lockstep' else 'wall'} time, ROS_DOMAIN_ID "
           f"{domain}; logs in {log_dir}", file=sys.stderr, flush=True)
     try:
@@ -485,6 +520,9 @@ def run(args: argparse.Namespace) -> int:
     rows = launcher.results()
     if args.bag and recorder is not None:
         rows = _check_recording(launcher, rows, Path(args.bag), summary_path, args.allow_loss)
+    problem = _brain_problem(summary_path)
+    if problem:
+        launcher.failures.append(problem)
     print("[launch] node exit status:", file=sys.stderr)
     for name, verdict in rows:
         print(f"[launch]   {name:<15} {verdict}", file=sys.stderr)

@@ -179,6 +179,7 @@ class BodyCore:
             raise ParameterError("parameter 'reset_every': resets take effect at a stated step, which needs mode "
                                  "lockstep")
         self.silent: dict[str, bool] = {s: False for s in self.channels}
+        self.silent_steps: dict[str, int] = {s: 0 for s in self.wait_sources}  # steps run while s was silent
         self.wind: np.ndarray | None = None
         if any(p["wind"]):
             problem = self.limits.check("wind", np.asarray(p["wind"]))
@@ -421,6 +422,8 @@ class BodyCore:
                            f"{np.abs(kick.values).max():.4g} m)")
         if safe:
             self.stats.safe_steps += 1
+        for source in self.wait_sources:
+            self.silent_steps[source] += self.silent[source]
         self.stats.steps = step
         self.control.stepped(step)
         return out
@@ -476,6 +479,7 @@ class BodyCore:
         out["perturbation_steps"] = list(self.perturbed)
         out["perturbation_pending"] = len(self.perturbations.pending)
         out["rejected_total"] = total
+        out["silent_brain_steps"] = dict(self.silent_steps)
         out["divergences"] = self.divergence.events
         out["paused"] = self.control.paused
         out["control_calls"] = self.control.count

@@ -6,10 +6,17 @@ processes from :data:`LOOPS`, so the two ways of starting a loop cannot drift ap
 Topic wiring (default names, ``bptsb_ros/ros/TOPICS.md``): ``body_sim`` publishes ``/clock`` and the
 body state; time-driven brains (``swg_brain``, ``task_input``) answer ``/clock``; ``feedback_brain``
 answers the body state; ``mlp_brain`` answers ``task/input``; commands go back to ``body_sim``.
+
+Namespaces (several robots in one ROS domain): a loop started in namespace ``/r1`` (``bptsb launch --namespace r1``,
+``namespace:=r1`` or ``PushRosNamespace`` around a launch file) resolves every topic in it — also ``/clock`` and
+``/diagnostics``, remapped to ``/r1/clock`` and ``/r1/diagnostics`` (:func:`namespace_remaps`), so each robot keeps
+its own lockstep clock and its bag holds exactly its own topics. The startup waits and the recorder's topic list use
+the resolved names (:func:`loop_topic`). Frame ids are not namespaced: every body lives in its own ``msdn`` frame.
 """
 
 from __future__ import annotations
 
+import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -127,12 +134,48 @@ def agent_loop(loop: Loop, agent: str) -> Loop:
     return with_feedback_state(loop, state)
 
 
-def topic_names(keys: list[str], namespace: str = "/") -> list[str]:
-    """Absolute default names of topic keys."""
-    return [absolute(TOPICS[k].name, namespace) for k in keys]
+_NAMESPACE = re.compile(r"^(/?[A-Za-z_][A-Za-z0-9_]*)(/[A-Za-z_][A-Za-z0-9_]*)*/?$")
 
 
-def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True) -> list[str]:
+class NamespaceError(ValueError):
+    """A namespace that ROS would refuse; the message names it."""
+
+
+def normalize_namespace(namespace: str) -> str:
+    """``namespace`` as an absolute ROS namespace without a trailing slash (``r1`` → ``/r1``); '' or '/' → ''
+    (the root). Raises NamespaceError for a name ROS refuses (tokens of letters, digits and ``_``, not starting with
+    a digit, separated by single slashes)."""
+    if namespace in ("", "/"):
+        return ""
+    if not _NAMESPACE.match(namespace):
+        raise NamespaceError(f"namespace {namespace!r}: not a ROS namespace (names of letters, digits and _, not "
+                             "starting with a digit, separated by /)")
+    return "/" + namespace.strip("/")
+
+
+def loop_topic(key: str, namespace: str = "") -> str:
+    """Resolved name of topic ``key`` of a loop in ``namespace`` (normalized: '' or ``/r1``): relative names in it,
+    and, in a namespace, ``/clock`` and ``/diagnostics`` too (the nodes remap them, :func:`namespace_remaps`)."""
+    name = TOPICS[key].name
+    if not namespace:
+        return absolute(name)
+    return f"{namespace}/{name.lstrip('/')}"
+
+
+def namespace_remaps(namespace: str) -> list[tuple[str, str]]:
+    """Remappings of every node of a loop in ``namespace`` (normalized): its absolute topics (``/clock``, also the
+    sim-time subscription of every node, and ``/diagnostics``) into the namespace; none at the root."""
+    if not namespace:
+        return []
+    return [(TOPICS[k].name, loop_topic(k, namespace)) for k in TOPICS if TOPICS[k].name.startswith("/")]
+
+
+def topic_names(keys: list[str], namespace: str = "") -> list[str]:
+    """Resolved names of topic keys in ``namespace`` (normalized, :func:`loop_topic`)."""
+    return [loop_topic(k, namespace) for k in keys]
+
+
+def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True, namespace: str = "") -> list[str]:
     """``wait_for_subscribers`` entries for ``body_sim``: how many subscribers each topic must have.
 
     Body outputs count the recorder and every brain that subscribes (a node on sim time also has a
@@ -148,7 +191,7 @@ def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True) -
             counts["clock"] += 1
     for source in loop.wait_for:
         counts[COMMAND_SOURCES[source]] = counts.get(COMMAND_SOURCES[source], 0) + 1
-    return [f"{absolute(TOPICS[k].name)}:{n}" for k, n in counts.items() if n > 0]
+    return [f"{loop_topic(k, namespace)}:{n}" for k, n in counts.items() if n > 0]
 
 
 def output_subscribers(loop: Loop, executable: str, *, recording: bool) -> int:
@@ -178,7 +221,7 @@ def perturbation_problem(perturb_at: float, perturb_sigma: float, *, duration: f
 def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int = 0, mode: str = "lockstep",
                     duration: float = 0.0, rate_scale: float = 1.0, recording: bool = False,
                     open_loop_steps: int = 0, summary_path: str = "", perturb_at: float = -1.0,
-                    perturb_sigma: float = 0.0, perturb_seed: int = 0) -> dict[str, ParamValue]:
+                    perturb_sigma: float = 0.0, perturb_seed: int = 0, namespace: str = "") -> dict[str, ParamValue]:
     """ROS parameters of one node of ``loop`` (those that differ from the node's defaults).
 
     Args:
@@ -188,13 +231,14 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
         perturb_at: ``body_sim`` displaces the movable masses at this sim time [s] (negative: never).
         perturb_sigma: standard deviation σ [m] of that displacement, N(0, σ²) per coordinate.
         perturb_seed: seed of its standard-normal pattern.
+        namespace: the loop's namespace (normalized, :func:`normalize_namespace`): the names ``body_sim`` waits on.
     """
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":
         params.update({
             "mode": mode,
             "wait_for": list(loop.wait_for),
-            "wait_for_subscribers": startup_subscribers(loop, recording=recording),
+            "wait_for_subscribers": startup_subscribers(loop, recording=recording, namespace=namespace),
             "rate_scale": rate_scale,
         })
         if recording and mode == "lockstep":  # the recorder's acknowledgements pace the run: nothing is lost
@@ -221,21 +265,24 @@ def log_dir_of_bag(bag: str | Path) -> Path:
 
 
 def recorder_parameters(loop: Loop, bag: str, *, mode: str = "lockstep", agent: str = "",
-                        open_loop_steps: int = 0, allow_loss: bool = False) -> dict[str, ParamValue]:
+                        open_loop_steps: int = 0, allow_loss: bool = False, namespace: str = "",
+                        ) -> dict[str, ParamValue]:
     """ROS parameters of the recorder of ``loop``: every loop topic to ``bag``, log times from ``/clock`` in lockstep
     (``use_sim_time``: the bag's timeline is sim time; realtime keeps system time), and the run description in the
     bag's ``custom_data`` (keys ``loop``, ``mode``, ``agent`` — ``fresh`` without one — and ``open_loop_steps``,
     which ``bptsb replay`` reads for its offline comparison). In lockstep it acknowledges the per-step topics on
-    ``recorder/ack`` (``body_sim``'s ``wait_for_recorder``); ``allow_loss``: exit 0 even if messages were lost."""
+    ``recorder/ack`` (``body_sim``'s ``wait_for_recorder``); ``allow_loss``: exit 0 even if messages were lost.
+    ``namespace`` (normalized): the loop's namespace, whose resolved topic names are recorded."""
     params: dict[str, ParamValue] = {
         "bag_path": bag,
         "use_sim_time": mode == "lockstep",
-        "topics": topic_names(loop.topics()),
+        "topics": topic_names(loop.topics(), namespace),
         "custom_data": [f"loop={loop.name}", f"mode={mode}", f"agent={agent or 'fresh'}",
-                        f"open_loop_steps={open_loop_steps}"],
+                        f"open_loop_steps={open_loop_steps}"] + ([f"namespace={namespace}"] if namespace else []),
     }
     if mode == "lockstep":
-        params.update(ack_topic=absolute(TOPICS[RECORDER_ACK].name), ack_topics=topic_names(loop.step_topics()))
+        params.update(ack_topic=loop_topic(RECORDER_ACK, namespace),
+                      ack_topics=topic_names(loop.step_topics(), namespace))
     if allow_loss:
         params["allow_loss"] = True
     return params
@@ -273,7 +320,17 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
     "perturb_seed": ("0", "seed of the perturbation's standard-normal pattern"),
     "allow_loss": ("false", "with bag: a recording that lost messages still ends the launch cleanly (the bag counts "
                    "them either way); false: the recorder exits 1 and the launch fails"),
+    "namespace": ("", "ROS namespace of the loop (one robot of several in a domain), relative to any PushRosNamespace "
+                  "around the launch: every node runs in it and every topic resolves in it, /clock and /diagnostics "
+                  "remapped to NS/clock and NS/diagnostics; empty: the enclosing (default root) namespace"),
+    "log_level": ("info", "log level of every node (--ros-args --log-level): debug, info, warn, error or fatal"),
+    "params_file": ("", "a ROS 2 params file given to every node after the loop's own parameters (its values win; "
+                    "keys /** or the node names); empty: none"),
+    "rviz": ("false", "true: also start rviz2 with the package's config/bptsb.rviz (fixed frame msdn) in the loop's "
+             "namespace, where rviz2 is installed (otherwise a log line and the loop runs without it)"),
 }
+#: log levels of ``log_level:=`` (rcutils' names)
+LOG_LEVELS = ("debug", "info", "warn", "error", "fatal")
 #: ``agent`` of a loop that needs a trained agent: required (no default), so ``ros2 launch`` refuses to start
 #: without it
 REQUIRED_AGENT = "trained agent run directory (required: the closed loop runs the agent's fitted feedback layer)"
@@ -323,8 +380,17 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                                   "(bptsb train fits it)")
     if values.get("mode", "lockstep") not in ("lockstep", "realtime"):
         raise LaunchArgumentError(f"mode:={values['mode']}: choose lockstep or realtime")
-    if values.get("allow_loss", "false").lower() not in ("true", "false"):
-        raise LaunchArgumentError(f"allow_loss:={values['allow_loss']}: choose true or false")
+    for flag in ("allow_loss", "rviz"):
+        if values.get(flag, "false").lower() not in ("true", "false"):
+            raise LaunchArgumentError(f"{flag}:={values[flag]}: choose true or false")
+    if values.get("log_level", "info").lower() not in LOG_LEVELS:
+        raise LaunchArgumentError(f"log_level:={values['log_level']}: choose {', '.join(LOG_LEVELS)}")
+    if values.get("params_file") and not Path(values["params_file"]).is_file():
+        raise LaunchArgumentError(f"params_file:={values['params_file']}: no such file")
+    try:
+        namespace = normalize_namespace(values.get("namespace", ""))
+    except NamespaceError as err:
+        raise LaunchArgumentError(f"namespace:={values['namespace']}: {err}") from None
 
     def number(name: str, kind: type, ok, rule: str):
         text = values.get(name, LAUNCH_ARGUMENTS[name][0])
@@ -343,7 +409,7 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                   open_loop_steps=number("open_loop_steps", int, lambda v: v >= 0, ">= 0"),
                   perturb_at=number("perturb_at", float, lambda v: True, "a number"),
                   perturb_sigma=number("perturb_sigma", float, lambda v: v >= 0, ">= 0"),
-                  perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"))
+                  perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"), namespace=namespace)
     problem = perturbation_problem(common["perturb_at"], common["perturb_sigma"], duration=common["duration"],
                                    rate_scale=common["rate_scale"], mode=common["mode"])
     if problem:
@@ -397,7 +463,8 @@ def loop_node_parameters(loop_name: str, executable: str, values: dict[str, str]
     if executable == "recorder":
         params = recorder_parameters(loop, bag, mode=common["mode"], agent=common["agent"],
                                      open_loop_steps=common["open_loop_steps"],
-                                     allow_loss=values.get("allow_loss", "false").lower() == "true")
+                                     allow_loss=values.get("allow_loss", "false").lower() == "true",
+                                     namespace=common["namespace"])
     else:
         summary_path = str(log_dir_of_bag(bag) / "body_summary.json") if bag and executable == "body_sim" else ""
         params = node_parameters(loop, executable, summary_path=summary_path, **common)
@@ -433,14 +500,18 @@ def params_file_text(executable: str, params: dict[str, ParamValue]) -> str:
     return f"# {executable}: written by bptsb_ros.live.loops from the launch arguments\n" + "\n".join(lines) + "\n"
 
 
-def node_exit_verdict(executable: str, returncode: int, shutting_down: bool) -> str:
+def node_exit_verdict(executable: str, returncode: int, shutting_down: bool, body_finished: bool = False) -> str:
     """What the launch does when a node of the loop exits: ``finished`` (body_sim's clean end of the run: shut the
-    launch down, exit 0), ``stopped`` (a clean exit while the launch shuts down) or a failure message (the launch
-    shuts down and exits non-zero)."""
+    launch down, exit 0), ``stopped`` (a clean exit while the launch shuts down or after body_sim finished),
+    ``interrupted`` (another clean exit: the node was stopped from outside the launch, e.g. SIGINT sent to the
+    nodes and not to ``ros2 launch``; the launch shuts down, logs it as info and exits 0 — the body's summary still
+    decides whether the run counts) or a failure message (the launch shuts down and exits non-zero)."""
     if returncode == 0 and executable == "body_sim":
         return "finished"
-    if returncode == 0 and shutting_down:
+    if returncode == 0 and (shutting_down or body_finished):
         return "stopped"
+    if returncode == 0:
+        return "interrupted"
     if shutting_down:
         return f"{executable} exited with code {returncode} while the loop was stopping"
     return (f"{executable} exited with code {returncode} before the end of the run; the loop is broken, "
@@ -469,21 +540,44 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
     shut down and the launch exits non-zero (:func:`node_exit_verdict`).
     """
 
-    from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+    import json
+    import shutil
+
+    from launch.actions import (
+        DeclareLaunchArgument,
+        EmitEvent,
+        ExecuteProcess,
+        LogInfo,
+        OpaqueFunction,
+        RegisterEventHandler,
+    )
     from launch.condition import Condition
     from launch.event_handlers import OnProcessExit
     from launch.events import Shutdown
     from launch.substitution import Substitution
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node
+    from launch_ros.utilities import make_namespace_absolute, prefix_namespace
 
+    from bptsb_ros.live.summary import brain_problem
     from launch import LaunchDescription
 
     loop = LOOPS[loop_name]
     arguments = launch_arguments(loop)
+    state: dict[str, object] = {"summary": "", "body_finished": False}
+
+    def namespace_of(context) -> str:
+        """The loops' namespace as launch_ros gives it to the nodes: ``namespace:=`` inside any PushRosNamespace."""
+        pushed = context.launch_configurations.get("ros_namespace")
+        try:
+            return normalize_namespace(make_namespace_absolute(prefix_namespace(
+                pushed, LaunchConfiguration("namespace").perform(context))) or "")
+        except NamespaceError:
+            return LaunchConfiguration("namespace").perform(context)  # resolve_arguments names it
 
     def values_of(context) -> dict[str, str]:
-        return {name: LaunchConfiguration(name).perform(context) for name in arguments}
+        values = {name: LaunchConfiguration(name).perform(context) for name in arguments}
+        return {**values, "namespace": namespace_of(context)}
 
     class NodeParamsFile(Substitution):
         """Path of a params file with one node's parameters, written when the launch performs it."""
@@ -497,6 +591,11 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
 
         def perform(self, context) -> str:
             params = loop_node_parameters(loop_name, self.executable, values_of(context))
+            if self.executable == "body_sim":  # the summary tells on_exit whether the brain was there
+                if not params.get("summary_path"):
+                    params["summary_path"] = str(Path(tempfile.mkdtemp(prefix=f"bptsb_{loop_name}_")) /
+                                                 "body_summary.json")
+                state["summary"] = params["summary_path"]
             handle, path = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_{self.executable}_", suffix=".yaml")
             with open(handle, "w") as out:
                 out.write(params_file_text(self.executable, params))
@@ -509,21 +608,76 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         except LaunchArgumentError as err:
             raise LaunchArgumentError(f"{loop_name}.launch.py: {err}") from None
 
+    class UserParamsFile(Substitution):
+        """``params_file:=`` for one node, or (none given) a second copy of the node's own parameters."""
+
+        def __init__(self, executable: str) -> None:
+            super().__init__()
+            self.own = NodeParamsFile(executable)
+
+        def describe(self) -> str:
+            return "<params_file:= of the launch, if any>"
+
+        def perform(self, context) -> str:
+            return LaunchConfiguration("params_file").perform(context) or self.own.perform(context)
+
+    class Remapped(Substitution):
+        """The target of ``/clock`` or ``/diagnostics`` (``key``) in the loop's namespace."""
+
+        def __init__(self, key: str) -> None:
+            super().__init__()
+            self.key = key
+
+        def describe(self) -> str:
+            return f"<{TOPICS[self.key].name} in the loop's namespace>"
+
+        def perform(self, context) -> str:
+            return loop_topic(self.key, namespace_of(context))
+
+    def body_problem() -> str:
+        try:
+            summary = json.loads(Path(str(state["summary"])).read_text())
+        except (OSError, ValueError):
+            return ""
+        return brain_problem(summary) if isinstance(summary, dict) else ""
+
     def on_exit(executable: str):
         def handler(event, context):
-            verdict = node_exit_verdict(executable, event.returncode, context.is_shutdown)
+            verdict = node_exit_verdict(executable, event.returncode, context.is_shutdown,
+                                        bool(state["body_finished"]))
             if verdict == "finished":
+                state["body_finished"] = True
+                problem = body_problem()
+                if problem:
+                    raise LoopNodeFailed(problem)
                 return [EmitEvent(event=Shutdown(reason="body_sim finished the run"))]
+            if verdict == "interrupted":
+                return [LogInfo(msg=f"{executable} stopped cleanly (interrupted from outside the launch); stopping "
+                                "the loop"), EmitEvent(event=Shutdown(reason=f"{executable} was interrupted"))]
             if verdict != "stopped":
                 raise LoopNodeFailed(verdict)
             return None
         return handler
 
+    def rviz(context, *args, **kwargs):
+        del args, kwargs
+        if LaunchConfiguration("rviz").perform(context).lower() != "true":
+            return None
+        if shutil.which("rviz2") is None:
+            return [LogInfo(msg="rviz:=true: rviz2 is not installed here; the loop runs without it")]
+        namespace = namespace_of(context)
+        remaps = [arg for src, dst in namespace_remaps(namespace) for arg in ("-r", f"{src}:={dst}")]
+        return [ExecuteProcess(cmd=["rviz2", "-d", str(rviz_config()), "--ros-args", "-r",
+                                    f"__ns:={namespace or '/'}", *remaps], name="rviz2", output="screen")]
+
     recording = Condition(predicate=lambda context: bool(LaunchConfiguration("bag").perform(context)))
     executables = ["body_sim"] + [b.executable for b in loop.brains] + ["recorder"]
+    remappings = [(TOPICS[k].name, Remapped(k)) for k in TOPICS if TOPICS[k].name.startswith("/")]
     nodes = [Node(package="bptsb_ros", executable=name, name=name, output="screen",
-                  parameters=[NodeParamsFile(name)], condition=recording if name == "recorder" else None,
-                  sigterm_timeout=str(STOP_GRACE_S))
+                  namespace=LaunchConfiguration("namespace"), remappings=remappings,
+                  parameters=[NodeParamsFile(name), UserParamsFile(name)],
+                  ros_arguments=["--log-level", LaunchConfiguration("log_level")],
+                  condition=recording if name == "recorder" else None, sigterm_timeout=str(STOP_GRACE_S))
              for name in executables]
     return LaunchDescription([
         *(DeclareLaunchArgument(name, description=text, **({} if default is None else {"default_value": default}))
@@ -532,4 +686,17 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         *nodes,
         *(RegisterEventHandler(OnProcessExit(target_action=node, on_exit=on_exit(name)))
           for node, name in zip(nodes, executables, strict=True)),
+        OpaqueFunction(function=rviz),
     ])
+
+
+def rviz_config() -> Path:
+    """The RViz config of the package (``config/bptsb.rviz``): the installed share copy, else the source tree's."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    except ImportError:
+        return Path(__file__).resolve().parents[2] / "config" / "bptsb.rviz"
+    try:
+        return Path(get_package_share_directory("bptsb_ros")) / "config" / "bptsb.rviz"
+    except PackageNotFoundError:
+        return Path(__file__).resolve().parents[2] / "config" / "bptsb.rviz"

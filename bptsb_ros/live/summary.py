@@ -50,3 +50,18 @@ SUMMARY_GROUPS = {"jitter_ms_": "jitter [ms]", "compute_ms_": "compute [ms]",
                   "command_latency_ms_": "command latency [ms]", "command_age_steps_": "command age [steps]",
                   "rest_length_": "rest-length commands", "force_": "force commands", "wind_": "wind",
                   "perturbation_": "perturbations", "reset_": "resets"}
+
+
+def brain_problem(summary: Mapping[str, Any]) -> str:
+    """Why a finished run does not count ('' when it does): steps ran on the safe command because an awaited brain
+    was silent (``silent_brain_steps`` of the summary: steps per source) — the loop ran without its brain, so the
+    launchers fail it. One line naming the sources, the silent steps and the run's steps."""
+    silent = summary.get("silent_brain_steps")
+    if not isinstance(silent, Mapping):
+        return ""
+    bad = {s: n for s, n in silent.items() if isinstance(n, int) and n > 0}
+    if not bad:
+        return ""
+    counts = ", ".join(f"{s} silent on {n}" for s, n in bad.items())
+    return (f"body_sim ran on the safe command for lack of its brain ({counts} of steps 0..{summary.get('steps', '?')})"
+            ": the loop did not run as launched")
