@@ -108,14 +108,17 @@ def ran_on() -> dict[str, Any]:
 
 
 def call_limited(fn: Callable[..., Any], args: tuple, threads: int | None,
-                 restore: bool = False) -> tuple[Any, dict[str, Any]]:
+                 restore: bool = False, caller_pid: int | None = None) -> tuple[Any, dict[str, Any]]:
     """``fn(*args)`` with ``threads`` BLAS/OpenMP and torch threads (None: as they are); returns (its value,
     :func:`ran_on`). Runs inside the worker.
 
     ``restore`` (the jobs run in the caller's own process): the thread settings are put back afterwards. In a
     worker process (a local pool's, a Dask worker) they stay: OpenBLAS's pthreads pool is process-wide and
     threadpoolctl lets only one Python thread set it, so a Dask worker running several jobs in its threads must
-    not have one job's end undo the limit another job still runs under (every job of the package wants it)."""
+    not have one job's end undo the limit another job still runs under (every job of the package wants it).
+    ``caller_pid``: the submitting process; a Dask worker that turns out to be that process (an in-process
+    cluster) restores too, so the caller is not left single-threaded."""
+    restore = restore or caller_pid == os.getpid()
     if threads is None:
         return fn(*args), ran_on()
     from threadpoolctl import threadpool_limits
@@ -221,8 +224,8 @@ def _run_dask(calls: Sequence[Call], client: Any, threads: int | None, info: Run
     from distributed import as_completed
 
     stamp = time.time_ns()  # fresh task keys: a resumed sweep never reuses an old result held by the cluster
-    futures = {client.submit(call_limited, fn, args, threads, key=f"bptsb-{name}-{i}-{stamp}", pure=False): i
-               for i, (name, fn, args) in enumerate(calls)}
+    futures = {client.submit(call_limited, fn, args, threads, False, os.getpid(), key=f"bptsb-{name}-{i}-{stamp}",
+                             pure=False): i for i, (name, fn, args) in enumerate(calls)}
 
     def running() -> int:
         try:

@@ -52,6 +52,7 @@ from typing import Any
 
 from bptsb_ros.rundir_lock import LOCK_NAME, hold_run_dir
 from bptsb_ros.runner import Placement, RunInfo, connect_placement, ran_on, run_calls
+from bptsb_ros.sweep_errors import SchedulerError, SweepError  # noqa: F401 - callers import both from here
 
 JOB_FILE = "job.json"
 SWEEP_JSON = "sweep.json"
@@ -64,14 +65,6 @@ DEFAULT_CONNECT_TIMEOUT = 20.0
 """Seconds to wait for a Dask scheduler to answer (``bptsb sweep --connect-timeout``)."""
 
 JobFn = Callable[[Path], dict[str, Any]]
-
-
-class SweepError(ValueError):
-    """A sweep cannot start (bad job names, bad seeds, bad or unreachable scheduler); one line for the user."""
-
-
-class SchedulerError(SweepError):
-    """The Dask scheduler could not be reached or did not answer as one (a runtime failure, not a usage error)."""
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from bptsb_ros.cli import main
 from bptsb_ros.experiments import run_experiment
 from bptsb_ros.experiments.registry import Context
 from bptsb_ros.experiments.result import ExperimentResult
-from bptsb_ros.runner import JobFailed, Placement, run_jobs
+from bptsb_ros.runner import JobFailed, Placement, cpus, run_jobs
 
 distributed = pytest.importorskip("distributed")
 
@@ -261,3 +261,17 @@ def test_locomotion_agents_are_adopted_only_from_own_reproduce_runs(tmp_path):
     res = run_sweep(jobs(1, 2, 3), where, workers=0, threads=None)
     assert res.skipped == ["seed-1"] and res.results()["seed-3"] == {"square": 9}
     assert (where / "jobs" / "seed-1" / "out.txt").read_text() == "1"
+
+
+def test_an_in_process_dask_worker_leaves_the_callers_threads_as_they_were(cluster):
+    """A cluster of processes=False runs its tasks in this very process: the limit holds inside the job and the
+    thread variables are put back after it, as for --workers 0 (else every process this one starts later, a Dask
+    worker included, starts single-threaded). OpenBLAS's own count is set from the worker's thread and is not
+    checked here: threadpoolctl restores it only from the thread that set it."""
+    if cpus() < 2:
+        pytest.skip("OpenBLAS runs at most one thread per CPU: one CPU shows no limit")
+    with threadpool_limits(limits=2, user_api="blas"):
+        env_before = os.environ.get("OPENBLAS_NUM_THREADS")
+        (inside,), _ = run_jobs(_threads_now, [()], Placement(scheduler=cluster.scheduler_address))
+        assert inside["pid"] == os.getpid() and inside["blas"] == [1] and inside["env"] == "1"
+        assert _threads_now()["env"] == env_before
