@@ -172,6 +172,11 @@ def test_unsupported_configs_fall_back_with_one_line(capsys):
     assert lines == ["training.backend fused: it implements plain SGD, the optimiser is Adam; training on the numba "
                      "path instead"]
     assert res.metrics["backend"] == "numba" and "Adam" in res.metrics["backend_fallback"]
+    res = train(_cfg(training__backend="fused", training__projection="reset", sim_time=0.8), None, progress=False)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "training.backend fused" in line]
+    assert lines == ["training.backend fused: the projection reset is not in the fused kernel (clamp only); training "
+                     "on the numba path instead"]
+    assert res.metrics["backend"] == "numba"
     loco = validate({"task": "locomotion", "body": {"shape": "caterpillar", "nodes": 10},
                      "training": {"update_steps": 200, "backend": "fused"}})
     _, task, opt = _build(loco)

@@ -181,7 +181,8 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     losses = guard.history  # the loss curve: a rejected update repeats the previous entry
     fused, backend = None, tc.backend
     if tc.backend == "fused":
-        fused, why = fused_training(task, optimizer, adjoint=tc.adjoint)
+        fused, why = ((None, "the projection reset is not in the fused kernel (clamp only)")
+                      if tc.projection != "clamp" else fused_training(task, optimizer, adjoint=tc.adjoint))
         if fused is None:
             backend = "numba"
             print(f"training.backend fused: {why}; training on the numba path instead", file=sys.stderr)
@@ -266,7 +267,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
             if decision.accepted:
                 if fused is None:
                     optimizer.step()
-                    agent.body.clamp_parameters_()
+                    agent.body.clamp_parameters_(tc.projection)
                 else:  # SGD of every group and the projection of k, d, l, in place in one call
                     fused.step()
             bar.update(1)
