@@ -161,6 +161,42 @@ def test_loader_refuses_a_scale_that_lacks_a_setting_or_a_bad_declaration():
         parse_settings(doc, "x.yaml")
 
 
+def test_variants_change_declared_settings_and_bad_ones_are_refused():
+    doc = _doc()
+    doc["settings"]["config"]["choices"] = ["narma", "narma_adam"]
+    doc["variants"] = {"paper": {"help": "as written", "set": {}},
+                       "authors": {"help": "as published", "set": {"config": "narma_adam", "epochs": 7}}}
+    parsed = parse_settings(doc, "x.yaml")
+    assert parsed.variants == {"paper": ("as written", {}), "authors": ("as published", {"config": "narma_adam",
+                                                                                          "epochs": 7})}
+    from bptsb_ros.experiments.experiment_settings import Settings
+    run = Settings("x", "short", {**parsed.values["short"], "epochs": 3}, parsed.specs, ("epochs",), parsed.variants)
+    assert run.variants == {"paper": "as written", "authors": "as published"}
+    assert run.variant("paper")["epochs"] == 3 and run.variant("paper")["config"] == "narma"
+    assert run.variant("authors")["epochs"] == 7 and run.variant("authors")["config"] == "narma_adam"
+    with pytest.raises(KeyError, match="x has no variant 'author'; did you mean authors"):
+        run.variant("author")
+    for change, message in [
+        ({"authors": {"help": "h", "set": {"config": "narma_sgd"}}},
+         r"variants.authors.set.config must be one of narma, narma_adam, got 'narma_sgd'; did you mean narma_adam"),
+        ({"authors": {"help": "h", "set": {"epoch": 2}}}, r"variants.authors.set.epoch: unknown setting; did you mean"),
+        ({"authors": {"set": {}}}, r"variants.authors needs a help text"),
+        ({"authors": {"help": "h", "sets": {}}}, r"variants.authors.sets: unknown key; did you mean set"),
+        ({"Authors": {"help": "h"}}, r"variants: variant names are lower-case words"),
+        ({"authors": {"help": "h", "set": {"epochs": 0}}}, r"variants.authors.set.epochs must be ≥ 1, got 0"),
+    ]:
+        bad = {**doc, "variants": change}
+        with pytest.raises(SettingsError, match=message):
+            parse_settings(bad, "x.yaml")
+    doc["short"]["config"] = "narma_sgd"
+    with pytest.raises(SettingsError, match=r"short.config must be one of narma, narma_adam, got 'narma_sgd'"):
+        parse_settings(doc, "x.yaml")
+    doc = _doc()
+    doc["settings"]["epochs"]["choices"] = ["1"]
+    with pytest.raises(SettingsError, match=r"settings.epochs.choices is a non-empty list of texts, for a str"):
+        parse_settings(doc, "x.yaml")
+
+
 def test_loader_refuses_a_file_that_is_not_plain_data(tmp_path):
     path = tmp_path / "x.yaml"
     path.write_text("settings: !!python/object/apply:os.system ['true']\n")

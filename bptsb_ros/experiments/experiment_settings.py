@@ -13,7 +13,18 @@ scale::
 Types: ``int``, ``float`` (an int is taken as a float), ``number`` (an int or a float, kept as written: a
 duration the code passes on as it is), ``str``, ``bool`` and ``list[T]`` of those (a tuple in the code).
 Declaration keys besides ``type`` and ``help``: ``min`` and ``max`` (inclusive; of every item of a list),
-``length`` (of a list) and ``nullable`` (null allowed). Every scale gives exactly the declared settings.
+``length`` (of a list), ``nullable`` (null allowed) and ``choices`` (the allowed texts of a ``str`` or
+``list[str]``). Every scale gives exactly the declared settings.
+
+An optional ``variants`` section names protocols an experiment runs side by side in one result (each with its
+own rows and claims), each a help text and the declared settings it changes::
+
+    variants:
+      paper: {help: "the paper's text", set: {}}
+      authors: {help: "the authors' published code", set: {draw: authors, eval_periods: 3}}
+
+``ctx.settings.variants`` maps each name to its help; ``ctx.settings.variant(name)`` gives the run's values
+with that variant's changes (checked against the same declarations).
 
 The file is read with the project's bounded safe YAML loader; every problem is one :class:`SettingsError`
 line naming the file and the setting, with a "did you mean" for a misspelt name. ``--set KEY=VALUE``
@@ -38,10 +49,11 @@ from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted
 #: the packaged settings files, one per experiment (``<experiment name>.yaml``)
 SETTINGS_DIR = Path(__file__).resolve().with_name("settings")
 SCALES = ("smoke", "short", "paper")
-SECTIONS = ("settings", *SCALES)
+SECTIONS = ("settings", *SCALES, "variants")
 SCALAR_TYPES = ("int", "float", "number", "str", "bool")
 TYPES = (*SCALAR_TYPES, *(f"list[{t}]" for t in SCALAR_TYPES))
-SPEC_KEYS = ("type", "help", "min", "max", "length", "nullable")
+SPEC_KEYS = ("type", "help", "min", "max", "length", "nullable", "choices")
+VARIANT_KEYS = ("help", "set")
 SETTING_NAME = re.compile(r"[a-z][a-z0-9_]*")
 MAX_FILE_BYTES = 100_000
 MAX_NODES = 5_000
@@ -80,6 +92,7 @@ class SettingSpec:
     max: float | None = None
     length: int | None = None
     nullable: bool = False
+    choices: tuple[str, ...] | None = None
 
     def check(self, value: Any, where: str) -> Any:
         """``value`` as the code uses it (a float for ``float``, a tuple for a list); SettingsError naming
@@ -99,6 +112,9 @@ class SettingSpec:
         if kind == "str":
             if not isinstance(value, str):
                 raise SettingsError(f"{where} must be a text, got {got}")
+            if self.choices is not None and value not in self.choices:
+                raise SettingsError(f"{where} must be one of {', '.join(self.choices)}, got {got}"
+                                    f"{_close(value, self.choices)}")
             return value
         if kind == "bool":
             if not isinstance(value, bool):
@@ -122,6 +138,8 @@ class ParsedSettings:
     source: str
     specs: dict[str, SettingSpec]
     values: dict[str, dict[str, Any]]
+    variants: dict[str, tuple[str, dict[str, Any]]] | None = None
+    """name → (help, the settings it changes, checked); None: the file has no variants section"""
 
 
 def _spec(name: Any, raw: Any, where: str) -> SettingSpec:
@@ -148,8 +166,44 @@ def _spec(name: Any, raw: Any, where: str) -> SettingSpec:
         raise SettingsError(f"{where}.length is a list's number of items (an integer ≥ 0), got {bounded_repr(length)}")
     if not isinstance(raw.get("nullable", False), bool):
         raise SettingsError(f"{where}.nullable must be true or false, got {bounded_repr(raw['nullable'])}")
+    choices = raw.get("choices")
+    if choices is not None and (raw["type"] not in ("str", "list[str]") or not isinstance(choices, list) or not choices
+                                or not all(isinstance(c, str) for c in choices)):
+        raise SettingsError(f"{where}.choices is a non-empty list of texts, for a str or list[str] setting; got "
+                            f"{bounded_repr(choices)}")
     return SettingSpec(name, raw["type"], " ".join(raw["help"].split()), raw.get("min"), raw.get("max"), length,
-                       raw.get("nullable", False))
+                       raw.get("nullable", False), tuple(choices) if choices is not None else None)
+
+
+def _variants(raw: Any, specs: Mapping[str, SettingSpec], source: str) -> dict[str, tuple[str, dict[str, Any]]]:
+    """The checked ``variants`` section: name → (help, {setting: value})."""
+    where = f"{source}: variants"
+    if not isinstance(raw, Mapping) or not raw:
+        raise SettingsError(f"{where} must map each variant's name to {{help: ..., set: {{...}}}}, got "
+                            f"{bounded_repr(raw)}")
+    out = {}
+    for name, spec in raw.items():
+        if not isinstance(name, str) or not SETTING_NAME.fullmatch(name):
+            raise SettingsError(f"{where}: variant names are lower-case words ([a-z][a-z0-9_]*), got "
+                                f"{bounded_repr(name)}")
+        at = f"{where}.{name}"
+        if not isinstance(spec, Mapping):
+            raise SettingsError(f"{at} must be a mapping {{help: ..., set: {{...}}}}, got {bounded_repr(spec)}")
+        for key in spec:
+            if key not in VARIANT_KEYS:
+                raise SettingsError(f"{at}.{_shown(key)}: unknown key{_close(key, VARIANT_KEYS)} "
+                                    f"(known: {', '.join(VARIANT_KEYS)})")
+        if not isinstance(spec.get("help"), str) or not spec["help"].strip():
+            raise SettingsError(f"{at} needs a help text (help: which protocol it is)")
+        changes = spec.get("set", {})
+        if not isinstance(changes, Mapping):
+            raise SettingsError(f"{at}.set must map declared settings to values, got {bounded_repr(changes)}")
+        for key in changes:
+            if key not in specs:
+                raise SettingsError(f"{at}.set.{_shown(key)}: unknown setting{_close(key, list(specs))}")
+        out[name] = (" ".join(spec["help"].split()),
+                     {key: specs[key].check(value, f"{at}.set.{key}") for key, value in changes.items()})
+    return out
 
 
 def parse_settings(doc: Any, source: str) -> ParsedSettings:
@@ -181,7 +235,8 @@ def parse_settings(doc: Any, source: str) -> ParsedSettings:
             if key not in given:
                 raise SettingsError(f"{source}: {scale} lacks the setting {key}")
         values[scale] = {key: spec.check(given[key], f"{source}: {scale}.{key}") for key, spec in specs.items()}
-    return ParsedSettings(source, specs, values)
+    variants = _variants(doc["variants"], specs, source) if "variants" in doc else None
+    return ParsedSettings(source, specs, values, variants)
 
 
 def settings_path(experiment: str) -> Path:
@@ -213,11 +268,25 @@ class Settings(Mapping[str, Any]):
     """The resolved settings of one run (read-only): ``ctx.settings["epochs"]``."""
 
     def __init__(self, experiment: str, scale: str, values: Mapping[str, Any],
-                 specs: Mapping[str, SettingSpec] | None = None, overridden: Sequence[str] = ()) -> None:
+                 specs: Mapping[str, SettingSpec] | None = None, overridden: Sequence[str] = (),
+                 variants: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None) -> None:
         self.experiment, self.scale = experiment, scale
         self._values = dict(values)
         self.specs = dict(specs or {})
         self.overridden = tuple(overridden)
+        self._variants = {name: (text, dict(changes)) for name, (text, changes) in (variants or {}).items()}
+
+    @property
+    def variants(self) -> dict[str, str]:
+        """The settings file's variants, name → help, in file order (empty without a variants section)."""
+        return {name: text for name, (text, _) in self._variants.items()}
+
+    def variant(self, name: str) -> dict[str, Any]:
+        """This run's values with the changes of variant ``name``."""
+        if name not in self._variants:
+            raise KeyError(f"{self.experiment} has no variant {name!r}{_close(name, list(self._variants))} "
+                           f"(variants: {', '.join(self._variants) or 'none'})")
+        return {**self._values, **self._variants[name][1]}
 
     def __getitem__(self, key: str) -> Any:
         try:
@@ -305,4 +374,4 @@ def resolve_settings(experiment: str, scale: str, overrides: Overrides | None = 
         values[key] = specs[key].check(value, where)
         if key not in overridden:
             overridden.append(key)
-    return Settings(experiment, scale, values, specs, overridden)
+    return Settings(experiment, scale, values, specs, overridden, parsed.variants if parsed else None)
