@@ -63,7 +63,7 @@ PLANTED: dict[str, dict[str, tuple]] = {
     "locomotion-closed-loop-20": {**_AGENT, "n_agents": (2, 20, 20)},
     "locomotion-perturbation": {**_AGENT, "n_agents": (2, 20, 20), "n_noise": (3, 100, 100),
                                 "before_time": (1.0, 10.0, 20.0), "after_time": (2.0, 20.0, 80.0),
-                                "max_agents": (1, 8, 20)},
+                                "max_agents": (1, 8, 20), "draw": ("position",) * 3},
     "locomotion-headwind": {**_AGENT, "switching_time": (4, 2000, 10000), "wind_period": (4.0, 20.0, 20.0),
                             "eval_periods": (1, 3, 5), "sweep_time": (2.0, 20.0, 50.0)},
 }

@@ -101,6 +101,29 @@ def test_perturbation_shifts_by_seeded_noise(walker):
     assert not torch.allclose(out.r[1], out.r[2])
 
 
+def test_authors_draw_scales_positions_by_extent_over_8_and_velocities_by_their_x_range(walker):
+    agent, state = walker
+    r = state.r.clone()
+    v = state.v.clone()
+    r[0, :, 0] = torch.tensor([0.1, -0.2, 0.3, 1.4, 0.0, 0.5, 0.6, 0.7, 0.8, 0.9], dtype=r.dtype)  # P = 1.6 m
+    v[0, :, 0] = torch.tensor([0.0, 0.1, -0.5, 0.2, 0.7, 0.3, 0.1, 0.0, 0.2, 0.4], dtype=v.dtype)  # S = 1.2 m/s
+    v[0, :, 1] = 5.0  # the y-velocities do not enter S
+    planted = type(state)(r, v, state.a, state.length, state.step)
+    rest = agent.body.l.detach()
+    sig = torch.tensor([0.0, 0.5, 1.0])
+    out = perturbed(agent, planted, sig, torch.tensor([7, 8, 9]), rest, draw="authors")
+    for b, (s, seed) in enumerate(((0.0, 7), (0.5, 8), (1.0, 9))):
+        gen = torch.Generator().manual_seed(seed)
+        n_r = torch.randn(10, 2, generator=gen, dtype=torch.float64)
+        n_v = torch.randn(10, 2, generator=gen, dtype=torch.float64)
+        np.testing.assert_allclose(out.r[b].double(), r[0].double() + s * 1.6 / 8 * n_r, atol=1e-6)
+        np.testing.assert_allclose(out.v[b].double(), v[0].double() + s * 1.2 * n_v, atol=1e-6)
+    lit = perturbed(agent, planted, sig, torch.tensor([7, 8, 9]), rest)  # the paper's draw: positions only, σ [m]
+    torch.testing.assert_close(lit.v[2], v[0])
+    with pytest.raises(ValueError, match="perturbation draw must be one of position, authors, got 'kick'"):
+        perturbed(agent, planted, sig, torch.tensor([7, 8, 9]), rest, draw="kick")
+
+
 def test_handover_blends_swg_into_fl(walker):
     agent, state = walker
     body, swg, fl = agent.body, agent.brain, agent.feedback
@@ -177,6 +200,20 @@ def test_smoke_runs_match_their_records(tmp_path):
     some_fail = min(mean["open"].min(), mean["closed"].min()) < 1
     same_testable = moves and not d["fallback_best_agent"] and some_fail
     assert holds[2] == ((np.abs(mean["open"] - mean["closed"]).mean() <= 0.15 + 1e-9) if same_testable else None)
+    # the authors' draw: its own rows and claims, recomputed from its own rates; the paper's variant is the first
+    assert d["variants"]["paper"]["return_rate_mean"] == d["return_rate_mean"]
+    au = d["variants"]["authors"]
+    assert au["draw"] == "authors" and len(pe["claims"]) == 6
+    assert all(c["claim"].startswith("[authors: ") for c in pe["claims"][3:])
+    am = {k: np.array(v) for k, v in au["return_rate_mean"].items()}
+    rows = {(r["system"], r["metric"]): r["ours"] for r in pe["rows"]}
+    assert rows[("authors: SWG (open loop)", "return rate at σ = 0.5")] == pytest.approx(am["open"][5])
+    assert rows[("SWG (open loop)", "return rate at σ = 0.5 m")] == pytest.approx(mean["open"][5])
+    a_moves = all(v > 0 for v in au["open_speed_before"])
+    assert pe["claims"][3]["holds"] == ((am["open"][sig >= 0.6].mean() < am["open"][sig <= 0.4].mean())
+                                        if a_moves else None)
+    a_same = a_moves and not d["fallback_best_agent"] and min(am["open"].min(), am["closed"].min()) < 1
+    assert pe["claims"][5]["holds"] == ((np.abs(am["open"] - am["closed"]).mean() <= 0.15 + 1e-9) if a_same else None)
 
     _, hw = run_experiment("locomotion-headwind", scale="smoke", out_dir=tmp_path / "hw", progress=False,
                            workers=0, log=lambda m: None)

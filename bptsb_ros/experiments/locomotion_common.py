@@ -242,18 +242,42 @@ def late_speed(x: np.ndarray, dt: float) -> np.ndarray:
         return (x[-1] - x[-1 - half]) / (half * dt)
 
 
-def perturbed(agent: Agent, state: BodyState, sigma: torch.Tensor, seeds: torch.Tensor,
-              rest_length: torch.Tensor) -> BodyState:
-    """Copies of a batch-1 ``state``, the positions of every movable mass shifted by N(0, σ²) noise [m].
+#: the perturbation draws of locomotion-perturbation (:func:`perturbed`)
+DRAWS = ("position", "authors")
 
+
+def authors_scales(state: BodyState) -> tuple[torch.Tensor, torch.Tensor]:
+    """(P, S) of the authors' draw for each member of ``state``: P [m] = the body's x-extent (max − min of the
+    masses' x), S [m/s] = the range of their x-velocities at that moment; each (B,)."""
+    x, vx = state.r[..., 0], state.v[..., 0]
+    return x.amax(-1) - x.amin(-1), vx.amax(-1) - vx.amin(-1)
+
+
+def perturbed(agent: Agent, state: BodyState, sigma: torch.Tensor, seeds: torch.Tensor,
+              rest_length: torch.Tensor, draw: str = "position") -> BodyState:
+    """Copies of a batch-1 ``state``, perturbed by seeded Gaussian noise.
+
+    ``draw``: ``position`` (the paper's text) shifts every movable mass's position by N(0, σ²) [m] per coordinate,
+    velocities kept; ``authors`` (their published code) shifts the positions by N(0, (σ·P/8)²) and the velocities
+    by N(0, (σ·S)²) per coordinate, P and S from :func:`authors_scales` of ``state`` (σ dimensionless then).
     sigma, seeds: (B,); member b's noise comes from a generator seeded with seeds[b] (reproducible member by
-    member). Accelerations and spring lengths are recomputed at the shifted positions under ``rest_length``.
+    member; the position noise is its first M × 2 normals, the velocity noise the next M × 2). Accelerations and
+    spring lengths are recomputed at the new state under ``rest_length``.
     """
+    if draw not in DRAWS:
+        raise ValueError(f"perturbation draw must be one of {', '.join(DRAWS)}, got {draw!r}")
     body = agent.body
     m = body.n_movable
-    noise = torch.stack([torch.randn(m, 2, generator=torch.Generator().manual_seed(int(s)), dtype=torch.float64)
-                         for s in seeds.tolist()]).to(body.l.dtype)
-    r = state.r.expand(len(seeds), m, 2) + sigma.to(body.l.dtype)[:, None, None] * noise
-    v = state.v.expand_as(r).clone()
+    gens = [torch.Generator().manual_seed(int(s)) for s in seeds.tolist()]
+    noise = torch.stack([torch.randn(m, 2, generator=g, dtype=torch.float64) for g in gens]).to(body.l.dtype)
+    sig = sigma.to(body.l.dtype)[:, None, None]
+    v = state.v.expand(len(seeds), m, 2).clone()
+    if draw == "position":
+        r = state.r.expand(len(seeds), m, 2) + sig * noise
+    else:
+        p_extent, s_range = (t.to(body.l.dtype) for t in authors_scales(state))
+        v_noise = torch.stack([torch.randn(m, 2, generator=g, dtype=torch.float64) for g in gens]).to(body.l.dtype)
+        r = state.r.expand(len(seeds), m, 2) + sig * p_extent / 8 * noise
+        v = v + sig * s_range * v_noise
     a, length = body.acceleration(r, v, rest_length, None)
     return BodyState(r, v, a, length, state.step)
