@@ -321,3 +321,13 @@ def test_closed_loop_schemes_report_a_diverged_preliminary_training(tmp_path, mo
     # smoke scale without --workers: the one job ran in this process, and the provenance says so
     assert data["provenance"]["jobs"] == [{"what": "scheme_job", "scheduler": "this process", "workers": 1,
                                            "jobs": 1, "ran_in": 1}]
+
+
+def test_the_perturbation_experiments_declare_the_paper_and_the_authors_protocol():
+    from bptsb_ros.experiments.experiment_settings import resolve_settings
+
+    for scale in ("smoke", "paper"):  # as planted by hand from published-code-facts.md; a protocol, not a size
+        assert resolve_settings("lissajous-perturbation", scale).variants == {
+            "paper": {"restart": False, "eval_windows": 0}, "authors": {"restart": True, "eval_windows": 3}}
+        assert resolve_settings("locomotion-perturbation", scale).variants == {
+            "paper": {"authors_draw": False}, "authors": {"authors_draw": True}}

@@ -10,21 +10,23 @@ scale::
     short: {epochs: 3, n_train: null}
     paper: {epochs: 50, n_train: null}
 
+Named variants (profiles): an experiment that runs one protocol in several named ways (the paper's text, the
+authors' published code) declares the variants' own settings in ``variant_settings`` (same declaration format)
+and gives each variant every one of them under ``variants`` (the same at every scale: a variant is a protocol,
+not a size)::
+
+    variant_settings:
+      published_wind: {type: bool, help: "the published code's wind (15·F, 1)"}
+    variants:
+      paper: {published_wind: false}
+      authors: {published_wind: true}
+
+The experiment reads them in file order as ``ctx.settings.variants`` (name → values); result.json records them.
+
 Types: ``int``, ``float`` (an int is taken as a float), ``number`` (an int or a float, kept as written: a
 duration the code passes on as it is), ``str``, ``bool`` and ``list[T]`` of those (a tuple in the code).
 Declaration keys besides ``type`` and ``help``: ``min`` and ``max`` (inclusive; of every item of a list),
-``length`` (of a list), ``nullable`` (null allowed) and ``choices`` (the allowed texts of a ``str`` or
-``list[str]``). Every scale gives exactly the declared settings.
-
-An optional ``variants`` section names protocols an experiment runs side by side in one result (each with its
-own rows and claims), each a help text and the declared settings it changes::
-
-    variants:
-      paper: {help: "the paper's text", set: {}}
-      authors: {help: "the authors' published code", set: {draw: authors, eval_periods: 3}}
-
-``ctx.settings.variants`` maps each name to its help; ``ctx.settings.variant(name)`` gives the run's values
-with that variant's changes (checked against the same declarations).
+``length`` (of a list) and ``nullable`` (null allowed). Every scale gives exactly the declared settings.
 
 The file is read with the project's bounded safe YAML loader; every problem is one :class:`SettingsError`
 line naming the file and the setting, with a "did you mean" for a misspelt name. ``--set KEY=VALUE``
@@ -40,7 +42,7 @@ import math
 import re
 import shlex
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -49,11 +51,10 @@ from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted
 #: the packaged settings files, one per experiment (``<experiment name>.yaml``)
 SETTINGS_DIR = Path(__file__).resolve().with_name("settings")
 SCALES = ("smoke", "short", "paper")
-SECTIONS = ("settings", *SCALES, "variants")
+SECTIONS = ("settings", *SCALES, "variant_settings", "variants")
 SCALAR_TYPES = ("int", "float", "number", "str", "bool")
 TYPES = (*SCALAR_TYPES, *(f"list[{t}]" for t in SCALAR_TYPES))
-SPEC_KEYS = ("type", "help", "min", "max", "length", "nullable", "choices")
-VARIANT_KEYS = ("help", "set")
+SPEC_KEYS = ("type", "help", "min", "max", "length", "nullable")
 SETTING_NAME = re.compile(r"[a-z][a-z0-9_]*")
 MAX_FILE_BYTES = 100_000
 MAX_NODES = 5_000
@@ -92,7 +93,6 @@ class SettingSpec:
     max: float | None = None
     length: int | None = None
     nullable: bool = False
-    choices: tuple[str, ...] | None = None
 
     def check(self, value: Any, where: str) -> Any:
         """``value`` as the code uses it (a float for ``float``, a tuple for a list); SettingsError naming
@@ -112,9 +112,6 @@ class SettingSpec:
         if kind == "str":
             if not isinstance(value, str):
                 raise SettingsError(f"{where} must be a text, got {got}")
-            if self.choices is not None and value not in self.choices:
-                raise SettingsError(f"{where} must be one of {', '.join(self.choices)}, got {got}"
-                                    f"{_close(value, self.choices)}")
             return value
         if kind == "bool":
             if not isinstance(value, bool):
@@ -138,8 +135,8 @@ class ParsedSettings:
     source: str
     specs: dict[str, SettingSpec]
     values: dict[str, dict[str, Any]]
-    variants: dict[str, tuple[str, dict[str, Any]]] | None = None
-    """name → (help, the settings it changes, checked); None: the file has no variants section"""
+    variant_specs: dict[str, SettingSpec] = field(default_factory=dict)
+    variants: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 def _spec(name: Any, raw: Any, where: str) -> SettingSpec:
@@ -166,44 +163,8 @@ def _spec(name: Any, raw: Any, where: str) -> SettingSpec:
         raise SettingsError(f"{where}.length is a list's number of items (an integer ≥ 0), got {bounded_repr(length)}")
     if not isinstance(raw.get("nullable", False), bool):
         raise SettingsError(f"{where}.nullable must be true or false, got {bounded_repr(raw['nullable'])}")
-    choices = raw.get("choices")
-    if choices is not None and (raw["type"] not in ("str", "list[str]") or not isinstance(choices, list) or not choices
-                                or not all(isinstance(c, str) for c in choices)):
-        raise SettingsError(f"{where}.choices is a non-empty list of texts, for a str or list[str] setting; got "
-                            f"{bounded_repr(choices)}")
     return SettingSpec(name, raw["type"], " ".join(raw["help"].split()), raw.get("min"), raw.get("max"), length,
-                       raw.get("nullable", False), tuple(choices) if choices is not None else None)
-
-
-def _variants(raw: Any, specs: Mapping[str, SettingSpec], source: str) -> dict[str, tuple[str, dict[str, Any]]]:
-    """The checked ``variants`` section: name → (help, {setting: value})."""
-    where = f"{source}: variants"
-    if not isinstance(raw, Mapping) or not raw:
-        raise SettingsError(f"{where} must map each variant's name to {{help: ..., set: {{...}}}}, got "
-                            f"{bounded_repr(raw)}")
-    out = {}
-    for name, spec in raw.items():
-        if not isinstance(name, str) or not SETTING_NAME.fullmatch(name):
-            raise SettingsError(f"{where}: variant names are lower-case words ([a-z][a-z0-9_]*), got "
-                                f"{bounded_repr(name)}")
-        at = f"{where}.{name}"
-        if not isinstance(spec, Mapping):
-            raise SettingsError(f"{at} must be a mapping {{help: ..., set: {{...}}}}, got {bounded_repr(spec)}")
-        for key in spec:
-            if key not in VARIANT_KEYS:
-                raise SettingsError(f"{at}.{_shown(key)}: unknown key{_close(key, VARIANT_KEYS)} "
-                                    f"(known: {', '.join(VARIANT_KEYS)})")
-        if not isinstance(spec.get("help"), str) or not spec["help"].strip():
-            raise SettingsError(f"{at} needs a help text (help: which protocol it is)")
-        changes = spec.get("set", {})
-        if not isinstance(changes, Mapping):
-            raise SettingsError(f"{at}.set must map declared settings to values, got {bounded_repr(changes)}")
-        for key in changes:
-            if key not in specs:
-                raise SettingsError(f"{at}.set.{_shown(key)}: unknown setting{_close(key, list(specs))}")
-        out[name] = (" ".join(spec["help"].split()),
-                     {key: specs[key].check(value, f"{at}.set.{key}") for key, value in changes.items()})
-    return out
+                       raw.get("nullable", False))
 
 
 def parse_settings(doc: Any, source: str) -> ParsedSettings:
@@ -235,8 +196,38 @@ def parse_settings(doc: Any, source: str) -> ParsedSettings:
             if key not in given:
                 raise SettingsError(f"{source}: {scale} lacks the setting {key}")
         values[scale] = {key: spec.check(given[key], f"{source}: {scale}.{key}") for key, spec in specs.items()}
-    variants = _variants(doc["variants"], specs, source) if "variants" in doc else None
-    return ParsedSettings(source, specs, values, variants)
+    variant_specs, variants = _parse_variants(doc, source)
+    return ParsedSettings(source, specs, values, variant_specs, variants)
+
+
+def _parse_variants(doc: Mapping, source: str) -> tuple[dict[str, SettingSpec], dict[str, dict[str, Any]]]:
+    """The ``variant_settings`` declarations and the checked ``variants`` (both absent: none)."""
+    declared, given = doc.get("variant_settings"), doc.get("variants")
+    if declared is None and given is None:
+        return {}, {}
+    if not isinstance(declared, Mapping) or not declared:
+        raise SettingsError(f"{source}: variants need variant_settings, mapping each variant setting's name to its "
+                            "type and help text")
+    if not isinstance(given, Mapping) or not given:
+        raise SettingsError(f"{source}: variant_settings need variants, mapping each variant's name to its values")
+    specs = {name: _spec(name, raw, f"{source}: variant_settings") for name, raw in declared.items()}
+    out: dict[str, dict[str, Any]] = {}
+    for name, values in given.items():
+        if not isinstance(name, str) or not SETTING_NAME.fullmatch(name):
+            raise SettingsError(f"{source}: variants: variant names are lower-case words ([a-z][a-z0-9_]*), got "
+                                f"{bounded_repr(name)}")
+        if not isinstance(values, Mapping):
+            raise SettingsError(f"{source}: variants.{name} must map every variant setting to its value, got "
+                                f"{bounded_repr(values)}")
+        for key in values:
+            if key not in specs:
+                raise SettingsError(f"{source}: variants.{name}.{_shown(key)}: unknown variant setting"
+                                    f"{_close(key, list(specs))}")
+        for key in specs:
+            if key not in values:
+                raise SettingsError(f"{source}: variants.{name} lacks the variant setting {key}")
+        out[name] = {key: spec.check(values[key], f"{source}: variants.{name}.{key}") for key, spec in specs.items()}
+    return specs, out
 
 
 def settings_path(experiment: str) -> Path:
@@ -269,24 +260,13 @@ class Settings(Mapping[str, Any]):
 
     def __init__(self, experiment: str, scale: str, values: Mapping[str, Any],
                  specs: Mapping[str, SettingSpec] | None = None, overridden: Sequence[str] = (),
-                 variants: Mapping[str, tuple[str, Mapping[str, Any]]] | None = None) -> None:
+                 variants: Mapping[str, Mapping[str, Any]] | None = None) -> None:
         self.experiment, self.scale = experiment, scale
         self._values = dict(values)
         self.specs = dict(specs or {})
         self.overridden = tuple(overridden)
-        self._variants = {name: (text, dict(changes)) for name, (text, changes) in (variants or {}).items()}
-
-    @property
-    def variants(self) -> dict[str, str]:
-        """The settings file's variants, name → help, in file order (empty without a variants section)."""
-        return {name: text for name, (text, _) in self._variants.items()}
-
-    def variant(self, name: str) -> dict[str, Any]:
-        """This run's values with the changes of variant ``name``."""
-        if name not in self._variants:
-            raise KeyError(f"{self.experiment} has no variant {name!r}{_close(name, list(self._variants))} "
-                           f"(variants: {', '.join(self._variants) or 'none'})")
-        return {**self._values, **self._variants[name][1]}
+        #: the named variants (file order), name → {variant setting: value}; empty when the file has none
+        self.variants: dict[str, dict[str, Any]] = {k: dict(v) for k, v in (variants or {}).items()}
 
     def __getitem__(self, key: str) -> Any:
         try:
@@ -307,6 +287,11 @@ class Settings(Mapping[str, Any]):
     def to_json(self) -> dict[str, Any]:
         """The values as JSON data (tuples as lists), for result.json."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in self._values.items()}
+
+    def variants_json(self) -> dict[str, dict[str, Any]]:
+        """The variants as JSON data (tuples as lists), for result.json."""
+        return {name: {k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}
+                for name, values in self.variants.items()}
 
     def override_args(self) -> list[str]:
         """``--set key=value`` arguments that reproduce the overridden values (shell-quoted where needed)."""

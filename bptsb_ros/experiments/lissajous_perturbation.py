@@ -43,6 +43,8 @@ from bptsb_ros.tasks.lissajous_switching import CURVE_1
 SIGMAS = np.round(np.arange(0.0, 1.0001, 0.1), 10)
 #: the open and the closed loop count as "almost the same" when their rates differ by at most this at every σ
 SAME_RATE = 0.2
+#: each trial in words (claims of a variant after the first are prefixed with it); key: a restart trial
+TRIAL_TEXT = {False: "a kick of the running cycle", True: "restarts from the displaced layout at rest, t = 0"}
 #: Pearson r(σ, rate) below which a loop's return rate counts as "tending to decrease" with σ
 FALL_R = -0.5
 
@@ -214,12 +216,15 @@ def run(ctx: Context) -> None:
     ctx.log(f"lissajous-perturbation: training the single-curve agent ({sim_time} s, seed {ctx.seed})")
     trained = train_single_curve(ctx.out_dir / "agent", sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
                                  fit_time=ctx.settings["fit_time"])
-    variants = ctx.settings.variants or {"": "the settings as given"}
+    variants = ctx.settings.variants or {"paper": {"restart": False, "eval_windows": 0}}
     target_ms = float(trained.metrics["evaluation"]["target_mean_square"])
-    for vi, name in enumerate(variants):
-        values = ctx.settings.variant(name) if name else ctx.settings
-        trial = _restart_variant if values["trial"] == "restart" else _kick_variant
-        trial(ctx, trained, name, variants[name], values, target_ms, first=vi == 0)
+    for vi, (name, variant) in enumerate(variants.items()):
+        values = {**ctx.settings, **variant}
+        if variant["restart"] and variant["eval_windows"] < 1:
+            raise ValueError(f"lissajous-perturbation: variant {name} restarts its trials but compares "
+                             f"{variant['eval_windows']} windows (eval_windows must be ≥ 1)")
+        trial = _restart_variant if variant["restart"] else _kick_variant
+        trial(ctx, trained, name, TRIAL_TEXT[trial is _restart_variant], values, target_ms, first=vi == 0)
 
 
 def _kick_variant(ctx: Context, trained: TrainedAgent, name: str, help_text: str, values, target_ms: float, *,

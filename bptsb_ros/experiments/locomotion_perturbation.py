@@ -37,6 +37,9 @@ from bptsb_ros.experiments.result import Claim
 SIGMAS = tuple(round(0.1 * i, 1) for i in range(11))
 #: |open − closed| return rate, averaged over σ, below which the two count as "almost the same"
 SAME_RATE = 0.15
+#: each perturbation draw in words (claims of a variant after the first are prefixed with it)
+DRAW_TEXT = {"position": "positions shifted by N(0, σ²) [m]",
+             "authors": "the authors' draw: positions N(0, (σ·P/8)²), velocities N(0, (σ·S)²)"}
 #: the σ [m] at or below which a perturbation counts as weak, and at or above which as strong
 WEAK_SIGMA, STRONG_SIGMA = 0.4, 0.6
 
@@ -151,11 +154,11 @@ def run(ctx: Context) -> None:
     for s in chosen:
         run_dir = sweep.out_dir / "jobs" / f"seed-{s}"
         agents[s] = (load_agent(run_dir), task_state(read_checkpoint(run_dir)))
-    variants = ctx.settings.variants or {"": "the settings as given"}
+    variants = ctx.settings.variants or {"paper": {"authors_draw": False}}
     per_variant = {}
-    for vi, name in enumerate(variants):
-        draw = (ctx.settings.variant(name) if name else ctx.settings)["draw"]
-        tag, label = ("", "") if vi == 0 else (f"{name}: ", f"[{name}: {variants[name]}] ")
+    for vi, (name, variant) in enumerate(variants.items()):
+        draw = "authors" if variant["authors_draw"] else "position"
+        tag, label = ("", "") if vi == 0 else (f"{name}: ", f"[{name}: {DRAW_TEXT[draw]}] ")
         unit = " m" if draw == "position" else ""
         rates, v_before_open, example = _variant_rates(ctx, agents, sigmas, n_noise, before_s, after_s, draw, name)
         mean = {k: np.mean(v, 0) for k, v in rates.items()}
@@ -166,7 +169,7 @@ def run(ctx: Context) -> None:
         for c in claims(PerturbationRates(sigmas, mean["open"], mean["closed"], all(v > 0 for v in v_before_open),
                                           not fallback)):
             ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
-        per_variant[name] = {"help": variants[name], "draw": draw, "rates": rates, "mean": mean,
+        per_variant[name] = {"help": DRAW_TEXT[draw], "draw": draw, "rates": rates, "mean": mean,
                              "v_before_open": v_before_open, "example": example}
     first = per_variant[next(iter(per_variant))]
     rates, mean, example, dt = first["rates"], first["mean"], first["example"], agents[chosen[0]][0].dt
@@ -183,7 +186,7 @@ def run(ctx: Context) -> None:
         "variants": {name: {"help": v["help"], "draw": v["draw"],
                             "return_rate_mean": {k: r.tolist() for k, r in v["mean"].items()},
                             "return_rate_per_agent": {k: [r.tolist() for r in x] for k, x in v["rates"].items()},
-                            "open_speed_before": v["v_before_open"]} for name, v in per_variant.items() if name},
+                            "open_speed_before": v["v_before_open"]} for name, v in per_variant.items()},
         "notes": ("No agent's closed loop succeeded; the agent with the best closed/open ratio was perturbed instead."
                   if fallback else ""),
     }
@@ -198,7 +201,7 @@ def _variant_rates(ctx: Context, agents: dict, sigmas: np.ndarray, n_noise: int,
     for i, (s, (agent, state)) in enumerate(agents.items()):
         dt = agent.dt
         for loop, fl in (("open", None), ("closed", agent.feedback)):
-            ctx.log(f"locomotion-perturbation{f' ({name})' if name else ''}: agent {s}, {loop} loop, {len(sigmas)} σ "
+            ctx.log(f"locomotion-perturbation ({name}): agent {s}, {loop} loop, {len(sigmas)} σ "
                     f"× {n_noise} seeds batched, {draw} draw")
             out = return_rates(agent, state, fl, sigmas, n_noise, int(round(before_s / dt)), int(round(after_s / dt)),
                                draw=draw)
