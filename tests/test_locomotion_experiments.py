@@ -234,3 +234,20 @@ def test_smoke_runs_match_their_records(tmp_path):
                 and abs(ph["windy_late"] - ph["calm"]) <= 0.25 * d["target"] + 1e-9)
     assert drop == (recovers if all(blocks[k] > 0 for k in ("calm", "windy_early", "windy_late")) else None)
     assert {"headwind_speed.png", "speed_vs_wind.png"} <= set(hw["figures"])
+
+
+def test_agent_settings_pass_the_projection_to_the_training_and_keep_the_clamp_key():
+    import hashlib
+
+    from bptsb_ros.experiments.locomotion_common import AgentSettings
+
+    clamp, reset = AgentSettings(sim_time=4), AgentSettings(sim_time=4, projection="reset")
+    old = {"sim_time": 4, "warmup_windows": 100, "fit_time": 100.0, "eval_time": 100.0, "handover_time": 5.0,
+           "gait_time": 2.0}  # the fields before the option existed: their agents keep their key
+    assert clamp.key() == hashlib.sha1(json.dumps(old, sort_keys=True).encode()).hexdigest()[:8]
+    assert reset.key() != clamp.key()
+    assert "training.projection=reset" in reset.overrides()
+    cfg = packaged_config("locomotion_forward", reset.overrides(), seed=0)
+    assert cfg.training.projection == "reset"
+    with pytest.raises(ValueError, match="projection must be one of clamp, reset, got 'zero'"):
+        AgentSettings(sim_time=4, projection="zero")

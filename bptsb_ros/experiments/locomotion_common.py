@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from bptsb_ros.agent import Agent
-from bptsb_ros.body.msdn import BodyState
+from bptsb_ros.body.msdn import PROJECTIONS, BodyState
 from bptsb_ros.brains import FeedbackLayer, SineWaveGenerator
 from bptsb_ros.config import FeedbackConfig
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
@@ -42,7 +42,9 @@ class AgentSettings:
     sim_time: training [s] (paper 1000); warmup_windows: untrained 200-step windows first (paper 100);
     fit_time: open-loop run for the FL fit [s] (paper 100, its middle 60 % used); eval_time: open- and
     closed-loop runs whose speeds are compared [s] (the original closed-loop config: 100);
-    handover_time: the transition variant's blend from SWG to FL [s]; gait_time: stored gait [s].
+    handover_time: the transition variant's blend from SWG to FL [s]; gait_time: stored gait [s]; projection: what
+    the training does with a k, d or l below zero after an update (``training.projection``: clamp to 0, the paper;
+    reset to 0.1, the authors' code).
     """
 
     sim_time: float
@@ -51,14 +53,25 @@ class AgentSettings:
     eval_time: float = 100.0
     handover_time: float = 5.0
     gait_time: float = 2.0
+    projection: str = "clamp"
+
+    def __post_init__(self) -> None:
+        if self.projection not in PROJECTIONS:
+            raise ValueError(f"locomotion agents: projection must be one of {', '.join(PROJECTIONS)}, got "
+                             f"{self.projection!r}")
 
     def overrides(self) -> list[str]:
         return [f"sim_time={self.sim_time}", f"locomotion.warmup_windows={self.warmup_windows}",
-                f"feedback.fit_time={self.fit_time}", f"locomotion.eval_time={self.eval_time}"]
+                f"feedback.fit_time={self.fit_time}", f"locomotion.eval_time={self.eval_time}",
+                f"training.projection={self.projection}"]
 
     def key(self) -> str:
-        """Short stable name of these settings (agents of equal settings are shared between experiments)."""
-        text = json.dumps(asdict(self), sort_keys=True)
+        """Short stable name of these settings (agents of equal settings are shared between experiments); the
+        default projection (clamp) is left out of it, so agents trained before the option existed keep their key."""
+        fields_ = asdict(self)
+        if fields_["projection"] == "clamp":
+            del fields_["projection"]
+        text = json.dumps(fields_, sort_keys=True)
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
 
