@@ -372,3 +372,15 @@ def test_switching_training_gives_the_numba_paths_losses_and_parameters(publishe
         assert float((p - q).abs().max()) <= 1e-10 * max(1.0, float(q.abs().max())), name
     assert res.state.step == ref.state.step == 400
     assert torch.allclose(res.state.r, ref.state.r, rtol=0, atol=1e-10)
+
+
+def test_lr_decay_divides_every_rate_by_100_after_90_percent_of_more_than_1000_updates(tmp_path):
+    from bptsb_ros.training.checkpoint import read_checkpoint
+
+    n = 1001  # the schedule applies only above 1,000 updates (its boundary: step_decay_updates' own test)
+    cfg = _cfg(training__update_steps=1, training__lr_decay=True, sim_time=n * _cfg().body.dt)
+    res = train(cfg, tmp_path, progress=False)
+    assert res.metrics["updates"] == n
+    rates = {g["name"]: g["lr"] for g in read_checkpoint(tmp_path)["extra"]["optimizer"]["param_groups"]}
+    base = {"k": 1e4, "d": 1e3, "l": 1e1, "amplitude": 1e1, "phase": 1e2}  # LearningRates' defaults
+    assert rates == pytest.approx({k: v / 100 for k, v in base.items()}, rel=1e-12)

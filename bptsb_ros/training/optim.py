@@ -38,3 +38,20 @@ def make_optimizer(agent: Agent, cfg: TrainingConfig) -> torch.optim.Optimizer:
         return torch.optim.SGD(groups, lr=groups[0]["lr"])
     return torch.optim.Adam(groups, lr=groups[0]["lr"])
 
+
+
+def step_decay_updates(updates: int, milestones: tuple[float, ...] = (0.8, 0.9), min_updates: int = 1000) -> list[int]:
+    """Update indices (0-based) at which every learning rate is divided (the published code's schedule for its
+    switching trainings: ÷10 at 80 % and again at 90 % of the training windows, only when there are more than
+    ``min_updates`` of them): ``int(m · updates)`` for each milestone m; none for ``updates <= min_updates``.
+
+    Raises ValueError for a milestone outside (0, 1)."""
+    if any(not 0 < m < 1 for m in milestones):
+        raise ValueError(f"learning-rate milestones must lie in (0, 1), got {milestones}")
+    return [] if updates <= min_updates else [int(m * updates) for m in milestones]
+
+
+def divide_rates_(optimizer: torch.optim.Optimizer, factor: float) -> None:
+    """Divide every group's learning rate by ``factor`` in place (on top of what the guard may have cut)."""
+    for group in optimizer.param_groups:
+        group["lr"] /= factor
