@@ -234,6 +234,25 @@ def test_smoke_runs_match_their_records(tmp_path):
                 and abs(ph["windy_late"] - ph["calm"]) <= 0.25 * d["target"] + 1e-9)
     assert drop == (recovers if all(blocks[k] > 0 for k in ("calm", "windy_early", "windy_late")) else None)
     assert {"headwind_speed.png", "speed_vs_wind.png"} <= set(hw["figures"])
+    # the authors' switching protocol: its own training (−15 N, 200 s period, their rates, ÷10 schedule), rows
+    # and claims read relative to its trained wind
+    au = d["variants"]["authors"]
+    assert au["wind_force"] == -15.0 and au["wind_period_s"] == 200.0 and au["lr_decay"] is True
+    assert au["lr"] == {"k": 1.0, "d": 0.1, "l": 0.01, "amplitude": 1e-5, "phase": 1e-4}
+    assert d["variants"]["paper"]["wind_force"] == -1.0 and d["variants"]["paper"]["lr"]["d"] == 0.01
+    aw = np.array(au["speed_vs_wind"]["F_wind"])
+    assert aw[0] == -30.0 and aw[-1] == 15.0 and np.any(np.isclose(aw, -15.0))
+    a_claims = hw["claims"][4:]
+    assert len(hw["claims"]) == 8 and all(c["claim"].startswith("[authors] ") for c in a_claims)
+    av = np.array([np.nan if u is None else u for u in au["speed_vs_wind"]["switching"]])
+    a_err = np.abs(av - au["target"]) / au["target"]
+    a_learned = all(a_err[np.isclose(aw, f)][0] <= 0.25 + 1e-9 for f in (0.0, -15.0))
+    a_far = (np.mean(np.nan_to_num(a_err[aw < -15], nan=np.inf)) > 0.5) if a_learned else None
+    assert a_claims[3]["claim"].startswith("[authors] the speed is far from the target when F_wind < −15")
+    assert a_claims[3]["holds"] == a_far
+    rows = {(r["system"], r["metric"]): r["ours"] for r in hw["rows"]}
+    assert rows[("authors: after switching training", "speed at F_wind = -15")] == pytest.approx(
+        av[np.isclose(aw, -15.0)][0], nan_ok=True)
 
 
 def test_agent_settings_pass_the_projection_to_the_training_and_keep_the_clamp_key():
