@@ -166,7 +166,13 @@ def test_a_diverged_window_raises_as_the_numba_path_does_and_keeps_the_state():
     assert messages[0] == messages[1]
 
 
-def test_unsupported_configs_fall_back_with_one_line(capsys):
+def test_unsupported_configs_fall_back_with_one_line(capsys, monkeypatch):
+    from bptsb_ros.body.msdn import MSDN
+
+    projections = []  # what the numba path projects with after each accepted update
+    project = MSDN.clamp_parameters_
+    monkeypatch.setattr(MSDN, "clamp_parameters_",
+                        lambda self, projection="clamp": (projections.append(projection), project(self, projection))[1])
     res = train(_cfg(training__backend="fused", training__optimizer="adam", sim_time=0.8), None, progress=False)
     lines = [line for line in capsys.readouterr().err.splitlines() if "training.backend fused" in line]
     assert lines == ["training.backend fused: it implements plain SGD, the optimiser is Adam; training on the numba "
@@ -177,6 +183,7 @@ def test_unsupported_configs_fall_back_with_one_line(capsys):
     assert lines == ["training.backend fused: the projection reset is not in the fused kernel (clamp only); training "
                      "on the numba path instead"]
     assert res.metrics["backend"] == "numba"
+    assert projections and set(projections[-res.metrics["updates"]:]) == {"reset"}
     loco = validate({"task": "locomotion", "body": {"shape": "caterpillar", "nodes": 10},
                      "training": {"update_steps": 200, "backend": "fused"}})
     _, task, opt = _build(loco)

@@ -35,7 +35,7 @@ Integrator = Literal["verlet", "published"]
 #: ops (the reference; also runs on a GPU). Both give the same trajectories and gradients to rounding.
 Backend = Literal["numba", "torch"]
 BACKENDS = ("numba", "torch")
-#: projections of k, d, l after a training update (:meth:`MassSpringDamperNetwork.clamp_parameters_`)
+#: projections of k, d, l after a training update (:meth:`MSDN.clamp_parameters_`)
 PROJECTIONS = ("clamp", "reset")
 #: what the ``reset`` projection sets a negative k [N/m], d [N s/m] or l [m] to (the authors' code)
 RESET_VALUE = 0.1
