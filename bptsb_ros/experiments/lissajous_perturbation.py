@@ -205,7 +205,8 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
     "lissajous-perturbation",
     paper_ref="Fig. 4(b,c); Methods 'Lissajous curve drawing task' (success E/E_orig < 2)",
     summary="displace the movable masses by N(0, σ²), σ = 0…1 step 0.1 × seeds, open loop (SWG) and closed loop "
-            "(FL), one batched run each; return rate vs σ",
+            "(FL), one batched run each; return rate vs σ; variants paper (a kick of the running cycle) and authors "
+            "(a restart from the displaced layout at t = 0)",
     durations={"smoke": "≈ 20 s", "short": "82–192 s measured (1,000 s training; 11 × 100 rows, 50 periods)",
                "paper": "91 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
                         "(2,000 s training; 11 × 100 rows, 300 periods)"},

@@ -129,7 +129,8 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     "locomotion-perturbation",
     paper_ref="Fig. 4(b), (c); Methods 'Locomotion task' (perturbation)",
     summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
-            "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded",
+            "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded; variants paper (positions "
+            "N(0, σ²)) and authors (positions N(0, (σP/8)²), velocities N(0, (σS)²))",
     durations={"smoke": "≈ 10 s", "short": "≈ 2 min after locomotion-closed-loop-20 (its agents reused)",
                "paper": "26 s measured 2026-11-27, 2 cores, lightly loaded (agents reused)"},
 )
