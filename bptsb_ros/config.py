@@ -95,6 +95,13 @@ class TrainingConfig(_Strict):
                              "reference; GPU) or fused (numba; an SWG training window, loss, gradients and "
                              "the SGD update as compiled calls without autograd: Lissajous, switching and "
                              "locomotion with SGD; anything else trains on numba)")
+    projection: Literal["clamp", "reset"] = Field(
+        "clamp", description="after each update, k, d, l below zero are clamped to 0 (clamp, the paper) or reset to "
+                             "0.1 (reset, the authors' published code); the fused backend has clamp only and trains "
+                             "on numba with reset")
+    lr_decay: bool = Field(
+        False, description="divide every learning rate by 10 at 80 % and again at 90 % of the updates when there are "
+                           "more than 1,000 (the authors' switching trainings)")
     reject_factor: float = Field(
         0.0, ge=0, description="the update guard's spike rule: reject (undo) an update whose loss exceeds factor × the "
                                "previous loss (the mean of the last 5 once there are 5); 0: off. Non-finite losses, "

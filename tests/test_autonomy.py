@@ -154,6 +154,39 @@ def test_lissajous_perturbation_smoke(tmp_path):
     testable = nmse["SWG (open loop)"] < 0.1 and nmse["FL (closed loop)"] < 0.1 and some_fail
     assert data["claims"][2]["holds"] == ((gap <= 0.2 + 1e-9) if testable else None)
     assert all((out / f).is_file() for f in data["figures"])
+    # the authors' restart trial: its own rows and claims, recomputed from its own errors
+    au = d["variants"]["authors"]
+    a_open, a_closed = (np.array(au[k], dtype=float) for k in ("errors_open", "errors_closed"))
+    assert a_open.shape == (11, seeds) and au["eval_windows"] == 3 and au["window_steps"] == 100
+    assert not np.allclose(a_open, e_open)  # a different trial, not a copy of the kick
+    all_rows = {(r["system"], r["metric"]): r["ours"] for r in data["rows"]}
+    a_rate = {}
+    for j, sigma in enumerate(np.arange(11) / 10):
+        for loop, e in (("SWG (open loop)", a_open), ("FL (closed loop)", a_closed)):
+            a_rate[loop, j] = np.mean([x == x and x < 2 * np.median(e[0]) for x in e[j]])
+            assert all_rows[(f"authors: {loop}, σ = {sigma:.1f}", "return rate")] == pytest.approx(a_rate[loop, j])
+    a_nmse = {loop: all_rows[(f"authors: {loop}", "unperturbed error / target mean square")]
+              for loop in ("SWG (open loop)", "FL (closed loop)")}
+    a_claims = data["claims"][3:]
+    assert len(a_claims) == 3 and all(c["claim"].startswith("[authors: ") for c in a_claims)
+    a_fail = min(a_rate.values()) < 1
+    a_testable = all(v < 0.1 for v in a_nmse.values()) and a_fail
+    a_gap = max(abs(a_rate["SWG (open loop)", j] - a_rate["FL (closed loop)", j]) for j in range(11))
+    assert a_claims[2]["holds"] == ((a_gap <= 0.2 + 1e-9) if a_testable else None)
+
+
+def test_authors_window_error_is_the_mean_training_loss_of_the_last_windows():
+    from bptsb_ros.experiments.lissajous_perturbation import window_errors
+
+    traj = np.zeros((7, 2, 2))  # steps 0..6, two rows; windows of 2 steps: (1, 2), (3, 4), (5, 6)
+    traj[1:, 0, 0] = [9.0, 9.0, 1.0, 3.0, 2.0, 0.0]  # row 0: x errors; windows' MSE (mean of x², y² = 0): 40.5, 2.5, 1
+    traj[1:, 1, 1] = [0.0, 0.0, 0.0, 0.0, 4.0, np.nan]
+    target = np.zeros((7, 2))
+    out = window_errors(traj, target, 2, 2)
+    assert out[0] == pytest.approx((2.5 + 1.0) / 2) and np.isnan(out[1])
+    assert window_errors(traj, target, 2, 1)[0] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="the run has 6 steps, fewer than 4 windows of 2"):
+        window_errors(traj, target, 2, 4)
 
 
 def _rows(data: dict) -> dict[tuple[str, str], float]:
@@ -308,3 +341,13 @@ def test_closed_loop_schemes_report_a_diverged_preliminary_training(tmp_path, mo
     # smoke scale without --workers: the one job ran in this process, and the provenance says so
     assert data["provenance"]["jobs"] == [{"what": "scheme_job", "scheduler": "this process", "workers": 1,
                                            "jobs": 1, "ran_in": 1}]
+
+
+def test_the_perturbation_experiments_declare_the_paper_and_the_authors_protocol():
+    from bptsb_ros.experiments.experiment_settings import resolve_settings
+
+    for scale in ("smoke", "paper"):  # as planted by hand from published-code-facts.md; a protocol, not a size
+        assert resolve_settings("lissajous-perturbation", scale).variants == {
+            "paper": {"restart": False, "eval_windows": 0}, "authors": {"restart": True, "eval_windows": 3}}
+        assert resolve_settings("locomotion-perturbation", scale).variants == {
+            "paper": {"authors_draw": False}, "authors": {"authors_draw": True}}

@@ -367,3 +367,22 @@ def test_locomotion_perturbation_claims():
     almost_ones = np.ones(11)
     almost_ones[10] = 0.9
     assert lp(np.ones(11), almost_ones) == [False, True, True]
+
+
+def test_locomotion_headwind_claims_read_the_sweep_relative_to_the_trained_wind():
+    """The authors' −15 N protocol: the same rules with F scaled by 15 (trained 0 and −15, unlearned (−15, 15))."""
+    winds = HW_WINDS * 15
+    v = np.where(winds < -15, 0.2, 1.0)
+    phases = {"calm": 1.0, "windy_early": 0.8, "windy_late": 1.0}
+    blocks = dict(zip(hw.PHASES, (5, 5, 5), strict=True))
+    out = hw.claims(hw.HeadwindNumbers(1.0, phases, blocks, winds, v, -15.0))
+    assert verdicts(out) == [True, True, True, True]
+    assert "F = −15" in out[0].claim and "−15 < F_wind < 15" in out[2].claim and "F_wind < −15" in out[3].claim
+    v2 = v.copy()
+    v2[np.isclose(winds, -15.0)] = 2.0  # the trained −15 N missed: the sweep claims lose their premise
+    assert verdicts(hw.claims(hw.HeadwindNumbers(1.0, phases, blocks, winds, v2, -15.0)))[2:] == [None, None]
+    v3 = v.copy()
+    v3[np.isclose(winds, -7.5)] = 1.51  # an unlearned wind inside (−15, 15) too far
+    assert verdicts(hw.claims(hw.HeadwindNumbers(1.0, phases, blocks, winds, v3, -15.0)))[2] is False
+    with pytest.raises(ValueError, match="the trained headwind must be < 0 N, got 1.0"):
+        hw.claims(hw.HeadwindNumbers(1.0, phases, blocks, winds, v, 1.0))

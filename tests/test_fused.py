@@ -166,12 +166,24 @@ def test_a_diverged_window_raises_as_the_numba_path_does_and_keeps_the_state():
     assert messages[0] == messages[1]
 
 
-def test_unsupported_configs_fall_back_with_one_line(capsys):
+def test_unsupported_configs_fall_back_with_one_line(capsys, monkeypatch):
+    from bptsb_ros.body.msdn import MSDN
+
+    projections = []  # what the numba path projects with after each accepted update
+    project = MSDN.clamp_parameters_
+    monkeypatch.setattr(MSDN, "clamp_parameters_",
+                        lambda self, projection="clamp": (projections.append(projection), project(self, projection))[1])
     res = train(_cfg(training__backend="fused", training__optimizer="adam", sim_time=0.8), None, progress=False)
     lines = [line for line in capsys.readouterr().err.splitlines() if "training.backend fused" in line]
     assert lines == ["training.backend fused: it implements plain SGD, the optimiser is Adam; training on the numba "
                      "path instead"]
     assert res.metrics["backend"] == "numba" and "Adam" in res.metrics["backend_fallback"]
+    res = train(_cfg(training__backend="fused", training__projection="reset", sim_time=0.8), None, progress=False)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "training.backend fused" in line]
+    assert lines == ["training.backend fused: the projection reset is not in the fused kernel (clamp only); training "
+                     "on the numba path instead"]
+    assert res.metrics["backend"] == "numba"
+    assert projections and set(projections[-res.metrics["updates"]:]) == {"reset"}
     loco = validate({"task": "locomotion", "body": {"shape": "caterpillar", "nodes": 10},
                      "training": {"update_steps": 200, "backend": "fused"}})
     _, task, opt = _build(loco)
@@ -367,3 +379,15 @@ def test_switching_training_gives_the_numba_paths_losses_and_parameters(publishe
         assert float((p - q).abs().max()) <= 1e-10 * max(1.0, float(q.abs().max())), name
     assert res.state.step == ref.state.step == 400
     assert torch.allclose(res.state.r, ref.state.r, rtol=0, atol=1e-10)
+
+
+def test_lr_decay_divides_every_rate_by_100_after_90_percent_of_more_than_1000_updates(tmp_path):
+    from bptsb_ros.training.checkpoint import read_checkpoint
+
+    n = 1001  # the schedule applies only above 1,000 updates (its boundary: step_decay_updates' own test)
+    cfg = _cfg(training__update_steps=1, training__lr_decay=True, sim_time=n * _cfg().body.dt)
+    res = train(cfg, tmp_path, progress=False)
+    assert res.metrics["updates"] == n
+    rates = {g["name"]: g["lr"] for g in read_checkpoint(tmp_path)["extra"]["optimizer"]["param_groups"]}
+    base = {"k": 1e4, "d": 1e3, "l": 1e1, "amplitude": 1e1, "phase": 1e2}  # LearningRates' defaults
+    assert rates == pytest.approx({k: v / 100 for k, v in base.items()}, rel=1e-12)

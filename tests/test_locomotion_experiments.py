@@ -101,6 +101,29 @@ def test_perturbation_shifts_by_seeded_noise(walker):
     assert not torch.allclose(out.r[1], out.r[2])
 
 
+def test_authors_draw_scales_positions_by_extent_over_8_and_velocities_by_their_x_range(walker):
+    agent, state = walker
+    r = state.r.clone()
+    v = state.v.clone()
+    r[0, :, 0] = torch.tensor([0.1, -0.2, 0.3, 1.4, 0.0, 0.5, 0.6, 0.7, 0.8, 0.9], dtype=r.dtype)  # P = 1.6 m
+    v[0, :, 0] = torch.tensor([0.0, 0.1, -0.5, 0.2, 0.7, 0.3, 0.1, 0.0, 0.2, 0.4], dtype=v.dtype)  # S = 1.2 m/s
+    v[0, :, 1] = 5.0  # the y-velocities do not enter S
+    planted = type(state)(r, v, state.a, state.length, state.step)
+    rest = agent.body.l.detach()
+    sig = torch.tensor([0.0, 0.5, 1.0])
+    out = perturbed(agent, planted, sig, torch.tensor([7, 8, 9]), rest, draw="authors")
+    for b, (s, seed) in enumerate(((0.0, 7), (0.5, 8), (1.0, 9))):
+        gen = torch.Generator().manual_seed(seed)
+        n_r = torch.randn(10, 2, generator=gen, dtype=torch.float64)
+        n_v = torch.randn(10, 2, generator=gen, dtype=torch.float64)
+        np.testing.assert_allclose(out.r[b].double(), r[0].double() + s * 1.6 / 8 * n_r, atol=1e-6)
+        np.testing.assert_allclose(out.v[b].double(), v[0].double() + s * 1.2 * n_v, atol=1e-6)
+    lit = perturbed(agent, planted, sig, torch.tensor([7, 8, 9]), rest)  # the paper's draw: positions only, σ [m]
+    torch.testing.assert_close(lit.v[2], v[0])
+    with pytest.raises(ValueError, match="perturbation draw must be one of position, authors, got 'kick'"):
+        perturbed(agent, planted, sig, torch.tensor([7, 8, 9]), rest, draw="kick")
+
+
 def test_handover_blends_swg_into_fl(walker):
     agent, state = walker
     body, swg, fl = agent.body, agent.brain, agent.feedback
@@ -177,6 +200,20 @@ def test_smoke_runs_match_their_records(tmp_path):
     some_fail = min(mean["open"].min(), mean["closed"].min()) < 1
     same_testable = moves and not d["fallback_best_agent"] and some_fail
     assert holds[2] == ((np.abs(mean["open"] - mean["closed"]).mean() <= 0.15 + 1e-9) if same_testable else None)
+    # the authors' draw: its own rows and claims, recomputed from its own rates; the paper's variant is the first
+    assert d["variants"]["paper"]["return_rate_mean"] == d["return_rate_mean"]
+    au = d["variants"]["authors"]
+    assert au["draw"] == "authors" and len(pe["claims"]) == 6
+    assert all(c["claim"].startswith("[authors: ") for c in pe["claims"][3:])
+    am = {k: np.array(v) for k, v in au["return_rate_mean"].items()}
+    rows = {(r["system"], r["metric"]): r["ours"] for r in pe["rows"]}
+    assert rows[("authors: SWG (open loop)", "return rate at σ = 0.5")] == pytest.approx(am["open"][5])
+    assert rows[("SWG (open loop)", "return rate at σ = 0.5 m")] == pytest.approx(mean["open"][5])
+    a_moves = all(v > 0 for v in au["open_speed_before"])
+    assert pe["claims"][3]["holds"] == ((am["open"][sig >= 0.6].mean() < am["open"][sig <= 0.4].mean())
+                                        if a_moves else None)
+    a_same = a_moves and not d["fallback_best_agent"] and min(am["open"].min(), am["closed"].min()) < 1
+    assert pe["claims"][5]["holds"] == ((np.abs(am["open"] - am["closed"]).mean() <= 0.15 + 1e-9) if a_same else None)
 
     _, hw = run_experiment("locomotion-headwind", scale="smoke", out_dir=tmp_path / "hw", progress=False,
                            workers=0, log=lambda m: None)
@@ -197,3 +234,39 @@ def test_smoke_runs_match_their_records(tmp_path):
                 and abs(ph["windy_late"] - ph["calm"]) <= 0.25 * d["target"] + 1e-9)
     assert drop == (recovers if all(blocks[k] > 0 for k in ("calm", "windy_early", "windy_late")) else None)
     assert {"headwind_speed.png", "speed_vs_wind.png"} <= set(hw["figures"])
+    # the authors' switching protocol: its own training (−15 N, 200 s period, their rates, ÷10 schedule), rows
+    # and claims read relative to its trained wind
+    au = d["variants"]["authors"]
+    assert au["wind_force"] == -15.0 and au["wind_period_s"] == 200.0 and au["lr_decay"] is True
+    assert au["lr"] == {"k": 1.0, "d": 0.1, "l": 0.01, "amplitude": 1e-5, "phase": 1e-4}
+    assert d["variants"]["paper"]["wind_force"] == -1.0 and d["variants"]["paper"]["lr"]["d"] == 0.01
+    aw = np.array(au["speed_vs_wind"]["F_wind"])
+    assert aw[0] == -30.0 and aw[-1] == 15.0 and np.any(np.isclose(aw, -15.0))
+    a_claims = hw["claims"][4:]
+    assert len(hw["claims"]) == 8 and all(c["claim"].startswith("[authors] ") for c in a_claims)
+    av = np.array([np.nan if u is None else u for u in au["speed_vs_wind"]["switching"]])
+    a_err = np.abs(av - au["target"]) / au["target"]
+    a_learned = all(a_err[np.isclose(aw, f)][0] <= 0.25 + 1e-9 for f in (0.0, -15.0))
+    a_far = (np.mean(np.nan_to_num(a_err[aw < -15], nan=np.inf)) > 0.5) if a_learned else None
+    assert a_claims[3]["claim"].startswith("[authors] the speed is far from the target when F_wind < −15")
+    assert a_claims[3]["holds"] == a_far
+    rows = {(r["system"], r["metric"]): r["ours"] for r in hw["rows"]}
+    assert rows[("authors: after switching training", "speed at F_wind = -15")] == pytest.approx(
+        av[np.isclose(aw, -15.0)][0], nan_ok=True)
+
+
+def test_agent_settings_pass_the_projection_to_the_training_and_keep_the_clamp_key():
+    import hashlib
+
+    from bptsb_ros.experiments.locomotion_common import AgentSettings
+
+    clamp, reset = AgentSettings(sim_time=4), AgentSettings(sim_time=4, projection="reset")
+    old = {"sim_time": 4, "warmup_windows": 100, "fit_time": 100.0, "eval_time": 100.0, "handover_time": 5.0,
+           "gait_time": 2.0}  # the fields before the option existed: their agents keep their key
+    assert clamp.key() == hashlib.sha1(json.dumps(old, sort_keys=True).encode()).hexdigest()[:8]
+    assert reset.key() != clamp.key()
+    assert "training.projection=reset" in reset.overrides()
+    cfg = packaged_config("locomotion_forward", reset.overrides(), seed=0)
+    assert cfg.training.projection == "reset"
+    with pytest.raises(ValueError, match="projection must be one of clamp, reset, got 'zero'"):
+        AgentSettings(sim_time=4, projection="zero")

@@ -180,6 +180,25 @@ def test_clamp_parameters_keeps_k_d_l_non_negative() -> None:
     assert all(getattr(body, n).requires_grad for n in ("k", "d", "l"))
 
 
+def test_reset_projection_sets_negative_k_d_l_to_0_1_and_keeps_the_rest() -> None:
+    body = make_body()
+    planted = {"k": [-2.0, 0.0, 3.5, -1e-9], "d": [0.2, -0.3, float("nan"), 1.0], "l": [-5.0, 0.7, 0.05, 2.0]}
+    expected = {"clamp": {"k": [0.0, 0.0, 3.5, 0.0], "d": [0.2, 0.0, float("nan"), 1.0], "l": [0.0, 0.7, 0.05, 2.0]},
+                "reset": {"k": [0.1, 0.0, 3.5, 0.1], "d": [0.2, 0.1, float("nan"), 1.0], "l": [0.1, 0.7, 0.05, 2.0]}}
+    for projection, want in expected.items():
+        with torch.no_grad():
+            for name, vals in planted.items():
+                getattr(body, name)[:4] = torch.tensor(vals, dtype=body.k.dtype)
+                getattr(body, name)[4:] = 1.25
+        body.clamp_parameters_(projection)
+        for name, vals in want.items():
+            got = getattr(body, name).detach()
+            torch.testing.assert_close(got[:4], torch.tensor(vals, dtype=got.dtype), equal_nan=True, rtol=0, atol=0)
+            assert bool((got[4:] == 1.25).all()), (projection, name)
+    with pytest.raises(ValueError, match="projection must be one of clamp, reset, got 'zero'"):
+        body.clamp_parameters_("zero")
+
+
 def reference_force(body: MSDN, r: torch.Tensor, v: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
     """Eq. (1) summed spring by spring over all masses (fixed ones at their layout), plus the environment."""
     topo = body.topology

@@ -35,6 +35,10 @@ Integrator = Literal["verlet", "published"]
 #: ops (the reference; also runs on a GPU). Both give the same trajectories and gradients to rounding.
 Backend = Literal["numba", "torch"]
 BACKENDS = ("numba", "torch")
+#: projections of k, d, l after a training update (:meth:`MSDN.clamp_parameters_`)
+PROJECTIONS = ("clamp", "reset")
+#: what the ``reset`` projection sets a negative k [N/m], d [N s/m] or l [m] to (the authors' code)
+RESET_VALUE = 0.1
 
 
 class SimulationDiverged(RuntimeError):
@@ -165,11 +169,19 @@ class MSDN(nn.Module):
         full[:, self.movable_index] = r
         return full
 
-    def clamp_parameters_(self) -> None:
-        """Project k, d, l onto [0, ∞) (the paper: parameters never go below zero)."""
+    def clamp_parameters_(self, projection: str = "clamp") -> None:
+        """Project k, d, l after an update, in place (NaN kept).
+
+        ``clamp``: onto [0, ∞) (the paper: parameters never go below zero); ``reset``: a negative entry is set to
+        :data:`RESET_VALUE` (the authors' published code)."""
+        if projection not in PROJECTIONS:
+            raise ValueError(f"projection must be one of {', '.join(PROJECTIONS)}, got {projection!r}")
         with torch.no_grad():
             for p in (self.k, self.d, self.l):
-                p.clamp_(min=0.0)
+                if projection == "clamp":
+                    p.clamp_(min=0.0)
+                else:
+                    p.masked_fill_(p < 0, RESET_VALUE)
 
     # -- dynamics ---------------------------------------------------------------------------------
     def acceleration(

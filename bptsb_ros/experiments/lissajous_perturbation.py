@@ -16,6 +16,12 @@ the last ``eval_periods`` periods). Success (Methods): E / E_orig < 2. E_orig is
   reported beside the primary one.
 
 A row that blows up counts as not returned. The claims and their premises: :func:`claims`.
+
+Two trials run side by side (the settings file's ``variants``), each with its own rows and claims: ``paper``
+(the kick above) and ``authors`` (their published code, :func:`restart_errors`): every row restarts the trained
+agent from its initial layout plus the same N(0, σ²) displacement, at rest, with the clock at t = 0; its error is
+the mean of the training-window MSEs to the target (the training loss) over the last ``eval_windows`` windows of
+the run, and it returns when that is < 2 × the same loop's unperturbed (σ = 0) error.
 """
 
 from __future__ import annotations
@@ -37,6 +43,8 @@ from bptsb_ros.tasks.lissajous_switching import CURVE_1
 SIGMAS = np.round(np.arange(0.0, 1.0001, 0.1), 10)
 #: the open and the closed loop count as "almost the same" when their rates differ by at most this at every σ
 SAME_RATE = 0.2
+#: each trial in words (claims of a variant after the first are prefixed with it); key: a restart trial
+TRIAL_TEXT = {False: "a kick of the running cycle", True: "restarts from the displaced layout at rest, t = 0"}
 #: Pearson r(σ, rate) below which a loop's return rate counts as "tending to decrease" with σ
 FALL_R = -0.5
 
@@ -147,6 +155,43 @@ def perturbation_errors(trained: TrainedAgent, seeds: int, *, settle: int, run: 
     return out
 
 
+def window_errors(traj: np.ndarray, target: np.ndarray, window: int, last: int) -> np.ndarray:
+    """(T+1, B, 2) CMP trajectory from step 0 and its (T+1, 2) target → (B,) mean over the last ``last`` windows of
+    ``window`` steps (of steps 1..T) of each window's MSE to the target (mean over the steps and both coordinates,
+    the training loss) [m²]; NaN for a row with a NaN in those windows. T must hold ``last`` windows."""
+    n = last * window
+    if traj.shape[0] - 1 < n:
+        raise ValueError(f"the run has {traj.shape[0] - 1} steps, fewer than {last} windows of {window}")
+    sq = (traj[-n:] - target[-n:, None, :]) ** 2  # (n, B, 2)
+    per_window = sq.reshape(last, window, *sq.shape[1:]).mean(axis=(1, 3))  # (last, B)
+    return per_window.mean(0)
+
+
+def restart_errors(trained: TrainedAgent, seeds: int, *, run: int, window: int, eval_windows: int,
+                   sigmas: np.ndarray = SIGMAS) -> dict[str, object]:
+    """The authors' trial: every row starts from the layout + σ·z (seed pattern z), at rest, at step 0, and runs
+    ``run`` periods open loop (the SWG from t = 0) or closed loop (the FL from the displaced layout). Errors
+    (len(sigmas)·seeds,) of each loop by :func:`window_errors`, NaN for a diverged row."""
+    agent, body = trained.agent, trained.agent.body
+    disp = perturbation_batch(body.n_movable, seeds, sigmas, body.l.dtype)
+    batch, steps = disp.shape[0], run * trained.period
+    t = np.arange(steps + 1) * body.dt
+    target = CURVE_1.target(t, trained.amplitude, trained.omega)
+    rest0 = agent.brain.rest_length_at_steps(body.l, [0], body.dt)[0]
+    pop = run_population(body, steps, body.initial_state(batch, rest_length=rest0, displacement=disp),
+                         swg=agent.brain)
+    fb = agent.feedback
+    rest_c = fb.rest_length(body.l, body.initial_state(batch, displacement=disp))
+    popc = run_population(body, steps, body.initial_state(batch, rest_length=rest_c, displacement=disp),
+                          feedback=fb)
+    out: dict[str, object] = {"batch": batch, "steps": steps}
+    for name, p in (("open", pop), ("closed", popc)):
+        e = window_errors(p.tracked[:, :, 0].double().numpy(), target, window, eval_windows)
+        e[p.diverged.numpy()] = np.nan
+        out[name], out[f"{name}_diverged"] = e, p.diverged.numpy()
+    return out
+
+
 def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float, trained: TrainedAgent,
             target_fn) -> np.ndarray:
     """(T+1, B, 2) CMP trajectory from step k0 → (B,) error over its last eval_periods periods."""
@@ -160,21 +205,39 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
     "lissajous-perturbation",
     paper_ref="Fig. 4(b,c); Methods 'Lissajous curve drawing task' (success E/E_orig < 2)",
     summary="displace the movable masses by N(0, σ²), σ = 0…1 step 0.1 × seeds, open loop (SWG) and closed loop "
-            "(FL), one batched run each; return rate vs σ",
+            "(FL), one batched run each; return rate vs σ; variants paper (a kick of the running cycle) and authors "
+            "(a restart from the displaced layout at t = 0)",
     durations={"smoke": "≈ 20 s", "short": "82–192 s measured (1,000 s training; 11 × 100 rows, 50 periods)",
                "paper": "91 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
                         "(2,000 s training; 11 × 100 rows, 300 periods)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:
-    sim_time, seeds, run_periods = ctx.settings["sim_time"], ctx.settings["n_seeds"], ctx.settings["run_periods"]
-    eval_periods, settle = ctx.settings["eval_periods"], ctx.settings["settle_periods"]
+    sim_time = ctx.settings["sim_time"]
     ctx.log(f"lissajous-perturbation: training the single-curve agent ({sim_time} s, seed {ctx.seed})")
     trained = train_single_curve(ctx.out_dir / "agent", sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
                                  fit_time=ctx.settings["fit_time"])
-    ctx.log(f"lissajous-perturbation: {len(SIGMAS)} σ × {seeds} seeds, {run_periods} periods, open and closed loop")
-    res = perturbation_errors(trained, seeds, settle=settle, run=run_periods, eval_periods=eval_periods)
+    variants = ctx.settings.variants or {"paper": {"restart": False, "eval_windows": 0}}
+    target_ms = float(trained.metrics["evaluation"]["target_mean_square"])
+    for vi, (name, variant) in enumerate(variants.items()):
+        values = {**ctx.settings, **variant}
+        if variant["restart"] and variant["eval_windows"] < 1:
+            raise ValueError(f"lissajous-perturbation: variant {name} restarts its trials but compares "
+                             f"{variant['eval_windows']} windows (eval_windows must be ≥ 1)")
+        trial = _restart_variant if variant["restart"] else _kick_variant
+        trial(ctx, trained, name, TRIAL_TEXT[trial is _restart_variant], values, target_ms, first=vi == 0)
+
+
+def _kick_variant(ctx: Context, trained: TrainedAgent, name: str, help_text: str, values, target_ms: float, *,
+                  first: bool) -> None:
+    """Rows, claims, figure and details of the paper's trial: a kick of the running cycle
+    (:func:`perturbation_errors`)."""
+    sim_time, seeds, run_periods = values["sim_time"], values["n_seeds"], values["run_periods"]
+    eval_periods, settle = values["eval_periods"], values["settle_periods"]
     n_s = len(SIGMAS)
+    tag, label = ("", "") if first else (f"{name}: ", f"[{name}: {help_text}] ")
+    ctx.log(f"lissajous-perturbation: {n_s} σ × {seeds} seeds, {run_periods} periods, open and closed loop (kick)")
+    res = perturbation_errors(trained, seeds, settle=settle, run=run_periods, eval_periods=eval_periods)
     e_open = np.asarray(res["open"]).reshape(n_s, seeds)
     e_closed = np.asarray(res["closed"]).reshape(n_s, seeds)
     e_open_orig = float(np.median(e_open[0]))  # σ = 0: every row is the unperturbed run
@@ -183,21 +246,21 @@ def run(ctx: Context) -> None:
     rate_closed = returned(e_closed, e_closed_orig).mean(1)
     rate_literal = returned(e_closed, e_open_orig).mean(1)
     for s, ro, rc, rl in zip(SIGMAS, rate_open, rate_closed, rate_literal, strict=True):
-        ctx.row(f"SWG (open loop), σ = {s:.1f}", "return rate", "1", ro)
-        ctx.row(f"FL (closed loop), σ = {s:.1f}", "return rate", "1", rc)
-        ctx.row(f"FL, E_orig = SWG error (literal), σ = {s:.1f}", "return rate", "1", rl)
-    ctx.row("SWG (open loop)", "unperturbed error E_orig", "m²", e_open_orig)
-    ctx.row("FL (closed loop)", "unperturbed error E_orig", "m²", e_closed_orig)
+        ctx.row(f"{tag}SWG (open loop), σ = {s:.1f}", "return rate", "1", ro)
+        ctx.row(f"{tag}FL (closed loop), σ = {s:.1f}", "return rate", "1", rc)
+        ctx.row(f"{tag}FL, E_orig = SWG error (literal), σ = {s:.1f}", "return rate", "1", rl)
+    ctx.row(f"{tag}SWG (open loop)", "unperturbed error E_orig", "m²", e_open_orig)
+    ctx.row(f"{tag}FL (closed loop)", "unperturbed error E_orig", "m²", e_closed_orig)
     rows = res["batch"]
     steps = res["steps"]
     for name in ("open", "closed"):
         wall = float(res[f"{name}_wall_s"])
-        ctx.row(f"{'SWG' if name == 'open' else 'FL'} batched sweep", "rollouts per second", "1/s", rows / wall)
-    target_ms = float(trained.metrics["evaluation"]["target_mean_square"])
-    ctx.row("SWG (open loop)", "unperturbed error / target mean square", "1", e_open_orig / target_ms)
-    ctx.row("FL (closed loop)", "unperturbed error / target mean square", "1", e_closed_orig / target_ms)
-    ctx.result.claims.extend(claims(PerturbationNumbers(SIGMAS, rate_open, rate_closed, e_open_orig / target_ms,
-                                                        e_closed_orig / target_ms, float(rate_literal[0]))))
+        ctx.row(f"{tag}{'SWG' if name == 'open' else 'FL'} batched sweep", "rollouts per second", "1/s", rows / wall)
+    ctx.row(f"{tag}SWG (open loop)", "unperturbed error / target mean square", "1", e_open_orig / target_ms)
+    ctx.row(f"{tag}FL (closed loop)", "unperturbed error / target mean square", "1", e_closed_orig / target_ms)
+    for c in claims(PerturbationNumbers(SIGMAS, rate_open, rate_closed, e_open_orig / target_ms,
+                                        e_closed_orig / target_ms, float(rate_literal[0]))):
+        ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
     from bptsb_ros.analysis.autonomy_plots import plot_perturbation
 
     path = plot_perturbation(ctx.out_dir / "perturbation.png", SIGMAS, {
@@ -208,7 +271,7 @@ def run(ctx: Context) -> None:
                                                                                           trained.omega),
         seeds=seeds, period=trained.period)
     ctx.figure(path)
-    ctx.result.details = {
+    ctx.result.details.update({
         "seed": ctx.seed, "training_sim_time_s": sim_time, "seeds_per_sigma": seeds, "sigmas": SIGMAS,
         "run_periods_after_perturbation": run_periods, "eval_periods": eval_periods, "closed_settle_periods": settle,
         "success_criterion": f"E / E_orig < {RETURN_RATIO}",
@@ -218,7 +281,7 @@ def run(ctx: Context) -> None:
         "wall_s": {"open": res["open_wall_s"], "closed": res["closed_wall_s"]},
         "body_steps_per_second": {k: rows * steps / float(res[f"{k}_wall_s"]) for k in ("open", "closed")},
         "training_loss_last": trained.metrics["loss"][-1],
-    }
+    })
     notes = []
     if rate_open.min() == 1.0:
         notes.append("The open loop returned from every perturbation: a damped body driven by a fixed periodic "
@@ -229,3 +292,35 @@ def run(ctx: Context) -> None:
                      f"already fails (its error is {e_closed_orig / e_open_orig:.2f}× the SWG's, ≥ 2), hence the "
                      "primary reading E_orig = the same loop unperturbed.")
     ctx.result.details["notes"] = " ".join(notes)
+
+
+def _restart_variant(ctx: Context, trained: TrainedAgent, name: str, help_text: str, values, target_ms: float, *,
+                     first: bool) -> None:
+    """Rows, claims and details of the authors' restart trial (:func:`restart_errors`)."""
+    seeds, n_s = values["n_seeds"], len(SIGMAS)
+    window = int(trained.agent.config["training"]["update_steps"])
+    tag, label = ("", "") if first else (f"{name}: ", f"[{name}: {help_text}] ")
+    ctx.log(f"lissajous-perturbation: {n_s} σ × {seeds} seeds restarted from the layout at t = 0, "
+            f"{values['run_periods']} periods (the authors' trial)")
+    res = restart_errors(trained, seeds, run=values["run_periods"], window=window,
+                         eval_windows=values["eval_windows"])
+    e_open = np.asarray(res["open"]).reshape(n_s, seeds)
+    e_closed = np.asarray(res["closed"]).reshape(n_s, seeds)
+    orig = {"open": float(np.median(e_open[0])), "closed": float(np.median(e_closed[0]))}  # σ = 0: unperturbed
+    rate_open, rate_closed = returned(e_open, orig["open"]).mean(1), returned(e_closed, orig["closed"]).mean(1)
+    for s, ro, rc in zip(SIGMAS, rate_open, rate_closed, strict=True):
+        ctx.row(f"{tag}SWG (open loop), σ = {s:.1f}", "return rate", "1", ro)
+        ctx.row(f"{tag}FL (closed loop), σ = {s:.1f}", "return rate", "1", rc)
+    for loop, loop_name in (("open", "SWG (open loop)"), ("closed", "FL (closed loop)")):
+        ctx.row(f"{tag}{loop_name}", "unperturbed error E_orig", "m²", orig[loop])
+        ctx.row(f"{tag}{loop_name}", "unperturbed error / target mean square", "1", orig[loop] / target_ms)
+    for c in claims(PerturbationNumbers(SIGMAS, rate_open, rate_closed, orig["open"] / target_ms,
+                                        orig["closed"] / target_ms)):
+        ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+    ctx.result.details.setdefault("variants", {})[name] = {
+        "help": help_text, "trial": "restart", "window_steps": window, "eval_windows": values["eval_windows"],
+        "run_periods": values["run_periods"], "errors_open": e_open, "errors_closed": e_closed,
+        "unperturbed_error": orig, "rate_open": rate_open, "rate_closed": rate_closed,
+        "success_criterion": f"mean error of the last {values['eval_windows']} windows < {RETURN_RATIO} × the same "
+                             "loop's unperturbed one",
+        "diverged_open": int(np.sum(res["open_diverged"])), "diverged_closed": int(np.sum(res["closed_diverged"]))}

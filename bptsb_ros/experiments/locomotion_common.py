@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from bptsb_ros.agent import Agent
-from bptsb_ros.body.msdn import BodyState
+from bptsb_ros.body.msdn import PROJECTIONS, BodyState
 from bptsb_ros.brains import FeedbackLayer, SineWaveGenerator
 from bptsb_ros.config import FeedbackConfig
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
@@ -42,7 +42,9 @@ class AgentSettings:
     sim_time: training [s] (paper 1000); warmup_windows: untrained 200-step windows first (paper 100);
     fit_time: open-loop run for the FL fit [s] (paper 100, its middle 60 % used); eval_time: open- and
     closed-loop runs whose speeds are compared [s] (the original closed-loop config: 100);
-    handover_time: the transition variant's blend from SWG to FL [s]; gait_time: stored gait [s].
+    handover_time: the transition variant's blend from SWG to FL [s]; gait_time: stored gait [s]; projection: what
+    the training does with a k, d or l below zero after an update (``training.projection``: clamp to 0, the paper;
+    reset to 0.1, the authors' code).
     """
 
     sim_time: float
@@ -51,14 +53,25 @@ class AgentSettings:
     eval_time: float = 100.0
     handover_time: float = 5.0
     gait_time: float = 2.0
+    projection: str = "clamp"
+
+    def __post_init__(self) -> None:
+        if self.projection not in PROJECTIONS:
+            raise ValueError(f"locomotion agents: projection must be one of {', '.join(PROJECTIONS)}, got "
+                             f"{self.projection!r}")
 
     def overrides(self) -> list[str]:
         return [f"sim_time={self.sim_time}", f"locomotion.warmup_windows={self.warmup_windows}",
-                f"feedback.fit_time={self.fit_time}", f"locomotion.eval_time={self.eval_time}"]
+                f"feedback.fit_time={self.fit_time}", f"locomotion.eval_time={self.eval_time}",
+                f"training.projection={self.projection}"]
 
     def key(self) -> str:
-        """Short stable name of these settings (agents of equal settings are shared between experiments)."""
-        text = json.dumps(asdict(self), sort_keys=True)
+        """Short stable name of these settings (agents of equal settings are shared between experiments); the
+        default projection (clamp) is left out of it, so agents trained before the option existed keep their key."""
+        fields_ = asdict(self)
+        if fields_["projection"] == "clamp":
+            del fields_["projection"]
+        text = json.dumps(fields_, sort_keys=True)
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
 
@@ -242,18 +255,42 @@ def late_speed(x: np.ndarray, dt: float) -> np.ndarray:
         return (x[-1] - x[-1 - half]) / (half * dt)
 
 
-def perturbed(agent: Agent, state: BodyState, sigma: torch.Tensor, seeds: torch.Tensor,
-              rest_length: torch.Tensor) -> BodyState:
-    """Copies of a batch-1 ``state``, the positions of every movable mass shifted by N(0, σ²) noise [m].
+#: the perturbation draws of locomotion-perturbation (:func:`perturbed`)
+DRAWS = ("position", "authors")
 
+
+def authors_scales(state: BodyState) -> tuple[torch.Tensor, torch.Tensor]:
+    """(P, S) of the authors' draw for each member of ``state``: P [m] = the body's x-extent (max − min of the
+    masses' x), S [m/s] = the range of their x-velocities at that moment; each (B,)."""
+    x, vx = state.r[..., 0], state.v[..., 0]
+    return x.amax(-1) - x.amin(-1), vx.amax(-1) - vx.amin(-1)
+
+
+def perturbed(agent: Agent, state: BodyState, sigma: torch.Tensor, seeds: torch.Tensor,
+              rest_length: torch.Tensor, draw: str = "position") -> BodyState:
+    """Copies of a batch-1 ``state``, perturbed by seeded Gaussian noise.
+
+    ``draw``: ``position`` (the paper's text) shifts every movable mass's position by N(0, σ²) [m] per coordinate,
+    velocities kept; ``authors`` (their published code) shifts the positions by N(0, (σ·P/8)²) and the velocities
+    by N(0, (σ·S)²) per coordinate, P and S from :func:`authors_scales` of ``state`` (σ dimensionless then).
     sigma, seeds: (B,); member b's noise comes from a generator seeded with seeds[b] (reproducible member by
-    member). Accelerations and spring lengths are recomputed at the shifted positions under ``rest_length``.
+    member; the position noise is its first M × 2 normals, the velocity noise the next M × 2). Accelerations and
+    spring lengths are recomputed at the new state under ``rest_length``.
     """
+    if draw not in DRAWS:
+        raise ValueError(f"perturbation draw must be one of {', '.join(DRAWS)}, got {draw!r}")
     body = agent.body
     m = body.n_movable
-    noise = torch.stack([torch.randn(m, 2, generator=torch.Generator().manual_seed(int(s)), dtype=torch.float64)
-                         for s in seeds.tolist()]).to(body.l.dtype)
-    r = state.r.expand(len(seeds), m, 2) + sigma.to(body.l.dtype)[:, None, None] * noise
-    v = state.v.expand_as(r).clone()
+    gens = [torch.Generator().manual_seed(int(s)) for s in seeds.tolist()]
+    noise = torch.stack([torch.randn(m, 2, generator=g, dtype=torch.float64) for g in gens]).to(body.l.dtype)
+    sig = sigma.to(body.l.dtype)[:, None, None]
+    v = state.v.expand(len(seeds), m, 2).clone()
+    if draw == "position":
+        r = state.r.expand(len(seeds), m, 2) + sig * noise
+    else:
+        p_extent, s_range = (t.to(body.l.dtype) for t in authors_scales(state))
+        v_noise = torch.stack([torch.randn(m, 2, generator=g, dtype=torch.float64) for g in gens]).to(body.l.dtype)
+        r = state.r.expand(len(seeds), m, 2) + sig * p_extent / 8 * noise
+        v = v + sig * s_range * v_noise
     a, length = body.acceleration(r, v, rest_length, None)
     return BodyState(r, v, a, length, state.step)

@@ -7,6 +7,11 @@ is reused when it exists beside this run, trained otherwise).
 Per agent and loop type the 11 × 100 perturbed copies are ONE batched simulation. Speed before: the last half
 of a ``before`` run of the loop; speed after: the last half of the ``after`` run that starts at the perturbation
 (time to regain speed, as the paper's successful cases "gradually regained their speed"). Claims: :func:`claims`.
+
+Two perturbation protocols run side by side (the settings file's ``variants``), each with its own rows and
+claims: ``paper`` (the text: positions shifted by N(0, σ²) [m]) and ``authors`` (their published code: positions
+by N(0, (σ·P/8)²), velocities by N(0, (σ·S)²), P the body's x-extent, S the range of its x-velocities at that
+moment; σ dimensionless). See :func:`bptsb_ros.experiments.locomotion_common.perturbed`.
 """
 
 from __future__ import annotations
@@ -32,6 +37,9 @@ from bptsb_ros.experiments.result import Claim
 SIGMAS = tuple(round(0.1 * i, 1) for i in range(11))
 #: |open − closed| return rate, averaged over σ, below which the two count as "almost the same"
 SAME_RATE = 0.15
+#: each perturbation draw in words (claims of a variant after the first are prefixed with it)
+DRAW_TEXT = {"position": "positions shifted by N(0, σ²) [m]",
+             "authors": "the authors' draw: positions N(0, (σ·P/8)²), velocities N(0, (σ·S)²)"}
 #: the σ [m] at or below which a perturbation counts as weak, and at or above which as strong
 WEAK_SIGMA, STRONG_SIGMA = 0.4, 0.6
 
@@ -92,8 +100,8 @@ def claims(n: PerturbationRates) -> list[Claim]:
 
 
 def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before: int, after: int,
-                 noise_seed0: int = 0) -> dict[str, np.ndarray]:
-    """One agent, one loop type (``closed``: its FL, or None for the SWG).
+                 noise_seed0: int = 0, draw: str = "position") -> dict[str, np.ndarray]:
+    """One agent, one loop type (``closed``: its FL, or None for the SWG); ``draw``: see :func:`perturbed`.
 
     Runs ``before`` steps (batch 1), then ONE batched run of len(sigmas) × n_noise perturbed copies for ``after``
     steps. Returns v_before (scalar array), v_after (S, n), success (S, n) and the centre x traces.
@@ -108,7 +116,7 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
         rest = agent.brain.rest_length_at_steps(body.l, [s0.step], dt)[0]
     else:
         rest = closed.rest_length(body.l, s0)[0]
-    start = perturbed(agent, s0, sig, seeds, rest)
+    start = perturbed(agent, s0, sig, seeds, rest, draw)
     x1, _ = batched_centre_x(agent, start, after, closed=closed)
     v_after = late_speed(x1, dt).reshape(len(sigmas), n_noise)
     with np.errstate(invalid="ignore"):
@@ -121,7 +129,8 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     "locomotion-perturbation",
     paper_ref="Fig. 4(b), (c); Methods 'Locomotion task' (perturbation)",
     summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
-            "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded",
+            "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded; variants paper (positions "
+            "N(0, σ²)) and authors (positions N(0, (σP/8)²), velocities N(0, (σS)²))",
     durations={"smoke": "≈ 10 s", "short": "≈ 2 min after locomotion-closed-loop-20 (its agents reused)",
                "paper": "26 s measured 2026-11-27, 2 cores, lightly loaded (agents reused)"},
 )
@@ -142,29 +151,29 @@ def run(ctx: Context) -> None:
         ok = ranked[:1]
     chosen = ok[:max_agents]
     sigmas = np.array(SIGMAS)
-    rates = {"open": [], "closed": []}
-    v_before_open = []
-    example = {}
+    agents = {}
     for s in chosen:
         run_dir = sweep.out_dir / "jobs" / f"seed-{s}"
-        agent = load_agent(run_dir)
-        state = task_state(read_checkpoint(run_dir))
-        dt = agent.dt
-        for loop, fl in (("open", None), ("closed", agent.feedback)):
-            ctx.log(f"locomotion-perturbation: agent {s}, {loop} loop, {len(sigmas)} σ × {n_noise} seeds batched")
-            out = return_rates(agent, state, fl, sigmas, n_noise, int(round(before_s / dt)), int(round(after_s / dt)))
-            rates[loop].append(out["success"].mean(1))
-            if loop == "open":
-                v_before_open.append(float(out["v_before"]))
-            if s == chosen[0]:
-                example[loop] = out
-    mean = {k: np.mean(v, 0) for k, v in rates.items()}
-    for loop, name in (("open", "SWG (open loop)"), ("closed", "FL (closed loop)")):
-        for sg in (0.0, 0.3, 0.5, 1.0):
-            i = int(np.argmin(np.abs(sigmas - sg)))
-            ctx.row(name, f"return rate at σ = {sg:.1f} m", "1", float(mean[loop][i]))
-    ctx.result.claims.extend(claims(PerturbationRates(sigmas, mean["open"], mean["closed"],
-                                                      all(v > 0 for v in v_before_open), not fallback)))
+        agents[s] = (load_agent(run_dir), task_state(read_checkpoint(run_dir)))
+    variants = ctx.settings.variants or {"paper": {"authors_draw": False}}
+    per_variant = {}
+    for vi, (name, variant) in enumerate(variants.items()):
+        draw = "authors" if variant["authors_draw"] else "position"
+        tag, label = ("", "") if vi == 0 else (f"{name}: ", f"[{name}: {DRAW_TEXT[draw]}] ")
+        unit = " m" if draw == "position" else ""
+        rates, v_before_open, example = _variant_rates(ctx, agents, sigmas, n_noise, before_s, after_s, draw, name)
+        mean = {k: np.mean(v, 0) for k, v in rates.items()}
+        for loop, loop_name in (("open", "SWG (open loop)"), ("closed", "FL (closed loop)")):
+            for sg in (0.0, 0.3, 0.5, 1.0):
+                i = int(np.argmin(np.abs(sigmas - sg)))
+                ctx.row(f"{tag}{loop_name}", f"return rate at σ = {sg:.1f}{unit}", "1", float(mean[loop][i]))
+        for c in claims(PerturbationRates(sigmas, mean["open"], mean["closed"], all(v > 0 for v in v_before_open),
+                                          not fallback)):
+            ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+        per_variant[name] = {"help": DRAW_TEXT[draw], "draw": draw, "rates": rates, "mean": mean,
+                             "v_before_open": v_before_open, "example": example}
+    first = per_variant[next(iter(per_variant))]
+    rates, mean, example, dt = first["rates"], first["mean"], first["example"], agents[chosen[0]][0].dt
     from bptsb_ros.analysis.locomotion_plots import plot_return_rate
     ctx.figure(plot_return_rate(ctx.out_dir / "return_rate.png", sigmas, rates, mean, example, chosen[0], before_s,
                                 dt))
@@ -174,7 +183,32 @@ def run(ctx: Context) -> None:
         "sigmas": sigmas.tolist(),
         "return_rate_mean": {k: v.tolist() for k, v in mean.items()},
         "return_rate_per_agent": {k: [r.tolist() for r in v] for k, v in rates.items()},
-        "open_speed_before": v_before_open,
+        "open_speed_before": first["v_before_open"],
+        "variants": {name: {"help": v["help"], "draw": v["draw"],
+                            "return_rate_mean": {k: r.tolist() for k, r in v["mean"].items()},
+                            "return_rate_per_agent": {k: [r.tolist() for r in x] for k, x in v["rates"].items()},
+                            "open_speed_before": v["v_before_open"]} for name, v in per_variant.items()},
         "notes": ("No agent's closed loop succeeded; the agent with the best closed/open ratio was perturbed instead."
                   if fallback else ""),
     }
+
+
+def _variant_rates(ctx: Context, agents: dict, sigmas: np.ndarray, n_noise: int, before_s: float, after_s: float,
+                   draw: str, name: str) -> tuple[dict[str, list[np.ndarray]], list[float], dict]:
+    """Return rates (S,) per agent and loop under one perturbation ``draw``; the open loops' speeds before; the
+    first agent's traces (for the figure)."""
+    rates: dict[str, list[np.ndarray]] = {"open": [], "closed": []}
+    v_before_open, example = [], {}
+    for i, (s, (agent, state)) in enumerate(agents.items()):
+        dt = agent.dt
+        for loop, fl in (("open", None), ("closed", agent.feedback)):
+            ctx.log(f"locomotion-perturbation ({name}): agent {s}, {loop} loop, {len(sigmas)} σ "
+                    f"× {n_noise} seeds batched, {draw} draw")
+            out = return_rates(agent, state, fl, sigmas, n_noise, int(round(before_s / dt)), int(round(after_s / dt)),
+                               draw=draw)
+            rates[loop].append(out["success"].mean(1))
+            if loop == "open":
+                v_before_open.append(float(out["v_before"]))
+            if i == 0:
+                example[loop] = out
+    return rates, v_before_open, example

@@ -29,7 +29,7 @@ from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
 from bptsb_ros.training.fused import fused_training
 from bptsb_ros.training.guard import UpdateGuard
-from bptsb_ros.training.optim import make_optimizer
+from bptsb_ros.training.optim import divide_rates_, make_optimizer, step_decay_updates
 
 
 class TrainingDiverged(RuntimeError):
@@ -181,7 +181,8 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     losses = guard.history  # the loss curve: a rejected update repeats the previous entry
     fused, backend = None, tc.backend
     if tc.backend == "fused":
-        fused, why = fused_training(task, optimizer, adjoint=tc.adjoint)
+        fused, why = ((None, "the projection reset is not in the fused kernel (clamp only)")
+                      if tc.projection != "clamp" else fused_training(task, optimizer, adjoint=tc.adjoint))
         if fused is None:
             backend = "numba"
             print(f"training.backend fused: {why}; training on the numba path instead", file=sys.stderr)
@@ -237,8 +238,11 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
         return TrainingDiverged(f"update {update}: {why} ({kept}; details in {run_dir / 'diverged.json'})")
 
+    decay_at = set(step_decay_updates(total)) if tc.lr_decay else set()  # the published switching schedule
     try:
         for i in range(start, total):
+            if i in decay_at:
+                divide_rates_(optimizer, 10.0)
             loss: torch.Tensor | None = None
             value: float | None = None
             failure: str | None = None
@@ -266,7 +270,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
             if decision.accepted:
                 if fused is None:
                     optimizer.step()
-                    agent.body.clamp_parameters_()
+                    agent.body.clamp_parameters_(tc.projection)
                 else:  # SGD of every group and the projection of k, d, l, in place in one call
                     fused.step()
             bar.update(1)
