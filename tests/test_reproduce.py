@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -151,3 +152,85 @@ def test_lissajous_closed_loop_smoke(tmp_path):
     assert all((out / f).is_file() for f in data["figures"]) and len(data["figures"]) == 2
     assert main(["reproduce", "lissajous-closed-loop", "--scale", "smoke", "--out", str(out)]) == 1
     assert Path(out / "agent" / "checkpoint.pt").is_file()
+
+
+def _fails_first(ctx: Context) -> None:
+    """A toy experiment that fails unless ``go`` exists in its directory (as a run killed half-way)."""
+    time.sleep(0.3)
+    if not (ctx.out_dir / "go").exists():
+        raise RuntimeError("planted failure")
+    ctx.row("toy", "value", "m", 1.0, None)
+
+
+@pytest.fixture
+def flaky_experiment():
+    experiment("toy-fails-first", paper_ref="Table 0", summary="fails once", durations={"smoke": "0 s"})(_fails_first)
+    yield "toy-fails-first"
+    _REGISTRY.pop("toy-fails-first", None)
+
+
+def test_provenance_names_versions_out_and_the_wall_time_of_every_attempt(flaky_experiment, tmp_path):
+    from importlib.metadata import version
+
+    import bptsb_ros
+
+    out = tmp_path / "run"
+    with pytest.raises(RuntimeError, match="planted failure"):
+        run_experiment(flaky_experiment, scale="smoke", out_dir=out, progress=False)
+    (out / "go").write_text("")
+    _, res = run_experiment(flaky_experiment, scale="smoke", out_dir=out, resume=True, progress=False)
+    prov = res["provenance"]
+    assert prov["command"] == f"bptsb reproduce toy-fails-first --scale smoke --seed 0 --out {out} --resume"
+    assert prov["package_version"] == bptsb_ros.__version__
+    assert prov["versions"]["numpy"] == version("numpy") and prov["versions"]["torch"] == version("torch")
+    attempts = prov["attempts"]
+    assert [a["resume"] for a in attempts] == [False, True]
+    assert all(a["wall_s"] >= 0.3 for a in attempts)  # each attempt sleeps 0.3 s
+    assert res["wall_s"] == pytest.approx(attempts[0]["wall_s"] + attempts[1]["wall_s"], abs=0.011)
+    assert res["wall_s"] >= 0.6
+
+
+def test_a_killed_attempt_counts_until_the_newest_file_it_wrote(flaky_experiment, tmp_path):
+    import os
+
+    from bptsb_ros.experiments.registry import ATTEMPTS_FILE, RUN_MARKER
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / RUN_MARKER).write_text("bptsb reproduce toy-fails-first\n")
+    start = time.time() - 100.0
+    # a killed attempt records its start but never its time; its last file was written 40 s after the start,
+    # and an older file (before the attempt) must not count
+    (out / ATTEMPTS_FILE).write_text(json.dumps([{"started": "x", "started_unix": start, "resume": False}]))
+    (out / "go").write_text("")
+    os.utime(out / "go", (start + 40.0, start + 40.0))
+    (out / "old").write_text("")
+    os.utime(out / "old", (start - 50.0, start - 50.0))
+    _, res = run_experiment(flaky_experiment, scale="smoke", out_dir=out, resume=True, progress=False)
+    killed, this = res["provenance"]["attempts"]
+    assert killed["wall_s"] == pytest.approx(40.0, abs=0.01) and killed["wall_s_estimated"] is True
+    assert "wall_s_estimated" not in this and this["wall_s"] >= 0.3
+    assert res["wall_s"] == pytest.approx(40.0 + this["wall_s"], abs=0.011)
+
+
+def test_a_fresh_run_and_force_forget_earlier_attempts(flaky_experiment, tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(RuntimeError):
+        run_experiment(flaky_experiment, scale="smoke", out_dir=out, progress=False)
+    (out / "go").write_text("")
+    with pytest.raises(RuntimeError):  # --force clears the run directory, "go" included
+        run_experiment(flaky_experiment, scale="smoke", out_dir=out, force=True, progress=False)
+    (out / "go").write_text("")
+    _, res = run_experiment(flaky_experiment, scale="smoke", out_dir=out, resume=True, progress=False)
+    assert len(res["provenance"]["attempts"]) == 2  # the forced attempt and the resume, not the first
+
+
+def test_report_lists_versions_and_attempts_in_words():
+    from bptsb_ros.analysis.report import _provenance_lines
+
+    lines = _provenance_lines({"command": "bptsb reproduce x --scale smoke", "versions": {"numpy": "2.0", "numba": None,
+                                                                                        "torch": "2.13.0"},
+                               "attempts": [{"wall_s": 150.0, "wall_s_estimated": True}, {"wall_s": 30.0}]})
+    assert "- versions: numpy 2.0, torch 2.13.0" in lines
+    assert "- attempts: 2 (2.5 min (killed; at least, from the files it wrote) + 30 s)" in lines
+    assert "- attempts: 30 s" in _provenance_lines({"attempts": [{"wall_s": 30.0}]})

@@ -155,9 +155,26 @@ def _provenance_lines(prov: dict[str, Any]) -> list[str]:
     for key, value in prov.items():
         if key == "jobs" and isinstance(value, list):
             lines += [f"- jobs: {md_text(_jobs_line(batch))}" for batch in value]
+        elif key == "versions" and isinstance(value, dict):
+            lines.append("- versions: " + md_text(", ".join(f"{lib} {ver}" for lib, ver in value.items()
+                                                           if ver is not None)))
+        elif key == "attempts" and isinstance(value, list):
+            lines.append(f"- attempts: {md_text(_attempts_line(value))}")
         elif key not in ("command", "git_commit", "machine", "python"):
             lines.append(f"- {md_text(key)}: {md_text(value)}")
     return lines
+
+
+def _attempts_line(attempts: list[Any]) -> str:
+    """``provenance.attempts`` in words: how many, and each one's wall time (the wall time sums them)."""
+    parts = []
+    for att in attempts:
+        if not isinstance(att, dict) or not isinstance(att.get("wall_s"), (int, float)):
+            parts.append(str(att))
+            continue
+        note = " (killed; at least, from the files it wrote)" if att.get("wall_s_estimated") else ""
+        parts.append(f"{_duration(att['wall_s'])}{note}")
+    return f"{len(attempts)} ({' + '.join(parts)})" if len(attempts) > 1 else (parts[0] if parts else "none")
 
 
 def _jobs_line(batch: object) -> str:

@@ -13,6 +13,7 @@ each module registers itself on import.
 from __future__ import annotations
 
 import importlib
+import json
 import platform
 import shutil
 import subprocess
@@ -64,6 +65,8 @@ MODULES: tuple[str, ...] = (
 
 #: written into every run directory; ``--force`` replaces only directories that hold it
 RUN_MARKER = ".bptsb-reproduce"
+#: one record per attempt of a run (the first and each ``--resume``), so the result's wall time spans them all
+ATTEMPTS_FILE = ".bptsb-attempts.json"
 
 
 class ExperimentError(RuntimeError):
@@ -208,12 +211,38 @@ def get_experiment(name: str) -> Experiment:
 
 
 def _git_commit() -> str | None:
+    """The package checkout's commit (``-dirty`` when tracked files differ from it); None outside a checkout."""
+    here = Path(__file__).resolve().parent
     try:
         out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
-                             cwd=Path(__file__).resolve().parent)
+                             cwd=here)
+        commit = out.stdout.strip() if out.returncode == 0 else ""
+        if not commit:
+            return None
+        status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                                text=True, timeout=10, cwd=here)
     except (OSError, subprocess.SubprocessError):
         return None
-    return out.stdout.strip() or None
+    return commit + ("-dirty" if status.returncode == 0 and status.stdout.strip() else "")
+
+
+def _package_version() -> str:
+    from bptsb_ros import __version__
+
+    return __version__
+
+
+def _library_versions() -> dict[str, str | None]:
+    """The versions of the libraries a result's numbers depend on (None: not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found: dict[str, str | None] = {}
+    for dist in ("numpy", "torch", "numba", "scipy", "scikit-learn"):
+        try:
+            found[dist] = version(dist)
+        except PackageNotFoundError:
+            found[dist] = None
+    return found
 
 
 def run_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_dir: str | Path | None = None,
@@ -291,7 +320,7 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
     except OSError as err:
         raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
     result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed), settings=settings.to_json())
-    command = f"bptsb reproduce {name} --scale {scale} --seed {seed}" + (" --resume" if resume else "")
+    command = f"bptsb reproduce {name} --scale {scale} --seed {seed} --out {out}" + (" --resume" if resume else "")
     if data_dir is not None:
         command += f" --data {data_dir}"
     if split != "auto":
@@ -301,6 +330,8 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
         "command": command + (f" --scheduler {scheduler}" if scheduler else f" --workers {workers}"
                               if workers is not None else ""),
         "python": platform.python_version(),
+        "package_version": _package_version(),
+        "versions": _library_versions(),
         "machine": f"{platform.machine()}, {_cpu_count()} cores",
         "git_commit": _git_commit(),
         # what the independent jobs really used, one entry per batch (Context.run_jobs / Context.sweep):
@@ -311,11 +342,77 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
                   data_dir=None if data_dir is None else Path(data_dir), split=split, settings=settings)
     if log is not None:
         ctx.log = log
+    attempts = _start_attempt(out, resume=resume)
     t0 = time.perf_counter()
-    exp.run(ctx)
-    result.wall_s = round(time.perf_counter() - t0, 2)
+    try:
+        exp.run(ctx)
+    finally:  # a failed or interrupted attempt records its time too, for the --resume that follows
+        attempts[-1]["wall_s"] = round(time.perf_counter() - t0, 2)
+        _write_attempts(out, attempts)
+    result.wall_s = round(sum(a["wall_s"] for a in attempts), 2)
+    result.provenance["attempts"] = attempts
     path = write_result(out, result)
     return path, result
+
+
+def _start_attempt(out: Path, *, resume: bool) -> list[dict[str, Any]]:
+    """The attempts of this run so far (the earlier ones only on ``--resume``) plus this one, written to
+    :data:`ATTEMPTS_FILE`. An earlier attempt that was killed before it could record its time gets the span
+    from its start to the newest file it left in ``out`` (a lower bound; ``"wall_s_estimated": true``)."""
+    earlier: list[dict[str, Any]] = []
+    if resume:
+        earlier = _read_attempts(out)
+        for i, att in enumerate(earlier):
+            if "wall_s" not in att:
+                until = earlier[i + 1]["started_unix"] if i + 1 < len(earlier) else time.time()
+                newest = _newest_mtime(out, after=att["started_unix"], before=until)
+                att["wall_s"] = round(max(0.0, newest - att["started_unix"]), 2)
+                att["wall_s_estimated"] = True
+    now = time.time()
+    attempts = [*earlier, {"started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(now)),
+                           "started_unix": round(now, 3), "resume": bool(resume)}]
+    _write_attempts(out, attempts)
+    return attempts
+
+
+def _read_attempts(out: Path) -> list[dict[str, Any]]:
+    """The attempts recorded in ``out``; an absent or unreadable record (a run from before attempts were
+    recorded, a damaged file) counts as none, so the wall time is then this attempt's alone."""
+    try:
+        data = json.loads((out / ATTEMPTS_FILE).read_text())
+    except (OSError, ValueError):
+        return []
+    if not isinstance(data, list):
+        return []
+    good = []
+    for att in data:
+        if (isinstance(att, dict) and isinstance(att.get("started_unix"), (int, float))
+                and not isinstance(att.get("started_unix"), bool)
+                and (("wall_s" not in att) or (isinstance(att["wall_s"], (int, float))
+                                              and not isinstance(att["wall_s"], bool) and att["wall_s"] >= 0))):
+            good.append({k: att[k] for k in ("started", "started_unix", "resume", "wall_s") if k in att})
+    return good
+
+
+def _write_attempts(out: Path, attempts: list[dict[str, Any]]) -> None:
+    try:
+        (out / ATTEMPTS_FILE).write_text(json.dumps(attempts, indent=1) + "\n")
+    except OSError:
+        pass  # the record only improves the wall time of a later --resume; the run itself goes on
+
+
+def _newest_mtime(out: Path, *, after: float, before: float) -> float:
+    """The newest modification time in [after, before] of a file under ``out`` (``after`` if there is none);
+    the run's bookkeeping files, which every attempt rewrites, do not count."""
+    newest = after
+    for path in out.rglob("*"):
+        try:
+            mtime = path.stat().st_mtime
+        except OSError:
+            continue
+        if after <= mtime <= before and path.name not in (ATTEMPTS_FILE, RUN_MARKER, LOCK_NAME):
+            newest = max(newest, mtime)
+    return newest
 
 
 def _clear_run(out: Path) -> None:
