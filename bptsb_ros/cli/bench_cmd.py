@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -19,7 +21,8 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="1 s per measurement and fewer batch sizes")
-    parser.add_argument("--out", required=True, help="JSON file to write")
+    parser.add_argument("--out", required=True, help="JSON file to write; rewritten after each measurement, with "
+                        '"complete": false until the last one (a killed bench keeps what it measured)')
     soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.soak; runs bptsb launch "
                                      "lissajous_open --bag on this ROS_DOMAIN_ID)")
     soak.add_argument("--soak", action="store_true", help="run the recording soak instead of the physics benchmarks")
@@ -35,16 +38,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       "temporary directory, kept)")
 
 
-def _write(out: Path, report: dict) -> int | None:
-    """Write ``report`` as JSON to ``out``; None, or the exit status of a write that failed (after one line)."""
+def _write(out: Path, report: dict, complete: bool = True) -> int | None:
+    """Write ``report`` as JSON to ``out``, with ``"complete"`` first (false while measurements are still to come),
+    atomically (a temporary file beside it, then a rename: a reader or a kill never sees half a file); None, or
+    the exit status of a write that failed (after one line)."""
     from bptsb_ros.cli.common import fail
 
+    tmp = out.with_name(f".{out.name}.tmp")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(report, indent=2))
+        tmp.write_text(json.dumps({"complete": complete, **report}, indent=2))
+        os.replace(tmp, out)
     except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
         return fail(NAME, f"cannot write --out {out}: {err.strerror or err}")
     return None
+
+
+class _WriteFailed(Exception):
+    """The --out file could not be rewritten after a measurement; ``code`` is the exit status (one line printed)."""
+
+    def __init__(self, code: int):
+        super().__init__(code)
+        self.code = code
 
 
 def _soak(args: argparse.Namespace) -> int:
@@ -77,8 +94,19 @@ def run(args: argparse.Namespace) -> int:
         return _soak(args)
     from bptsb_ros.bench import run_benchmarks, workload_table
 
-    report = run_benchmarks(quick=args.quick, progress=lambda m: print(m, file=sys.stderr, flush=True))
     out = Path(args.out)
+    if (problem := _write(out, {}, complete=False)) is not None:  # an unwritable --out fails now, not at the end
+        return problem
+
+    def update(report: dict) -> None:  # after each measurement: a killed bench keeps what it measured
+        if (problem := _write(out, report, complete=False)) is not None:
+            raise _WriteFailed(problem)
+
+    try:
+        report = run_benchmarks(quick=args.quick, progress=lambda m: print(m, file=sys.stderr, flush=True),
+                                update=update)
+    except _WriteFailed as err:
+        return err.code
     if (problem := _write(out, report)) is not None:
         return problem
     print(workload_table(report))
