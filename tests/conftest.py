@@ -8,6 +8,8 @@ gives the session a private ROS domain, so parallel sessions and other machines 
 * ``OMP_NUM_THREADS=1`` and ``MPLBACKEND=Agg`` unless already set (2 shared cores, no display).
 * ``BPTSB_FIGURE_FORMATS=png`` unless already set: the experiments' figures skip their PDF copy (half of a
   figure's time); tests/test_figures.py unsets it and checks the PNG + PDF of every figure.
+* ``BPTSB_COMPILE_NOTICE=0`` unless already set: no "compiling the numba kernels" line, which only a test that
+  happens to meet a cold cache would print (tests/test_compile_notice.py turns it on for its own checks).
 
 Subprocesses started by tests inherit these through ``os.environ``; the ``ros_env`` fixture returns a copy
 for tests that build their own environment.
@@ -47,6 +49,7 @@ os.environ["ROS_DOMAIN_ID"] = str(SESSION_DOMAIN_ID)
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("BPTSB_FIGURE_FORMATS", "png")
+os.environ.setdefault("BPTSB_COMPILE_NOTICE", "0")
 
 
 def pytest_report_header(config: pytest.Config) -> str:
