@@ -234,3 +234,13 @@ def test_report_lists_versions_and_attempts_in_words():
     assert "- versions: numpy 2.0, torch 2.13.0" in lines
     assert "- attempts: 2 (2.5 min (killed; at least, from the files it wrote) + 30 s)" in lines
     assert "- attempts: 30 s" in _provenance_lines({"attempts": [{"wall_s": 30.0}]})
+
+
+def test_a_phase_is_one_line_naming_the_experiment(tmp_path):
+    from bptsb_ros.experiments.registry import Context
+    from bptsb_ros.experiments.result import ExperimentResult
+
+    lines: list[str] = []
+    ctx = Context("smoke", 0, tmp_path, ExperimentResult("toy-phase", "", "smoke", 0), log=lines.append)
+    ctx.phase("plotting the return rates")
+    assert lines == ["toy-phase: plotting the return rates ..."]

@@ -215,6 +215,7 @@ def run(ctx: Context) -> None:
                          for i in range(n_curves)])
     ctx.result.claims.extend(claims(SchemeNumbers(table["before"], table["scheme1"], table["scheme2"],
                                                   table["scheme3"], ms, trained1, note)))
+    ctx.phase("plotting the scheme ratios")
     from bptsb_ros.analysis.autonomy_plots import plot_scheme_ratios
 
     ctx.figure(plot_scheme_ratios(ctx.out_dir / "schemes.png", [str(c) for c in CURVES[:n_curves]],

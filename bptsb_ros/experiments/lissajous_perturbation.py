@@ -261,6 +261,7 @@ def _kick_variant(ctx: Context, trained: TrainedAgent, name: str, help_text: str
     for c in claims(PerturbationNumbers(SIGMAS, rate_open, rate_closed, e_open_orig / target_ms,
                                         e_closed_orig / target_ms, float(rate_literal[0]))):
         ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+    ctx.phase("plotting the return rates")
     from bptsb_ros.analysis.autonomy_plots import plot_perturbation
 
     path = plot_perturbation(ctx.out_dir / "perturbation.png", SIGMAS, {

@@ -406,6 +406,7 @@ def run_switching(ctx: Context) -> None:
     summaries = ctx.run_jobs(switching_job, jobs, names=[v["label"] for v in variants.values()])
     seg = ctx.settings["segment_periods"]  # periods per test segment
     transient = ctx.settings["transient_periods"]
+    ctx.phase(f"the switching test of {len(variants)} trained agents (calm, windy, calm)")
     tests = {}
     for (name, v), summary in zip(variants.items(), summaries, strict=True):
         sw = load_trained(ctx.out_dir / name, summary)
@@ -431,6 +432,7 @@ def run_switching(ctx: Context) -> None:
         tag = "" if name == main_name else f" [{v['label']}]"
         ctx.result.claims.extend(switching_claims(SwitchingNumbers(pre_err[name], tests[name]["segments"], transient,
                                                                    str(variant_curve(v))), tag))
+    ctx.phase("plotting the switching curves")
     from bptsb_ros.analysis.autonomy_plots import plot_switching_curves, plot_switching_dynamics
 
     for name, test in tests.items():
@@ -517,6 +519,8 @@ def run_bifurcation(ctx: Context) -> None:
     details: dict[str, Any] = {"seed": ctx.seed, "winds": winds, "transient_periods": transient,
                                "record_periods": record, "periodicity_rtol": 1e-3,
                                "variants": ctx.settings.variants_json()}
+    ctx.phase(f"the wind sweep ({len(winds)} winds, {transient + record} periods) of {len(variants)} trained agents "
+              "and its plots")
     for (name, v), summary in zip(variants.items(), summaries, strict=True):
         label, published, second = v["label"], bool(v["published_wind"]), variant_curve(v)
         sw = load_trained(ctx.out_dir / name, summary)
@@ -650,6 +654,7 @@ def run_timing(ctx: Context) -> None:
     ctx.log(f"lissajous-timing: {len(jobs)} switching trainings ({settings['sim_time']} s each) as jobs")
     summaries = ctx.run_jobs(switching_job, jobs, names=[f"{label} timing" for label, *_ in systems])
     settle, run, last = ctx.settings["settle_periods"], ctx.settings["run_periods"], ctx.settings["last_periods"]
+    ctx.phase(f"the convergence test of {len(systems)} trained agents (100 starts each)")
     out: dict[str, dict] = {}
     for (label, run_name, timing, name), summary in zip(systems, summaries, strict=True):
         trained = load_trained(ctx.out_dir / run_name, summary)
@@ -669,6 +674,7 @@ def run_timing(ctx: Context) -> None:
                 "48 (22…69)")
         ctx.result.claims.extend(timing_claims(TimingNumbers(out[fixed]["to_target"], out[random_]["to_target"],
                                                              last, str(variant_curve(variants[name]))), tag))
+    ctx.phase("plotting the convergence")
     from bptsb_ros.analysis.autonomy_plots import plot_timing
 
     shifts = {label: summary["wind_shift_x_m"] for (label, *_), summary in zip(systems, summaries, strict=True)}

@@ -117,6 +117,7 @@ def run(ctx: Context) -> None:
     verdicts = claims(ClosedLoopCounts(np.array([r["open_speed"] for r in rows], dtype=float),
                                        np.array([bool(r["success"]) for r in rows], dtype=bool)))
     ctx.result.claims.extend(verdicts)
+    ctx.phase(f"plotting the gaits and ratios of {len(seeds)} agents")
     from bptsb_ros.analysis.locomotion_plots import plot_closed_open_ratios, plot_gaits
     ctx.figure(plot_gaits(ctx.out_dir / "gaits.png", {s: _load_gait(sweep.out_dir, s) for s in seeds},
                           {s: results[f"seed-{s}"] for s in seeds if f"seed-{s}" in results}, settings.gait_time))

@@ -197,6 +197,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     agents = {"switching": (load_agent(run_dir), task_state(read_checkpoint(run_dir))), "forward": forward}
     dt = agents["switching"][0].dt
 
+    ctx.phase(f"the periodic-wind test of the switching and forward agents ({eval_periods} periods)")
     # (c) periodic wind; each agent continues from where its training ended, the wind clock = absolute time
     steps = int(round(eval_periods * period / dt))
     block = int(round(1.0 / dt))
@@ -236,6 +237,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     blocks = phase_blocks(traces["switching"]["t"], period)
     for c in claims(HeadwindNumbers(target, sw, blocks, winds, v, force)):
         ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+    ctx.phase("plotting the speeds")
     from bptsb_ros.analysis.locomotion_plots import plot_headwind_speed, plot_speed_vs_wind
     ctx.figure(plot_headwind_speed(ctx.out_dir / f"headwind_speed{suffix}.png", traces, target, force, period))
     ctx.figure(plot_speed_vs_wind(ctx.out_dir / f"speed_vs_wind{suffix}.png", winds, curves, target, (0.0, force)))

@@ -174,6 +174,7 @@ def run(ctx: Context) -> None:
                              "v_before_open": v_before_open, "example": example}
     first = per_variant[next(iter(per_variant))]
     rates, mean, example, dt = first["rates"], first["mean"], first["example"], agents[chosen[0]][0].dt
+    ctx.phase("plotting the return rates")
     from bptsb_ros.analysis.locomotion_plots import plot_return_rate
     ctx.figure(plot_return_rate(ctx.out_dir / "return_rate.png", sigmas, rates, mean, example, chosen[0], before_s,
                                 dt))

@@ -243,6 +243,7 @@ def run(ctx: Context) -> None:
         cmp_neighbours=cmp_neighbours["multiple-circle"],
         totals={lab: float(res.total[res.group(lab)]) for lab in res.labels})))
 
+    ctx.phase("plotting the errors and IPC")
     # figures (a) error vs Δt, (b) Δt = focus series, (c) IPC
     t = np.arange(washout, min(washout + 60, len(u)))
     outputs = {}

@@ -140,6 +140,7 @@ def run(ctx: Context) -> None:
     by = {(b, n): mean[spec.name] for b, n, spec in chosen}
     ctx.result.claims.extend(claims(DrawingNumbers(by, {(b, n): skill[spec.name] for b, n, spec in chosen})))
 
+    ctx.phase("plotting the drawings, errors and training curves")
     targets = load_targets()
     fig = plot_best_drawings(ctx.out_dir / "drawings.png",
                              {label[sp.name]: {"drawings": r["drawings"], "errors": r["errors"],

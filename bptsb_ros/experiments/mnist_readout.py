@@ -140,6 +140,7 @@ def run(ctx: Context) -> None:
     ctx.result.claims.extend(claims(ReadoutNumbers({(shape, n): Skill.of(res["accuracy"], data.test_y)
                                                     for (shape, n, *_), res in zip(chosen, results)})))
     names = [name for *_, name, _ in chosen]
+    ctx.phase("plotting the accuracy and training curves")
     ctx.figure(plot_curves(ctx.out_dir / "accuracy.png",
                            {name: [100 * a for a in r["epoch_accuracy"]] for name, r in zip(names, results)},
                            "test accuracy [%]", "MNIST readout: test accuracy after each epoch", xlabel="epoch [-]",

@@ -181,6 +181,7 @@ def run(ctx: Context) -> None:
                                                        Separation.from_scores(pca["body"]),
                                                        LabelMapNumbers.from_details(maps))))
 
+    ctx.phase("plotting the drawings and errors")
     targets = load_targets()
     ctx.figure(plot_best_drawings(ctx.out_dir / "drawings.png",
                                   {label[sp.name]: {"drawings": results[sp.name]["drawings"],

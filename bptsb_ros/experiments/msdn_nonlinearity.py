@@ -174,6 +174,7 @@ def run(ctx: Context) -> None:
         shown = [lab for lab in res.labels if lab.endswith(f"@{SCALES[-1]:g}") and not lab.startswith("all")]
         panels.append([IpcPanel.of(res, shown, f"{name}, untrained, LIL forces (scale {SCALES[-1]:g}): IPC of each "
                                    "movable coordinate", names=[lab.rsplit(" @", 1)[0] for lab in shown])])
+    ctx.phase("plotting the IPC panels")
     path = plot_ipc_panels(ctx.out_dir / "msdn_nonlinearity_ipc.png", panels)
     ctx.figure(path)
     numbers = NonlinearityNumbers(*({float(sc): BodyCapacity(v["degree_1"], v["degree_2plus"])

@@ -135,6 +135,7 @@ def run(ctx: Context) -> None:
     # Fig. 3(b): input, target and the four outputs on the held-out sequence, and the error table
     u, target, _ = next(iter(series.values()))
     # systems whose training diverged have no output to draw
+    ctx.phase("plotting the emulation")
     ctx.figure(plot_narma_emulation(ctx.out_dir / "narma_emulation.png", np.arange(washout, min(washout + 100, len(u))),
                                     u, target, {system_name(*k): out for k, (_, _, out) in series.items()},
                                     {system_name(*k): errors[k] for k in series},

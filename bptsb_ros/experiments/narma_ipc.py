@@ -269,6 +269,7 @@ def run(ctx: Context) -> None:
                        IpcPanel.of(res, right, f"{brain.upper()} + double circle, epoch {stages[-1]}: each movable "
                                    "mass (index, axis)", names=[lab.replace(f"{brain.upper()} mass ", "")
                                                                 for lab in right])])
+    ctx.phase("plotting the IPC panels")
     ctx.figure(plot_ipc_panels(ctx.out_dir / "narma_ipc.png", panels, width_ratios=[len(stages) + 3, 34]))
     ctx.result.details = {"config": config, "stages": list(stages), "eval_inputs": eval_inputs, "washout": washout,
                           "max_delay": max_delay, "max_degree": 3, "surrogates": surrogates,

@@ -144,6 +144,11 @@ class Context:
         n = placement.pool_size(jobs)
         return "this process" if n == 0 else f"a local pool of {n} process{'es' if n > 1 else ''}"
 
+    def phase(self, what: str) -> None:
+        """One line, ``<experiment>: <what> ...``, as a phase of seconds that shows no progress of its own starts
+        (a test simulation, the plots)."""
+        self.log(f"{self.result.experiment}: {what} ...")
+
     def row(self, system: str, metric: str, unit: str, ours: float | None, paper: float | str | None = None) -> None:
         self.result.rows.append(Row(system, metric, unit, ours, paper))
 

@@ -196,6 +196,7 @@ def run(ctx: Context) -> None:
         for n in range(bd.shape[1]):
             ctx.row(name, f"IPC degree {n + 1}", "1", float(bd[g, n]))
         ctx.row(name, "IPC total (degree ≤ 3, delay ≤ 20)", "1", float(res.total[g]), "≤ 1 (rank)")
+    ctx.phase("plotting the IPC profiles")
     ctx.figure(plot_ipc_panels(ctx.out_dir / "target_ipc.png", [[IpcPanel.of(
         res, res.labels, f"IPC of the target models (black: F₁(u(t−{MEMORY_DELAY})))",
         highlight=res.index(((MEMORY_DELAY, 1),)))]], row_height=3.0, width=DOUBLE * 0.7))

@@ -137,11 +137,11 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         elif not overwrite and not dir_is_empty(run_dir):
             raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
                               "replace it with --force, or choose another directory")
-    name = f"train {cfg.name or cfg.task}"
+    title = f"train {cfg.name or cfg.task}"
 
     def phase(what: str) -> None:  # the phases around the bar take seconds each: one line says which one runs
         if progress:
-            print(f"{name}: {what} ...", file=sys.stderr, flush=True)
+            print(f"{title}: {what} ...", file=sys.stderr, flush=True)
 
     phase("building the agent, the task and the optimiser")  # torch's optimisers import torch._dynamo: seconds
     threads = configure_threads(1, body_backend(cfg.training.backend))  # every task trains one small body: one thread
@@ -197,7 +197,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     task.prepare()
     t_start = time.perf_counter()
     sim_steps = 0
-    bar = _progress(total, name, progress)
+    bar = _progress(total, title, progress)
     bar.update(start)
 
     def checkpoint(update: int, **more: Any) -> None:
