@@ -244,3 +244,19 @@ def test_a_phase_is_one_line_naming_the_experiment(tmp_path):
     ctx = Context("smoke", 0, tmp_path, ExperimentResult("toy-phase", "", "smoke", 0), log=lines.append)
     ctx.phase("plotting the return rates")
     assert lines == ["toy-phase: plotting the return rates ..."]
+
+
+def test_every_experiment_states_a_time_for_every_scale():
+    """``--list`` shows each scale's time: a number with its unit (s, min, h) in every duration text. Whether it
+    matches the committed runs is not checked here: those are re-run and replaced as the code changes."""
+    import re
+
+    from bptsb_ros.experiments.registry import MODULES, experiments
+
+    time = re.compile(r"\d[\d,.]*(?:[–-]\d[\d,.¼½]*)?[¼½]?\s*(?:s|min|h)\b")
+    ours = [e for e in experiments().values() if e.run.__module__ in MODULES]
+    assert len(ours) == 19
+    for exp in ours:
+        assert set(exp.durations) == {"smoke", "short", "paper"}, exp.name
+        for scale, text in exp.durations.items():
+            assert time.search(text), (exp.name, scale, text)

@@ -167,9 +167,9 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     paper_ref="supplement 'Simultaneous training for a closed loop' and its table",
     summary="3 curves × 5 seeds (jobs): scheme 1 (closed loop from scratch), 2 (BPTSB through SWG + body + FL, "
             "L = L_traj + 0.1·L_FB), 3 (FL re-fitted by regression after every update); E_after / E_before",
-    durations={"smoke": "≈ 30 s (1 curve × 1 seed)",
-               "short": "375 s measured on the busy 2-core machine (3 curves × 2 seeds = 6 jobs on 2 workers; 200 s "
-                        "preliminary, 50 s per scheme)",
+    durations={"smoke": "≈ 5 s on 2 busy cores (1 curve × 1 seed)",
+               "short": "375 s measured 2026-11-27 on 2 busy cores (3 curves × 2 seeds = 6 jobs on 2 workers; 200 "
+                        "s preliminary, 50 s per scheme)",
                "paper": "208 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (15 jobs "
                         "of 2,000 s preliminary + 1,000 s per scheme 2/3 + 2,000 s scheme 1, 2 workers)"},
 )

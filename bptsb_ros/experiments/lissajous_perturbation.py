@@ -207,7 +207,8 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
     summary="displace the movable masses by N(0, σ²), σ = 0…1 step 0.1 × seeds, open loop (SWG) and closed loop "
             "(FL), one batched run each; return rate vs σ; variants paper (a kick of the running cycle) and authors "
             "(a restart from the displaced layout at t = 0)",
-    durations={"smoke": "≈ 20 s", "short": "82–192 s measured (1,000 s training; 11 × 100 rows, 50 periods)",
+    durations={"smoke": "≈ 5 s on 2 busy cores",
+               "short": "82–192 s measured on 2 cores (1,000 s training; 11 × 100 rows, 50 periods)",
                "paper": "91 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
                         "(2,000 s training; 11 × 100 rows, 300 periods)"},
 )

@@ -386,9 +386,11 @@ def _variant_suffix(ctx: Context, name: str) -> str:
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
             "F_wind = 1 (the authors' protocol: (2,1,π/4)), each settings variant a job; both curves drawn, CMP x/y "
             "frequencies (FFT) swap with the wind",
-    durations={"smoke": "≈ 20 s", "short": "107 s measured 2026-12-02 on the 2-core machine shared with other work "
-               "(2 × 1,000 s preliminary, verlet and published integrator, + 3 × 2,000 s switching training, the "
-               "three variants, 3 jobs on 2 workers)",
+    durations={"smoke": "≈ 8 s on 2 busy cores",
+               "short": "107 s measured 2026-12-02 on 2 cores shared with other work (2 × 1,000 s preliminary, "
+                        "verlet and published integrator, + 3 × 2,000 s switching training, the three variants, 3 "
+                        "jobs on 2 workers); the committed run of 2026-11-27, an earlier build without the "
+                        "authors' variant, took 455 s",
                "paper": "69 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
                         "(2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs, before the authors' "
                         "variant was added)"},
@@ -499,8 +501,10 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
     paper_ref="supplement 'Behavioral switching', Fig. (d)",
     summary="each settings variant's switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): "
             "maxima of the CMP's x and y after a transient, period of each orbit",
-    durations={"smoke": "≈ 20 s", "short": "155 s measured 2026-12-02 on the 2-core machine shared with other work "
-               "(2 preliminary trainings, 3 switching trainings as jobs, then one sweep per variant)",
+    durations={"smoke": "≈ 11 s on 2 busy cores",
+               "short": "155 s measured 2026-12-02 on 2 cores shared with other work (2 preliminary trainings, 3 "
+                        "switching trainings as jobs, then one sweep per variant); the committed run of "
+                        "2026-11-27, an earlier build, took 492 s",
                "paper": "81 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (the "
                         "paper-scale switching trainings, before the authors' variant was added)"},
 )
@@ -632,10 +636,11 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
     summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing in each "
             "settings variant (paper wind, published wind, the authors' protocol: six jobs); the wind switched on "
             "at every n = 0…99 (one batched run each): which runs converge",
-    durations={"smoke": "≈ 30 s",
-               "short": "147 s measured 2026-12-02 on the 2-core machine shared with other work (2 × 1,000 s "
-                        "preliminary, verlet and published integrator, + 6 × 2,000 s switching: fixed and random "
-                        "timing in each of the three variants; 6 jobs on 2 workers)",
+    durations={"smoke": "≈ 12 s on 2 busy cores",
+               "short": "147 s measured 2026-12-02 on 2 cores shared with other work (2 × 1,000 s preliminary, "
+                        "verlet and published integrator, + 6 × 2,000 s switching: fixed and random timing in "
+                        "each of the three variants; 6 jobs on 2 workers); the committed run of 2026-11-27, an "
+                        "earlier build, took 599 s",
                "paper": "155 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
                         "(4 × 30,000 s of switching training, 2 workers, before the authors' variant was added)"},
 )

@@ -84,8 +84,9 @@ def agent_settings(ctx: Context) -> AgentSettings:
     paper_ref="main text 'Autonomous behavior through brain function transfer' (8 of 20 agents); Fig. 4(a)",
     summary="train 20 caterpillar agents forward (sweep jobs), fit each FL (σ 0.2), close the loops; count "
             "closed/open speed ≥ 0.7; variants: SWG→FL transition period, velocity FL",
-    durations={"smoke": "≈ 20 s (2 agents, 4 s of training)",
-               "short": "≈ 25 min with 2 workers, ≈ 48 min in one process (20 agents, 200 s of training each)",
+    durations={"smoke": "≈ 7 s on 2 busy cores (2 agents, 4 s of training)",
+               "short": "86 s measured 2026-12-02 on 2 busy cores (20 agents, 200 s of training each, 2 workers); "
+                        "the committed run of 2026-11-27, an earlier build, took 25 min",
                "paper": "75 s measured 2026-11-27, 2 cores, lightly loaded (20 agents, 1000 s each, 2 workers)"},
 )
 def run(ctx: Context) -> None:

@@ -131,7 +131,9 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
             "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded; variants paper (positions "
             "N(0, σ²)) and authors (positions N(0, (σP/8)²), velocities N(0, (σS)²))",
-    durations={"smoke": "≈ 10 s", "short": "≈ 2 min after locomotion-closed-loop-20 (its agents reused)",
+    durations={"smoke": "≈ 8 s on 2 busy cores",
+               "short": "83 s measured 2026-12-02 on 2 busy cores after locomotion-closed-loop-20 (its 20 agents "
+                        "reused); the committed run of 2026-11-27, an earlier build, took 122 s",
                "paper": "26 s measured 2026-11-27, 2 cores, lightly loaded (agents reused)"},
 )
 def run(ctx: Context) -> None:

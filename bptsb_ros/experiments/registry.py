@@ -175,7 +175,8 @@ class Experiment:
     paper_ref: str
     summary: str
     run: Callable[[Context], None]
-    #: how long each scale takes on the 2-core development machine (measured; text for --list)
+    #: how long each scale takes (text for --list): the run's wall time (``wall_s``), measured on 2 cores, with the
+    #: date, or said to be an estimate
     durations: dict[str, str]
 
 
