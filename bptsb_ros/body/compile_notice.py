@@ -2,7 +2,7 @@
 
 The compiled kernels (:mod:`bptsb_ros.body.kernel`, :mod:`bptsb_ros.training.fused_kernel`) are built with
 ``cache=True``: the first call in a process loads them from numba's on-disk cache in about a second, or, when
-the cache holds no build for that function, these argument types and this machine (a fresh install, an edited
+the cache holds no build for that function, these argument types and this CPU (a fresh install, an edited
 kernel, another numba version, another dtype), compiles them, which takes seconds to tens of seconds without any
 output. :func:`announce_if_cold` says so first, once per process.
 
@@ -29,7 +29,7 @@ _announced = False
 
 def cache_is_cold(dispatcher: Any, args: Sequence[Any]) -> bool:
     """True when calling ``dispatcher`` (a numba ``njit(cache=True)`` function) with ``args`` will compile it:
-    it has no build in this process and numba's on-disk cache holds none for these argument types, this machine
+    it has no build in this process and numba's on-disk cache holds none for these argument types, this CPU
     and the function's current source. False when it will not, and also when the dispatcher has no on-disk cache
     or numba's cache internals are not as this function expects (no line rather than a wrong one)."""
     if getattr(dispatcher, "overloads", None):  # built or loaded in this process already
