@@ -244,6 +244,9 @@ def test_a_phase_is_one_line_naming_the_experiment(tmp_path):
     ctx = Context("smoke", 0, tmp_path, ExperimentResult("toy-phase", "", "smoke", 0), log=lines.append)
     ctx.phase("plotting the return rates")
     assert lines == ["toy-phase: plotting the return rates ..."]
+    ctx.progress = False  # --no-progress
+    ctx.phase("plotting the return rates")
+    assert len(lines) == 1
 
 
 def test_every_experiment_states_a_time_for_every_scale():

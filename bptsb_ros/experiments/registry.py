@@ -146,8 +146,9 @@ class Context:
 
     def phase(self, what: str) -> None:
         """One line, ``<experiment>: <what> ...``, as a phase of seconds that shows no progress of its own starts
-        (a test simulation, the plots)."""
-        self.log(f"{self.result.experiment}: {what} ...")
+        (a test simulation, the plots); progress, like the bars: not with ``progress`` off (``--no-progress``)."""
+        if self.progress:
+            self.log(f"{self.result.experiment}: {what} ...")
 
     def row(self, system: str, metric: str, unit: str, ours: float | None, paper: float | str | None = None) -> None:
         self.result.rows.append(Row(system, metric, unit, ours, paper))
