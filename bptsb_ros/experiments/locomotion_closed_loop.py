@@ -75,8 +75,14 @@ def settings_for(ctx: Context) -> tuple[AgentSettings, int]:
 
 
 def agent_settings(ctx: Context) -> AgentSettings:
-    """The agents' training and evaluation settings: the :class:`AgentSettings` fields of ``ctx.settings``."""
-    return AgentSettings(**{f.name: ctx.settings[f.name] for f in fields(AgentSettings)})
+    """The agents' training and evaluation settings: the :class:`AgentSettings` fields of ``ctx.settings``.
+    Their training config is built once here, so a bad ``config_overrides`` entry is one ConfigError before any
+    agent trains."""
+    from bptsb_ros.experiments.common import packaged_config
+
+    settings = AgentSettings(**{f.name: ctx.settings[f.name] for f in fields(AgentSettings)})
+    packaged_config("locomotion_forward", settings.overrides(), seed=ctx.seed)
+    return settings
 
 
 @experiment(
