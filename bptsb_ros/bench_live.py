@@ -45,13 +45,23 @@ def fitted_agent(run_dir: Path, seed: int = 3) -> Path:
     return run_dir
 
 
+def loop_params(loop: str, params: tuple[str, ...]) -> tuple[str, ...]:
+    """The ``NODE:NAME:=VALUE`` parameters of ``params`` whose node is part of ``loop`` (the others are left out,
+    so that one list can serve several loops)."""
+    from bptsb_ros.live.loops import LOOPS
+
+    nodes = {"body_sim", "recorder", *(b.executable for b in LOOPS[loop].brains)}
+    return tuple(p for p in params if p.split(":", 1)[0] in nodes)
+
+
 def launch_argv(loop: str, bag: Path, seconds: float, agent: str = "", params: tuple[str, ...] = ()) -> list[str]:
-    """The ``bptsb launch`` command line of one recorded lockstep run of ``loop`` for ``seconds`` sim seconds."""
+    """The ``bptsb launch`` command line of one recorded lockstep run of ``loop`` for ``seconds`` sim seconds
+    (``params``: those of :func:`loop_params`)."""
     argv = [sys.executable, "-m", "bptsb_ros.cli", "launch", loop, "--duration", f"{seconds:g}", "--bag", str(bag),
             "--timeout", f"{max(600.0, 60 * seconds):g}"]
     if agent:
         argv += ["--agent", agent, "--open-loop-steps", str(OPEN_LOOP_STEPS)]
-    for param in params:
+    for param in loop_params(loop, params):
         argv += ["--param", param]
     return argv
 
@@ -88,8 +98,8 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
 def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats: int = 1,
              workdir: str | Path | None = None, params: tuple[str, ...] = (), progress=print) -> dict[str, Any]:
     """``repeats`` interleaved rounds of one recorded lockstep run of each of ``loops`` (``seconds`` sim seconds
-    each; ``params``: ``NODE:NAME:=VALUE`` passed to every launch). Bags and logs go to ``workdir`` (default: a new
-    temporary folder, kept)."""
+    each; ``params``: ``NODE:NAME:=VALUE`` passed to every launch of a loop with that node). Bags and logs go to
+    ``workdir`` (default: a new temporary folder, kept)."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="bptsb-bench-live-"))
     work.mkdir(parents=True, exist_ok=True)
     report: dict[str, Any] = {"cpu_count": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
