@@ -212,6 +212,20 @@ def test_rounds_lose_nothing_and_wake_once_per_batch():
     assert unbatched.taken == 50 and unbatched.sleeps == [] and n > 20
 
 
+def test_a_wait_ended_by_something_else_still_makes_a_round():
+    """The sim-time /clock subscription (not a recorded message) ends the wait early: the round still sleeps out
+    batch_wait, so such wake-ups cannot make one round per step."""
+    spin = FakeSpin([])
+
+    def clock_tick(timeout):  # handles a callback that is no recorded message, 1 ms into the wait
+        spin.t += 0.001
+
+    from bptsb_ros.bags.recording import take_round
+
+    assert take_round(clock_tick, lambda: 0, lambda: spin.t, spin.sleep, 0.02, 0.05) == 0
+    assert spin.sleeps == [pytest.approx(0.018)]  # the wait and one zero-timeout spin took 1 ms each
+
+
 def test_no_sleep_after_an_empty_round_or_a_long_one():
     idle = FakeSpin([])
     assert _round(idle, 0.002, timeout=0.05) == 0 and idle.sleeps == [] and idle.t == pytest.approx(0.05)

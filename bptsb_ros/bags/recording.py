@@ -31,8 +31,8 @@ from bptsb_ros.bags.qos import QosProfile
 from bptsb_ros.bags.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_PERIOD_S
 from bptsb_ros.ros.params import LOG_LEVEL, Param, ParameterError
 
-#: default ``batch_wait`` [s]: at 1,000 steps/s about 20 messages per round instead of one wake-up for each
-DEFAULT_BATCH_WAIT_S = 0.002
+#: default ``batch_wait`` [s]: at 1,000 steps/s about 200 messages (20 steps) per round instead of one wake-up each
+DEFAULT_BATCH_WAIT_S = 0.02
 
 RECORDER_PARAMS: tuple[Param, ...] = (
     Param("bag_path", "", "Output bag directory (created; must not exist or be empty). Required.", "str"),
@@ -309,12 +309,14 @@ def take_round(spin_once: Callable[[float], None], taken: Callable[[], int], clo
                sleep: Callable[[float], None], batch_wait: float, timeout: float = 0.05) -> int:
     """One round of the recorder's loop: wait up to ``timeout`` [s] for a message (``spin_once``), then handle
     whatever else is ready until a call handles no message (``taken``: messages handled so far), then sleep until
-    ``batch_wait`` [s] after the round began (no sleep when the round took longer, or took nothing, or
-    ``batch_wait`` is 0). Returns the messages the round handled."""
+    ``batch_wait`` [s] after the round began (no sleep when the round took longer, or ``batch_wait`` is 0, or the
+    wait timed out with nothing taken). A wait ended early by something else (a timer, the ``/clock`` of sim time)
+    counts as activity too: the round goes on, so that it cannot end a round per step. Returns the messages the
+    round handled."""
     first = taken()
     began = clock()
     spin_once(timeout)
-    if taken() == first:
+    if taken() == first and clock() - began >= timeout:
         return 0
     before = -1
     while taken() != before:
