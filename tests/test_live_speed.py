@@ -45,9 +45,9 @@ def test_phases_summary_and_bench_row():
 
 
 def test_lockstep_loop_splits_each_step_into_its_phases():
-    """Planted: the brain answers 3 ms after /clock, publishing a step takes 2 ms, the recorder acknowledges step k
-    6 ms after /clock t_k and the body may run 1 step ahead; integrating takes no time on the fake clock. Step k ≥ 1
-    then waits 6 - 5 = 1 ms for the acknowledgement of step k - 1."""
+    """Planted: the brain answers 3 ms after /clock, publishing /clock takes 0.5 ms and the step's state 2 ms,
+    the recorder acknowledges step k 6 ms after /clock t_k and the body may run 1 step ahead; integrating takes no
+    time on the fake clock. Step k ≥ 1 then waits 6 - 5 = 1 ms for the acknowledgement of step k - 1."""
     c = core(wait_for=["rest_length"], max_steps=9, command_timeout=1.0, wait_for_recorder=True, recorder_window=1,
              qos_depth=10)
 
@@ -55,12 +55,17 @@ def test_lockstep_loop_splits_each_step_into_its_phases():
         port.send(0.003, lambda: c.offer_command("rest_length", k, BASE, port.now()))
         port.send(0.006, lambda: c.recorder_ack(k, []))
 
-    port = FakePort(c, brain, cost=0.002)
+    class SlowClock(FakePort):  # publishing /clock takes 0.5 ms (after the brain got it): publish, not commands
+        def announce(self, step):
+            super().announce(step)
+            self.t += 0.0005
+
+    port = SlowClock(c, brain, cost=0.002)
     assert BodyLoop(c, port).run() is False
     s = c.summary()
     assert s["loop_steps"] == 10 and s["loop_wall_s"] == pytest.approx(10 * 0.005 + 9 * 0.001)
     assert s["loop_steps_per_s"] == pytest.approx(10 / 0.059)
-    assert s["phase_ms_commands"] == pytest.approx(3.0) and s["phase_ms_publish"] == pytest.approx(2.0)
+    assert s["phase_ms_commands"] == pytest.approx(2.5) and s["phase_ms_publish"] == pytest.approx(2.5)
     assert s["phase_ms_recorder"] == pytest.approx(0.9) and s["phase_ms_compute"] == pytest.approx(0.0)
     assert s["phase_ms_other"] == pytest.approx(0.0, abs=1e-9)
     assert set(PHASES) == {"recorder", "publish", "commands", "compute"}
