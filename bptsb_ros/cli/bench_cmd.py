@@ -16,7 +16,8 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
         "MNIST training images/s of every "
         "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON. "
         "With --soak: soak the live recording instead (a realtime and a lockstep recorded run under CPU load; "
-        "steps published, messages recorded, drops counted).")
+        "steps published, messages recorded, drops counted). With --live: steps/s of lockstep live loops while a bag "
+        "is recorded, each step split into recorder wait, publish, wait for commands and compute.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,8 +35,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="sim seconds of the lockstep run (0: skip it; default 10)")
     soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
                       help="spinning processes during the lockstep run (default 8)")
-    soak.add_argument("--workdir", default="", metavar="DIR", help="bags and launch logs of the soak (default: a new "
-                      "temporary directory, kept)")
+    live = parser.add_argument_group("--live: recorded lockstep loops (bptsb_ros.bench_live; runs bptsb launch "
+                                     "<loop> --bag on this ROS_DOMAIN_ID)")
+    live.add_argument("--live", action="store_true", help="time recorded lockstep live loops instead")
+    live.add_argument("--live-loops", default="lissajous_closed,narma", metavar="A,B",
+                      help="loops to run, comma-separated (default lissajous_closed,narma)")
+    live.add_argument("--live-seconds", type=float, default=10.0, metavar="S",
+                      help="sim seconds of each run (default 10)")
+    live.add_argument("--live-repeats", type=int, default=1, metavar="N",
+                      help="interleaved rounds of one run per loop (default 1)")
+    live.add_argument("--live-param", action="append", default=[], metavar="NODE:NAME:=VALUE",
+                      help="a node parameter for every run (bptsb launch --param; repeatable)")
+    soak.add_argument("--workdir", default="", metavar="DIR", help="bags and launch logs of the soak or --live "
+                      "(default: a new temporary directory, kept)")
 
 
 def _write(out: Path, report: dict, complete: bool = True) -> int | None:
@@ -89,9 +101,41 @@ def _soak(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _live(args: argparse.Namespace) -> int:
+    import math
+
+    from bptsb_ros.bench_live import live_table, run_live
+    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.live.loops import LOOPS
+
+    loops = tuple(name.strip() for name in args.live_loops.split(",") if name.strip())
+    unknown = [name for name in loops if name not in LOOPS]
+    if not loops or unknown:
+        return fail(NAME, f"--live-loops: unknown loop(s) {', '.join(unknown) or '(none given)'}; choose from "
+                    f"{', '.join(LOOPS)}", USAGE)
+    if any(LOOPS[name].needs_agent and not name.endswith("_closed") for name in loops):
+        return fail(NAME, "--live-loops: mnist_drawing needs an MNIST system and images; not benchmarked", USAGE)
+    if not (math.isfinite(args.live_seconds) and args.live_seconds > 0):
+        return fail(NAME, f"--live-seconds must be > 0, got {args.live_seconds}", USAGE)
+    if args.live_repeats < 1:
+        return fail(NAME, f"--live-repeats must be >= 1, got {args.live_repeats}", USAGE)
+    workdir = Path(args.workdir) if args.workdir else None
+    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
+        return fail(NAME, f"--workdir {workdir} exists and is not empty")
+    report = run_live(loops, args.live_seconds, args.live_repeats, workdir, tuple(args.live_param),
+                      progress=lambda m: print(m, file=sys.stderr, flush=True))
+    if (problem := _write(Path(args.out), report)) is not None:
+        return problem
+    print(live_table(report))
+    print(f"wrote {args.out}")
+    return 1 if any(r.get("error") or r.get("launch_exit_code") for r in report["runs"]) else 0
+
+
 def run(args: argparse.Namespace) -> int:
     if args.soak:
         return _soak(args)
+    if args.live:
+        return _live(args)
     from bptsb_ros.bench import run_benchmarks, workload_table
 
     out = Path(args.out)

@@ -41,6 +41,7 @@ from bptsb_ros.live.body_params import (
     perturb_step,
 )
 from bptsb_ros.live.channels import CommandChannel, Rejection, TimingStats
+from bptsb_ros.live.phases import StepPhases
 from bptsb_ros.live.safety import (
     CommandLimits,
     DivergenceRecovery,
@@ -190,6 +191,7 @@ class BodyCore:
         self.control = SimControl(p["paused"], sink=self._on_control)
         self.resumed_at = -math.inf  # realtime: when a pause ended (silence is counted from then)
         self.stats = TimingStats()
+        self.phases = StepPhases()  # lockstep: wall time per phase of a step (bptsb bench --live)
         self.clock_sent: dict[int, float] = {}
         self.published: dict[str, int] = {}  # topic name -> messages published since stepping began
         self.counting = False  # stepping began (startup complete or given up on): publications are counted
@@ -487,6 +489,7 @@ class BodyCore:
             r = self.recorder
             out.update(recorder_waits=r.waits, recorder_wait_s=r.wait_s, recorder_acked_step=r.acked,
                        recorder_ack_rejected=r.rejected)
+        out.update(self.phases.summary())
         out["published_messages"] = dict(self.published)
         return out
 

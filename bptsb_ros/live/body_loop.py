@@ -137,24 +137,40 @@ class BodyLoop:
         state: BodyState | None = None
         step = 0
         last = port.now()
+        phases = core.phases
         while self._more(step):
+            began = port.now()
             self.hold()
             if port.stopped():
                 break
+            t0 = port.now()
             self.await_recorder(step)
             if port.stopped():
                 break
-            core.announce(step, port.now())
+            t1 = port.now()
+            core.announce(step, t1)
             port.announce(step)
+            t2 = port.now()
             self.await_commands(step)
             if port.stopped():
                 break
+            t3 = port.now()
             if any(core.silent[s] for s in core.wait_sources):  # pace silent running at rate_scale
                 self.spin_for(max(0.0, last + core.period() - port.now()))
             last = port.now()
-            state = self._step(state, step)
-            core.stats.compute.append(port.now() - last)
+            out = core.integrate(state, step)
+            t4 = port.now()
+            port.publish(out)
+            state = out.state
+            t5 = port.now()
+            core.stats.compute.append(t5 - last)
             port.diagnostics()
+            ended = port.now()
+            phases.add("recorder", t1 - t0)
+            phases.add("commands", t3 - t2)
+            phases.add("compute", t4 - last)
+            phases.add("publish", (t2 - t1) + (t5 - t4) + (ended - t5))
+            phases.step_done(began, ended)
             step += 1
 
     def _realtime(self) -> None:

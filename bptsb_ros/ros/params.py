@@ -148,6 +148,9 @@ def _coerce(spec: Param, value: Any) -> ParamValue:
 
 #: Why a read-only parameter cannot change while the node runs, by name, or by prefix for ``prefix.*``.
 READ_ONLY_REASONS: dict[str, str] = {
+    "executor": "the node's subscriptions, timers and services are added to its executor once, at startup",
+    "raw_outputs": "the per-step messages are laid out once, at startup",
+    "batch_wait": "the recorder's loop is set up once, at startup",
     **dict.fromkeys(("agent", "config", "task", "shape", "nodes", "size", "dt", "integrator", "brain_type", "seed",
                      "dtype"), "the agent (body and brain) is built from it once, at startup, and every node of "
                     "the loop must hold the same one"),
@@ -188,6 +191,11 @@ READ_ONLY_REASONS: dict[str, str] = {
 DEFAULT_READ_ONLY_REASON = "read once, when the node starts"
 
 #: Logger level of a node, live (every node declares it).
+EXECUTOR = Param("executor", "events", "rclpy executor of the node: events (rclpy.experimental.EventsExecutor, "
+                 "dispatch in C++; where this rclpy lacks it: single) or single (SingleThreadedExecutor)", "str",
+                 choices=("events", "single"))
+RAW_OUTPUTS = Param("raw_outputs", True, "publish the per-step outputs as pre-serialized bytes (the same messages, "
+                    "without building message objects every step); false: message objects", "bool")
 LOG_LEVEL = Param("log_level", "", "logger level of this node: debug, info, warn or error (debug shows per-message "
                   "and per-topic lines); empty: as set by --ros-args --log-level (default info)", "str",
                   choices=("", "debug", "info", "warn", "error"), dynamic=True)

@@ -254,3 +254,17 @@ def wait_acked(logger: Any, pubs: Sequence[Any], timeout: float) -> None:
     if pending:
         logger.warning(f"subscribers of {', '.join(pub.topic_name for pub in pending)} did not acknowledge every "
                        f"message within {time.monotonic() - started:.2f} s (final_ack_timeout {timeout:g} s)")
+
+
+def make_executor(kind: str, context: Any) -> Any:
+    """The executor of a live node: ``events`` (``rclpy.experimental.EventsExecutor``; a SingleThreadedExecutor where
+    this rclpy has none) or ``single`` (``SingleThreadedExecutor``), on ``context``."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    if kind == "events":
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            return SingleThreadedExecutor(context=context)
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
