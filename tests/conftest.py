@@ -8,6 +8,9 @@ gives the session a private ROS domain, so parallel sessions and other machines 
 * ``OMP_NUM_THREADS=1`` and ``MPLBACKEND=Agg`` unless already set (2 shared cores, no display).
 * ``BPTSB_FIGURE_FORMATS=png`` unless already set: the experiments' figures skip their PDF copy (half of a
   figure's time); tests/test_figures.py unsets it and checks the PNG + PDF of every figure.
+* ``FASTRTPS_DEFAULT_PROFILES_FILE=tests/fastdds_test_profile.xml`` unless a Fast DDS profile file is already set:
+  reliable writers send a heartbeat every 0.1 s instead of every 3 s, so a wait for acknowledgements (every live
+  run ends with one) takes milliseconds instead of up to 3 s. Nothing else about DDS changes (see the file).
 
 Subprocesses started by tests inherit these through ``os.environ``; the ``ros_env`` fixture returns a copy
 for tests that build their own environment.
@@ -47,6 +50,9 @@ os.environ["ROS_DOMAIN_ID"] = str(SESSION_DOMAIN_ID)
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("BPTSB_FIGURE_FORMATS", "png")
+FASTDDS_PROFILE = REPO_ROOT / "tests" / "fastdds_test_profile.xml"
+if not (os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") or os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")):
+    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILE)
 
 
 def pytest_report_header(config: pytest.Config) -> str:
