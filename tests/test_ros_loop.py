@@ -265,3 +265,19 @@ def test_a_loop_without_its_brain_fails_the_launch(tmp_path, ros_env):
     assert summary["silent_brain_steps"] == {"rest_length": 31}
     assert ("[launch] FAILED: body_sim ran on the safe command for lack of its brain (rest_length silent on 31 of "
             "steps 0..30)") in out.stdout
+
+
+def test_realtime_bench_condition_end_to_end(tmp_path, ros_env):
+    """One condition of ``bptsb bench --realtime`` (2 s of the closed loop with one core kept busy): about 200 steps
+    recorded by the body, whose record-derived misses equal its own counter."""
+    from bptsb_ros.realtime_bench import example_agent, realtime_run
+
+    r = realtime_run("busy", 2.0, 1, tmp_path, loop="lissajous_closed", agent=str(example_agent()),
+                     executor="events", progress=lambda _: None, env=env_for(ros_env))
+    assert "error" not in r, (tmp_path / "busy_launch.log").read_text()[-4000:]
+    assert r["launch_exit_code"] == 0 and r["executor"] == "events" and r["busy_processes"] == 1
+    assert 150 <= r["steps"] <= 202 and r["period_ms"] == pytest.approx(10.0)
+    assert r["deadline_misses"] == r["deadline_misses_counted_by_body"]
+    assert 0 < r["compute_p50_ms"] <= r["compute_p99_ms"] <= r["compute_max_ms"]
+    assert isinstance(r["late_commands"], int) and set(r["targets_met"]) == {
+        "deadline_misses", "compute_p99_ms", "period_jitter_p99_ms"}

@@ -14,7 +14,14 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
         "MNIST training images/s of every "
         "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON. "
         "With --soak: soak the live recording instead (a realtime and a lockstep recorded run under CPU load; "
-        "steps published, messages recorded, drops counted).")
+        "steps published, messages recorded, drops counted). With --realtime: the closed loop at 100 Hz in realtime, "
+        "idle and with one core kept busy (steps, deadline misses, step compute time and period jitter from the "
+        "body's own per-step records, late commands).")
+
+
+#: the body's executors, and the one the realtime bench uses unless told
+EXECUTORS = ("single", "events")
+DEFAULT_EXECUTOR = "events"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,16 +30,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.soak; runs bptsb launch "
                                      "lissajous_open --bag on this ROS_DOMAIN_ID)")
     soak.add_argument("--soak", action="store_true", help="run the recording soak instead of the physics benchmarks")
-    soak.add_argument("--realtime-seconds", type=float, default=60.0, metavar="S",
-                      help="wall seconds of the realtime run (0: skip it; default 60)")
+    soak.add_argument("--realtime-seconds", type=float, default=None, metavar="S",
+                      help="wall seconds of the realtime run (--soak: 0 skips it, default 60; --realtime: of each "
+                      "condition, default 600)")
     soak.add_argument("--realtime-busy", type=int, default=1, metavar="N",
-                      help="spinning processes during the realtime run (default 1: one core kept busy)")
+                      help="spinning processes during the realtime run (--realtime: of the busy condition; default "
+                      "1: one core kept busy)")
     soak.add_argument("--lockstep-seconds", type=float, default=10.0, metavar="S",
                       help="sim seconds of the lockstep run (0: skip it; default 10)")
     soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
                       help="spinning processes during the lockstep run (default 8)")
-    soak.add_argument("--workdir", default="", metavar="DIR", help="bags and launch logs of the soak (default: a new "
-                      "temporary directory, kept)")
+    soak.add_argument("--workdir", default="", metavar="DIR", help="bags, launch logs and timing records of the "
+                      "soak or the realtime bench (default: a new temporary directory, kept)")
+    rt = parser.add_argument_group("--realtime: the closed loop at 100 Hz realtime, idle and with --realtime-busy "
+                                   "spinning processes (bptsb_ros.realtime_bench; runs bptsb launch lissajous_closed "
+                                   "with the example agent on this ROS_DOMAIN_ID)")
+    rt.add_argument("--realtime", action="store_true", help="run the realtime bench instead of the physics benchmarks")
+    rt.add_argument("--executor", choices=EXECUTORS, default=DEFAULT_EXECUTOR,
+                    help=f"rclpy executor of the body (its executor parameter; default {DEFAULT_EXECUTOR})")
 
 
 def _write(out: Path, report: dict) -> int | None:
@@ -53,6 +68,8 @@ def _soak(args: argparse.Namespace) -> int:
     from bptsb_ros.cli.common import USAGE, fail
     from bptsb_ros.soak import run_soak
 
+    if args.realtime_seconds is None:
+        args.realtime_seconds = 60.0
     for name in ("realtime_seconds", "lockstep_seconds"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value >= 0):
@@ -72,9 +89,43 @@ def _soak(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _realtime(args: argparse.Namespace) -> int:
+    import math
+
+    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.realtime_bench import example_agent, realtime_table, run_realtime_bench
+
+    seconds = 600.0 if args.realtime_seconds is None else args.realtime_seconds
+    if not (math.isfinite(seconds) and seconds > 0):
+        return fail(NAME, f"--realtime-seconds must be > 0, got {seconds:g}", USAGE)
+    if args.realtime_busy < 1:
+        return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
+    workdir = Path(args.workdir) if args.workdir else None
+    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
+        return fail(NAME, f"--workdir {workdir} exists and is not empty")
+    if not (example_agent() / "checkpoint.pt").is_file():
+        return fail(NAME, f"the example agent {example_agent()} is missing (it ships in the source tree)")
+    out = Path(args.out)
+    if (problem := _write(out, {})) is not None:  # a path that cannot be written fails now, not after the runs
+        return problem
+    report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, workdir=workdir, out=out,
+                                progress=lambda m: print(m, file=sys.stderr, flush=True))
+    if (problem := _write(out, report)) is not None:
+        return problem
+    print(realtime_table(report))
+    print(f"wrote {out}")
+    return 1 if any("error" in r for r in report["conditions"].values()) else 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.soak and args.realtime:
+        from bptsb_ros.cli.common import USAGE, fail
+
+        return fail(NAME, "--soak and --realtime are two different benches: choose one", USAGE)
     if args.soak:
         return _soak(args)
+    if args.realtime:
+        return _realtime(args)
     from bptsb_ros.bench import run_benchmarks, workload_table
 
     report = run_benchmarks(quick=args.quick, progress=lambda m: print(m, file=sys.stderr, flush=True))

@@ -50,6 +50,7 @@ from bptsb_ros.live.safety import (
     runaway,
 )
 from bptsb_ros.live.sim_control import ControlCall, SimControl
+from bptsb_ros.live.step_times import StepTimes
 from bptsb_ros.live.summary import summary_text
 from bptsb_ros.ros.params import ParameterError, ParamValue
 from bptsb_ros.ros.topics import dt_to_ns, mass_dof_names, spring_names
@@ -190,6 +191,9 @@ class BodyCore:
         self.control = SimControl(p["paused"], sink=self._on_control)
         self.resumed_at = -math.inf  # realtime: when a pause ended (silence is counted from then)
         self.stats = TimingStats()
+        if p["timing_path"] and p["mode"] != "realtime":
+            raise ParameterError("parameter 'timing_path': per-step wall times are recorded in mode realtime only")
+        self.step_times: StepTimes | None = StepTimes() if p["timing_path"] else None
         self.clock_sent: dict[int, float] = {}
         self.published: dict[str, int] = {}  # topic name -> messages published since stepping began
         self.counting = False  # stepping began (startup complete or given up on): publications are counted

@@ -33,7 +33,7 @@ from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import load_source
-from bptsb_ros.ros.params import declare_parameters
+from bptsb_ros.ros.params import ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, log_line, run_node, wait_acked
 from bptsb_ros.ros.topics import RECORDER_ACK, absolute
 
@@ -46,6 +46,20 @@ OUTPUTS = (("clock", Clock), ("positions", PoseArray), ("mass_states", JointStat
 INPUTS = (("rest_length", JointState, "rest_length_cmd"), ("force", JointState, "force_cmd"),
           ("wind", Vector3Stamped, "wind"), ("perturbation", JointState, "perturb_cmd"),
           ("reset", JointState, "reset_cmd"))
+
+
+def make_executor(kind: str, context: Any) -> Any:
+    """The executor of the ``executor`` parameter: ``single`` (SingleThreadedExecutor) or ``events``
+    (rclpy.experimental.EventsExecutor); both run callbacks in the calling thread. Raises ParameterError when this
+    rclpy has no EventsExecutor."""
+    if kind == "events":
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            raise ParameterError("parameter 'executor': events needs rclpy.experimental.EventsExecutor, which this "
+                                 "rclpy does not have; use single") from None
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
 
 
 class BodySim(Node):
@@ -73,7 +87,7 @@ class BodySim(Node):
             if p["wait_for_recorder"] else None  # the recorder's latest acknowledgement (transient-local, depth 1)
         self.control_services = [self.create_service(Trigger, f"~/{name}", lambda _, res, name=name:
                                                      self._on_call(name, res)) for name in CALLS]
-        self.executor_ = SingleThreadedExecutor(context=self.context)
+        self.executor_ = make_executor(p["executor"], self.context)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
         self.loop = BodyLoop(core, self)
@@ -235,6 +249,8 @@ class BodySim(Node):
         wait_acked(self.get_logger(), list(self.pubs.values()), self.p["final_ack_timeout"])
         if self.p["summary_path"]:
             write_summary(self.p["summary_path"], summary)
+        if self.core.step_times is not None:
+            self.core.step_times.save(self.p["timing_path"], self.core.period(), {"executor": self.p["executor"]})
         return EXIT_FAILURE if diverged else EXIT_OK
 
 
