@@ -13,7 +13,9 @@ Per condition (from the body's own records, :func:`~bptsb_ros.live.step_times.ti
 misses (count and %), step compute time, its integrate and publish parts, start lateness and period jitter
 (p50/p99/max, ms); from the body's run summary: its own deadline-miss counter (the same rule, a cross-check), late
 commands (commands the body rejected as stale, every source) and safe-command steps; the executor; the launch's
-exit code and wall time; and whether the targets hold (:data:`TARGETS`). The report is written to ``out`` after
+exit code (a launch that failed after the body wrote its records, e.g. a brain silent on a loaded machine, is
+reported with its reason, ``launch_problem``, and its numbers) and wall time; and whether the targets hold
+(:data:`TARGETS`). The report is written to ``out`` after
 each condition (a long bench leaves the finished condition on disk).
 """
 
@@ -114,14 +116,23 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
                               "busy_processes": busy, "launch_exit_code": code, "wall_s": round(wall, 1),
                               "log": str(log), "load_average_after": list(os.getloadavg())}
     summary_path = logs / "body_summary.json"
-    if code != 0 or not summary_path.is_file() or not timing_path.is_file():
-        result["error"] = "the run failed or left no body summary or timing records; see the log"
+    if not summary_path.is_file() or not timing_path.is_file():
+        result["error"] = "the run left no body summary or no timing records; see the log"
         return result
+    if code != 0:  # e.g. the brain fell silent on a loaded machine: the body's records still hold
+        result["launch_problem"] = _last_line(log)
     result.update(condition_result(json.loads(summary_path.read_text()), load_step_times(timing_path)))
     return result
 
 
-def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str = "events",
+def _last_line(log: Path) -> str:
+    """The launch's last ``FAILED`` line (why it exited non-zero), or its last line."""
+    lines = [line.strip() for line in log.read_text(errors="replace").splitlines() if line.strip()]
+    failed = [line for line in lines if "FAILED" in line]
+    return (failed or lines or ["(empty log)"])[-1][:300]
+
+
+def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str = "auto",
                        loop: str = "lissajous_closed",
                        agent: str | None = None, workdir: str | Path | None = None, out: str | Path | None = None,
                        progress: Callable[[str], None] = print) -> dict[str, Any]:
@@ -145,15 +156,18 @@ def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str =
 def realtime_table(report: dict[str, Any]) -> str:
     """The conditions of a report as a text table (times in ms), one row per condition, then the targets."""
     heads = ["condition"] + [h for _, h, _ in COLUMNS]
-    rows = []
+    rows, notes = [], []
     for name, r in report["conditions"].items():
         label = f"{name} ({r.get('busy_processes', 0)} busy)"
         if "error" in r:
-            rows.append([label, f"error: {r['error']}"])
+            notes.append(f"{name}: error: {r['error']}")
             continue
         rows.append([label] + [format(r[k], f) if k in r and r[k] is not None else "-" for k, _, f in COLUMNS])
-    widths = [max(len(row[i]) for row in [heads, *rows] if i < len(row)) for i in range(len(heads))]
-    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=False)).rstrip() for row in [heads, *rows]]
+        if r.get("launch_problem"):
+            notes.append(f"{name}: the launch exited {r.get('launch_exit_code')}: {r['launch_problem']}")
+    widths = [max(len(row[i]) for row in [heads, *rows]) for i in range(len(heads))]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip() for row in [heads, *rows]]
+    lines += notes
     for name, r in report["conditions"].items():
         if "targets_met" in r:
             lines.append(f"{name}: " + "; ".join(f"{text}: {'met' if r['targets_met'][key] else 'NOT met'}"

@@ -108,11 +108,12 @@ def test_condition_result_counts_late_commands_and_targets():
     calm.update(integrated=calm["began"] + 2e-4, done=calm["began"] + 5e-4)
     ok = condition_result({}, {**calm, "period": PERIOD})
     assert ok["targets_met"] == {"deadline_misses": True, "compute_p99_ms": True, "period_jitter_p99_ms": True}
-    table = realtime_table({"conditions": {"idle": {**r, "busy_processes": 0}, "busy": {"error": "planted",
-                                                                                       "busy_processes": 1}}})
+    table = realtime_table({"conditions": {
+        "idle": {**r, "busy_processes": 0, "launch_exit_code": 1, "launch_problem": "brain silent"},
+        "busy": {"error": "planted", "busy_processes": 1}}})
     lines = table.splitlines()
     assert lines[1].split()[:6] == ["idle", "(0", "busy)", "101", "2", "1.98"]
-    assert "4.950" in lines[1] and "error: planted" in lines[2]
+    assert "4.950" in lines[1] and lines[2:4] == ["idle: the launch exited 1: brain silent", "busy: error: planted"]
     assert "idle: no deadline miss: NOT met" in table
 
 
@@ -151,7 +152,7 @@ def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
 
     out = tmp_path / "rt.json"
     assert bench_cmd.run(parse(["--realtime", "--out", str(out)])) == 0
-    assert calls[-1] == ("realtime", 600.0, 1, "events")  # the 10 minutes, one core busy
+    assert calls[-1] == ("realtime", 600.0, 1, "auto")  # the 10 minutes, one core busy
     assert json.loads(out.read_text())["conditions"]["idle"]["steps"] == 7
     assert bench_cmd.run(parse(["--realtime", "--realtime-seconds", "30", "--realtime-busy", "2", "--executor",
                                 "single", "--out", str(out)])) == 0

@@ -273,9 +273,9 @@ def test_realtime_bench_condition_end_to_end(tmp_path, ros_env):
     from bptsb_ros.realtime_bench import example_agent, realtime_run
 
     r = realtime_run("busy", 2.0, 1, tmp_path, loop="lissajous_closed", agent=str(example_agent()),
-                     executor="events", progress=lambda _: None, env=env_for(ros_env))
+                     executor="auto", progress=lambda _: None, env=env_for(ros_env))
     assert "error" not in r, (tmp_path / "busy_launch.log").read_text()[-4000:]
-    assert r["launch_exit_code"] == 0 and r["executor"] == "events" and r["busy_processes"] == 1
+    assert r["launch_exit_code"] == 0 and r["executor"] == "events" and r["busy_processes"] == 1  # auto: events
     assert 150 <= r["steps"] <= 202 and r["period_ms"] == pytest.approx(10.0)
     assert r["deadline_misses"] == r["deadline_misses_counted_by_body"]
     assert 0 < r["compute_p50_ms"] <= r["compute_p99_ms"] <= r["compute_max_ms"]

@@ -20,8 +20,8 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
 
 
 #: the body's executors, and the one the realtime bench uses unless told
-EXECUTORS = ("single", "events")
-DEFAULT_EXECUTOR = "events"
+EXECUTORS = ("auto", "single", "events")
+DEFAULT_EXECUTOR = "auto"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,7 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                    "with the example agent on this ROS_DOMAIN_ID)")
     rt.add_argument("--realtime", action="store_true", help="run the realtime bench instead of the physics benchmarks")
     rt.add_argument("--executor", choices=EXECUTORS, default=DEFAULT_EXECUTOR,
-                    help=f"rclpy executor of the body (its executor parameter; default {DEFAULT_EXECUTOR})")
+                    help=f"rclpy executor of the body (its executor parameter; default {DEFAULT_EXECUTOR}: "
+                    "events where rclpy has it)")
 
 
 def _write(out: Path, report: dict) -> int | None:
@@ -114,7 +115,7 @@ def _realtime(args: argparse.Namespace) -> int:
         return problem
     print(realtime_table(report))
     print(f"wrote {out}")
-    return 1 if any("error" in r for r in report["conditions"].values()) else 0
+    return 1 if any("error" in r or r.get("launch_exit_code") for r in report["conditions"].values()) else 0
 
 
 def run(args: argparse.Namespace) -> int:

@@ -24,7 +24,7 @@ LISTED_PERTURBATIONS = 20
 #: what the ROS graph reports as the node name of an endpoint whose node it has not discovered yet
 UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 #: the ``executor`` choices
-EXECUTORS = ("single", "events")
+EXECUTORS = ("auto", "single", "events")
 PUBLISHED = BODY_OUTPUTS
 SUBSCRIBED = BODY_INPUTS
 
@@ -72,9 +72,10 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "str"),
     Param("timing_path", "", "realtime: write every step's wall times (due, began, integrated, done; "
           "bptsb_ros.live.step_times) here as .npz at exit, 40 bytes a step kept in memory (empty: don't)", "str"),
-    Param("executor", "single", "rclpy executor that handles the body's messages between steps: single "
-          "(SingleThreadedExecutor) or events (rclpy.experimental.EventsExecutor, where this rclpy has it); both run "
-          "every callback in the body's own thread", "str", choices=EXECUTORS),
+    Param("executor", "auto", "rclpy executor that handles the body's messages between steps: single "
+          "(SingleThreadedExecutor), events (rclpy.experimental.EventsExecutor; a quarter of the cost per spin) or "
+          "auto (events in realtime where this rclpy has it, else single); all run every callback in the body's own "
+          "thread", "str", choices=EXECUTORS),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
     Param("max_rest_length", 0.0, "largest accepted rest-length command [m]; 0: 10 x "
           "the diagonal of the body's bounding box", "float", minimum=0.0),

@@ -35,6 +35,7 @@ from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import load_source
 from bptsb_ros.ros.params import ParameterError, declare_parameters
 from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, log_line, run_node, wait_acked
+from bptsb_ros.ros.step_messages import StepMessages
 from bptsb_ros.ros.topics import RECORDER_ACK, absolute
 
 NODE = "body_sim"
@@ -48,18 +49,21 @@ INPUTS = (("rest_length", JointState, "rest_length_cmd"), ("force", JointState, 
           ("reset", JointState, "reset_cmd"))
 
 
-def make_executor(kind: str, context: Any) -> Any:
-    """The executor of the ``executor`` parameter: ``single`` (SingleThreadedExecutor) or ``events``
-    (rclpy.experimental.EventsExecutor); both run callbacks in the calling thread. Raises ParameterError when this
-    rclpy has no EventsExecutor."""
-    if kind == "events":
+def make_executor(kind: str, mode: str, context: Any) -> tuple[Any, str]:
+    """The executor of the ``executor`` parameter and its name (single or events): ``single``
+    (SingleThreadedExecutor), ``events`` (rclpy.experimental.EventsExecutor) or ``auto`` (events in realtime where
+    rclpy has it, else single); all run callbacks in the calling thread. Raises ParameterError for ``events`` when
+    this rclpy has no EventsExecutor."""
+    if kind != "single" and (kind == "events" or mode == "realtime"):
         try:
             from rclpy.experimental import EventsExecutor
         except ImportError:
-            raise ParameterError("parameter 'executor': events needs rclpy.experimental.EventsExecutor, which this "
-                                 "rclpy does not have; use single") from None
-        return EventsExecutor(context=context)
-    return SingleThreadedExecutor(context=context)
+            if kind == "events":
+                raise ParameterError("parameter 'executor': events needs rclpy.experimental.EventsExecutor, which "
+                                     "this rclpy does not have; use single") from None
+        else:
+            return EventsExecutor(context=context), "events"
+    return SingleThreadedExecutor(context=context), "single"
 
 
 class BodySim(Node):
@@ -74,8 +78,10 @@ class BodySim(Node):
         self.throttle = Throttle(1.0)
         self.core = core = BodyCore(agent, p, sink=self._on_event)
         self.body, self.dt_ns, topo = core.body, core.dt_ns, core.body.topology
-        self.springs, self.fixed = np.asarray(topo.springs), np.asarray(topo.fixed)
-        self.mass_diameter = 0.04 * float(np.ptp(topo.positions, axis=0).max() or 1.0)
+        self.step_messages = StepMessages(core.body, core.dof_names, core.spring_names, core.mass, p["frame_id"],
+                                          core.dt_ns, 0.04 * float(np.ptp(topo.positions, axis=0).max() or 1.0))
+        if self.step_messages.why_objects:
+            self.get_logger().warning(f"per-step messages built as objects (slower): {self.step_messages.why_objects}")
         self.callbacks, self._intruders = 0, {}  # _intruders: source -> (publisher count, when, untrusted names)
         topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED + (RECORDER_ACK,)}
         sq = m.state_qos(p["qos_depth"])
@@ -87,7 +93,7 @@ class BodySim(Node):
             if p["wait_for_recorder"] else None  # the recorder's latest acknowledgement (transient-local, depth 1)
         self.control_services = [self.create_service(Trigger, f"~/{name}", lambda _, res, name=name:
                                                      self._on_call(name, res)) for name in CALLS]
-        self.executor_ = make_executor(p["executor"], self.context)
+        self.executor_, self.executor_name = make_executor(p["executor"], p["mode"], self.context)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
         self.loop = BodyLoop(core, self)
@@ -185,24 +191,12 @@ class BodySim(Node):
 
     def publish(self, out: StepOutput) -> None:
         """The state of one step on the body's topics (and its perturbation, if any, first)."""
-        state, k, ns, frame, core = out.state, out.state.step, self.dt_ns, self.p["frame_id"], self.core
+        k = out.state.step
         if out.perturbation is not None:
-            self._publish("perturbation", m.joint_state(k, ns, core.dof_names, position=out.perturbation,
-                                                        frame_id=frame))
-        full = self.body.full_positions(state.r)[0].numpy()
-        length, rest = state.length[0].numpy(), out.rest.reshape(-1).numpy()
-        self._publish("positions", m.pose_array(k, ns, full, frame))
-        self._publish("mass_states", m.joint_state(
-            k, ns, core.dof_names, position=state.r[0].numpy().reshape(-1), velocity=state.v[0].numpy().reshape(-1),
-            effort=m.effort_from_acceleration(state.a[0].numpy(), core.mass), frame_id=frame))
-        self._publish("spring_lengths", m.joint_state(k, ns, core.spring_names, position=length))
-        self._publish("rest_length", m.joint_state(k, ns, core.spring_names, position=rest))
-        f = np.zeros(2 * self.body.n_movable) if out.force is None else out.force.reshape(-1).numpy()
-        self._publish("external_force", m.joint_state(k, ns, core.dof_names, effort=f, frame_id=frame))
-        if k % self.p["marker_every"] == 0:
-            strain = length / np.maximum(rest, 1e-12) - 1.0
-            self._publish("markers", m.body_markers(k, ns, full, self.springs, self.fixed,
-                                                    self.body.topology.cmp_index, strain, frame, self.mass_diameter))
+            self._publish("perturbation", m.joint_state(k, self.dt_ns, self.core.dof_names,
+                                                        position=out.perturbation, frame_id=self.p["frame_id"]))
+        for key, msg in self.step_messages.messages(out, markers=k % self.p["marker_every"] == 0):
+            self._publish(key, msg)
 
     def diagnostics(self, force: bool = False, error: str = "") -> None:
         """Publish the loop status every ``diagnostics_period`` (or now when ``force`` or ``error``)."""
@@ -250,7 +244,7 @@ class BodySim(Node):
         if self.p["summary_path"]:
             write_summary(self.p["summary_path"], summary)
         if self.core.step_times is not None:
-            self.core.step_times.save(self.p["timing_path"], self.core.period(), {"executor": self.p["executor"]})
+            self.core.step_times.save(self.p["timing_path"], self.core.period(), {"executor": self.executor_name})
         return EXIT_FAILURE if diverged else EXIT_OK
 
 

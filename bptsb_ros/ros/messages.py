@@ -142,6 +142,17 @@ def _strain_color(strain: float) -> ColorRGBA:
     return ColorRGBA(r=0.6 + 0.45 * s, g=0.6 + 0.2 * s, b=0.6 - 0.4 * s, a=1.0)
 
 
+def strain_colors(strain: np.ndarray) -> np.ndarray:
+    """:func:`_strain_color` of every strain (E,) at once, as (E, 4) float32 RGBA (the values a ColorRGBA carries)."""
+    s = np.clip(np.asarray(strain, dtype=np.float64) / 0.2, -1.0, 1.0)
+    up = s >= 0
+    rgba = np.ones((len(s), 4))
+    rgba[:, 0] = np.where(up, 0.6 + 0.4 * s, 0.6 + 0.45 * s)
+    rgba[:, 1] = np.where(up, 0.6 - 0.45 * s, 0.6 + 0.2 * s)
+    rgba[:, 2] = np.where(up, 0.6 - 0.45 * s, 0.6 - 0.4 * s)
+    return rgba.astype(np.float32)
+
+
 def body_markers(step: int, dt_ns: int, positions: np.ndarray, springs: np.ndarray, fixed: np.ndarray,
                  cmp_index: int, strain: np.ndarray, frame_id: str, mass_diameter: float) -> MarkerArray:
     """Masses as one SPHERE_LIST (grey fixed, blue movable, red CMP) and springs as one LINE_LIST
