@@ -3,7 +3,8 @@
 Each condition is one ``bptsb launch <loop> --mode realtime --duration S`` (default the closed Lissajous loop of the
 package's example agent, ``bags/lissajous_agent``: dt 0.01 s, so 100 steps a wall second), the live loop exactly as
 ``bptsb launch`` runs it, with the body's ``timing_path`` set so that it writes every step's wall times
-(:mod:`bptsb_ros.live.step_times`) and with its ``executor`` parameter. Two conditions, in this order:
+(:mod:`bptsb_ros.live.step_times`) and with its ``executor`` and ``rt_priority`` parameters. Two conditions, in this
+order:
 
 * ``idle``: no extra load (the machine as it is: say in the report what else ran on it);
 * ``busy``: ``busy`` child processes that spin (:func:`bptsb_ros.soak.start_busy`; default 1, one core kept busy),
@@ -45,7 +46,7 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("steps", "steps", "d"), ("deadline_misses", "misses", "d"), ("deadline_miss_pct", "miss %", ".2f"),
     ("compute_p50_ms", "compute p50", ".3f"), ("compute_p99_ms", "p99", ".3f"), ("compute_max_ms", "max", ".2f"),
     ("period_jitter_p99_ms", "jitter p99", ".3f"), ("period_jitter_max_ms", "max", ".2f"),
-    ("late_commands", "late cmds", "d"), ("executor", "executor", "s"),
+    ("late_commands", "late cmds", "d"), ("executor", "executor", "s"), ("rt_priority", "FIFO", "d"),
 )
 #: stale rejections of these sources are the late commands
 SOURCES = ("rest_length", "force", "wind", "reset")
@@ -80,13 +81,15 @@ def condition_result(summary: dict[str, Any], timing: dict[str, Any]) -> dict[st
         "late_commands": late_commands(summary),
         "safe_command_steps": summary.get("safe_command_steps"),
         "command_latency_p99_ms": summary.get("command_latency_ms_p99"),
+        "rt_priority": summary.get("rt_priority", 0),
     })
     stats["targets_met"] = targets_met(stats)
     return stats
 
 
 def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: str, agent: str, executor: str,
-                 progress: Callable[[str], None] = print, env: Mapping[str, str] | None = None) -> dict[str, Any]:
+                 rt_priority: int = 0, progress: Callable[[str], None] = print,
+                 env: Mapping[str, str] | None = None) -> dict[str, Any]:
     """One condition: ``bptsb launch loop --mode realtime --duration seconds`` with ``busy`` spinning processes,
     logs in ``workdir/name``; returns :func:`condition_result` plus the run's facts (or ``error``). ``env``: the
     launch's environment (default this process's)."""
@@ -98,7 +101,8 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
     log = workdir / f"{name}_launch.log"
     argv = [sys.executable, "-m", "bptsb_ros.cli", "launch", loop, "--mode", "realtime", "--duration", f"{seconds:g}",
             "--log-dir", str(logs), "--timeout", f"{seconds + 300:g}",
-            "--param", f"body_sim:timing_path:={timing_path}", "--param", f"body_sim:executor:={executor}"]
+            "--param", f"body_sim:timing_path:={timing_path}", "--param", f"body_sim:executor:={executor}",
+            "--param", f"body_sim:rt_priority:={rt_priority}"]
     if agent:
         argv += ["--agent", agent]
     progress(f"realtime bench: {name}: {loop} for {seconds:g} s with {busy} busy process(es), executor {executor}; "
@@ -132,7 +136,7 @@ def _last_line(log: Path) -> str:
     return (failed or lines or ["(empty log)"])[-1][:300]
 
 
-def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str = "auto",
+def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str = "auto", rt_priority: int = 0,
                        loop: str = "lissajous_closed",
                        agent: str | None = None, workdir: str | Path | None = None, out: str | Path | None = None,
                        progress: Callable[[str], None] = print) -> dict[str, Any]:
@@ -147,7 +151,8 @@ def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str =
                               "targets": {key: text for key, _, text in TARGETS}, "conditions": {}}
     for name, loaded in CONDITIONS:
         report["conditions"][name] = realtime_run(name, seconds, busy if loaded else 0, work, loop=loop,
-                                                  agent=agent_dir, executor=executor, progress=progress)
+                                                  agent=agent_dir, executor=executor, rt_priority=rt_priority,
+                                                  progress=progress)
         if out is not None:
             Path(out).write_text(json.dumps(report, indent=2) + "\n")
     return report

@@ -134,8 +134,8 @@ def calls(monkeypatch):
 
     seen: list[tuple] = []
 
-    def fake_bench(seconds, busy, *, executor, workdir, out, progress):
-        seen.append(("realtime", seconds, busy, executor))
+    def fake_bench(seconds, busy, *, executor, rt_priority, workdir, out, progress):
+        seen.append(("realtime", seconds, busy, executor, rt_priority))
         return {"conditions": {"idle": {"steps": 7, "busy_processes": 0}}}
 
     def fake_soak(realtime_seconds, lockstep_seconds, realtime_busy, lockstep_busy, workdir, progress):
@@ -152,11 +152,11 @@ def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
 
     out = tmp_path / "rt.json"
     assert bench_cmd.run(parse(["--realtime", "--out", str(out)])) == 0
-    assert calls[-1] == ("realtime", 600.0, 1, "auto")  # the issue's 10 minutes, one core busy
+    assert calls[-1] == ("realtime", 600.0, 1, "auto", 0)  # the issue's 10 minutes, one core busy
     assert json.loads(out.read_text())["conditions"]["idle"]["steps"] == 7
     assert bench_cmd.run(parse(["--realtime", "--realtime-seconds", "30", "--realtime-busy", "2", "--executor",
-                                "single", "--out", str(out)])) == 0
-    assert calls[-1] == ("realtime", 30.0, 2, "single")
+                                "single", "--rt-priority", "99", "--out", str(out)])) == 0
+    assert calls[-1] == ("realtime", 30.0, 2, "single", 99)
     assert bench_cmd.run(parse(["--soak", "--out", str(out)])) == 0
     assert calls[-1] == ("soak", 60.0, 1)  # the soak keeps its own default
     assert "idle (0 busy)  7" in capsys.readouterr().out
@@ -166,6 +166,8 @@ def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
     (["--realtime-seconds", "0"], "--realtime-seconds must be > 0"),
     (["--realtime-seconds", "nan"], "--realtime-seconds must be > 0"),
     (["--realtime-busy", "0"], "--realtime-busy must be >= 1"),
+    (["--rt-priority", "100"], "--rt-priority must be in 0..99"),
+    (["--rt-priority", "-1"], "--rt-priority must be in 0..99"),
     (["--soak"], "--soak and --realtime are two different benches"),
 ])
 def test_bad_realtime_options_are_one_line(tmp_path: Path, calls, capsys, argv, message):
@@ -184,3 +186,22 @@ def test_executor_choices(capsys):
     with pytest.raises(SystemExit) as exit_:
         parse(["--realtime", "--executor", "multi", "--out", "x"])
     assert exit_.value.code == 2 and "invalid choice: 'multi'" in capsys.readouterr().err
+
+
+def test_fifo_priority_is_set_or_refused_in_one_line():
+    """In a child process (the policy sticks to the thread): priority 0 is not a SCHED_FIFO priority, so it is
+    refused with the reason; priority 1 is taken where the process may (root), else refused the same way."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os; from bptsb_ros.live.body_params import set_fifo_priority as s; "
+            "print(repr(s(0))); print(repr(s(1))); print(os.sched_getscheduler(0) == os.SCHED_FIFO)")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    lines = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                           env=env).stdout.split("\n")
+    assert "SCHED_FIFO priority 0 refused (Invalid argument" in lines[0]
+    privileged = os.geteuid() == 0
+    assert (lines[1] == "''") == privileged and lines[2] == str(privileged)
+    if not privileged:
+        assert "SCHED_FIFO priority 1 refused" in lines[1]

@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     rt.add_argument("--executor", choices=EXECUTORS, default=DEFAULT_EXECUTOR,
                     help=f"rclpy executor of the body (its executor parameter; default {DEFAULT_EXECUTOR}: "
                     "events where rclpy has it)")
+    rt.add_argument("--rt-priority", type=int, default=0, metavar="P",
+                    help="run the body's stepping thread under SCHED_FIFO at priority P, 1-99 (its rt_priority "
+                    "parameter; needs CAP_SYS_NICE or root); default 0: the normal scheduler")
 
 
 def _write(out: Path, report: dict) -> int | None:
@@ -99,6 +102,8 @@ def _realtime(args: argparse.Namespace) -> int:
     seconds = 600.0 if args.realtime_seconds is None else args.realtime_seconds
     if not (math.isfinite(seconds) and seconds > 0):
         return fail(NAME, f"--realtime-seconds must be > 0, got {seconds:g}", USAGE)
+    if not 0 <= args.rt_priority <= 99:
+        return fail(NAME, f"--rt-priority must be in 0..99, got {args.rt_priority}", USAGE)
     if args.realtime_busy < 1:
         return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
     workdir = Path(args.workdir) if args.workdir else None
@@ -109,7 +114,8 @@ def _realtime(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if (problem := _write(out, {})) is not None:  # a path that cannot be written fails now, not after the runs
         return problem
-    report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, workdir=workdir, out=out,
+    report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, rt_priority=args.rt_priority,
+                                workdir=workdir, out=out,
                                 progress=lambda m: print(m, file=sys.stderr, flush=True))
     if (problem := _write(out, report)) is not None:
         return problem

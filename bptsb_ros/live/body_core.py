@@ -194,6 +194,7 @@ class BodyCore:
         if p["timing_path"] and p["mode"] != "realtime":
             raise ParameterError("parameter 'timing_path': per-step wall times are recorded in mode realtime only")
         self.step_times: StepTimes | None = StepTimes() if p["timing_path"] else None
+        self.rt_priority = 0  # the SCHED_FIFO priority the node's stepping thread got (0: the normal scheduler)
         self.clock_sent: dict[int, float] = {}
         self.published: dict[str, int] = {}  # topic name -> messages published since stepping began
         self.counting = False  # stepping began (startup complete or given up on): publications are counted
@@ -492,6 +493,7 @@ class BodyCore:
             out.update(recorder_waits=r.waits, recorder_wait_s=r.wait_s, recorder_acked_step=r.acked,
                        recorder_ack_rejected=r.rejected)
         out["published_messages"] = dict(self.published)
+        out["rt_priority"] = self.rt_priority
         return out
 
     def status(self, summary: Mapping[str, Any], error: str = "") -> tuple[str, str, list[tuple[str, str]]]:

@@ -28,7 +28,14 @@ from visualization_msgs.msg import MarkerArray
 
 from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
 from bptsb_ros.live.body_loop import BodyLoop
-from bptsb_ros.live.body_params import PARAMS, PUBLISHED, SUBSCRIBED, UNKNOWN_NODE, parse_wait_for_subscribers
+from bptsb_ros.live.body_params import (
+    PARAMS,
+    PUBLISHED,
+    SUBSCRIBED,
+    UNKNOWN_NODE,
+    parse_wait_for_subscribers,
+    set_fifo_priority,
+)
 from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
@@ -235,6 +242,11 @@ class BodySim(Node):
 
     def run(self) -> int:
         self.loop.wait_startup(self._startup_missing)
+        if self.p["rt_priority"] and self.p["mode"] == "realtime":
+            problem = set_fifo_priority(self.p["rt_priority"])
+            self.log("warning" if problem else "info", problem + "; stepping under the normal scheduler" if problem
+                     else f"stepping under SCHED_FIFO priority {self.p['rt_priority']}")
+            self.core.rt_priority = 0 if problem else self.p["rt_priority"]
         diverged = self.loop.run()
         summary = self.core.summary()
         self.get_logger().info(self.core.end_text(summary, diverged, self.stop.reason))

@@ -165,6 +165,7 @@ READ_ONLY_REASONS: dict[str, str] = {
     **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
     "timing_path": "the records cover every step of the run from the first; they are written when the node stops",
     "executor": "the executor is created with the node and serves its subscriptions for the whole run",
+    "rt_priority": "the scheduling policy is set once, when stepping begins",
     "frame_id": "viewers and the bag expect one frame for the whole run",
     "paused": "only the start; the ~/pause and ~/resume services pause and resume the running body",
     **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale", "perturb_at", "perturb_sigma",
