@@ -7,6 +7,7 @@ import contextlib
 import json
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 NAME = "bench"
@@ -17,20 +18,26 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
         "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON. "
         "With --soak: soak the live recording instead (a realtime and a lockstep recorded run under CPU load; "
         "steps published, messages recorded, drops counted). With --live: steps/s of lockstep live loops while a bag "
-        "is recorded, each step split into recorder wait, publish, wait for commands and compute.")
+        "is recorded, each step split into recorder wait, publish, wait for commands and compute. With --realtime: "
+        "the closed loop at 100 Hz in realtime, idle and with one core kept busy (steps, deadline misses, step "
+        "compute time and period jitter from the body's own per-step records, late commands).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from bptsb_ros.ros.params import EXECUTOR, EXECUTORS  # ROS-free
+
     parser.add_argument("--quick", action="store_true", help="1 s per measurement and fewer batch sizes")
     parser.add_argument("--out", required=True, help="JSON file to write; rewritten after each measurement, with "
                         '"complete": false until the last one (a killed bench keeps what it measured)')
     soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.soak; runs bptsb launch "
                                      "lissajous_open --bag on this ROS_DOMAIN_ID)")
     soak.add_argument("--soak", action="store_true", help="run the recording soak instead of the physics benchmarks")
-    soak.add_argument("--realtime-seconds", type=float, default=60.0, metavar="S",
-                      help="wall seconds of the realtime run (0: skip it; default 60)")
+    soak.add_argument("--realtime-seconds", type=float, default=None, metavar="S",
+                      help="wall seconds of the realtime run (--soak: 0 skips it, default 60; --realtime: of each "
+                      "condition, default 600)")
     soak.add_argument("--realtime-busy", type=int, default=1, metavar="N",
-                      help="spinning processes during the realtime run (default 1: one core kept busy)")
+                      help="spinning processes during the realtime run (--realtime: of the busy condition; default "
+                      "1: one core kept busy)")
     soak.add_argument("--lockstep-seconds", type=float, default=10.0, metavar="S",
                       help="sim seconds of the lockstep run (0: skip it; default 10)")
     soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
@@ -46,8 +53,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="interleaved rounds of one run per loop (default 1)")
     live.add_argument("--live-param", action="append", default=[], metavar="NODE:NAME:=VALUE",
                       help="a node parameter for every run (bptsb launch --param; repeatable)")
-    soak.add_argument("--workdir", default="", metavar="DIR", help="bags and launch logs of the soak or --live "
-                      "(default: a new temporary directory, kept)")
+    soak.add_argument("--workdir", default="", metavar="DIR", help="bags, launch logs and timing records of the "
+                      "soak, --live or --realtime (default: a new temporary directory, kept)")
+    rt = parser.add_argument_group("--realtime: the closed loop at 100 Hz realtime, idle and with --realtime-busy "
+                                   "spinning processes (bptsb_ros.realtime_bench; runs bptsb launch lissajous_closed "
+                                   "with the example agent on this ROS_DOMAIN_ID)")
+    rt.add_argument("--realtime", action="store_true", help="run the realtime bench instead of the physics benchmarks")
+    rt.add_argument("--executor", choices=EXECUTORS, default=EXECUTOR.default,
+                    help=f"rclpy executor of the body and the brains (their executor parameter; default "
+                    f"{EXECUTOR.default}: events where rclpy has it)")
+    rt.add_argument("--rt-priority", type=int, default=0, metavar="P",
+                    help="run the body's stepping thread under SCHED_FIFO at priority P, 1-99 (its rt_priority "
+                    "parameter; needs CAP_SYS_NICE or root); default 0: the normal scheduler")
 
 
 def _write(out: Path, report: dict, complete: bool = True) -> int | None:
@@ -76,12 +93,25 @@ class _WriteFailed(Exception):
         self.code = code
 
 
+def _updater(out: Path) -> Callable[[dict], None]:
+    """``update(report)`` for a bench's runner: rewrites ``out`` marked incomplete after each measurement (a killed
+    bench keeps what it measured); raises :class:`_WriteFailed` when the file cannot be written."""
+
+    def update(report: dict) -> None:
+        if (problem := _write(out, report, complete=False)) is not None:
+            raise _WriteFailed(problem)
+
+    return update
+
+
 def _soak(args: argparse.Namespace) -> int:
     import math
 
     from bptsb_ros.cli.common import USAGE, fail
     from bptsb_ros.soak import run_soak
 
+    if args.realtime_seconds is None:
+        args.realtime_seconds = 60.0
     for name in ("realtime_seconds", "lockstep_seconds"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value >= 0):
@@ -131,24 +161,60 @@ def _live(args: argparse.Namespace) -> int:
     return 1 if any(r.get("error") or r.get("launch_exit_code") for r in report["runs"]) else 0
 
 
+def _realtime(args: argparse.Namespace) -> int:
+    import math
+
+    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.realtime_bench import example_agent, realtime_table, run_realtime_bench
+
+    seconds = 600.0 if args.realtime_seconds is None else args.realtime_seconds
+    if not (math.isfinite(seconds) and seconds > 0):
+        return fail(NAME, f"--realtime-seconds must be > 0, got {seconds:g}", USAGE)
+    if not 0 <= args.rt_priority <= 99:
+        return fail(NAME, f"--rt-priority must be in 0..99, got {args.rt_priority}", USAGE)
+    if args.realtime_busy < 1:
+        return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
+    workdir = Path(args.workdir) if args.workdir else None
+    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
+        return fail(NAME, f"--workdir {workdir} exists and is not empty")
+    if not (example_agent() / "checkpoint.pt").is_file():
+        return fail(NAME, f"the example agent {example_agent()} is missing (it ships in the source tree)")
+    out = Path(args.out)
+    if (problem := _write(out, {}, complete=False)) is not None:  # an unwritable --out fails now, not after the runs
+        return problem
+    try:
+        report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, rt_priority=args.rt_priority,
+                                    workdir=workdir, update=_updater(out),
+                                    progress=lambda m: print(m, file=sys.stderr, flush=True))
+    except _WriteFailed as err:
+        return err.code
+    if (problem := _write(out, report)) is not None:
+        return problem
+    print(realtime_table(report))
+    print(f"wrote {out}")
+    return 1 if any("error" in r or r.get("launch_exit_code") for r in report["conditions"].values()) else 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.soak and args.realtime:
+        from bptsb_ros.cli.common import USAGE, fail
+
+        return fail(NAME, "--soak and --realtime are two different benches: choose one", USAGE)
     if args.soak:
         return _soak(args)
     if args.live:
         return _live(args)
+    if args.realtime:
+        return _realtime(args)
     from bptsb_ros.bench import run_benchmarks, workload_table
 
     out = Path(args.out)
     if (problem := _write(out, {}, complete=False)) is not None:  # an unwritable --out fails now, not at the end
         return problem
 
-    def update(report: dict) -> None:  # after each measurement: a killed bench keeps what it measured
-        if (problem := _write(out, report, complete=False)) is not None:
-            raise _WriteFailed(problem)
-
     try:
         report = run_benchmarks(quick=args.quick, progress=lambda m: print(m, file=sys.stderr, flush=True),
-                                update=update)
+                                update=_updater(out))
     except _WriteFailed as err:
         return err.code
     if (problem := _write(out, report)) is not None:

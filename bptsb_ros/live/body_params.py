@@ -70,6 +70,11 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     LOG_LEVEL,
     Param("summary_path", "", "write the run summary (timing, rejections) as JSON here at exit (empty: don't)",
           "str"),
+    Param("timing_path", "", "realtime: write every step's wall times (due, began, integrated, done; "
+          "bptsb_ros.live.step_times) here as .npz at exit, 40 bytes a step kept in memory (empty: don't)", "str"),
+    Param("rt_priority", 0, "realtime: run the stepping thread under SCHED_FIFO at this priority (1-99; needs "
+          "CAP_SYS_NICE or root, else a warning and the normal scheduler), so that other processes cannot preempt "
+          "a step; 0: the normal scheduler", "int", minimum=0, maximum=99),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
     Param("max_rest_length", 0.0, "largest accepted rest-length command [m]; 0: 10 x "
           "the diagonal of the body's bounding box", "float", minimum=0.0),
@@ -128,3 +133,16 @@ def parse_wait_for_subscribers(entries: list[str]) -> list[tuple[str, int]]:
                                  "with count >= 1")
         out.append((topic, int(count)))
     return out
+
+
+def set_fifo_priority(priority: int) -> str:
+    """Put the calling thread under SCHED_FIFO at ``priority`` (1-99); '' when done, else why not (one line)."""
+    import os
+
+    if not hasattr(os, "sched_setscheduler"):
+        return "this platform has no sched_setscheduler"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as err:
+        return f"SCHED_FIFO priority {priority} refused ({err.strerror or err}; needs CAP_SYS_NICE or root)"
+    return ""

@@ -27,7 +27,14 @@ from visualization_msgs.msg import MarkerArray
 
 from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
 from bptsb_ros.live.body_loop import BodyLoop
-from bptsb_ros.live.body_params import PARAMS, PUBLISHED, SUBSCRIBED, UNKNOWN_NODE, parse_wait_for_subscribers
+from bptsb_ros.live.body_params import (
+    PARAMS,
+    PUBLISHED,
+    SUBSCRIBED,
+    UNKNOWN_NODE,
+    parse_wait_for_subscribers,
+    set_fifo_priority,
+)
 from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
@@ -39,6 +46,7 @@ from bptsb_ros.ros.runtime import (
     EXIT_OK,
     StopFlag,
     Throttle,
+    executor_kind,
     log_line,
     make_executor,
     run_node,
@@ -83,6 +91,7 @@ class BodySim(Node):
         self.control_services = [self.create_service(Trigger, f"~/{name}", lambda _, res, name=name:
                                                      self._on_call(name, res)) for name in CALLS]
         self.executor_ = make_executor(p["executor"], self.context)
+        self.executor_name = executor_kind(self.executor_)  # the one this rclpy gave (events may fall back)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
         self.loop = BodyLoop(core, self)
@@ -275,6 +284,11 @@ class BodySim(Node):
 
     def run(self) -> int:
         self.loop.wait_startup(self._startup_missing)
+        if self.p["rt_priority"] and self.p["mode"] == "realtime":
+            problem = set_fifo_priority(self.p["rt_priority"])
+            self.log("warning" if problem else "info", problem + "; stepping under the normal scheduler" if problem
+                     else f"stepping under SCHED_FIFO priority {self.p['rt_priority']}")
+            self.core.rt_priority = 0 if problem else self.p["rt_priority"]
         diverged = self.loop.run()
         summary = self.core.summary()
         self.get_logger().info(self.core.end_text(summary, diverged, self.stop.reason))
@@ -283,6 +297,8 @@ class BodySim(Node):
         wait_acked(self.get_logger(), list(self.pubs.values()), self.p["final_ack_timeout"])
         if self.p["summary_path"]:
             write_summary(self.p["summary_path"], summary)
+        if self.core.step_times is not None:
+            self.core.step_times.save(self.p["timing_path"], self.core.period(), {"executor": self.executor_name})
         return EXIT_FAILURE if diverged else EXIT_OK
 
 

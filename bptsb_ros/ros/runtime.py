@@ -268,3 +268,9 @@ def make_executor(kind: str, context: Any) -> Any:
             return SingleThreadedExecutor(context=context)
         return EventsExecutor(context=context)
     return SingleThreadedExecutor(context=context)
+
+
+def executor_kind(executor: Any) -> str:
+    """The ``executor`` value that names ``executor`` as :func:`make_executor` made it: ``events`` or ``single`` (what
+    a node actually got, since ``events`` falls back to ``single`` where this rclpy has no EventsExecutor)."""
+    return "events" if type(executor).__name__ == "EventsExecutor" else "single"
