@@ -263,3 +263,18 @@ def test_every_experiment_states_a_time_for_every_scale():
         assert set(exp.durations) == {"smoke", "short", "paper"}, exp.name
         for scale, text in exp.durations.items():
             assert time.search(text), (exp.name, scale, text)
+
+
+def test_report_names_the_experiments_it_has_no_run_of(tmp_path, toy_experiment):
+    from bptsb_ros.analysis.report import missing_experiments
+    from bptsb_ros.experiments.registry import MODULES
+
+    assert missing_experiments(["narma-ipc", "toy-planted"])[:3] == ["mnist-drawing", "mnist-pca", "mnist-labelmap"]
+    assert "narma-ipc" not in missing_experiments(["narma-ipc"])
+    # planted: the 19 experiments of the paper and the toy one, the page holds only the toy one
+    everyone = missing_experiments([])
+    assert len(everyone) == 20 and everyone[-1] == "toy-planted" and len(MODULES) == 17
+    run_experiment(toy_experiment, scale="smoke", out_dir=tmp_path / "runs" / "toy", progress=False)
+    text = build_report(tmp_path / "runs", tmp_path / "R.md").read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("Not on this page"))
+    assert "mnist-drawing, mnist-pca," in line and "locomotion-headwind." in line and "toy-planted" not in line
