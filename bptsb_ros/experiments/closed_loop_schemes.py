@@ -170,8 +170,9 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     durations={"smoke": "≈ 5 s on 2 busy cores (1 curve × 1 seed)",
                "short": "375 s measured 2026-11-27 on 2 busy cores (3 curves × 2 seeds = 6 jobs on 2 workers; 200 "
                         "s preliminary, 50 s per scheme)",
-               "paper": "208 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (15 jobs "
-                        "of 2,000 s preliminary + 1,000 s per scheme 2/3 + 2,000 s scheme 1, 2 workers)"},
+               "paper": "1,710 s measured 2026-12-02 on 2 cores shared with other work (load 4-8), numba backend (15 "
+                        "preliminary trainings of 2,000 s and the three schemes as jobs on 2 workers); 208 s on 2 "
+                        "lightly loaded cores 2026-11-27"},
 )
 @single_threaded
 def run(ctx: Context) -> None:

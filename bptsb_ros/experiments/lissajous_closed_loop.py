@@ -74,7 +74,7 @@ def claims(n: ClosedLoopNumbers) -> list[Claim]:
     durations={"smoke": "≈ 4 s on 2 busy cores",
                "short": "17 s measured 2026-11-27 on 2 cores, 15 s on 2 busy cores 2026-12-02 (1,000 s of "
                         "training, the FL fit, evaluation and plots)",
-               "paper": "12 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (2,000 s of "
+               "paper": "16 s measured 2026-12-02 on 2 cores shared with other work, numba backend (2,000 s of "
                         "training, the original simTime)"},
 )
 @single_threaded

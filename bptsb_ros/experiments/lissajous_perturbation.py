@@ -209,8 +209,8 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
             "(a restart from the displaced layout at t = 0)",
     durations={"smoke": "≈ 5 s on 2 busy cores",
                "short": "82–192 s measured on 2 cores (1,000 s training; 11 × 100 rows, 50 periods)",
-               "paper": "91 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(2,000 s training; 11 × 100 rows, 300 periods)"},
+               "paper": "148 s measured 2026-12-02 on 2 cores shared with other work, numba backend (2,000 s "
+                        "training; 11 × 100 rows, 300 periods, both variants)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:

@@ -391,9 +391,9 @@ def _variant_suffix(ctx: Context, name: str) -> str:
                         "verlet and published integrator, + 3 × 2,000 s switching training, the three variants, 3 "
                         "jobs on 2 workers); the committed run of 2026-11-27, an earlier build without the "
                         "authors' variant, took 455 s",
-               "paper": "69 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs, before the authors' "
-                        "variant was added)"},
+               "paper": "415 s measured 2026-12-02 on 2 cores shared with other work, numba backend (2,000 s "
+                        "preliminary training per integrator + 3 × 30,000 s of switching training, the three "
+                        "variants, as jobs on 2 workers)"},
 )
 @single_threaded
 def run_switching(ctx: Context) -> None:
@@ -505,8 +505,8 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
                "short": "155 s measured 2026-12-02 on 2 cores shared with other work (2 preliminary trainings, 3 "
                         "switching trainings as jobs, then one sweep per variant); the committed run of "
                         "2026-11-27, an earlier build, took 492 s",
-               "paper": "81 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (the "
-                        "paper-scale switching trainings, before the authors' variant was added)"},
+               "paper": "723 s measured 2026-12-02 on 2 cores shared with other work, numba backend (the preliminary "
+                        "and the three switching trainings, then one 61-value sweep per variant)"},
 )
 @single_threaded
 def run_bifurcation(ctx: Context) -> None:
@@ -641,8 +641,8 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
                         "verlet and published integrator, + 6 × 2,000 s switching: fixed and random timing in "
                         "each of the three variants; 6 jobs on 2 workers); the committed run of 2026-11-27, an "
                         "earlier build, took 599 s",
-               "paper": "155 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(4 × 30,000 s of switching training, 2 workers, before the authors' variant was added)"},
+               "paper": "319 s measured 2026-12-02 on 2 cores shared with other work, numba backend (six 30,000 s "
+                        "switching trainings: fixed and random timing in each variant, as jobs on 2 workers)"},
 )
 @single_threaded
 def run_timing(ctx: Context) -> None:

@@ -93,7 +93,8 @@ def agent_settings(ctx: Context) -> AgentSettings:
     durations={"smoke": "≈ 7 s on 2 busy cores (2 agents, 4 s of training)",
                "short": "86 s measured 2026-12-02 on 2 busy cores (20 agents, 200 s of training each, 2 workers); "
                         "the committed run of 2026-11-27, an earlier build, took 25 min",
-               "paper": "75 s measured 2026-11-27, 2 cores, lightly loaded (20 agents, 1000 s each, 2 workers)"},
+               "paper": "567 s measured 2026-12-02 on 2 cores shared with other work (20 agents, 1000 s each, 2 "
+                        "workers); 75 s on 2 lightly loaded cores 2026-11-27"},
 )
 def run(ctx: Context) -> None:
     settings, n_agents = settings_for(ctx)

@@ -134,7 +134,8 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     durations={"smoke": "≈ 8 s on 2 busy cores",
                "short": "83 s measured 2026-12-02 on 2 busy cores after locomotion-closed-loop-20 (its 20 agents "
                         "reused); the committed run of 2026-11-27, an earlier build, took 122 s",
-               "paper": "26 s measured 2026-11-27, 2 cores, lightly loaded (agents reused)"},
+               "paper": "1,337 s measured 2026-12-02 on 2 cores shared with other work (agents reused; 11 σ × 100 "
+                        "seeds per successful agent, loop and draw)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint

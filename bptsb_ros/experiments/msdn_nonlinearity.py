@@ -129,7 +129,7 @@ def _bodies(seed: int):
             "(degree 1 only)",
     durations={"smoke": "≈ 6 s on 2 busy cores",
                "short": "314 s measured 2026-11-27 on 2 cores",
-               "paper": "131 s measured 2026-11-27, 2 cores, lightly loaded"},
+               "paper": "25 s measured 2026-12-02 on 2 cores shared with other work"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
