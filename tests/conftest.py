@@ -100,3 +100,20 @@ def quarantine_ros() -> tuple[int, dict[str, str]]:
     env["ROS_DOMAIN_ID"] = str(QUARANTINE_DOMAIN_ID)
     env.pop("ROS_STATIC_PEERS", None)
     return QUARANTINE_DOMAIN_ID, env
+
+
+@pytest.fixture(autouse=True)
+def _restore_stop_signals():
+    """Put SIGINT/SIGTERM back as they were after each test: their handlers and the thread's signal mask. A node
+    or command run in the test process blocks SIGINT while it starts and ignores both once it has stopped
+    (``ros.runtime``); a blocked or ignored signal stays so in every child the later tests start, and a Ctrl-C
+    test would then see its interrupt vanish."""
+    import signal
+
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    yield
+    signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+    for sig, handler in saved.items():
+        if signal.getsignal(sig) is not handler and handler is not None:
+            signal.signal(sig, handler)
