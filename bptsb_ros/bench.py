@@ -211,6 +211,9 @@ def _child(conn, w: Workload, adjoint: bool, dtype_name: str, min_seconds: float
     try:
         if numba_cache is not None:  # before numba is imported
             os.environ["NUMBA_CACHE_DIR"] = numba_cache
+            from bptsb_ros.body import compile_notice
+
+            compile_notice.enabled = False  # this process times the compile; the bench's line says so
         out = _measure(w, adjoint, getattr(torch, dtype_name), min_seconds, backend)
         out["peak_rss_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
         conn.send(out)
@@ -256,9 +259,15 @@ def _ratio(a: Any, b: Any) -> float | None:
     return round(a / b, 2) if isinstance(a, (int, float)) and isinstance(b, (int, float)) and b else None
 
 
-def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
-    """All workloads on both backends (torch also with plain autograd), batch scaling, compile time, targets."""
+def run_benchmarks(quick: bool = False, progress=print, update=None) -> dict[str, Any]:
+    """All workloads on both backends (torch also with plain autograd), batch scaling, compile time, targets.
+
+    ``progress(line)`` is told each measurement before it starts; ``update(report)``, when given, gets the
+    report as measured so far after each one (``bptsb bench`` rewrites its ``--out`` file with it, so a
+    killed bench keeps what it measured). The report returned is the last one ``update`` saw.
+    """
     min_s = 1.0 if quick else 3.0
+    done = update if update is not None else (lambda _report: None)
     report: dict[str, Any] = {
         "machine": {"platform": platform.platform(), "processor": platform.processor(),
                     "cpu_count": mp.cpu_count(), "torch": torch.__version__,
@@ -270,12 +279,15 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
     }
     for name, w in WORKLOADS.items():
         entry: dict[str, Any] = {"description": w.description, "batch": w.batch, "window": w.window}
+        report["workloads"][name] = entry
         for backend in BACKENDS:
             progress(f"bench {name} ({backend}) ...")
             entry[backend] = measure_isolated(w, True, min_seconds=min_s, backend=backend)
+            done(report)
         if not w.forward_only:
             progress(f"bench {name} (torch, plain autograd) ...")
             entry["torch_autograd"] = measure_isolated(w, False, min_seconds=min_s, backend="torch")
+            done(report)
         key = "forward_steps_per_s" if w.forward_only else "train_steps_per_s"
         entry["numba_over_torch"] = _ratio(entry["numba"].get(key), entry["torch"].get(key))
         if name in FUSED_WORKLOADS:
@@ -283,19 +295,21 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
             entry["fused"] = measure_isolated(w, True, min_seconds=min_s, backend="fused")
             entry["fused_over_numba"] = _ratio(entry["fused"].get(key), entry["numba"].get(key))
             entry["fused_over_torch"] = _ratio(entry["fused"].get(key), entry["torch"].get(key))
-        report["workloads"][name] = entry
+        done(report)
     batches = (1, 64) if quick else (1, 16, 64, 256)
     base = WORKLOADS["lissajous"]
     for b in batches:
-        row = {}
+        row: dict[str, Any] = {}
+        report["batch_scaling"][str(b)] = row
         for backend in BACKENDS:
             progress(f"bench lissajous batch {b} ({backend}) ...")
             w = replace(base, name=f"lissajous_b{b}", batch=b)
             row[backend] = measure_isolated(w, True, min_seconds=min_s, backend=backend).get("train_body_steps_per_s")
+            done(report)
         row["numba_over_torch"] = _ratio(row["numba"], row["torch"])
-        report["batch_scaling"][str(b)] = row
     progress("bench numba first-call time (empty cache, then cached) ...")
     report["numba_first_call"] = measure_compile(min_s)
+    done(report)
     wl = report["workloads"]
 
     def measured(name: str, backend: str, key: str) -> float:
@@ -315,6 +329,7 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
 
     progress("bench mnist (every MNIST system, batch 50; paper-schedule estimate) ...")
     report["mnist"] = bench_mnist.run_isolated(quick)
+    done(report)
     mnist_rates = [m["train_images_per_s"] for m in report["mnist"].get("systems", {}).values()]
     targets["mnist_slowest_system_train_images_per_s"] = (round(bench_mnist.TARGET_TRAIN_IMAGES_PER_S, 1),
                                                           min(mnist_rates) if mnist_rates else math.nan)
@@ -327,6 +342,7 @@ def run_benchmarks(quick: bool = False, progress=print) -> dict[str, Any]:
     report["targets"]["peak_rss_not_above_torch"] = {
         "per_workload_mib_numba_torch": rss, "met": all(a <= b for a, b in rss.values())}
     report["ipc"] = _ipc_entry(quick, progress)
+    done(report)
     return report
 
 

@@ -114,8 +114,9 @@ class SweepResult:
         return [r for r in self.records if r["status"] != "done"]
 
     def results(self) -> dict[str, dict[str, Any]]:
-        """name → result mapping of the jobs that finished."""
-        return {r["name"]: r["result"] for r in self.records if r["status"] == "done"}
+        """name → result mapping of the jobs that finished; a non-finite float, which the JSON records hold as
+        the text ``"nan"``, ``"inf"`` or ``"-inf"``, is a float again."""
+        return {r["name"]: _from_json(r["result"]) for r in self.records if r["status"] == "done"}
 
 
 @dataclass(frozen=True)
@@ -194,6 +195,20 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, (str, int, float, bool)) or value is None:
         return value
     return str(value)
+
+
+_NON_FINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
+
+
+def _from_json(value: Any) -> Any:
+    """Undo :func:`_jsonable`'s text for non-finite floats, in nested dicts and lists."""
+    if isinstance(value, str):
+        return _NON_FINITE.get(value, value)
+    if isinstance(value, dict):
+        return {k: _from_json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_from_json(v) for v in value]
+    return value
 
 
 def _describe(obj: Any) -> Any:

@@ -8,6 +8,11 @@ gives the session a private ROS domain, so parallel sessions and other machines 
 * ``OMP_NUM_THREADS=1`` and ``MPLBACKEND=Agg`` unless already set (2 shared cores, no display).
 * ``BPTSB_FIGURE_FORMATS=png`` unless already set: the experiments' figures skip their PDF copy (half of a
   figure's time); tests/test_figures.py unsets it and checks the PNG + PDF of every figure.
+* ``BPTSB_COMPILE_NOTICE=0`` unless already set: no "compiling the numba kernels" line, which only a test that
+  happens to meet a cold cache would print (tests/test_compile_notice.py turns it on for its own checks).
+* ``FASTRTPS_DEFAULT_PROFILES_FILE=tests/fastdds_test_profile.xml`` unless a Fast DDS profile file is already set:
+  reliable writers send a heartbeat every 0.1 s instead of every 3 s, so a wait for acknowledgements (every live
+  run ends with one) takes milliseconds instead of up to 3 s. Nothing else about DDS changes (see the file).
 
 Subprocesses started by tests inherit these through ``os.environ``; the ``ros_env`` fixture returns a copy
 for tests that build their own environment.
@@ -47,6 +52,10 @@ os.environ["ROS_DOMAIN_ID"] = str(SESSION_DOMAIN_ID)
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("BPTSB_FIGURE_FORMATS", "png")
+os.environ.setdefault("BPTSB_COMPILE_NOTICE", "0")
+FASTDDS_PROFILE = REPO_ROOT / "tests" / "fastdds_test_profile.xml"
+if not (os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") or os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")):
+    os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILE)
 
 
 def pytest_report_header(config: pytest.Config) -> str:
@@ -91,3 +100,20 @@ def quarantine_ros() -> tuple[int, dict[str, str]]:
     env["ROS_DOMAIN_ID"] = str(QUARANTINE_DOMAIN_ID)
     env.pop("ROS_STATIC_PEERS", None)
     return QUARANTINE_DOMAIN_ID, env
+
+
+@pytest.fixture(autouse=True)
+def _restore_stop_signals():
+    """Put SIGINT/SIGTERM back as they were after each test: their handlers and the thread's signal mask. A node
+    or command run in the test process blocks SIGINT while it starts and ignores both once it has stopped
+    (``ros.runtime``); a blocked or ignored signal stays so in every child the later tests start, and a Ctrl-C
+    test would then see its interrupt vanish."""
+    import signal
+
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    yield
+    signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+    for sig, handler in saved.items():
+        if signal.getsignal(sig) is not handler and handler is not None:
+            signal.signal(sig, handler)

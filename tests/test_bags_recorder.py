@@ -33,7 +33,8 @@ from bptsb_ros.ros.params import ParameterError, validate_values
 REPO = Path(__file__).resolve().parent.parent
 
 # Publishes N messages on two reliable topics (keep-all, so none is overwritten before it is acknowledged) once
-# the recorder's subscriptions have matched, waits for the acknowledgements, prints "acked" and idles.
+# the subscriptions of the recorder (of S recorders: optional third argument) have matched, waits for the
+# acknowledgements, prints "acked" and idles.
 PUBLISHER = r"""
 import sys, time
 import rclpy
@@ -42,13 +43,14 @@ from rclpy.qos import QoSProfile, QoSHistoryPolicy, QoSReliabilityPolicy
 from geometry_msgs.msg import Pose, PoseArray
 from std_msgs.msg import Float64MultiArray
 n, period = int(sys.argv[1]), float(sys.argv[2])
+need = int(sys.argv[3]) if len(sys.argv) > 3 else 1
 rclpy.init()
 node = rclpy.create_node("test_publisher")
 qos = QoSProfile(history=QoSHistoryPolicy.KEEP_ALL, depth=1, reliability=QoSReliabilityPolicy.RELIABLE)
 data = node.create_publisher(Float64MultiArray, "/bagtest/data", qos)
 poses = node.create_publisher(PoseArray, "bagtest/poses", qos)
 deadline = time.monotonic() + 30
-while (data.get_subscription_count() == 0 or poses.get_subscription_count() == 0) and time.monotonic() < deadline:
+while (data.get_subscription_count() < need or poses.get_subscription_count() < need) and time.monotonic() < deadline:
     time.sleep(0.02)
 if time.monotonic() >= deadline:
     sys.exit("recorder never subscribed")
@@ -250,36 +252,43 @@ def test_stop_signal_keeps_every_message_under_load(tmp_path: Path, env: dict[st
     assert [m.message.data[0] for m in read_messages(bag, ["/bagtest/data"])] == [float(i) for i in range(n)]
 
 
-@pytest.mark.parametrize("allow_loss", [False, True])
-def test_lost_messages_are_counted_and_fail_the_recorder(tmp_path: Path, env: dict[str, str], allow_loss: bool) -> None:
-    """A recorder with a 1-message queue is stopped (SIGSTOP) while 2 × 499 messages are published, then resumed:
-    its queue keeps only the newest of each topic. The gaps in the publishers' sequence numbers are counted: the
-    bag's custom_data says how many were lost per topic (checked here against what was published), the log says
-    LOST, and the recorder exits 1, or 0 with allow_loss."""
+def test_lost_messages_are_counted_and_fail_the_recorder(tmp_path: Path, env: dict[str, str]) -> None:
+    """Two recorders with a 1-message queue (one with allow_loss) are stopped (SIGSTOP) while 2 × 499 messages are
+    published, then resumed: each queue keeps only the newest of each topic. The gaps in the publishers' sequence
+    numbers are counted: each bag's custom_data says how many were lost per topic (checked here against what was
+    published), the log says LOST, and the recorder exits 1, or 0 with allow_loss. Both recorders listen to the same
+    publisher run (one run for both settings)."""
     n = 500
-    bag = tmp_path / "lossy"
-    recorder = _recorder(bag, env, "-p", "queue_depth:=1", "-p", f"allow_loss:={str(allow_loss).lower()}")
-    publisher = subprocess.Popen([sys.executable, "-c", TWO_PART_PUBLISHER, str(n), "0"], env=env, text=True,
-                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    settings = (False, True)  # allow_loss of each recorder
+    bags = [tmp_path / f"lossy_{str(allow).lower()}" for allow in settings]
+    recorders = [_recorder(bag, env, "-p", "queue_depth:=1", "-p", f"allow_loss:={str(allow).lower()}")
+                 for bag, allow in zip(bags, settings)]
+    publisher = subprocess.Popen([sys.executable, "-c", TWO_PART_PUBLISHER, str(n), "0", str(len(recorders))],
+                                 env=env, text=True, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                 stderr=subprocess.STDOUT)
+    results = []
     try:
-        assert publisher.stdout.readline().strip() == "first"
+        assert publisher.stdout.readline().strip() == "first"  # message 0 acknowledged by both recorders
         time.sleep(1.0)  # message 0 is taken and written
-        recorder.send_signal(signal.SIGSTOP)
+        for recorder in recorders:
+            recorder.send_signal(signal.SIGSTOP)
         publisher.stdin.write("go\n")
         publisher.stdin.flush()
-        time.sleep(2.0)  # messages 1..n-1 are sent into the stopped recorder's 1-message queue
-        recorder.send_signal(signal.SIGCONT)
+        time.sleep(2.0)  # messages 1..n-1 are sent into the stopped recorders' 1-message queues
+        for recorder in recorders:
+            recorder.send_signal(signal.SIGCONT)
         assert publisher.stdout.readline().strip() == "acked"
-        rc, out = _stop(recorder, signal.SIGINT)
+        results = [_stop(recorder, signal.SIGINT) for recorder in recorders]
     finally:
-        _kill_leftovers(publisher, recorder)
-    counts = {t.name: t.message_count for t in read_metadata(bag).topics}
-    assert all(2 <= c < n for c in counts.values()), counts
-    meta = read_metadata(bag)
-    assert json.loads(meta.custom_data["dropped_by_topic"]) == {t: n - c for t, c in counts.items()}
-    assert meta.custom_data["dropped_messages"] == str(2 * n - sum(counts.values()))
-    assert "LOST messages on /bagtest/data" in out and f"the recording LOST {2 * n - sum(counts.values())}" in out
-    assert rc == (0 if allow_loss else 1), out
+        _kill_leftovers(publisher, *recorders)
+    for bag, allow_loss, (rc, out) in zip(bags, settings, results):
+        meta = read_metadata(bag)
+        counts = {t.name: t.message_count for t in meta.topics}
+        assert all(2 <= c < n for c in counts.values()), counts
+        assert json.loads(meta.custom_data["dropped_by_topic"]) == {t: n - c for t, c in counts.items()}
+        assert meta.custom_data["dropped_messages"] == str(2 * n - sum(counts.values()))
+        assert "LOST messages on /bagtest/data" in out and f"the recording LOST {2 * n - sum(counts.values())}" in out
+        assert rc == (0 if allow_loss else 1), out
 
 
 def test_messages_published_after_the_stop_are_not_waited_for(tmp_path: Path, env: dict[str, str]) -> None:

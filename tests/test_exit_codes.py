@@ -112,23 +112,37 @@ def test_exit_code_and_one_line(tmp_path, capsys, command, argv, code, fragment)
     assert (tmp_path / "afile").read_text() == "keep me"
 
 
-# Commands whose only usage errors are argparse's: status 2, and its last line names the command.
+# argparse's own errors, in every kind: a bad option, a missing required argument, a bad value or choice, an
+# unknown subcommand; arguments left over are blamed on the (sub)command parsed last, not on ``bptsb``.
 ARGPARSE = [
-    ("replay", ["replay", "bag", "--out", "o", "--task", "juggling"]),
-    ("bag", ["bag", "inspect", "bag"]),
-    ("report", ["report", "--out"]),
-    ("data", ["data", "cifar", "--dir", "d"]),
-    ("config import", ["config", "import", "f.yaml", "--task", "juggling"]),
-    ("sweep", ["sweep", CONFIG, "--seeds", "0", "--out", "s", "--connect-timeout", "0"]),
+    ("bptsb replay", ["replay", "bag", "--out", "o", "--task", "juggling"], "invalid choice: 'juggling'"),
+    ("bptsb bag", ["bag", "inspect", "bag"], "invalid choice: 'inspect'"),
+    ("bptsb report", ["report", "--out"], "expected one argument"),
+    ("bptsb data", ["data", "cifar", "--dir", "d"], "invalid choice: 'cifar'"),
+    ("bptsb config import", ["config", "import", "f.yaml", "--task", "juggling"], "invalid choice"),
+    ("bptsb sweep", ["sweep", CONFIG, "--seeds", "0", "--out", "s", "--connect-timeout", "0"], "--connect-timeout"),
+    ("bptsb train", ["train", CONFIG, "--out", "o", "--no-such-option"], "unrecognized arguments: --no-such-option"),
+    ("bptsb config import", ["config", "import", "f.yaml", "--bogus", "1"], "unrecognized arguments: --bogus 1"),
+    ("bptsb bench", ["bench", "--quick"], "the following arguments are required: --out"),
+    ("bptsb train", ["train"], "the following arguments are required: config, --out"),
+    ("bptsb bag info", ["bag", "info"], "the following arguments are required: bag"),
+    ("bptsb simulate", ["simulate", "--steps", "x", "--out", "o.npz"], "invalid int value: 'x'"),
+    ("bptsb", ["no-such-command"], "invalid choice: 'no-such-command'"),
+    ("bptsb", [], "the following arguments are required: COMMAND"),
 ]
 
 
-@pytest.mark.parametrize("command, argv", ARGPARSE, ids=[c for c, _ in ARGPARSE])
-def test_argparse_errors_exit_2(capsys, command, argv):
+@pytest.mark.parametrize("prog, argv, fragment", ARGPARSE, ids=[" ".join(c[1][:2]) or "none" for c in ARGPARSE])
+def test_argparse_errors_are_one_line_and_exit_2(capsys, prog, argv, fragment):
     with pytest.raises(SystemExit) as exc:
         main(argv)
     assert exc.value.code == USAGE
-    assert capsys.readouterr().err.strip().splitlines()[-1].startswith(f"bptsb {command}: error: ")
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.startswith(f"{prog}: error: ") and captured.err.count("\n") == 1, captured.err  # no usage
+    line = captured.err.rstrip("\n")
+    assert fragment in line, line
+    assert line.endswith(f" (see {prog} --help)"), line
 
 
 def test_fail_prints_one_line(capsys):

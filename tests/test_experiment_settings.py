@@ -26,7 +26,7 @@ _NARMA_SMOKE = ["narma.n_inputs=40", "narma.washout=10", "narma.train_end=30"]
 _MNIST = {"n_train": (50, None, None), "n_test": (30, None, None)}
 _AGENT = {"sim_time": (4, 200, 1000), "warmup_windows": (1, 100, 100), "fit_time": (4, 100, 100),
           "eval_time": (2, 20, 100), "handover_time": (1, 5, 5), "gait_time": (1, 2.0, 2.0),
-          "projection": ("clamp",) * 3}
+          "projection": ("clamp",) * 3, "config_overrides": ([],) * 3}
 _SWITCHING = {"pretrain_time": (5, 1000, 2000), "switching_time": (5, 2000, 30000),
               "hold": ((2, 3), (3, 8), (3, 8))}
 _NARMA_CONFIG = {"config": ("narma_adam", "narma_adam", "narma"), "config_overrides": (_NARMA_SMOKE, [], [])}

@@ -270,3 +270,33 @@ def test_agent_settings_pass_the_projection_to_the_training_and_keep_the_clamp_k
     assert cfg.training.projection == "reset"
     with pytest.raises(ValueError, match="projection must be one of clamp, reset, got 'zero'"):
         AgentSettings(sim_time=4, projection="zero")
+
+
+def test_agent_config_overrides_reach_the_training_config_and_the_key():
+    import hashlib
+
+    from bptsb_ros.experiments.locomotion_common import AgentSettings
+
+    plain = AgentSettings(sim_time=4)
+    authors = AgentSettings(sim_time=4, projection="reset",
+                            config_overrides=["body.integrator=published", "locomotion.loss_velocity=before"])
+    old = {"sim_time": 4, "warmup_windows": 100, "fit_time": 100.0, "eval_time": 100.0, "handover_time": 5.0,
+           "gait_time": 2.0}  # empty overrides leave the key of agents trained before the option existed
+    assert plain.key() == hashlib.sha1(json.dumps(old, sort_keys=True).encode()).hexdigest()[:8]
+    with_ov = {**old, "projection": "reset",
+               "config_overrides": ["body.integrator=published", "locomotion.loss_velocity=before"]}
+    assert authors.key() == hashlib.sha1(json.dumps(with_ov, sort_keys=True).encode()).hexdigest()[:8]
+    cfg = packaged_config("locomotion_forward", authors.overrides(), seed=0)
+    assert (cfg.body.integrator, cfg.locomotion.loss_velocity, cfg.training.projection) == (
+        "published", "before", "reset")
+    assert packaged_config("locomotion_forward", plain.overrides(), seed=0).body.integrator == "verlet"
+
+
+def test_a_bad_agent_config_override_stops_the_experiment_before_training(tmp_path):
+    from bptsb_ros.config import ConfigError
+    from bptsb_ros.experiments import run_experiment
+
+    with pytest.raises(ConfigError, match="integrator"):
+        run_experiment("locomotion-closed-loop-20", scale="smoke", out_dir=tmp_path / "run", progress=False,
+                       settings=["config_overrides=[body.integrator=euler]"])
+    assert not (tmp_path / "run" / "agents").exists()

@@ -234,3 +234,47 @@ def test_report_lists_versions_and_attempts_in_words():
     assert "- versions: numpy 2.0, torch 2.13.0" in lines
     assert "- attempts: 2 (2.5 min (killed; at least, from the files it wrote) + 30 s)" in lines
     assert "- attempts: 30 s" in _provenance_lines({"attempts": [{"wall_s": 30.0}]})
+
+
+def test_a_phase_is_one_line_naming_the_experiment(tmp_path):
+    from bptsb_ros.experiments.registry import Context
+    from bptsb_ros.experiments.result import ExperimentResult
+
+    lines: list[str] = []
+    ctx = Context("smoke", 0, tmp_path, ExperimentResult("toy-phase", "", "smoke", 0), log=lines.append)
+    ctx.phase("plotting the return rates")
+    assert lines == ["toy-phase: plotting the return rates ..."]
+    ctx.progress = False  # --no-progress
+    ctx.phase("plotting the return rates")
+    assert len(lines) == 1
+
+
+def test_every_experiment_states_a_time_for_every_scale():
+    """``--list`` shows each scale's time: a number with its unit (s, min, h) in every duration text. Whether it
+    matches the committed runs is not checked here: those are re-run and replaced as the code changes."""
+    import re
+
+    from bptsb_ros.experiments.registry import MODULES, experiments
+
+    time = re.compile(r"\d[\d,.]*(?:[–-]\d[\d,.¼½]*)?[¼½]?\s*(?:s|min|h)\b")
+    ours = [e for e in experiments().values() if e.run.__module__ in MODULES]
+    assert len(ours) == 19
+    for exp in ours:
+        assert set(exp.durations) == {"smoke", "short", "paper"}, exp.name
+        for scale, text in exp.durations.items():
+            assert time.search(text), (exp.name, scale, text)
+
+
+def test_report_names_the_experiments_it_has_no_run_of(tmp_path, toy_experiment):
+    from bptsb_ros.analysis.report import missing_experiments
+    from bptsb_ros.experiments.registry import MODULES
+
+    assert missing_experiments(["narma-ipc", "toy-planted"])[:3] == ["mnist-drawing", "mnist-pca", "mnist-labelmap"]
+    assert "narma-ipc" not in missing_experiments(["narma-ipc"])
+    # planted: the 19 experiments of the paper and the toy one, the page holds only the toy one
+    everyone = missing_experiments([])
+    assert len(everyone) == 20 and everyone[-1] == "toy-planted" and len(MODULES) == 17
+    run_experiment(toy_experiment, scale="smoke", out_dir=tmp_path / "runs" / "toy", progress=False)
+    text = build_report(tmp_path / "runs", tmp_path / "R.md").read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("Not on this page"))
+    assert "mnist-drawing, mnist-pca," in line and "locomotion-headwind." in line and "toy-planted" not in line

@@ -141,9 +141,15 @@ def test_narma_lockstep_equals_offline(tmp_path, ros_env):
 
 
 def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
-    bag = tmp_path / "bag"
+    """Also the body's per-step timing records (``timing_path``, what ``bptsb bench --realtime`` reads), written at
+    a Ctrl-C stop too, with the executor the body was given (single here; the other runs use the default)."""
+    from bptsb_ros.live.step_times import load_step_times
+    from bptsb_ros.realtime_bench import condition_result
+
+    bag, times = tmp_path / "bag", tmp_path / "times.npz"
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--mode", "realtime",
-                             "--duration", "60", "--bag", str(bag)], env=env_for(ros_env), cwd=REPO,
+                             "--duration", "60", "--bag", str(bag), "--param", f"body_sim:timing_path:={times}",
+                             "--param", "body_sim:executor:=single"], env=env_for(ros_env), cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
 
@@ -176,6 +182,13 @@ def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     for key in ("jitter_ms_p99", "command_latency_ms_p99", "command_age_steps_max", "deadline_misses"):
         assert key in summary
     assert summary["jitter_ms_p50"] < 20.0
+    records = load_step_times(times)
+    # one record per integrated step, 0..steps (the summary's steps, like the bag's stamps, count from step 0)
+    assert records["step"].tolist() == list(range(summary["steps"] + 1)) and records["period"] == pytest.approx(0.01)
+    r = condition_result(summary, records)  # the records' misses by the body's own rule: its counter
+    assert r["executor"] == "single" and r["steps"] == summary["steps"] + 1 and r["rt_priority"] == 0
+    assert r["deadline_misses"] == summary["deadline_misses"] == r["deadline_misses_counted_by_body"]
+    assert 0 < r["compute_p50_ms"] <= r["compute_p99_ms"] <= r["compute_max_ms"]
 
 
 def test_failing_node_fails_the_launch(tmp_path, ros_env):
@@ -265,3 +278,4 @@ def test_a_loop_without_its_brain_fails_the_launch(tmp_path, ros_env):
     assert summary["silent_brain_steps"] == {"rest_length": 31}
     assert ("[launch] FAILED: body_sim ran on the safe command for lack of its brain (rest_length silent on 31 of "
             "steps 0..30)") in out.stdout
+

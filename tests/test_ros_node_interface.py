@@ -125,6 +125,19 @@ def test_check_cli_accepts_only_ros_arguments():
     assert check_cli("n", ["-h"], spec) == 0
 
 
+def test_check_cli_refuses_unknown_or_malformed_ros_arguments_in_one_line(capsys):
+    from bptsb_ros.ros.runtime import check_cli
+
+    spec = (P.Param("x", 1, "an x", "int"),)
+    assert check_cli("n", ["--ros-args", "-p", "x:=2", "--zzz"], spec) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("n: unknown ROS argument(s) ['--zzz'] after --ros-args") and err.count("\n") == 1
+    assert check_cli("n", ["--ros-args", "-p", "x"], spec) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("n: invalid ROS arguments: ") and err.count("\n") == 1
+    assert check_cli("n", ["--ros-args", "--log-level", "warn"], spec) is None  # a known one still passes
+
+
 # -- parameter tables -------------------------------------------------------------------------------------
 def _node_specs():
     from bptsb_ros.bags.recording import RECORDER_PARAMS

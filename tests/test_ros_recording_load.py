@@ -2,11 +2,16 @@
 starved process would be): a lockstep recording still holds every message, because the body waits for the
 recorder's acknowledgements; a realtime run cannot wait, so its losses are counted in the bag and the launch fails
 (``recorder ok`` only when nothing was lost). The body's publishers keep only ``qos_depth`` = 40 messages for
-retransmission here, so a frozen recorder falls out of that window within a second."""
+retransmission here, so a frozen recorder falls out of that window within a second.
+
+The two launches run at the same time (most of each is waiting: the freeze, the realtime run, DDS), the lockstep one
+on the session's domain and the realtime one on the quarantine domain (conftest.py), so neither sees the other;
+each test asserts on its own launch."""
 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -14,6 +19,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+from conftest import QUARANTINE_DOMAIN_ID, SESSION_DOMAIN_ID
 from ros_live import REPO, env_for, stop
 
 DT_NS = 10_000_000
@@ -51,8 +58,6 @@ def _launch_with_frozen_recorder(args: list[str], ros_env: dict[str, str], freez
             assert proc.poll() is None and time.monotonic() < deadline, "".join(lines)[-4000:]
             time.sleep(0.05)
         time.sleep(0.5)
-        import os
-
         os.kill(recorder, signal.SIGSTOP)
         time.sleep(freeze_s)
         os.kill(recorder, signal.SIGCONT)
@@ -75,10 +80,51 @@ def _body_steps(bag: Path) -> dict[str, list[int]]:
     return out
 
 
-def test_lockstep_recording_loses_nothing_with_a_frozen_recorder(tmp_path, ros_env):
-    bag = tmp_path / "bag"
-    code, out = _launch_with_frozen_recorder(["lissajous_open", "--duration", "3", "--bag", str(bag),
-                                              "--param", "body_sim:qos_depth:=40"], ros_env, freeze_s=3.0)
+def _domain_env(domain: int) -> dict[str, str]:
+    """The session's environment (conftest.py) on ``domain``, discovery on this host only."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(domain)
+    env.pop("ROS_STATIC_PEERS", None)
+    return env
+
+
+#: name → (domain, launch arguments after the bag, seconds the recorder is frozen)
+LAUNCHES = {
+    "lockstep": (SESSION_DOMAIN_ID, ["lissajous_open", "--duration", "3"], 3.0),
+    "realtime": (QUARANTINE_DOMAIN_ID, ["lissajous_open", "--mode", "realtime", "--duration", "5"], 2.5),
+}
+
+
+@pytest.fixture(scope="module")
+def frozen_runs(tmp_path_factory) -> dict[str, tuple[int, str, Path]]:
+    """Both launches of this module at once: name → (exit code, output, bag)."""
+    runs: dict[str, tuple[int, str, Path]] = {}
+    errors: list[BaseException] = []
+
+    def run(name: str) -> None:
+        domain, args, freeze_s = LAUNCHES[name]
+        bag = tmp_path_factory.mktemp(name) / "bag"
+        try:
+            code, out = _launch_with_frozen_recorder([*args, "--bag", str(bag), "--param", "body_sim:qos_depth:=40"],
+                                                     _domain_env(domain), freeze_s=freeze_s)
+        except BaseException as exc:  # re-raised in the test thread below
+            errors.append(exc)
+        else:
+            runs[name] = (code, out, bag)
+
+    threads = [threading.Thread(target=run, args=(name,)) for name in LAUNCHES]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise errors[0]
+    return runs
+
+
+def test_lockstep_recording_loses_nothing_with_a_frozen_recorder(frozen_runs):
+    code, out, bag = frozen_runs["lockstep"]
     assert code == 0, out[-4000:]
     assert "recorder        ok" in out
     steps = _body_steps(bag)
@@ -88,21 +134,19 @@ def test_lockstep_recording_loses_nothing_with_a_frozen_recorder(tmp_path, ros_e
 
     meta = read_metadata(bag)
     assert meta.custom_data["dropped_messages"] == "0" and meta.custom_data["dropped_by_topic"] == "{}"
-    summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
+    summary = json.loads((bag.parent / "bag.launch" / "body_summary.json").read_text())
     assert summary["recorder_waits"] >= 1 and summary["recorder_wait_s"] >= 2.0, summary  # the body waited
     assert summary["recording"]["dropped_messages"] == 0
     assert {t: summary["published_messages"][t] for t in BODY_TOPICS} == dict.fromkeys(BODY_TOPICS, 301)
 
 
-def test_realtime_losses_are_counted_and_fail_the_launch(tmp_path, ros_env):
+def test_realtime_losses_are_counted_and_fail_the_launch(frozen_runs):
     from bptsb_ros.bags.metadata import read_metadata
 
-    bag = tmp_path / "bag"
-    code, out = _launch_with_frozen_recorder(["lissajous_open", "--mode", "realtime", "--duration", "5", "--bag",
-                                              str(bag), "--param", "body_sim:qos_depth:=40"], ros_env, freeze_s=2.5)
+    code, out, bag = frozen_runs["realtime"]
     assert code == 1, out[-4000:]
     assert "recorder        ok" not in out and "recorder        failed: lost " in out, out[-3000:]
-    summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
+    summary = json.loads((bag.parent / "bag.launch" / "body_summary.json").read_text())
     steps = _body_steps(bag)
     # what the body published and the bag lacks, counted here from the body's summary and the bag's messages
     missing = {t: summary["published_messages"][t] - len(steps[t]) for t in BODY_TOPICS}

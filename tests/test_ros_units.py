@@ -231,3 +231,25 @@ def test_launched_nodes_die_with_the_launcher():
         proc.stdout.close()
         if not dead:
             os.kill(child, signal.SIGKILL)
+
+
+def test_executor_parameter_makes_the_executor_it_names():
+    """Every value of the nodes' ``executor`` parameter gives that executor, and ``executor_kind`` (what body_sim
+    writes into its timing records) names it back; events is the default."""
+    rclpy = pytest.importorskip("rclpy")
+    pytest.importorskip("rclpy.experimental")
+    from rclpy.context import Context
+
+    from bptsb_ros.ros.params import EXECUTOR, EXECUTORS
+    from bptsb_ros.ros.runtime import executor_kind, make_executor
+
+    assert EXECUTORS == ("events", "single") and EXECUTOR.default == "events" and EXECUTOR.choices == EXECUTORS
+    context = Context()
+    rclpy.init(context=context, domain_id=0)
+    try:
+        for kind, cls in (("events", "EventsExecutor"), ("single", "SingleThreadedExecutor")):
+            executor = make_executor(kind, context)
+            assert (type(executor).__name__, executor_kind(executor)) == (cls, kind)
+            executor.shutdown()
+    finally:
+        rclpy.shutdown(context=context)

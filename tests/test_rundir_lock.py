@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import fcntl
 import hashlib
+import json
 import os
 import signal
 import subprocess
@@ -18,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from bptsb_ros.cli import main
-from bptsb_ros.experiments.registry import _REGISTRY, RUN_MARKER, Context, experiment
+from bptsb_ros.experiments.registry import _REGISTRY, ATTEMPTS_FILE, RUN_MARKER, Context, experiment
 
 LOCK = ".bptsb.lock"  # bptsb_ros.rundir_lock.LOCK_NAME, spelled out
 TINY = ["--set", "sim_time=2", "--set", "locomotion.warmup_windows=0", "--set", "feedback.fit_time=2",
@@ -139,7 +140,7 @@ def test_reproduce_force_keeps_the_lock_it_holds(tmp_path, toy_experiment):
 
     out = tmp_path / "repro"
     run_experiment(toy_experiment, out_dir=out, progress=False)
-    seen = []
+    seen, attempts = [], []
 
     def probe(ctx: Context) -> None:
         fd = os.open(ctx.out_dir / LOCK, os.O_RDWR)
@@ -149,11 +150,13 @@ def test_reproduce_force_keeps_the_lock_it_holds(tmp_path, toy_experiment):
         finally:
             os.close(fd)
         seen.append(sorted(p.name for p in ctx.out_dir.iterdir()))
+        attempts.append(json.loads((ctx.out_dir / ATTEMPTS_FILE).read_text()))
         _toy(ctx)
 
     _REGISTRY["toy-lock"] = dataclasses.replace(_REGISTRY["toy-lock"], run=probe)
     run_experiment(toy_experiment, out_dir=out, force=True, progress=False)
-    assert seen == [sorted([LOCK, RUN_MARKER])]
+    assert seen == [sorted([ATTEMPTS_FILE, LOCK, RUN_MARKER])]  # the earlier run's files are gone
+    assert len(attempts) == 1 and len(attempts[0]) == 1  # only this attempt: the earlier one was cleared too
     assert not (out / LOCK).exists()  # released at the end
 
 

@@ -135,3 +135,20 @@ def test_a_bad_worker_count_is_a_sweep_error_that_creates_nothing(tmp_path, work
     with pytest.raises(SweepError, match="--workers must be a whole number >= 0"):
         run_sweep([], out, workers=workers)
     assert not (tmp_path / "new").exists()
+
+
+def _non_finite_job(run_dir: Path) -> dict:
+    return {"nan": float("nan"), "inf": float("inf"), "neg": [float("-inf"), 1.5], "text": "nan-ish", "n": 2}
+
+
+def test_results_give_non_finite_floats_back_as_floats(tmp_path):
+    import math
+
+    res = run_sweep([Job("a", _non_finite_job)], tmp_path, workers=0)
+    on_disk = json.loads((tmp_path / "jobs" / "a" / JOB_FILE).read_text())["result"]
+    assert on_disk["nan"] == "nan" and on_disk["inf"] == "inf"  # JSON has no NaN: the record holds text
+    got = res.results()["a"]
+    assert math.isnan(got["nan"]) and got["inf"] == math.inf and got["neg"] == [-math.inf, 1.5]
+    assert got["text"] == "nan-ish" and got["n"] == 2
+    again = run_sweep([Job("a", _non_finite_job)], tmp_path, workers=0)  # reused from its record
+    assert math.isnan(again.results()["a"]["nan"])

@@ -122,7 +122,7 @@ def test_connect_timeout_is_validated(tmp_path, capsys):
             main(["sweep", str(CONFIG), "--seeds", "0", "--out", str(tmp_path), "--scheduler", "h:1",
                   "--connect-timeout", bad])
         assert exc.value.code == 2
-        assert "--connect-timeout" in capsys.readouterr().err.splitlines()[-1]  # argparse's usage, then one line
+        assert "--connect-timeout" in _one_line(capsys.readouterr().err)  # argparse's error, one line
     assert main(["sweep", str(CONFIG), "--seeds", "0", "--out", str(tmp_path), "--connect-timeout", "5"]) == 2
     assert "--scheduler only" in _one_line(capsys.readouterr().err)
 

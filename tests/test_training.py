@@ -22,12 +22,13 @@ def _early_late(losses, n=10):
     return float(np.mean(losses[:n])), float(np.mean(losses[-n:]))
 
 
-def test_lissajous_training_lowers_loss_and_saves_everything(tmp_path):
+def test_lissajous_training_lowers_loss_and_saves_everything(tmp_path, capsys):
     # 300 updates: at the paper's rates the loss is noisy and its path chaotic (rounding-level differences, e.g.
     # torch vs numba backend or float32 vs float64, give late/early 0.34-0.59 after 150 updates, 0.33-0.38 here)
     cfg = load_config(CONFIG / "lissajous_single.yaml", ["sim_time=300", "feedback.fit_time=20",
                                                            "lissajous.eval_periods=3"])
     res = train(cfg, tmp_path / "run", progress=False)
+    assert "train " not in capsys.readouterr().err  # progress=False: no bar, no phase lines
     early, late = _early_late(res.losses)
     assert late < 0.5 * early
     for name in ("checkpoint.pt", "config.yaml", "metrics.json", "loss.png", "lissajous.png"):
@@ -39,6 +40,17 @@ def test_lissajous_training_lowers_loss_and_saves_everything(tmp_path):
     agent = load_agent(tmp_path / "run")
     assert agent.feedback is not None and agent.feedback.weight.abs().sum() > 0
     assert torch.all(agent.body.k >= 0) and torch.all(agent.body.l >= 0)
+
+
+def test_each_phase_after_the_bar_says_what_it_does(tmp_path, capsys):
+    cfg = load_config(CONFIG / "lissajous_single.yaml", ["sim_time=1", "feedback.fit_time=2",
+                                                           "lissajous.eval_periods=1"])
+    train(cfg, tmp_path / "run", progress=True)
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.endswith(" ...")]
+    assert lines == ["train lissajous_single: building the agent, the task and the optimiser ...",
+                     "train lissajous_single: fitting the feedback layer on 2 s of open-loop motion ...",
+                     "train lissajous_single: evaluating the trained agent ...",
+                     f"train lissajous_single: writing the checkpoint, metrics and plots to {tmp_path / 'run'} ..."]
 
 
 def test_locomotion_training_lowers_loss(tmp_path):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 import re
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -71,6 +71,12 @@ def _paper_order() -> dict[str, int]:
     return {name: i for i, name in enumerate(experiments())}
 
 
+def missing_experiments(present: Iterable[str]) -> list[str]:
+    """The registered experiments (in the paper's order) with no result among ``present``."""
+    have = set(present)
+    return [name for name in _paper_order() if name not in have]
+
+
 def claim_counts(claims: list[dict[str, Any]]) -> tuple[int, int, int]:
     """(holding, not holding, not testable) among result.json claims."""
     held = sum(c["holds"] is True for c in claims)
@@ -109,6 +115,10 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
         held, failed, untestable = claim_counts(r["claims"])
         lines.append(f"| [{r['experiment']}](#{_anchor(r)}) | {md_text(r['paper_ref'])} | {r['scale']} | "
                      f"{r['seed']} | {held} | {failed} | {untestable} | {_duration(r['wall_s'])} |")
+    missing = missing_experiments(r["experiment"] for _, r in results)
+    if missing:
+        lines += ["", f"Not on this page (no run under the runs directory): {', '.join(missing)}. "
+                  "`bptsb reproduce NAME --scale SCALE` runs one; `bptsb reproduce --list` gives each one's time."]
     copies: dict[str, Path] = {}
     used_dirs: set[str] = set()
     for path, r in results:

@@ -36,6 +36,8 @@ import types
 import numpy as np
 from numba import njit, prange
 
+from bptsb_ros.body import compile_notice
+
 
 def _forward_impl(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verlet, clamp,
                   r_out, v_out, a_out, len_out):  # pragma: no cover - compiled
@@ -257,6 +259,12 @@ _forward_parallel = njit(**_JIT, parallel=True)(_renamed(_forward_impl, "_parall
 _adjoint_serial = njit(**_JIT)(_adjoint_impl)
 _adjoint_parallel = njit(**_JIT, parallel=True)(_renamed(_adjoint_impl, "_parallel"))
 
+#: what the first use of a kernel with a cold cache takes [s], for the line of :mod:`bptsb_ros.body.compile_notice`.
+#: Measured on 2 busy cores (load 4-5; on idle cores about half): the first Lissajous training window (forward and
+#: adjoint, serial, float32) 8.5 s, the first NARMA one (float64) 7.4 s, the first batch-1000 sweep window
+#: (parallel forward) 11.3 s. The serial figures are the pair's: a training run compiles both, one after the other.
+COMPILE_S = {"forward": 8.0, "adjoint": 8.0, "forward_parallel": 11.0, "adjoint_parallel": 11.0}
+
 #: batch size from which the bodies of a window are spread over threads (below it one thread is faster)
 PARALLEL_MIN_BATCH = int(os.environ.get("BPTSB_PARALLEL_MIN_BATCH", "256"))
 
@@ -280,7 +288,11 @@ def forward(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verlet, cla
     """Run a window (see the module docstring for shapes; ``coef`` from ``coefficients``); writes r_out, v_out,
     a_out, len_out."""
     fn = _forward_parallel if r0.shape[0] >= PARALLEL_MIN_BATCH else _forward_serial
-    fn(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verlet, clamp, r_out, v_out, a_out, len_out)
+    args = (r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verlet, clamp, r_out, v_out, a_out, len_out)
+    if not fn.overloads:  # the first call in this process: say so if it compiles
+        compile_notice.announce_if_cold(fn, args, COMPILE_S["forward_parallel" if fn is _forward_parallel
+                                                            else "forward"])
+    fn(*args)
 
 
 def adjoint(r0, v0, a0, k, d, rest, n_ext, si, sj, offset, mass, coef, verlet, clamp,
@@ -288,5 +300,9 @@ def adjoint(r0, v0, a0, k, d, rest, n_ext, si, sj, offset, mass, coef, verlet, c
             lam_r, lam_v, lam_a, g_k, g_d, g_rest, g_ext) -> None:
     """Reverse sweep of a window (see ``_adjoint_impl``)."""
     fn = _adjoint_parallel if r0.shape[0] >= PARALLEL_MIN_BATCH else _adjoint_serial
-    fn(r0, v0, a0, k, d, rest, n_ext, si, sj, offset, mass, coef, verlet, clamp,
-       r_out, v_out, a_out, len_out, g_r, g_v, g_a, g_len, lam_r, lam_v, lam_a, g_k, g_d, g_rest, g_ext)
+    args = (r0, v0, a0, k, d, rest, n_ext, si, sj, offset, mass, coef, verlet, clamp,
+            r_out, v_out, a_out, len_out, g_r, g_v, g_a, g_len, lam_r, lam_v, lam_a, g_k, g_d, g_rest, g_ext)
+    if not fn.overloads:
+        compile_notice.announce_if_cold(fn, args, COMPILE_S["adjoint_parallel" if fn is _adjoint_parallel
+                                                            else "adjoint"])
+    fn(*args)

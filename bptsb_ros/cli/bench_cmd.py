@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 NAME = "bench"
@@ -14,37 +17,91 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
         "MNIST training images/s of every "
         "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON. "
         "With --soak: soak the live recording instead (a realtime and a lockstep recorded run under CPU load; "
-        "steps published, messages recorded, drops counted).")
+        "steps published, messages recorded, drops counted). With --live: steps/s of lockstep live loops while a bag "
+        "is recorded, each step split into recorder wait, publish, wait for commands and compute. With --realtime: "
+        "the closed loop at 100 Hz in realtime, idle and with one core kept busy (steps, deadline misses, step "
+        "compute time and period jitter from the body's own per-step records, late commands).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from bptsb_ros.ros.params import EXECUTOR, EXECUTORS  # ROS-free
+
     parser.add_argument("--quick", action="store_true", help="1 s per measurement and fewer batch sizes")
-    parser.add_argument("--out", required=True, help="JSON file to write")
+    parser.add_argument("--out", required=True, help="JSON file to write; rewritten after each measurement, with "
+                        '"complete": false until the last one (a killed bench keeps what it measured)')
     soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.soak; runs bptsb launch "
                                      "lissajous_open --bag on this ROS_DOMAIN_ID)")
     soak.add_argument("--soak", action="store_true", help="run the recording soak instead of the physics benchmarks")
-    soak.add_argument("--realtime-seconds", type=float, default=60.0, metavar="S",
-                      help="wall seconds of the realtime run (0: skip it; default 60)")
+    soak.add_argument("--realtime-seconds", type=float, default=None, metavar="S",
+                      help="wall seconds of the realtime run (--soak: 0 skips it, default 60; --realtime: of each "
+                      "condition, default 600)")
     soak.add_argument("--realtime-busy", type=int, default=1, metavar="N",
-                      help="spinning processes during the realtime run (default 1: one core kept busy)")
+                      help="spinning processes during the realtime run (--realtime: of the busy condition; default "
+                      "1: one core kept busy)")
     soak.add_argument("--lockstep-seconds", type=float, default=10.0, metavar="S",
                       help="sim seconds of the lockstep run (0: skip it; default 10)")
     soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
                       help="spinning processes during the lockstep run (default 8)")
-    soak.add_argument("--workdir", default="", metavar="DIR", help="bags and launch logs of the soak (default: a new "
-                      "temporary directory, kept)")
+    live = parser.add_argument_group("--live: recorded lockstep loops (bptsb_ros.bench_live; runs bptsb launch "
+                                     "<loop> --bag on this ROS_DOMAIN_ID)")
+    live.add_argument("--live", action="store_true", help="time recorded lockstep live loops instead")
+    live.add_argument("--live-loops", default="lissajous_closed,narma", metavar="A,B",
+                      help="loops to run, comma-separated (default lissajous_closed,narma)")
+    live.add_argument("--live-seconds", type=float, default=10.0, metavar="S",
+                      help="sim seconds of each run (default 10)")
+    live.add_argument("--live-repeats", type=int, default=1, metavar="N",
+                      help="interleaved rounds of one run per loop (default 1)")
+    live.add_argument("--live-param", action="append", default=[], metavar="NODE:NAME:=VALUE",
+                      help="a node parameter for every run (bptsb launch --param; repeatable)")
+    soak.add_argument("--workdir", default="", metavar="DIR", help="bags, launch logs and timing records of the "
+                      "soak, --live or --realtime (default: a new temporary directory, kept)")
+    rt = parser.add_argument_group("--realtime: the closed loop at 100 Hz realtime, idle and with --realtime-busy "
+                                   "spinning processes (bptsb_ros.realtime_bench; runs bptsb launch lissajous_closed "
+                                   "with the example agent on this ROS_DOMAIN_ID)")
+    rt.add_argument("--realtime", action="store_true", help="run the realtime bench instead of the physics benchmarks")
+    rt.add_argument("--executor", choices=EXECUTORS, default=EXECUTOR.default,
+                    help=f"rclpy executor of the body and the brains (their executor parameter; default "
+                    f"{EXECUTOR.default}: events where rclpy has it)")
+    rt.add_argument("--rt-priority", type=int, default=0, metavar="P",
+                    help="run the body's stepping thread under SCHED_FIFO at priority P, 1-99 (its rt_priority "
+                    "parameter; needs CAP_SYS_NICE or root); default 0: the normal scheduler")
 
 
-def _write(out: Path, report: dict) -> int | None:
-    """Write ``report`` as JSON to ``out``; None, or the exit status of a write that failed (after one line)."""
+def _write(out: Path, report: dict, complete: bool = True) -> int | None:
+    """Write ``report`` as JSON to ``out``, with ``"complete"`` first (false while measurements are still to come),
+    atomically (a temporary file beside it, then a rename: a reader or a kill never sees half a file); None, or
+    the exit status of a write that failed (after one line)."""
     from bptsb_ros.cli.common import fail
 
+    tmp = out.with_name(f".{out.name}.tmp")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(report, indent=2))
+        tmp.write_text(json.dumps({"complete": complete, **report}, indent=2))
+        os.replace(tmp, out)
     except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
         return fail(NAME, f"cannot write --out {out}: {err.strerror or err}")
     return None
+
+
+class _WriteFailed(Exception):
+    """The --out file could not be rewritten after a measurement; ``code`` is the exit status (one line printed)."""
+
+    def __init__(self, code: int):
+        super().__init__(code)
+        self.code = code
+
+
+def _updater(out: Path) -> Callable[[dict], None]:
+    """``update(report)`` for a bench's runner: rewrites ``out`` marked incomplete after each measurement (a killed
+    bench keeps what it measured); raises :class:`_WriteFailed` when the file cannot be written."""
+
+    def update(report: dict) -> None:
+        if (problem := _write(out, report, complete=False)) is not None:
+            raise _WriteFailed(problem)
+
+    return update
 
 
 def _soak(args: argparse.Namespace) -> int:
@@ -53,6 +110,8 @@ def _soak(args: argparse.Namespace) -> int:
     from bptsb_ros.cli.common import USAGE, fail
     from bptsb_ros.soak import run_soak
 
+    if args.realtime_seconds is None:
+        args.realtime_seconds = 60.0
     for name in ("realtime_seconds", "lockstep_seconds"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value >= 0):
@@ -72,13 +131,92 @@ def _soak(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _live(args: argparse.Namespace) -> int:
+    import math
+
+    from bptsb_ros.bench_live import live_table, run_live
+    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.live.loops import LOOPS
+
+    loops = tuple(name.strip() for name in args.live_loops.split(",") if name.strip())
+    unknown = [name for name in loops if name not in LOOPS]
+    if not loops or unknown:
+        return fail(NAME, f"--live-loops: unknown loop(s) {', '.join(unknown) or '(none given)'}; choose from "
+                    f"{', '.join(LOOPS)}", USAGE)
+    if any(LOOPS[name].needs_agent and not name.endswith("_closed") for name in loops):
+        return fail(NAME, "--live-loops: mnist_drawing needs an MNIST system and images; not benchmarked", USAGE)
+    if not (math.isfinite(args.live_seconds) and args.live_seconds > 0):
+        return fail(NAME, f"--live-seconds must be > 0, got {args.live_seconds}", USAGE)
+    if args.live_repeats < 1:
+        return fail(NAME, f"--live-repeats must be >= 1, got {args.live_repeats}", USAGE)
+    workdir = Path(args.workdir) if args.workdir else None
+    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
+        return fail(NAME, f"--workdir {workdir} exists and is not empty")
+    report = run_live(loops, args.live_seconds, args.live_repeats, workdir, tuple(args.live_param),
+                      progress=lambda m: print(m, file=sys.stderr, flush=True))
+    if (problem := _write(Path(args.out), report)) is not None:
+        return problem
+    print(live_table(report))
+    print(f"wrote {args.out}")
+    return 1 if any(r.get("error") or r.get("launch_exit_code") for r in report["runs"]) else 0
+
+
+def _realtime(args: argparse.Namespace) -> int:
+    import math
+
+    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.realtime_bench import example_agent, realtime_table, run_realtime_bench
+
+    seconds = 600.0 if args.realtime_seconds is None else args.realtime_seconds
+    if not (math.isfinite(seconds) and seconds > 0):
+        return fail(NAME, f"--realtime-seconds must be > 0, got {seconds:g}", USAGE)
+    if not 0 <= args.rt_priority <= 99:
+        return fail(NAME, f"--rt-priority must be in 0..99, got {args.rt_priority}", USAGE)
+    if args.realtime_busy < 1:
+        return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
+    workdir = Path(args.workdir) if args.workdir else None
+    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
+        return fail(NAME, f"--workdir {workdir} exists and is not empty")
+    if not (example_agent() / "checkpoint.pt").is_file():
+        return fail(NAME, f"the example agent {example_agent()} is missing (it ships in the source tree)")
+    out = Path(args.out)
+    if (problem := _write(out, {}, complete=False)) is not None:  # an unwritable --out fails now, not after the runs
+        return problem
+    try:
+        report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, rt_priority=args.rt_priority,
+                                    workdir=workdir, update=_updater(out),
+                                    progress=lambda m: print(m, file=sys.stderr, flush=True))
+    except _WriteFailed as err:
+        return err.code
+    if (problem := _write(out, report)) is not None:
+        return problem
+    print(realtime_table(report))
+    print(f"wrote {out}")
+    return 1 if any("error" in r or r.get("launch_exit_code") for r in report["conditions"].values()) else 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.soak and args.realtime:
+        from bptsb_ros.cli.common import USAGE, fail
+
+        return fail(NAME, "--soak and --realtime are two different benches: choose one", USAGE)
     if args.soak:
         return _soak(args)
+    if args.live:
+        return _live(args)
+    if args.realtime:
+        return _realtime(args)
     from bptsb_ros.bench import run_benchmarks, workload_table
 
-    report = run_benchmarks(quick=args.quick, progress=lambda m: print(m, file=sys.stderr, flush=True))
     out = Path(args.out)
+    if (problem := _write(out, {}, complete=False)) is not None:  # an unwritable --out fails now, not at the end
+        return problem
+
+    try:
+        report = run_benchmarks(quick=args.quick, progress=lambda m: print(m, file=sys.stderr, flush=True),
+                                update=_updater(out))
+    except _WriteFailed as err:
+        return err.code
     if (problem := _write(out, report)) is not None:
         return problem
     print(workload_table(report))

@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="MNIST split: paper = 60k train / 10k test; test-8k-2k = the first 8,000 / last "
                              "2,000 images of the test set; auto (default) = paper when the training files "
                              "exist, else test-8k-2k")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars and no phase lines")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None,
                        help="the experiment's independent trainings: N local worker processes, 0: this process "

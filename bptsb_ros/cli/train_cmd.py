@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="continue the run saved in --out (same config; a larger sim_time or epochs extends it)")
     parser.add_argument("--force", action="store_true",
                         help="train a new run into --out even if it already holds one (its files are replaced)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar and no phase lines")
 
 
 def run(args: argparse.Namespace) -> int:

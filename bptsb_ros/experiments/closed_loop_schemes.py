@@ -167,11 +167,12 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     paper_ref="supplement 'Simultaneous training for a closed loop' and its table",
     summary="3 curves × 5 seeds (jobs): scheme 1 (closed loop from scratch), 2 (BPTSB through SWG + body + FL, "
             "L = L_traj + 0.1·L_FB), 3 (FL re-fitted by regression after every update); E_after / E_before",
-    durations={"smoke": "≈ 30 s (1 curve × 1 seed)",
-               "short": "375 s measured on the busy 2-core machine (3 curves × 2 seeds = 6 jobs on 2 workers; 200 s "
-                        "preliminary, 50 s per scheme)",
-               "paper": "208 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (15 jobs "
-                        "of 2,000 s preliminary + 1,000 s per scheme 2/3 + 2,000 s scheme 1, 2 workers)"},
+    durations={"smoke": "≈ 5 s on 2 busy cores (1 curve × 1 seed)",
+               "short": "375 s measured 2026-11-27 on 2 busy cores (3 curves × 2 seeds = 6 jobs on 2 workers; 200 "
+                        "s preliminary, 50 s per scheme)",
+               "paper": "1,710 s measured 2026-12-02 on 2 cores shared with other work (load 4-8), numba backend (15 "
+                        "preliminary trainings of 2,000 s and the three schemes as jobs on 2 workers); 208 s on 2 "
+                        "lightly loaded cores 2026-11-27"},
 )
 @single_threaded
 def run(ctx: Context) -> None:
@@ -215,6 +216,7 @@ def run(ctx: Context) -> None:
                          for i in range(n_curves)])
     ctx.result.claims.extend(claims(SchemeNumbers(table["before"], table["scheme1"], table["scheme2"],
                                                   table["scheme3"], ms, trained1, note)))
+    ctx.phase("plotting the scheme ratios")
     from bptsb_ros.analysis.autonomy_plots import plot_scheme_ratios
 
     ctx.figure(plot_scheme_ratios(ctx.out_dir / "schemes.png", [str(c) for c in CURVES[:n_curves]],

@@ -71,8 +71,10 @@ def claims(n: ClosedLoopNumbers) -> list[Claim]:
     "lissajous-closed-loop",
     paper_ref="Fig. 4(a); Methods 'Lissajous curve drawing task'",
     summary="train SWG + double-circle (N_mov 13) on the (1,2,0) Lissajous curve, fit the FL (σ 0.08), close the loop",
-    durations={"smoke": "≈ 10 s", "short": "≈ 1 min",
-               "paper": "12 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (2,000 s of "
+    durations={"smoke": "≈ 4 s on 2 busy cores",
+               "short": "17 s measured 2026-11-27 on 2 cores, 15 s on 2 busy cores 2026-12-02 (1,000 s of "
+                        "training, the FL fit, evaluation and plots)",
+               "paper": "16 s measured 2026-12-02 on 2 cores shared with other work, numba backend (2,000 s of "
                         "training, the original simTime)"},
 )
 @single_threaded

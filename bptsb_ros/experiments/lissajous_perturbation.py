@@ -207,9 +207,10 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
     summary="displace the movable masses by N(0, σ²), σ = 0…1 step 0.1 × seeds, open loop (SWG) and closed loop "
             "(FL), one batched run each; return rate vs σ; variants paper (a kick of the running cycle) and authors "
             "(a restart from the displaced layout at t = 0)",
-    durations={"smoke": "≈ 20 s", "short": "82–192 s measured (1,000 s training; 11 × 100 rows, 50 periods)",
-               "paper": "91 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(2,000 s training; 11 × 100 rows, 300 periods)"},
+    durations={"smoke": "≈ 5 s on 2 busy cores",
+               "short": "82–192 s measured on 2 cores (1,000 s training; 11 × 100 rows, 50 periods)",
+               "paper": "148 s measured 2026-12-02 on 2 cores shared with other work, numba backend (2,000 s "
+                        "training; 11 × 100 rows, 300 periods, both variants)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:
@@ -261,6 +262,7 @@ def _kick_variant(ctx: Context, trained: TrainedAgent, name: str, help_text: str
     for c in claims(PerturbationNumbers(SIGMAS, rate_open, rate_closed, e_open_orig / target_ms,
                                         e_closed_orig / target_ms, float(rate_literal[0]))):
         ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+    ctx.phase("plotting the return rates")
     from bptsb_ros.analysis.autonomy_plots import plot_perturbation
 
     path = plot_perturbation(ctx.out_dir / "perturbation.png", SIGMAS, {

@@ -386,12 +386,14 @@ def _variant_suffix(ctx: Context, name: str) -> str:
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
             "F_wind = 1 (the authors' protocol: (2,1,π/4)), each settings variant a job; both curves drawn, CMP x/y "
             "frequencies (FFT) swap with the wind",
-    durations={"smoke": "≈ 20 s", "short": "107 s measured 2026-12-02 on the 2-core machine shared with other work "
-               "(2 × 1,000 s preliminary, verlet and published integrator, + 3 × 2,000 s switching training, the "
-               "three variants, 3 jobs on 2 workers)",
-               "paper": "69 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(2,000 s + 2 × 30,000 s of training, the original simTime, 2 jobs, before the authors' "
-                        "variant was added)"},
+    durations={"smoke": "≈ 8 s on 2 busy cores",
+               "short": "107 s measured 2026-12-02 on 2 cores shared with other work (2 × 1,000 s preliminary, "
+                        "verlet and published integrator, + 3 × 2,000 s switching training, the three variants, 3 "
+                        "jobs on 2 workers); the committed run of 2026-11-27, an earlier build without the "
+                        "authors' variant, took 455 s",
+               "paper": "415 s measured 2026-12-02 on 2 cores shared with other work, numba backend (2,000 s "
+                        "preliminary training per integrator + 3 × 30,000 s of switching training, the three "
+                        "variants, as jobs on 2 workers)"},
 )
 @single_threaded
 def run_switching(ctx: Context) -> None:
@@ -406,6 +408,7 @@ def run_switching(ctx: Context) -> None:
     summaries = ctx.run_jobs(switching_job, jobs, names=[v["label"] for v in variants.values()])
     seg = ctx.settings["segment_periods"]  # periods per test segment
     transient = ctx.settings["transient_periods"]
+    ctx.phase(f"the switching test of {len(variants)} trained agents (calm, windy, calm)")
     tests = {}
     for (name, v), summary in zip(variants.items(), summaries, strict=True):
         sw = load_trained(ctx.out_dir / name, summary)
@@ -431,6 +434,7 @@ def run_switching(ctx: Context) -> None:
         tag = "" if name == main_name else f" [{v['label']}]"
         ctx.result.claims.extend(switching_claims(SwitchingNumbers(pre_err[name], tests[name]["segments"], transient,
                                                                    str(variant_curve(v))), tag))
+    ctx.phase("plotting the switching curves")
     from bptsb_ros.analysis.autonomy_plots import plot_switching_curves, plot_switching_dynamics
 
     for name, test in tests.items():
@@ -497,10 +501,12 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
     paper_ref="supplement 'Behavioral switching', Fig. (d)",
     summary="each settings variant's switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): "
             "maxima of the CMP's x and y after a transient, period of each orbit",
-    durations={"smoke": "≈ 20 s", "short": "155 s measured 2026-12-02 on the 2-core machine shared with other work "
-               "(2 preliminary trainings, 3 switching trainings as jobs, then one sweep per variant)",
-               "paper": "81 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend (the "
-                        "paper-scale switching trainings, before the authors' variant was added)"},
+    durations={"smoke": "≈ 11 s on 2 busy cores",
+               "short": "155 s measured 2026-12-02 on 2 cores shared with other work (2 preliminary trainings, 3 "
+                        "switching trainings as jobs, then one sweep per variant); the committed run of "
+                        "2026-11-27, an earlier build, took 492 s",
+               "paper": "723 s measured 2026-12-02 on 2 cores shared with other work, numba backend (the preliminary "
+                        "and the three switching trainings, then one 61-value sweep per variant)"},
 )
 @single_threaded
 def run_bifurcation(ctx: Context) -> None:
@@ -517,6 +523,8 @@ def run_bifurcation(ctx: Context) -> None:
     details: dict[str, Any] = {"seed": ctx.seed, "winds": winds, "transient_periods": transient,
                                "record_periods": record, "periodicity_rtol": 1e-3,
                                "variants": ctx.settings.variants_json()}
+    ctx.phase(f"the wind sweep ({len(winds)} winds, {transient + record} periods) of {len(variants)} trained agents "
+              "and its plots")
     for (name, v), summary in zip(variants.items(), summaries, strict=True):
         label, published, second = v["label"], bool(v["published_wind"]), variant_curve(v)
         sw = load_trained(ctx.out_dir / name, summary)
@@ -628,12 +636,13 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
     summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing in each "
             "settings variant (paper wind, published wind, the authors' protocol: six jobs); the wind switched on "
             "at every n = 0…99 (one batched run each): which runs converge",
-    durations={"smoke": "≈ 30 s",
-               "short": "147 s measured 2026-12-02 on the 2-core machine shared with other work (2 × 1,000 s "
-                        "preliminary, verlet and published integrator, + 6 × 2,000 s switching: fixed and random "
-                        "timing in each of the three variants; 6 jobs on 2 workers)",
-               "paper": "155 s measured 2026-11-27 on the 2-core machine, lightly loaded, numba backend "
-                        "(4 × 30,000 s of switching training, 2 workers, before the authors' variant was added)"},
+    durations={"smoke": "≈ 12 s on 2 busy cores",
+               "short": "147 s measured 2026-12-02 on 2 cores shared with other work (2 × 1,000 s preliminary, "
+                        "verlet and published integrator, + 6 × 2,000 s switching: fixed and random timing in "
+                        "each of the three variants; 6 jobs on 2 workers); the committed run of 2026-11-27, an "
+                        "earlier build, took 599 s",
+               "paper": "319 s measured 2026-12-02 on 2 cores shared with other work, numba backend (six 30,000 s "
+                        "switching trainings: fixed and random timing in each variant, as jobs on 2 workers)"},
 )
 @single_threaded
 def run_timing(ctx: Context) -> None:
@@ -650,6 +659,7 @@ def run_timing(ctx: Context) -> None:
     ctx.log(f"lissajous-timing: {len(jobs)} switching trainings ({settings['sim_time']} s each) as jobs")
     summaries = ctx.run_jobs(switching_job, jobs, names=[f"{label} timing" for label, *_ in systems])
     settle, run, last = ctx.settings["settle_periods"], ctx.settings["run_periods"], ctx.settings["last_periods"]
+    ctx.phase(f"the convergence test of {len(systems)} trained agents (100 starts each)")
     out: dict[str, dict] = {}
     for (label, run_name, timing, name), summary in zip(systems, summaries, strict=True):
         trained = load_trained(ctx.out_dir / run_name, summary)
@@ -669,6 +679,7 @@ def run_timing(ctx: Context) -> None:
                 "48 (22…69)")
         ctx.result.claims.extend(timing_claims(TimingNumbers(out[fixed]["to_target"], out[random_]["to_target"],
                                                              last, str(variant_curve(variants[name]))), tag))
+    ctx.phase("plotting the convergence")
     from bptsb_ros.analysis.autonomy_plots import plot_timing
 
     shifts = {label: summary["wind_shift_x_m"] for (label, *_), summary in zip(systems, summaries, strict=True)}

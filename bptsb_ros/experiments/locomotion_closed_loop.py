@@ -75,8 +75,14 @@ def settings_for(ctx: Context) -> tuple[AgentSettings, int]:
 
 
 def agent_settings(ctx: Context) -> AgentSettings:
-    """The agents' training and evaluation settings: the :class:`AgentSettings` fields of ``ctx.settings``."""
-    return AgentSettings(**{f.name: ctx.settings[f.name] for f in fields(AgentSettings)})
+    """The agents' training and evaluation settings: the :class:`AgentSettings` fields of ``ctx.settings``.
+    Their training config is built once here, so a bad ``config_overrides`` entry is one ConfigError before any
+    agent trains."""
+    from bptsb_ros.experiments.common import packaged_config
+
+    settings = AgentSettings(**{f.name: ctx.settings[f.name] for f in fields(AgentSettings)})
+    packaged_config("locomotion_forward", settings.overrides(), seed=ctx.seed)
+    return settings
 
 
 @experiment(
@@ -84,9 +90,11 @@ def agent_settings(ctx: Context) -> AgentSettings:
     paper_ref="main text 'Autonomous behavior through brain function transfer' (8 of 20 agents); Fig. 4(a)",
     summary="train 20 caterpillar agents forward (sweep jobs), fit each FL (σ 0.2), close the loops; count "
             "closed/open speed ≥ 0.7; variants: SWG→FL transition period, velocity FL",
-    durations={"smoke": "≈ 20 s (2 agents, 4 s of training)",
-               "short": "≈ 25 min with 2 workers, ≈ 48 min in one process (20 agents, 200 s of training each)",
-               "paper": "75 s measured 2026-11-27, 2 cores, lightly loaded (20 agents, 1000 s each, 2 workers)"},
+    durations={"smoke": "≈ 7 s on 2 busy cores (2 agents, 4 s of training)",
+               "short": "86 s measured 2026-12-02 on 2 busy cores (20 agents, 200 s of training each, 2 workers); "
+                        "the committed run of 2026-11-27, an earlier build, took 25 min",
+               "paper": "567 s measured 2026-12-02 on 2 cores shared with other work (20 agents, 1000 s each, 2 "
+                        "workers); 75 s on 2 lightly loaded cores 2026-11-27"},
 )
 def run(ctx: Context) -> None:
     settings, n_agents = settings_for(ctx)
@@ -117,6 +125,7 @@ def run(ctx: Context) -> None:
     verdicts = claims(ClosedLoopCounts(np.array([r["open_speed"] for r in rows], dtype=float),
                                        np.array([bool(r["success"]) for r in rows], dtype=bool)))
     ctx.result.claims.extend(verdicts)
+    ctx.phase(f"plotting the gaits and ratios of {len(seeds)} agents")
     from bptsb_ros.analysis.locomotion_plots import plot_closed_open_ratios, plot_gaits
     ctx.figure(plot_gaits(ctx.out_dir / "gaits.png", {s: _load_gait(sweep.out_dir, s) for s in seeds},
                           {s: results[f"seed-{s}"] for s in seeds if f"seed-{s}" in results}, settings.gait_time))

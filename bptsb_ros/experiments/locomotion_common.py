@@ -44,7 +44,9 @@ class AgentSettings:
     closed-loop runs whose speeds are compared [s] (the original closed-loop config: 100);
     handover_time: the transition variant's blend from SWG to FL [s]; gait_time: stored gait [s]; projection: what
     the training does with a k, d or l below zero after an update (``training.projection``: clamp to 0, the paper;
-    reset to 0.1, the authors' code).
+    reset to 0.1, the authors' code); config_overrides: further ``key=value`` overrides of the agents' training
+    config (``config/locomotion_forward.yaml``), e.g. ``body.integrator=published`` for the ablation of the
+    authors' profile.
     """
 
     sim_time: float
@@ -54,8 +56,10 @@ class AgentSettings:
     handover_time: float = 5.0
     gait_time: float = 2.0
     projection: str = "clamp"
+    config_overrides: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "config_overrides", tuple(self.config_overrides))
         if self.projection not in PROJECTIONS:
             raise ValueError(f"locomotion agents: projection must be one of {', '.join(PROJECTIONS)}, got "
                              f"{self.projection!r}")
@@ -63,14 +67,19 @@ class AgentSettings:
     def overrides(self) -> list[str]:
         return [f"sim_time={self.sim_time}", f"locomotion.warmup_windows={self.warmup_windows}",
                 f"feedback.fit_time={self.fit_time}", f"locomotion.eval_time={self.eval_time}",
-                f"training.projection={self.projection}"]
+                f"training.projection={self.projection}", *self.config_overrides]
 
     def key(self) -> str:
         """Short stable name of these settings (agents of equal settings are shared between experiments); the
-        default projection (clamp) is left out of it, so agents trained before the option existed keep their key."""
+        default projection (clamp) and empty config overrides are left out of it, so agents trained before those
+        options existed keep their key."""
         fields_ = asdict(self)
         if fields_["projection"] == "clamp":
             del fields_["projection"]
+        if not fields_["config_overrides"]:
+            del fields_["config_overrides"]
+        else:
+            fields_["config_overrides"] = list(fields_["config_overrides"])
         text = json.dumps(fields_, sort_keys=True)
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 

@@ -149,8 +149,12 @@ def claims(n: HeadwindNumbers) -> list[Claim]:
     summary="forward agent → additional training at v_max/2 under a periodic headwind F = −1; speed under the "
             "switching wind (c) and speed vs F_wind ∈ [−2, 1] (e, one batched simulation); variants paper and "
             "authors (−15 N in 100 s / 100 s phases, their rates, ÷10 at 80 % / 90 %)",
-    durations={"smoke": "≈ 20 s", "short": "≈ 13 min (2,000 s of switching training; forward agent reused)",
-               "paper": "18 s measured 2026-11-27, 2 cores, lightly loaded (10,000 s of switching training)"},
+    durations={"smoke": "≈ 11 s on 2 busy cores",
+               "short": "143 s measured 2026-12-02 on 2 busy cores (2,000 s of switching training; forward agent "
+                        "reused from locomotion-closed-loop-20); the committed run of 2026-11-27, an earlier "
+                        "build, took 13 min",
+               "paper": "151 s measured 2026-12-02 on 2 cores shared with other work (10,000 s of switching training "
+                        "per variant; forward agent reused)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
@@ -197,6 +201,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     agents = {"switching": (load_agent(run_dir), task_state(read_checkpoint(run_dir))), "forward": forward}
     dt = agents["switching"][0].dt
 
+    ctx.phase(f"the periodic-wind test of the switching and forward agents ({eval_periods} periods)")
     # (c) periodic wind; each agent continues from where its training ended, the wind clock = absolute time
     steps = int(round(eval_periods * period / dt))
     block = int(round(1.0 / dt))
@@ -236,6 +241,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     blocks = phase_blocks(traces["switching"]["t"], period)
     for c in claims(HeadwindNumbers(target, sw, blocks, winds, v, force)):
         ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+    ctx.phase("plotting the speeds")
     from bptsb_ros.analysis.locomotion_plots import plot_headwind_speed, plot_speed_vs_wind
     ctx.figure(plot_headwind_speed(ctx.out_dir / f"headwind_speed{suffix}.png", traces, target, force, period))
     ctx.figure(plot_speed_vs_wind(ctx.out_dir / f"speed_vs_wind{suffix}.png", winds, curves, target, (0.0, force)))

@@ -131,8 +131,11 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
             "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded; variants paper (positions "
             "N(0, σ²)) and authors (positions N(0, (σP/8)²), velocities N(0, (σS)²))",
-    durations={"smoke": "≈ 10 s", "short": "≈ 2 min after locomotion-closed-loop-20 (its agents reused)",
-               "paper": "26 s measured 2026-11-27, 2 cores, lightly loaded (agents reused)"},
+    durations={"smoke": "≈ 8 s on 2 busy cores",
+               "short": "83 s measured 2026-12-02 on 2 busy cores after locomotion-closed-loop-20 (its 20 agents "
+                        "reused); the committed run of 2026-11-27, an earlier build, took 122 s",
+               "paper": "1,337 s measured 2026-12-02 on 2 cores shared with other work (agents reused; 11 σ × 100 "
+                        "seeds per successful agent, loop and draw)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
@@ -174,6 +177,7 @@ def run(ctx: Context) -> None:
                              "v_before_open": v_before_open, "example": example}
     first = per_variant[next(iter(per_variant))]
     rates, mean, example, dt = first["rates"], first["mean"], first["example"], agents[chosen[0]][0].dt
+    ctx.phase("plotting the return rates")
     from bptsb_ros.analysis.locomotion_plots import plot_return_rate
     ctx.figure(plot_return_rate(ctx.out_dir / "return_rate.png", sigmas, rates, mean, example, chosen[0], before_s,
                                 dt))

@@ -163,8 +163,9 @@ def claims(n: MemoryNumbers) -> list[Claim]:
     "memory-task",
     paper_ref="Supplement 'Memory task' (Fig. 'The memory task')",
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
-    durations={"smoke": "≈ 25 s",
-               "short": "≈ 8 min on an idle 2-core machine (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 workers)",
+    durations={"smoke": "≈ 11 s on 2 busy cores",
+               "short": "284 s measured 2026-11-27 on 2 cores (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 "
+                        "workers)",
                "paper": "≈ 12-16 min per training (40,000 SGD epochs; measured for narma-emulation, numba "
                         "backend) × 17 Δt × 2 bodies × 5 seeds, / workers: ≈ 20 h on 2 workers"},
 )
@@ -243,6 +244,7 @@ def run(ctx: Context) -> None:
         cmp_neighbours=cmp_neighbours["multiple-circle"],
         totals={lab: float(res.total[res.group(lab)]) for lab in res.labels})))
 
+    ctx.phase("plotting the errors and IPC")
     # figures (a) error vs Δt, (b) Δt = focus series, (c) IPC
     t = np.arange(washout, min(washout + 60, len(u)))
     outputs = {}

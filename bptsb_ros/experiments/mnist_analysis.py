@@ -27,6 +27,7 @@ def pca_analysis(ctx: Context, evaluation: dict[str, np.ndarray], labels: np.nda
     brain = evaluation["displacement"].reshape(len(labels), -1)
     brain = brain[:, np.abs(brain).sum(0) > 0]  # drop the CMP's all-zero columns
     body = evaluation["drawings"].reshape(len(labels), -1)
+    ctx.phase(f"{system_label}: PCA, silhouettes and linear probes of the brain and body outputs")
     scores = {"brain": separation_scores(brain, labels, ctx.seed), "body": separation_scores(body, labels, ctx.seed)}
     for part in ("brain", "body"):
         sc = scores[part]
@@ -85,6 +86,7 @@ def labelmap_analysis(ctx: Context, system, evaluation: dict[str, np.ndarray], l
                 "label-map size (mean over the 10 labels)", "1", float(per_mass[p]))
     hi, lo = int(np.argmax(per_mass)), int(np.argmin(per_mass))
     topo = system.body.topology
+    ctx.phase("plotting the label maps")
     ctx.figure(plot_label_maps(ctx.out_dir / f"{prefix}label_maps.png", maps["labels"], maps["deltas"],
                                {f"mass {idx[hi]} (largest)": hi, f"mass {idx[lo]} (smallest)": lo}, size,
                                f"{system_label}: label maps of the masses with the largest and smallest label-map "

@@ -61,6 +61,7 @@ def split_for(ctx: Context) -> str:
 def load_data(ctx: Context, n_train: int | None, n_test: int | None) -> Data:
     """The split :func:`split_for` names from ``ctx.data_dir`` (or ``$BPTSB_MNIST_DIR``), cut to the first
     ``n_train`` training and ``n_test`` test images (None: all)."""
+    ctx.phase("reading the MNIST data")
     split: Split = load_split(ctx.data_dir, split_for(ctx))
     tx, ty = split.train_x[:n_train], split.train_y[:n_train]
     sx, sy = split.test_x[:n_test], split.test_y[:n_test]

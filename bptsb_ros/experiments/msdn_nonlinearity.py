@@ -127,8 +127,9 @@ def _bodies(seed: int):
     paper_ref="Supplement 'Nonlinearity in linear mass-spring-damper networks'",
     summary="IPC of an untrained double-circle body under LIL forces (degree >= 2 present) vs a 1-D chain "
             "(degree 1 only)",
-    durations={"smoke": "≈ 10 s", "short": "≈ 3-5 min measured",
-               "paper": "131 s measured 2026-11-27, 2 cores, lightly loaded"},
+    durations={"smoke": "≈ 6 s on 2 busy cores",
+               "short": "314 s measured 2026-11-27 on 2 cores",
+               "paper": "25 s measured 2026-12-02 on 2 cores shared with other work"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
@@ -174,6 +175,7 @@ def run(ctx: Context) -> None:
         shown = [lab for lab in res.labels if lab.endswith(f"@{SCALES[-1]:g}") and not lab.startswith("all")]
         panels.append([IpcPanel.of(res, shown, f"{name}, untrained, LIL forces (scale {SCALES[-1]:g}): IPC of each "
                                    "movable coordinate", names=[lab.rsplit(" @", 1)[0] for lab in shown])])
+    ctx.phase("plotting the IPC panels")
     path = plot_ipc_panels(ctx.out_dir / "msdn_nonlinearity_ipc.png", panels)
     ctx.figure(path)
     numbers = NonlinearityNumbers(*({float(sc): BodyCapacity(v["degree_1"], v["degree_2plus"])

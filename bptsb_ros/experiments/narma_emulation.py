@@ -89,7 +89,8 @@ def claims(n: EmulationNumbers) -> list[Claim]:
     "narma-emulation",
     paper_ref="Fig. 3(a, b); Methods 'Time-series emulation task'",
     summary="train {LIL, MLP} x {double-circle, multiple-circle} (N_mov 17) on the expanded NARMA2; NMSE table",
-    durations={"smoke": "≈ 40 s", "short": "≈ 11 min measured (Adam, 120 epochs, 2 workers)",
+    durations={"smoke": "≈ 7 s on 2 busy cores",
+               "short": "673 s measured 2026-11-27 on 2 cores (Adam, 120 epochs, 2 workers)",
                "paper": "25 min measured 2026-11-27 (1,495 s + a 7 s --resume; 40,000 SGD epochs, 4 systems, 2 "
                         "workers, numba backend, 2 lightly loaded cores)"},
 )
@@ -135,6 +136,7 @@ def run(ctx: Context) -> None:
     # Fig. 3(b): input, target and the four outputs on the held-out sequence, and the error table
     u, target, _ = next(iter(series.values()))
     # systems whose training diverged have no output to draw
+    ctx.phase("plotting the emulation")
     ctx.figure(plot_narma_emulation(ctx.out_dir / "narma_emulation.png", np.arange(washout, min(washout + 100, len(u))),
                                     u, target, {system_name(*k): out for k, (_, _, out) in series.items()},
                                     {system_name(*k): errors[k] for k in series},

@@ -175,7 +175,8 @@ def claims(n: NarmaIpcNumbers) -> list[Claim]:
     "narma-ipc",
     paper_ref="Fig. 3(c)",
     summary="IPC of the output at several epochs, of the target and of every mass's x, y (LIL, MLP; double circle)",
-    durations={"smoke": "≈ 40 s", "short": "≈ 4 min on an idle 2-core machine (Adam, 300 epochs, 2 workers)",
+    durations={"smoke": "≈ 6 s on 2 busy cores",
+               "short": "196 s measured 2026-11-27 on 2 cores (Adam, 300 epochs, 2 workers)",
                "paper": "880 s measured 2026-11-27 (2 systems × 40,000 SGD epochs on 2 workers, then the IPC of "
                         "4 stages with 200 surrogates; numba backend, 2 lightly loaded cores)"},
 )
@@ -269,6 +270,7 @@ def run(ctx: Context) -> None:
                        IpcPanel.of(res, right, f"{brain.upper()} + double circle, epoch {stages[-1]}: each movable "
                                    "mass (index, axis)", names=[lab.replace(f"{brain.upper()} mass ", "")
                                                                 for lab in right])])
+    ctx.phase("plotting the IPC panels")
     ctx.figure(plot_ipc_panels(ctx.out_dir / "narma_ipc.png", panels, width_ratios=[len(stages) + 3, 34]))
     ctx.result.details = {"config": config, "stages": list(stages), "eval_inputs": eval_inputs, "washout": washout,
                           "max_delay": max_delay, "max_degree": 3, "surrogates": surrogates,

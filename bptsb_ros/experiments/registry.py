@@ -144,6 +144,12 @@ class Context:
         n = placement.pool_size(jobs)
         return "this process" if n == 0 else f"a local pool of {n} process{'es' if n > 1 else ''}"
 
+    def phase(self, what: str) -> None:
+        """One line, ``<experiment>: <what> ...``, as a phase of seconds that shows no progress of its own starts
+        (a test simulation, the plots); progress, like the bars: not with ``progress`` off (``--no-progress``)."""
+        if self.progress:
+            self.log(f"{self.result.experiment}: {what} ...")
+
     def row(self, system: str, metric: str, unit: str, ours: float | None, paper: float | str | None = None) -> None:
         self.result.rows.append(Row(system, metric, unit, ours, paper))
 
@@ -170,7 +176,8 @@ class Experiment:
     paper_ref: str
     summary: str
     run: Callable[[Context], None]
-    #: how long each scale takes on the 2-core development machine (measured; text for --list)
+    #: how long each scale takes (text for --list): the run's wall time (``wall_s``), measured on 2 cores, with the
+    #: date, or said to be an estimate
     durations: dict[str, str]
 
 

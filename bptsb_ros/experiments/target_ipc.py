@@ -167,8 +167,9 @@ def targets(w: np.ndarray) -> dict[str, np.ndarray]:
     "target-ipc",
     paper_ref="Supplement 'The target IPC' (Fig. 'The target IPC')",
     summary="IPC profiles of NARMA2, NARMA10, expanded NARMA and the memory target (Δt = 8)",
-    durations={"smoke": "≈ 5 s", "short": "≈ 1-3 min measured",
-               "paper": "79 s measured 2026-11-27, 2 cores, lightly loaded"},
+    durations={"smoke": "≈ 2 s on 2 busy cores",
+               "short": "199 s measured 2026-11-27 on 2 cores",
+               "paper": "7 s measured 2026-12-02 on 2 cores shared with other work"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, to_unit_interval
@@ -196,6 +197,7 @@ def run(ctx: Context) -> None:
         for n in range(bd.shape[1]):
             ctx.row(name, f"IPC degree {n + 1}", "1", float(bd[g, n]))
         ctx.row(name, "IPC total (degree ≤ 3, delay ≤ 20)", "1", float(res.total[g]), "≤ 1 (rank)")
+    ctx.phase("plotting the IPC profiles")
     ctx.figure(plot_ipc_panels(ctx.out_dir / "target_ipc.png", [[IpcPanel.of(
         res, res.labels, f"IPC of the target models (black: F₁(u(t−{MEMORY_DELAY})))",
         highlight=res.index(((MEMORY_DELAY, 1),)))]], row_height=3.0, width=DOUBLE * 0.7))

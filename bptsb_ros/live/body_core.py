@@ -41,6 +41,7 @@ from bptsb_ros.live.body_params import (
     perturb_step,
 )
 from bptsb_ros.live.channels import CommandChannel, Rejection, TimingStats
+from bptsb_ros.live.phases import StepPhases
 from bptsb_ros.live.safety import (
     CommandLimits,
     DivergenceRecovery,
@@ -50,6 +51,7 @@ from bptsb_ros.live.safety import (
     runaway,
 )
 from bptsb_ros.live.sim_control import ControlCall, SimControl
+from bptsb_ros.live.step_times import StepTimes
 from bptsb_ros.live.summary import summary_text
 from bptsb_ros.ros.params import ParameterError, ParamValue
 from bptsb_ros.ros.topics import dt_to_ns, mass_dof_names, spring_names
@@ -190,6 +192,11 @@ class BodyCore:
         self.control = SimControl(p["paused"], sink=self._on_control)
         self.resumed_at = -math.inf  # realtime: when a pause ended (silence is counted from then)
         self.stats = TimingStats()
+        self.phases = StepPhases()  # lockstep: wall time per phase of a step (bptsb bench --live)
+        if p["timing_path"] and p["mode"] != "realtime":
+            raise ParameterError("parameter 'timing_path': per-step wall times are recorded in mode realtime only")
+        self.step_times: StepTimes | None = StepTimes() if p["timing_path"] else None
+        self.rt_priority = 0  # the SCHED_FIFO priority the node's stepping thread got (0: the normal scheduler)
         self.clock_sent: dict[int, float] = {}
         self.published: dict[str, int] = {}  # topic name -> messages published since stepping began
         self.counting = False  # stepping began (startup complete or given up on): publications are counted
@@ -487,7 +494,9 @@ class BodyCore:
             r = self.recorder
             out.update(recorder_waits=r.waits, recorder_wait_s=r.wait_s, recorder_acked_step=r.acked,
                        recorder_ack_rejected=r.rejected)
+        out.update(self.phases.summary())
         out["published_messages"] = dict(self.published)
+        out["rt_priority"] = self.rt_priority
         return out
 
     def status(self, summary: Mapping[str, Any], error: str = "") -> tuple[str, str, list[tuple[str, str]]]:

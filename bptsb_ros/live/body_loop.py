@@ -10,7 +10,8 @@ graph in ``body_sim``; plain Python objects and a fake clock in the tests.
   steps are paced at ``rate_scale``.
 * ``realtime``: step k is due at start + k·dt/``rate_scale`` wall seconds (a live change of ``rate_scale`` keeps
   the due time of the current step); the newest command is used; jitter (start − due), compute time and deadline
-  misses (finished after the next step's due time) are counted; ``wall_duration`` > 0 ends the run.
+  misses (finished after the next step's due time) are counted, and with ``timing_path`` every step's wall times
+  are kept (:class:`~bptsb_ros.live.step_times.StepTimes`); ``wall_duration`` > 0 ends the run.
 
 In both modes the loop holds at a step boundary while ``core.control`` is paused (:mod:`~bptsb_ros.live.sim_control`:
 pause, resume, step N, reset), handling messages and service calls; realtime shifts its schedule (and the end of
@@ -127,34 +128,45 @@ class BodyLoop:
                 return
             port.spin_once(min(remaining, POLL_S))
 
-    def _step(self, state: BodyState | None, step: int) -> BodyState:
-        out = self.core.integrate(state, step)
-        self.port.publish(out)
-        return out.state
-
     def _lockstep(self) -> None:
         core, port = self.core, self.port
         state: BodyState | None = None
         step = 0
         last = port.now()
+        phases = core.phases
         while self._more(step):
+            began = port.now()
             self.hold()
             if port.stopped():
                 break
+            t0 = port.now()
             self.await_recorder(step)
             if port.stopped():
                 break
-            core.announce(step, port.now())
+            t1 = port.now()
+            core.announce(step, t1)
             port.announce(step)
+            t2 = port.now()
             self.await_commands(step)
             if port.stopped():
                 break
+            t3 = port.now()
             if any(core.silent[s] for s in core.wait_sources):  # pace silent running at rate_scale
                 self.spin_for(max(0.0, last + core.period() - port.now()))
             last = port.now()
-            state = self._step(state, step)
-            core.stats.compute.append(port.now() - last)
+            out = core.integrate(state, step)
+            t4 = port.now()
+            port.publish(out)
+            state = out.state
+            t5 = port.now()
+            core.stats.compute.append(t5 - last)
             port.diagnostics()
+            ended = port.now()
+            phases.add("recorder", t1 - t0)
+            phases.add("commands", t3 - t2)
+            phases.add("compute", t4 - last)
+            phases.add("publish", (t2 - t1) + (t5 - t4) + (ended - t5))
+            phases.step_done(began, ended)
             step += 1
 
     def _realtime(self) -> None:
@@ -182,7 +194,10 @@ class BodyLoop:
             core.stats.jitter.append(began - due)
             for s in core.wait_sources:
                 core.watch_realtime(s, step, began, self.started, port.publisher_gone(s), port.topic(s))
-            state = self._step(state, step)
+            out = core.integrate(state, step)
+            integrated = port.now()
+            port.publish(out)
+            state = out.state
             if (core.max_steps == 0 or step < core.max_steps) and start + (step + 1) * period <= wall_end:
                 core.announce(step + 1, port.now())
                 port.announce(step + 1)
@@ -190,6 +205,8 @@ class BodyLoop:
             core.stats.compute.append(done - began)
             if done > due + period:
                 core.stats.deadline_misses += 1
+            if core.step_times is not None:
+                core.step_times.append(step, due, began, integrated, done)
             port.diagnostics()
             step += 1
 

@@ -12,7 +12,7 @@ import math
 from bptsb_ros.live.channels import MODES
 from bptsb_ros.live.safety import DEFAULT_MAX_FORCE, DEFAULT_MAX_WIND, DEFAULT_PERTURB_PUBLISHERS, DIVERGENCE_POLICIES
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS
-from bptsb_ros.ros.params import LOG_LEVEL, Param, ParameterError
+from bptsb_ros.ros.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, Param, ParameterError
 from bptsb_ros.ros.topics import BODY_INPUTS, BODY_OUTPUTS, COMMAND_SOURCES, DEFAULT_QOS_DEPTH, RECORDER_ACK, TOPICS
 
 NODE = "body_sim"
@@ -58,6 +58,7 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "acknowledgement is ignored while another node publishes there", "str_list"),
     Param("final_ack_timeout", 5.0, "at exit, wall seconds to wait until reliable subscribers (the recorder) "
           "acknowledged every message", "float", minimum=0.0),
+    RAW_OUTPUTS,
     Param("marker_every", 5, "publish body/markers every this many steps", "int", minimum=1, dynamic=True),
     Param("frame_id", "msdn", "frame of positions and markers (the body plane, metres, y up)", "str"),
     Param("diagnostics_period", 1.0, "wall seconds between /diagnostics messages", "float", positive=True,
@@ -65,9 +66,15 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("wind", [0.0, 0.0], "constant wind force (x, y) [N] on every movable mass from the next step on, within "
           "max_wind; a message on env/wind replaces it (realtime, or lockstep runs that are not compared offline)",
           "float_list", size=2, dynamic=True),
+    EXECUTOR,
     LOG_LEVEL,
     Param("summary_path", "", "write the run summary (timing, rejections) as JSON here at exit (empty: don't)",
           "str"),
+    Param("timing_path", "", "realtime: write every step's wall times (due, began, integrated, done; "
+          "bptsb_ros.live.step_times) here as .npz at exit, 40 bytes a step kept in memory (empty: don't)", "str"),
+    Param("rt_priority", 0, "realtime: run the stepping thread under SCHED_FIFO at this priority (1-99; needs "
+          "CAP_SYS_NICE or root, else a warning and the normal scheduler), so that other processes cannot preempt "
+          "a step; 0: the normal scheduler", "int", minimum=0, maximum=99),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
     Param("max_rest_length", 0.0, "largest accepted rest-length command [m]; 0: 10 x "
           "the diagonal of the body's bounding box", "float", minimum=0.0),
@@ -126,3 +133,16 @@ def parse_wait_for_subscribers(entries: list[str]) -> list[tuple[str, int]]:
                                  "with count >= 1")
         out.append((topic, int(count)))
     return out
+
+
+def set_fifo_priority(priority: int) -> str:
+    """Put the calling thread under SCHED_FIFO at ``priority`` (1-99); '' when done, else why not (one line)."""
+    import os
+
+    if not hasattr(os, "sched_setscheduler"):
+        return "this platform has no sched_setscheduler"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as err:
+        return f"SCHED_FIFO priority {priority} refused ({err.strerror or err}; needs CAP_SYS_NICE or root)"
+    return ""

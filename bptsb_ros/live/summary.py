@@ -47,7 +47,8 @@ def summary_text(summary: Mapping[str, Any]) -> str:
 
 #: summary key prefix -> line label of :func:`summary_text`
 SUMMARY_GROUPS = {"jitter_ms_": "jitter [ms]", "compute_ms_": "compute [ms]",
-                  "command_latency_ms_": "command latency [ms]", "command_age_steps_": "command age [steps]",
+                  "command_latency_ms_": "command latency [ms]", "phase_ms_": "per step [ms]",
+                  "command_age_steps_": "command age [steps]",
                   "rest_length_": "rest-length commands", "force_": "force commands", "wind_": "wind",
                   "perturbation_": "perturbations", "reset_": "resets"}
 

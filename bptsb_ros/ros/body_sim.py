@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray, Vector3Stamped
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -28,13 +27,31 @@ from visualization_msgs.msg import MarkerArray
 
 from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
 from bptsb_ros.live.body_loop import BodyLoop
-from bptsb_ros.live.body_params import PARAMS, PUBLISHED, SUBSCRIBED, UNKNOWN_NODE, parse_wait_for_subscribers
+from bptsb_ros.live.body_params import (
+    PARAMS,
+    PUBLISHED,
+    SUBSCRIBED,
+    UNKNOWN_NODE,
+    parse_wait_for_subscribers,
+    set_fifo_priority,
+)
 from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import load_source
 from bptsb_ros.ros.params import declare_parameters
-from bptsb_ros.ros.runtime import EXIT_FAILURE, EXIT_OK, StopFlag, Throttle, log_line, run_node, wait_acked
+from bptsb_ros.ros.raw_out import RawTemplate, TemplateError
+from bptsb_ros.ros.runtime import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    StopFlag,
+    Throttle,
+    executor_kind,
+    log_line,
+    make_executor,
+    run_node,
+    wait_acked,
+)
 from bptsb_ros.ros.topics import RECORDER_ACK, absolute
 
 NODE = "body_sim"
@@ -73,10 +90,12 @@ class BodySim(Node):
             if p["wait_for_recorder"] else None  # the recorder's latest acknowledgement (transient-local, depth 1)
         self.control_services = [self.create_service(Trigger, f"~/{name}", lambda _, res, name=name:
                                                      self._on_call(name, res)) for name in CALLS]
-        self.executor_ = SingleThreadedExecutor(context=self.context)
+        self.executor_ = make_executor(p["executor"], self.context)
+        self.executor_name = executor_kind(self.executor_)  # the one this rclpy gave (events may fall back)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
         self.loop = BodyLoop(core, self)
+        self.raw = self._templates() if p["raw_outputs"] else {}
         self.get_logger().info(core.describe(p["agent"] or p["config"] or f"fresh {agent.task} agent (seed "
                                              f"{p['seed']})", trained))
 
@@ -161,13 +180,45 @@ class BodySim(Node):
     def log(self, level: str, text: str) -> None:
         log_line(self.get_logger(), level, text)
 
+    def _templates(self) -> dict[str, RawTemplate]:
+        """Pre-serialized messages of the per-step outputs (:mod:`bptsb_ros.ros.raw_out`): the builders' layouts
+        with stamps and values rewritten each step; an output that cannot be templated keeps message objects."""
+        from rclpy.serialization import deserialize_message, serialize_message
+
+        ns, frame, core, n = self.dt_ns, self.p["frame_id"], self.core, self.body.topology.n_masses
+        e, dof = len(core.spring_names), len(core.dof_names)
+        colors = m.mass_colors(self.fixed, self.body.topology.cmp_index)
+        builders = {
+            "clock": (lambda k: m.clock_msg(k, ns), []),
+            "positions": (lambda k, r: m.pose_array(k, ns, r, frame), [(n, 2)]),
+            "mass_states": (lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r, velocity=v,
+                                                             effort=f, frame_id=frame), [(dof,)] * 3),
+            "spring_lengths": (lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), [(e,)]),
+            "rest_length": (lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), [(e,)]),
+            "external_force": (lambda k, f: m.joint_state(k, ns, core.dof_names, effort=f, frame_id=frame), [(dof,)]),
+            "markers": (lambda k, r, ends, rgba: m.markers_of(k, ns, r, ends, rgba, colors, frame, self.mass_diameter),
+                        [(n, 2), (2 * e, 2), ((2 * e, 4), "float32")]),
+        }
+        out = {}
+        for key, (build, shapes) in builders.items():
+            try:
+                out[key] = RawTemplate(build, shapes, serialize_message, deserialize_message, ns)
+            except TemplateError as err:
+                self.get_logger().warning(f"{key}: publishing message objects ({err})")
+        return out
+
     def _publish(self, key: str, msg: Any) -> None:
         pub = self.pubs[key]
         pub.publish(msg)
         self.core.count_published(pub.topic_name)
 
+    def _out(self, key: str, step: int, build: Any, *arrays: np.ndarray) -> None:
+        """Publish output ``key`` of ``step``: its template's bytes, else ``build(step, *arrays)``."""
+        raw = self.raw.get(key)
+        self._publish(key, raw.render(step, *arrays) if raw is not None else build(step, *arrays))
+
     def announce(self, step: int) -> None:
-        self._publish("clock", m.clock_msg(step, self.dt_ns))
+        self._out("clock", step, lambda k: m.clock_msg(k, self.dt_ns))
 
     def publish(self, out: StepOutput) -> None:
         """The state of one step on the body's topics (and its perturbation, if any, first)."""
@@ -177,18 +228,24 @@ class BodySim(Node):
                                                         frame_id=frame))
         full = self.body.full_positions(state.r)[0].numpy()
         length, rest = state.length[0].numpy(), out.rest.reshape(-1).numpy()
-        self._publish("positions", m.pose_array(k, ns, full, frame))
-        self._publish("mass_states", m.joint_state(
-            k, ns, core.dof_names, position=state.r[0].numpy().reshape(-1), velocity=state.v[0].numpy().reshape(-1),
-            effort=m.effort_from_acceleration(state.a[0].numpy(), core.mass), frame_id=frame))
-        self._publish("spring_lengths", m.joint_state(k, ns, core.spring_names, position=length))
-        self._publish("rest_length", m.joint_state(k, ns, core.spring_names, position=rest))
+        self._out("positions", k, lambda k, r: m.pose_array(k, ns, r, frame), full)
+        self._out("mass_states", k, lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r, velocity=v,
+                                                                     effort=f, frame_id=frame),
+                  state.r[0].numpy().reshape(-1), state.v[0].numpy().reshape(-1),
+                  m.effort_from_acceleration(state.a[0].numpy(), core.mass))
+        self._out("spring_lengths", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), length)
+        self._out("rest_length", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), rest)
         f = np.zeros(2 * self.body.n_movable) if out.force is None else out.force.reshape(-1).numpy()
-        self._publish("external_force", m.joint_state(k, ns, core.dof_names, effort=f, frame_id=frame))
+        self._out("external_force", k, lambda k, f: m.joint_state(k, ns, core.dof_names, effort=f, frame_id=frame), f)
         if k % self.p["marker_every"] == 0:
             strain = length / np.maximum(rest, 1e-12) - 1.0
-            self._publish("markers", m.body_markers(k, ns, full, self.springs, self.fixed,
-                                                    self.body.topology.cmp_index, strain, frame, self.mass_diameter))
+            if "markers" in self.raw:
+                rgba = np.repeat(m.strain_colors(strain), 2, axis=0)
+                self._out("markers", k, None, full, full[self.springs.reshape(-1)], rgba)
+            else:
+                self._publish("markers", m.body_markers(k, ns, full, self.springs, self.fixed,
+                                                        self.body.topology.cmp_index, strain, frame,
+                                                        self.mass_diameter))
 
     def diagnostics(self, force: bool = False, error: str = "") -> None:
         """Publish the loop status every ``diagnostics_period`` (or now when ``force`` or ``error``)."""
@@ -227,6 +284,11 @@ class BodySim(Node):
 
     def run(self) -> int:
         self.loop.wait_startup(self._startup_missing)
+        if self.p["rt_priority"] and self.p["mode"] == "realtime":
+            problem = set_fifo_priority(self.p["rt_priority"])
+            self.log("warning" if problem else "info", problem + "; stepping under the normal scheduler" if problem
+                     else f"stepping under SCHED_FIFO priority {self.p['rt_priority']}")
+            self.core.rt_priority = 0 if problem else self.p["rt_priority"]
         diverged = self.loop.run()
         summary = self.core.summary()
         self.get_logger().info(self.core.end_text(summary, diverged, self.stop.reason))
@@ -235,6 +297,8 @@ class BodySim(Node):
         wait_acked(self.get_logger(), list(self.pubs.values()), self.p["final_ack_timeout"])
         if self.p["summary_path"]:
             write_summary(self.p["summary_path"], summary)
+        if self.core.step_times is not None:
+            self.core.step_times.save(self.p["timing_path"], self.core.period(), {"executor": self.executor_name})
         return EXIT_FAILURE if diverged else EXIT_OK
 
 

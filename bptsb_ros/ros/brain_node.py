@@ -16,17 +16,20 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
 from rclpy.duration import Duration
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
+from sensor_msgs.msg import JointState
 
 from bptsb_ros.live.channels import RunningStats
 from bptsb_ros.live.newest import Newest, pump
+from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
-from bptsb_ros.ros.params import LOG_LEVEL, OnChange, Param, ParameterError, declare_parameters
-from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle
+from bptsb_ros.ros.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, OnChange, Param, ParameterError, declare_parameters
+from bptsb_ros.ros.raw_out import RawTemplate, TemplateError
+from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle, make_executor
 from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns
 
 COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
@@ -36,6 +39,8 @@ COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           minimum=0),
     Param("startup_timeout", 30.0, "wall seconds to wait for min_subscribers before sending anyway", "float",
           positive=True),
+    EXECUTOR,
+    RAW_OUTPUTS,
     LOG_LEVEL,
 )
 #: ``use_sim_time`` of a brain unless given (rclpy's own default, false, is wrong for a node driven by /clock)
@@ -69,7 +74,7 @@ class BrainNode(Node):
         self.compute = RunningStats()  # seconds per message; bounded memory in long runs
         self.throttle = Throttle(1.0)
         self.latches: list[Newest] = []
-        self.executor_ = SingleThreadedExecutor(context=self.context)
+        self.executor_ = make_executor(self.p["executor"], self.context)
         self.executor_.add_node(self)
         if not self.get_parameter("use_sim_time").value:
             self.get_logger().info("use_sim_time is false (set): log stamps use wall time, not the body's /clock")
@@ -89,6 +94,25 @@ class BrainNode(Node):
         pub = self.create_publisher(msg_type, topic, qos)
         self.outputs.append(pub)
         return pub
+
+    def joint_state_out(self, names: list[str], field: str) -> Callable[[int, np.ndarray], Any]:
+        """``f(step, values)``: the JointState of ``step`` with ``values`` in ``field`` (position or effort) and the
+        joint ``names``, as pre-serialized bytes (:mod:`bptsb_ros.ros.raw_out`; ``raw_outputs``) or, where the
+        message cannot be templated, as a message object."""
+        ns = self.dt_ns
+
+        def build(step: int, values: np.ndarray) -> JointState:
+            return m.joint_state(step, ns, names, **{field: values})
+
+        if not self.p["raw_outputs"]:
+            return build
+        from rclpy.serialization import deserialize_message, serialize_message
+
+        try:
+            return RawTemplate(build, [(len(names),)], serialize_message, deserialize_message, ns).render
+        except TemplateError as err:
+            self.get_logger().warning(f"publishing message objects ({err})")
+            return build
 
     def subscribe_newest(self, msg_type: type, topic: str, handler: Callable[[Any], None], qos: Any) -> None:
         """Subscribe ``handler`` to ``topic`` so that it answers only the newest of the messages ready at once."""

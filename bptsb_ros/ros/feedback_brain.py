@@ -64,6 +64,7 @@ class FeedbackBrain(BrainNode):
         self.names = spring_names(agent.body.topology.n_springs)
         self.state_type = agent.feedback.state_type
         self.pub = self.output(JointState, p["topics.rest_length_cmd"], m.command_qos(self.depth))
+        self.command = self.joint_state_out(self.names, "position")
         self.subscribe_newest(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         state_topic = p[f"topics.{feedback_state_key(self.state_type)}"]
         self.subscribe_newest(JointState, state_topic, self._on_state, m.state_qos(self.depth))
@@ -72,8 +73,7 @@ class FeedbackBrain(BrainNode):
                                f"{p['gain']:g}, noise σ {p['noise']:g}")
 
     def _send(self, step: int, rest: torch.Tensor, started: float) -> None:
-        msg = m.joint_state(step, self.dt_ns, self.names, position=rest.reshape(-1).double().numpy())
-        self.publish_timed(self.pub, msg, started)
+        self.publish_timed(self.pub, self.command(step, rest.reshape(-1).double().numpy()), started)
 
     def _on_clock(self, msg: Clock) -> None:
         started = time.monotonic()

@@ -142,6 +142,19 @@ def _strain_color(strain: float) -> ColorRGBA:
     return ColorRGBA(r=0.6 + 0.45 * s, g=0.6 + 0.2 * s, b=0.6 - 0.4 * s, a=1.0)
 
 
+def strain_colors(strain: np.ndarray) -> np.ndarray:
+    """:func:`_strain_color` of every spring at once: (E,) strains → (E, 4) RGBA, float64 (the same arithmetic; the
+    message stores float32)."""
+    s = np.clip(np.asarray(strain, dtype=np.float64) / 0.2, -1.0, 1.0)
+    pos = s >= 0
+    rgba = np.empty((s.size, 4))
+    rgba[:, 0] = np.where(pos, 0.6 + 0.4 * s, 0.6 + 0.45 * s)
+    rgba[:, 1] = np.where(pos, 0.6 - 0.45 * s, 0.6 + 0.2 * s)
+    rgba[:, 2] = np.where(pos, 0.6 - 0.45 * s, 0.6 - 0.4 * s)
+    rgba[:, 3] = 1.0
+    return rgba
+
+
 def body_markers(step: int, dt_ns: int, positions: np.ndarray, springs: np.ndarray, fixed: np.ndarray,
                  cmp_index: int, strain: np.ndarray, frame_id: str, mass_diameter: float) -> MarkerArray:
     """Masses as one SPHERE_LIST (grey fixed, blue movable, red CMP) and springs as one LINE_LIST
@@ -150,22 +163,35 @@ def body_markers(step: int, dt_ns: int, positions: np.ndarray, springs: np.ndarr
     Args:
         positions: (N, 2) [m]; springs: (E, 2) mass indices; fixed: (N,) bool; strain: (E,).
     """
+    ends = np.asarray(positions)[np.asarray(springs).reshape(-1)]
+    return markers_of(step, dt_ns, positions, ends, np.repeat(strain_colors(strain), 2, axis=0),
+                      mass_colors(fixed, cmp_index), frame_id, mass_diameter)
+
+
+def mass_colors(fixed: np.ndarray, cmp_index: int) -> list[ColorRGBA]:
+    """Colour of every mass: red the CMP, grey the fixed ones, blue the movable ones."""
+    return [_CMP if i == cmp_index else (_FIXED if f else _MOVABLE) for i, f in enumerate(np.asarray(fixed).tolist())]
+
+
+def markers_of(step: int, dt_ns: int, positions: np.ndarray, ends: np.ndarray, line_colors: np.ndarray,
+               masses_rgba: list[ColorRGBA], frame_id: str, mass_diameter: float) -> MarkerArray:
+    """The MarkerArray of :func:`body_markers` from its arrays: mass positions (N, 2) [m], spring end points
+    (2E, 2) [m] (both ends of spring 0, then of spring 1, ...), their colours (2E, 4) RGBA and the masses' colours."""
     header_stamp = stamp(step, dt_ns)
-    points = [Point(x=x, y=y, z=0.0) for x, y in positions.tolist()]
     masses = Marker()
     masses.header.stamp = header_stamp
     masses.header.frame_id = frame_id
     masses.ns, masses.id, masses.type, masses.action = "masses", 0, Marker.SPHERE_LIST, Marker.ADD
     masses.pose.orientation.w = 1.0
     masses.scale.x = masses.scale.y = masses.scale.z = mass_diameter
-    masses.points = points
-    masses.colors = [_CMP if i == cmp_index else (_FIXED if f else _MOVABLE) for i, f in enumerate(fixed.tolist())]
+    masses.points = [Point(x=x, y=y, z=0.0) for x, y in np.asarray(positions).tolist()]
+    masses.colors = masses_rgba
     lines = Marker()
     lines.header.stamp = header_stamp
     lines.header.frame_id = frame_id
     lines.ns, lines.id, lines.type, lines.action = "springs", 1, Marker.LINE_LIST, Marker.ADD
     lines.pose.orientation.w = 1.0
     lines.scale.x = mass_diameter / 4
-    lines.points = [points[int(i)] for pair in springs.tolist() for i in pair]
-    lines.colors = [c for s in strain.tolist() for c in (_strain_color(s),) * 2]
+    lines.points = [Point(x=x, y=y, z=0.0) for x, y in np.asarray(ends).tolist()]
+    lines.colors = [ColorRGBA(r=r, g=g, b=b, a=a) for r, g, b, a in np.asarray(line_colors).tolist()]
     return MarkerArray(markers=[masses, lines])

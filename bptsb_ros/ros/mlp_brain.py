@@ -43,6 +43,7 @@ class MlpBrain(BrainNode):
         body = agent.body
         self.names = mass_dof_names(body.movable_index.tolist())
         self.pub = self.output(JointState, self.p["topics.force_cmd"], m.command_qos(self.depth))
+        self.command = self.joint_state_out(self.names, "effort")
         self.subscribe_newest(JointState, self.p["topics.task_input"], self._on_input, m.state_qos(self.depth))
         self.get_logger().info(f"{type(agent.brain).__name__} of {self.source_text()}: {self.n_in} input(s) × "
                                f"{self.scale:g} → forces on {body.n_movable} movable masses")
@@ -57,8 +58,7 @@ class MlpBrain(BrainNode):
             return
         with torch.no_grad():
             force = brain_forces(self.agent, brain_input(u, self.narma))
-        msg_out = m.joint_state(step, self.dt_ns, self.names, effort=force.reshape(-1).double().numpy())
-        self.publish_timed(self.pub, msg_out, started)
+        self.publish_timed(self.pub, self.command(step, force.reshape(-1).double().numpy()), started)
 
 
 def main(args: list[str] | None = None) -> int:

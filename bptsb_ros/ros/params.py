@@ -148,6 +148,9 @@ def _coerce(spec: Param, value: Any) -> ParamValue:
 
 #: Why a read-only parameter cannot change while the node runs, by name, or by prefix for ``prefix.*``.
 READ_ONLY_REASONS: dict[str, str] = {
+    "executor": "the node's subscriptions, timers and services are added to its executor once, at startup",
+    "raw_outputs": "the per-step messages are laid out once, at startup",
+    "batch_wait": "the recorder's loop is set up once, at startup",
     **dict.fromkeys(("agent", "config", "task", "shape", "nodes", "size", "dt", "integrator", "brain_type", "seed",
                      "dtype"), "the agent (body and brain) is built from it once, at startup, and every node of "
                     "the loop must hold the same one"),
@@ -163,6 +166,8 @@ READ_ONLY_REASONS: dict[str, str] = {
                     "a safety rule: it must hold for the whole run and not be loosened by anyone who can reach the "
                     "parameter services"),
     **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
+    "timing_path": "the records cover every step of the run from the first; they are written when the node stops",
+    "rt_priority": "the scheduling policy is set once, when stepping begins",
     "frame_id": "viewers and the bag expect one frame for the whole run",
     "paused": "only the start; the ~/pause and ~/resume services pause and resume the running body",
     **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale", "perturb_at", "perturb_sigma",
@@ -187,6 +192,15 @@ READ_ONLY_REASONS: dict[str, str] = {
 #: Reason of a read-only parameter missing from :data:`READ_ONLY_REASONS`.
 DEFAULT_READ_ONLY_REASON = "read once, when the node starts"
 
+#: The ``executor`` choices of a live node (body_sim and the brains; ``bptsb bench --realtime --executor``).
+EXECUTORS = ("events", "single")
+#: The rclpy executor of a live node (body_sim and the brains).
+EXECUTOR = Param("executor", "events", "rclpy executor of the node: events (rclpy.experimental.EventsExecutor, "
+                 "dispatch in C++; where this rclpy lacks it: single) or single (SingleThreadedExecutor)", "str",
+                 choices=EXECUTORS)
+#: Pre-serialized per-step outputs (:mod:`bptsb_ros.ros.raw_out`).
+RAW_OUTPUTS = Param("raw_outputs", True, "publish the per-step outputs as pre-serialized bytes (the same messages, "
+                    "without building message objects every step); false: message objects", "bool")
 #: Logger level of a node, live (every node declares it).
 LOG_LEVEL = Param("log_level", "", "logger level of this node: debug, info, warn or error (debug shows per-message "
                   "and per-topic lines); empty: as set by --ros-args --log-level (default info)", "str",

@@ -68,6 +68,7 @@ from bptsb_ros.bags.recording import (
     incompatible_offers,
     select_topics,
     subscription_policies,
+    take_round,
 )
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.ros.params import ParameterError, declare_parameters
@@ -386,8 +387,11 @@ def main(args: list[str] | None = None) -> int:
         executor = batch_executor_class()()
         executor.add_node(node)
         try:
-            while not stop.is_set():
-                executor.spin_once(timeout_sec=0.05)
+            def spin(timeout: float) -> None:
+                executor.spin_once(timeout_sec=timeout)
+
+            while not stop.is_set():  # batches: one wake-up per batch_wait while messages arrive
+                take_round(spin, lambda: node.received, time.monotonic, time.sleep, node.config.batch_wait)
             _drain(executor, node, stop_ns[0] if stop_ns else time.time_ns())
         except ExternalShutdownException:
             pass

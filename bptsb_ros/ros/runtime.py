@@ -127,9 +127,19 @@ def check_cli(name: str, argv: list[str], params: Sequence[Param], summary: str 
     ``-h``/``--help`` prints :func:`node_help` and returns 0; any other non-ROS argument is an error (message on
     stderr, returns 2); None: go on and start the node.
     """
+    from rclpy._rclpy_pybind11 import RCLInvalidROSArgsError, UnknownROSArgsError
     from rclpy.utilities import remove_ros_args
 
-    rest = remove_ros_args(args=["prog", *argv])[1:]
+    try:
+        rest = remove_ros_args(args=["prog", *argv])[1:]
+    except UnknownROSArgsError as err:  # e.g. --ros-args -p a:=1 --zzz: rcl's message is the list of them
+        print(f"{name}: unknown ROS argument(s) {err} after --ros-args (ROS arguments are -p NAME:=VALUE, "
+              f"-r FROM:=TO, --params-file FILE, --log-level LEVEL; {name} --help lists the parameters)",
+              file=sys.stderr)
+        return EXIT_BAD_PARAMETERS
+    except RCLInvalidROSArgsError as err:
+        print(f"{name}: invalid ROS arguments: {str(err).splitlines()[0]}", file=sys.stderr)
+        return EXIT_BAD_PARAMETERS
     if any(a in ("-h", "--help") for a in rest):
         print(node_help(name, params, summary))
         return EXIT_OK
@@ -244,3 +254,23 @@ def wait_acked(logger: Any, pubs: Sequence[Any], timeout: float) -> None:
     if pending:
         logger.warning(f"subscribers of {', '.join(pub.topic_name for pub in pending)} did not acknowledge every "
                        f"message within {time.monotonic() - started:.2f} s (final_ack_timeout {timeout:g} s)")
+
+
+def make_executor(kind: str, context: Any) -> Any:
+    """The executor of a live node: ``events`` (``rclpy.experimental.EventsExecutor``; a SingleThreadedExecutor where
+    this rclpy has none) or ``single`` (``SingleThreadedExecutor``), on ``context``."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    if kind == "events":
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            return SingleThreadedExecutor(context=context)
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
+
+
+def executor_kind(executor: Any) -> str:
+    """The ``executor`` value that names ``executor`` as :func:`make_executor` made it: ``events`` or ``single`` (what
+    a node actually got, since ``events`` falls back to ``single`` where this rclpy has no EventsExecutor)."""
+    return "events" if type(executor).__name__ == "EventsExecutor" else "single"

@@ -33,6 +33,7 @@ class SwgBrain(BrainNode):
                                  "brain; swg_brain needs an SWG agent (lissajous or locomotion)")
         self.names = spring_names(self.agent.body.topology.n_springs)
         self.pub = self.output(JointState, self.p["topics.rest_length_cmd"], m.command_qos(self.depth))
+        self.command = self.joint_state_out(self.names, "position")
         self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         self.get_logger().info(f"SWG of {self.source_text()}: {len(self.names)} springs, "
                                f"ω = {self.agent.brain.omega:.6g} rad/s")
@@ -42,8 +43,7 @@ class SwgBrain(BrainNode):
         step = m.step_of(msg.clock, self.dt_ns)
         with torch.no_grad():
             rest = swg_rest_lengths(self.agent.body, self.agent.brain, step, 1)[0]
-        self.publish_timed(self.pub, m.joint_state(step, self.dt_ns, self.names, position=rest.double().numpy()),
-                           started)
+        self.publish_timed(self.pub, self.command(step, rest.double().numpy()), started)
 
 
 def main(args: list[str] | None = None) -> int:

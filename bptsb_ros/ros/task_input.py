@@ -44,6 +44,7 @@ class TaskInput(BrainNode):
         self._hold(int(cfg["narma"]["n_inputs"]))
         self.names = input_names(1)
         self.pub = self.output(JointState, self.p["topics.task_input"], m.command_qos(self.depth))
+        self.command = self.joint_state_out(self.names, "position")
         self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
         self.get_logger().info(f"NARMA input u ~ U(0, 1), seed {self.seed}, held {self.tau} steps")
 
@@ -59,7 +60,7 @@ class TaskInput(BrainNode):
         if step >= self.held.size:
             self._hold(max(2 * self.series.size, step // self.tau + 1))
         value = self.held[step : step + 1]
-        self.publish_timed(self.pub, m.joint_state(step, self.dt_ns, self.names, position=value), started)
+        self.publish_timed(self.pub, self.command(step, value), started)
 
 
 def main(args: list[str] | None = None) -> int:

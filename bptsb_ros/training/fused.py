@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from bptsb_ros.body import compile_notice
 from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.sim.clock import steps_per_period
@@ -231,8 +232,11 @@ class FusedSwgWindow:
         (its loss, False, its final state, ``MSDN.check_finite``'s message)."""
         body, w = self.body, self.work
         r0, v0, a0 = self._start(state)
-        fused_kernel.swg_window(r0, v0, a0, *self._views(), self.swg.driven.numpy(), int(state.step),
-                                *self._fixed, *self._work_args, self.grads, self.out)
+        args = (r0, v0, a0, *self._views(), self.swg.driven.numpy(), int(state.step), *self._fixed,
+                *self._work_args, self.grads, self.out)
+        if not fused_kernel.swg_window.overloads:  # the first window in this process: say so if it compiles
+            compile_notice.announce_if_cold(fused_kernel.swg_window, args, fused_kernel.COMPILE_S)
+        fused_kernel.swg_window(*args)
         last = tuple(w[key][-1].copy() for key in ("r_out", "v_out", "a_out", "len_out"))
         final = BodyState(*(torch.from_numpy(x) for x in last), state.step + self.steps)
         if not self.out[OUT_STATE_OK]:

@@ -52,6 +52,9 @@ LISSAJOUS, LOCOMOTION, GIVEN_TARGET = 0, 1, 2
 OUT_LOSS, OUT_STATE_OK, OUT_GRADS_OK = 0, 1, 2
 #: the divergence limit of ``MSDN.check_finite`` [m]
 POSITION_LIMIT = 1e6
+#: the first fused window with a cold cache [s] (``swg_window`` with the body kernels it calls, and the losses):
+#: 11.9 s measured on 2 busy cores (load 4-5), as ``kernel.COMPILE_S``
+COMPILE_S = 12.0
 
 
 def _swg_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, kind, clock, target, cmp, coef, unit,

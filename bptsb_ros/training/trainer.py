@@ -137,6 +137,13 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         elif not overwrite and not dir_is_empty(run_dir):
             raise ConfigError(f"--out {run_dir} already holds a run (or other files); continue it with --resume, "
                               "replace it with --force, or choose another directory")
+    title = f"train {cfg.name or cfg.task}"
+
+    def phase(what: str) -> None:  # the phases around the bar take seconds each: one line says which one runs
+        if progress:
+            print(f"{title}: {what} ...", file=sys.stderr, flush=True)
+
+    phase("building the agent, the task and the optimiser")  # torch's optimisers import torch._dynamo: seconds
     threads = configure_threads(1, body_backend(cfg.training.backend))  # every task trains one small body: one thread
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
@@ -190,7 +197,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     task.prepare()
     t_start = time.perf_counter()
     sim_steps = 0
-    bar = _progress(total, f"train {cfg.name or cfg.task}", progress)
+    bar = _progress(total, title, progress)
     bar.update(start)
 
     def checkpoint(update: int, **more: Any) -> None:
@@ -292,11 +299,15 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     try:
         with torch.no_grad():
             if isinstance(agent.brain, SineWaveGenerator) and agent.feedback is not None:
+                phase(f"fitting the feedback layer on {cfg.feedback.fit_time:g} s of open-loop motion")
                 metrics["feedback_fit"] = fit_feedback(agent, cfg.feedback, getattr(task, "state", None), cfg.seed)
                 task.feedback_fitted = True
+            phase("evaluating the trained agent")
             metrics["evaluation"] = task.evaluate()
     except SimulationDiverged as err:  # the final parameters never completed a window: keep the last good ones
         raise diverged(total, f"evaluation: {err}") from None
+    if run_dir is not None:
+        phase(f"writing the checkpoint, metrics and plots to {run_dir}")
     checkpoint(total, feedback_fitted=getattr(task, "feedback_fitted", False))
     files = [] if run_dir is None else _write_outputs(run_dir, task, metrics)
     state = getattr(task, "state", None)

@@ -1,0 +1,237 @@
+"""``bptsb bench --realtime`` without DDS: the statistics from planted per-step records (hand values), the body's
+records in a realtime loop driven by a fake clock, the timing file, the report and table, and the CLI's options on
+both sides (the runs themselves replaced by a planted report, the --out file rewritten after each condition). A real
+body's records are checked in ``test_ros_loop`` (its realtime Ctrl-C run writes them)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_live_core import FakePort, core
+
+from bptsb_ros.live.body_loop import BodyLoop
+from bptsb_ros.live.step_times import FIELDS, StepTimes, load_step_times, timing_statistics
+from bptsb_ros.ros.params import ParameterError
+
+PERIOD = 0.01
+
+
+def planted() -> dict[str, np.ndarray]:
+    """101 steps at 100 Hz: compute k·0.05 ms (half integrating, half publishing), on time except steps 10 (9 ms
+    late: 9.5 ms in all, no miss), 30 (8.6 ms late + 1.5 ms = 10.1 ms: a miss) and 90 (7 ms + 4.5 ms: a miss)."""
+    k = np.arange(101)
+    due = k * PERIOD
+    late = np.zeros(101)
+    late[[10, 30, 90]] = [9e-3, 8.6e-3, 7e-3]
+    began = due + late
+    compute = k * 5e-5
+    return {"due": due, "began": began, "integrated": began + compute / 2, "done": began + compute}
+
+
+def test_statistics_of_planted_records_are_the_hand_values():
+    s = timing_statistics(**planted(), period=PERIOD)
+    assert s["steps"] == 101 and s["deadline_misses"] == 2
+    assert s["deadline_miss_pct"] == pytest.approx(100 * 2 / 101)
+    # compute 0, 0.05, ..., 5 ms: linear p50 of 0..100 is 50, p99 is 99 (x 0.05 ms)
+    assert (s["compute_p50_ms"], s["compute_p99_ms"], s["compute_max_ms"]) == pytest.approx((2.5, 4.95, 5.0))
+    assert (s["integrate_p99_ms"], s["publish_max_ms"]) == pytest.approx((2.475, 2.5))
+    # period jitter: |late_k - late_(k-1)| = 9, 9, 8.6, 8.6, 7, 7 ms and 94 zeros (100 periods): p99 at rank 98.01
+    assert (s["period_jitter_p50_ms"], s["period_jitter_p99_ms"], s["period_jitter_max_ms"]) == pytest.approx(
+        (0.0, 9.0, 9.0))
+    assert (s["lateness_p50_ms"], s["lateness_max_ms"]) == pytest.approx((0.0, 9.0))
+
+
+def test_a_deadline_is_the_next_steps_due_time():
+    r = planted()
+    assert timing_statistics(**r, period=0.0106)["deadline_misses"] == 1  # 10.1 ms is inside a 10.6 ms period
+    assert timing_statistics(**r, period=0.0094)["deadline_misses"] == 3  # 9.5 ms is not inside 9.4 ms
+
+
+def test_step_times_grow_save_and_load(tmp_path: Path):
+    times = StepTimes(rows=2)
+    rows = [(k, 0.01 * k, 0.01 * k + 1e-4, 0.01 * k + 3e-4, 0.01 * k + 7e-4) for k in range(5)]
+    for row in rows:
+        times.append(*row)
+    assert len(times) == 5
+    times.save(tmp_path / "t" / "times.npz", PERIOD, {"executor": "events"})
+    back = load_step_times(tmp_path / "t" / "times.npz")
+    for i, name in enumerate(FIELDS):
+        np.testing.assert_array_equal(back[name], [row[i] for row in rows])
+    assert back["period"] == PERIOD and back["executor"] == "events"
+    assert [p.name for p in (tmp_path / "t").iterdir()] == ["times.npz"]  # no temporary file left
+
+
+def test_a_bad_timing_file_is_one_line(tmp_path: Path):
+    np.savez(tmp_path / "bad.npz", step=np.zeros(3), due=np.zeros(3), began=np.zeros(2), integrated=np.zeros(3),
+             done=np.zeros(3), period=np.array(0.01))
+    with pytest.raises(ValueError, match="equal length"):
+        load_step_times(tmp_path / "bad.npz")
+    np.savez(tmp_path / "p.npz", **{n: np.zeros(3) for n in FIELDS}, period=np.array(-1.0))
+    with pytest.raises(ValueError, match="period must be a positive"):
+        load_step_times(tmp_path / "p.npz")
+
+
+@pytest.mark.parametrize("cost, misses", [(0.004, 0), (0.012, 11)])
+def test_the_realtime_loop_records_every_step(cost: float, misses: int):
+    """A fake clock: each step's publishing costs ``cost``; the records hold the schedule, the planted cost, and
+    misses that agree with the body's own counter (0 below the 10 ms period, every step above it)."""
+    c = core(mode="realtime", max_steps=10, timing_path="unused.npz")
+    port = FakePort(c, cost=cost)
+    BodyLoop(c, port).run()
+    r = c.step_times.columns()
+    assert r["step"].tolist() == list(range(11))
+    np.testing.assert_allclose(r["due"] - r["due"][0], np.arange(11) * PERIOD, atol=1e-12)
+    np.testing.assert_allclose(r["done"] - r["integrated"], cost, atol=1e-12)  # the fake port's publishing
+    np.testing.assert_array_equal(r["integrated"], r["began"])  # the fake clock does not move while integrating
+    s = timing_statistics(r["due"], r["began"], r["integrated"], r["done"], PERIOD)
+    assert s["deadline_misses"] == misses == c.stats.deadline_misses
+
+
+def test_timing_records_are_realtime_only():
+    with pytest.raises(ParameterError, match="timing_path.*realtime only"):
+        core(mode="lockstep", timing_path="t.npz")
+    assert core(mode="realtime").step_times is None
+
+
+def test_condition_result_counts_late_commands_and_targets():
+    from bptsb_ros.realtime_bench import condition_result, realtime_table
+
+    summary = {"deadline_misses": 2, "rest_length_rejected_stale": 3, "force_rejected_stale": 2,
+               "rest_length_rejected_wrong_length": 7, "safe_command_steps": 1}
+    r = condition_result(summary, {**planted(), "period": PERIOD, "executor": "single"})
+    assert r["late_commands"] == 5 and r["deadline_misses_counted_by_body"] == 2 and r["executor"] == "single"
+    assert r["targets_met"] == {"deadline_misses": False, "compute_p99_ms": False, "period_jitter_p99_ms": False}
+    calm = {"due": np.arange(5) * PERIOD, "began": np.arange(5) * PERIOD + 1e-4}
+    calm.update(integrated=calm["began"] + 2e-4, done=calm["began"] + 5e-4)
+    ok = condition_result({}, {**calm, "period": PERIOD})
+    assert ok["targets_met"] == {"deadline_misses": True, "compute_p99_ms": True, "period_jitter_p99_ms": True}
+    table = realtime_table({"conditions": {
+        "idle": {**r, "busy_processes": 0, "launch_exit_code": 1, "launch_problem": "brain silent"},
+        "busy": {"error": "planted", "busy_processes": 1}}})
+    lines = table.splitlines()
+    assert lines[1].split()[:6] == ["idle", "(0", "busy)", "101", "2", "1.98"]
+    assert "4.950" in lines[1] and lines[2:4] == ["idle: the launch exited 1: brain silent", "busy: error: planted"]
+    assert "idle: no deadline miss: NOT met" in table
+
+
+# -- the CLI ------------------------------------------------------------------------------------------------------
+def parse(argv: list[str]) -> argparse.Namespace:
+    from bptsb_ros.cli import bench_cmd
+
+    parser = argparse.ArgumentParser()
+    bench_cmd.add_arguments(parser)
+    return parser.parse_args(argv)
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """The bench's runs replaced by a planted report; the arguments they were given."""
+    import bptsb_ros.realtime_bench as rb
+    import bptsb_ros.soak as soak
+
+    seen: list[tuple] = []
+    seen_out: list[str] = []
+
+    def fake_bench(seconds, busy, *, executor, rt_priority, workdir, update, progress):
+        seen.append(("realtime", seconds, busy, executor, rt_priority))
+        report = {"conditions": {"idle": {"steps": 7, "busy_processes": 0}}}
+        update(report)  # the first condition done: on disk, marked incomplete, before the second one runs
+        seen.append(("on disk", json.loads(Path(seen_out[0]).read_text())))
+        return report
+
+    def fake_soak(realtime_seconds, lockstep_seconds, realtime_busy, lockstep_busy, workdir, progress):
+        seen.append(("soak", realtime_seconds, realtime_busy))
+        return {}
+
+    monkeypatch.setattr(rb, "run_realtime_bench", fake_bench)
+    monkeypatch.setattr(soak, "run_soak", fake_soak)
+    return seen, seen_out
+
+
+def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
+    from bptsb_ros.cli import bench_cmd
+
+    seen, seen_out = calls
+    out = tmp_path / "rt.json"
+    seen_out.append(str(out))
+    assert bench_cmd.run(parse(["--realtime", "--out", str(out)])) == 0
+    assert seen[-2] == ("realtime", 600.0, 1, "events", 0)  # the issue's 10 minutes, one core busy
+    assert seen[-1] == ("on disk", {"complete": False, "conditions": {"idle": {"steps": 7, "busy_processes": 0}}})
+    assert json.loads(out.read_text()) == {"complete": True, "conditions": {"idle": {"steps": 7,
+                                                                                     "busy_processes": 0}}}
+    assert bench_cmd.run(parse(["--realtime", "--realtime-seconds", "30", "--realtime-busy", "2", "--executor",
+                                "single", "--rt-priority", "99", "--out", str(out)])) == 0
+    assert seen[-2] == ("realtime", 30.0, 2, "single", 99)
+    assert bench_cmd.run(parse(["--soak", "--out", str(out)])) == 0
+    assert seen[-1] == ("soak", 60.0, 1)  # the soak keeps its own default
+    assert "idle (0 busy)  7" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--realtime-seconds", "0"], "--realtime-seconds must be > 0"),
+    (["--realtime-seconds", "nan"], "--realtime-seconds must be > 0"),
+    (["--realtime-busy", "0"], "--realtime-busy must be >= 1"),
+    (["--rt-priority", "100"], "--rt-priority must be in 0..99"),
+    (["--rt-priority", "-1"], "--rt-priority must be in 0..99"),
+    (["--soak"], "--soak and --realtime are two different benches"),
+])
+def test_bad_realtime_options_are_one_line(tmp_path: Path, calls, capsys, argv, message):
+    from bptsb_ros.cli import bench_cmd
+
+    assert bench_cmd.run(parse(["--realtime", *argv, "--out", str(tmp_path / "x.json")])) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1 and not calls[0]
+
+
+@pytest.mark.parametrize("bad", ["multi", "auto"])
+def test_executor_choices_are_the_nodes(capsys, bad):
+    """--executor takes the values of the nodes' executor parameter (events, single) and nothing else."""
+    assert parse(["--realtime", "--executor", "single", "--out", "x"]).executor == "single"
+    with pytest.raises(SystemExit) as exit_:
+        parse(["--realtime", "--executor", bad, "--out", "x"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and f"invalid choice: '{bad}'" in err
+    assert err.split("(choose from ")[1].replace("'", "").startswith("events, single)")
+
+
+def test_fifo_priority_is_set_or_refused_in_one_line():
+    """In a child process (the policy sticks to the thread): priority 0 is not a SCHED_FIFO priority, so it is
+    refused with the reason; priority 1 is taken where the process may (root), else refused the same way."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os; from bptsb_ros.live.body_params import set_fifo_priority as s; "
+            "print(repr(s(0))); print(repr(s(1))); print(os.sched_getscheduler(0) == os.SCHED_FIFO)")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    lines = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                           env=env).stdout.split("\n")
+    assert "SCHED_FIFO priority 0 refused (Invalid argument" in lines[0]
+    privileged = os.geteuid() == 0
+    assert (lines[1] == "''") == privileged and lines[2] == str(privileged)
+    if not privileged:
+        assert "SCHED_FIFO priority 1 refused" in lines[1]
+
+
+def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Path, monkeypatch):
+    """The launch a condition runs (subprocess replaced): the body's timing path and rt_priority, and the same
+    executor for body_sim and the loop's brain; a run that leaves no records is an error, not numbers."""
+    import subprocess
+
+    import bptsb_ros.realtime_bench as rb
+
+    argvs = []
+    monkeypatch.setattr(rb.subprocess, "run", lambda argv, **kw: argvs.append(argv) or subprocess.CompletedProcess(
+        argv, 0))
+    r = rb.realtime_run("idle", 3.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="single",
+                        rt_priority=5, progress=lambda _: None)
+    params = [argvs[0][i + 1] for i, arg in enumerate(argvs[0]) if arg == "--param"]
+    assert sorted(params) == sorted([f"body_sim:timing_path:={tmp_path / 'idle' / 'step_times.npz'}",
+                                     "body_sim:rt_priority:=5", "body_sim:executor:=single",
+                                     "feedback_brain:executor:=single"])
+    assert argvs[0][argvs[0].index("--duration") + 1] == "3" and argvs[0][argvs[0].index("--agent") + 1] == "a"
+    assert r["launch_exit_code"] == 0 and "no body summary or no timing records" in r["error"]
