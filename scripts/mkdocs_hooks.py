@@ -25,8 +25,8 @@ FIGURE_DIR = "reproduction/runs"
 def on_files(files: Files, config: MkDocsConfig) -> Files:
     """Add the repository pages and the reproduction figures to the site's files."""
     sources = dict(PAGES)
-    for png in sorted((ROOT / FIGURE_DIR).rglob("*.png")):
-        rel = png.relative_to(ROOT).as_posix()
+    for figure in sorted([*(ROOT / FIGURE_DIR).rglob("*.png"), *(ROOT / FIGURE_DIR).rglob("*.pdf")]):
+        rel = figure.relative_to(ROOT).as_posix()  # the PNGs the page shows and the PDFs it links beside them
         sources[rel] = rel
     for source, uri in sources.items():
         files.append(File.generated(config, uri, abs_src_path=str(ROOT / source)))
