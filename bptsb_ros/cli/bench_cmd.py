@@ -67,6 +67,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     "parameter; needs CAP_SYS_NICE or root); default 0: the normal scheduler")
 
 
+def _check_workdir(workdir: Path | None) -> int | None:
+    """None, or the exit status after one line where ``--workdir`` exists and is not empty (what is on disk: a
+    runtime failure, not a usage error; the bench never writes into another run's files)."""
+    from bptsb_ros.cli.common import fail
+
+    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
+        return fail(NAME, f"--workdir {workdir} exists and is not empty")
+    return None
+
+
 def _write(out: Path, report: dict, complete: bool = True) -> int | None:
     """Write ``report`` as JSON to ``out``, with ``"complete"`` first (false while measurements are still to come),
     atomically (a temporary file beside it, then a rename: a reader or a kill never sees half a file); None, or
@@ -119,8 +129,8 @@ def _soak(args: argparse.Namespace) -> int:
     if args.realtime_busy < 0 or args.lockstep_busy < 0:
         return fail(NAME, "--realtime-busy and --lockstep-busy must be >= 0", USAGE)
     workdir = Path(args.workdir) if args.workdir else None
-    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
-        return fail(NAME, f"--workdir {workdir} exists and is not empty")  # what is on disk: a runtime failure
+    if (problem := _check_workdir(workdir)) is not None:
+        return problem
     report = run_soak(args.realtime_seconds, args.lockstep_seconds, args.realtime_busy, args.lockstep_busy, workdir,
                       progress=lambda m: print(m, file=sys.stderr, flush=True))
     if (problem := _write(Path(args.out), report)) is not None:
@@ -150,8 +160,8 @@ def _live(args: argparse.Namespace) -> int:
     if args.live_repeats < 1:
         return fail(NAME, f"--live-repeats must be >= 1, got {args.live_repeats}", USAGE)
     workdir = Path(args.workdir) if args.workdir else None
-    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
-        return fail(NAME, f"--workdir {workdir} exists and is not empty")
+    if (problem := _check_workdir(workdir)) is not None:
+        return problem
     report = run_live(loops, args.live_seconds, args.live_repeats, workdir, tuple(args.live_param),
                       progress=lambda m: print(m, file=sys.stderr, flush=True))
     if (problem := _write(Path(args.out), report)) is not None:
@@ -175,8 +185,8 @@ def _realtime(args: argparse.Namespace) -> int:
     if args.realtime_busy < 1:
         return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
     workdir = Path(args.workdir) if args.workdir else None
-    if workdir is not None and workdir.exists() and any(workdir.iterdir()):
-        return fail(NAME, f"--workdir {workdir} exists and is not empty")
+    if (problem := _check_workdir(workdir)) is not None:
+        return problem
     if not (example_agent() / "checkpoint.pt").is_file():
         return fail(NAME, f"the example agent {example_agent()} is missing (it ships in the source tree)")
     out = Path(args.out)
