@@ -278,3 +278,24 @@ def test_report_names_the_experiments_it_has_no_run_of(tmp_path, toy_experiment)
     text = build_report(tmp_path / "runs", tmp_path / "R.md").read_text()
     line = next(ln for ln in text.splitlines() if ln.startswith("Not on this page"))
     assert "mnist-drawing, mnist-pca," in line and "locomotion-headwind." in line and "toy-planted" not in line
+
+
+def test_an_odd_attempts_record_counts_for_nothing_and_an_estimate_stays_marked(flaky_experiment, tmp_path):
+    from bptsb_ros.experiments.registry import ATTEMPTS_FILE, RUN_MARKER
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / RUN_MARKER).write_text("bptsb reproduce toy-fails-first\n")
+    (out / "go").write_text("")
+    now = time.time()
+    planted = [{"started_unix": now - 50, "wall_s": 7.0, "wall_s_estimated": True},   # an earlier estimate: kept
+               {"started_unix": now - 40, "wall_s": 1e308 * 10},                        # infinite (JSON Infinity)
+               {"started_unix": -1e18, "wall_s": 5.0},                                  # a start before 1970
+               {"started_unix": now + 1e6, "wall_s": 5.0},                              # a start in the future
+               {"started_unix": True, "wall_s": 5.0},                                   # a bool is no time
+               {"started_unix": now - 30, "wall_s": float("nan")}]
+    (out / ATTEMPTS_FILE).write_text(json.dumps(planted))
+    _, res = run_experiment(flaky_experiment, scale="smoke", out_dir=out, resume=True, progress=False)
+    earlier, this = res["provenance"]["attempts"]
+    assert earlier["wall_s"] == 7.0 and earlier["wall_s_estimated"] is True
+    assert res["wall_s"] == pytest.approx(7.0 + this["wall_s"], abs=0.011)

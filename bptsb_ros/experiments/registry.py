@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import platform
 import shutil
 import subprocess
@@ -392,13 +393,22 @@ def _read_attempts(out: Path) -> list[dict[str, Any]]:
     if not isinstance(data, list):
         return []
     good = []
+    now = time.time()
     for att in data:
-        if (isinstance(att, dict) and isinstance(att.get("started_unix"), (int, float))
-                and not isinstance(att.get("started_unix"), bool)
-                and (("wall_s" not in att) or (isinstance(att["wall_s"], (int, float))
-                                              and not isinstance(att["wall_s"], bool) and att["wall_s"] >= 0))):
-            good.append({k: att[k] for k in ("started", "started_unix", "resume", "wall_s") if k in att})
-    return good
+        if not isinstance(att, dict) or not _seconds(att.get("started_unix")) or not 0 < att["started_unix"] <= now:
+            continue  # an attempt needs a real start, in the past
+        if "wall_s" in att and not (_seconds(att["wall_s"]) and att["wall_s"] >= 0):
+            continue
+        kept = {k: att[k] for k in ("started", "started_unix", "resume", "wall_s") if k in att}
+        if att.get("wall_s_estimated") is True:
+            kept["wall_s_estimated"] = True  # an estimate stays one through later resumes
+        good.append(kept)
+    return sorted(good, key=lambda a: a["started_unix"])
+
+
+def _seconds(value: Any) -> bool:
+    """``value`` is a finite number of seconds (not a bool, not NaN or infinite, which JSON files may hold)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _write_attempts(out: Path, attempts: list[dict[str, Any]]) -> None:
