@@ -300,3 +300,12 @@ def test_a_bad_agent_config_override_stops_the_experiment_before_training(tmp_pa
         run_experiment("locomotion-closed-loop-20", scale="smoke", out_dir=tmp_path / "run", progress=False,
                        settings=["config_overrides=[body.integrator=euler]"])
     assert not (tmp_path / "run" / "agents").exists()
+
+
+@pytest.mark.parametrize("item", ["sim_time=5", "training.projection=reset", " locomotion.eval_time =3", "seed=4"])
+def test_agent_config_overrides_may_not_set_what_a_setting_or_the_seed_owns(item):
+    from bptsb_ros.experiments.locomotion_common import AgentSettings
+
+    with pytest.raises(ValueError, match="config_overrides may not set"):
+        AgentSettings(sim_time=4, config_overrides=[item])
+    AgentSettings(sim_time=4, config_overrides=["locomotion.target_slope=0.002"])  # any other key is passed on

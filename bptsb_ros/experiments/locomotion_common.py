@@ -60,6 +60,11 @@ class AgentSettings:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "config_overrides", tuple(self.config_overrides))
+        owned = {key.split("=", 1)[0] for key in self.overrides()[:5]}  # set by the fields themselves
+        for item in self.config_overrides:
+            if item.split("=", 1)[0].strip() in owned | {"seed"}:
+                raise ValueError(f"locomotion agents: config_overrides may not set {item.split('=', 1)[0].strip()} "
+                                 "(a setting of its own, or the run's seed)")
         if self.projection not in PROJECTIONS:
             raise ValueError(f"locomotion agents: projection must be one of {', '.join(PROJECTIONS)}, got "
                              f"{self.projection!r}")

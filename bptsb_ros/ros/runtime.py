@@ -133,12 +133,13 @@ def check_cli(name: str, argv: list[str], params: Sequence[Param], summary: str 
     try:
         rest = remove_ros_args(args=["prog", *argv])[1:]
     except UnknownROSArgsError as err:  # e.g. --ros-args -p a:=1 --zzz: rcl's message is the list of them
-        print(f"{name}: unknown ROS argument(s) {err} after --ros-args (ROS arguments are -p NAME:=VALUE, "
+        unknown = str(err).strip("[]").replace("'", "")  # rcl gives the list's repr: ['--zzz', '--y']
+        print(f"{name}: unknown ROS argument(s) {unknown} after --ros-args (ROS arguments are -p NAME:=VALUE, "
               f"-r FROM:=TO, --params-file FILE, --log-level LEVEL; {name} --help lists the parameters)",
               file=sys.stderr)
         return EXIT_BAD_PARAMETERS
     except RCLInvalidROSArgsError as err:
-        print(f"{name}: invalid ROS arguments: {str(err).splitlines()[0]}", file=sys.stderr)
+        print(f"{name}: invalid ROS arguments: {_rcl_reason(str(err))}", file=sys.stderr)
         return EXIT_BAD_PARAMETERS
     if any(a in ("-h", "--help") for a in rest):
         print(node_help(name, params, summary))
@@ -148,6 +149,15 @@ def check_cli(name: str, argv: list[str], params: Sequence[Param], summary: str 
               f"--ros-args -p agent:=RUN_DIR ({name} --help lists them)", file=sys.stderr)
         return EXIT_BAD_PARAMETERS
     return None
+
+
+def _rcl_reason(message: str) -> str:
+    """rcl's argument error without its prefix and C source locations (``…, at /src/rcl/lexer.c:239``)."""
+    import re
+
+    first = (message.strip().splitlines() or ["(no reason given)"])[0]
+    first = first.removeprefix("Failed to parse ROS arguments: ")
+    return re.sub(r", at [^,]*\.c:\d+", "", first) or "(no reason given)"
 
 
 def run_node(name: str, factory: Callable[[StopFlag], LiveNode], args: list[str] | None = None, *,
