@@ -105,6 +105,9 @@ def test_plan_stream_checks_the_launch_arguments(tmp_path):
     assert (plan.count, plan.episode_steps) == (3, max(steps) + 1)
     body = stream_parameters(plan, "body_sim", {"mode": "lockstep"}, recording=True, duration=0.0)
     assert body["reset_every"] == max(steps) + 1 and body["max_steps"] == 3 * (max(steps) + 1) - 1
+    assert body["command_timeout"] == 10.0  # a reset goes through two nodes: longer than a direct command's 2 s
+    longer = stream_parameters(plan, "body_sim", {"command_timeout": 30.0}, recording=True, duration=0.0)
+    assert longer["command_timeout"] == 30.0  # a longer wait asked for is kept
     need = max(steps[1], steps[7], steps[0]) + 1
     with pytest.raises(StreamError, match=f"need at least {need} steps"):
         plan_stream(str(tmp_path / "sys.pt"), images, labels, first=1, count=3, episode_steps=need - 1)

@@ -26,6 +26,12 @@ STREAM_ARGUMENTS: dict[str, tuple[str, str]] = {
 }
 
 
+#: wall seconds the body waits for a reset command before it counts the brain silent. A reset goes through two
+#: nodes (image_streamer -> mnist_brain) whose link the body cannot watch, so its first one may need longer than a
+#: direct command's 2 s (body_sim's command_timeout) on a loaded machine.
+RESET_COMMAND_TIMEOUT = 10.0
+
+
 class StreamError(ValueError):
     """A launch argument of the MNIST loop is wrong; the message names it."""
 
@@ -86,6 +92,7 @@ def stream_parameters(plan: StreamPlan, executable: str, params: dict[str, Param
     out = dict(params)
     if executable == "body_sim":
         out["reset_every"] = plan.episode_steps
+        out["command_timeout"] = max(float(out.get("command_timeout", 0.0)), RESET_COMMAND_TIMEOUT)  # type: ignore[arg-type]
         if duration <= 0:
             out["max_steps"] = plan.steps
     elif executable == "image_streamer":
