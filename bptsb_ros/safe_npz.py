@@ -92,7 +92,8 @@ def load_npz(path: str | Path, names: Sequence[str], max_bytes: int | None = Non
                 budget -= out[name].nbytes
     except zipfile.BadZipFile as err:
         raise NpzError(f"{path}: not an .npz (zip) file ({err})") from None
-    # zipfile raises NotImplementedError for a member in a compression method it does not support (e.g. deflate64)
+    # a member compressed with a method outside zipfile's set (deflate64, say) surfaces as NotImplementedError:
+    # for a reader that is one more unreadable file, reported in one line like the others
     except (OSError, EOFError, zipfile.LargeZipFile, NotImplementedError) as err:
         raise NpzError(f"{path}: cannot read ({str(err)[:120]})") from None
     except ValueError as err:  # a shape that does not match the data, a bad dtype descriptor
