@@ -11,6 +11,9 @@ SHELL := /bin/bash
 
 PYTHON ?= python3
 PYTEST_ARGS ?=
+# pytest-xdist processes for make test; whole test files go to one process (--dist loadfile), so a module's shared
+# launch or trained agent is made once. TEST_WORKERS=0 runs the suite in this one process.
+TEST_WORKERS ?= 2
 MUTATION_ARGS ?=
 TORCH_VERSION := 2.13.0
 VENV := .venv
@@ -37,7 +40,7 @@ PIP_FILTER := sed -u -e "/Location 'file:.*' is ignored/d"
 
 help:
 	@echo "make demo       train a small Lissajous agent, simulate it, write plots and an animation"
-	@echo "make test       ruff + pytest (bootstraps .venv on the first run; PYTEST_ARGS='-x -k name' narrows it)"
+	@echo "make test       ruff + pytest on 2 processes (bootstraps .venv on the first run; PYTEST_ARGS='-x -k name' narrows it)"
 	@echo "make venv       create/refresh .venv (torch $(TORCH_VERSION), bptsb_ros[ros,dev])"
 	@echo "make lint       ruff check"
 	@echo "make mutation   apply each listed one-line bug to a temporary copy and check that the tests catch it"
@@ -59,7 +62,7 @@ lint: venv
 
 test: venv
 	$(VENV)/bin/ruff check .
-	$(VPY) -m pytest -ra $(PYTEST_ARGS) tests/
+	$(VPY) -m pytest -ra -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS) tests/
 
 # Mutants and their tests are listed in scripts/mutation_check.py (MUTANTS); exit 1 if one survives.
 mutation: venv

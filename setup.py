@@ -134,6 +134,7 @@ setup(
         ],
         "dev": [
             "pytest>=8",
+            "pytest-xdist>=3.5",  # make test runs the suite on 2 processes (tests/conftest.py: a domain per worker)
             "ruff==0.17.6",
             "colcon-core",
             "colcon-ros",

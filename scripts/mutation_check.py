@@ -955,6 +955,17 @@ MUTANTS: tuple[Mutant, ...] = (
            'reason = "truncated record"',
            "the stop reason of a torn record header no longer says so (the split assert sees it)",
            ("tests/test_bags_recover.py::test_recovers_exactly_the_complete_chunks",)),
+    Mutant("recorder-stop-handler-lock", "bptsb_ros/ros/recorder.py",
+           "        self.ns: int | None = None\n\n    def __call__(self, *_: object) -> None:\n",
+           "        self.ns: int | None = None\n        self.evt = __import__('threading').Event()\n\n"
+           "    def __call__(self, *_: object) -> None:\n        self.evt.set()\n",
+           "the recorder's stop handler sets a threading.Event (a lock a nested signal deadlocks on)",
+           ("tests/test_bags_recorder.py::test_the_stop_handler_survives_signals_inside_itself",)),
+    Mutant("recorder-stop-handler-last", "bptsb_ros/ros/recorder.py",
+           "        if self.ns is None:\n            self.ns = time.time_ns()",
+           "        self.ns = time.time_ns()",
+           "the recorder's stop time is the last signal's, not the first's",
+           ("tests/test_bags_recorder.py::test_the_stop_handler_survives_signals_inside_itself",)),
 )
 
 

@@ -4,7 +4,8 @@ At import time (before any test module imports rclpy or torch) this pins DDS dis
 gives the session a private ROS domain, so parallel sessions and other machines never see its traffic:
 
 * ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` always; ``ROS_STATIC_PEERS`` is cleared.
-* ``ROS_DOMAIN_ID`` = ``BPTSB_TEST_DOMAIN_ID`` if set, else 100 + pid % 101 (a value in 100..200).
+* ``ROS_DOMAIN_ID`` = ``BPTSB_TEST_DOMAIN_ID`` if set, else 100 + pid % 101 (a value in 100..200); under
+  pytest-xdist each worker adds its number to that, so workers never share a domain.
 * ``OMP_NUM_THREADS=1`` and ``MPLBACKEND=Agg`` unless already set (2 shared cores, no display).
 * ``BPTSB_FIGURE_FORMATS=png`` unless already set: the experiments' figures skip their PDF copy (half of a
   figure's time); tests/test_figures.py unsets it and checks the PNG + PDF of every figure.
@@ -31,18 +32,30 @@ DOMAIN_ID_MIN = 100
 DOMAIN_ID_MAX = 200
 
 
+def _xdist_worker_index() -> int:
+    """Return this process's pytest-xdist worker number (``gw3`` → 3), or 0 outside a distributed run."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    return int(worker[2:]) if worker.startswith("gw") and worker[2:].isdigit() else 0
+
+
 def _session_domain_id() -> int:
-    """Return the ROS domain for this test session: ``BPTSB_TEST_DOMAIN_ID`` or one derived from the pid."""
+    """Return the ROS domain for this test process: ``BPTSB_TEST_DOMAIN_ID`` or one derived from a pid.
+
+    Under pytest-xdist every worker gets its own domain: the session's base (the controller's pid, which all
+    workers share as their parent, or the override) plus the worker's number, so two workers never meet.
+    """
+    worker = _xdist_worker_index()
     override = os.environ.get("BPTSB_TEST_DOMAIN_ID")
     if override is None:
-        return DOMAIN_ID_MIN + os.getpid() % (DOMAIN_ID_MAX - DOMAIN_ID_MIN + 1)
+        base_pid = os.getppid() if "PYTEST_XDIST_WORKER" in os.environ else os.getpid()
+        return DOMAIN_ID_MIN + (base_pid + worker) % (DOMAIN_ID_MAX - DOMAIN_ID_MIN + 1)
     try:
         value = int(override)
     except ValueError:
         raise pytest.UsageError(f"BPTSB_TEST_DOMAIN_ID must be an integer in 0..232, got {override!r}") from None
-    if not 0 <= value <= 232:
-        raise pytest.UsageError(f"BPTSB_TEST_DOMAIN_ID must be an integer in 0..232, got {value}")
-    return value
+    if not 0 <= value + worker <= 232:
+        raise pytest.UsageError(f"BPTSB_TEST_DOMAIN_ID must be an integer in 0..{232 - worker}, got {value}")
+    return value + worker
 
 
 SESSION_DOMAIN_ID = _session_domain_id()

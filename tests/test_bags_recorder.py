@@ -315,6 +315,72 @@ def test_messages_published_after_the_stop_are_not_waited_for(tmp_path: Path, en
     assert read_metadata(bag).custom_data["dropped_messages"] == "0"
 
 
+def test_a_storm_of_stop_signals_never_hangs_the_recorder(tmp_path: Path, env: dict[str, str]) -> None:
+    """``kill -INT -PGID`` of a launch gives every node SIGINT twice at once (the group's and launch's), and launch
+    escalates to SIGTERM. A stop handler that takes a lock (``threading.Event.set``) deadlocks when the second
+    signal's handler runs inside the first's: the recorder then hung until SIGKILL. SIGINT and SIGTERM as fast as they
+    can be sent for 1.5 s, many landing inside a running handler: it still stops cleanly within seconds."""
+    bag = tmp_path / "storm"
+    # a 1.5 s drain keeps the recorder taking stop signals (not yet ignoring them) for the whole storm
+    recorder = _recorder(bag, env, "-p", "topics:=[/bagtest/data]", "-p", "drain_quiet:=1.5")
+    try:
+        lines: list[str] = []
+        while not any("Recording to" in line for line in lines) and recorder.poll() is None:
+            lines.append(recorder.stdout.readline())
+        assert recorder.poll() is None, "".join(lines) + recorder.communicate()[0]
+        storm_end = time.monotonic() + 1.5  # a burst coalesces into a few deliveries: keep them coming
+        while time.monotonic() < storm_end and recorder.poll() is None:
+            os.kill(recorder.pid, signal.SIGINT)
+            os.kill(recorder.pid, signal.SIGTERM)
+        try:
+            out, _ = recorder.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            recorder.kill()
+            pytest.fail("the recorder hung on a storm of stop signals:\n" + "".join(lines) + recorder.communicate()[0])
+    finally:
+        _kill_leftovers(recorder)
+    assert recorder.returncode == 0, "".join(lines) + out
+    assert "closed: 0 messages" in out and read_metadata(bag).message_count == 0, out
+
+
+#: A child that calls the recorder's stop handler with a second call nested at every line it runs (its own and those
+#: of whatever it calls): what a signal arriving at any moment of the first one's handler does. A handler holding a
+#: lock deadlocks here, at once and every time. Then, untraced, a later signal. It prints the nested calls made,
+#: the window of the first call and the stop time before and after the later signal.
+STOP_REQUEST_CHILD = (
+    "import sys, time\n"
+    "from bptsb_ros.ros.recorder import StopRequest\n"
+    "stop, nested = StopRequest(), [0]\n"
+    "def tracer(frame, event, arg):\n"
+    "    if event == 'line':\n"
+    "        nested[0] += 1\n"
+    "        stop()\n"  # untraced: a trace function is not traced itself
+    "    return tracer\n"
+    "t0 = time.time_ns()\n"
+    "sys.settrace(tracer)\n"
+    "stop()\n"
+    "sys.settrace(None)\n"
+    "t1 = time.time_ns()\n"
+    "first = stop.ns\n"
+    "time.sleep(0.01)\n"
+    "stop()\n"
+    "print(nested[0], t0, t1, first, stop.ns, flush=True)\n"
+)
+
+
+def test_the_stop_handler_survives_signals_inside_itself(env: dict[str, str]) -> None:
+    """The handler alone, a second call nested at each of its lines: no deadlock, and the stop time stays the
+    first signal's (a later signal changes nothing)."""
+    try:
+        run = subprocess.run([sys.executable, "-c", STOP_REQUEST_CHILD], env=env, capture_output=True, text=True,
+                             timeout=30)
+    except subprocess.TimeoutExpired as exc:
+        pytest.fail(f"the stop handler deadlocked on a call nested inside it: {exc.stderr}")
+    assert run.returncode == 0, run.stderr
+    nested, t0, t1, first, after = map(int, run.stdout.split())
+    assert nested >= 1 and t0 <= first <= t1 and after == first
+
+
 def test_sigkill_leaves_recoverable_chunks(tmp_path: Path, env: dict[str, str]) -> None:
     n = 200
     bag = tmp_path / "killed"

@@ -39,7 +39,6 @@ from __future__ import annotations
 import functools
 import signal
 import sys
-import threading
 import time
 from collections import Counter
 from typing import Any
@@ -355,6 +354,22 @@ def _drain(executor: SingleThreadedExecutor, node: RecorderNode, stop_ns: int) -
             return
 
 
+class StopRequest:
+    """The recorder's SIGINT/SIGTERM handler: ``ns`` is the system time [ns] of the first stop signal (None until
+    one comes); later ones change nothing.
+
+    It only assigns an attribute. A handler that takes a lock (``threading.Event.set``) deadlocks when a second
+    signal's handler runs inside it, holding the lock, and a group SIGINT followed by launch's own SIGINT and
+    SIGTERM does that: the recorder then hung until launch's SIGKILL and its bag was never closed."""
+
+    def __init__(self) -> None:
+        self.ns: int | None = None
+
+    def __call__(self, *_: object) -> None:
+        if self.ns is None:
+            self.ns = time.time_ns()
+
+
 def main(args: list[str] | None = None) -> int:
     """Run the recorder until SIGINT/SIGTERM; return 0 on a clean stop, 1 when messages were lost (unless
     ``allow_loss``), 2 for bad parameters or arguments (``--help`` lists the parameters)."""
@@ -364,14 +379,7 @@ def main(args: list[str] | None = None) -> int:
     if code is not None:
         unblock_interrupt()
         return code
-    stop = threading.Event()
-    stop_ns: list[int] = []  # system time of the first stop signal
-
-    def on_stop(*_: object) -> None:
-        if not stop_ns:
-            stop_ns.append(time.time_ns())
-        stop.set()
-
+    on_stop = StopRequest()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     previous = {sig: signal.signal(sig, on_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     unblock_interrupt()  # a stop requested during startup (held pending by the launcher) arrives now
@@ -390,9 +398,9 @@ def main(args: list[str] | None = None) -> int:
             def spin(timeout: float) -> None:
                 executor.spin_once(timeout_sec=timeout)
 
-            while not stop.is_set():  # batches: one wake-up per batch_wait while messages arrive
+            while on_stop.ns is None:  # batches: one wake-up per batch_wait while messages arrive
                 take_round(spin, lambda: node.received, time.monotonic, time.sleep, node.config.batch_wait)
-            _drain(executor, node, stop_ns[0] if stop_ns else time.time_ns())
+            _drain(executor, node, time.time_ns() if on_stop.ns is None else on_stop.ns)
         except ExternalShutdownException:
             pass
         code = node.close()
