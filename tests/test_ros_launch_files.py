@@ -378,7 +378,7 @@ def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
     # The recorder's clock follows /clock: a state is logged near its step's sim time. Its /clock subscription runs
     # ahead of a backlog of state messages when the machine is loaded (an unpaced lockstep body outruns the
     # recorder; 440 ms was seen with 2 busy cores, 2.44 s with the suite on 2 processes), so the bound is 5 s of sim
-    # time (the run lasts about 10 s); wall time would be ~1.8e18 ns.
+    # time; wall time would be ~1.8e18 ns.
     lag_bound = 5_000_000_000
     for (_, log_time, _), stamp in zip(rows, stamps, strict=True):
         assert abs(log_time - stamp) <= lag_bound
