@@ -89,9 +89,14 @@ def _domain_env(domain: int) -> dict[str, str]:
     return env
 
 
+#: sim seconds of the lockstep launch: long enough (≥ 4 s of wall time at the ≤ 260 steps/s lockstep runs at) that
+#: the freeze, 0.5 s after the body runs, falls inside the run (at 3 s the body was once nearly done by then)
+LOCKSTEP_S = 10
+LOCKSTEP_STEPS = LOCKSTEP_S * 100 + 1  # dt 0.01 s, the initial state included
+
 #: name → (domain, launch arguments after the bag, seconds the recorder is frozen)
 LAUNCHES = {
-    "lockstep": (SESSION_DOMAIN_ID, ["lissajous_open", "--duration", "3"], 3.0),
+    "lockstep": (SESSION_DOMAIN_ID, ["lissajous_open", "--duration", str(LOCKSTEP_S)], 3.0),
     "realtime": (QUARANTINE_DOMAIN_ID, ["lissajous_open", "--mode", "realtime", "--duration", "5"], 2.5),
 }
 
@@ -101,10 +106,13 @@ def frozen_runs(tmp_path_factory) -> dict[str, tuple[int, str, Path]]:
     """Both launches of this module at once: name → (exit code, output, bag)."""
     runs: dict[str, tuple[int, str, Path]] = {}
     errors: list[BaseException] = []
+    # made here, not in the threads: pytest's tmp_path_factory creates its base folder on first use, and two
+    # threads doing that at once collide (FileExistsError)
+    bags = {name: tmp_path_factory.mktemp(name) / "bag" for name in LAUNCHES}
 
     def run(name: str) -> None:
         domain, args, freeze_s = LAUNCHES[name]
-        bag = tmp_path_factory.mktemp(name) / "bag"
+        bag = bags[name]
         try:
             code, out = _launch_with_frozen_recorder([*args, "--bag", str(bag), "--param", "body_sim:qos_depth:=40"],
                                                      _domain_env(domain), freeze_s=freeze_s)
@@ -129,7 +137,7 @@ def test_lockstep_recording_loses_nothing_with_a_frozen_recorder(frozen_runs):
     assert "recorder        ok" in out
     steps = _body_steps(bag)
     for topic in BODY_TOPICS:
-        assert steps[topic] == list(range(301)), f"{topic}: {len(steps[topic])} of 301 steps"
+        assert steps[topic] == list(range(LOCKSTEP_STEPS)), f"{topic}: {len(steps[topic])} of {LOCKSTEP_STEPS} steps"
     from bptsb_ros.bags.metadata import read_metadata
 
     meta = read_metadata(bag)
@@ -137,7 +145,7 @@ def test_lockstep_recording_loses_nothing_with_a_frozen_recorder(frozen_runs):
     summary = json.loads((bag.parent / "bag.launch" / "body_summary.json").read_text())
     assert summary["recorder_waits"] >= 1 and summary["recorder_wait_s"] >= 2.0, summary  # the body waited
     assert summary["recording"]["dropped_messages"] == 0
-    assert {t: summary["published_messages"][t] for t in BODY_TOPICS} == dict.fromkeys(BODY_TOPICS, 301)
+    assert {t: summary["published_messages"][t] for t in BODY_TOPICS} == dict.fromkeys(BODY_TOPICS, LOCKSTEP_STEPS)
 
 
 def test_realtime_losses_are_counted_and_fail_the_launch(frozen_runs):
@@ -150,7 +158,9 @@ def test_realtime_losses_are_counted_and_fail_the_launch(frozen_runs):
     steps = _body_steps(bag)
     # what the body published and the bag lacks, counted here from the body's summary and the bag's messages
     missing = {t: summary["published_messages"][t] - len(steps[t]) for t in BODY_TOPICS}
-    assert all(n > 100 for n in missing.values()), missing  # 2.5 s frozen at 100 steps/s, 40 kept for it
+    # 2.5 s frozen at 100 steps/s: 250 published, of which the 40 kept for retransmission and what the socket
+    # buffers hold arrive late; how much that is varies (53–59 per topic lost in one run, over 100 in most)
+    assert all(n > 0 for n in missing.values()), missing
     recorded = json.loads(read_metadata(bag).custom_data["dropped_by_topic"])
     assert {t: recorded[t] for t in BODY_TOPICS} == missing  # the recorder's own count, from sequence gaps
     assert int(read_metadata(bag).custom_data["dropped_messages"]) >= sum(missing.values())

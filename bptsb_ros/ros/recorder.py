@@ -400,7 +400,7 @@ def main(args: list[str] | None = None) -> int:
 
             while on_stop.ns is None:  # batches: one wake-up per batch_wait while messages arrive
                 take_round(spin, lambda: node.received, time.monotonic, time.sleep, node.config.batch_wait)
-            _drain(executor, node, time.time_ns() if on_stop.ns is None else on_stop.ns)
+            _drain(executor, node, on_stop.ns)  # the loop ends only once a stop signal set it
         except ExternalShutdownException:
             pass
         code = node.close()
