@@ -5,14 +5,14 @@ so often that no update changes the parameters any more.
 For the trained agent in RUN_DIR (a ``bptsb train`` output, or a time-series job's ``agent`` folder) it draws
 ``--sequences`` fresh training sequences (as the trainer does: u ~ U(0, 1), ``narma.n_inputs`` inputs, the body from
 rest) and computes each one's training loss (output MSE after the washout, up to ``train_end``) with the
-parameters fixed. It then feeds these losses, in order, to the guard's own rule (reject when a loss exceeds
-``factor`` × the mean of the last 5 accepted ones) and reports the rejection rate. With the parameters fixed, every
-rejection is caused by the input sequence. Where the training's metrics.json is beside the checkpoint, the guard's
-rejection rate over its last updates (when the rates were already tiny) is printed beside it.
+parameters fixed. It then feeds these losses, in order, to the trainers' own update guard (reject a loss above
+10 × the mean of the last 5 accepted ones) and reports its rejections and rate divisions. With the parameters
+fixed, every rejection is caused by the input sequence. Where the training's metrics.json is beside the
+checkpoint, the guard's rejection rate over its last updates (when the rates were already tiny) is printed too.
 
     python scripts/narma_loss_spread.py RUN_DIR [--sequences 400] [--seed 12345]
 
-Prints one JSON object: the loss quantiles, the ratio of the largest to the median, the rejection rate at fixed
+Prints one JSON object: the loss quantiles, the ratio of the largest to the median, the guard's verdicts at fixed
 parameters, and the guard's own rate and final learning rates from metrics.json.
 """
 
@@ -28,7 +28,7 @@ import torch
 from bptsb_ros.config import validate
 from bptsb_ros.tasks.narma import NarmaTask
 from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
-from bptsb_ros.training.guard import FACTOR, WINDOW
+from bptsb_ros.training.guard import UpdateGuard
 
 
 def fixed_parameter_losses(run_dir: Path, sequences: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -50,18 +50,13 @@ def fixed_parameter_losses(run_dir: Path, sequences: int, seed: int) -> tuple[np
     return np.asarray(losses), np.asarray(biases)
 
 
-def guard_rejection_rate(losses: np.ndarray, factor: float = FACTOR) -> float:
-    """The fraction of ``losses`` the guard's spike rule rejects when they arrive in this order (a rejected loss
-    never enters the reference; the reference is the last accepted loss until there are 5, then their mean)."""
-    history: list[float] = [float(losses[0])]
-    rejected = 0
-    for value in losses[1:]:
-        ref = history[-1] if len(history) < WINDOW else sum(history[-WINDOW:]) / WINDOW
-        if value > factor * ref:
-            rejected += 1
-        else:
-            history.append(float(value))
-    return rejected / (len(losses) - 1)
+def guard_verdicts(losses: np.ndarray) -> dict[str, float | int]:
+    """What the trainers' :class:`UpdateGuard` (its default rules) makes of ``losses`` arriving in this order at
+    fixed parameters: the share of them it rejects and how often it divides the learning rates."""
+    param = torch.nn.Parameter(torch.zeros(1))
+    guard = UpdateGuard(torch.optim.SGD([param], lr=1.0))
+    rejected = sum(not guard.review(i, float(v)).accepted for i, v in enumerate(losses))
+    return {"rejection_rate": rejected / len(losses), "divisions": guard.summary()["divisions"]}
 
 
 def main() -> None:
@@ -83,7 +78,7 @@ def main() -> None:
                     "bias_share_of_loss_others": float(np.median(biases[~spiked] ** 2 / losses[~spiked])),
                     "bias_spiked_m": np.quantile(biases[spiked], [0, 0.5, 1]).tolist() if spiked.any() else None,
                     "bias_others_m": np.quantile(biases[~spiked], [0, 0.5, 1]).tolist(),
-                    "guard_rejection_rate_at_fixed_parameters": guard_rejection_rate(losses)}
+                    "guard_at_fixed_parameters": guard_verdicts(losses)}
     metrics = args.run_dir / "metrics.json"
     if metrics.is_file():
         guard = json.loads(metrics.read_text())["guard"]

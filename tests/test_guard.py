@@ -164,6 +164,41 @@ def test_resume_state_round_trips_through_a_weights_only_checkpoint(tmp_path):
     assert twin.count == guard.count == 2  # one good update after the first rejection does not reset the count
 
 
+def _same_state(a: dict, b: dict) -> bool:
+    tensors = lambda st: [*st["saved"]["params"], *(v for s in st["saved"]["optimizer"]["state"].values()  # noqa: E731
+                                                   for v in s.values())]
+    plain = ("history", "events", "count", "good_in_a_row", "stepped")
+    return all(a[k] == b[k] for k in plain) and _equal(tensors(a), tensors(b)) and \
+        a["saved"]["optimizer"]["param_groups"] == b["saved"]["optimizer"]["param_groups"]
+
+
+@pytest.mark.parametrize("marked_after", [2, 3, 5])
+def test_a_mark_gives_the_state_of_its_moment_after_later_updates(marked_after):
+    """A trainer marks the guard every update and saves the marked state later: :meth:`state_at` of a mark is the
+    :meth:`state_dict` of the mark's moment, with rejections, a division and accepted updates after it."""
+    params, opt = _tiny()
+    guard = UpdateGuard(opt)
+    losses = [1.0, 1.0, 50.0, 1.0, 60.0, 70.0, 80.0, 90.0, 95.0, 1.0, 1.0]  # 5 spikes in a row: one division
+    for i, v in enumerate(losses[:marked_after]):
+        _update(guard, params, opt, i, v)
+    mark, then = guard.mark(), guard.state_dict()
+    for i, v in enumerate(losses[marked_after:], start=marked_after):
+        _update(guard, params, opt, i, v)
+    assert guard.summary()["divisions"] == 1 and not _same_state(guard.state_dict(), then)
+    assert _same_state(guard.state_at(mark), then)
+
+
+def test_a_mark_from_a_longer_history_is_refused():
+    params, opt = _tiny()
+    guard = UpdateGuard(opt)
+    for i in range(3):
+        _update(guard, params, opt, i, 1.0)
+    mark = guard.mark()
+    guard.load_state_dict({**guard.state_dict(), "history": [1.0]})
+    with pytest.raises(ValueError, match="longer history"):
+        guard.state_at(mark)
+
+
 # -- every trainer goes through the guard: one planted failure per trainer family ------------------------------
 def _values(tensors) -> list[torch.Tensor]:
     return [t.detach().clone() for t in tensors]

@@ -207,15 +207,21 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
                                          "losses": losses, "update": update, "guard": guard.state_dict(), **more})
 
     def snapshot(update: int) -> dict[str, Any] | None:
-        """Everything a checkpoint at ``update`` holds, copied (later updates change the tensors in place);
-        None in memory (no checkpoint is ever written)."""
+        """What a checkpoint at ``update`` holds: the tensors copied (later updates change them in place), the
+        loss history and the guard by :meth:`UpdateGuard.mark` (they only grow: copying them every update made
+        training quadratic in its length); None in memory (no checkpoint is ever written)."""
         if run_dir is None:
             return None
-        return copy.deepcopy({
-            "modules": {name: m.state_dict() for name, m in agent.modules().items()},
-            "extra": {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(), "losses": losses,
-                      "update": update, "guard": guard.state_dict()},
-        })
+        return {"modules": copy.deepcopy({name: m.state_dict() for name, m in agent.modules().items()}),
+                "extra": copy.deepcopy({"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
+                                        "update": update}),
+                "guard": guard.mark()}
+
+    def save_snapshot(snap: dict[str, Any]) -> None:
+        assert run_dir is not None
+        state = guard.state_at(snap["guard"])
+        save_checkpoint(run_dir, agent, {**snap["extra"], "losses": list(state["history"]), "guard": state},
+                        modules=snap["modules"])
 
     # ``pending``: the parameters about to be simulated (not yet known to be good); ``good``: the last ones
     # that completed a window without divergence; ``due``: ``pending`` is a scheduled checkpoint.
@@ -225,7 +231,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         nonlocal good, due
         good = pending
         if due and run_dir is not None and good is not None:
-            save_checkpoint(run_dir, agent, good["extra"], modules=good["modules"])
+            save_snapshot(good)
             due = False
 
     def diverged(update: int, why: str) -> TrainingDiverged:
@@ -233,7 +239,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         if run_dir is None:
             return TrainingDiverged(f"update {update}: {why} (trained in memory: nothing was written)")
         if good is not None:
-            save_checkpoint(run_dir, agent, good["extra"], modules=good["modules"])
+            save_snapshot(good)
             kept = (f"the last good checkpoint, update {good['extra']['update']}, is kept: parameters that "
                     "completed a window without diverging")
         elif (run_dir / "checkpoint.pt").is_file():
