@@ -966,6 +966,16 @@ MUTANTS: tuple[Mutant, ...] = (
            "        self.ns = time.time_ns()",
            "the recorder's stop time is the last signal's, not the first's",
            ("tests/test_bags_recorder.py::test_the_stop_handler_survives_signals_inside_itself",)),
+    Mutant("guard-mark-live-history", "bptsb_ros/training/guard.py",
+           'return {"history": list(self.history[:mark["history"]]),',
+           'return {"history": list(self.history),',
+           "a saved checkpoint holds the guard's history of the save, not of its snapshot",
+           ("tests/test_guard.py::test_a_mark_gives_the_state_of_its_moment_after_later_updates",)),
+    Mutant("raw-template-last-occurrence", "bptsb_ros/ros/raw_out.py",
+           "        at = data.find(value.tobytes())\n",
+           "        at = data.rfind(value.tobytes())\n",
+           "a sentinel's last occurrence is taken for its field (a stale copy after the content wins)",
+           ("tests/test_live_speed.py::test_a_sentinel_copy_after_the_content_does_not_stop_the_template",)),
 )
 
 
