@@ -167,6 +167,34 @@ def test_narma_emulation_smoke(tmp_path):
     expected = [False if False in v else None if None in v else True for v in (mlp, mc)]
     assert [c["holds"] for c in data["claims"]] == expected
     assert (tmp_path / "narma_emulation.png").is_file()
+    for brain in ("lil", "mlp"):  # the guard's record of every training, as its metrics.json has it
+        for body in ("double-circle", "multiple-circle"):
+            job = tmp_path / "sweep" / "jobs" / f"{brain}_{body}"
+            metrics = json.loads((job / "agent" / "metrics.json").read_text())
+            record = data["details"]["guard"][f"{brain.upper()} + {body} (N_mov 17)"]
+            assert (record["rejections"], record["final_rates"]) == (len(metrics["guard"]["events"]),
+                                                                     metrics["guard"]["rates"])
+
+
+def test_the_guard_record_of_a_job_names_the_tenth_division(tmp_path):
+    """Planted metrics: 12 divisions among 32 rejections, the 10th at update 3000; a job without metrics (its
+    training diverged) has no record."""
+    from bptsb_ros.experiments.timeseries import guard_record
+
+    events = [{"update": 100 * i + (5 if i % 3 else 0), "divided": i % 3 == 0} for i in range(1, 31)]
+    divided = [e["update"] for e in events if e["divided"]]
+    assert len(divided) == 10 and divided[-1] == 3000  # i = 3, 6, …, 30
+    events += [{"update": 3100, "divided": True}, {"update": 3200, "divided": True}]
+    (tmp_path / "agent").mkdir()
+    (tmp_path / "agent" / "metrics.json").write_text(json.dumps(
+        {"guard": {"rejections": 32, "divisions": 12, "events": events, "rates": {"k": 1e-9}}}))
+    assert guard_record(tmp_path) == {"rejections": 32, "divisions": 12, "tenth_division_update": 3000,
+                                      "final_rates": {"k": 1e-9}}
+    events[:] = events[:5]
+    (tmp_path / "agent" / "metrics.json").write_text(json.dumps(
+        {"guard": {"rejections": 5, "divisions": 1, "events": events, "rates": {"k": 1.0}}}))
+    assert guard_record(tmp_path)["tenth_division_update"] is None
+    assert guard_record(tmp_path / "missing") is None
 
 
 def test_narma_ipc_smoke(tmp_path):

@@ -98,7 +98,7 @@ def run(ctx: Context) -> None:
     import numpy as np
 
     from bptsb_ros.analysis.timeseries_plots import plot_narma_emulation
-    from bptsb_ros.experiments.timeseries import NarmaJob, load_states, narma_overrides, run_jobs
+    from bptsb_ros.experiments.timeseries import NarmaJob, guard_record, load_states, narma_overrides, run_jobs
     from bptsb_ros.sweep import Job
     from bptsb_ros.tasks.narma import nmse
 
@@ -141,11 +141,18 @@ def run(ctx: Context) -> None:
                                     u, target, {system_name(*k): out for k, (_, _, out) in series.items()},
                                     {system_name(*k): errors[k] for k in series},
                                     f"expanded NARMA emulation ({config}, {epochs} epochs)"))
+    guards = {system_name(body, brain): guard_record(ctx.out_dir / "sweep" / "jobs" / f"{brain}_{body}")
+              for body, brain in SYSTEMS}
     notes = []
     if any(c.holds is False for c in verdicts):
-        notes.append("one seed per system and a short Adam schedule: the ordering of close errors can flip "
-                     "between seeds; the paper trained 40,000 SGD epochs")
+        notes.append(f"one seed per system ({config}, {epochs} epochs): the ordering of close errors can flip "
+                     "between seeds")
+    for name, g in guards.items():
+        if g is not None and g["tenth_division_update"] is not None:
+            notes.append(f"{name}: the update guard rejected {g['rejections']} updates and divided every learning "
+                         f"rate {g['divisions']} times, the 10th time at update {g['tenth_division_update']}: "
+                         "from there on its parameters barely changed")
     ctx.result.details = {"notes": notes, "config": config, "epochs": epochs, "eval_inputs": eval_inputs,
-                          "washout": washout, "jobs": results,
+                          "washout": washout, "jobs": results, "guard": guards,
                           "nmse": {system_name(b, br): (None if math.isinf(v) else v) for (b, br), v in errors.items()},
                           "diverged": {system_name(*k): v for k, v in diverged.items()}}

@@ -3,6 +3,7 @@ counter-example, thread settings, parallel jobs."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -119,6 +120,20 @@ def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False
         raise RuntimeError(f"{len(failed)} of {len(jobs)} jobs failed; first: {first['name']}: "
                            f"{first.get('error')} (records in {out_dir / 'sweep.json'})")
     return {**res.results(), **diverged}
+
+
+def guard_record(run_dir: Path) -> dict[str, Any] | None:
+    """What the update guard did in the training of the job in ``run_dir`` (from its ``agent/metrics.json``):
+    ``rejections``, ``divisions``, ``tenth_division_update`` (the update of the 10th division of every rate, by
+    then 10⁻¹⁰ of the start; None if fewer) and ``final_rates``. None where the training left no metrics (it
+    diverged)."""
+    path = run_dir / "agent" / "metrics.json"
+    if not path.is_file():
+        return None
+    guard = json.loads(path.read_text())["guard"]
+    divided = [e["update"] for e in guard["events"] if e["divided"]]
+    return {"rejections": guard["rejections"], "divisions": guard["divisions"],
+            "tenth_division_update": divided[9] if len(divided) >= 10 else None, "final_rates": guard["rates"]}
 
 
 def load_states(run_dir: Path, epochs: int) -> dict[str, np.ndarray]:
