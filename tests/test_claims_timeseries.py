@@ -45,6 +45,20 @@ def test_narma_emulation_holds_and_fails():
     assert verdicts(emulation(mc_lil=0.4999)) == [True, True]
 
 
+def test_close_errors_are_shown_with_the_digits_that_tell_them_apart():
+    """The paper run's MLP pair (0.27228 vs 0.27247): evidence "0.272 vs 0.272" for a false strict comparison
+    would read as a contradiction."""
+    from bptsb_ros.experiments.claim_rules import fmt_pair
+
+    c = emulation(dc_mlp=0.2722750122, mc_mlp=0.2724714847, mc_lil=0.24, dc_lil=0.31)
+    assert verdicts(c) == [False, False]
+    assert "MLP + multiple-circle (N_mov 17) 0.2725 vs MLP + double-circle (N_mov 17) 0.2723" in c[1].evidence
+    assert "LIL + multiple-circle (N_mov 17) 0.24 vs LIL + double-circle (N_mov 17) 0.31" in c[1].evidence
+    assert fmt_pair(0.5, 0.5) == ("0.5", "0.5") and fmt_pair(1.0, math.inf) == ("1", "inf")
+    assert fmt_pair(1.0, 1.0 + 1e-14) == ("1", "1")  # no closer than 12 digits
+    assert fmt_pair(0.123456, 0.123457) == ("0.123456", "0.123457")
+
+
 def test_narma_emulation_premise_the_systems_learned():
     # NMSE 1 is no better than predicting the target's mean: the pair with it says nothing
     c = emulation(dc_lil=1.0)

@@ -44,3 +44,12 @@ def longest_run(mask: np.ndarray) -> tuple[int, int, int]:
 def fmt(x: float) -> str:
     """A number for evidence text: 3 significant digits; 'nan' / 'inf' spelled out."""
     return f"{x:.3g}" if math.isfinite(x) else str(x)
+
+
+def fmt_pair(a: float, b: float) -> tuple[str, str]:
+    """Two numbers compared in evidence text: :func:`fmt`'s 3 significant digits, or as many more (up to 12) as
+    it takes to tell them apart (a strict comparison of 0.27228 with 0.27247 must not read "0.272 vs 0.272")."""
+    if not (math.isfinite(a) and math.isfinite(b)) or a == b:
+        return fmt(a), fmt(b)
+    digits = next((d for d in range(3, 13) if f"{a:.{d}g}" != f"{b:.{d}g}"), 12)
+    return f"{a:.{digits}g}", f"{b:.{digits}g}"

@@ -23,9 +23,10 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from bptsb_ros.experiments.claim_rules import fmt_pair
 from bptsb_ros.experiments.registry import Context, ExperimentError, experiment
 from bptsb_ros.experiments.result import Claim
-from bptsb_ros.experiments.timeseries_claims import all_of, fmt, not_learned
+from bptsb_ros.experiments.timeseries_claims import all_of, not_learned
 
 BODIES = ("double-circle", "multiple-circle")
 BRAINS = ("lil", "mlp")
@@ -52,7 +53,8 @@ def _pair(n: EmulationNumbers, better: tuple[str, str], worse: tuple[str, str]) 
     pair = (better, worse)
     premise = not_learned({system_name(*k): n.nmse[k] for k in pair},
                           {system_name(*k): n.diverged[k] for k in pair if k in n.diverged})
-    text = f"{system_name(*better)} {fmt(n.nmse[better])} vs {system_name(*worse)} {fmt(n.nmse[worse])}"
+    shown = fmt_pair(n.nmse[better], n.nmse[worse])
+    text = f"{system_name(*better)} {shown[0]} vs {system_name(*worse)} {shown[1]}"
     if premise:
         return None, f"{text} (not testable: {premise})"
     return bool(n.nmse[better] < n.nmse[worse]), text
