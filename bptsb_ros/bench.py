@@ -32,8 +32,12 @@ PUBLISHED = {
 BACKENDS = ("torch", "numba")
 #: workloads also timed on the fused training path (``training.backend: fused``: SWG, batch 1)
 FUSED_WORKLOADS = ("lissajous",)
+#: workloads whose task also has its own update timed on the numba path and its fused episodes (task_numba, task_fused)
+TASK_WORKLOADS = ("narma",)
 #: the fused path's target: training steps/s ≥ this × the numba path's, in the same run
 FUSED_TARGET_RATIO = 5.0
+#: the NARMA task's fused episodes' target: training steps/s ≥ this × its numba path's, in the same run
+NARMA_FUSED_TARGET_RATIO = 2.0
 #: the paper's expanded-NARMA schedule: epochs × steps per epoch
 NARMA_PAPER_EPOCHS, NARMA_EPISODE_STEPS = 40_000, 3_000
 
@@ -49,6 +53,8 @@ class Workload:
     environment: str = "none"
     description: str = ""
     forward_only: bool = False
+    #: ``narma_task`` only: ``--set`` overrides of ``config/narma.yaml`` (empty: the MLP brain)
+    overrides: tuple[str, ...] = ()
 
 
 WORKLOADS = {
@@ -160,9 +166,52 @@ def _measure_fused(w: Workload, dtype: torch.dtype, min_seconds: float) -> dict[
             "train_steps_per_s": round(train, 1), "train_body_steps_per_s": round(train * w.batch, 1)}
 
 
+def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, ...] = ("brain.type=mlp",)
+                        ) -> dict[str, Any]:
+    """Training steps/s of the NARMA task itself (``config/narma.yaml``: double circle of 33 masses, MLP brain,
+    3,000-step episodes, SGD; ``overrides``: ``--set`` items of that config) on the numba path or with its fused
+    episodes (``body/held_window.py``)."""
+    from bptsb_ros.agent import build_agent
+    from bptsb_ros.experiments.common import packaged_config
+    from bptsb_ros.tasks.narma import NarmaTask
+    from bptsb_ros.threads import configure_threads
+    from bptsb_ros.training.optim import make_optimizer
+
+    threads = configure_threads(1, "numba")
+    cfg = packaged_config("narma", [*overrides, f"training.backend={backend}"], seed=0)
+    torch.manual_seed(cfg.seed)
+    agent = build_agent(cfg)
+    task = NarmaTask(agent, cfg)
+    opt = make_optimizer(agent, cfg.training)
+
+    def update(i: int) -> None:
+        loss, _ = task.update_loss(i)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        agent.body.clamp_parameters_()
+
+    t0 = time.perf_counter()
+    update(0)
+    first_call = time.perf_counter() - t0
+    steps, i, t0 = 0, 1, time.perf_counter()
+    while True:
+        update(i)
+        i += 1
+        steps += task.steps_per_update
+        elapsed = time.perf_counter() - t0
+        if elapsed >= min_seconds:
+            break
+    return {"backend": backend, "fused_episodes": task.fused_episodes, "threads": threads,
+            "first_call_s": round(first_call, 3), "train_steps_per_s": round(steps / elapsed, 1),
+            "ms_per_update": round(1e3 * elapsed / (i - 1), 2)}
+
+
 def _measure(w: Workload, adjoint: bool, dtype: torch.dtype, min_seconds: float, backend: str) -> dict[str, Any]:
     from bptsb_ros.threads import configure_threads
 
+    if w.name == "narma_task":
+        return _measure_narma_task(backend, min_seconds, w.overrides or ("brain.type=mlp",))
     if backend == "fused":
         return _measure_fused(w, dtype, min_seconds)
     threads = configure_threads(w.batch, backend)
@@ -290,6 +339,13 @@ def run_benchmarks(quick: bool = False, progress=print, update=None) -> dict[str
             done(report)
         key = "forward_steps_per_s" if w.forward_only else "train_steps_per_s"
         entry["numba_over_torch"] = _ratio(entry["numba"].get(key), entry["torch"].get(key))
+        if name in TASK_WORKLOADS:  # the task's own update, numba path vs its fused episodes
+            task_w = replace(w, name=f"{name}_task")
+            for backend in ("numba", "fused"):
+                progress(f"bench narma task ({backend}) ...")
+                entry[f"task_{backend}"] = measure_isolated(task_w, True, min_seconds=min_s, backend=backend)
+                done(report)
+            entry["task_fused_over_numba"] = _ratio(entry["task_fused"].get(key), entry["task_numba"].get(key))
         if name in FUSED_WORKLOADS:
             progress(f"bench {name} (fused training path) ...")
             entry["fused"] = measure_isolated(w, True, min_seconds=min_s, backend="fused")
@@ -316,6 +372,7 @@ def run_benchmarks(quick: bool = False, progress=print, update=None) -> dict[str
         return wl[name][backend].get(key, math.nan)
 
     narma = {b: measured("narma", b, "train_steps_per_s") for b in BACKENDS}
+    narma.update({f"task_{b}": measured("narma", f"task_{b}", "train_steps_per_s") for b in ("numba", "fused")})
     report["narma_paper_schedule"] = {
         "epochs": NARMA_PAPER_EPOCHS, "steps_per_epoch": NARMA_EPISODE_STEPS,
         "projected_hours": {b: round(NARMA_PAPER_EPOCHS * NARMA_EPISODE_STEPS / v / 3600, 2) if v else None
@@ -333,6 +390,9 @@ def run_benchmarks(quick: bool = False, progress=print, update=None) -> dict[str
     mnist_rates = [m["train_images_per_s"] for m in report["mnist"].get("systems", {}).values()]
     targets["mnist_slowest_system_train_images_per_s"] = (round(bench_mnist.TARGET_TRAIN_IMAGES_PER_S, 1),
                                                           min(mnist_rates) if mnist_rates else math.nan)
+    narma_ratio = wl["narma"].get("task_fused_over_numba")
+    targets["narma_task_fused_over_numba_train"] = (NARMA_FUSED_TARGET_RATIO,
+                                                    math.nan if narma_ratio is None else narma_ratio)
     fused_ratio = wl["lissajous"].get("fused_over_numba")
     targets["lissajous_fused_over_numba_train"] = (FUSED_TARGET_RATIO,
                                                    math.nan if fused_ratio is None else fused_ratio)
@@ -357,19 +417,21 @@ def _ipc_entry(quick: bool, progress) -> dict[str, Any]:
 
 def workload_table(report: dict[str, Any]) -> str:
     """A Markdown table of the report (for the docs): one row per workload and backend (fused: Lissajous only; its
-ratio column is fused / torch, with fused / numba beside it)."""
+ratio column is fused / torch, with fused / numba beside it; NARMA also the task's own update, ``task_numba``
+and ``task_fused``, training only)."""
     rows = ["| workload | batch | backend | forward steps/s | train steps/s | train steps/s (plain autograd) "
             "| numba / torch | peak RSS MiB |",
             "|---|---|---|---|---|---|---|---|"]
     for name, e in report["workloads"].items():
-        for backend in (*BACKENDS, "fused"):
+        for backend in (*BACKENDS, "fused", "task_numba", "task_fused"):
             if backend not in e:
                 continue
             m = e[backend]
             autograd = e.get("torch_autograd", {}).get("train_steps_per_s", "–") if backend == "torch" else "–"
             fused_ratio = f"{e.get('fused_over_torch')} (fused / numba {e.get('fused_over_numba')})"
-            ratio = {"numba": e["numba_over_torch"], "fused": fused_ratio}.get(backend, "")
-            fwd = m.get("forward_steps_per_s", m.get("error"))
+            ratio = {"numba": e["numba_over_torch"], "fused": fused_ratio,
+                     "task_fused": f"task fused / task numba {e.get('task_fused_over_numba')}"}.get(backend, "")
+            fwd = m.get("forward_steps_per_s", m.get("error", "–"))
             if e["batch"] > 1 and "forward_body_steps_per_s" in m:
                 fwd = f"{fwd} ({m['forward_body_steps_per_s']:.3g} body-steps/s)"
             rows.append(f"| {name} | {e['batch']} | {backend} | {fwd} | {m.get('train_steps_per_s', '–')} | "

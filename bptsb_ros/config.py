@@ -94,7 +94,8 @@ class TrainingConfig(_Strict):
         "numba", description="body integration: numba (compiled window kernel, fastest on CPU), torch (the "
                              "reference; GPU) or fused (numba; an SWG training window, loss, gradients and "
                              "the SGD update as compiled calls without autograd: Lissajous, switching and "
-                             "locomotion with SGD; anything else trains on numba)")
+                             "locomotion with SGD; NARMA and memory: each episode one compiled node, any "
+                             "optimiser; anything else trains on numba)")
     projection: Literal["clamp", "reset"] = Field(
         "clamp", description="after each update, k, d, l below zero are clamped to 0 (clamp, the paper) or reset to "
                              "0.1 (reset, the authors' published code); the fused backend has clamp only and trains "

@@ -976,6 +976,21 @@ MUTANTS: tuple[Mutant, ...] = (
            "        at = data.rfind(value.tobytes())\n",
            "a sentinel's last occurrence is taken for its field (a stale copy after the content wins)",
            ("tests/test_live_speed.py::test_a_sentinel_copy_after_the_content_does_not_stop_the_template",)),
+    Mutant("held-window-block-force-mean", "bptsb_ros/body/held_window.py",
+           "grad_blocks = g_ext.reshape(steps // tau, tau, m, 2).sum(1)",
+           "grad_blocks = g_ext.reshape(steps // tau, tau, m, 2).mean(1)",
+           "a held block force's gradient is the mean over its steps, not the sum",
+           ("tests/test_held_window.py",)),
+    Mutant("held-window-rest-first-step", "bptsb_ros/body/held_window.py",
+           "torch.from_numpy(g_rest.sum((0, 1)))",
+           "torch.from_numpy(g_rest[0, 0].copy())",
+           "the rest lengths' gradient is the first step's, not the sum over the window",
+           ("tests/test_held_window.py",)),
+    Mutant("held-window-readout-late", "bptsb_ros/body/held_window.py",
+           "return torch.from_numpy(r_out[tau - 1:: tau, 0, row, coord].copy())",
+           "return torch.from_numpy(r_out[tau:: tau, 0, row, coord].copy())",
+           "the readout is one step after each block's end",
+           ("tests/test_held_window.py",)),
 )
 
 

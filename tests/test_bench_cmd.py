@@ -77,7 +77,7 @@ def test_a_finished_bench_is_marked_complete_and_each_measurement_is_on_disk_bef
     assert report["complete"] is True and list(report)[0] == "complete"
     assert report["workloads"]["sweep"]["numba"] == dict(PLANTED, backend="numba")
     n = len(started)
-    assert n == sum(2 + (not w.forward_only) + (name in bench.FUSED_WORKLOADS)
+    assert n == sum(2 + (not w.forward_only) + (name in bench.FUSED_WORKLOADS) + 2 * (name in bench.TASK_WORKLOADS)
                     for name, w in bench.WORKLOADS.items()) + 2 * 2  # --quick: batch sizes 1 and 64
     assert on_disk == list(range(n)) and _measured_in(out) == n
 

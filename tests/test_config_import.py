@@ -219,7 +219,7 @@ def test_an_existing_out_is_replaced_only_with_force_and_only_if_ours(tmp_path, 
 def test_config_show_prints_the_resolved_config(capsys):
     assert main(["config", "show", "narma", "--set", "epochs=3"]) == 0
     shown = yaml.safe_load(capsys.readouterr().out)
-    assert shown["epochs"] == 3 and shown["narma"]["tau"] == 20 and shown["training"]["backend"] == "numba"
+    assert shown["epochs"] == 3 and shown["narma"]["tau"] == 20 and shown["training"]["backend"] == "fused"
     assert main(["config", "show", "narma", "--set", "epocs=3"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "did you mean epochs?" in err

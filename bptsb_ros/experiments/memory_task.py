@@ -166,8 +166,9 @@ def claims(n: MemoryNumbers) -> list[Claim]:
     durations={"smoke": "≈ 11 s on 2 busy cores",
                "short": "284 s measured 2026-11-27 on 2 cores (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 "
                         "workers)",
-               "paper": "≈ 12-16 min per training (40,000 SGD epochs; measured for narma-emulation, numba "
-                        "backend) × 17 Δt × 2 bodies × 5 seeds, / workers: ≈ 20 h on 2 workers"},
+               "paper": "≈ 5-6 min per training (40,000 SGD epochs × 8-9 ms per update, fused episodes, LIL + "
+                        "multiple circle of 37 masses, scripts/time_narma_update.py on 2 busy cores) × 17 Δt × 2 "
+                        "bodies × 5 seeds, / workers: ≈ 8 h on 2 workers"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval

@@ -29,6 +29,9 @@ class Task(ABC):
     paper_reference: str = ""
     #: the training loss and its unit, as the loss figure's axis names it (e.g. "trajectory MSE [m²]")
     loss_label: str = "loss [task units]"
+    #: True when the task runs each of its episodes as one compiled autograd node itself (``training.backend:
+    #: fused``, e.g. the NARMA task's held-force window); the trainer then keeps its autograd update
+    fused_episodes: bool = False
 
     def __init__(self, agent: Agent, cfg: ExperimentConfig) -> None:
         self.agent = agent

@@ -14,8 +14,10 @@ update, the periodic headwind, the warm-up), with SGD (no momentum, weight decay
 hand-derived adjoint, on CPU. The feedback layer of an SWG agent is fitted after training, outside every training
 window, so it does not stand in the way. Lissajous switching (``tasks.lissajous_switching.train_switching``, its
 own loop) uses :class:`GivenTargetLoss`: its wind-dependent target and wind forces are written in before each
-window. Anything else — NARMA and MNIST, Adam, ``training.adjoint: false`` — trains on the numba path, and the
-trainer says so in one line (:func:`fused_unsupported`).
+window. The NARMA and memory tasks fuse their own episodes (``NarmaTask.fused_episodes``: the brain's forces once
+per input block, the body as one autograd node, :mod:`bptsb_ros.body.held_window`) and keep the optimiser's own
+update, Adam included. Anything else — MNIST, Adam on the SWG tasks, ``training.adjoint: false`` — trains on the
+numba path, and the trainer says so in one line (:func:`fused_unsupported`).
 """
 
 from __future__ import annotations
@@ -39,11 +41,15 @@ _SGD_DEFAULTS = {"momentum": 0, "dampening": 0, "weight_decay": 0, "nesterov": F
 
 def fused_unsupported(task, optimizer: torch.optim.Optimizer, *, adjoint: bool = True) -> str | None:
     """Why the fused path cannot train ``task`` with ``optimizer`` (one phrase), or None when it can."""
+    from bptsb_ros.body.held_window import held_window_unsupported
     from bptsb_ros.tasks.lissajous import LissajousTask
     from bptsb_ros.tasks.locomotion import LocomotionTask
+    from bptsb_ros.tasks.narma import NarmaTask
 
+    if isinstance(task, NarmaTask):  # its episodes are fused by the task itself (``fused_episodes``) where they can be
+        return held_window_unsupported(task.agent.body, adjoint=adjoint) or "the NARMA task fuses its own episodes"
     if type(task) not in (LissajousTask, LocomotionTask):
-        return (f"it covers the Lissajous single-curve and locomotion tasks, not "
+        return (f"it covers the Lissajous single-curve, locomotion and NARMA / memory tasks, not "
                 f"{getattr(task, 'name', type(task).__name__)!r}")
     if not adjoint:
         return "training.adjoint is false (plain autograd was asked for)"

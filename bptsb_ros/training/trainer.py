@@ -187,13 +187,13 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
             guard.count = int(extra.get("rejections", 0))
     losses = guard.history  # the loss curve: a rejected update repeats the previous entry
     fused, backend = None, tc.backend
-    if tc.backend == "fused":
+    if tc.backend == "fused" and not task.fused_episodes:
         fused, why = ((None, "the projection reset is not in the fused kernel (clamp only)")
                       if tc.projection != "clamp" else fused_training(task, optimizer, adjoint=tc.adjoint))
         if fused is None:
             backend = "numba"
             print(f"training.backend fused: {why}; training on the numba path instead", file=sys.stderr)
-    fallback = {} if fused is not None or tc.backend != "fused" else {"backend_fallback": why}
+    fallback = {"backend_fallback": why} if backend != tc.backend else {}
     task.prepare()
     t_start = time.perf_counter()
     sim_steps = 0

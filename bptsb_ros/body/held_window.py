@@ -1,0 +1,123 @@
+"""A window of held external forces, read at the block ends, as one autograd node (the NARMA and memory
+tasks' episode under ``training.backend: fused``).
+
+The time-series tasks hold each input for τ steps and read one coordinate of one mass at the end of every
+block. Through :func:`~bptsb_ros.body.adjoint.rollout_window` that episode is the whole trajectory
+(W, 1, M, 2) three times over, a (W + 1, M, 2) force tensor from the brain, and their autograd graph: at
+W = 3,000 steps most of an update went to torch's work on those tensors rather than to the kernel. Here the
+brain's forces come per block, (K, M, 2); the window is one numba forward and one adjoint on numpy arrays
+(``body/kernel.py``, the numba path's own kernels); the only tensor out is the read coordinate at the K block
+ends. The same equations in the same order: outputs and every gradient equal the ``rollout_window`` path to
+rounding (tests/test_held_window.py checks 1e-12 in float64).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, _as_numpy
+
+
+def held_window_unsupported(body: MSDN, *, adjoint: bool = True) -> str | None:
+    """Why :func:`held_force_readout` cannot run ``body`` (one phrase), or None when it can."""
+    if not adjoint:
+        return "training.adjoint is false (plain autograd was asked for)"
+    if body.k.device.type != "cpu":
+        return "it runs on CPU"
+    if body.k.dtype not in _NUMPY:
+        return f"it runs in float32 or float64, not {body.k.dtype}"
+    return None
+
+
+def held_force_readout(body: MSDN, state: BodyState, block_forces: torch.Tensor, tau: int, row: int,
+                       coord: int) -> torch.Tensor:
+    """Coordinate ``coord`` (0: x, 1: y) of movable mass ``row`` at the end of each of K blocks of ``tau`` steps.
+
+    Args:
+        body: the body; its k, d and l (the rest lengths, constant over the window) receive gradients.
+        state: the start state, batch 1 (its r, v, a may carry gradients, e.g. from the brain's first force).
+        block_forces: (K, M, 2) external force [N] of each block: block j's is in force at steps
+            jτ + 1 .. (j + 1)τ after ``state``.
+        tau: steps per block (τ ≥ 1).
+        row: the read mass, its index among the movable masses.
+        coord: the read coordinate (0: x, 1: y).
+
+    Returns:
+        (K,) the position [m] after steps τ, 2τ, …, Kτ; differentiable w.r.t. ``state``, k, d, l and
+        ``block_forces``.
+
+    Raises:
+        SimulationDiverged: the final state is non-finite or beyond ``MSDN.check_finite``'s limit.
+    """
+    why = held_window_unsupported(body)
+    if why:
+        raise ValueError(f"held_force_readout: {why}")
+    if tau < 1:
+        raise ValueError(f"tau must be >= 1, got {tau}")
+    if state.r.shape[0] != 1:
+        raise ValueError(f"held_force_readout runs one body, the state has batch {state.r.shape[0]}")
+    m = body.n_movable
+    if block_forces.dim() != 3 or tuple(block_forces.shape[1:]) != (m, 2) or block_forces.shape[0] < 1:
+        raise ValueError(f"block_forces must be (K >= 1, {m}, 2), got {tuple(block_forces.shape)}")
+    if not (0 <= row < m and coord in (0, 1)):
+        raise ValueError(f"no movable mass {row}, coordinate {coord} to read (M = {m})")
+    return _HeldForceWindow.apply(state.r, state.v, state.a, body.k, body.d, body.l, block_forces, body, int(tau),
+                                  int(row), int(coord), int(state.step))
+
+
+class _HeldForceWindow(torch.autograd.Function):
+    """Forward: ``kernel.forward`` over the K·τ steps; backward: ``kernel.adjoint`` with the readout's gradient
+    on the read rows, then the rest lengths' gradient summed over the steps and the forces' over each block."""
+
+    @staticmethod
+    def forward(ctx, r0, v0, a0, k, d, l, block_forces, body: MSDN, tau: int, row: int, coord: int,
+                step: int):  # type: ignore[override]
+        from bptsb_ros.body import kernel
+
+        dtype = r0.dtype
+        np_dtype = _NUMPY[dtype]
+        n_blocks, m, n_springs = block_forces.shape[0], body.n_movable, body.topology.n_springs
+        steps = n_blocks * tau
+        ext = np.repeat(_as_numpy(block_forces, dtype), tau, axis=0).reshape(steps, 1, m, 2)
+        rest = np.ascontiguousarray(np.broadcast_to(_as_numpy(l, dtype), (steps, 1, n_springs)))
+        start = tuple(_as_numpy(x, dtype) for x in (r0, v0, a0))
+        r_out, v_out, a_out = (np.empty((steps, 1, m, 2), dtype=np_dtype) for _ in range(3))
+        len_out = np.empty((steps, 1, n_springs), dtype=np_dtype)
+        k_np, d_np, offset, mass, coef = body.kernel_constants(dtype)
+        verlet, clamp = body.integrator == "verlet", bool(body.environment.ground_clamp)
+        kernel.forward(*start, k_np, d_np, rest, ext, body.spring_i, body.spring_j, offset, mass, coef, verlet,
+                       clamp, r_out, v_out, a_out, len_out)
+        final = BodyState(*(torch.from_numpy(x[-1]) for x in (r_out, v_out, a_out, len_out)), step + steps)
+        body.check_finite(final)
+        ctx.body = body
+        ctx.read = (tau, row, coord)
+        ctx.arrays = (start, rest, (r_out, v_out, a_out, len_out))
+        return torch.from_numpy(r_out[tau - 1:: tau, 0, row, coord].copy())
+
+    @staticmethod
+    def backward(ctx, g_out):  # type: ignore[override]
+        from bptsb_ros.body import kernel
+
+        body: MSDN = ctx.body
+        tau, row, coord = ctx.read
+        start, rest, outs = ctx.arrays
+        r_out = outs[0]
+        steps, m, n_springs = r_out.shape[0], r_out.shape[2], rest.shape[2]
+        np_dtype = r_out.dtype
+        dtype = body.k.dtype
+        g_r = np.zeros_like(r_out)
+        g_r[tau - 1:: tau, 0, row, coord] = _as_numpy(g_out, dtype)
+        none4, none3 = np.empty((0, 0, 0, 0), dtype=np_dtype), np.empty((0, 0, 0), dtype=np_dtype)
+        lam = tuple(np.empty((1, m, 2), dtype=np_dtype) for _ in range(3))
+        g_k, g_d = np.empty((1, n_springs), dtype=np_dtype), np.empty((1, n_springs), dtype=np_dtype)
+        g_rest = np.empty((steps, 1, n_springs), dtype=np_dtype)
+        g_ext = np.empty((steps, 1, m, 2), dtype=np_dtype)
+        k_np, d_np, offset, mass, coef = body.kernel_constants(dtype)
+        kernel.adjoint(*start, k_np, d_np, rest, 1, body.spring_i, body.spring_j, offset, mass, coef,
+                       body.integrator == "verlet", bool(body.environment.ground_clamp), *outs, g_r, none4, none4,
+                       none3, *lam, g_k, g_d, g_rest, g_ext)
+        ctx.arrays = None  # the trajectory is not needed again
+        grad_blocks = g_ext.reshape(steps // tau, tau, m, 2).sum(1)
+        return (*(torch.from_numpy(x) for x in lam), torch.from_numpy(g_k[0]), torch.from_numpy(g_d[0]),
+                torch.from_numpy(g_rest.sum((0, 1))), torch.from_numpy(grad_blocks), None, None, None, None, None)
