@@ -370,3 +370,35 @@ def test_mnist_readout_smoke(tiny_mnist, tmp_path):
         entry = systems[f"{shape.replace('_', '-')} (N_mov {n_mov})"]
         assert entry["n_features"] == 20 * n_mov and entry["nodes"] == masses  # 20·N_mov stored states
         assert int(np.count_nonzero(~build_shape(shape, entry["nodes"]).fixed)) == n_mov
+
+
+def test_a_run_with_progress_prints_each_trainings_epochs(tiny_mnist, tmp_path, capfd):
+    """Without --no-progress every training says which epoch it finished (from inside its job); with it, not."""
+    data, _, _ = tiny_mnist
+    args = ["reproduce", "mnist-readout", "--scale", "smoke", "--data", str(data), "--workers", "0"]
+    assert main([*args, "--out", str(tmp_path / "quiet"), "--no-progress"]) == 0
+    assert "epoch 1/1" not in capfd.readouterr().err
+    assert main([*args, "--out", str(tmp_path / "shown")]) == 0
+    err = capfd.readouterr().err
+    for name in ("only brain", "double-circle (N_mov 17)", "multiple-circle (N_mov 65)"):
+        assert f"{name}: epoch 1/1 test accuracy" in err
+
+
+def test_epoch_lines_are_thinned_but_the_last_and_every_other_line_pass(monkeypatch, capsys):
+    from bptsb_ros.experiments import mnist_common
+
+    clock = iter([0.0, 10.0, 31.0, 40.0, 41.0, 100.0])
+    monkeypatch.setattr(mnist_common.time, "monotonic", lambda: next(clock))
+    log = mnist_common.EpochLines(every_s=30.0)
+    for line in ("a: epoch 1/5 x", "a: epoch 2/5 x", "rejected update 7", "a: epoch 3/5 x", "a: epoch 4/5 x",
+                 "a: epoch 5/5 x"):
+        log(line)
+    # t = 0 shown (first), 10 s dropped, 31 s shown, 40 s dropped, the last epoch shown
+    assert capsys.readouterr().err.splitlines() == ["a: epoch 1/5 x", "rejected update 7", "a: epoch 3/5 x",
+                                                    "a: epoch 5/5 x"]
+    assert mnist_common.job_log(False) is None and isinstance(mnist_common.job_log(True), mnist_common.EpochLines)
+    named = mnist_common.EpochLines(rename=("mlp-multiple_circle-37", "MLP + multiple-circle (N_mov 17)"))
+    named("mlp-multiple_circle-37: epoch 1/1 train MSE 2 m²")
+    named("guard: mlp-multiple_circle-37")
+    assert capsys.readouterr().err.splitlines() == ["MLP + multiple-circle (N_mov 17): epoch 1/1 train MSE 2 m²",
+                                                    "guard: mlp-multiple_circle-37"]

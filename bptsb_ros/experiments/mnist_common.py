@@ -12,6 +12,9 @@ records where its system came from.
 
 from __future__ import annotations
 
+import re
+import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -91,17 +94,51 @@ def _call_with_kwargs(fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any:
 
 
 def run_jobs(ctx: Context, fn: Callable[..., Any], jobs: list[dict[str, Any]]) -> list[Any]:
-    """Run independent trainings ``fn(**job)`` where the run's ``--workers`` / ``--scheduler`` say
-    (:meth:`Context.run_jobs`: one torch and BLAS thread per job, a failure names its job); results in job
-    order."""
-    return ctx.run_jobs(_call_with_kwargs, [(fn, job) for job in jobs],
+    """Run independent trainings ``fn(**job, progress=ctx.progress)`` where the run's ``--workers`` /
+    ``--scheduler`` say (:meth:`Context.run_jobs`: one torch and BLAS thread per job, a failure names its job);
+    results in job order."""
+    return ctx.run_jobs(_call_with_kwargs, [(fn, {**job, "progress": ctx.progress}) for job in jobs],
                         names=[f"training {i}" for i in range(len(jobs))], what=getattr(fn, "__name__", "trainings"))
+
+
+_EPOCH = re.compile(r"epoch (\d+)/(\d+)")
+
+
+class EpochLines:
+    """The ``log`` of a training inside a job (its process may be a pool worker or a Dask worker): each line to
+    that process's stderr at once, except epoch lines (``... epoch e/E ...``), of which one per ``every_s``
+    seconds and the last epoch's, so a 1,000-epoch training does not print 1,000 lines. A line that starts
+    with ``rename[0]`` (the system's file id, e.g. ``mlp-multiple_circle-37``) starts with ``rename[1]`` (its
+    row label, e.g. ``MLP + multiple-circle (N_mov 17)``) instead."""
+
+    def __init__(self, every_s: float = 30.0, rename: tuple[str, str] | None = None) -> None:
+        self.every_s = every_s
+        self.rename = rename
+        self._last: float | None = None
+
+    def __call__(self, line: str) -> None:
+        if self.rename and line.startswith(self.rename[0]):
+            line = self.rename[1] + line[len(self.rename[0]):]
+        m = _EPOCH.search(line)
+        if m:
+            now = time.monotonic()
+            last_epoch = int(m[1]) >= int(m[2])
+            if not last_epoch and self._last is not None and now - self._last < self.every_s:
+                return
+            self._last = now
+        print(line, file=sys.stderr, flush=True)
+
+
+def job_log(progress: bool, rename: tuple[str, str] | None = None) -> Callable[[str], None] | None:
+    """The ``log`` a job passes to its training: :class:`EpochLines` when the run shows progress, else None."""
+    return EpochLines(rename=rename) if progress else None
 
 
 def train_drawing_job(spec_json: dict[str, Any], seed: int, train_x: np.ndarray, train_y: np.ndarray,
                       test_x: np.ndarray, test_y: np.ndarray, epochs: int, batch: int, checkpoint: str,
-                      meta: dict[str, Any]) -> dict[str, Any]:
-    """Train one drawing system, save it, evaluate it on the test images; returns logs and test outputs."""
+                      meta: dict[str, Any], progress: bool = False) -> dict[str, Any]:
+    """Train one drawing system, save it, evaluate it on the test images; returns logs and test outputs.
+    ``progress``: epoch lines (and the guard's) to stderr, see :class:`EpochLines`."""
     from bptsb_ros.tasks.mnist_drawing import (
         ImageToBody,
         SystemSpec,
@@ -112,7 +149,9 @@ def train_drawing_job(spec_json: dict[str, Any], seed: int, train_x: np.ndarray,
 
     spec = SystemSpec.from_json(spec_json)
     system = ImageToBody(spec, seed)
-    log = train_drawing(system, train_x, train_y, epochs=epochs, batch=batch, seed=seed)
+    log = train_drawing(system, train_x, train_y, epochs=epochs, batch=batch, seed=seed,
+                        log=job_log(progress, (spec.name, f"{spec.brain.upper()} + "
+                                                      f"{body_label(spec.shape, system.body.n_movable)}")))
     Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
     save_system(system, checkpoint, {**meta, "epochs": epochs, "batch": batch, "seed": seed})
     ev = evaluate_drawing(system, test_x, test_y)

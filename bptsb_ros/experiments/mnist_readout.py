@@ -21,7 +21,7 @@ import numpy as np
 
 from bptsb_ros.experiments.claim_rules import at_most, fmt
 from bptsb_ros.experiments.mnist_claims import Check, Skill, all_of, not_learned
-from bptsb_ros.experiments.mnist_common import body_label, body_nodes, load_data, run_jobs
+from bptsb_ros.experiments.mnist_common import body_label, body_nodes, job_log, load_data, run_jobs
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 
@@ -104,11 +104,14 @@ def systems() -> list[tuple[str | None, int, int, str, float]]:
 
 
 def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndarray, train_y: np.ndarray,
-                      test_x: np.ndarray, test_y: np.ndarray, epochs: int) -> dict[str, Any]:
+                      test_x: np.ndarray, test_y: np.ndarray, epochs: int, progress: bool = False) -> dict[str, Any]:
+    """Train one readout system; its test accuracy after every epoch. ``progress``: epoch lines to stderr."""
     from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem, accuracy, train_readout
 
     model = ReadoutSystem(ReadoutSpec(shape=shape, nodes=nodes), seed)
-    log = train_readout(model, train_x, train_y, epochs=epochs, batch=BATCH, seed=seed, test=(test_x, test_y))
+    log = train_readout(model, train_x, train_y, epochs=epochs, batch=BATCH, seed=seed, test=(test_x, test_y),
+                        log=job_log(progress, (model.spec.name, "only brain" if model.system is None else
+                                               body_label(shape, model.system.body.n_movable))))
     return {"accuracy": accuracy(model, test_x, test_y), "train_accuracy": accuracy(model, train_x, train_y),
             "epoch_accuracy": log.epoch_accuracy, "losses": log.losses, "train_s": log.wall_s,
             "n_features": model.n_features, "guard": log.guard}
