@@ -346,3 +346,30 @@ def test_mnist_readout_undoes_a_planted_bad_batch():
     log = train_readout(model, x, y, epochs=1, batch=2, seed=4)
     assert [(e["update"], e["reason"]) for e in log.guard["events"]] == [(1, "non-finite loss")]
     assert len(log.losses) == 4 and log.losses[1] == log.losses[0]
+
+
+def test_copy_state_is_a_deep_copy_that_keeps_types_and_metadata():
+    from collections import OrderedDict
+
+    from bptsb_ros.training.guard import copy_state
+
+    module = nn.Linear(3, 2)
+    params, opt = _tiny()
+    _update(UpdateGuard(opt), params, opt, 0, 1.0)  # a momentum buffer in the optimiser's state
+    tree = {"module": module.state_dict(), "optimizer": opt.state_dict(), "array": np.arange(3.0),
+            "nested": [(1, "x", None, 2.5), {"t": torch.ones(2)}], "step": 7}
+    copied, reference = copy_state(tree), copy.deepcopy(tree)
+    assert type(copied["module"]) is OrderedDict and copied["module"]._metadata == reference["module"]._metadata
+    assert isinstance(copied["nested"][0], tuple) and copied["nested"][0] == (1, "x", None, 2.5)
+    with torch.no_grad():  # the originals change in place, as an optimiser step changes them
+        for t in (*tree["module"].values(), tree["nested"][1]["t"],
+                  *(s["momentum_buffer"] for s in tree["optimizer"]["state"].values())):
+            t.add_(1.0)
+    tree["array"] += 1
+    tree["optimizer"]["param_groups"][0]["lr"] = 99.0
+    flat = lambda d: [(k, v.tolist() if hasattr(v, "tolist") else v) for k, v in d.items()]  # noqa: E731
+    assert flat(copied["module"]) == flat(reference["module"]) and copied["array"].tolist() == [0.0, 1.0, 2.0]
+    assert copied["nested"][1]["t"].tolist() == [1.0, 1.0] and copied["optimizer"]["param_groups"][0]["lr"] == 0.1
+    assert [s["momentum_buffer"].tolist() for s in copied["optimizer"]["state"].values()] == \
+        [s["momentum_buffer"].tolist() for s in reference["optimizer"]["state"].values()]
+    nn.Linear(3, 2).load_state_dict(copied["module"])  # loadable as the module's own

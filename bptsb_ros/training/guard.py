@@ -36,6 +36,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -51,6 +52,29 @@ RESET_AFTER = 2
 DIVISION = 0.1
 
 NUMERICAL = ("diverged", "non-finite loss", "non-finite gradient")
+_IMMUTABLE = (int, float, complex, bool, str, bytes, type(None))
+
+
+def copy_state(tree: Any) -> Any:
+    """A deep copy of a state tree — dicts, lists and tuples of tensors, numpy arrays and plain values, as
+    ``state_dict()`` methods return them — made as ``copy.deepcopy`` makes it (tensors detached clones, arrays
+    copies, a dict's type and ``_metadata`` kept, any other object deep-copied) without deepcopy's per-object
+    dispatch and memo: the guard and the trainer copy the parameters after every update, and for a small body
+    deepcopy's bookkeeping cost more than the copies themselves."""
+    if isinstance(tree, torch.Tensor):
+        return tree.detach().clone()
+    if isinstance(tree, _IMMUTABLE):
+        return tree
+    if isinstance(tree, dict):
+        out = type(tree)((key, copy_state(value)) for key, value in tree.items())
+        if hasattr(tree, "_metadata"):  # nn.Module.state_dict's versions, read by load_state_dict
+            out._metadata = copy.deepcopy(tree._metadata)  # type: ignore[attr-defined]
+        return out
+    if type(tree) in (list, tuple):
+        return type(tree)(copy_state(value) for value in tree)
+    if isinstance(tree, np.ndarray):
+        return tree.copy()
+    return copy.deepcopy(tree)
 
 
 @dataclass(frozen=True)
@@ -102,8 +126,8 @@ class UpdateGuard:
 
     def _snapshot(self) -> dict[str, Any]:
         return {"params": [p.detach().clone() for p in self._params()],
-                "optimizer": copy.deepcopy(self.optimizer.state_dict()),
-                "modules": {name: copy.deepcopy(m.state_dict()) for name, m in self.modules.items()}}
+                "optimizer": copy_state(self.optimizer.state_dict()),
+                "modules": {name: copy_state(m.state_dict()) for name, m in self.modules.items()}}
 
     def _restore(self) -> None:
         saved = copy.deepcopy(self._saved)  # load_state_dict may alias the tensors it is given

@@ -5,7 +5,6 @@ one it trains in memory and writes nothing (the Python API, :func:`bptsb_ros.tra
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 import sys
@@ -28,7 +27,7 @@ from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
 from bptsb_ros.training.fused import fused_training
-from bptsb_ros.training.guard import UpdateGuard
+from bptsb_ros.training.guard import UpdateGuard, copy_state
 from bptsb_ros.training.optim import divide_rates_, make_optimizer, step_decay_updates
 
 
@@ -212,8 +211,8 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         training quadratic in its length); None in memory (no checkpoint is ever written)."""
         if run_dir is None:
             return None
-        return {"modules": copy.deepcopy({name: m.state_dict() for name, m in agent.modules().items()}),
-                "extra": copy.deepcopy({"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
+        return {"modules": copy_state({name: m.state_dict() for name, m in agent.modules().items()}),
+                "extra": copy_state({"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
                                         "update": update}),
                 "guard": guard.mark()}
 
