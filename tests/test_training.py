@@ -35,7 +35,7 @@ def test_lissajous_training_lowers_loss_and_saves_everything(tmp_path, capsys):
         assert (tmp_path / "run" / name).is_file(), name
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert len(metrics["loss"]) == 300 and metrics["evaluation"]["trajectory_mse"] > 0
-    assert metrics["backend"] == "numba" and metrics["threads"]["torch"] == 1
+    assert metrics["backend"] == "fused" and "backend_fallback" not in metrics and metrics["threads"]["torch"] == 1
     assert "closed_loop_shift_min_mse" in metrics["evaluation"]
     agent = load_agent(tmp_path / "run")
     assert agent.feedback is not None and agent.feedback.weight.abs().sum() > 0
