@@ -71,6 +71,13 @@ def _grid(rows: int, cols: int, height_per_row: float, extra: float = 0.5):
                         sharex=True, sharey=True, layout="constrained")
 
 
+def _row_label(ax, name: str, unit: str, fontsize: float = 6.5) -> None:
+    """A grid row's name beside its first panel, horizontal and broken at " + " and " (" (rotated, a name
+    longer than the row ran into the neighbouring rows' names), with the axis quantity under it."""
+    wrapped = name.replace(" + ", " +\n").replace(" (", "\n(")
+    ax.set_ylabel(f"{wrapped}\n{unit}", rotation=0, ha="right", va="center", fontsize=fontsize, labelpad=4)
+
+
 def _outer_labels(axes, xlabel: str = "x [m]", ylabel: str = "y [m]") -> None:
     """Axis labels on the bottom row and the left column of a shared grid."""
     for ax in axes[-1, :]:
@@ -125,7 +132,7 @@ def plot_best_drawings(path: Path, systems: dict[str, dict], targets: Sequence[n
             else:
                 title = f"{d}: no sample"
             _digit_axes(ax, title, lim)
-        axes[r, 0].set_ylabel(f"{name}\ny [m]", fontsize=6.5)
+        _row_label(axes[r, 0], name, "y [m]")
     for ax in axes[-1, :]:
         ax.set_xlabel("x [m]")
     if lc is not None:
@@ -194,7 +201,7 @@ def plot_label_maps(path: Path, maps: np.ndarray, deltas: np.ndarray, rows: dict
             im = ax.imshow(maps[d, p], origin="lower", extent=ext, cmap=cmap, norm=norm, interpolation="nearest")
             ax.set_title(f"label {d}: {sizes[d, p]:.2f}", fontsize=6)
             ax.tick_params(labelsize=5)
-        axes[r, 0].set_ylabel(f"{name}\nΔy [m]", fontsize=6)
+        _row_label(axes[r, 0], name, "Δy [m]", fontsize=6)
     for ax in axes[-1, :]:
         ax.set_xlabel("Δx [m]")
     if im is not None:
