@@ -170,7 +170,8 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     durations={"smoke": "≈ 5 s on 2 busy cores (1 curve × 1 seed)",
                "short": "375 s measured 2026-11-27 on 2 busy cores (3 curves × 2 seeds = 6 jobs on 2 workers; 200 "
                         "s preliminary, 50 s per scheme)",
-               "paper": "1,710 s measured 2026-12-02 on 2 cores shared with other work (load 4-8), numba backend (15 "
+               "paper": "566 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
+                        "1,710 s on the numba backend 2026-12-02 at load 4-8 (15 "
                         "preliminary trainings of 2,000 s and the three schemes as jobs on 2 workers); 208 s on 2 "
                         "lightly loaded cores 2026-11-27"},
 )

@@ -391,7 +391,8 @@ def _variant_suffix(ctx: Context, name: str) -> str:
                         "verlet and published integrator, + 3 × 2,000 s switching training, the three variants, 3 "
                         "jobs on 2 workers); the committed run of 2026-11-27, an earlier build without the "
                         "authors' variant, took 455 s",
-               "paper": "415 s measured 2026-12-02 on 2 cores shared with other work, numba backend (2,000 s "
+               "paper": "54 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
+                        "415 s on the numba backend 2026-12-02, 2 shared cores (2,000 s "
                         "preliminary training per integrator + 3 × 30,000 s of switching training, the three "
                         "variants, as jobs on 2 workers)"},
 )
@@ -505,7 +506,8 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
                "short": "155 s measured 2026-12-02 on 2 cores shared with other work (2 preliminary trainings, 3 "
                         "switching trainings as jobs, then one sweep per variant); the committed run of "
                         "2026-11-27, an earlier build, took 492 s",
-               "paper": "723 s measured 2026-12-02 on 2 cores shared with other work, numba backend (the preliminary "
+               "paper": "34 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
+                        "723 s on the numba backend 2026-12-02, 2 shared cores (the preliminary "
                         "and the three switching trainings, then one 61-value sweep per variant)"},
 )
 @single_threaded
@@ -641,7 +643,8 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
                         "verlet and published integrator, + 6 × 2,000 s switching: fixed and random timing in "
                         "each of the three variants; 6 jobs on 2 workers); the committed run of 2026-11-27, an "
                         "earlier build, took 599 s",
-               "paper": "319 s measured 2026-12-02 on 2 cores shared with other work, numba backend (six 30,000 s "
+               "paper": "41 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
+                        "319 s on the numba backend 2026-12-02, 2 shared cores (six 30,000 s "
                         "switching trainings: fixed and random timing in each variant, as jobs on 2 workers)"},
 )
 @single_threaded

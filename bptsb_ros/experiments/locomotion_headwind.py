@@ -153,7 +153,8 @@ def claims(n: HeadwindNumbers) -> list[Claim]:
                "short": "143 s measured 2026-12-02 on 2 busy cores (2,000 s of switching training; forward agent "
                         "reused from locomotion-closed-loop-20); the committed run of 2026-11-27, an earlier "
                         "build, took 13 min",
-               "paper": "151 s measured 2026-12-02 on 2 cores shared with other work (10,000 s of switching training "
+               "paper": "21 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
+                        "151 s on the numba backend 2026-12-02, 2 shared cores (10,000 s of switching training "
                         "per variant; forward agent reused)"},
 )
 def run(ctx: Context) -> None:

@@ -134,7 +134,9 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     durations={"smoke": "≈ 8 s on 2 busy cores",
                "short": "83 s measured 2026-12-02 on 2 busy cores after locomotion-closed-loop-20 (its 20 agents "
                         "reused); the committed run of 2026-11-27, an earlier build, took 122 s",
-               "paper": "1,337 s measured 2026-12-02 on 2 cores shared with other work (agents reused; 11 σ × 100 "
+               "paper": "20 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run; "
+                        "one successful agent); 1,337 s on the numba backend 2026-12-02 with four (agents reused; 11 "
+                        "σ × 100 "
                         "seeds per successful agent, loop and draw)"},
 )
 def run(ctx: Context) -> None:

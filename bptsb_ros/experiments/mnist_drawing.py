@@ -109,8 +109,8 @@ def system_meta(ctx: Context, data_key: str, epochs: int) -> dict:
                "short": "614 s measured 2026-11-27 on 2 cores with the 8,000 training images of --split "
                         "test-8k-2k (3 epochs, 2 processes); with the 60,000 of the MNIST training set about 7× "
                         "as long (≈ 75 min, not measured)",
-               "paper": "≈ 1-2¼ h on 2 cores (60,000 images × 50 epochs, 4 systems; 16-43 ms per update at load "
-                        "≈ 1, `bptsb bench`)"},
+               "paper": "3,172 s measured 2026-12-03 on 2 cores shared with the test suite and other runs "
+                        "(60,000 images × 50 epochs, 4 systems as jobs on 2 workers)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_best_drawings, plot_curves, plot_error_bars
