@@ -189,6 +189,26 @@ def _cluster_workers(client: Any) -> int:
         return 0
 
 
+#: how often a pool worker checks that the process that started it is still alive [s]
+PARENT_POLL_S = 1.0
+
+
+def _exit_with_parent(parent: int, poll_s: float = PARENT_POLL_S) -> None:
+    """Pool initializer: a daemon thread that ends this worker when its parent ``parent`` is gone (its parent
+    process id changes). A ``bptsb`` killed by SIGTERM (a scheduler's time limit, ``kill``) does not take its
+    spawned workers with it: they went on training their jobs and writing into the run directory, where a new
+    run of the same command then found their locks and files. Ctrl-C in a terminal reaches the whole process
+    group and was never affected."""
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(1)  # no cleanup: the job's run directory is left as a killed job leaves it
+
+    threading.Thread(target=watch, name="bptsb-parent-watch", daemon=True).start()
+
+
 def _run_pool(calls: Sequence[Call], workers: int, threads: int | None, info: RunInfo, on_done: OnDone,
               report: Callable[[int], None]) -> None:
     saved = {k: os.environ.get(k) for k in THREAD_VARS}
@@ -196,7 +216,8 @@ def _run_pool(calls: Sequence[Call], workers: int, threads: int | None, info: Ru
         os.environ.update({k: str(threads) for k in THREAD_VARS})
     ctx = multiprocessing.get_context("spawn")  # no forked torch/ROS state in the workers
     try:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_exit_with_parent,
+                                 initargs=(os.getpid(),)) as pool:
             pending = {pool.submit(call_limited, fn, args, threads): i for i, (_, fn, args) in enumerate(calls)}
             report(min(workers, len(pending)))
             while pending:

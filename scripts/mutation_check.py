@@ -991,6 +991,16 @@ MUTANTS: tuple[Mutant, ...] = (
            "return torch.from_numpy(r_out[tau:: tau, 0, row, coord].copy())",
            "the readout is one step after each block's end",
            ("tests/test_held_window.py",)),
+    Mutant("pool-workers-outlive-caller", "bptsb_ros/runner.py",
+           "        os._exit(1)  # no cleanup",
+           "        return  # no cleanup",
+           "a pool worker keeps running its job after the process that started it was killed",
+           ("tests/test_runner.py",)),
+    Mutant("guard-snapshot-aliases", "bptsb_ros/training/guard.py",
+           "        return tree.detach().clone()",
+           "        return tree",
+           "the guard's saved parameters are the live tensors, not copies",
+           ("tests/test_guard.py",)),
 )
 
 

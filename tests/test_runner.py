@@ -275,3 +275,50 @@ def test_an_in_process_dask_worker_leaves_the_callers_threads_as_they_were(clust
         (inside,), _ = run_jobs(_threads_now, [()], Placement(scheduler=cluster.scheduler_address))
         assert inside["pid"] == os.getpid() and inside["blas"] == [1] and inside["env"] == "1"
         assert _threads_now()["env"] == env_before
+
+
+def test_pool_workers_end_when_the_process_that_started_them_is_killed(tmp_path):
+    """SIGTERM to the caller (not to its process group) used to leave the spawned workers training on."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    (tmp_path / "slow_job.py").write_text(
+        "import os, time\n"
+        "def job(path):\n"
+        "    open(path, 'w').write(str(os.getpid()))\n"
+        "    time.sleep(60)\n")
+    pid_file = tmp_path / "worker.pid"
+    script = ("import sys; sys.path.insert(0, sys.argv[1])\n"
+              "from bptsb_ros.runner import Placement, run_jobs\n"
+              "import slow_job\n"
+              "run_jobs(slow_job.job, [(sys.argv[2],)], Placement(1))\n")
+    caller = subprocess.Popen([sys.executable, "-c", script, str(tmp_path), str(pid_file)])
+    try:
+        deadline = time.monotonic() + 60
+        while not (pid_file.is_file() and pid_file.read_text()) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        worker = int(pid_file.read_text())
+        caller.send_signal(signal.SIGTERM)
+        caller.wait(10)
+
+        def alive(pid: int) -> bool:
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                return False
+            return True
+
+        deadline = time.monotonic() + 10
+        while alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not alive(worker), "the worker outlived the process that started it"
+    finally:
+        caller.kill()
+        caller.wait()
+        if pid_file.is_file() and pid_file.read_text():
+            try:
+                os.kill(int(pid_file.read_text()), signal.SIGKILL)
+            except ProcessLookupError:
+                pass
