@@ -166,9 +166,9 @@ def claims(n: MemoryNumbers) -> list[Claim]:
     durations={"smoke": "≈ 11 s on 2 busy cores",
                "short": "284 s measured 2026-11-27 on 2 cores (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 "
                         "workers)",
-               "paper": "≈ 5-6 min per training (40,000 SGD epochs × 8-9 ms per update, fused episodes, LIL + "
-                        "multiple circle of 37 masses, scripts/time_narma_update.py on 2 busy cores) × 17 Δt × 2 "
-                        "bodies × 5 seeds, / workers: ≈ 8 h on 2 workers"},
+               "paper": "246-247 s per training measured 2026-12-03 (40,000 SGD epochs, fused episodes, 2 workers on "
+                        "2 cores; 451-461 s while other work shared them) × 17 Δt × 2 bodies × 5 seeds: ≈ 5.8 h on 2 "
+                        "workers; the committed run (Δt 1, 8, 17, 2 seeds: 12 trainings) took 1,512 s in two attempts"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
