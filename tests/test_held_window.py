@@ -213,3 +213,12 @@ def test_the_bench_table_shows_the_narma_task_rows():
     rows = workload_table(report).splitlines()
     assert rows[-2:] == ["| narma | 1 | task_numba | – | 3.0 | – |  | 2.0 |",
                          "| narma | 1 | task_fused | – | 9.0 | – | task fused / task numba 3.0 | 2.0 |"]
+
+
+def test_a_second_backward_through_one_window_says_so():
+    body = _body()
+    blocks = torch.zeros(3, body.n_movable, 2, dtype=F64, requires_grad=True)
+    out = held_force_readout(body, body.initial_state(1), blocks, TAU, 0, 1).sum()
+    out.backward(retain_graph=True)
+    with pytest.raises(RuntimeError, match="second time"):
+        out.backward()

@@ -303,22 +303,21 @@ def test_pool_workers_end_when_the_process_that_started_them_is_killed(tmp_path)
         caller.send_signal(signal.SIGTERM)
         caller.wait(10)
 
-        def alive(pid: int) -> bool:
-            try:
-                os.kill(pid, 0)
-            except ProcessLookupError:
-                return False
-            return True
-
         deadline = time.monotonic() + 10
-        while alive(worker) and time.monotonic() < deadline:
+        while _alive(worker) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert not alive(worker), "the worker outlived the process that started it"
+        assert not _alive(worker), "the worker outlived the process that started it"
     finally:
         caller.kill()
         caller.wait()
-        if pid_file.is_file() and pid_file.read_text():
-            try:
-                os.kill(int(pid_file.read_text()), signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        if pid_file.is_file() and pid_file.read_text() and _alive(int(pid_file.read_text())):
+            os.kill(int(pid_file.read_text()), signal.SIGKILL)
+
+
+def _alive(pid: int) -> bool:
+    """The process runs (a zombie, dead but not yet collected by its new parent, does not count)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError, IndexError):
+        return False
+    return state != "Z"

@@ -101,6 +101,9 @@ class _HeldForceWindow(torch.autograd.Function):
 
         body: MSDN = ctx.body
         tau, row, coord = ctx.read
+        if ctx.arrays is None:  # freed by the first backward, as torch frees a graph's saved tensors
+            raise RuntimeError("held_force_readout: backward through the same window a second time (its trajectory "
+                               "was freed after the first); run the window again")
         start, rest, outs = ctx.arrays
         r_out = outs[0]
         steps, m, n_springs = r_out.shape[0], r_out.shape[2], rest.shape[2]

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -60,12 +61,13 @@ def copy_state(tree: Any) -> Any:
     ``state_dict()`` methods return them — made as ``copy.deepcopy`` makes it (tensors detached clones, arrays
     copies, a dict's type and ``_metadata`` kept, any other object deep-copied) without deepcopy's per-object
     dispatch and memo: the guard and the trainer copy the parameters after every update, and for a small body
-    deepcopy's bookkeeping cost more than the copies themselves."""
+    deepcopy's bookkeeping cost more than the copies themselves. Unlike deepcopy it does not keep two references
+    to one tensor as one (tied weights become two clones), which ``load_state_dict`` does not mind."""
     if isinstance(tree, torch.Tensor):
         return tree.detach().clone()
     if isinstance(tree, _IMMUTABLE):
         return tree
-    if isinstance(tree, dict):
+    if type(tree) in (dict, OrderedDict):  # other mappings (defaultdict, Counter...) go to deepcopy
         out = type(tree)((key, copy_state(value)) for key, value in tree.items())
         if hasattr(tree, "_metadata"):  # nn.Module.state_dict's versions, read by load_state_dict
             out._metadata = copy.deepcopy(tree._metadata)  # type: ignore[attr-defined]
