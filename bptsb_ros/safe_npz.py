@@ -92,8 +92,8 @@ def load_npz(path: str | Path, names: Sequence[str], max_bytes: int | None = Non
                 budget -= out[name].nbytes
     except zipfile.BadZipFile as err:
         raise NpzError(f"{path}: not an .npz (zip) file ({err})") from None
-    # zipfile raises NotImplementedError for a member compressed with a method it lacks (deflate64, say): one
-    # more unreadable file, reported in one line like the others (tests/test_safe_npz.py)
+    # a member compressed with a method zipfile cannot decode (deflate64, say) raises zipfile's "compression
+    # method not supported" error: one more unreadable file, reported in one line like the others
     except (OSError, EOFError, zipfile.LargeZipFile, NotImplementedError) as err:
         raise NpzError(f"{path}: cannot read ({str(err)[:120]})") from None
     except ValueError as err:  # a shape that does not match the data, a bad dtype descriptor

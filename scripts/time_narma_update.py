@@ -17,15 +17,15 @@ import os
 import sys
 from dataclasses import replace
 
-from bptsb_ros.bench import WORKLOADS, _ratio, measure_isolated
+from bptsb_ros.bench import NARMA_TASK_OVERRIDES, WORKLOADS, _ratio, measure_isolated
 
 
 def main() -> None:
     seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 10.0
     rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 2
-    overrides = tuple(sys.argv[3:]) or ("brain.type=mlp",)
+    overrides = tuple(sys.argv[3:]) or NARMA_TASK_OVERRIDES
     print(f"overrides {list(overrides)}; load average at start {os.getloadavg()[0]:.2f}")
-    task = replace(WORKLOADS["narma"], name="narma_task", overrides=overrides)
+    task = replace(WORKLOADS["narma"], name="narma_task", task=True, overrides=overrides)
     for r in range(1, rounds + 1):
         row = {b: measure_isolated(task, True, min_seconds=seconds, backend=b) for b in ("numba", "fused")}
         rate = {b: m.get("train_steps_per_s") for b, m in row.items()}
