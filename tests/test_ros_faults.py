@@ -17,6 +17,11 @@ from ros_live import Probe, fresh_agent, stamp_ns, start_node, stop
 DT_NS = 10_000_000
 
 
+#: steps of the dying-brain run: long enough that the brain is killed mid-run even where a lockstep step takes
+#: well under a millisecond (a 200-step run once finished before the kill on an idle machine)
+STEPS = 2000
+
+
 def test_brain_dies_body_keeps_running_with_safe_command(tmp_path, quarantine_ros):
     from sensor_msgs.msg import JointState
 
@@ -25,11 +30,11 @@ def test_brain_dies_body_keeps_running_with_safe_command(tmp_path, quarantine_ro
 
     ros_domain_id, ros_env = quarantine_ros
     probe = Probe(ros_domain_id)
-    probe.subscribe(JointState, "/body/rest_length", state_qos(1000))
+    probe.subscribe(JointState, "/body/rest_length", state_qos(2 * STEPS))
     received = probe.messages["/body/rest_length"]
     summary = tmp_path / "summary.json"
     body = start_node("body_sim", {
-        "task": "lissajous", "duration": 2.0, "wait_for": ["rest_length"], "command_timeout": 2.0,
+        "task": "lissajous", "duration": STEPS * DT_NS / 1e9, "wait_for": ["rest_length"], "command_timeout": 2.0,
         "wait_for_subscribers": ["/body/rest_length:1", "/clock:2"], "summary_path": str(summary),
     }, ros_env, tmp_path / "body.log")
     brain = start_node("swg_brain", {"task": "lissajous", "use_sim_time": True}, ros_env,
@@ -39,7 +44,7 @@ def test_brain_dies_body_keeps_running_with_safe_command(tmp_path, quarantine_ro
         brain.kill()  # dies without a goodbye: only the command timeout can tell
         brain.wait()
         assert probe.spin_until(lambda: body.poll() is not None, 60)
-        probe.spin_until(lambda: len(received) >= 201, 5)
+        probe.spin_until(lambda: len(received) >= STEPS + 1, 10)
     finally:
         stop(body)
         stop(brain)
@@ -48,13 +53,13 @@ def test_brain_dies_body_keeps_running_with_safe_command(tmp_path, quarantine_ro
     assert body.returncode == 0, log
     assert "brain silent: no rest_length command for step" in log and "safe command" in log
     steps = [stamp_ns(m.header.stamp) // DT_NS for m in received]
-    assert steps == list(range(201)), "the body must publish every step, before and after the brain died"
+    assert steps == list(range(STEPS + 1)), "the body must publish every step, before and after the brain died"
     rest = np.array([np.asarray(m.position) for m in received])
     agent = fresh_agent("lissajous")
     base = agent.body.l.numpy()
     safe = np.flatnonzero((rest == base).all(axis=1))
-    assert safe.size and safe[0] > 40 and (safe == np.arange(safe[0], 201)).all()
+    assert safe.size and safe[0] > 40 and (safe == np.arange(safe[0], STEPS + 1)).all()
     with torch.no_grad():
         swg = swg_rest_lengths(agent.body, agent.brain, 0, int(safe[0])).numpy()
     np.testing.assert_allclose(rest[: safe[0]], swg, rtol=0, atol=1e-12)
-    assert json.loads(summary.read_text())["safe_command_steps"] == 201 - safe[0]
+    assert json.loads(summary.read_text())["safe_command_steps"] == STEPS + 1 - safe[0]
