@@ -402,3 +402,22 @@ def test_epoch_lines_are_thinned_but_the_last_and_every_other_line_pass(monkeypa
     named("guard: mlp-multiple_circle-37")
     assert capsys.readouterr().err.splitlines() == ["MLP + multiple-circle (N_mov 17): epoch 1/1 train MSE 2 m²",
                                                     "guard: mlp-multiple_circle-37"]
+
+
+def test_jobs_with_costs_are_handed_out_costliest_first_and_come_back_in_job_order():
+    from bptsb_ros.experiments import mnist_common
+
+    class Ctx:
+        progress = False
+
+        def run_jobs(self, fn, jobs, *, names, what):
+            self.names = list(names)
+            return [fn(*job) for job in jobs]
+
+    ctx = Ctx()
+    jobs = [{"x": 1}, {"x": 2}, {"x": 3}, {"x": 4}]
+    out = mnist_common.run_jobs(ctx, lambda x, progress: 10 * x, jobs, costs=[5, 129, 0, 37])
+    assert out == [10, 20, 30, 40]
+    assert ctx.names == ["training 1", "training 3", "training 0", "training 2"]
+    assert mnist_common.run_jobs(ctx, lambda x, progress: x, jobs) == [1, 2, 3, 4]
+    assert ctx.names == [f"training {i}" for i in range(4)]

@@ -15,7 +15,7 @@ from __future__ import annotations
 import re
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -93,12 +93,19 @@ def _call_with_kwargs(fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any:
     return fn(**kwargs)
 
 
-def run_jobs(ctx: Context, fn: Callable[..., Any], jobs: list[dict[str, Any]]) -> list[Any]:
+def run_jobs(ctx: Context, fn: Callable[..., Any], jobs: list[dict[str, Any]],
+             costs: Sequence[float] | None = None) -> list[Any]:
     """Run independent trainings ``fn(**job, progress=ctx.progress)`` where the run's ``--workers`` /
     ``--scheduler`` say (:meth:`Context.run_jobs`: one torch and BLAS thread per job, a failure names its job);
-    results in job order."""
-    return ctx.run_jobs(_call_with_kwargs, [(fn, {**job, "progress": ctx.progress}) for job in jobs],
-                        names=[f"training {i}" for i in range(len(jobs))], what=getattr(fn, "__name__", "trainings"))
+    results in job order. ``costs`` (one per job, e.g. its body's masses): the jobs are handed out costliest
+    first, so a pool of fewer workers than jobs does not end with one long training alone."""
+    order = sorted(range(len(jobs)), key=lambda i: -costs[i]) if costs is not None else list(range(len(jobs)))
+    out = ctx.run_jobs(_call_with_kwargs, [(fn, {**jobs[i], "progress": ctx.progress}) for i in order],
+                       names=[f"training {i}" for i in order], what=getattr(fn, "__name__", "trainings"))
+    results: list[Any] = [None] * len(jobs)
+    for i, res in zip(order, out):
+        results[i] = res
+    return results
 
 
 _EPOCH = re.compile(r"epoch (\d+)/(\d+)")

@@ -138,7 +138,7 @@ def run(ctx: Context) -> None:
     jobs = [dict(shape=shape, nodes=nodes, seed=ctx.seed, train_x=data.train_x, train_y=data.train_y,
                  test_x=data.test_x, test_y=data.test_y, epochs=epochs) for shape, _, nodes, _, _ in chosen]
     ctx.log(f"mnist-readout: {len(jobs)} systems, {epochs} epochs on {len(data.train_y)} images")
-    results = run_jobs(ctx, train_readout_job, jobs)
+    results = run_jobs(ctx, train_readout_job, jobs, costs=[nodes for _, _, nodes, _, _ in chosen])
     acc = {}
     for (shape, n, _, name, paper), res in zip(chosen, results):
         acc[(shape, n)] = 100 * res["accuracy"]
