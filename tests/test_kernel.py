@@ -168,6 +168,34 @@ def test_threads_over_the_batch_equal_one_thread_bit_for_bit(monkeypatch) -> Non
         assert torch.equal(a, b)
 
 
+def test_a_parallel_kernel_leaves_torch_on_its_thread_count() -> None:
+    """numba's OpenMP layer shares torch's libgomp: the first parallel region of a process used to leave torch on
+    numba's thread count (a one-thread pool worker then ran torch on every core). A fresh process, forward and
+    adjoint of a batch the parallel build takes."""
+    import subprocess
+    import sys
+
+    import numba
+
+    if numba.get_num_threads() < 2:
+        pytest.skip("one numba thread: a parallel region cannot change the team size")
+    script = (
+        "import torch\n"
+        "torch.set_num_threads(1)\n"
+        "from bptsb_ros.body import kernel\n"
+        "from bptsb_ros.body.msdn import MSDN\n"
+        "from bptsb_ros.body.shapes import double_circle\n"
+        "from bptsb_ros.body.adjoint import rollout_window\n"
+        "kernel.PARALLEL_MIN_BATCH = 8\n"
+        "body = MSDN(double_circle(13), dt=0.01, dtype=torch.float64, backend='numba')\n"
+        "win = rollout_window(body, body.initial_state(300), body.l.expand(4, -1), None)\n"
+        "after_forward = torch.get_num_threads()\n"
+        "win.r.sum().backward()\n"
+        "print(after_forward, torch.get_num_threads(), body.k.grad is not None)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.split() == ["1", "1", "True"], out.stdout + out.stderr
+
+
 def test_kernel_path_is_taken() -> None:
     """The numba body does not fall back to torch ops where the kernel applies (and does where it must)."""
     case = Case("double_circle_25", "verlet", "numba")

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import types
 
 import numpy as np
@@ -283,6 +284,21 @@ def coefficients(dt: float, gravity_y: float, drag: float, ground_c: float, dtyp
     return np.array([dt, 0.5 * dt * dt, 0.5 * dt, gravity_y, drag, ground_c, ground_c * ground_c, 0.0], dtype=dtype)
 
 
+def _call_keeping_torch_threads(fn, args) -> None:
+    """``fn(*args)`` for a parallel kernel. numba's OpenMP threading layer runs on the libgomp torch loaded, and a
+    parallel region sets the calling thread's OpenMP team size to numba's thread count, which torch's own
+    parallel ops then use: a process set to one torch thread (a pool worker) ran torch on every core after its
+    first parallel kernel (measured: MNIST readout epochs 3× slower with two such workers on 2 cores). The torch
+    thread count is put back."""
+    torch = sys.modules.get("torch")
+    before = torch.get_num_threads() if torch is not None else None
+    try:
+        fn(*args)
+    finally:
+        if before is not None and torch.get_num_threads() != before:
+            torch.set_num_threads(before)
+
+
 def forward(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verlet, clamp, r_out, v_out, a_out,
             len_out) -> None:
     """Run a window (see the module docstring for shapes; ``coef`` from ``coefficients``); writes r_out, v_out,
@@ -292,7 +308,10 @@ def forward(r0, v0, a0, k, d, rest, ext, si, sj, offset, mass, coef, verlet, cla
     if not fn.overloads:  # the first call in this process: say so if it compiles
         compile_notice.announce_if_cold(fn, args, COMPILE_S["forward_parallel" if fn is _forward_parallel
                                                             else "forward"])
-    fn(*args)
+    if fn is _forward_parallel:
+        _call_keeping_torch_threads(fn, args)
+    else:
+        fn(*args)
 
 
 def adjoint(r0, v0, a0, k, d, rest, n_ext, si, sj, offset, mass, coef, verlet, clamp,
@@ -305,4 +324,7 @@ def adjoint(r0, v0, a0, k, d, rest, n_ext, si, sj, offset, mass, coef, verlet, c
     if not fn.overloads:
         compile_notice.announce_if_cold(fn, args, COMPILE_S["adjoint_parallel" if fn is _adjoint_parallel
                                                             else "adjoint"])
-    fn(*args)
+    if fn is _adjoint_parallel:
+        _call_keeping_torch_threads(fn, args)
+    else:
+        fn(*args)
