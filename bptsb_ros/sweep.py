@@ -65,6 +65,8 @@ DEFAULT_CONNECT_TIMEOUT = 20.0
 """Seconds to wait for a Dask scheduler to answer (``bptsb sweep --connect-timeout``)."""
 
 JobFn = Callable[[Path], dict[str, Any]]
+#: how often a gang of jobs says how far it is [s] (its jobs finish together, at the end)
+GANG_REPORT_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -296,6 +298,27 @@ def execute_job(job: Job, run_dir: str | Path, key: str | None = None) -> dict[s
     return record
 
 
+def execute_gang(jobs: Sequence[Job], run_dirs: Sequence[str | Path], keys: Sequence[str]) -> list[dict[str, Any]]:
+    """Run ``jobs`` as one gang (:mod:`bptsb_ros.gang`: one thread each, their held-force windows batched), each
+    in its run directory as :func:`execute_job` runs it; their records in order."""
+    from bptsb_ros.gang import run_gang
+
+    out = run_gang([functools.partial(execute_job, job, run_dir, key)
+                    for job, run_dir, key in zip(jobs, run_dirs, keys)], report_every_s=GANG_REPORT_S)
+    return [r if isinstance(r, dict) else {"name": job.name, "key": key, "status": "failed", "wall_s": None,
+                                           "error": f"{type(r).__name__}: {r}", "ran_on": ran_on()}
+            for job, key, r in zip(jobs, keys, out)]
+
+
+def gangs_of(count: int, gang: int | None) -> list[range]:
+    """The job indices of each call: one job per call when ``gang`` is None or 1, else consecutive runs of
+    ``gang`` jobs (the last one shorter)."""
+    if gang is not None and (isinstance(gang, bool) or not isinstance(gang, int) or gang < 1):
+        raise SweepError(f"a gang is a whole number of jobs >= 1, got {gang!r}")
+    size = gang or 1
+    return [range(i, min(i + size, count)) for i in range(0, count, size)]
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
@@ -351,6 +374,7 @@ def run_sweep(
     threads: int | None = 1,
     connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
     notice: Callable[[str], None] | None = None,
+    gang: int | None = None,
 ) -> SweepResult:
     """Run every job not already done in ``out_dir``; write ``sweep.json`` and ``sweep.csv``.
 
@@ -367,6 +391,8 @@ def run_sweep(
         connect_timeout: seconds to wait for the Dask scheduler to answer.
         notice: called with one line per job whose ``job.json`` claims it finished but is not trusted (the job
             runs again); default: printed to stderr.
+        gang: run the jobs still to do in runs of this many as one gang each (:mod:`bptsb_ros.gang`: one process,
+            a thread per job, their held-force windows as one batched simulation); None or 1: a process per job.
 
     Raises:
         SweepError: bad job names or scheduler address (nothing was created).
@@ -388,10 +414,11 @@ def run_sweep(
         address = scheduler if scheduler.startswith("inproc://") else scheduler_address(scheduler)
     if not (_is_number(connect_timeout) and connect_timeout > 0):
         raise SweepError(f"the connect timeout must be a positive number of seconds, got {connect_timeout!r}")
-    try:  # before the lock: a bad worker count creates nothing
+    try:  # before the lock: a bad worker count or gang creates nothing
         placement = Placement(workers, scheduler=address)
     except ValueError as err:
         raise SweepError(str(err)) from None
+    gangs_of(0, gang)
     out = Path(out_dir)
     with hold_run_dir(out):
         keys = {job.name: job_key(job) for job in jobs}
@@ -414,21 +441,33 @@ def run_sweep(
             (out / "jobs").mkdir(exist_ok=True)
             counts = {"done": len(records), "running": 0, "failed": 0}
 
-            def report(running: int) -> None:
-                counts["running"] = running
+            groups = gangs_of(len(todo), gang)
+
+            def report(running: int) -> None:  # running calls; a call runs a gang's jobs at once
+                left = len(jobs) - counts["done"] - counts["failed"]
+                counts["running"] = min(left, running * (gang or 1))
                 if progress is not None:
-                    progress(Progress(len(jobs), counts["done"], running, counts["failed"]))
+                    progress(Progress(len(jobs), counts["done"], counts["running"], counts["failed"]))
 
             def finish(i: int, record: Any, where: dict[str, Any] | None, error: BaseException | None) -> None:
-                job = todo[i]
+                members = [todo[j] for j in groups[i]]
                 if error is not None:  # execute_job never raises: the worker process died or the task was lost
-                    record = {"name": job.name, "status": "failed", "wall_s": None,
-                              "error": f"worker failed: {type(error).__name__}: {error}"}
-                records[job.name] = record
-                counts["done" if record["status"] == "done" else "failed"] += 1
+                    record = [{"name": job.name, "status": "failed", "wall_s": None,
+                               "error": f"worker failed: {type(error).__name__}: {error}"} for job in members]
+                for job, rec in zip(members, record if isinstance(record, list) else [record]):
+                    records[job.name] = rec
+                    counts["done" if rec["status"] == "done" else "failed"] += 1
 
             report(0)
-            calls = [(job.name, execute_job, (job, str(out / "jobs" / job.name), keys[job.name])) for job in todo]
+            calls = []
+            for group in groups:
+                members = [todo[j] for j in group]
+                dirs = [str(out / "jobs" / job.name) for job in members]
+                if gang is None or gang == 1:
+                    calls.append((members[0].name, execute_job, (members[0], dirs[0], keys[members[0].name])))
+                else:
+                    calls.append((f"gang of {len(members)} from {members[0].name}", execute_gang,
+                                  (members, dirs, [keys[job.name] for job in members])))
             info = run_calls(calls, placement, threads=threads, client=client, on_done=finish, report=report)
         finally:
             if client is not None:

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from bptsb_ros import bench, bench_mnist
+from bptsb_ros import bench, bench_gang, bench_mnist
 from bptsb_ros.cli import main
 
 PLANTED = {"forward_steps_per_s": 11.0, "forward_body_steps_per_s": 11.0, "train_steps_per_s": 7.0,
@@ -30,6 +30,7 @@ def _plant(monkeypatch, interrupt_at: int | None) -> list[tuple[str, str]]:
                                                                      "cached": {"x": 0.1}})
     monkeypatch.setattr(bench, "_ipc_entry", lambda quick, progress: {})
     monkeypatch.setattr(bench_mnist, "run_isolated", lambda quick: {"error": "planted"})
+    monkeypatch.setattr(bench_gang, "run_isolated", lambda quick: {"error": "planted"})
     return started
 
 

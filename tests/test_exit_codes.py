@@ -73,6 +73,7 @@ CASES = [
     ("sweep", ["sweep", CONFIG, "--seeds", "5-1", "--out", "{tmp}/s"], USAGE, "runs backwards"),
     ("sweep", ["sweep", CONFIG, "--seeds", "0", "--connect-timeout", "5", "--out", "{tmp}/s"], USAGE,
      "--connect-timeout applies to --scheduler only"),
+    ("sweep", ["sweep", CONFIG, "--seeds", "0", "--gang", "0", "--out", "{tmp}/s"], USAGE, "--gang must be >= 1"),
     ("sweep", ["sweep", CONFIG, "--seeds", "0", "--set", "nokey=1", "--out", "{tmp}/s"], USAGE, "nokey"),
     ("sweep", ["sweep", "{bad}", "--seeds", "0", "--out", "{tmp}/s"], FAILURE, "nokey"),
     ("sweep", ["sweep", "{tmp}/missing.yaml", "--seeds", "0", "--out", "{tmp}/s"], FAILURE, "config file not found"),

@@ -48,7 +48,7 @@ PLANTED: dict[str, dict[str, tuple]] = {
                   **_NARMA_CONFIG},
     "memory-task": {"epochs": (1, 60, 40000), "delays": ((1, 8, 17), (1, 4, 8, 12, 17), tuple(range(1, 18))),
                     "n_seeds": (1, 2, 5), "eval_inputs": (150, 800, 3000), "max_delay": (10, 20, 20),
-                    "washout": (30, 100, 100), **_NARMA_CONFIG},
+                    "washout": (30, 100, 100), "gangs": (True, True, True), **_NARMA_CONFIG},
     "target-ipc": {"samples": (1500, 6000, 10000)},
     "msdn-nonlinearity": {"blocks": (800, 3000, 5000), "max_delay": (10, 20, 20)},
     "lissajous-closed-loop": {"sim_time": (10, 1000, 2000), "fit_time": (10, 100, 100), "eval_periods": (2, 10, 10)},

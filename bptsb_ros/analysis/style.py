@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import ParamSpec, TypeVar
@@ -31,6 +32,9 @@ from matplotlib import cycler  # noqa: E402
 
 #: PNG resolution [dots per inch]
 DPI = 200
+#: pyplot keeps global state and is not thread-safe: threads that make figures (the trainings of a gang,
+#: ``bptsb_ros/gang.py``) make them one at a time, under this lock
+FIGURES = threading.RLock()
 #: figure widths [in]: one column and the full text width of a two-column paper
 SINGLE = 3.4
 DOUBLE = 7.0

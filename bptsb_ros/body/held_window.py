@@ -9,14 +9,119 @@ brain's forces come per block, (K, M, 2); the window is one numba forward and on
 (``body/kernel.py``, the numba path's own kernels); the only tensor out is the read coordinate at the K block
 ends. The same equations in the same order: outputs and every gradient equal the ``rollout_window`` path to
 rounding (tests/test_held_window.py checks 1e-12 in float64).
+
+Lanes: independent trainings of one topology run as threads of a gang (``bptsb_ros/gang.py``) hand their windows
+to a :class:`LaneRunner` (:func:`as_lanes`), which runs the windows of every waiting thread as one call of
+``body/held_window_kernel.py``, one lane each. A lane's output, final state and gradients are the solo path's
+bit for bit (tests/test_gang.py).
 """
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Protocol
+
 import numpy as np
 import torch
 
-from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, _as_numpy
+from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, _as_numpy, state_is_sound
+
+
+@dataclass
+class WindowLane:
+    """One body's held-force window, as numpy arrays in the body's dtype (``held_window_kernel``'s shapes for
+    one lane: r0, v0, a0 (M, 2); k, d, l (E,); blocks (K, M, 2)); windows of equal ``key`` can share a call (the
+    same topology, masses, scalars, K, τ and read coordinate)."""
+
+    key: tuple
+    r0: np.ndarray
+    v0: np.ndarray
+    a0: np.ndarray
+    k: np.ndarray
+    d: np.ndarray
+    l: np.ndarray  # noqa: E741 - the paper's symbol for the rest lengths
+    blocks: np.ndarray
+    body: MSDN
+    tau: int
+    row: int
+    coord: int
+
+
+class LaneRunner(Protocol):
+    """Runs the held-force windows of many threads together (``bptsb_ros.gang.Gang`` is one)."""
+
+    def forward(self, lane: WindowLane) -> tuple[np.ndarray, tuple[np.ndarray, ...], Any]:
+        """``(y (K,), end (r, v, a (M, 2), lengths (E,)), handle)`` once the lane has run."""
+
+    def backward(self, handle: Any, g_y: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``(lam_r, lam_v, lam_a (M, 2), g_k, g_d, g_l (E,), g_blocks (K, M, 2))`` of the lane ``handle``
+        names, for the gradient ``g_y`` (K,) of its output."""
+
+
+_local = threading.local()
+
+
+@contextmanager
+def as_lanes(runner: LaneRunner) -> Iterator[None]:
+    """Within the block, this thread's held-force windows run as lanes of ``runner``."""
+    _local.runner = runner
+    try:
+        yield
+    finally:
+        _local.runner = None
+
+
+def _lane_runner() -> LaneRunner | None:
+    return getattr(_local, "runner", None)
+
+
+@dataclass
+class LaneGroup:
+    """Windows of one key run together: their stacked inputs and the block-start states the adjoint needs."""
+
+    lanes: list[WindowLane]
+    stacked: tuple[np.ndarray, ...]  # k, d, l (E, P), blocks (K, M, 2, P)
+    saved: tuple[np.ndarray, ...]
+
+
+def run_lanes_forward(lanes: Sequence[WindowLane]) -> tuple[LaneGroup, list[tuple[np.ndarray, tuple]]]:
+    """Run windows of one key as one kernel call; each lane's ``(y (K,), end (r, v, a, lengths))`` in order."""
+    from bptsb_ros.body import held_window_kernel
+
+    first = lanes[0]
+    body = first.body
+
+    def stack(name: str) -> np.ndarray:
+        return np.ascontiguousarray(np.stack([getattr(x, name) for x in lanes], axis=-1))
+
+    r0, v0, a0, k, d, l, blocks = (stack(n) for n in ("r0", "v0", "a0", "k", "d", "l", "blocks"))
+    _, _, offset, mass, coef = body.kernel_constants(body.k.dtype)
+    y, saved, end = held_window_kernel.forward(r0, v0, a0, k, d, l, blocks, first.tau, first.row, first.coord,
+                                               body.spring_i, body.spring_j, offset, mass, coef,
+                                               body.integrator == "verlet")
+    outs = [(y[:, p].copy(), tuple(x[..., p].copy() for x in end)) for p in range(len(lanes))]
+    return LaneGroup(list(lanes), (k, d, l, blocks), saved), outs
+
+
+def run_lanes_backward(group: LaneGroup, g_y: dict[int, np.ndarray]) -> dict[int, tuple[np.ndarray, ...]]:
+    """The adjoint of ``group`` for the lanes in ``g_y`` (lane → (K,) gradient of its output; the other lanes'
+    is zero): lane → ``(lam_r, lam_v, lam_a, g_k, g_d, g_l, g_blocks)``."""
+    from bptsb_ros.body import held_window_kernel
+
+    first = group.lanes[0]
+    body = first.body
+    k, d, l, blocks = group.stacked
+    g = np.zeros((blocks.shape[0], len(group.lanes)), dtype=k.dtype)
+    for p, gp in g_y.items():
+        g[:, p] = gp
+    _, _, offset, mass, coef = body.kernel_constants(body.k.dtype)
+    lam, grads, g_blocks = held_window_kernel.adjoint(
+        k, d, l, blocks, first.tau, first.row, first.coord, body.spring_i, body.spring_j, offset, mass, coef,
+        body.integrator == "verlet", group.saved, g)
+    return {p: (*(x[..., p].copy() for x in (*lam, *grads)), g_blocks[..., p].copy()) for p in g_y}
 
 
 def held_window_unsupported(body: MSDN, *, adjoint: bool = True) -> str | None:
@@ -66,9 +171,34 @@ def held_force_readout(body: MSDN, state: BodyState, block_forces: torch.Tensor,
                                   int(row), int(coord), int(state.step))
 
 
+_SECOND_BACKWARD = ("held_force_readout: backward through the same window a second time (its trajectory was freed "
+                    "after the first); run the window again")
+
+
+def _lanes_unsupported(body: MSDN) -> str | None:
+    """Why ``body``'s windows cannot run as lanes (``body/held_window_kernel.py`` has no ground), or None."""
+    env = body.environment
+    if env.ground_clamp or float(env.ground_c) != 0.0:
+        return "the lane kernel has no ground"
+    return None
+
+
+def _lane_key(body: MSDN, n_blocks: int, tau: int, row: int, coord: int) -> tuple:
+    """Equal for windows that can share one lane-kernel call: topology, masses, fixed offsets and scalars (the
+    body's part computed once per body and dtype: none of it changes in training)."""
+    cached = body.__dict__.get("_lane_key_base")
+    if cached is None or cached[0] != body.k.dtype:
+        _, _, offset, mass, coef = body.kernel_constants(body.k.dtype)
+        cached = (body.k.dtype, (str(body.k.dtype), body.integrator, body.spring_i.tobytes(), body.spring_j.tobytes(),
+                                 offset.tobytes(), mass.tobytes(), coef.tobytes()))
+        body.__dict__["_lane_key_base"] = cached
+    return (*cached[1], n_blocks, tau, row, coord)
+
+
 class _HeldForceWindow(torch.autograd.Function):
     """Forward: ``kernel.forward`` over the K·τ steps; backward: ``kernel.adjoint`` with the readout's gradient
-    on the read rows, then the rest lengths' gradient summed over the steps and the forces' over each block."""
+    on the read rows, then the rest lengths' gradient summed over the steps and the forces' over each block. In a
+    thread with a :class:`LaneRunner` (and a body without ground) both go to the runner as one lane instead."""
 
     @staticmethod
     def forward(ctx, r0, v0, a0, k, d, l, block_forces, body: MSDN, tau: int, row: int, coord: int,
@@ -76,6 +206,20 @@ class _HeldForceWindow(torch.autograd.Function):
         from bptsb_ros.body import kernel
 
         dtype = r0.dtype
+        runner = _lane_runner()
+        if runner is not None and _lanes_unsupported(body) is None:
+            lane = WindowLane(_lane_key(body, block_forces.shape[0], tau, row, coord),
+                              *(_as_numpy(x, dtype)[0] for x in (r0, v0, a0)),
+                              *(_as_numpy(x, dtype) for x in (k, d, l, block_forces)), body, tau, row, coord)
+            y, end, handle = runner.forward(lane)
+            final = BodyState(*(torch.from_numpy(x).unsqueeze(0) for x in end), step + block_forces.shape[0] * tau)
+            if not state_is_sound(*end[:3]):
+                body.check_finite(final)  # raises, naming the step and the parameters
+            ctx.body = body
+            ctx.lane = (runner, handle)
+            ctx.arrays = None
+            return torch.from_numpy(y)
+        ctx.lane = None
         np_dtype = _NUMPY[dtype]
         n_blocks, m, n_springs = block_forces.shape[0], body.n_movable, body.topology.n_springs
         steps = n_blocks * tau
@@ -100,10 +244,18 @@ class _HeldForceWindow(torch.autograd.Function):
         from bptsb_ros.body import kernel
 
         body: MSDN = ctx.body
+        if ctx.lane is not None:
+            if ctx.lane[1] is None:
+                raise RuntimeError(_SECOND_BACKWARD)
+            runner, handle = ctx.lane
+            ctx.lane = (runner, None)
+            dtype = body.k.dtype
+            *lam, g_k, g_d, g_l, g_blocks = runner.backward(handle, _as_numpy(g_out, dtype))
+            return (*(torch.from_numpy(x).unsqueeze(0) for x in lam), *(torch.from_numpy(x) for x in (g_k, g_d, g_l)),
+                    torch.from_numpy(g_blocks), None, None, None, None, None)
         tau, row, coord = ctx.read
         if ctx.arrays is None:  # freed by the first backward, as torch frees a graph's saved tensors
-            raise RuntimeError("held_force_readout: backward through the same window a second time (its trajectory "
-                               "was freed after the first); run the window again")
+            raise RuntimeError(_SECOND_BACKWARD)
         start, rest, outs = ctx.arrays
         r_out = outs[0]
         steps, m, n_springs = r_out.shape[0], r_out.shape[2], rest.shape[2]
@@ -122,5 +274,7 @@ class _HeldForceWindow(torch.autograd.Function):
                        none3, *lam, g_k, g_d, g_rest, g_ext)
         ctx.arrays = None  # the trajectory is not needed again
         grad_blocks = g_ext.reshape(steps // tau, tau, m, 2).sum(1)
+        # the steps summed last to first, one after another, as the lane kernel sums them (and k's and d's are)
+        grad_rest = np.cumsum(g_rest[::-1, 0], axis=0)[-1]
         return (*(torch.from_numpy(x) for x in lam), torch.from_numpy(g_k[0]), torch.from_numpy(g_d[0]),
-                torch.from_numpy(g_rest.sum((0, 1))), torch.from_numpy(grad_blocks), None, None, None, None, None)
+                torch.from_numpy(grad_rest), torch.from_numpy(grad_blocks), None, None, None, None, None)

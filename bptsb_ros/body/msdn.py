@@ -41,6 +41,10 @@ PROJECTIONS = ("clamp", "reset")
 RESET_VALUE = 0.1
 
 
+#: |position| [m] beyond which a simulation counts as diverged (:meth:`MSDN.check_finite`)
+DIVERGENCE_LIMIT = 1e6
+
+
 class SimulationDiverged(RuntimeError):
     """A simulation produced NaN/inf or left any physically sensible range."""
 
@@ -139,6 +143,9 @@ class MSDN(nn.Module):
         self.register_buffer("fixed_offset", torch.tensor(fixed_offset, dtype=dtype))
         self.register_buffer("positions0", torch.tensor(topology.positions, dtype=dtype))
         self.register_buffer("movable_index", torch.as_tensor(movable, dtype=torch.long))
+        # the CMP's row among the movable masses, once: tasks read it every update
+        self._cmp_local = ([int(i) for i in movable].index(topology.cmp_index)
+                           if topology.cmp_index >= 0 else -1)
         self.register_buffer("mass", torch.ones(len(movable), dtype=dtype))  # the paper: all masses 1 kg
         # Gravity is an acceleration [0, −g], independent of the masses.
         gravity = torch.tensor([0.0, -environment.gravity], dtype=dtype) if environment.gravity else None
@@ -159,9 +166,7 @@ class MSDN(nn.Module):
     @property
     def cmp_local(self) -> int:
         """Index of the CMP among the movable masses (state rows); -1 if the shape has none."""
-        if self.topology.cmp_index < 0:
-            return -1
-        return int((self.movable_index == self.topology.cmp_index).nonzero()[0, 0])
+        return self._cmp_local
 
     def full_positions(self, r: torch.Tensor) -> torch.Tensor:
         """(B, M, 2) movable positions → (B, N, 2) positions of every mass, fixed ones included."""
@@ -361,7 +366,7 @@ class MSDN(nn.Module):
         named = (("k", self.k), ("d", self.d), ("l", self.l))
         return ", ".join(f"{n} in [{float(t.detach().min()):.4g}, {float(t.detach().max()):.4g}]" for n, t in named)
 
-    def check_finite(self, state: BodyState, limit: float = 1e6) -> None:
+    def check_finite(self, state: BodyState, limit: float = DIVERGENCE_LIMIT) -> None:
         """Raise SimulationDiverged (with the step and parameter ranges) on NaN/inf or |r| > limit."""
         r = state.r.detach()
         finite = bool(torch.isfinite(r).all() and torch.isfinite(state.v).all() and torch.isfinite(state.a).all())
@@ -375,6 +380,12 @@ class MSDN(nn.Module):
 
 
 _NUMPY = {torch.float32: np.float32, torch.float64: np.float64}
+
+
+def state_is_sound(r: np.ndarray, v: np.ndarray, a: np.ndarray, limit: float = DIVERGENCE_LIMIT) -> bool:
+    """:meth:`MSDN.check_finite`'s test on numpy arrays: everything finite and every |r| ≤ ``limit`` [m]."""
+    return bool(np.isfinite(r).all() and np.isfinite(v).all() and np.isfinite(a).all()
+                and np.abs(r).max() <= limit)
 
 
 def _as_numpy(t: torch.Tensor, dtype: torch.dtype) -> np.ndarray:

@@ -24,6 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "(workers must see --out)")
     parser.add_argument("--connect-timeout", type=_timeout, default=None, metavar="SECONDS",
                         help="give up on the --scheduler after this many seconds (default 20)")
+    parser.add_argument("--gang", type=int, default=None, metavar="N",
+                        help="run the seeds N at a time as one gang: one process, a thread per training, their "
+                             "NARMA / memory-task episodes one batched simulation (same numbers; speed: docs, Speed)")
 
 
 def _timeout(text: str) -> float:
@@ -48,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
             raise SweepError(f"--workers must be >= 0, got {args.workers}")
         if args.connect_timeout is not None and args.scheduler is None:
             raise SweepError("--connect-timeout applies to --scheduler only")
+        if args.gang is not None and args.gang < 1:
+            raise SweepError(f"--gang must be >= 1 trainings, got {args.gang}")
         scheduler = scheduler_address(args.scheduler) if args.scheduler is not None else None
     except SweepError as err:
         return fail(NAME, err, USAGE)
@@ -66,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
                 last[0] = line
 
         result = run_sweep(jobs, args.out, workers=args.workers, scheduler=scheduler, progress=show,
-                           connect_timeout=args.connect_timeout or DEFAULT_CONNECT_TIMEOUT)
+                           connect_timeout=args.connect_timeout or DEFAULT_CONNECT_TIMEOUT, gang=args.gang)
     except (SchedulerError, RunDirLocked, SweepError, ConfigError, OSError) as err:  # the arguments were fine
         return fail(NAME, err)
     if result.skipped:

@@ -166,9 +166,10 @@ def claims(n: MemoryNumbers) -> list[Claim]:
     durations={"smoke": "≈ 11 s on 2 busy cores",
                "short": "284 s measured 2026-11-27 on 2 cores (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 "
                         "workers)",
-               "paper": "246-247 s per training measured 2026-12-03 (40,000 SGD epochs, fused episodes, 2 workers on "
-                        "2 cores; 451-461 s while other work shared them) × 17 Δt × 2 bodies × 5 seeds: ≈ 5.8 h on 2 "
-                        "workers; the committed run (Δt 1, 8, 17, 2 seeds: 12 trainings) took 1,512 s in two attempts"},
+               "paper": "≈ 4.7 h on 2 workers in gangs (5.0 ms per update and training, two gangs of 85 at once, "
+                        "`bptsb bench` 2026-12-03; ≈ 5.8 h alone: 246-247 s per training of 40,000 SGD epochs, 2 "
+                        "workers on 2 cores); the committed run (Δt 1, 8, 17, 2 seeds: 12 trainings, alone) took "
+                        "1,512 s in two attempts"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
@@ -197,7 +198,7 @@ def run(ctx: Context) -> None:
                 jobs.append(Job(f"{body}_dt{dt}_s{seed}", NarmaJob(config, tuple(over), seed, (epochs,), eval_inputs,
                                                                    washout=washout)))
     ctx.log(f"memory-task: {len(jobs)} trainings ({config}, {epochs} epochs) as parallel jobs")
-    results = run_jobs(ctx, jobs, ctx.out_dir / "sweep")
+    results = run_jobs(ctx, jobs, ctx.out_dir / "sweep", gangs=ctx.settings["gangs"])
     err = {b: np.array([[results[f"{b}_dt{dt}_s{s}"]["nmse"] for s in seeds] for dt in delays]) for b in BODIES}
     for b in BODIES:
         for i, dt in enumerate(delays):

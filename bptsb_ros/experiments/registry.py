@@ -119,14 +119,26 @@ class Context:
         self.result.provenance.setdefault("jobs", []).append({"what": what, **info.to_json()})
         return results
 
-    def sweep(self, jobs: Sequence[Any], out_dir: Path, *, what: str = "jobs") -> Any:
+    def sweep(self, jobs: Sequence[Any], out_dir: Path, *, what: str = "jobs", gangs: bool = False) -> Any:
         """Run ``jobs`` (``bptsb_ros.sweep.Job``) as a resumable sweep in ``out_dir`` where :meth:`placement`
         says; progress lines go to :attr:`log`; the provenance records where they ran. Returns the
-        ``SweepResult`` (failed jobs are in its records, not raised)."""
+        ``SweepResult`` (failed jobs are in its records, not raised).
+
+        ``gangs``: the jobs run as one gang per worker (:mod:`bptsb_ros.gang`, their held-force windows as one
+        batched simulation): runs of ⌈jobs / workers⌉ consecutive jobs, so jobs of one body next to each other
+        share a gang."""
         from bptsb_ros.sweep import run_sweep
 
         placement = self.placement()
-        self.log(f"{what}: {len(jobs)} jobs in {out_dir} on {self._where(placement, len(jobs))}")
+        gang = None
+        if gangs and jobs:
+            from bptsb_ros.runner import cpus
+
+            # a cluster's worker count is unknown before connecting: as many gangs as --workers, or local CPUs
+            workers = (placement.workers or cpus()) if placement.scheduler else placement.pool_size(len(jobs))
+            gang = -(-len(jobs) // max(1, workers))
+        where = self._where(placement, len(jobs))
+        self.log(f"{what}: {len(jobs)} jobs in {out_dir} on {where}" + (f", in gangs of {gang}" if gang else ""))
         last = [""]
 
         def show(p) -> None:
@@ -134,7 +146,8 @@ class Context:
                 last[0] = p.line()
                 self.log(p.line())
 
-        res = run_sweep(jobs, out_dir, workers=placement.workers, scheduler=placement.scheduler, progress=show)
+        res = run_sweep(jobs, out_dir, workers=placement.workers, scheduler=placement.scheduler, progress=show,
+                        gang=gang)
         self.result.provenance.setdefault("jobs", []).append({"what": what, **res.provenance()})
         return res
 

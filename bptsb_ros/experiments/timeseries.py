@@ -106,12 +106,14 @@ class NarmaJob:
         return out
 
 
-def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False) -> dict[str, dict[str, Any]]:
+def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False,
+             gangs: bool = False) -> dict[str, dict[str, Any]]:
     """Run independent jobs (``bptsb_ros.sweep.Job``) as a resumable sweep in ``out_dir``, where the run's
-    ``--workers`` / ``--scheduler`` say (``ctx``: the experiment's ``Context``, :meth:`Context.sweep`). Every
-    failure is an error, except, with ``diverged_ok``, a training that diverged: its result is
-    ``{"diverged": message}`` (SGD can blow a system up beyond what the update guard can undo; that is a result)."""
-    res = ctx.sweep(jobs, out_dir, what="trainings")
+    ``--workers`` / ``--scheduler`` say (``ctx``: the experiment's ``Context``, :meth:`Context.sweep`; ``gangs``:
+    one gang of trainings per worker, their episodes one batched simulation). Every failure is an error, except,
+    with ``diverged_ok``, a training that diverged: its result is ``{"diverged": message}`` (SGD can blow a system
+    up beyond what the update guard can undo; that is a result)."""
+    res = ctx.sweep(jobs, out_dir, what="trainings", gangs=gangs)
     diverged = {f["name"]: {"diverged": str(f.get("error")).split(";")[0]} for f in res.failed
                 if diverged_ok and str(f.get("error", "")).startswith("TrainingDiverged")}
     failed = [f for f in res.failed if f["name"] not in diverged]

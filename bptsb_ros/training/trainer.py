@@ -343,10 +343,12 @@ def _check_resumable(saved: dict, new: dict, run_dir: Path) -> None:
 
 def _write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
     from bptsb_ros.analysis.plots import plot_loss
+    from bptsb_ros.analysis.style import FIGURES
 
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], task.loss_label,
-                                                     metrics["name"])]
-    files += task.plots(run_dir)
+    with FIGURES:
+        files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], task.loss_label,
+                                                         metrics["name"])]
+        files += task.plots(run_dir)
     return files
 

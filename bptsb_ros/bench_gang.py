@@ -1,0 +1,111 @@
+"""The memory task's trainings alone and as a gang (:mod:`bptsb_ros.gang`): wall milliseconds per training update,
+and what the memory task costs at the paper's schedule each way.
+
+The system is the memory task's (``config/narma.yaml`` with the LIL brain, the multiple circle of 37 masses,
+target u(t − Δt), fused episodes: a 3,000-step window per update). ``alone``: one training's updates;
+``gang``: ``members`` trainings (Δt 1, 2, … and seeds 0, 1, …) in one gang, their wall time per update and per
+member, after every member has made its first update (agent building and the first call kept out). The
+estimate packs the paper's 17 Δt × 2 bodies × 5 seeds = 170 trainings of 40,000 updates onto ``workers``
+processes, each a gang of 85 (``bptsb reproduce memory-task --scale paper``), at the measured rates; it assumes a
+worker runs as fast beside the others as alone, which on a busy machine it does not (``load_average``).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+#: the memory task at the paper's schedule: trainings (17 Δt × 2 bodies × 5 seeds) and updates each
+PAPER_TRAININGS, PAPER_UPDATES = 170, 40_000
+MEMORY_OVERRIDES = ("brain.type=lil", "body.shape=multiple_circle", "body.nodes=37", "narma.target=memory",
+                    "narma.brain_input=symmetric", "training.backend=fused")
+
+
+def _member(seed: int, delay: int, updates: int, out: dict[int, tuple[float, float]]) -> None:
+    """Build one memory-task training, make one update, then ``updates`` more: ``out[seed]`` = (the time after the
+    first update, the time at the end) [s, ``time.perf_counter``]."""
+    import torch
+
+    from bptsb_ros.agent import build_agent
+    from bptsb_ros.experiments.common import packaged_config
+    from bptsb_ros.tasks.narma import NarmaTask
+    from bptsb_ros.training.optim import make_optimizer
+
+    cfg = packaged_config("narma", [*MEMORY_OVERRIDES, f"narma.delay={delay}"], seed=seed)
+    torch.manual_seed(cfg.seed)
+    agent = build_agent(cfg)
+    task = NarmaTask(agent, cfg)
+    opt = make_optimizer(agent, cfg.training)
+
+    def update(i: int) -> None:
+        loss, _ = task.update_loss(i)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        agent.body.clamp_parameters_()
+
+    update(0)
+    t0 = time.perf_counter()
+    for i in range(updates):
+        update(i + 1)
+    out[seed] = (t0, time.perf_counter())
+
+
+def measure(members: int, updates: int) -> dict[str, Any]:
+    """ms per update of one training alone and of ``members`` trainings in one gang (one torch thread)."""
+    import torch
+
+    from bptsb_ros.gang import Gang
+
+    torch.set_num_threads(1)
+    alone: dict[int, tuple[float, float]] = {}
+    _member(0, 8, updates, alone)
+    alone_ms = 1e3 * (alone[0][1] - alone[0][0]) / updates
+    timed: dict[int, tuple[float, float]] = {}
+    gang = Gang()
+    t0 = time.perf_counter()
+    out = gang.run([lambda s=s: _member(s, 1 + s % 17, updates, timed) for s in range(members)])
+    errors = [str(e) for e in out if isinstance(e, BaseException)]
+    if errors:
+        return {"error": errors[0]}
+    # the members' first updates end in the same round (lockstep), so from the earliest of those to the last end
+    # is ``updates`` rounds of the whole gang
+    gang_ms = 1e3 * (max(end for _, end in timed.values()) - min(first for first, _ in timed.values())) / updates
+    return {"members": members, "updates_timed": updates, "alone_ms_per_update": round(alone_ms, 2),
+            "gang_ms_per_round": round(gang_ms, 1), "gang_ms_per_member_update": round(gang_ms / members, 2),
+            "gang_wall_s": round(time.perf_counter() - t0, 1),
+            "gang_over_alone": round(alone_ms / (gang_ms / members), 2)}
+
+
+def paper_estimate(entry: dict[str, Any], workers: int = 2) -> dict[str, float]:
+    """Hours of the memory task at the paper's schedule on ``workers`` processes, trainings alone and in gangs."""
+    per_worker = PAPER_TRAININGS * PAPER_UPDATES / workers / 3.6e6
+    return {"workers": workers, "alone_h": round(per_worker * entry["alone_ms_per_update"], 2),
+            "gangs_h": round(per_worker * entry["gang_ms_per_member_update"], 2)}
+
+
+def _child(conn, members: int, updates: int) -> None:
+    try:
+        entry = measure(members, updates)
+        if "error" not in entry:
+            entry["paper_memory_task"] = paper_estimate(entry)
+        entry["load_average"] = list(os.getloadavg())
+        conn.send(entry)
+    except Exception as err:  # noqa: BLE001 - reported in the bench file
+        conn.send({"error": f"{type(err).__name__}: {err}"})
+
+
+def run_isolated(quick: bool, timeout_s: float = 1800) -> dict[str, Any]:
+    """:func:`measure` in a fresh process (85 members, 30 updates; ``quick``: 8 members, 5 updates)."""
+    import multiprocessing as mp
+
+    members, updates = (8, 5) if quick else (85, 30)
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(child, members, updates))
+    proc.start()
+    child.close()
+    result = parent.recv() if parent.poll(timeout_s) else {"error": "timed out"}
+    proc.join(30)
+    return result
