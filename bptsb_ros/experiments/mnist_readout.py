@@ -126,8 +126,8 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
                "short": "568 s measured 2026-11-27 on 2 cores with the 8,000 training images of --split "
                         "test-8k-2k (2 epochs, 2 processes); with the 60,000 of the MNIST training set about 7× "
                         "as long (≈ 65 min, not measured)",
-               "paper": "≈ 2½-4 h on 2 cores (60,000 images × 100 epochs, 5 systems; 1-52 ms per update at load "
-                        "≈ 1, `bptsb bench`)"},
+               "paper": "≈ 1.7 h on 2 cores (60,000 images × 100 epochs, 5 systems): 3,063 s measured 2026-12-03 "
+                        "with --set epochs=50 (2 workers, 2 otherwise idle cores)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_curves
