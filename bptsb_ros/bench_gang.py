@@ -58,6 +58,8 @@ def measure(members: int, updates: int) -> dict[str, Any]:
 
     from bptsb_ros.gang import Gang
 
+    if members < 1:
+        return {"error": f"a gang needs at least one training, got {members}"}
     torch.set_num_threads(1)
     alone: dict[int, tuple[float, float]] = {}
     _member(0, 8, updates, alone)
@@ -73,7 +75,8 @@ def measure(members: int, updates: int) -> dict[str, Any]:
     # is ``updates`` rounds of the whole gang
     gang_ms = 1e3 * (max(end for _, end in timed.values()) - min(first for first, _ in timed.values())) / updates
     return {"members": members, "updates_timed": updates, "alone_ms_per_update": round(alone_ms, 2),
-            "gang_ms_per_round": round(gang_ms, 1), "gang_ms_per_member_update": round(gang_ms / members, 2),
+            "gang_ms_per_update_of_all": round(gang_ms, 1), "gang_ms_per_member_update": round(gang_ms / members, 2),
+            "gang_windows": gang.lanes,
             "gang_wall_s": round(time.perf_counter() - t0, 1),
             "gang_over_alone": round(alone_ms / (gang_ms / members), 2)}
 
@@ -108,4 +111,7 @@ def run_isolated(quick: bool, timeout_s: float = 1800) -> dict[str, Any]:
     child.close()
     result = parent.recv() if parent.poll(timeout_s) else {"error": "timed out"}
     proc.join(30)
+    if proc.is_alive():  # timed out: it must not go on using the cores, nor hold up this process's exit
+        proc.kill()
+        proc.join()
     return result

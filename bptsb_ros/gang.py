@@ -53,6 +53,7 @@ class Gang:
     _pending: list[_Request] = field(default_factory=list)
     _live: int = 0
     _finished: int = 0
+    _running: bool = False
     rounds: int = 0
     lanes: int = 0
     #: print a line to stderr every this many seconds while the gang runs (None: never)
@@ -68,11 +69,15 @@ class Gang:
 
     def _submit(self, req: _Request) -> Any:
         with self._cv:
+            if not self._running:
+                raise RuntimeError("this gang has ended: its windows (and their backward) run inside Gang.run")
             self._pending.append(req)
             self._cv.notify()
         req.done.wait()
         if req.error is not None:
-            raise req.error
+            # a fresh exception per thread: one object raised in many threads would collect all their tracebacks
+            raise RuntimeError(f"the gang's kernel call failed: {type(req.error).__name__}: {req.error}") \
+                from req.error
         return req.answer
 
     # --- the coordinating thread's side ---
@@ -119,6 +124,9 @@ class Gang:
 
     def run(self, fns: Sequence[Callable[[], T]]) -> list[T | BaseException]:
         """See :func:`run_gang`."""
+        if self._running:
+            raise RuntimeError("this gang is running already")
+        self._pending, self._live, self._finished, self._running = [], 0, 0, True
         results: list[Any] = [None] * len(fns)
 
         def body(i: int) -> None:
@@ -144,21 +152,35 @@ class Gang:
                 while self._parked() < i + 1:
                     self._cv.wait()
         t0 = last = time.monotonic()
-        while True:
+        batch: list[_Request] = []
+        try:
+            while True:
+                with self._cv:
+                    while self._live and len(self._pending) < self._live:
+                        self._cv.wait()
+                    if not self._live:
+                        break
+                    batch, self._pending = self._pending, []
+                self._run_round(batch)
+                for req in batch:
+                    req.done.set()
+                batch = []
+                if self.report_every_s is not None and time.monotonic() - last >= self.report_every_s:
+                    last = time.monotonic()
+                    print(f"gang of {len(fns)} trainings (pid {os.getpid()}): {self._live} running, "
+                          f"{self.lanes:,} windows in {self.rounds:,} rounds, "
+                          f"{(last - t0) / self.rounds:.3g} s per round", file=sys.stderr, flush=True)
+        except BaseException as err:  # Ctrl-C or a failure here: no thread may wait for a round that never comes
             with self._cv:
-                while self._live and len(self._pending) < self._live:
-                    self._cv.wait()
-                if not self._live:
-                    break
-                batch, self._pending = self._pending, []
-            self._run_round(batch)
-            if self.report_every_s is not None and time.monotonic() - last >= self.report_every_s:
-                last = time.monotonic()
-                print(f"gang of {len(fns)} trainings (pid {os.getpid()}): {self._live} running, {self.lanes:,} windows "
-                      f"in {self.rounds:,} rounds, {(last - t0) / self.rounds:.3g} s per round", file=sys.stderr,
-                      flush=True)
-            for req in batch:
-                req.done.set()
+                self._running = False
+                for req in [*batch, *self._pending]:
+                    if req.error is None:
+                        req.error = err
+                    req.done.set()
+            raise
+        finally:
+            with self._cv:
+                self._running = False
         for t in threads:
             t.join()
         return results

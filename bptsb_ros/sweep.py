@@ -375,6 +375,7 @@ def run_sweep(
     connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
     notice: Callable[[str], None] | None = None,
     gang: int | None = None,
+    n_gangs: int | None = None,
 ) -> SweepResult:
     """Run every job not already done in ``out_dir``; write ``sweep.json`` and ``sweep.csv``.
 
@@ -393,6 +394,8 @@ def run_sweep(
             runs again); default: printed to stderr.
         gang: run the jobs still to do in runs of this many as one gang each (:mod:`bptsb_ros.gang`: one process,
             a thread per job, their held-force windows as one batched simulation); None or 1: a process per job.
+        n_gangs: instead of ``gang``: split the jobs still to do into this many gangs of consecutive jobs (as many
+            as there are workers: one gang each, also when a resumed sweep has fewer jobs left).
 
     Raises:
         SweepError: bad job names or scheduler address (nothing was created).
@@ -419,6 +422,9 @@ def run_sweep(
     except ValueError as err:
         raise SweepError(str(err)) from None
     gangs_of(0, gang)
+    gangs_of(0, n_gangs)
+    if gang is not None and n_gangs is not None:
+        raise SweepError("give the gangs' size or their number, not both")
     out = Path(out_dir)
     with hold_run_dir(out):
         keys = {job.name: job_key(job) for job in jobs}
@@ -441,6 +447,8 @@ def run_sweep(
             (out / "jobs").mkdir(exist_ok=True)
             counts = {"done": len(records), "running": 0, "failed": 0}
 
+            if n_gangs is not None:
+                gang = max(1, -(-len(todo) // n_gangs))
             groups = gangs_of(len(todo), gang)
 
             def report(running: int) -> None:  # running calls; a call runs a gang's jobs at once

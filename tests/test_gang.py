@@ -38,12 +38,17 @@ def _window(body: MSDN, seed: int, row: int, coord: int):
     g = torch.Generator().manual_seed(seed)
     blocks = (0.5 * torch.randn((BLOCKS, body.n_movable, 2), generator=g, dtype=torch.float64)).to(
         body.k.dtype).requires_grad_(True)
-    state = body.initial_state(1, external_force=blocks[0])
+    # a displaced, moving start whose displacement and velocity take gradients: the lanes' λ_r, λ_v reach them
+    disp = (0.05 * torch.randn((1, body.n_movable, 2), generator=g, dtype=torch.float64)).to(
+        body.k.dtype).requires_grad_(True)
+    vel = (0.1 * torch.randn((1, body.n_movable, 2), generator=g, dtype=torch.float64)).to(
+        body.k.dtype).requires_grad_(True)
+    state = body.initial_state(1, external_force=blocks[0], displacement=disp, velocity=vel)
     y = held_force_readout(body, state, blocks, TAU, row, coord)
     body.zero_grad()
     weights = torch.linspace(-1.0, 2.0, BLOCKS, dtype=body.k.dtype) + seed
     (weights * y).sum().backward()
-    return [y.detach().clone()] + [t.grad.clone() for t in (body.k, body.d, body.l, blocks)]
+    return [y.detach().clone()] + [t.grad.clone() for t in (body.k, body.d, body.l, blocks, disp, vel)]
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
@@ -57,11 +62,12 @@ def test_each_lane_equals_its_window_alone_bit_for_bit(dtype):
     alone = [case(*s) for s in specs]
     gang = Gang()
     together = gang.run([lambda s=s: case(*s) for s in specs])
-    # three read coordinates: CMP y (3 lanes), mass 0 x (2 lanes) -> two groups of one round each way
+    # two read coordinates: the CMP's y (3 lanes), mass 0's x (2 lanes): two groups in each of the two rounds
     assert gang.lanes == 5 and gang.rounds == 2
     for a, b in zip(alone, together, strict=True):
         assert not isinstance(b, BaseException), b
-        for name, x, y in zip(("readout", "k", "d", "l", "forces"), a, b, strict=True):
+        for name, x, y in zip(("readout", "k", "d", "l", "forces", "start position", "start velocity"), a, b,
+                              strict=True):
             assert float(x.abs().max()) > 0, name
             assert torch.equal(x, y), (name, float((x - y).abs().max()))
 
@@ -260,23 +266,74 @@ def test_the_gang_benchmark_and_its_paper_estimate():
     assert bench_gang.paper_estimate({"alone_ms_per_update": 6.0, "gang_ms_per_member_update": 2.0}) == {
         "workers": 2, "alone_h": round(3.4e6 * 6e-3 / 3600, 2), "gangs_h": round(3.4e6 * 2e-3 / 3600, 2)}
     entry = bench_gang.measure(members=2, updates=1)
-    assert entry["members"] == 2 and entry["alone_ms_per_update"] > 0
-    assert entry["gang_ms_per_member_update"] == pytest.approx(entry["gang_ms_per_round"] / 2, abs=0.06)
-    assert entry["gang_over_alone"] == pytest.approx(entry["alone_ms_per_update"] / (entry["gang_ms_per_round"] / 2),
-                                                     rel=0.05)
+    assert entry["members"] == 2 and entry["updates_timed"] == 1 and entry["alone_ms_per_update"] > 0
+    assert entry["gang_ms_per_member_update"] > 0 and entry["gang_windows"] == 2 * (1 + 1)
+    assert "error" in bench_gang.measure(members=0, updates=1)
 
 
 def test_the_lanes_divergence_test_is_the_bodys():
-    from bptsb_ros.body.msdn import DIVERGENCE_LIMIT, state_is_sound
+    from bptsb_ros.body.msdn import DIVERGENCE_LIMIT, BodyState, state_is_sound
+
+    body = _body(0, torch.float64)
+
+    def body_says(r, v, a):
+        try:
+            body.check_finite(BodyState(*(torch.from_numpy(x) for x in (r, v, a)), torch.zeros(1), 0))
+        except SimulationDiverged:
+            return False
+        return True
 
     ok = np.zeros((3, 2))
-    assert state_is_sound(ok, ok, ok)
+    cases = [((ok, ok, ok), True)]
     edge = ok.copy()
     edge[1, 0] = -DIVERGENCE_LIMIT
-    assert state_is_sound(edge, ok, ok)
-    edge[1, 0] = -np.nextafter(DIVERGENCE_LIMIT, np.inf)
-    assert not state_is_sound(edge, ok, ok)
+    cases.append(((edge, ok, ok), True))
+    beyond = ok.copy()
+    beyond[1, 0] = -np.nextafter(DIVERGENCE_LIMIT, np.inf)
+    cases.append(((beyond, ok, ok), False))
     for i in range(3):
         bad = [ok, ok, ok]
         bad[i] = np.array([[0.0, np.nan], [np.inf, 0.0], [0.0, 0.0]])
-        assert not state_is_sound(*bad)
+        cases.append((tuple(bad), False))
+    for arrays, sound in cases:
+        assert state_is_sound(*arrays) is sound
+        assert body_says(*arrays) is sound
+
+
+def test_a_resumed_sweep_splits_the_jobs_left_into_the_gangs_asked_for(tmp_path):
+    import yaml
+
+    cfg = tmp_path / "memory.yaml"
+    cfg.write_text(yaml.safe_dump({**_narma_raw(0, narma={"target": "memory", "delay": 2}), "epochs": 1}))
+    jobs = train_jobs(cfg, [0, 1, 2])
+    run_sweep(jobs[:1], tmp_path / "s", workers=0)
+    res = run_sweep(jobs, tmp_path / "s", workers=0, n_gangs=2)  # 2 left: a gang of one each, not one of 2
+    assert res.skipped == ["seed-0"] and res.provenance()["jobs"] == 2
+    assert [r["status"] for r in res.records] == ["done"] * 3
+    with pytest.raises(SweepError, match="not both"):
+        run_sweep(jobs, tmp_path / "t", workers=0, gang=2, n_gangs=2)
+
+
+def test_a_backward_after_the_gang_ended_is_refused_not_left_waiting():
+    kept = {}
+
+    def member():
+        body = _body(0, torch.float64)
+        blocks = torch.zeros((BLOCKS, body.n_movable, 2), dtype=torch.float64, requires_grad=True)
+        kept["y"] = held_force_readout(body, body.initial_state(1), blocks, TAU, 0, 1)
+
+    assert run_gang([member]) == [None]
+    with pytest.raises(RuntimeError, match="this gang has ended"):
+        kept["y"].sum().backward()
+
+
+def test_a_failing_kernel_call_reaches_every_member_as_its_own_error(monkeypatch):
+    import bptsb_ros.gang as gang_module
+
+    def fails(lanes):
+        raise ValueError("planted kernel failure")
+
+    monkeypatch.setattr(gang_module, "run_lanes_forward", fails)
+    out = run_gang([lambda s=s: _window(_body(s, torch.float64), s, 0, 1) for s in range(3)])
+    assert all(isinstance(e, RuntimeError) and isinstance(e.__cause__, ValueError) for e in out)
+    assert "planted kernel failure" in str(out[0]) and len({id(e) for e in out}) == 3

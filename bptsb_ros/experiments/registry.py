@@ -130,15 +130,14 @@ class Context:
         from bptsb_ros.sweep import run_sweep
 
         placement = self.placement()
-        gang = None
+        n_gangs = None
         if gangs and jobs:
             from bptsb_ros.runner import cpus
 
             # a cluster's worker count is unknown before connecting: as many gangs as --workers, or local CPUs
-            workers = (placement.workers or cpus()) if placement.scheduler else placement.pool_size(len(jobs))
-            gang = -(-len(jobs) // max(1, workers))
+            n_gangs = max(1, (placement.workers or cpus()) if placement.scheduler else placement.pool_size(len(jobs)))
         where = self._where(placement, len(jobs))
-        self.log(f"{what}: {len(jobs)} jobs in {out_dir} on {where}" + (f", in gangs of {gang}" if gang else ""))
+        self.log(f"{what}: {len(jobs)} jobs in {out_dir} on {where}" + (f", as {n_gangs} gangs" if n_gangs else ""))
         last = [""]
 
         def show(p) -> None:
@@ -147,7 +146,7 @@ class Context:
                 self.log(p.line())
 
         res = run_sweep(jobs, out_dir, workers=placement.workers, scheduler=placement.scheduler, progress=show,
-                        gang=gang)
+                        n_gangs=n_gangs)
         self.result.provenance.setdefault("jobs", []).append({"what": what, **res.provenance()})
         return res
 
