@@ -144,6 +144,27 @@ def test_exactly_ten_times_the_reference_is_accepted_just_past_it_rejected(histo
         assert _update(guard, params, opt, len(history), loss).accepted is accepted, loss
 
 
+@pytest.mark.parametrize(("window", "history", "reference"), [(3, [1.0, 2.0], 2.0), (3, [9.0, 1.0, 2.0, 6.0], 3.0),
+                                                              (1, [5.0, 1.0], 1.0), (8, [2.0] * 7 + [10.0], 3.0)])
+def test_a_guard_of_another_window_means_that_many_last_losses(window, history, reference):
+    """The reference: the previous loss while there are fewer than ``window``, then the mean of the last ``window``
+    (hand values); the summary names the window."""
+    params, opt = _tiny()
+    guard = UpdateGuard(opt, window=window)
+    for i, v in enumerate(history):
+        assert _update(guard, params, opt, i, v).accepted
+    assert guard.reference() == reference and guard.summary()["window"] == window
+    assert not _update(guard, params, opt, len(history), math.nextafter(10 * reference, math.inf)).accepted
+
+
+@pytest.mark.parametrize("window", [0, -3])
+def test_a_window_below_one_is_refused(window):
+    _, opt = _tiny()
+    with pytest.raises(ValueError, match="window must be >= 1"):
+        UpdateGuard(opt, window=window)
+    assert UpdateGuard(opt, window=1).window == 1
+
+
 def test_resume_state_round_trips_through_a_weights_only_checkpoint(tmp_path):
     params, opt = _tiny()
     guard = UpdateGuard(opt)

@@ -421,3 +421,13 @@ def test_jobs_with_costs_are_handed_out_costliest_first_and_come_back_in_job_ord
     assert ctx.names == ["training 1", "training 3", "training 0", "training 2"]
     assert mnist_common.run_jobs(ctx, lambda x, progress: x, jobs) == [1, 2, 3, 4]
     assert ctx.names == [f"training {i}" for i in range(4)]
+
+
+def test_a_readout_job_runs_the_guard_it_is_given():
+    from bptsb_ros.experiments.mnist_readout import train_readout_job
+
+    rng = np.random.default_rng(0)
+    x, y = rng.random((20, 784), dtype=np.float32), rng.integers(0, 10, 20)
+    for factor, window in ((10.0, 5), (0.0, 7)):
+        res = train_readout_job(None, 0, 0, x, y, x[:10], y[:10], epochs=1, guard_factor=factor, guard_window=window)
+        assert (res["guard"]["factor"], res["guard"]["window"]) == (factor, window)

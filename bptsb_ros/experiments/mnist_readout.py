@@ -24,6 +24,7 @@ from bptsb_ros.experiments.mnist_claims import Check, Skill, all_of, not_learned
 from bptsb_ros.experiments.mnist_common import body_label, body_nodes, job_log, load_data, run_jobs
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.training.guard import FACTOR, WINDOW
 
 #: (shape or None, the paper's N_mov (movable masses), the paper's accuracy [%]): the columns of its table
 SYSTEMS = ((None, 0, 91.18), ("double_circle", 17, 95.69), ("double_circle", 65, 96.77),
@@ -104,12 +105,15 @@ def systems() -> list[tuple[str | None, int, int, str, float]]:
 
 
 def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndarray, train_y: np.ndarray,
-                      test_x: np.ndarray, test_y: np.ndarray, epochs: int, progress: bool = False) -> dict[str, Any]:
-    """Train one readout system; its test accuracy after every epoch. ``progress``: epoch lines to stderr."""
+                      test_x: np.ndarray, test_y: np.ndarray, epochs: int, progress: bool = False,
+                      guard_factor: float = FACTOR, guard_window: int = WINDOW) -> dict[str, Any]:
+    """Train one readout system; its test accuracy after every epoch. ``progress``: epoch lines to stderr;
+    ``guard_factor``, ``guard_window``: the update guard's spike rule (``train_readout``)."""
     from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem, accuracy, train_readout
 
     model = ReadoutSystem(ReadoutSpec(shape=shape, nodes=nodes), seed)
     log = train_readout(model, train_x, train_y, epochs=epochs, batch=BATCH, seed=seed, test=(test_x, test_y),
+                        reject_factor=guard_factor, reject_window=guard_window,
                         log=job_log(progress, (model.spec.name, "only brain" if model.system is None else
                                                body_label(shape, model.system.body.n_movable))))
     return {"accuracy": accuracy(model, test_x, test_y), "train_accuracy": accuracy(model, train_x, train_y),
@@ -136,7 +140,8 @@ def run(ctx: Context) -> None:
     data = load_data(ctx, n_train, n_test)
     chosen = systems()
     jobs = [dict(shape=shape, nodes=nodes, seed=ctx.seed, train_x=data.train_x, train_y=data.train_y,
-                 test_x=data.test_x, test_y=data.test_y, epochs=epochs) for shape, _, nodes, _, _ in chosen]
+                 test_x=data.test_x, test_y=data.test_y, epochs=epochs, guard_factor=ctx.settings["guard_factor"],
+                 guard_window=ctx.settings["guard_window"]) for shape, _, nodes, _, _ in chosen]
     ctx.log(f"mnist-readout: {len(jobs)} systems, {epochs} epochs on {len(data.train_y)} images")
     results = run_jobs(ctx, train_readout_job, jobs, costs=[nodes for _, _, nodes, _, _ in chosen])
     acc = {}

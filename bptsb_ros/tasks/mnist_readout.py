@@ -19,7 +19,7 @@ from torch import nn
 
 from bptsb_ros.brains.fnn import LinearInputLayer
 from bptsb_ros.tasks.mnist_drawing import N_PIXELS, ImageToBody, SystemSpec, iterate_batches
-from bptsb_ros.training.guard import FACTOR, UpdateGuard
+from bptsb_ros.training.guard import FACTOR, WINDOW, UpdateGuard
 
 N_CLASSES = 10
 #: Adam learning rates for the readout experiment. The paper gives none for it; plain SGD with the drawing
@@ -112,15 +112,16 @@ class ReadoutLog:
 
 def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs: int, batch: int = 50,
                   seed: int = 0, test: tuple[np.ndarray, np.ndarray] | None = None, reject_factor: float = FACTOR,
-                  log: Callable[[str], None] | None = None) -> ReadoutLog:
+                  reject_window: int = WINDOW, log: Callable[[str], None] | None = None) -> ReadoutLog:
     """Softmax cross-entropy through the body (BPTSB), every update through the
-    :class:`~bptsb_ros.training.guard.UpdateGuard` as in the authors' MNIST training (see :func:`train_drawing`).
+    :class:`~bptsb_ros.training.guard.UpdateGuard` (see :func:`train_drawing`): a loss above ``reject_factor``
+    (0: no spike check) × the mean of the last ``reject_window`` batch losses is undone.
 
     Raises:
         FloatingPointError: a non-finite loss or gradient the guard cannot undo.
     """
     opt = make_optimizer(model)
-    guard = UpdateGuard(opt, factor=reject_factor, log=log)
+    guard = UpdateGuard(opt, factor=reject_factor, window=reject_window, log=log)
     gen = np.random.default_rng(seed)
     xt, yt = torch.as_tensor(x), torch.as_tensor(y)
     out = ReadoutLog(losses=guard.history)

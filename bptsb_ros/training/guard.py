@@ -10,7 +10,7 @@ Order of one update ``i`` (as in the published time-series and MNIST code):
 
    * the simulation diverged, ``L_i`` is not finite, or a gradient is not finite ("numerical failure"), or
    * ``factor > 0`` and ``L_i > factor × reference``, where ``reference`` is the last entry of the loss history
-     while that holds fewer than ``window`` (5) entries and the mean of its last 5 entries afterwards. The
+     while that holds fewer than ``window`` (5) entries and the mean of its last ``window`` entries afterwards. The
      comparison is strict: exactly ``factor × reference`` is accepted.
 
 3. A rejection restores the parameters (and ``modules``' state) and the optimiser state saved before the last
@@ -98,17 +98,23 @@ class UpdateGuard:
         optimizer: the trainer's optimiser; its parameters are saved and restored, its groups' rates divided.
         factor: the spike factor (0: no spike check; numerical failures are always rejected).
         patience: rejections before every rate is divided by 10.
+        window: the reference is the mean of this many last losses (the published rule: 5; a minibatch
+            training may compare with a whole epoch's instead).
         modules: further modules whose whole state is saved and restored with the parameters (e.g. a feedback
             layer fitted outside the optimiser).
         log: called with one line per rejection (e.g. a progress bar's ``write``).
     """
 
     def __init__(self, optimizer: torch.optim.Optimizer, *, factor: float = FACTOR, patience: int = PATIENCE,
-                 modules: Mapping[str, nn.Module] | None = None, log: Callable[[str], None] | None = None) -> None:
+                 window: int = WINDOW, modules: Mapping[str, nn.Module] | None = None,
+                 log: Callable[[str], None] | None = None) -> None:
         if factor < 0 or not math.isfinite(factor):
             raise ValueError(f"factor must be finite and >= 0, got {factor}")
         if patience < 1:
             raise ValueError(f"patience must be >= 1, got {patience}")
+        if window < 1:
+            raise ValueError(f"window must be >= 1, got {window}")
+        self.window = int(window)
         self.optimizer = optimizer
         self.factor = float(factor)
         self.patience = int(patience)
@@ -167,9 +173,9 @@ class UpdateGuard:
         """The loss a new loss is compared with (None while the history is empty)."""
         if not self.history:
             return None
-        if len(self.history) < WINDOW:
+        if len(self.history) < self.window:
             return self.history[-1]
-        return sum(self.history[-WINDOW:]) / WINDOW
+        return sum(self.history[-self.window:]) / self.window
 
     # -- the verdict ---------------------------------------------------------------------------------
     def review(self, update: int, loss: float | None, *, grads_finite: bool = True,
@@ -238,7 +244,7 @@ class UpdateGuard:
     # -- reporting and resuming ----------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
         """What trainers write to their metrics: the rules, the events, the final rates."""
-        return {"factor": self.factor, "patience": self.patience, "window": WINDOW, "reset_after": RESET_AFTER,
+        return {"factor": self.factor, "patience": self.patience, "window": self.window, "reset_after": RESET_AFTER,
                 "rejections": len(self.events), "divisions": sum(bool(e["divided"]) for e in self.events),
                 "events": list(self.events), "rates": self.rates()}
 
