@@ -189,7 +189,9 @@ def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp
     for (_, _, _, msg), publisher in read_published(bag, ["/body/positions"]):
         by_node.setdefault(publisher.name, []).append(m.step_of(msg.header.stamp, DT_NS))
     assert sorted(by_node["/body_sim"]) == list(range(301))
-    assert set(by_node) == {"/body_sim", "/forger"} and len(by_node["/forger"]) >= 50, {k: len(v) for k, v in
+    # how many forged steps land depends on how soon the forger discovers the recorder (24 of 301 once on a
+    # loaded CI machine): enough that a forged message was recorded among the body's, on several steps
+    assert set(by_node) == {"/body_sim", "/forger"} and len(by_node["/forger"]) >= 10, {k: len(v) for k, v in
                                                                                        by_node.items()}
     with open(bag / "bag_0.mcap", "rb") as f:  # the forger's channel, read without our reader
         reader = make_reader(f)
