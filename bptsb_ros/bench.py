@@ -18,6 +18,7 @@ import platform
 import resource
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -182,24 +183,19 @@ def _measure_fused(w: Workload, dtype: torch.dtype, min_seconds: float) -> dict[
             "train_steps_per_s": round(train, 1), "train_body_steps_per_s": round(train * w.batch, 1)}
 
 
-def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, ...] = NARMA_TASK_OVERRIDES
-                        ) -> dict[str, Any]:
-    """Training steps/s of the NARMA task itself (``config/narma.yaml``: double circle of 33 masses, MLP brain,
-    3,000-step episodes, SGD; ``overrides``: ``--set`` items of that config) on the numba path or with its fused
-    episodes (``body/held_window.py``)."""
+def narma_task_update(overrides: tuple[str, ...], seed: int = 0) -> tuple[Any, Callable[[], None]]:
+    """``config/narma.yaml`` with ``overrides`` built as its trainer builds it (seeded): ``(task, update)``, where
+    ``update()`` is one training update of the task (loss, backward, SGD step, k/d/l projection)."""
     from bptsb_ros.agent import build_agent
     from bptsb_ros.experiments.common import packaged_config
     from bptsb_ros.tasks.narma import NarmaTask
-    from bptsb_ros.threads import configure_threads
     from bptsb_ros.training.optim import make_optimizer
 
-    threads = configure_threads(1, "numba")
-    cfg = packaged_config("narma", [*overrides, f"training.backend={backend}"], seed=0)
+    cfg = packaged_config("narma", list(overrides), seed=seed)
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
     task = NarmaTask(agent, cfg)
     opt = make_optimizer(agent, cfg.training)
-
     index = 0
 
     def update() -> None:
@@ -210,6 +206,19 @@ def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, 
         loss.backward()
         opt.step()
         agent.body.clamp_parameters_()
+
+    return task, update
+
+
+def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, ...] = NARMA_TASK_OVERRIDES
+                        ) -> dict[str, Any]:
+    """Training steps/s of the NARMA task itself (``config/narma.yaml``: double circle of 33 masses, MLP brain,
+    3,000-step episodes, SGD; ``overrides``: ``--set`` items of that config) on the numba path or with its fused
+    episodes (``body/held_window.py``)."""
+    from bptsb_ros.threads import configure_threads
+
+    threads = configure_threads(1, "numba")
+    task, update = narma_task_update((*overrides, f"training.backend={backend}"))
 
     first_call, train, ms = _timed(update, task.steps_per_update, min_seconds)
     return {"backend": backend, "fused_episodes": task.fused_episodes, "threads": threads,

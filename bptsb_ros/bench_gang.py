@@ -25,30 +25,13 @@ MEMORY_OVERRIDES = ("brain.type=lil", "body.shape=multiple_circle", "body.nodes=
 def _member(seed: int, delay: int, updates: int, out: dict[int, tuple[float, float]]) -> None:
     """Build one memory-task training, make one update, then ``updates`` more: ``out[seed]`` = (the time after the
     first update, the time at the end) [s, ``time.perf_counter``]."""
-    import torch
+    from bptsb_ros.bench import narma_task_update
 
-    from bptsb_ros.agent import build_agent
-    from bptsb_ros.experiments.common import packaged_config
-    from bptsb_ros.tasks.narma import NarmaTask
-    from bptsb_ros.training.optim import make_optimizer
-
-    cfg = packaged_config("narma", [*MEMORY_OVERRIDES, f"narma.delay={delay}"], seed=seed)
-    torch.manual_seed(cfg.seed)
-    agent = build_agent(cfg)
-    task = NarmaTask(agent, cfg)
-    opt = make_optimizer(agent, cfg.training)
-
-    def update(i: int) -> None:
-        loss, _ = task.update_loss(i)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        agent.body.clamp_parameters_()
-
-    update(0)
+    _, update = narma_task_update((*MEMORY_OVERRIDES, f"narma.delay={delay}"), seed)
+    update()
     t0 = time.perf_counter()
-    for i in range(updates):
-        update(i + 1)
+    for _ in range(updates):
+        update()
     out[seed] = (t0, time.perf_counter())
 
 

@@ -96,9 +96,9 @@ class Gang:
                 assert req.handle is not None
                 grads.setdefault(id(req.handle[0]), []).append(req)
         for reqs in windows.values():
-            self._answer(reqs, lambda rs: self._forward_group(rs))
+            self._answer(reqs, self._forward_group)
         for reqs in grads.values():
-            self._answer(reqs, lambda rs: self._backward_group(rs))
+            self._answer(reqs, self._backward_group)
         self.rounds += 1
 
     @staticmethod

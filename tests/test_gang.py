@@ -276,9 +276,11 @@ def test_the_lanes_divergence_test_is_the_bodys():
 
     body = _body(0, torch.float64)
 
-    def body_says(r, v, a):
+    def body_says(r, v, a, dtype=None):
+        """check_finite's verdict: float64 on CPU takes the numpy test, float16 torch's reductions."""
+        parts = [torch.from_numpy(x) if dtype is None else torch.from_numpy(x).to(dtype) for x in (r, v, a)]
         try:
-            body.check_finite(BodyState(*(torch.from_numpy(x) for x in (r, v, a)), torch.zeros(1), 0))
+            body.check_finite(BodyState(*parts, torch.zeros(1), 0))
         except SimulationDiverged:
             return False
         return True
@@ -298,6 +300,17 @@ def test_the_lanes_divergence_test_is_the_bodys():
     for arrays, sound in cases:
         assert state_is_sound(*arrays) is sound
         assert body_says(*arrays) is sound
+    # the torch branch (a dtype numpy views do not take), with limits float16 can hold
+    small = ok.copy()
+    small[0, 1] = 60.0
+    assert body_says(small, ok, ok, torch.float16)
+    with pytest.raises(SimulationDiverged):
+        body.check_finite(BodyState(*(torch.from_numpy(x).to(torch.float16) for x in (small, ok, ok)),
+                                    torch.zeros(1), 0), limit=50.0)
+    for i in range(3):
+        bad = [ok, ok, ok]
+        bad[i] = np.array([[0.0, np.nan], [np.inf, 0.0], [0.0, 0.0]])
+        assert not body_says(*bad, torch.float16)
 
 
 def test_a_resumed_sweep_splits_the_jobs_left_into_the_gangs_asked_for(tmp_path):

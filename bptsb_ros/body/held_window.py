@@ -27,7 +27,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, _as_numpy, state_is_sound
+from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, _as_numpy
 
 
 @dataclass
@@ -213,8 +213,7 @@ class _HeldForceWindow(torch.autograd.Function):
                               *(_as_numpy(x, dtype) for x in (k, d, l, block_forces)), body, tau, row, coord)
             y, end, handle = runner.forward(lane)
             final = BodyState(*(torch.from_numpy(x).unsqueeze(0) for x in end), step + block_forces.shape[0] * tau)
-            if not state_is_sound(*end[:3]):
-                body.check_finite(final)  # raises, naming the step and the parameters
+            body.check_finite(final)
             ctx.body = body
             ctx.lane = (runner, handle)
             ctx.arrays = None
