@@ -1,7 +1,9 @@
-"""The update guard of the authors' episodic trainings (expanded NARMA, memory task, MNIST), used by every
-trainer of the package: a bad update is undone, and repeated bad updates divide every learning rate by 10.
+"""The update guard of the authors' time-series trainings (expanded NARMA, memory task), used by every trainer
+of the package: a bad update is undone, and repeated bad updates divide every learning rate by 10. The spike
+rule (``factor``) is the published time-series code's; trainings the facts give no spike rule (Lissajous, the
+MNIST readout) run with ``factor`` 0, checking numerical failures only.
 
-Order of one update ``i`` (as in the published time-series and MNIST code):
+Order of one update ``i`` (as in the published time-series code):
 
 1. The trainer measures the loss ``L_i`` with the current parameters θ_i — those the last applied update
    produced — and, if ``L_i`` is finite, back-propagates it.
