@@ -1,13 +1,15 @@
-"""The memory task's trainings alone and as a gang (:mod:`bptsb_ros.gang`): wall milliseconds per training update,
-and what the memory task costs at the paper's schedule each way.
+"""The memory task's trainings alone, as a gang (:mod:`bptsb_ros.gang`) and as a population
+(:mod:`bptsb_ros.training.population`): wall milliseconds per training update, and what the memory task costs at
+the paper's schedule each way.
 
 The system is the memory task's (``config/narma.yaml`` with the LIL brain, the multiple circle of 37 masses,
 target u(t − Δt), fused episodes: a 3,000-step window per update). ``alone``: one training's updates;
 ``gang``: ``members`` trainings (Δt 1, 2, … and seeds 0, 1, …) in one gang, their wall time per update and per
 member, after every member has made its first update (agent building and the first call kept out). The
 estimate packs the paper's 17 Δt × 2 bodies × 5 seeds = 170 trainings of 40,000 updates onto ``workers``
-processes, each a gang of 85 (``bptsb reproduce memory-task --scale paper``), at the measured rates; it assumes a
-worker runs as fast beside the others as alone, which on a busy machine it does not (``load_average``).
+processes, each a gang or a population of 85 (``bptsb reproduce memory-task --scale paper`` runs populations), at the
+measured rates; it assumes a worker runs as fast beside the others as alone, which on a busy machine it does not
+(``load_average``).
 """
 
 from __future__ import annotations
@@ -64,17 +66,45 @@ def measure(members: int, updates: int) -> dict[str, Any]:
             "gang_over_alone": round(alone_ms / (gang_ms / members), 2)}
 
 
+def measure_population(members: int, updates: int) -> dict[str, Any]:
+    """ms per member-update of ``members`` trainings (Δt 1, 2, … and seeds 0, 1, … as in :func:`measure`) as one
+    population (:mod:`bptsb_ros.training.population`), after a 1-update population warmed the kernels' dispatch."""
+    from bptsb_ros.experiments.common import packaged_config
+    from bptsb_ros.training.population import train_population
+
+    def cfgs(epochs: int) -> list[Any]:
+        return [packaged_config("narma", [*MEMORY_OVERRIDES, f"narma.delay={1 + s % 17}", f"epochs={epochs}"],
+                                seed=s) for s in range(members)]
+
+    train_population(cfgs(1), [None] * members, progress=False)
+    results, failures = train_population(cfgs(updates), [None] * members, progress=False)
+    if failures:
+        return {"error": str(failures[0].error)}
+    seconds = results[0].metrics["train_seconds"]
+    return {"population_members": members, "population_updates_timed": updates,
+            "population_ms_per_update_of_all": round(1e3 * seconds / updates, 1),
+            "population_ms_per_member_update": round(1e3 * seconds / updates / members, 3)}
+
+
 def paper_estimate(entry: dict[str, Any], workers: int = 2) -> dict[str, float]:
-    """Hours of the memory task at the paper's schedule on ``workers`` processes, trainings alone and in gangs."""
+    """Hours of the memory task at the paper's schedule on ``workers`` processes: trainings alone, in gangs and as
+    populations (where measured)."""
     per_worker = PAPER_TRAININGS * PAPER_UPDATES / workers / 3.6e6
-    return {"workers": workers, "alone_h": round(per_worker * entry["alone_ms_per_update"], 2),
-            "gangs_h": round(per_worker * entry["gang_ms_per_member_update"], 2)}
+    out = {"workers": workers, "alone_h": round(per_worker * entry["alone_ms_per_update"], 2),
+           "gangs_h": round(per_worker * entry["gang_ms_per_member_update"], 2)}
+    if "population_ms_per_member_update" in entry:
+        out["populations_h"] = round(per_worker * entry["population_ms_per_member_update"], 2)
+    return out
 
 
 def _child(conn, members: int, updates: int) -> None:
     try:
         entry = measure(members, updates)
         if "error" not in entry:
+            entry.update(measure_population(members, updates))
+        if "error" not in entry:
+            entry["population_over_alone"] = round(entry["alone_ms_per_update"] /
+                                                   entry["population_ms_per_member_update"], 2)
             entry["paper_memory_task"] = paper_estimate(entry)
         entry["load_average"] = list(os.getloadavg())
         conn.send(entry)

@@ -269,6 +269,14 @@ def test_the_gang_benchmark_and_its_paper_estimate():
     assert entry["members"] == 2 and entry["updates_timed"] == 1 and entry["alone_ms_per_update"] > 0
     assert entry["gang_ms_per_member_update"] > 0 and entry["gang_windows"] == 2 * (1 + 1)
     assert "error" in bench_gang.measure(members=0, updates=1)
+    # as populations too, where measured: at 0.5 ms per member-update
+    assert bench_gang.paper_estimate({"alone_ms_per_update": 6.0, "gang_ms_per_member_update": 2.0,
+                                      "population_ms_per_member_update": 0.5})["populations_h"] == \
+        round(3.4e6 * 0.5e-3 / 3600, 2)
+    pop = bench_gang.measure_population(members=2, updates=2)
+    assert pop["population_members"] == 2 and pop["population_updates_timed"] == 2
+    assert pop["population_ms_per_member_update"] == pytest.approx(pop["population_ms_per_update_of_all"] / 2,
+                                                                   abs=0.06)
 
 
 def test_the_lanes_divergence_test_is_the_bodys():

@@ -235,7 +235,9 @@ def test_memory_task_smoke(tmp_path):
     d = data["details"]
     for body in ("double-circle", "multiple-circle"):
         for i, dt in enumerate(d["delays"]):
-            st = _states(tmp_path / "sweep" / "jobs" / f"{body}_dt{dt}_s0", d["epochs"])
+            # the smoke scale trains each body's systems as one population: a member's directory is in its job's
+            (member,) = (tmp_path / "sweep" / "jobs").glob(f"population*/{body}_dt{dt}_s0")
+            st = _states(member, d["epochs"])
             np.testing.assert_array_equal(st["target"][dt:], st["u"][:-dt])  # y(t) = u(t − Δt)
             w = d["washout"]
             assert d["nmse"][body][i][0] == pytest.approx(_nmse(_cmp_y(st)[w:], st["target"][w:]))

@@ -46,7 +46,7 @@ def spring_forces(
         gather: incidence operator from ``incidence_operators`` (movable columns only).
         scatter: incidence operator from ``incidence_operators`` (movable columns only).
         fixed_offset: (E, 2) contribution of the fixed masses to r_i − r_j (constant: they never move).
-        k: (E,) spring constants [N/m].  d: (E,) damping coefficients [N·s/m].
+        k: (E,) or (B, E) spring constants [N/m].  d: (E,) or (B, E) damping coefficients [N·s/m].
         rest_length: (E,) or (B, E) rest length in force [m].
 
     Returns:

@@ -277,3 +277,94 @@ class _HeldForceWindow(torch.autograd.Function):
         grad_rest = np.cumsum(g_rest[::-1, 0], axis=0)[-1]
         return (*(torch.from_numpy(x) for x in lam), torch.from_numpy(g_k[0]), torch.from_numpy(g_d[0]),
                 torch.from_numpy(grad_rest), torch.from_numpy(grad_blocks), None, None, None, None, None)
+
+
+@dataclass
+class PopulationWindow:
+    """What :func:`population_readout` returns for B bodies: ``y`` (B, K) the read coordinate at each block end
+    (differentiable); ``end`` (r, v, a (B, M, 2), lengths (B, E)) the final states (numpy, no gradient);
+    ``sound`` (B,) bool: :func:`~bptsb_ros.body.msdn.state_is_sound` of each final state (False: that body
+    diverged, its ``y`` and gradients are not to be used; the others' are unaffected)."""
+
+    y: torch.Tensor
+    end: tuple[np.ndarray, ...]
+    sound: np.ndarray
+
+
+def population_readout(body: MSDN, r0: torch.Tensor, v0: torch.Tensor, a0: torch.Tensor, k: torch.Tensor,
+                       d: torch.Tensor, l: torch.Tensor, blocks: torch.Tensor, tau: int, row: int,  # noqa: E741
+                       coord: int) -> PopulationWindow:
+    """:func:`held_force_readout` for B bodies of ``body``'s topology, each with its own parameters, in one call
+    of ``body/held_window_kernel.py`` (one lane each; a lane's arithmetic is the solo window's).
+
+    Args:
+        body: the topology, masses, scalars and integrator (its own k, d, l are not used).
+        r0, v0, a0: (B, M, 2) start states. k, d, l: (B, E) [N/m, N·s/m, m]. blocks: (B, K, M, 2) [N], block j
+            in force at steps jτ + 1 … (j + 1)τ. tau, row, coord: as :func:`held_force_readout`.
+
+    Differentiable w.r.t. r0, v0, a0, k, d, l and blocks. Raises ValueError for shapes that do not fit or a body
+    the lane kernel cannot run (ground)."""
+    why = held_window_unsupported(body) or _lanes_unsupported(body)
+    if why:
+        raise ValueError(f"population_readout: {why}")
+    b, m, e = r0.shape[0], body.n_movable, body.topology.n_springs
+    if blocks.dim() != 4 or tuple(blocks.shape[2:]) != (m, 2) or blocks.shape[0] != b or blocks.shape[1] < 1:
+        raise ValueError(f"blocks must be ({b}, K >= 1, {m}, 2), got {tuple(blocks.shape)}")
+    for name, t, shape in (("r0", r0, (b, m, 2)), ("v0", v0, (b, m, 2)), ("a0", a0, (b, m, 2)), ("k", k, (b, e)),
+                           ("d", d, (b, e)), ("l", l, (b, e))):
+        if tuple(t.shape) != shape:
+            raise ValueError(f"{name} must be {shape}, got {tuple(t.shape)}")
+    if tau < 1 or not (0 <= row < m and coord in (0, 1)):
+        raise ValueError(f"tau must be >= 1 and (row, coord) a movable mass's coordinate, got {tau}, ({row}, {coord})")
+    box: dict[str, Any] = {}
+    y = _PopulationWindow.apply(r0, v0, a0, k, d, l, blocks, body, int(tau), int(row), int(coord), box)
+    return PopulationWindow(y, box["end"], box["sound"])
+
+
+def _lanes_last(t: torch.Tensor, dtype: torch.dtype) -> np.ndarray:
+    """(B, ...) tensor → C-contiguous (..., B) numpy array (the lane kernel's layout)."""
+    x = _as_numpy(t, dtype)
+    return np.ascontiguousarray(np.moveaxis(x, 0, -1))
+
+
+class _PopulationWindow(torch.autograd.Function):
+    """Forward: ``held_window_kernel.forward`` with one lane per body; backward: its adjoint."""
+
+    @staticmethod
+    def forward(ctx, r0, v0, a0, k, d, l, blocks, body: MSDN, tau: int, row: int, coord: int,
+                box: dict):  # type: ignore[override]
+        from bptsb_ros.body import held_window_kernel
+        from bptsb_ros.body.msdn import DIVERGENCE_LIMIT
+
+        dtype = body.k.dtype
+        arrays = [_lanes_last(x, dtype) for x in (r0, v0, a0, k, d, l, blocks)]
+        _, _, offset, mass, coef = body.kernel_constants(dtype)
+        verlet = body.integrator == "verlet"
+        y, saved, end = held_window_kernel.forward(*arrays, tau, row, coord, body.spring_i, body.spring_j, offset,
+                                                   mass, coef, verlet)
+        r, v, a = end[:3]
+        with np.errstate(invalid="ignore"):
+            sound = (np.isfinite(r).all(axis=(0, 1)) & np.isfinite(v).all(axis=(0, 1)) & np.isfinite(a).all(axis=(0, 1))
+                     & (np.abs(r).max(axis=(0, 1)) <= DIVERGENCE_LIMIT))
+        box["end"] = tuple(np.moveaxis(x, -1, 0) for x in end)
+        box["sound"] = sound
+        ctx.body, ctx.read = body, (tau, row, coord)
+        ctx.arrays = (arrays[3:], saved)
+        return torch.from_numpy(np.ascontiguousarray(y.T))
+
+    @staticmethod
+    def backward(ctx, g_y):  # type: ignore[override]
+        from bptsb_ros.body import held_window_kernel
+
+        if ctx.arrays is None:
+            raise RuntimeError(_SECOND_BACKWARD)
+        body: MSDN = ctx.body
+        (k, d, l, blocks), saved = ctx.arrays
+        ctx.arrays = None
+        tau, row, coord = ctx.read
+        _, _, offset, mass, coef = body.kernel_constants(body.k.dtype)
+        lam, grads, g_blocks = held_window_kernel.adjoint(
+            k, d, l, blocks, tau, row, coord, body.spring_i, body.spring_j, offset, mass, coef,
+            body.integrator == "verlet", saved, _lanes_last(g_y, body.k.dtype))
+        first = [torch.from_numpy(np.ascontiguousarray(np.moveaxis(x, -1, 0))) for x in (*lam, *grads, g_blocks)]
+        return (*first, None, None, None, None, None)

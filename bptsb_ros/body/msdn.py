@@ -195,10 +195,15 @@ class MSDN(nn.Module):
         v: torch.Tensor,
         rest_length: torch.Tensor,
         external_force: torch.Tensor | None,
+        k: torch.Tensor | None = None,
+        d: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """a = F/m for movable masses, and spring lengths. ``v`` is the velocity the damping sees."""
+        """a = F/m for movable masses, and spring lengths. ``v`` is the velocity the damping sees; ``k``, ``d``:
+        (B, E) spring constants and damping of B bodies of this topology instead of the body's own (a population,
+        ``training/population.py``)."""
         force, length = spring_forces(
-            r, v, self.gather, self.scatter, self.fixed_offset, self.k, self.d, rest_length
+            r, v, self.gather, self.scatter, self.fixed_offset, self.k if k is None else k, self.d if d is None else d,
+            rest_length
         )
         env = self.environment
         extra = environment_forces(r, v, env.air_drag, env.ground_c)

@@ -178,8 +178,10 @@ def run(ctx: Context) -> None:
         BODIES,
         N_MOV,
         NarmaJob,
+        job_dir,
         load_states,
         narma_overrides,
+        population_jobs,
         run_jobs,
     )
     from bptsb_ros.sweep import Job
@@ -197,8 +199,13 @@ def run(ctx: Context) -> None:
                                                                        *extra))
                 jobs.append(Job(f"{body}_dt{dt}_s{seed}", NarmaJob(config, tuple(over), seed, (epochs,), eval_inputs,
                                                                    washout=washout)))
-    ctx.log(f"memory-task: {len(jobs)} trainings ({config}, {epochs} epochs) as parallel jobs")
-    results = run_jobs(ctx, jobs, ctx.out_dir / "sweep", gangs=ctx.settings["gangs"])
+    populations: dict[str, str] = {}
+    if ctx.settings["population"]:  # each body's trainings as populations, as many at once as the run has slots
+        jobs, populations = population_jobs(jobs, -(-ctx.slots(len(jobs)) // len(BODIES)))
+        ctx.log(f"memory-task: {len(populations)} trainings ({config}, {epochs} epochs) as {len(jobs)} populations")
+    else:
+        ctx.log(f"memory-task: {len(jobs)} trainings ({config}, {epochs} epochs) as parallel jobs")
+    results = run_jobs(ctx, jobs, ctx.out_dir / "sweep", gangs=ctx.settings["gangs"] and not populations)
     err = {b: np.array([[results[f"{b}_dt{dt}_s{s}"]["nmse"] for s in seeds] for dt in delays]) for b in BODIES}
     for b in BODIES:
         for i, dt in enumerate(delays):
@@ -212,7 +219,7 @@ def run(ctx: Context) -> None:
     groups, labels, states, cmp_neighbours = [], [], {}, {}
     u = None
     for b in BODIES:
-        st = load_states(ctx.out_dir / "sweep" / "jobs" / f"{b}_dt{focus}_s{seeds[0]}", epochs)
+        st = load_states(job_dir(ctx.out_dir / "sweep", f"{b}_dt{focus}_s{seeds[0]}", populations), epochs)
         states[b] = st
         u = st["u"]
         g, lab = mass_groups(st["positions"], st["movable"], int(st["cmp_index"]))

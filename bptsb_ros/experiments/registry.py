@@ -130,12 +130,7 @@ class Context:
         from bptsb_ros.sweep import run_sweep
 
         placement = self.placement()
-        n_gangs = None
-        if gangs and jobs:
-            from bptsb_ros.runner import cpus
-
-            # a cluster's worker count is unknown before connecting: as many gangs as --workers, or local CPUs
-            n_gangs = max(1, (placement.workers or cpus()) if placement.scheduler else placement.pool_size(len(jobs)))
+        n_gangs = self.slots(len(jobs)) if gangs and jobs else None
         where = self._where(placement, len(jobs))
         self.log(f"{what}: {len(jobs)} jobs in {out_dir} on {where}" + (f", as {n_gangs} gangs" if n_gangs else ""))
         last = [""]
@@ -149,6 +144,14 @@ class Context:
                         n_gangs=n_gangs)
         self.result.provenance.setdefault("jobs", []).append({"what": what, **res.provenance()})
         return res
+
+    def slots(self, jobs: int) -> int:
+        """How many of ``jobs`` jobs run at once where :meth:`placement` says (≥ 1): the local pool's processes,
+        or on a cluster (whose worker count is unknown before connecting) ``--workers``, else the local CPUs."""
+        from bptsb_ros.runner import cpus
+
+        placement = self.placement()
+        return max(1, (placement.workers or cpus()) if placement.scheduler else placement.pool_size(jobs))
 
     @staticmethod
     def _where(placement: Placement, jobs: int) -> str:

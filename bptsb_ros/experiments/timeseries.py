@@ -73,19 +73,15 @@ class NarmaJob:
 
     def __call__(self, run_dir: Path) -> dict[str, Any]:
         from bptsb_ros.agent import build_agent
-        from bptsb_ros.experiments.common import packaged_config
-        from bptsb_ros.tasks.narma import NarmaTask, narma_inputs, nmse
         from bptsb_ros.training.checkpoint import load_agent
         from bptsb_ros.training.trainer import train
 
         one_torch_thread()
-        u = narma_inputs(self.eval_seed, self.eval_inputs)
         out: dict[str, Any] = {"seed": self.seed}
         trained = 0
         for epochs in self.stages:
-            cfg = packaged_config(self.config, [*self.overrides, f"epochs={max(epochs, 1)}"], seed=self.seed)
+            cfg = self.stage_config(epochs)
             if epochs == 0:  # the initial agent train() builds (same seed), in float64
-                cfg = packaged_config(self.config, [*self.overrides, "dtype=float64"], seed=self.seed)
                 torch.manual_seed(cfg.seed)
                 agent = build_agent(cfg)
             else:
@@ -95,15 +91,97 @@ class NarmaJob:
                 out[f"loss_last_{epochs}"] = res.losses[-1]
                 out["train_seconds"] = res.metrics["train_seconds"]
                 agent = load_agent(run_dir / "agent", dtype=torch.float64)
-            task = NarmaTask(agent, cfg)
-            pos = task.block_positions(u)
-            target = task.target(u)
-            cmp_y = pos[:, agent.body.cmp_local, 1]
-            out[f"nmse_{epochs}"] = nmse(cmp_y[self.washout:], target[self.washout:])
-            np.savez(run_dir / f"states_{epochs}.npz", u=u, positions=pos, target=target,
-                     movable=agent.body.topology.movable, cmp_index=agent.body.topology.cmp_index)
+            self.record(agent, cfg, run_dir, epochs, out)
         out["nmse"] = out[f"nmse_{self.stages[-1]}"]
         return out
+
+    def stage_config(self, epochs: int) -> Any:
+        """The config trained up to ``epochs`` (0: the untrained agent's, in float64)."""
+        from bptsb_ros.experiments.common import packaged_config
+
+        if epochs == 0:
+            return packaged_config(self.config, [*self.overrides, "dtype=float64"], seed=self.seed)
+        return packaged_config(self.config, [*self.overrides, f"epochs={epochs}"], seed=self.seed)
+
+    def record(self, agent: Any, cfg: Any, run_dir: Path, epochs: int, out: dict[str, Any]) -> None:
+        """Run ``agent`` (trained ``epochs``) on the held-out input: ``out["nmse_<epochs>"]`` and
+        ``run_dir/states_<epochs>.npz``."""
+        from bptsb_ros.tasks.narma import NarmaTask, narma_inputs, nmse
+
+        u = narma_inputs(self.eval_seed, self.eval_inputs)
+        task = NarmaTask(agent, cfg)
+        pos = task.block_positions(u)
+        target = task.target(u)
+        cmp_y = pos[:, agent.body.cmp_local, 1]
+        out[f"nmse_{epochs}"] = nmse(cmp_y[self.washout:], target[self.washout:])
+        np.savez(run_dir / f"states_{epochs}.npz", u=u, positions=pos, target=target,
+                 movable=agent.body.topology.movable, cmp_index=agent.body.topology.cmp_index)
+
+
+@dataclass(frozen=True)
+class NarmaPopulationJob:
+    """Train :class:`NarmaJob` s of one topology (one training stage each) as one population
+    (:mod:`bptsb_ros.training.population`: their episodes one batched simulation, each member's numbers its solo
+    training's to rounding). Member ``name`` gets the directory ``run_dir/name`` a :class:`NarmaJob` writes;
+    returns ``{name: that job's result}``. A member that diverged fails the job (after the others are written)."""
+
+    members: tuple[tuple[str, NarmaJob], ...]
+
+    def __call__(self, run_dir: Path) -> dict[str, Any]:
+        from bptsb_ros.training.checkpoint import load_agent
+        from bptsb_ros.training.population import train_population
+
+        one_torch_thread()
+        for name, job in self.members:
+            if len(job.stages) != 1 or job.stages[0] < 1:
+                raise ValueError(f"{name}: a population member trains one stage of >= 1 epochs, got {job.stages}")
+        cfgs = [job.stage_config(job.stages[0]) for _, job in self.members]
+        dirs = [run_dir / name / "agent" for name, _ in self.members]
+        # a rerun of a killed population goes on from its last saved state (every 10 minutes)
+        results, failures = train_population(cfgs, dirs, overwrite=True, desc=run_dir.name,
+                                             state_path=run_dir / "population.pt")
+        if failures:
+            names = ", ".join(f"{self.members[f.index][0]} ({f.error})" for f in failures)
+            raise RuntimeError(f"{len(failures)} of {len(self.members)} population members diverged: {names}")
+        out: dict[str, Any] = {}
+        for (name, job), cfg, res in zip(self.members, cfgs, results):
+            assert res is not None
+            epochs = job.stages[0]
+            member = {"seed": job.seed, f"loss_last_{epochs}": res.losses[-1],
+                      "train_seconds": res.metrics["train_seconds"], "population": len(self.members)}
+            job.record(load_agent(run_dir / name / "agent", dtype=torch.float64), cfg, run_dir / name, epochs, member)
+            member["nmse"] = member[f"nmse_{epochs}"]
+            out[name] = member
+        return out
+
+
+def population_jobs(jobs: list[Any], chunks: int) -> tuple[list[Any], dict[str, str]]:
+    """Group ``NarmaJob`` sweep jobs of equal body (config, overrides other than the delay and target) into
+    ``chunks`` :class:`NarmaPopulationJob` s per body, of consecutive jobs. Returns the new jobs and each
+    member's job name (member → population), for :func:`job_dir`."""
+    from bptsb_ros.sweep import Job
+
+    by_body: dict[tuple, list[Any]] = {}
+    for job in jobs:
+        key = (job.fn.config, tuple(o for o in job.fn.overrides if not o.startswith(("narma.delay=", "narma.target="))))
+        by_body.setdefault(key, []).append(job)
+    out, where = [], {}
+    for i, members in enumerate(by_body.values()):
+        n = max(1, min(chunks, len(members)))
+        size = -(-len(members) // n)
+        for c in range(0, len(members), size):
+            part = members[c: c + size]
+            name = f"population{i}_{c // size}"
+            out.append(Job(name, NarmaPopulationJob(tuple((j.name, j.fn) for j in part))))
+            where.update({j.name: name for j in part})
+    return out, where
+
+
+def job_dir(sweep_dir: Path, name: str, populations: dict[str, str] | None = None) -> Path:
+    """The directory of sweep job ``name`` (a :class:`NarmaJob`'s ``run_dir``), also as a population member."""
+    if populations and name in populations:
+        return sweep_dir / "jobs" / populations[name] / name
+    return sweep_dir / "jobs" / name
 
 
 def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False,
@@ -112,7 +190,8 @@ def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False
     ``--workers`` / ``--scheduler`` say (``ctx``: the experiment's ``Context``, :meth:`Context.sweep`; ``gangs``:
     one gang of trainings per worker, their episodes one batched simulation). Every failure is an error, except,
     with ``diverged_ok``, a training that diverged: its result is ``{"diverged": message}`` (SGD can blow a system
-    up beyond what the update guard can undo; that is a result)."""
+    up beyond what the update guard can undo; that is a result). A :class:`NarmaPopulationJob`'s result is
+    unpacked: each member's under its own name."""
     res = ctx.sweep(jobs, out_dir, what="trainings", gangs=gangs)
     diverged = {f["name"]: {"diverged": str(f.get("error")).split(";")[0]} for f in res.failed
                 if diverged_ok and str(f.get("error", "")).startswith("TrainingDiverged")}
@@ -121,7 +200,12 @@ def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False
         first = failed[0]
         raise RuntimeError(f"{len(failed)} of {len(jobs)} jobs failed; first: {first['name']}: "
                            f"{first.get('error')} (records in {out_dir / 'sweep.json'})")
-    return {**res.results(), **diverged}
+    done = res.results()
+    results: dict[str, dict[str, Any]] = {}
+    for job in jobs:
+        if job.name in done:
+            results.update(done[job.name] if isinstance(job.fn, NarmaPopulationJob) else {job.name: done[job.name]})
+    return {**results, **diverged}
 
 
 def guard_record(run_dir: Path) -> dict[str, Any] | None:

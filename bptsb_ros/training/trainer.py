@@ -314,7 +314,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     if run_dir is not None:
         phase(f"writing the checkpoint, metrics and plots to {run_dir}")
     checkpoint(total, feedback_fitted=getattr(task, "feedback_fitted", False))
-    files = [] if run_dir is None else _write_outputs(run_dir, task, metrics)
+    files = [] if run_dir is None else write_outputs(run_dir, task, metrics)
     state = getattr(task, "state", None)
     return TrainResult(run_dir, losses, metrics, files, agent,
                        state.detach() if isinstance(state, BodyState) else None)
@@ -341,7 +341,8 @@ def _check_resumable(saved: dict, new: dict, run_dir: Path) -> None:
         raise ConfigError(f"cannot resume {run_dir}: the config differs from the checkpoint's in {', '.join(changed)}")
 
 
-def _write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
+def write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
+    """``metrics.json``, the loss plot and the task's plots in ``run_dir`` (under the figure lock)."""
     from bptsb_ros.analysis.plots import plot_loss
     from bptsb_ros.analysis.style import FIGURES
 

@@ -1,0 +1,472 @@
+"""Independent trainings of one held-window task (expanded NARMA, the memory task) as one batched training.
+
+A *population* is B trainings whose agents share a topology: an LIL brain and a body without ground, trained
+with ``training.backend: fused`` on episodes of the same length. Member b is the training :func:`~bptsb_ros.
+training.trainer.train` runs for its config — the same initial agent (its seed), the same input stream (its
+task's generator), the same loss, its own update guard and learning rates — but the population keeps every
+member's k, d, l (B, E), LIL weights (B, O, 1) and biases (B, O) stacked, so one update is one brain forward
+(a batched matrix product), one lane-kernel window of B lanes (``body/held_window.py``'s
+:func:`~bptsb_ros.body.held_window.population_readout`), one autograd backward and one optimiser step for all of
+them. A training alone spends most of an update in torch's per-call overhead; here that overhead is shared.
+
+Each member's :class:`~bptsb_ros.training.guard.UpdateGuard` is the trainer's own class, given a view of the
+member's slices (:class:`_MemberOptimizer`): the rules, the events and the rate divisions are those of a
+training alone. A member that diverges beyond what its guard can undo stops (its run directory gets
+``diverged.json``); the others go on.
+
+Written per member, as :func:`train` writes them: ``checkpoint.pt`` (resumable by ``train(resume=True)``),
+``config.yaml``, ``metrics.json`` and the plots. Members agree with their solo trainings to rounding
+(tests/test_population.py: float64, SGD and Adam, losses and parameters).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Sequence
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from bptsb_ros.agent import Agent, build_agent, force_inputs
+from bptsb_ros.body.held_window import _lanes_unsupported, held_window_unsupported, population_readout
+from bptsb_ros.brains import LinearInputLayer
+from bptsb_ros.config import ExperimentConfig
+from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
+from bptsb_ros.tasks.narma import NarmaTask, brain_input
+from bptsb_ros.threads import configure_threads
+from bptsb_ros.training.checkpoint import save_checkpoint
+from bptsb_ros.training.guard import UpdateGuard
+from bptsb_ros.training.optim import make_optimizer
+from bptsb_ros.training.trainer import TrainingDiverged, TrainResult, write_outputs
+
+__all__ = ["MemberFailure", "population_unsupported", "train_population"]
+
+#: torch's Adam defaults (betas, eps), which :func:`~bptsb_ros.training.optim.make_optimizer` uses
+ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
+#: config keys that may differ between members (everything else must be equal)
+MEMBER_KEYS = {"seed", "name", "narma.delay", "narma.target", "narma.order", "narma.eval_seed"}
+
+
+@dataclass
+class MemberFailure:
+    """A member that stopped: its index and the error its solo training would have raised."""
+
+    index: int
+    error: TrainingDiverged
+
+
+def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
+
+
+def population_unsupported(cfgs: Sequence[ExperimentConfig]) -> str | None:
+    """Why ``cfgs`` cannot train as one population (one phrase), or None when they can."""
+    if not cfgs:
+        return "there are no trainings"
+    first = cfgs[0]
+    if first.task != "narma":
+        return f"task {first.task!r} is not a held-window task (narma)"
+    if first.brain.type != "lil":
+        return f"brain {first.brain.type!r} is not an LIL"
+    tc = first.training
+    if tc.backend != "fused" or not tc.adjoint:
+        return "training.backend is not fused with the adjoint"
+    if tc.projection != "clamp" or tc.lr_decay:
+        return "only the clamp projection without a learning-rate schedule is batched"
+    if tc.optimizer not in ("sgd", "adam"):
+        return f"optimizer {tc.optimizer!r}"
+    base = {k: v for k, v in _flatten(first.model_dump(mode="json")).items() if k not in MEMBER_KEYS}
+    for i, cfg in enumerate(cfgs[1:], 1):
+        other = {k: v for k, v in _flatten(cfg.model_dump(mode="json")).items() if k not in MEMBER_KEYS}
+        if other != base:
+            diff = sorted(k for k in base.keys() | other.keys() if base.get(k) != other.get(k))
+            return f"training {i} differs from the first in {', '.join(diff)}"
+    return None
+
+
+@dataclass
+class _Group:
+    """One learning-rate group of every member: its stacked parameters (B, ...) and their optimiser state."""
+
+    name: str
+    params: list[torch.Tensor]
+    exp_avg: list[torch.Tensor] = field(default_factory=list)
+    exp_avg_sq: list[torch.Tensor] = field(default_factory=list)
+
+
+class _MemberOptimizer:
+    """Member b's part of the population's optimiser, as :class:`UpdateGuard` handles an optimiser: its
+    ``param_groups`` (views of the stacked parameters, the member's rates), and :meth:`state_dict` /
+    :meth:`load_state_dict` of its optimiser state (Adam's moments and step count; SGD has none)."""
+
+    def __init__(self, groups: list[_Group], steps: torch.Tensor, index: int, rates: dict[str, float]) -> None:
+        self._groups, self._steps, self._b = groups, steps, index
+        self.param_groups = [{"name": g.name, "params": [p[index] for p in g.params], "lr": rates[g.name]}
+                             for g in groups]
+
+    def state_dict(self) -> dict[str, Any]:
+        b = self._b
+        return {"param_groups": [{"lr": g["lr"]} for g in self.param_groups], "step": float(self._steps[b]),
+                "exp_avg": [[t[b] for t in g.exp_avg] for g in self._groups],
+                "exp_avg_sq": [[t[b] for t in g.exp_avg_sq] for g in self._groups]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        b = self._b
+        for group, saved in zip(self.param_groups, state["param_groups"]):
+            group["lr"] = saved["lr"]
+        self._steps[b] = state["step"]
+        with torch.no_grad():
+            for g, m, v in zip(self._groups, state["exp_avg"], state["exp_avg_sq"]):
+                for t, x in zip(g.exp_avg, m):
+                    t[b].copy_(x)
+                for t, x in zip(g.exp_avg_sq, v):
+                    t[b].copy_(x)
+
+    def zero_grad(self, set_to_none: bool = True) -> None:  # the population zeroes the stacked gradients
+        pass
+
+
+#: the stacked parameters of a population, by attribute
+STACKED = ("k", "d", "l", "weight", "bias")
+
+
+class _Population:
+    """The stacked parameters of B agents of one topology (an LIL brain each) and their optimiser."""
+
+    def __init__(self, agents: Sequence[Agent], cfg: ExperimentConfig) -> None:
+        body = agents[0].body
+        self.body, self.cfg = body, cfg
+        self.mask = force_inputs(body)
+
+        def stack(get) -> torch.Tensor:
+            return torch.stack([get(a).detach() for a in agents]).clone().requires_grad_(True)
+
+        self.k, self.d, self.l = (stack(lambda a, n=n: getattr(a.body, n)) for n in ("k", "d", "l"))
+        self.weight = stack(lambda a: a.brain.weight)
+        self.bias = stack(lambda a: a.brain.bias)
+        named = {"k": [self.k], "d": [self.d], "l": [self.l], "brain": [self.weight, self.bias]}
+        lr = cfg.training.lr
+        self.rates0 = {name: float(getattr(lr, name)) for name in named}
+        self.adam = cfg.training.optimizer == "adam"
+        self.groups = [_Group(name, ps) for name, ps in named.items() if self.rates0[name] > 0]
+        if self.adam:
+            for g in self.groups:
+                g.exp_avg = [torch.zeros_like(p, requires_grad=False) for p in g.params]
+                g.exp_avg_sq = [torch.zeros_like(p, requires_grad=False) for p in g.params]
+        self.steps = torch.zeros(len(agents), dtype=torch.float64)
+        self.members = [_MemberOptimizer(self.groups, self.steps, b, self.rates0) for b in range(len(agents))]
+
+    def params(self) -> list[torch.Tensor]:
+        return [p for g in self.groups for p in g.params]
+
+    def forward(self, u: np.ndarray, targets: np.ndarray, washout: int, train_end: int):
+        """The episode of every member for inputs u (B, K) and targets (B, K): the losses (B,) (differentiable)
+        and the window (final states, soundness)."""
+        body, n = self.body, self.cfg.narma
+        dtype = body.l.dtype
+        x = brain_input(torch.as_tensor(u, dtype=dtype).unsqueeze(-1), n)  # (B, K, 1)
+        out = torch.baddbmm(self.bias.unsqueeze(1), x, self.weight.transpose(1, 2))  # (B, K, O)
+        blocks = out.new_zeros((*out.shape[:2], body.n_movable, 2))
+        blocks[:, :, self.mask, :] = out.view(*out.shape[:2], -1, 2)
+        r0 = body.positions0[body.movable_index].expand(len(u), -1, -1)
+        v0 = torch.zeros_like(r0)
+        a0, _ = body.acceleration(r0, v0, self.l, blocks[:, 0], k=self.k, d=self.d)
+        win = population_readout(body, r0, v0, a0, self.k, self.d, self.l, blocks, n.tau, body.cmp_local, 1)
+        y = torch.as_tensor(targets, dtype=dtype)
+        sl = slice(washout, train_end)
+        return ((win.y[:, sl] - y[:, sl]) ** 2).mean(dim=1), win
+
+    def gradients_finite(self) -> np.ndarray:
+        """(B,) bool: every gradient of member b is finite."""
+        ok = np.ones(self.k.shape[0], dtype=bool)
+        for p in self.params():
+            if p.grad is not None:
+                ok &= torch.isfinite(p.grad).reshape(p.shape[0], -1).all(dim=1).numpy()
+        return ok
+
+    def step(self, accepted: np.ndarray) -> None:
+        """One SGD or Adam step of the accepted members (each at its own rates), then k, d, l clamped to ≥ 0."""
+        acc = torch.as_tensor(accepted)
+        with torch.no_grad():
+            if self.adam:
+                self.steps += acc.double()
+                b1, b2 = ADAM_BETAS
+                bc1 = 1 - b1 ** self.steps
+                bc2_sqrt = (1 - b2 ** self.steps).sqrt()
+            for gi, g in enumerate(self.groups):
+                lr = torch.tensor([m.param_groups[gi]["lr"] for m in self.members], dtype=torch.float64)
+                for pi, p in enumerate(g.params):
+                    view = (-1,) + (1,) * (p.dim() - 1)
+                    keep = acc.view(view)
+                    grad = torch.where(keep, p.grad, torch.zeros((), dtype=p.dtype))
+                    if self.adam:
+                        m, v = g.exp_avg[pi], g.exp_avg_sq[pi]
+                        m.copy_(torch.where(keep, m.lerp(grad, 1 - b1), m))
+                        v.copy_(torch.where(keep, torch.addcmul(v * b2, grad, grad, value=1 - b2), v))
+                        denom = (v.sqrt() / bc2_sqrt.to(p.dtype).view(view)).add_(ADAM_EPS)
+                        new = p + (-(lr / bc1)).to(p.dtype).view(view) * (m / denom)  # torch's addcdiv order
+                    else:
+                        new = p - lr.to(p.dtype).view(view) * grad
+                    p.copy_(torch.where(keep, new, p))
+            for p in (self.k, self.d, self.l):
+                p.clamp_(min=0.0)
+
+    def write_back(self, b: int, agent: Agent) -> None:
+        """Member b's parameters into its agent."""
+        with torch.no_grad():
+            for src, dst in ((self.k, agent.body.k), (self.d, agent.body.d), (self.l, agent.body.l),
+                             (self.weight, agent.brain.weight), (self.bias, agent.brain.bias)):
+                dst.copy_(src[b])
+
+    def torch_optimizer_state(self, agent: Agent, member_state: dict[str, Any]) -> dict[str, Any]:
+        """A member's optimiser state (:meth:`_MemberOptimizer.state_dict`) as the state_dict of the torch optimiser
+        ``train`` builds for ``agent`` (so ``train(resume=True)`` continues the member's run)."""
+        opt = make_optimizer(agent, self.cfg.training)
+        for group, saved in zip(opt.param_groups, member_state["param_groups"]):
+            group["lr"] = saved["lr"]
+        if self.adam and member_state["step"] > 0:
+            for group, m_list, v_list in zip(opt.param_groups, member_state["exp_avg"], member_state["exp_avg_sq"]):
+                for p, m, v in zip(group["params"], m_list, v_list):
+                    opt.state[p] = {"step": torch.tensor(member_state["step"]),
+                                    "exp_avg": m.detach().clone(), "exp_avg_sq": v.detach().clone()}
+        return opt.state_dict()
+
+
+def _ranges(pop: _Population, b: int) -> str:
+    """Member b's ``k in [lo, hi], d in [..], l in [..]`` (:meth:`MSDN.parameter_ranges`)."""
+    return ", ".join(f"{n} in [{float(t[b].detach().min()):.4g}, {float(t[b].detach().max()):.4g}]"
+                     for n, t in (("k", pop.k), ("d", pop.d), ("l", pop.l)))
+
+
+def _diverged_message(pop: _Population, b: int, steps: int) -> str:
+    """The message :meth:`MSDN.check_finite` gives, for member b."""
+    from bptsb_ros.body.msdn import DIVERGENCE_LIMIT
+
+    return (f"simulation diverged at step {steps} (t = {steps * pop.body.dt:.2f} s): positions non-finite or beyond "
+            f"{DIVERGENCE_LIMIT:g} m; body parameters {_ranges(pop, b)}. Lower the learning rates, the time step or "
+            "the input scale.")
+
+
+def train_population(cfgs: Sequence[ExperimentConfig], run_dirs: Sequence[str | Path | None], *,
+                     overwrite: bool = False, progress: bool = True, desc: str = "population",
+                     state_path: str | Path | None = None,
+                     save_every_s: float = 600.0) -> tuple[list[TrainResult | None], list[MemberFailure]]:
+    """Train every config of ``cfgs`` (one member each) as one population; member b writes to ``run_dirs[b]``
+    (None: in memory) what :func:`~bptsb_ros.training.trainer.train` writes.
+
+    ``state_path``: the whole population's state is saved there every ``save_every_s`` wall seconds, and a
+    population started with a state file there continues from it (the same configs; a different set is refused)
+    to the numbers of an uninterrupted run; removed once every member's files are written.
+
+    Returns ``(results, failures)``: ``results[b]`` the member's :class:`TrainResult` (None where it failed);
+    ``failures`` the members that diverged beyond their guard, with the error their solo training raises.
+
+    Raises:
+        ValueError: the configs cannot train as one population (:func:`population_unsupported`), or the body
+            has no lane kernel (ground).
+        ConfigError: a run directory holds something and ``overwrite`` is False; the state at ``state_path`` is
+            another population's or unreadable.
+        RunDirLocked: another process holds one of the run directories.
+    """
+    from bptsb_ros.config import ConfigError
+
+    why = population_unsupported(cfgs)
+    if why:
+        raise ValueError(f"cannot train as one population: {why}")
+    if len(run_dirs) != len(cfgs):
+        raise ValueError(f"{len(cfgs)} configs but {len(run_dirs)} run directories")
+    with ExitStack() as stack:
+        dirs: list[Path | None] = []
+        for d in run_dirs:
+            if d is None:
+                dirs.append(None)
+                continue
+            path = Path(d)
+            stack.enter_context(hold_run_dir(path))
+            if not overwrite and not dir_is_empty(path):
+                raise ConfigError(f"{path} already holds a run (or other files); replace it with overwrite or "
+                                  "choose another directory")
+            dirs.append(path)
+        results = _train(list(cfgs), dirs, progress=progress, desc=desc,
+                         state_path=None if state_path is None else Path(state_path), save_every_s=save_every_s)
+        if state_path is not None:
+            Path(state_path).unlink(missing_ok=True)  # every member's own files are written: it is not needed
+        return results
+
+
+def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: bool, desc: str,
+           state_path: Path | None, save_every_s: float) -> tuple[list[TrainResult | None], list[MemberFailure]]:
+    from tqdm import tqdm
+
+    from bptsb_ros.agent import body_backend
+
+    cfg0 = cfgs[0]
+    threads = configure_threads(1, body_backend(cfg0.training.backend))
+    agents, tasks = [], []
+    for cfg in cfgs:  # each member's agent and task as train() builds them
+        torch.manual_seed(cfg.seed)
+        agent = build_agent(cfg)
+        if not isinstance(agent.brain, LinearInputLayer):
+            raise ValueError("cannot train as one population: the brain is not an LIL")
+        agents.append(agent)
+        tasks.append(NarmaTask(agent, cfg))
+        tasks[-1].prepare()
+    body = agents[0].body
+    why = held_window_unsupported(body) or _lanes_unsupported(body)
+    if why:
+        raise ValueError(f"cannot train as one population: {why}")
+    for d, agent in zip(dirs, agents):
+        if d is not None:
+            (d / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
+    pop = _Population(agents, cfg0)
+    tc, n = cfg0.training, cfg0.narma
+    interactive = sys.stderr.isatty()
+    bar = tqdm(total=cfg0.epochs, desc=f"{desc} ({len(cfgs)} trainings)", unit="upd", disable=not progress,
+               file=sys.stderr, dynamic_ncols=interactive, mininterval=0.1 if interactive else 60.0)
+    guards = [UpdateGuard(pop.members[b], factor=tc.reject_factor, patience=tc.reject_patience,  # type: ignore[arg-type]
+                          log=lambda line, b=b: bar.write(f"training {b}: {line}", file=sys.stderr))
+              for b in range(len(cfgs))]
+    active = np.ones(len(cfgs), dtype=bool)
+    failures: list[MemberFailure] = []
+    steps_per_update = n.n_inputs * n.tau
+    start, before = 0, 0.0  # the update to start at, training seconds of earlier attempts
+    if state_path is not None and state_path.is_file():
+        start, before = _load_state(state_path, cfgs, pop, guards, tasks, active, failures)
+        bar.update(start)
+        bar.write(f"{desc}: resuming the population at update {start} of {cfg0.epochs} ({state_path})",
+                  file=sys.stderr)
+    t_start = time.perf_counter()
+    last_save = t_start
+    try:
+        for i in range(start, cfg0.epochs):
+            u = np.stack([t.rng.uniform(0.0, 1.0, n.n_inputs) for t in tasks])  # each member's own stream
+            y = np.stack([t.target(x) for t, x in zip(tasks, u)])
+            for p in pop.params():
+                p.grad = None
+            loss, win = pop.forward(u, y, n.washout, n.train_end)
+            values = loss.detach().double().numpy()
+            finite = np.isfinite(values) & win.sound & active
+            torch.where(torch.as_tensor(finite), loss, torch.zeros((), dtype=loss.dtype)).sum().backward()
+            grads_ok = pop.gradients_finite()
+            accepted = np.zeros(len(cfgs), dtype=bool)
+            for b in np.flatnonzero(active):
+                failure = None if win.sound[b] else _diverged_message(pop, b, steps_per_update)
+                value = float(values[b]) if failure is None else None
+                decision = guards[b].review(i, value, grads_finite=bool(grads_ok[b]), diverged=failure)
+                if decision.stop:
+                    why = failure or (f"loss is {value}" if decision.reason == "non-finite loss" else decision.reason)
+                    ranges = "" if failure else f"; {_ranges(pop, b)}"
+                    failures.append(MemberFailure(int(b), _member_diverged(
+                        dirs[b], i, f"{why}{ranges}; the guard has nothing to undo (no update since the start or the "
+                                    "last restore)", guards[b])))
+                    active[b] = False
+                accepted[b] = decision.accepted
+            pop.step(accepted)
+            bar.update(1)
+            if state_path is not None and time.perf_counter() - last_save >= save_every_s and i + 1 < cfg0.epochs:
+                _save_state(state_path, cfgs, pop, guards, tasks, active, failures, i + 1,
+                            before + time.perf_counter() - t_start)
+                last_save = time.perf_counter()
+            if i % tc.log_every == 0 and active.any():
+                bar.set_postfix(loss=f"{float(np.median([g.history[-1] for g, a in zip(guards, active) if a])):.4g}")
+    finally:
+        bar.close()
+    elapsed = before + time.perf_counter() - t_start
+    results: list[TrainResult | None] = []
+    for b, (cfg, agent, task, guard, d) in enumerate(zip(cfgs, agents, tasks, guards, dirs)):
+        if not active[b]:
+            results.append(None)
+            continue
+        pop.write_back(b, agent)
+        metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": guard.history,
+                                   "updates": len(guard.history), "guard": guard.summary(),
+                                   "train_seconds": elapsed, "backend": tc.backend, "threads": threads,
+                                   "population": {"members": len(cfgs), "index": b},
+                                   "train_steps_per_second": cfg.epochs * steps_per_update / elapsed
+                                   if elapsed > 0 else None}
+        with torch.no_grad():
+            metrics["evaluation"] = task.evaluate()
+        files: list[Path] = []
+        if d is not None:
+            gstate = guard.state_dict()
+            gstate["saved"] = {**gstate["saved"],
+                               "optimizer": pop.torch_optimizer_state(agent, gstate["saved"]["optimizer"])}
+            save_checkpoint(d, agent, {"optimizer": pop.torch_optimizer_state(agent, pop.members[b].state_dict()),
+                                       "task_state": task.state_dict(), "losses": guard.history,
+                                       "update": cfg.epochs, "guard": gstate, "feedback_fitted": False})
+            files = write_outputs(d, task, metrics)
+        results.append(TrainResult(d, guard.history, metrics, files, agent, None))
+    return results, failures
+
+
+STATE_FORMAT = 1
+
+
+def _save_state(path: Path, cfgs, pop: _Population, guards, tasks, active: np.ndarray,
+                failures: list[MemberFailure], update: int, seconds: float) -> None:
+    """Everything the population needs to go on from ``update`` (plain data and tensors: ``weights_only``)."""
+    state = {"format": STATE_FORMAT, "configs": [c.model_dump(mode="json") for c in cfgs], "update": update,
+             "seconds": seconds, "params": {n: getattr(pop, n).detach().clone() for n in STACKED},
+             "steps": pop.steps.clone(), "moments": [[*g.exp_avg, *g.exp_avg_sq] for g in pop.groups],
+             "rates": [[g["lr"] for g in m.param_groups] for m in pop.members],
+             "guards": [g.state_dict() for g in guards], "rngs": [t.rng.bit_generator.state for t in tasks],
+             "active": active.tolist(), "failures": [[f.index, str(f.error)] for f in failures]}
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    tmp.replace(path)
+
+
+def _load_state(path: Path, cfgs, pop: _Population, guards, tasks, active: np.ndarray,
+                failures: list[MemberFailure]) -> tuple[int, float]:
+    """Restore a state :func:`_save_state` wrote; returns (the update to go on from, seconds trained so far)."""
+    from bptsb_ros.config import ConfigError
+
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - any unreadable file is reported the same way
+        raise ConfigError(f"{path}: not a readable population state ({type(err).__name__}: {err}); remove it to "
+                          "start the population afresh") from None
+    if not isinstance(state, dict) or state.get("format") != STATE_FORMAT or \
+            state.get("configs") != [c.model_dump(mode="json") for c in cfgs]:
+        raise ConfigError(f"{path} is the state of another population (other trainings or configs); remove it to "
+                          "start this one afresh")
+    with torch.no_grad():
+        for n in STACKED:
+            getattr(pop, n).copy_(state["params"][n])
+        pop.steps.copy_(state["steps"])
+        for g, saved in zip(pop.groups, state["moments"]):
+            for t, x in zip([*g.exp_avg, *g.exp_avg_sq], saved):
+                t.copy_(x)
+    for m, rates in zip(pop.members, state["rates"]):
+        for group, lr in zip(m.param_groups, rates):
+            group["lr"] = lr
+    for g, gs in zip(guards, state["guards"]):
+        g.load_state_dict(gs)
+    for t, rs in zip(tasks, state["rngs"]):
+        t.rng.bit_generator.state = rs
+    active[:] = state["active"]
+    failures.extend(MemberFailure(int(i), TrainingDiverged(msg)) for i, msg in state["failures"])
+    return int(state["update"]), float(state["seconds"])
+
+
+def _member_diverged(run_dir: Path | None, update: int, why: str, guard: UpdateGuard) -> TrainingDiverged:
+    """Record a member that cannot continue (``diverged.json``) and build its error, as ``train`` words it."""
+    import json
+
+    if run_dir is None:
+        return TrainingDiverged(f"update {update}: {why} (trained in memory: nothing was written)")
+    report = {"update": update, "error": why, "losses": guard.history, "last_good_update": None,
+              "guard": guard.summary(), "population": True}
+    (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
+    return TrainingDiverged(f"update {update}: {why} (a population member: no checkpoint is kept; details in "
+                            f"{run_dir / 'diverged.json'})")
+
