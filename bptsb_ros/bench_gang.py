@@ -101,10 +101,13 @@ def _child(conn, members: int, updates: int) -> None:
     try:
         entry = measure(members, updates)
         if "error" not in entry:
-            entry.update(measure_population(members, updates))
-        if "error" not in entry:
-            entry["population_over_alone"] = round(entry["alone_ms_per_update"] /
-                                                   entry["population_ms_per_member_update"], 2)
+            pop = measure_population(members, updates)
+            if "error" in pop:  # the gang's numbers stand; the population's failure is reported beside them
+                entry["population_error"] = pop["error"]
+            else:
+                entry.update(pop)
+                entry["population_over_alone"] = round(entry["alone_ms_per_update"] /
+                                                       entry["population_ms_per_member_update"], 2)
             entry["paper_memory_task"] = paper_estimate(entry)
         entry["load_average"] = list(os.getloadavg())
         conn.send(entry)

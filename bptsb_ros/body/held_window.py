@@ -175,7 +175,7 @@ _SECOND_BACKWARD = ("held_force_readout: backward through the same window a seco
                     "after the first); run the window again")
 
 
-def _lanes_unsupported(body: MSDN) -> str | None:
+def lanes_unsupported(body: MSDN) -> str | None:
     """Why ``body``'s windows cannot run as lanes (``body/held_window_kernel.py`` has no ground), or None."""
     env = body.environment
     if env.ground_clamp or float(env.ground_c) != 0.0:
@@ -207,7 +207,7 @@ class _HeldForceWindow(torch.autograd.Function):
 
         dtype = r0.dtype
         runner = _lane_runner()
-        if runner is not None and _lanes_unsupported(body) is None:
+        if runner is not None and lanes_unsupported(body) is None:
             lane = WindowLane(_lane_key(body, block_forces.shape[0], tau, row, coord),
                               *(_as_numpy(x, dtype)[0] for x in (r0, v0, a0)),
                               *(_as_numpy(x, dtype) for x in (k, d, l, block_forces)), body, tau, row, coord)
@@ -304,7 +304,7 @@ def population_readout(body: MSDN, r0: torch.Tensor, v0: torch.Tensor, a0: torch
 
     Differentiable w.r.t. r0, v0, a0, k, d, l and blocks. Raises ValueError for shapes that do not fit or a body
     the lane kernel cannot run (ground)."""
-    why = held_window_unsupported(body) or _lanes_unsupported(body)
+    why = held_window_unsupported(body) or lanes_unsupported(body)
     if why:
         raise ValueError(f"population_readout: {why}")
     b, m, e = r0.shape[0], body.n_movable, body.topology.n_springs

@@ -368,8 +368,7 @@ class MSDN(nn.Module):
 
     def parameter_ranges(self) -> str:
         """``k in [lo, hi], d in [..], l in [..]``: for error messages."""
-        named = (("k", self.k), ("d", self.d), ("l", self.l))
-        return ", ".join(f"{n} in [{float(t.detach().min()):.4g}, {float(t.detach().max()):.4g}]" for n, t in named)
+        return parameter_ranges(self.k, self.d, self.l)
 
     def check_finite(self, state: BodyState, limit: float = DIVERGENCE_LIMIT) -> None:
         """Raise SimulationDiverged (with the step and parameter ranges) on NaN/inf or |r| > limit (the test:
@@ -383,14 +382,23 @@ class MSDN(nn.Module):
             finite = bool(torch.isfinite(r).all() and torch.isfinite(state.v).all() and torch.isfinite(state.a).all())
             if finite and float(r.abs().max()) <= limit:
                 return
-        raise SimulationDiverged(
-            f"simulation diverged at step {state.step} (t = {state.step * self.dt:.2f} s): positions "
-            f"non-finite or beyond {limit:g} m; body parameters {self.parameter_ranges()}. Lower the learning rates, "
-            "the time step or the input scale."
-        )
+        raise SimulationDiverged(diverged_message(state.step, self.dt, self.parameter_ranges(), limit))
 
 
 _NUMPY = {torch.float32: np.float32, torch.float64: np.float64}
+
+
+def parameter_ranges(k: torch.Tensor, d: torch.Tensor, l: torch.Tensor) -> str:  # noqa: E741
+    """``k in [lo, hi], d in [..], l in [..]`` of one body's parameters (E,): for error messages."""
+    named = (("k", k), ("d", d), ("l", l))
+    return ", ".join(f"{n} in [{float(t.detach().min()):.4g}, {float(t.detach().max()):.4g}]" for n, t in named)
+
+
+def diverged_message(step: int, dt: float, ranges: str, limit: float = DIVERGENCE_LIMIT) -> str:
+    """What :class:`SimulationDiverged` says for a body that left the sensible range at ``step`` (``dt`` [s];
+    ``ranges``: :func:`parameter_ranges`)."""
+    return (f"simulation diverged at step {step} (t = {step * dt:.2f} s): positions non-finite or beyond {limit:g} m; "
+            f"body parameters {ranges}. Lower the learning rates, the time step or the input scale.")
 
 
 def state_is_sound(r: np.ndarray, v: np.ndarray, a: np.ndarray, limit: float = DIVERGENCE_LIMIT) -> bool:

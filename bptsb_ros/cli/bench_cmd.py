@@ -259,11 +259,12 @@ def run(args: argparse.Namespace) -> int:
     gang = report.get("memory_task_gang", {})
     if "paper_memory_task" in gang:
         est = gang["paper_memory_task"]
+        population = (f"{gang['population_ms_per_member_update']} as a population ({gang['population_over_alone']}x)"
+                      if "populations_h" in est else f"population failed: {gang.get('population_error')}")
         print(f"memory task: {gang['alone_ms_per_update']} ms per update alone, {gang['gang_ms_per_member_update']} "
-              f"ms per member-update in a gang of {gang['members']} ({gang['gang_over_alone']}x), "
-              f"{gang['population_ms_per_member_update']} as a population ({gang['population_over_alone']}x); at the "
-              f"paper's schedule on {est['workers']} workers ≈ {est['alone_h']} h alone, {est['gangs_h']} h in gangs, "
-              f"{est['populations_h']} h as populations")
+              f"ms per member-update in a gang of {gang['members']} ({gang['gang_over_alone']}x), {population}; at "
+              f"the paper's schedule on {est['workers']} workers ≈ {est['alone_h']} h alone, {est['gangs_h']} h in "
+              f"gangs" + (f", {est['populations_h']} h as populations" if "populations_h" in est else ""))
     elif gang:
         print(f"memory-task gang benchmark failed: {gang.get('error')}")
     for name, t in report["targets"].items():

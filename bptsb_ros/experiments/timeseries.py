@@ -123,7 +123,8 @@ class NarmaPopulationJob:
     """Train :class:`NarmaJob` s of one topology (one training stage each) as one population
     (:mod:`bptsb_ros.training.population`: their episodes one batched simulation, each member's numbers its solo
     training's to rounding). Member ``name`` gets the directory ``run_dir/name`` a :class:`NarmaJob` writes;
-    returns ``{name: that job's result}``. A member that diverged fails the job (after the others are written)."""
+    returns ``{name: that job's result}``, for a member that diverged ``{"diverged": "TrainingDiverged: …"}``
+    (:func:`run_jobs` treats it as a failed training)."""
 
     members: tuple[tuple[str, NarmaJob], ...]
 
@@ -137,15 +138,15 @@ class NarmaPopulationJob:
                 raise ValueError(f"{name}: a population member trains one stage of >= 1 epochs, got {job.stages}")
         cfgs = [job.stage_config(job.stages[0]) for _, job in self.members]
         dirs = [run_dir / name / "agent" for name, _ in self.members]
-        # a rerun of a killed population goes on from its last saved state (every 10 minutes)
+        # a rerun of a killed population goes on from its last saved state (every 10 minutes); the job owns
+        # run_dir, so a state of other trainings left there is discarded
         results, failures = train_population(cfgs, dirs, overwrite=True, desc=run_dir.name,
-                                             state_path=run_dir / "population.pt")
-        if failures:
-            names = ", ".join(f"{self.members[f.index][0]} ({f.error})" for f in failures)
-            raise RuntimeError(f"{len(failures)} of {len(self.members)} population members diverged: {names}")
-        out: dict[str, Any] = {}
+                                             state_path=run_dir / "population.pt", stale_state="discard")
+        out: dict[str, Any] = {self.members[f.index][0]: {"diverged": f"TrainingDiverged: {f.error}"}
+                               for f in failures}
         for (name, job), cfg, res in zip(self.members, cfgs, results):
-            assert res is not None
+            if res is None:
+                continue
             epochs = job.stages[0]
             member = {"seed": job.seed, f"loss_last_{epochs}": res.losses[-1],
                       "train_seconds": res.metrics["train_seconds"], "population": len(self.members)}
@@ -205,6 +206,14 @@ def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False
     for job in jobs:
         if job.name in done:
             results.update(done[job.name] if isinstance(job.fn, NarmaPopulationJob) else {job.name: done[job.name]})
+    lost = {name: r["diverged"] for name, r in results.items() if isinstance(r.get("diverged"), str)
+            and name not in diverged}
+    if lost and not diverged_ok:  # population members that diverged: failed trainings, as a job's failure is
+        first = next(iter(lost))
+        raise RuntimeError(f"{len(lost)} of {len(results)} population trainings diverged; first: {first}: "
+                           f"{lost[first]} (records in {out_dir / 'jobs'})")
+    results.update({name: {"diverged": msg.removeprefix("TrainingDiverged: ").split(";")[0]}
+                    for name, msg in lost.items()})
     return {**results, **diverged}
 
 

@@ -21,6 +21,7 @@ Written per member, as :func:`train` writes them: ``checkpoint.pt`` (resumable b
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Sequence
@@ -34,21 +35,21 @@ import torch
 import yaml
 
 from bptsb_ros.agent import Agent, build_agent, force_inputs
-from bptsb_ros.body.held_window import _lanes_unsupported, held_window_unsupported, population_readout
+from bptsb_ros.body.held_window import PopulationWindow, held_window_unsupported, lanes_unsupported, population_readout
+from bptsb_ros.body.msdn import SimulationDiverged, diverged_message, parameter_ranges
 from bptsb_ros.brains import LinearInputLayer
-from bptsb_ros.config import ExperimentConfig
+from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
+from bptsb_ros.tasks.base import Task
 from bptsb_ros.tasks.narma import NarmaTask, brain_input
 from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import save_checkpoint
 from bptsb_ros.training.guard import UpdateGuard
 from bptsb_ros.training.optim import make_optimizer
-from bptsb_ros.training.trainer import TrainingDiverged, TrainResult, write_outputs
+from bptsb_ros.training.trainer import TrainingDiverged, TrainResult, flatten_config, write_outputs
 
 __all__ = ["MemberFailure", "population_unsupported", "train_population"]
 
-#: torch's Adam defaults (betas, eps), which :func:`~bptsb_ros.training.optim.make_optimizer` uses
-ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
 #: config keys that may differ between members (everything else must be equal)
 MEMBER_KEYS = {"seed", "name", "narma.delay", "narma.target", "narma.order", "narma.eval_seed"}
 
@@ -59,13 +60,6 @@ class MemberFailure:
 
     index: int
     error: TrainingDiverged
-
-
-def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
-    return out
 
 
 def population_unsupported(cfgs: Sequence[ExperimentConfig]) -> str | None:
@@ -84,9 +78,11 @@ def population_unsupported(cfgs: Sequence[ExperimentConfig]) -> str | None:
         return "only the clamp projection without a learning-rate schedule is batched"
     if tc.optimizer not in ("sgd", "adam"):
         return f"optimizer {tc.optimizer!r}"
-    base = {k: v for k, v in _flatten(first.model_dump(mode="json")).items() if k not in MEMBER_KEYS}
+    if tc.checkpoint_every:
+        return "training.checkpoint_every > 0 (members write their checkpoint at the end; the population its state)"
+    base = {k: v for k, v in flatten_config(first.model_dump(mode="json")).items() if k not in MEMBER_KEYS}
     for i, cfg in enumerate(cfgs[1:], 1):
-        other = {k: v for k, v in _flatten(cfg.model_dump(mode="json")).items() if k not in MEMBER_KEYS}
+        other = {k: v for k, v in flatten_config(cfg.model_dump(mode="json")).items() if k not in MEMBER_KEYS}
         if other != base:
             diff = sorted(k for k in base.keys() | other.keys() if base.get(k) != other.get(k))
             return f"training {i} differs from the first in {', '.join(diff)}"
@@ -131,9 +127,6 @@ class _MemberOptimizer:
                 for t, x in zip(g.exp_avg_sq, v):
                     t[b].copy_(x)
 
-    def zero_grad(self, set_to_none: bool = True) -> None:  # the population zeroes the stacked gradients
-        pass
-
 
 #: the stacked parameters of a population, by attribute
 STACKED = ("k", "d", "l", "weight", "bias")
@@ -146,8 +139,16 @@ class _Population:
         body = agents[0].body
         self.body, self.cfg = body, cfg
         self.mask = force_inputs(body)
+        # the hyperparameters of the optimiser train() builds (torch's defaults), and what this step implements
+        defaults = make_optimizer(agents[0], cfg.training).defaults
+        plain = {"weight_decay": 0, "maximize": False, "amsgrad": False, "momentum": 0, "dampening": 0,
+                 "nesterov": False}
+        odd = {k: defaults[k] for k, v in plain.items() if k in defaults and defaults[k] != v}
+        if odd:
+            raise ValueError(f"cannot train as one population: optimiser settings {odd}")
+        self.betas, self.eps = defaults.get("betas", (0.9, 0.999)), float(defaults.get("eps", 1e-8))
 
-        def stack(get) -> torch.Tensor:
+        def stack(get: Any) -> torch.Tensor:
             return torch.stack([get(a).detach() for a in agents]).clone().requires_grad_(True)
 
         self.k, self.d, self.l = (stack(lambda a, n=n: getattr(a.body, n)) for n in ("k", "d", "l"))
@@ -168,9 +169,10 @@ class _Population:
     def params(self) -> list[torch.Tensor]:
         return [p for g in self.groups for p in g.params]
 
-    def forward(self, u: np.ndarray, targets: np.ndarray, washout: int, train_end: int):
-        """The episode of every member for inputs u (B, K) and targets (B, K): the losses (B,) (differentiable)
-        and the window (final states, soundness)."""
+    def forward(self, u: np.ndarray, targets: np.ndarray, washout: int,
+                train_end: int) -> tuple[torch.Tensor, PopulationWindow]:
+        """The episode of every member for inputs u (B, K) and targets (B, K): the losses (B,) [m²]
+        (differentiable) and the window (final states, soundness)."""
         body, n = self.body, self.cfg.narma
         dtype = body.l.dtype
         x = brain_input(torch.as_tensor(u, dtype=dtype).unsqueeze(-1), n)  # (B, K, 1)
@@ -196,14 +198,17 @@ class _Population:
     def step(self, accepted: np.ndarray) -> None:
         """One SGD or Adam step of the accepted members (each at its own rates), then k, d, l clamped to ≥ 0."""
         acc = torch.as_tensor(accepted)
+        b1, b2 = self.betas
         with torch.no_grad():
             if self.adam:
                 self.steps += acc.double()
-                b1, b2 = ADAM_BETAS
-                bc1 = 1 - b1 ** self.steps
-                bc2_sqrt = (1 - b2 ** self.steps).sqrt()
+                # as torch's Adam: the bias corrections in Python floats from the member's step count
+                # (a member that has not stepped yet does not step now: 1 keeps its unused row finite)
+                counts = self.steps.tolist()
+                bc1 = [1 - b1 ** s if s else 1.0 for s in counts]
+                bc2_sqrt = torch.tensor([(1 - b2 ** s) ** 0.5 if s else 1.0 for s in counts], dtype=torch.float64)
             for gi, g in enumerate(self.groups):
-                lr = torch.tensor([m.param_groups[gi]["lr"] for m in self.members], dtype=torch.float64)
+                rates = [m.param_groups[gi]["lr"] for m in self.members]
                 for pi, p in enumerate(g.params):
                     view = (-1,) + (1,) * (p.dim() - 1)
                     keep = acc.view(view)
@@ -212,10 +217,12 @@ class _Population:
                         m, v = g.exp_avg[pi], g.exp_avg_sq[pi]
                         m.copy_(torch.where(keep, m.lerp(grad, 1 - b1), m))
                         v.copy_(torch.where(keep, torch.addcmul(v * b2, grad, grad, value=1 - b2), v))
-                        denom = (v.sqrt() / bc2_sqrt.to(p.dtype).view(view)).add_(ADAM_EPS)
-                        new = p + (-(lr / bc1)).to(p.dtype).view(view) * (m / denom)  # torch's addcdiv order
-                    else:
-                        new = p - lr.to(p.dtype).view(view) * grad
+                        denom = (v.sqrt() / bc2_sqrt.to(p.dtype).view(view)).add_(self.eps)
+                        step = torch.tensor([-lr / c for lr, c in zip(rates, bc1)], dtype=torch.float64)
+                        new = p + (step.to(p.dtype).view(view) * m) / denom  # addcdiv: (value · m) / denom
+                    else:  # add_(grad, alpha=−lr) is one fused multiply-add, as addcmul is
+                        new = torch.addcmul(p, grad, torch.tensor(rates, dtype=torch.float64).neg().to(p.dtype)
+                                            .view(view))
                     p.copy_(torch.where(keep, new, p))
             for p in (self.k, self.d, self.l):
                 p.clamp_(min=0.0)
@@ -243,29 +250,21 @@ class _Population:
 
 def _ranges(pop: _Population, b: int) -> str:
     """Member b's ``k in [lo, hi], d in [..], l in [..]`` (:meth:`MSDN.parameter_ranges`)."""
-    return ", ".join(f"{n} in [{float(t[b].detach().min()):.4g}, {float(t[b].detach().max()):.4g}]"
-                     for n, t in (("k", pop.k), ("d", pop.d), ("l", pop.l)))
-
-
-def _diverged_message(pop: _Population, b: int, steps: int) -> str:
-    """The message :meth:`MSDN.check_finite` gives, for member b."""
-    from bptsb_ros.body.msdn import DIVERGENCE_LIMIT
-
-    return (f"simulation diverged at step {steps} (t = {steps * pop.body.dt:.2f} s): positions non-finite or beyond "
-            f"{DIVERGENCE_LIMIT:g} m; body parameters {_ranges(pop, b)}. Lower the learning rates, the time step or "
-            "the input scale.")
+    return parameter_ranges(pop.k[b], pop.d[b], pop.l[b])
 
 
 def train_population(cfgs: Sequence[ExperimentConfig], run_dirs: Sequence[str | Path | None], *,
                      overwrite: bool = False, progress: bool = True, desc: str = "population",
-                     state_path: str | Path | None = None,
-                     save_every_s: float = 600.0) -> tuple[list[TrainResult | None], list[MemberFailure]]:
+                     state_path: str | Path | None = None, save_every_s: float = 600.0,
+                     stale_state: str = "refuse") -> tuple[list[TrainResult | None], list[MemberFailure]]:
     """Train every config of ``cfgs`` (one member each) as one population; member b writes to ``run_dirs[b]``
     (None: in memory) what :func:`~bptsb_ros.training.trainer.train` writes.
 
     ``state_path``: the whole population's state is saved there every ``save_every_s`` wall seconds, and a
-    population started with a state file there continues from it (the same configs; a different set is refused)
-    to the numbers of an uninterrupted run; removed once every member's files are written.
+    population started with a state file there continues from it to the numbers of an uninterrupted run (its
+    member directories may then hold the files of the interrupted attempt); a state of other configs is refused,
+    or with ``stale_state="discard"`` removed first (for a caller that owns the file). The file is removed once
+    every member's files are written. Members write their checkpoint at the end only.
 
     Returns ``(results, failures)``: ``results[b]`` the member's :class:`TrainResult` (None where it failed);
     ``failures`` the members that diverged beyond their guard, with the error their solo training raises.
@@ -277,13 +276,19 @@ def train_population(cfgs: Sequence[ExperimentConfig], run_dirs: Sequence[str | 
             another population's or unreadable.
         RunDirLocked: another process holds one of the run directories.
     """
-    from bptsb_ros.config import ConfigError
-
     why = population_unsupported(cfgs)
     if why:
         raise ValueError(f"cannot train as one population: {why}")
     if len(run_dirs) != len(cfgs):
         raise ValueError(f"{len(cfgs)} configs but {len(run_dirs)} run directories")
+    if stale_state not in ("refuse", "discard"):
+        raise ValueError(f"stale_state must be 'refuse' or 'discard', got {stale_state!r}")
+    state = None if state_path is None else Path(state_path)
+    resuming = False
+    if state is not None and state.is_file():
+        resuming = _state_matches(state, cfgs)
+        if not resuming and stale_state == "discard":
+            state.unlink()
     with ExitStack() as stack:
         dirs: list[Path | None] = []
         for d in run_dirs:
@@ -292,14 +297,13 @@ def train_population(cfgs: Sequence[ExperimentConfig], run_dirs: Sequence[str | 
                 continue
             path = Path(d)
             stack.enter_context(hold_run_dir(path))
-            if not overwrite and not dir_is_empty(path):
+            if not overwrite and not resuming and not dir_is_empty(path):
                 raise ConfigError(f"{path} already holds a run (or other files); replace it with overwrite or "
                                   "choose another directory")
             dirs.append(path)
-        results = _train(list(cfgs), dirs, progress=progress, desc=desc,
-                         state_path=None if state_path is None else Path(state_path), save_every_s=save_every_s)
-        if state_path is not None:
-            Path(state_path).unlink(missing_ok=True)  # every member's own files are written: it is not needed
+        results = _train(list(cfgs), dirs, progress=progress, desc=desc, state_path=state, save_every_s=save_every_s)
+        if state is not None:
+            state.unlink(missing_ok=True)  # every member's own files are written: it is not needed
         return results
 
 
@@ -321,7 +325,7 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
         tasks.append(NarmaTask(agent, cfg))
         tasks[-1].prepare()
     body = agents[0].body
-    why = held_window_unsupported(body) or _lanes_unsupported(body)
+    why = held_window_unsupported(body) or lanes_unsupported(body)
     if why:
         raise ValueError(f"cannot train as one population: {why}")
     for d, agent in zip(dirs, agents):
@@ -359,7 +363,7 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
             grads_ok = pop.gradients_finite()
             accepted = np.zeros(len(cfgs), dtype=bool)
             for b in np.flatnonzero(active):
-                failure = None if win.sound[b] else _diverged_message(pop, b, steps_per_update)
+                failure = None if win.sound[b] else diverged_message(steps_per_update, body.dt, _ranges(pop, b))
                 value = float(values[b]) if failure is None else None
                 decision = guards[b].review(i, value, grads_finite=bool(grads_ok[b]), diverged=failure)
                 if decision.stop:
@@ -367,7 +371,7 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
                     ranges = "" if failure else f"; {_ranges(pop, b)}"
                     failures.append(MemberFailure(int(b), _member_diverged(
                         dirs[b], i, f"{why}{ranges}; the guard has nothing to undo (no update since the start or the "
-                                    "last restore)", guards[b])))
+                                    "last restore)", guards[b], _ranges(pop, b))))
                     active[b] = False
                 accepted[b] = decision.accepted
             pop.step(accepted)
@@ -393,8 +397,14 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
                                    "population": {"members": len(cfgs), "index": b},
                                    "train_steps_per_second": cfg.epochs * steps_per_update / elapsed
                                    if elapsed > 0 else None}
-        with torch.no_grad():
-            metrics["evaluation"] = task.evaluate()
+        try:
+            with torch.no_grad():
+                metrics["evaluation"] = task.evaluate()
+        except SimulationDiverged as err:  # as train(): the final parameters never completed a held-out run
+            failures.append(MemberFailure(b, _member_diverged(d, cfg.epochs, f"evaluation: {err}", guard,
+                                                              agent.body.parameter_ranges())))
+            results.append(None)
+            continue
         files: list[Path] = []
         if d is not None:
             gstate = guard.state_dict()
@@ -411,8 +421,9 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
 STATE_FORMAT = 1
 
 
-def _save_state(path: Path, cfgs, pop: _Population, guards, tasks, active: np.ndarray,
-                failures: list[MemberFailure], update: int, seconds: float) -> None:
+def _save_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, guards: Sequence[UpdateGuard],
+                tasks: Sequence[Task], active: np.ndarray, failures: list[MemberFailure], update: int,
+                seconds: float) -> None:
     """Everything the population needs to go on from ``update`` (plain data and tensors: ``weights_only``)."""
     state = {"format": STATE_FORMAT, "configs": [c.model_dump(mode="json") for c in cfgs], "update": update,
              "seconds": seconds, "params": {n: getattr(pop, n).detach().clone() for n in STACKED},
@@ -425,16 +436,28 @@ def _save_state(path: Path, cfgs, pop: _Population, guards, tasks, active: np.nd
     tmp.replace(path)
 
 
-def _load_state(path: Path, cfgs, pop: _Population, guards, tasks, active: np.ndarray,
-                failures: list[MemberFailure]) -> tuple[int, float]:
-    """Restore a state :func:`_save_state` wrote; returns (the update to go on from, seconds trained so far)."""
-    from bptsb_ros.config import ConfigError
-
+def _read_state(path: Path) -> Any:
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - any unreadable file is reported the same way
         raise ConfigError(f"{path}: not a readable population state ({type(err).__name__}: {err}); remove it to "
                           "start the population afresh") from None
+
+
+def _state_matches(path: Path, cfgs: Sequence[ExperimentConfig]) -> bool:
+    """The state at ``path`` is of this population (format and every member's config)."""
+    try:
+        state = _read_state(path)
+    except ConfigError:
+        return False
+    return (isinstance(state, dict) and state.get("format") == STATE_FORMAT
+            and state.get("configs") == [c.model_dump(mode="json") for c in cfgs])
+
+
+def _load_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, guards: Sequence[UpdateGuard],
+                tasks: Sequence[Task], active: np.ndarray, failures: list[MemberFailure]) -> tuple[int, float]:
+    """Restore a state :func:`_save_state` wrote; returns (the update to go on from, seconds trained so far)."""
+    state = _read_state(path)
     if not isinstance(state, dict) or state.get("format") != STATE_FORMAT or \
             state.get("configs") != [c.model_dump(mode="json") for c in cfgs]:
         raise ConfigError(f"{path} is the state of another population (other trainings or configs); remove it to "
@@ -458,14 +481,13 @@ def _load_state(path: Path, cfgs, pop: _Population, guards, tasks, active: np.nd
     return int(state["update"]), float(state["seconds"])
 
 
-def _member_diverged(run_dir: Path | None, update: int, why: str, guard: UpdateGuard) -> TrainingDiverged:
+def _member_diverged(run_dir: Path | None, update: int, why: str, guard: UpdateGuard,
+                     ranges: str) -> TrainingDiverged:
     """Record a member that cannot continue (``diverged.json``) and build its error, as ``train`` words it."""
-    import json
-
     if run_dir is None:
         return TrainingDiverged(f"update {update}: {why} (trained in memory: nothing was written)")
-    report = {"update": update, "error": why, "losses": guard.history, "last_good_update": None,
-              "guard": guard.summary(), "population": True}
+    report = {"update": update, "error": why, "losses": guard.history, "parameters": ranges,
+              "last_good_update": None, "guard": guard.summary(), "population": True}
     (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
     return TrainingDiverged(f"update {update}: {why} (a population member: no checkpoint is kept; details in "
                             f"{run_dir / 'diverged.json'})")

@@ -325,17 +325,18 @@ RESUMABLE_CHANGES = {"sim_time", "epochs", "name", "training.checkpoint_every", 
                      "training.backend"}
 
 
-def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
+def flatten_config(d: dict, prefix: str = "") -> dict[str, Any]:
+    """A nested config dict as ``{"training.lr.k": value, ...}``."""
     out: dict[str, Any] = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
-        out.update(_flatten(v, f"{key}.") if isinstance(v, dict) else {key: v})
+        out.update(flatten_config(v, f"{key}.") if isinstance(v, dict) else {key: v})
     return out
 
 
 def _check_resumable(saved: dict, new: dict, run_dir: Path) -> None:
     """The config given to --resume may extend the run (sim_time, epochs) but not change the experiment."""
-    a, b = _flatten(saved), _flatten(new)
+    a, b = flatten_config(saved), flatten_config(new)
     changed = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k) and k not in RESUMABLE_CHANGES)
     if changed:
         raise ConfigError(f"cannot resume {run_dir}: the config differs from the checkpoint's in {', '.join(changed)}")
