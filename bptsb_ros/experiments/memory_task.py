@@ -2,7 +2,9 @@
 
 The CMP's y must reproduce the input Δt task steps ago, y(t) = u(t − Δt), with an LIL brain (no memory of its
 own) and a double-circle or multiple-circle body (N_mov 17 each). Every (body, Δt, seed) is an independent
-training (a job of ``bptsb_ros.sweep``, run in parallel). The error is the NMSE on a long held-out input.
+training; each body's trainings run as populations (``training/population.py``: stacked parameters, one batched
+simulation; each member's numbers its training's alone), as many at once as the run has workers (setting
+``population``; without it, one sweep job per training). The error is the NMSE on a long held-out input.
 
 Figures: (a) error vs Δt, mean ± std over seeds, per body; (b) input, target and outputs at Δt = 8; (c) the IPC of
 the output and of every movable mass's x and y at Δt = 8, with F₁(u(t−8)) in red.
@@ -166,10 +168,9 @@ def claims(n: MemoryNumbers) -> list[Claim]:
     durations={"smoke": "≈ 11 s on 2 busy cores",
                "short": "284 s measured 2026-11-27 on 2 cores (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 "
                         "workers)",
-               "paper": "≈ 4.7 h on 2 workers in gangs (5.0 ms per update and training, two gangs of 85 at once, "
-                        "`bptsb bench` 2026-12-03; ≈ 5.8 h alone: 246-247 s per training of 40,000 SGD epochs, 2 "
-                        "workers on 2 cores); the committed run (Δt 1, 8, 17, 2 seeds: 12 trainings, alone) took "
-                        "1,512 s in two attempts"},
+               "paper": "≈ 1.8 h on 2 workers as two populations of 85 (1.75-1.90 ms per update and training, "
+                        "both at once, measured 2026-12-03; ≈ 4.7 h in gangs, ≈ 5.8 h alone); the committed run "
+                        "(Δt 1, 8, 17, 2 seeds: 12 trainings, alone) took 1,512 s in two attempts"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval

@@ -130,8 +130,8 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
                "short": "568 s measured 2026-11-27 on 2 cores with the 8,000 training images of --split "
                         "test-8k-2k (2 epochs, 2 processes); with the 60,000 of the MNIST training set about 7× "
                         "as long (≈ 65 min, not measured)",
-               "paper": "≈ 1.7 h on 2 cores (60,000 images × 100 epochs, 5 systems): 3,063 s measured 2026-12-03 "
-                        "with --set epochs=50 (2 workers, 2 otherwise idle cores)"},
+               "paper": "6,610 s measured 2026-12-03 on 2 cores (60,000 images × 100 epochs, 5 systems, 2 workers; "
+                        "other work ran beside it part of the time: 3,063 s for 50 epochs on idle cores)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_curves
