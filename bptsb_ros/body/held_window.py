@@ -299,8 +299,16 @@ def population_readout(body: MSDN, r0: torch.Tensor, v0: torch.Tensor, a0: torch
 
     Args:
         body: the topology, masses, scalars and integrator (its own k, d, l are not used).
-        r0, v0, a0: (B, M, 2) start states. k, d, l: (B, E) [N/m, N·s/m, m]. blocks: (B, K, M, 2) [N], block j
-            in force at steps jτ + 1 … (j + 1)τ. tau, row, coord: as :func:`held_force_readout`.
+        r0: (B, M, 2) start positions [m].
+        v0: (B, M, 2) start velocities [m/s].
+        a0: (B, M, 2) start accelerations [m/s²].
+        k: (B, E) spring constants [N/m].
+        d: (B, E) damping [N·s/m].
+        l: (B, E) rest lengths [m].
+        blocks: (B, K, M, 2) external forces [N], block j in force at steps jτ + 1 … (j + 1)τ.
+        tau: steps per block, as :func:`held_force_readout`.
+        row: the read mass, as :func:`held_force_readout`.
+        coord: the read coordinate, as :func:`held_force_readout`.
 
     Differentiable w.r.t. r0, v0, a0, k, d, l and blocks. Raises ValueError for shapes that do not fit or a body
     the lane kernel cannot run (ground)."""
