@@ -168,9 +168,9 @@ def claims(n: MemoryNumbers) -> list[Claim]:
     durations={"smoke": "≈ 11 s on 2 busy cores",
                "short": "284 s measured 2026-11-27 on 2 cores (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 "
                         "workers)",
-               "paper": "≈ 1.8 h on 2 workers as two populations of 85 (1.75-1.90 ms per update and training, "
-                        "both at once, measured 2026-12-03; ≈ 4.7 h in gangs, ≈ 5.8 h alone); the committed run "
-                        "(Δt 1, 8, 17, 2 seeds: 12 trainings, alone) took 1,512 s in two attempts"},
+               "paper": "≈ 2.3 h on 2 workers as two populations of 85 (2.1-2.4 ms per update and training over "
+                        "the first 400 s of a paper run, 2026-12-03; ≈ 4.7 h in gangs, ≈ 5.8 h alone); the committed "
+                        "run (Δt 1, 8, 17, 2 seeds: 12 trainings, alone) took 1,512 s in two attempts"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval

@@ -382,7 +382,8 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
                             before + time.perf_counter() - t_start)
                 last_save = time.perf_counter()
             if i % tc.log_every == 0 and active.any():
-                bar.set_postfix(loss=f"{float(np.median([g.history[-1] for g, a in zip(guards, active) if a])):.4g}")
+                median = float(np.median([g.history[-1] for g, a in zip(guards, active) if a]))
+                bar.set_postfix(loss=f"{median:.4g}", refresh=False)  # shown at the bar's next timed refresh
     finally:
         bar.close()
     elapsed = before + time.perf_counter() - t_start
