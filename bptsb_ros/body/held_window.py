@@ -282,12 +282,10 @@ class _HeldForceWindow(torch.autograd.Function):
 @dataclass
 class PopulationWindow:
     """What :func:`population_readout` returns for B bodies: ``y`` (B, K) the read coordinate at each block end
-    (differentiable); ``end`` (r, v, a (B, M, 2), lengths (B, E)) the final states (numpy, no gradient);
-    ``sound`` (B,) bool: :func:`~bptsb_ros.body.msdn.state_is_sound` of each final state (False: that body
-    diverged, its ``y`` and gradients are not to be used; the others' are unaffected)."""
+    [m] (differentiable); ``sound`` (B,) bool: :func:`~bptsb_ros.body.msdn.state_is_sound` of each final state
+    (False: that body diverged, its ``y`` and gradients are not to be used; the others' are unaffected)."""
 
     y: torch.Tensor
-    end: tuple[np.ndarray, ...]
     sound: np.ndarray
 
 
@@ -326,7 +324,7 @@ def population_readout(body: MSDN, r0: torch.Tensor, v0: torch.Tensor, a0: torch
         raise ValueError(f"tau must be >= 1 and (row, coord) a movable mass's coordinate, got {tau}, ({row}, {coord})")
     box: dict[str, Any] = {}
     y = _PopulationWindow.apply(r0, v0, a0, k, d, l, blocks, body, int(tau), int(row), int(coord), box)
-    return PopulationWindow(y, box["end"], box["sound"])
+    return PopulationWindow(y, box["sound"])
 
 
 def _lanes_last(t: torch.Tensor, dtype: torch.dtype) -> np.ndarray:
@@ -342,7 +340,7 @@ class _PopulationWindow(torch.autograd.Function):
     def forward(ctx, r0, v0, a0, k, d, l, blocks, body: MSDN, tau: int, row: int, coord: int,
                 box: dict):  # type: ignore[override]
         from bptsb_ros.body import held_window_kernel
-        from bptsb_ros.body.msdn import DIVERGENCE_LIMIT
+        from bptsb_ros.body.msdn import lanes_sound
 
         dtype = body.k.dtype
         arrays = [_lanes_last(x, dtype) for x in (r0, v0, a0, k, d, l, blocks)]
@@ -350,12 +348,7 @@ class _PopulationWindow(torch.autograd.Function):
         verlet = body.integrator == "verlet"
         y, saved, end = held_window_kernel.forward(*arrays, tau, row, coord, body.spring_i, body.spring_j, offset,
                                                    mass, coef, verlet)
-        r, v, a = end[:3]
-        with np.errstate(invalid="ignore"):
-            sound = (np.isfinite(r).all(axis=(0, 1)) & np.isfinite(v).all(axis=(0, 1)) & np.isfinite(a).all(axis=(0, 1))
-                     & (np.abs(r).max(axis=(0, 1)) <= DIVERGENCE_LIMIT))
-        box["end"] = tuple(np.moveaxis(x, -1, 0) for x in end)
-        box["sound"] = sound
+        box["sound"] = lanes_sound(*end[:3])
         ctx.body, ctx.read = body, (tau, row, coord)
         ctx.arrays = (arrays[3:], saved)
         return torch.from_numpy(np.ascontiguousarray(y.T))

@@ -403,8 +403,16 @@ def diverged_message(step: int, dt: float, ranges: str, limit: float = DIVERGENC
 
 def state_is_sound(r: np.ndarray, v: np.ndarray, a: np.ndarray, limit: float = DIVERGENCE_LIMIT) -> bool:
     """:meth:`MSDN.check_finite`'s test on numpy arrays: everything finite and every |r| ≤ ``limit`` [m]."""
-    return bool(np.isfinite(r).all() and np.isfinite(v).all() and np.isfinite(a).all()
-                and np.abs(r).max() <= limit)
+    return bool(lanes_sound(*(x.reshape(-1, 1) for x in (r, v, a)), limit)[0])
+
+
+def lanes_sound(r: np.ndarray, v: np.ndarray, a: np.ndarray, limit: float = DIVERGENCE_LIMIT) -> np.ndarray:
+    """:func:`state_is_sound` of each of P bodies whose states are stacked along the last axis (..., P): (P,)
+    bool."""
+    axes = tuple(range(r.ndim - 1))
+    with np.errstate(invalid="ignore"):  # NaN in |r| compares False, as intended
+        return (np.isfinite(r).all(axis=axes) & np.isfinite(v).all(axis=axes) & np.isfinite(a).all(axis=axes)
+                & (np.abs(r).max(axis=axes) <= limit))
 
 
 def _as_numpy(t: torch.Tensor, dtype: torch.dtype) -> np.ndarray:

@@ -47,7 +47,13 @@ from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import save_checkpoint
 from bptsb_ros.training.guard import UpdateGuard
 from bptsb_ros.training.optim import make_optimizer
-from bptsb_ros.training.trainer import TrainingDiverged, TrainResult, flatten_config, write_outputs
+from bptsb_ros.training.trainer import (
+    TrainingDiverged,
+    TrainResult,
+    flatten_config,
+    training_metrics,
+    write_outputs,
+)
 
 __all__ = ["MemberFailure", "population_unsupported", "train_population"]
 
@@ -393,12 +399,8 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
             results.append(None)
             continue
         pop.write_back(b, agent)
-        metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": guard.history,
-                                   "updates": len(guard.history), "guard": guard.summary(),
-                                   "train_seconds": elapsed, "backend": tc.backend, "threads": threads,
-                                   "population": {"members": len(cfgs), "index": b},
-                                   "train_steps_per_second": cfg.epochs * steps_per_update / elapsed
-                                   if elapsed > 0 else None}
+        metrics = training_metrics(cfg, guard, elapsed, cfg.epochs * steps_per_update, threads, tc.backend,
+                                   population={"members": len(cfgs), "index": b})
         try:
             with torch.no_grad():
                 metrics["evaluation"] = task.evaluate()

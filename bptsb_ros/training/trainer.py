@@ -296,11 +296,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         bar.close()
     elapsed = time.perf_counter() - t_start
 
-    metrics: dict[str, Any] = {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": losses,
-                               "updates": len(losses), "guard": guard.summary(), "train_seconds": elapsed,
-                               "backend": backend, **fallback,
-                               "threads": threads,
-                               "train_steps_per_second": sim_steps / elapsed if elapsed > 0 else None}
+    metrics = training_metrics(cfg, guard, elapsed, sim_steps, threads, backend, **fallback)
     try:
         with torch.no_grad():
             if isinstance(agent.brain, SineWaveGenerator) and agent.feedback is not None:
@@ -318,6 +314,15 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     state = getattr(task, "state", None)
     return TrainResult(run_dir, losses, metrics, files, agent,
                        state.detach() if isinstance(state, BodyState) else None)
+
+
+def training_metrics(cfg: ExperimentConfig, guard: UpdateGuard, seconds: float, sim_steps: int,
+                     threads: dict[str, int], backend: str, **more: Any) -> dict[str, Any]:
+    """The training part of ``metrics.json``: the loss curve (the guard's history), the guard's summary, the time
+    [s] and its rate [steps/s], ``more`` (e.g. a backend fallback); the caller adds the evaluation."""
+    return {"task": cfg.task, "name": cfg.name, "seed": cfg.seed, "loss": guard.history,
+            "updates": len(guard.history), "guard": guard.summary(), "train_seconds": seconds, "backend": backend,
+            **more, "threads": threads, "train_steps_per_second": sim_steps / seconds if seconds > 0 else None}
 
 
 #: keys that may differ between a run and its resumption (durations, logging, the backend: equal to rounding)
