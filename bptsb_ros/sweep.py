@@ -2,7 +2,8 @@
 process pool or on a Dask distributed cluster, each in its own run directory, resumable.
 
 A job is a name and a picklable callable ``fn(run_dir: Path) -> dict`` that does its work inside ``run_dir``
-and returns a flat mapping of results (numbers and short strings) for the aggregate table. :class:`TrainJob`
+and returns a flat mapping of results (numbers and short strings) for the aggregate table, or, for a job that
+runs several trainings at once, a mapping of each training's name to its flat mapping. :class:`TrainJob`
 is the callable for ``bptsb sweep CONFIG``: train one config with overrides and a seed.
 
 Layout of a sweep directory::
@@ -12,7 +13,9 @@ Layout of a sweep directory::
                           "ran_on": {"host", "pid", "dask_worker"}},
                           written last
     OUT/sweep.json        every job's record, in job order
-    OUT/sweep.csv         the same as a table: name, status, wall_s, error, then the result keys
+    OUT/sweep.csv         the same as a table: name, status, wall_s, error, then the result keys; a job whose
+                          result maps trainings to their results (a population) has a row per training,
+                          named JOB/TRAINING, with the job's status and wall_s
     OUT/.bptsb.lock       held while a sweep runs there (:mod:`bptsb_ros.rundir_lock`): one sweep per OUT
 
 Resuming: a job whose ``job.json`` is a valid finished record *of this job* is skipped and its record reused:
@@ -486,21 +489,33 @@ def run_sweep(
 
 
 def write_tables(out: str | Path, records: list[dict[str, Any]]) -> tuple[Path, Path]:
-    """Write ``sweep.json`` (counts and every record) and ``sweep.csv`` (one row per job, results as columns)."""
+    """Write ``sweep.json`` (counts and every record) and ``sweep.csv`` (one row per job, results as columns; a
+    row per training of a job whose result maps trainings to their results)."""
     out = Path(out)
     summary = {"jobs": len(records), "done": sum(r["status"] == "done" for r in records),
                "failed": [r["name"] for r in records if r["status"] != "done"], "records": records}
     (out / SWEEP_JSON).write_text(json.dumps(summary, indent=2))
+    rows = [(name, r, res) for r in records for name, res in _table_rows(r)]
     keys: list[str] = []
-    for r in records:
-        for k, v in (r.get("result") or {}).items():
+    for _, _, res in rows:
+        for k, v in res.items():
             if k not in keys and not isinstance(v, (dict, list)):
                 keys.append(k)
     with (out / SWEEP_CSV).open("w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(["name", "status", "wall_s", "error", *keys])
-        for r in records:
-            res = r.get("result") or {}
-            writer.writerow([r["name"], r["status"], r.get("wall_s"), r.get("error", ""),
+        for name, r, res in rows:
+            writer.writerow([name, r["status"], r.get("wall_s"), r.get("error", ""),
                              *[res.get(k, "") for k in keys]])
     return out / SWEEP_JSON, out / SWEEP_CSV
+
+
+def _table_rows(record: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """The table rows of one job record: ``(name, result)``; a job whose result maps each of several trainings
+    to its own result (a population, :mod:`bptsb_ros.training.population`) gives a row per training,
+    ``JOB/TRAINING``."""
+    result = record.get("result") or {}
+    # a flat result has no mapping among its values (the sweep's contract), so all-mappings means trainings
+    if result and all(isinstance(v, dict) for v in result.values()):
+        return [(f"{record['name']}/{member}", res) for member, res in result.items()]
+    return [(record["name"], result)]

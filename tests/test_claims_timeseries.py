@@ -333,7 +333,7 @@ def test_msdn_nonlinearity_premise_the_body_responds():
 DELAYS = (1, 4, 8, 12, 17)
 DC = (0.3, 0.4, 0.5, 0.6, 0.7)
 MC = (0.2, 0.3, 0.4, 0.5, 0.6)
-NEIGHBOURS = (14, 15, 16)  # the paper's IDs of the masses joined to the CMP
+NEIGHBOURS = (12, 13, 14, 15)  # the multiple circle's IDs of the masses joined to the CMP (ID 16 is the CMP)
 
 
 def seeds(means, first=None) -> list[list[float]]:
@@ -347,7 +347,7 @@ def seeds(means, first=None) -> list[list[float]]:
 
 def memory(dc=DC, mc=MC, delays=DELAYS, out_f1=(0.5, 0.8), target_f1=1.0, near=0.3, far=0.1, totals=None,
            first=None) -> list[bool | None]:
-    per_mass = {i: far for i in range(14)} | {i: near for i in NEIGHBOURS}
+    per_mass = {i: far for i in range(12)} | {i: near for i in NEIGHBOURS}
     first = first or {}
     n = mem.MemoryNumbers(delays, {"double-circle": seeds(dc, first.get("double-circle")),
                                    "multiple-circle": seeds(mc, first.get("multiple-circle"))}, 8,
@@ -405,8 +405,8 @@ def test_memory_cmp_neighbours_largest():
 
 
 def test_memory_rank_of_one_in_all_cases():
-    assert memory(totals={"target": 1.0, "multiple-circle: mass 3 y": 0.9})[5] is True
-    assert memory(totals={"target": 1.0, "multiple-circle: mass 3 y": 0.8999})[5] is False
+    assert memory(totals={"target": 1.0, "multiple-circle: ID 3 y": 0.9})[5] is True
+    assert memory(totals={"target": 1.0, "multiple-circle: ID 3 y": 0.8999})[5] is False
 
 
 def test_memory_premise_the_systems_learned():
@@ -432,3 +432,17 @@ def test_memory_premise_the_systems_learned():
         mem.claims(mem.MemoryNumbers((1, 4), {"double-circle": seeds(DC[:2]), "multiple-circle": seeds(MC[:2])}, 8,
                                      {}, 1.0, {}, NEIGHBOURS, {"target": 1.0}))
 
+
+def test_memory_paper_id_is_the_place_among_the_movable_masses():
+    movable = [20, 21, 22, 36]
+    assert mem.paper_id("mass 22 x", movable) == "ID 2 x"
+    assert mem.paper_id("mass 36 y", movable) == "ID 3 y"
+    assert mem.paper_id("output (CMP y)", movable) == "output (CMP y)"
+    with pytest.raises(ValueError):  # a mass that is not movable has no ID
+        mem.paper_id("mass 5 x", movable)
+
+
+def test_memory_id_list_writes_runs_as_ranges():
+    assert mem.id_list([15, 12, 13, 14]) == "12–15"
+    assert mem.id_list([0, 1, 2, 5, 7, 8]) == "0–2, 5, 7, 8"
+    assert mem.id_list([3]) == "3"

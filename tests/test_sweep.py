@@ -152,3 +152,29 @@ def test_results_give_non_finite_floats_back_as_floats(tmp_path):
     assert got["text"] == "nan-ish" and got["n"] == 2
     again = run_sweep([Job("a", _non_finite_job)], tmp_path, workers=0)  # reused from its record
     assert math.isnan(again.results()["a"]["nan"])
+
+
+def _population_job(run_dir: Path) -> dict:
+    """Planted job running two trainings at once: a result per training, one of them diverged."""
+    return {"a": {"seed": 0, "nmse": 0.25}, "b": {"diverged": "TrainingDiverged: planted"}}
+
+
+def _empty_job(run_dir: Path) -> dict:
+    return {}
+
+
+def _mixed_job(run_dir: Path) -> dict:
+    """A flat result with one nested value (outside the contract): one row, the nested value left out."""
+    return {"loss": 0.5, "history": {"a": 1}}
+
+
+def test_a_population_job_has_a_table_row_per_training(tmp_path):
+    jobs = [*_jobs([2]), Job("pop", _population_job), Job("empty", _empty_job), Job("mixed", _mixed_job)]
+    run_sweep(jobs, tmp_path, workers=0)
+    rows = {r["name"]: r for r in csv.DictReader((tmp_path / "sweep.csv").open())}
+    assert list(rows) == ["x2", "pop/a", "pop/b", "empty", "mixed"]
+    assert rows["empty"]["status"] == "done" and float(rows["mixed"]["loss"]) == 0.5 and "history" not in rows["mixed"]
+    assert rows["x2"]["square"] == "4" and rows["x2"]["nmse"] == ""
+    assert rows["pop/a"]["status"] == "done" and float(rows["pop/a"]["nmse"]) == 0.25 and rows["pop/a"]["seed"] == "0"
+    assert rows["pop/b"]["diverged"] == "TrainingDiverged: planted" and rows["pop/b"]["nmse"] == ""
+    assert json.loads((tmp_path / "sweep.json").read_text())["records"][1]["result"]["a"]["nmse"] == 0.25

@@ -241,8 +241,13 @@ def test_memory_task_smoke(tmp_path):
             np.testing.assert_array_equal(st["target"][dt:], st["u"][:-dt])  # y(t) = u(t − Δt)
             w = d["washout"]
             assert d["nmse"][body][i][0] == pytest.approx(_nmse(_cmp_y(st)[w:], st["target"][w:]))
-    # the multiple circle's CMP neighbours from its springs, by hand: the innermost ring, masses 32-35 of 37
-    assert d["cmp_neighbours"]["multiple-circle"] == [32, 33, 34, 35]
+    # the multiple circle's CMP neighbours from its springs, by hand: the innermost ring, masses 32-35 of 37; the
+    # movable masses are the last 17 (the outer 20 are fixed), so those are the IDs 12-15 and the CMP is ID 16
+    assert d["movable_masses"]["multiple-circle"] == list(range(20, 37))
+    assert d["movable_masses"]["double-circle"] == list(range(16, 33))  # the inner ring and the CMP of 33
+    assert d["cmp_neighbours"]["multiple-circle"] == [12, 13, 14, 15]
+    assert d["cmp_neighbours"]["double-circle"] == list(range(16))  # every inner-ring mass
+    assert sorted(int(k) for k in d["f1_focus_per_mass"]["multiple-circle"]) == list(range(16))
     # "generally smaller": at more than half of the Δt, read only where every system learned (mean NMSE < 1)
     mean = {b: np.mean(d["nmse"][b], axis=1) for b in ("double-circle", "multiple-circle")}
     wins = int(np.sum(mean["multiple-circle"] < mean["double-circle"]))

@@ -7,7 +7,9 @@ simulation; each member's numbers its training's alone), as many at once as the 
 ``population``; without it, one sweep job per training). The error is the NMSE on a long held-out input.
 
 Figures: (a) error vs Δt, mean ± std over seeds, per body; (b) input, target and outputs at Δt = 8; (c) the IPC of
-the output and of every movable mass's x and y at Δt = 8, with F₁(u(t−8)) in red.
+the output and of every movable mass's x and y at Δt = 8, with F₁(u(t−8)) in black (red in the paper, where red
+is not also a degree's colour). Masses are named by ID as in the paper: their order among the movable masses
+(0-16, the CMP last); ``details["movable_masses"]`` gives each body's mass index of every ID.
 
 Claims: :func:`claims`, each the sentence of the supplement it tests (quoted there) with its premise (the systems
 it compares learned, NMSE < 1).
@@ -25,7 +27,7 @@ from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import RANK_TOL, all_of, fmt, not_learned, rank_reached
 
-__all__ = ["EQUAL_TOL", "FOCUS_DELAY", "RHO_MIN", "MemoryNumbers", "claims", "run", "spearman"]
+__all__ = ["EQUAL_TOL", "FOCUS_DELAY", "RHO_MIN", "MemoryNumbers", "claims", "id_list", "paper_id", "run", "spearman"]
 
 #: Spearman rank correlation of the mean error with Δt at or above which (inclusive) "the larger Δt, the larger
 #: the error" holds: a monotone trend up to noise (1 is strictly monotone; one swap of neighbours in 5 gives 0.9)
@@ -48,10 +50,10 @@ class MemoryNumbers:
 
     delays: (D,) the Δt trained; nmse: body (``"double-circle"``, ``"multiple-circle"``) → (D, S) held-out NMSE per
     Δt and seed; focus: the Δt of the IPC figure (8); the IPC is that of each body's first seed at Δt = focus:
-    output_f1, body → the output's F₁(u(t−focus)) capacity; target_f1, the target's; per_mass_f1, multiple
-    circle's movable mass id (the CMP excluded) → its F₁(u(t−focus)) capacity (the larger of its x and y);
-    cmp_neighbours, the multiple circle's masses joined to the CMP by a spring; totals, every IPC bar's total
-    capacity (label → total; every bar is a 1-D state set)."""
+    output_f1, body → the output's F₁(u(t−focus)) capacity; target_f1, the target's; per_mass_f1, the multiple
+    circle's movable mass ID (the CMP excluded) → its F₁(u(t−focus)) capacity (the larger of its x and y);
+    cmp_neighbours, the IDs of the multiple circle's masses joined to the CMP by a spring; totals, every IPC bar's
+    total capacity (label → total; every bar is a 1-D state set)."""
 
     delays: Sequence[int]
     nmse: Mapping[str, Sequence[Sequence[float]]]
@@ -152,13 +154,34 @@ def claims(n: MemoryNumbers) -> list[Claim]:
         out.append(Claim.not_testable(text, premise))
     else:
         out.append(Claim(text, bool(np.mean(near) > np.mean(far)),
-                         f"joined to the CMP {sorted(n.cmp_neighbours)}: mean {fmt(float(np.mean(near)))} (max "
+                         f"joined to the CMP (IDs {sorted(n.cmp_neighbours)}): mean {fmt(float(np.mean(near)))} (max "
                          f"{fmt(max(near))}); others: mean {fmt(float(np.mean(far)))} (max {fmt(max(far))})"))
 
     holds, evidence = rank_reached(n.totals)
     out.append(Claim(f"the total capacity reaches the rank of one in all cases (every IPC bar at Δt = {n.focus}; "
                      f"|total − 1| ≤ {RANK_TOL:g})", holds, evidence))
     return out
+
+
+def paper_id(label: str, movable: Sequence[int]) -> str:
+    """A state-set label of :func:`~bptsb_ros.analysis.ipc.mass_groups` with the mass named by its ID as the paper
+    numbers them, its place among the movable masses: ``"mass 22 x"`` → ``"ID 6 x"`` in the double circle of 33
+    masses (movable: 16-32); other labels unchanged."""
+    kind, *rest = label.split(" ")
+    if kind != "mass" or len(rest) != 2:
+        return label
+    return f"ID {list(movable).index(int(rest[0]))} {rest[1]}"
+
+
+def id_list(ids: Sequence[int]) -> str:
+    """Sorted IDs with runs of consecutive ones as ranges: ``[0, 1, 2, 5]`` → ``"0–2, 5"``."""
+    runs: list[list[int]] = []
+    for i in sorted(ids):
+        if runs and i == runs[-1][-1] + 1:
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    return ", ".join(f"{r[0]}–{r[-1]}" if len(r) > 2 else ", ".join(map(str, r)) for r in runs)
 
 
 @experiment(
@@ -217,22 +240,23 @@ def run(ctx: Context) -> None:
 
     # IPC at Δt = 8 (first seed): the output and every movable coordinate, both bodies, one call
     focus = FOCUS_DELAY if FOCUS_DELAY in delays else delays[len(delays) // 2]
-    groups, labels, states, cmp_neighbours = [], [], {}, {}
+    groups, labels, states, cmp_neighbours, movable = [], [], {}, {}, {}
     u = None
     for b in BODIES:
         st = load_states(job_dir(ctx.out_dir / "sweep", f"{b}_dt{focus}_s{seeds[0]}", populations), epochs)
         states[b] = st
         u = st["u"]
+        movable[b] = [int(i) for i in st["movable"]]
         g, lab = mass_groups(st["positions"], st["movable"], int(st["cmp_index"]))
         keep = [i for i, lb in enumerate(lab) if not lb.startswith("all")]
         groups += [g[i] for i in keep]
-        labels += [f"{b}: {lab[i]}" for i in keep]
+        labels += [f"{b}: {paper_id(lab[i], movable[b])}" for i in keep]
         from bptsb_ros.body.shapes import build_shape
 
         topo = build_shape(BODIES[b][0], BODIES[b][1], 4.0, 3)
         cmp = topo.cmp_index
-        cmp_neighbours[b] = sorted({int(j) for i, j in topo.springs if i == cmp} |
-                                   {int(i) for i, j in topo.springs if j == cmp})
+        cmp_neighbours[b] = sorted({movable[b].index(int(j)) for i, j in topo.springs if i == cmp} |
+                                   {movable[b].index(int(i)) for i, j in topo.springs if j == cmp})
     groups.append(states["double-circle"]["target"])
     labels.append("target")
     res = ipc_groups(to_unit_interval(u), groups, labels, max_degree=3, max_delay=max_delay, washout=washout,
@@ -240,10 +264,9 @@ def run(ctx: Context) -> None:
     f = res.index(((focus, 1),))
     per_mass: dict[str, dict[int, float]] = {}
     for b in BODIES:
-        movable = [int(i) for i in states[b]["movable"]]
-        cmp = int(states[b]["cmp_index"])
-        per_mass[b] = {i: float(max(res.capacity[res.group(f"{b}: mass {i} {a}"), f] for a in "xy"))
-                       for i in movable if i != cmp}
+        cmp_id = movable[b].index(int(states[b]["cmp_index"]))
+        per_mass[b] = {k: float(max(res.capacity[res.group(f"{b}: ID {k} {a}"), f] for a in "xy"))
+                       for k in range(len(movable[b])) if k != cmp_id}
     out_f = {b: float(res.capacity[res.group(f"{b}: output (CMP y)"), f]) for b in BODIES}
     for b in BODIES:
         ctx.row(f"LIL + {b} (N_mov {N_MOV}), Δt = {focus}", f"output F₁(u(t−{focus})) capacity", "1", out_f[b],
@@ -265,7 +288,8 @@ def run(ctx: Context) -> None:
                                  states["double-circle"]["target"], outputs, focus))
     ctx.figure(plot_ipc_panels(ctx.out_dir / "memory_ipc.png", [[IpcPanel.of(
         res, [lab for lab in res.labels if lab.startswith(f"{b}:")] + ["target"],
-        f"(c) IPC, LIL + {b}, Δt = {focus} (black: F₁(u(t−{focus})); CMP neighbours {cmp_neighbours[b]})",
+        f"(c) IPC, LIL + {b}, Δt = {focus} (black: F₁(u(t−{focus})); movable mass IDs, joined to the CMP: "
+        f"{id_list(cmp_neighbours[b])})",
         names=[lab.replace(f"{b}: ", "") for lab in res.labels if lab.startswith(f"{b}:")] + ["target"],
         highlight=f)] for b in BODIES]))
     notes = [] if ctx.scale == "paper" else [f"{ctx.scale} scale: Δt in {list(delays)} only, {len(seeds)} seed(s), "
@@ -278,5 +302,5 @@ def run(ctx: Context) -> None:
                           "eval_inputs": eval_inputs, "washout": washout, "surrogates": surrogates,
                           "nmse": {b: err[b].tolist() for b in BODIES}, "spearman": rho,
                           "f1_focus_per_mass": {b: {str(k): v for k, v in d.items()} for b, d in per_mass.items()},
-                          "cmp_neighbours": cmp_neighbours, "output_f1_focus": out_f,
+                          "cmp_neighbours": cmp_neighbours, "movable_masses": movable, "output_f1_focus": out_f,
                           "notes": notes}

@@ -265,7 +265,7 @@ def run(ctx: Context) -> None:
     for brain in BRAINS:
         left = [f"{brain.upper()} output, epoch {e}" for e in stages] + ["target"]
         right = [lab for lab in res.labels if lab.startswith(f"{brain.upper()} mass")]
-        panels.append([IpcPanel.of(res, left, f"{brain.upper()}: output (CMP y) by training epoch",
+        panels.append([IpcPanel.of(res, left, f"{brain.upper()}: output (CMP y)\nby training epoch",
                                    names=[lab.replace(f"{brain.upper()} output, ", "") for lab in left], legend=False),
                        IpcPanel.of(res, right, f"{brain.upper()} + double circle, epoch {stages[-1]}: each movable "
                                    "mass (index, axis)", names=[lab.replace(f"{brain.upper()} mass ", "")
