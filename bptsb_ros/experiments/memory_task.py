@@ -191,9 +191,8 @@ def id_list(ids: Sequence[int]) -> str:
     durations={"smoke": "≈ 11 s on 2 busy cores",
                "short": "284 s measured 2026-11-27 on 2 cores (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 "
                         "workers)",
-               "paper": "≈ 2.3 h on 2 workers as two populations of 85 (2.1-2.4 ms per update and training over "
-                        "the first 400 s of a paper run, 2026-12-03; ≈ 4.7 h in gangs, ≈ 5.8 h alone); the committed "
-                        "run (Δt 1, 8, 17, 2 seeds: 12 trainings, alone) took 1,512 s in two attempts"},
+               "paper": "8,399 s (2.3 h) measured 2026-12-03 on 2 workers as two populations of 85 (an interrupted "
+                        "attempt and its resume; ≈ 4.7 h in gangs, ≈ 5.8 h alone)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
