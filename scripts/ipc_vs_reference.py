@@ -104,8 +104,16 @@ def main() -> None:
         write_states(args.states)
         print(f"wrote {args.states}")
         return
+    if args.repeats < 1:
+        parser.error(f"--repeats {args.repeats}: give 1 or more")
+    try:
+        found = systems(args.states)
+    except (OSError, ValueError, KeyError) as exc:
+        parser.error(f"{args.states}: not a readable .npz of input and states ({exc})")
+    if not found:
+        parser.error(f"{args.states}: no u_NAME/x_NAME pair and no trained job's positions")
     compute = ours if args.mode == "ours" else reference
-    for name, (u, x) in systems(args.states).items():
+    for name, (u, x) in found.items():
         seconds, (by_degree, rank) = best_of(args.repeats, lambda u=u, x=x: compute(u, x))
         print(json.dumps({"definition": args.mode, "system": name, "states": x.shape[1], "rank": rank,
                           "by_degree": [round(v, 4) for v in by_degree], "seconds": round(seconds, 3)}))
