@@ -106,6 +106,23 @@ def test_groups_equal_separate_computations(u):
         np.testing.assert_allclose(both.raw[g], alone.raw[0], atol=1e-12)
 
 
+def test_chunk_size_changes_no_capacity(u, monkeypatch):
+    """Basis functions and surrogates are computed in chunks: one function or one permutation per chunk gives
+    the same raw capacities, surrogate thresholds and kept capacities as everything in one chunk."""
+    import bptsb_ros.analysis.ipc as ipc_module
+
+    x = np.column_stack([np.tanh(2 * u), delayed(u, 1) ** 2, delayed(u, 2) * u])
+    opts = dict(max_degree=3, max_delay=4, washout=5, surrogates=7, seed=3)
+    monkeypatch.setattr(ipc_module, "_CHUNK", 10**9)
+    whole = ipc(u, x, **opts)
+    monkeypatch.setattr(ipc_module, "_CHUNK", 1)
+    pieces = ipc(u, x, **opts)
+    np.testing.assert_allclose(pieces.raw, whole.raw, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(pieces.threshold, whole.threshold, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(pieces.capacity, whole.capacity, rtol=0, atol=1e-13)
+    assert (whole.capacity > 0).sum() >= 3  # the comparison covers kept capacities, not only zeros
+
+
 @pytest.mark.parametrize("args, message", [
     (dict(u=np.full(100, 2.0), states=np.zeros((100, 2))), r"\[-1, 1\]"),
     (dict(u=np.zeros(100), states=np.zeros((99, 2))), "T = 100"),
