@@ -798,6 +798,14 @@ MUTANTS: tuple[Mutant, ...] = (
            "the FL fit from a running state regresses the SWG signal of the clock from 0", (L_FIT,)),
     # -- tests that can fail §3/§4: both sides of every validation at its edge, reported numbers -----------------
     # (run them alone: -k edge). EDGES pins each check's accepted limit and the value just past it on each side.
+    Mutant("ipc-chunk-surrogate-generators", "bptsb_ros/analysis/ipc.py",
+           "for g in children[lo: lo + n]])",
+           "for g in children[0: n]])",
+           "every chunk of surrogates reuses the first generators", ("tests/test_ipc.py",)),
+    Mutant("ipc-chunk-rows-skip-one", "bptsb_ros/analysis/ipc.py",
+           "for lo in range(0, len(db.terms), rows):",
+           "for lo in range(0, len(db.terms), rows + 1):",
+           "a basis function skipped between chunks", ("tests/test_ipc.py",)),
     Mutant("edge-ipc-input-lower", "bptsb_ros/analysis/ipc.py",
            "u.min() < -1 - 1e-12 or",
            "u.min() < -2 or",
