@@ -175,8 +175,11 @@ def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp
              (e.rsplit(":", 1) for e in startup_subscribers(LOOPS["lissajous_open"], recording=True))]
     assert any(w.startswith("/clock:") for w in waits), waits
     bag = tmp_path / "bag"
+    # --allow-loss: the forger publishes without waiting for the recorder, so on a loaded machine its queue drops
+    # forged messages (144 of 301 once in CI) and the recording counts them as lost; that every message of the
+    # body itself is in the bag is asserted below
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--agent", str(run),
-                             "--duration", "3", "--bag", str(bag), "--timeout", "120",
+                             "--duration", "3", "--bag", str(bag), "--timeout", "120", "--allow-loss",
                              "--param", f"body_sim:wait_for_subscribers:=[{', '.join(repr(w) for w in waits)}]"],
                             env=env_for(ros_env), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
