@@ -29,10 +29,6 @@ class NpzError(ValueError):
     """An ``.npz`` that cannot be read safely; one line naming the file, the array and the problem."""
 
 
-#: what zipfile raises for a member compressed with a method it cannot decode (deflate64, say: "compression
-#: method not supported"): one more unreadable file, reported in one line like the others
-_UNSUPPORTED_COMPRESSION = NotImplementedError
-
 def _read_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, what: str, budget: int) -> np.ndarray:
     with zf.open(info) as fp:
         try:
@@ -96,7 +92,9 @@ def load_npz(path: str | Path, names: Sequence[str], max_bytes: int | None = Non
                 budget -= out[name].nbytes
     except zipfile.BadZipFile as err:
         raise NpzError(f"{path}: not an .npz (zip) file ({err})") from None
-    except (OSError, EOFError, zipfile.LargeZipFile, _UNSUPPORTED_COMPRESSION) as err:
+    # NotImplementedError: zipfile's answer to a member compressed with a method it cannot decode (deflate64, say:
+    # "compression method not supported"), one more unreadable file
+    except (OSError, EOFError, zipfile.LargeZipFile, NotImplementedError) as err:
         raise NpzError(f"{path}: cannot read ({str(err)[:120]})") from None
     except ValueError as err:  # a shape that does not match the data, a bad dtype descriptor
         if isinstance(err, NpzError):
