@@ -796,8 +796,6 @@ MUTANTS: tuple[Mutant, ...] = (
            "first = 0 if state is None else state.step",
            "first = 0",
            "the FL fit from a running state regresses the SWG signal of the clock from 0", (L_FIT,)),
-    # -- tests that can fail §3/§4: both sides of every validation at its edge, reported numbers -----------------
-    # (run them alone: -k edge). EDGES pins each check's accepted limit and the value just past it on each side.
     Mutant("ipc-chunk-surrogate-generators", "bptsb_ros/analysis/ipc.py",
            "for g in children[lo: lo + n]])",
            "for g in children[0: n]])",
@@ -806,6 +804,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "for lo in range(0, len(db.terms), rows):",
            "for lo in range(0, len(db.terms), rows + 1):",
            "a basis function skipped between chunks", ("tests/test_ipc.py",)),
+    # -- tests that can fail §3/§4: both sides of every validation at its edge, reported numbers -----------------
+    # (run them alone: -k edge). EDGES pins each check's accepted limit and the value just past it on each side.
     Mutant("edge-ipc-input-lower", "bptsb_ros/analysis/ipc.py",
            "u.min() < -1 - 1e-12 or",
            "u.min() < -2 or",
