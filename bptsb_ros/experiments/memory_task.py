@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import at_most
+from bptsb_ros.experiments.common import derived_seeds
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import RANK_TOL, all_of, fmt, not_learned, rank_reached
@@ -65,6 +67,7 @@ class MemoryNumbers:
     totals: Mapping[str, float]
 
 
+@judge("memory-task")
 def claims(n: MemoryNumbers) -> list[Claim]:
     """The supplement ("Memory task"), on its figure:
 
@@ -186,6 +189,7 @@ def id_list(ids: Sequence[int]) -> str:
 
 @experiment(
     "memory-task",
+    parallel=True,
     paper_ref="Supplement 'Memory task' (Fig. 'The memory task')",
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
     durations={"smoke": "≈ 11 s on 2 busy cores",
@@ -210,7 +214,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.sweep import Job
 
     epochs, delays, eval_inputs = ctx.settings["epochs"], ctx.settings["delays"], ctx.settings["eval_inputs"]
-    seeds = [ctx.seed + i for i in range(ctx.settings["n_seeds"])]
+    seeds = derived_seeds(ctx.seed, ctx.settings["n_seeds"])
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     max_delay, washout = ctx.settings["max_delay"], ctx.settings["washout"]
     config, extra = ctx.settings["config"], ctx.settings["config_overrides"]
@@ -270,11 +274,11 @@ def run(ctx: Context) -> None:
     for b in BODIES:
         ctx.row(f"LIL + {b} (N_mov {N_MOV}), Δt = {focus}", f"output F₁(u(t−{focus})) capacity", "1", out_f[b],
                 "target: 1")
-    ctx.result.claims.extend(claims(MemoryNumbers(
+    ctx.judge(claims, MemoryNumbers(
         delays=tuple(delays), nmse={b: err[b].tolist() for b in BODIES}, focus=focus, output_f1=out_f,
         target_f1=float(res.capacity[res.group("target"), f]), per_mass_f1=per_mass["multiple-circle"],
         cmp_neighbours=cmp_neighbours["multiple-circle"],
-        totals={lab: float(res.total[res.group(lab)]) for lab in res.labels})))
+        totals={lab: float(res.total[res.group(lab)]) for lab in res.labels}))
 
     ctx.phase("plotting the errors and IPC")
     # figures (a) error vs Δt, (b) Δt = focus series, (c) IPC

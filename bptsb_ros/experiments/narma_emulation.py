@@ -24,6 +24,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from bptsb_ros.experiments.claim_rules import fmt_pair
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, ExperimentError, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import all_of, not_learned
@@ -60,6 +61,7 @@ def _pair(n: EmulationNumbers, better: tuple[str, str], worse: tuple[str, str]) 
     return bool(n.nmse[better] < n.nmse[worse]), text
 
 
+@judge("narma-emulation")
 def claims(n: EmulationNumbers) -> list[Claim]:
     """The paper (main text, "Distribution of computational properties"):
 
@@ -89,6 +91,7 @@ def claims(n: EmulationNumbers) -> list[Claim]:
 
 @experiment(
     "narma-emulation",
+    parallel=True,
     paper_ref="Fig. 3(a, b); Methods 'Time-series emulation task'",
     summary="train {LIL, MLP} x {double-circle, multiple-circle} (N_mov 17) on the expanded NARMA2; NMSE table",
     durations={"smoke": "≈ 7 s on 2 busy cores",
@@ -132,8 +135,7 @@ def run(ctx: Context) -> None:
             job_nmse = results[f"{brain}_{body}"]["nmse"]
             raise ExperimentError(f"{system_name(body, brain)}: NMSE from the stored states "
                                   f"{errors[(body, brain)]:.12g} differs from the job's {job_nmse:.12g}")
-    verdicts = claims(EmulationNumbers(errors, diverged))
-    ctx.result.claims.extend(verdicts)
+    verdicts = ctx.judge(claims, EmulationNumbers(errors, diverged))
 
     # Fig. 3(b): input, target and the four outputs on the held-out sequence, and the error table
     u, target, _ = next(iter(series.values()))

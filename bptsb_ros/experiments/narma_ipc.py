@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bptsb_ros.experiments.experiment_settings import SettingsError
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import RANK_TOL, all_of, fmt, not_learned, rank_reached
@@ -66,6 +67,7 @@ def _nonlinear(by_degree: Sequence[float]) -> float:
     return float(np.sum(np.asarray(by_degree, float)[1:]))
 
 
+@judge("narma-ipc")
 def claims(n: NarmaIpcNumbers) -> list[Claim]:
     """The paper (main text, "Distribution of computational properties", on Fig. 3(c)):
 
@@ -173,6 +175,7 @@ def claims(n: NarmaIpcNumbers) -> list[Claim]:
 
 @experiment(
     "narma-ipc",
+    parallel=True,
     paper_ref="Fig. 3(c)",
     summary="IPC of the output at several epochs, of the target and of every mass's x, y (LIL, MLP; double circle)",
     durations={"smoke": "≈ 6 s on 2 busy cores",
@@ -247,8 +250,7 @@ def run(ctx: Context) -> None:
     numbers = NarmaIpcNumbers(stages=tuple(stages), systems=systems, target=bd[res.group("target")].tolist(),
                               target_terms=res.capacity[res.group("target")].tolist(),
                               totals={lab: float(res.total[res.group(lab)]) for lab in res.labels})
-    verdicts = claims(numbers)
-    ctx.result.claims.extend(verdicts)
+    verdicts = ctx.judge(claims, numbers)
 
     notes = ["target bar: the series the output is trained on, y(t+1) for input u(t)"]
     lil_nonlinear = float(np.sum(deg(f"LIL output, epoch {stages[-1]}")[1:]))
