@@ -128,7 +128,7 @@ def test_claims_count_seeds_that_hold_of_those_that_could_test():
     assert x["per_seed"] == [True, True, False, None, True]
     assert x["holds_in"] == [3, 4] and x["not_testable_in"] == 1
     assert x["verdict"] == "split" and x["interval"] == pytest.approx(list(_wilson_by_hand(3, 4)), abs=2e-4)
-    assert "3 of 4" in x["evidence"] and "seed 3" in x["evidence"]  # the not-testable seed's reason is named
+    assert "3 of 4" in x["evidence"] and "e.g. seed 3" in x["evidence"]  # the not-testable seed's reason is named
     assert y["per_seed"] == [True, True, True, True, None] and y["holds_in"] == [4, 4]
     assert "made no such claim" in y["per_seed_evidence"][4]
 
@@ -389,3 +389,18 @@ def test_sibling_runs_are_the_same_seed_of_the_runs_beside(tmp_path):
     assert ctx.sibling_run("mnist-drawing") == tmp_path / "mnist-drawing" / "seed-1"
     assert Context("smoke", 0, tmp_path / "single", None).sibling_run("x") == tmp_path / "x"  # type: ignore[arg-type]
     assert Path(tmp_path / "a" / "seed-1").is_dir()
+
+
+def test_report_shows_k_of_n_strips_and_means_not_the_seeds_alone(toy_seeds, tmp_path):
+    from bptsb_ros.analysis.report import build_report
+
+    runs = tmp_path / "runs"
+    run_seeds(toy_seeds, [0, 1, 2, 3], out_dir=runs / "toy", workers=0, log=lambda m: None)
+    text = build_report(runs, tmp_path / "R.md").read_text()
+    # one section for the aggregate; the seeds' own results are in it, not beside it
+    assert text.count("\n## ") == 1 and "## toy-seeds (smoke, 4 seeds: 0-3)" in text
+    assert "| [toy-seeds](#toy-seeds-smoke-4-seeds-0-3) |" in text and "| smoke | 4 (0-3) | 0 | 0 | 2 | 0 |" in text
+    assert "| toy | value | 1.5 ± 1.291 (0–3, 4) | 2 | yes | 1 |" in text  # mean and sample sd of 0, 1, 2, 3
+    assert "- **split** 1/4 `✗✗✗✓` value above 2" in text
+    assert "- **split** 2/4 `✓✗✓✗` value even" in text
+    assert "![seeds](runs/toy/seeds.png)" in text

@@ -185,12 +185,16 @@ def aggregate_claims(per_seed: Sequence[Mapping[str, Any]]) -> list[dict[str, An
         if interval:
             words += f" (95 % Wilson interval {interval[0]:.2f}–{interval[1]:.2f})"
         if n < n_seeds:
-            reasons = list(dict.fromkeys(e for v, e in zip(verdicts, evidence, strict=True) if v is None))
-            words += f"; not testable in {n_seeds - n}: " + "; ".join(reasons[:2]) + (
-                f" (and {len(reasons) - 2} other reasons)" if len(reasons) > 2 else "")
+            reasons = list(dict.fromkeys(_short(e) for v, e in zip(verdicts, evidence, strict=True) if v is None))
+            words += f"; not testable in {n_seeds - n}, e.g. " + reasons[0] + (
+                f" (and {len(reasons) - 1} other reason{'s' if len(reasons) > 2 else ''})" if len(reasons) > 1 else "")
         out.append({"claim": text, "verdict": verdict, "holds_in": [k, n], "not_testable_in": n_seeds - n,
                     "per_seed": verdicts, "interval": interval, "evidence": words, "per_seed_evidence": evidence})
     return out
+
+
+def _short(text: str, limit: int = 240) -> str:
+    return text if len(text) <= limit else text[:limit - 1].rstrip() + "…"
 
 
 def aggregate(per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int], *, wall_s: float,
