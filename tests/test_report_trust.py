@@ -306,7 +306,7 @@ def test_not_testable_round_trips_and_is_shown_and_counted_apart(tmp_path):
     run.mkdir(parents=True)
     assert [c["holds"] for c in read_result(write_result(run, res))["claims"]] == [True, False, None]
     text = build_report(tmp_path / "runs", tmp_path / "R.md").read_text()
-    assert "| smoke | 0 | 1 | 1 | 1 |" in text  # ✓ 1, ✗ 1, not testable 1
+    assert "| smoke | 1 (0) | 1 | 1 | 0 | 1 |" in text  # ✓ 1, ✗ 1, split 0, not testable 1
     assert "- ∅ not testable: C holds — the baseline diverged" in text
     assert "- ✓ A holds — a" in text and "- ✗ B holds — b" in text
 
