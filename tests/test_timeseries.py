@@ -302,3 +302,31 @@ def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
     assert [c["holds"] for c in claims] == [None, None]
     assert all("LIL + multiple-circle (N_mov 17): training diverged (TrainingDiverged: update 11" in c["evidence"]
                for c in claims)
+
+
+def test_narma_emulation_ablations_retrain_what_they_name_and_compare_with_the_first_variant(tmp_path):
+    import yaml
+
+    _, data = run_experiment("narma-emulation", scale="smoke", out_dir=tmp_path, progress=False,
+                             settings={"ablations": True})
+    jobs = tmp_path / "sweep" / "jobs"
+    assert sorted(p.name for p in jobs.iterdir()) == sorted(
+        [f"{b}_{body}" for b in ("lil", "mlp") for body in ("double-circle", "multiple-circle")]
+        + [f"authors_init-mlp_{body}" for body in ("double-circle", "multiple-circle")]
+        + [f"float64-{b}_{body}" for b in ("lil", "mlp") for body in ("double-circle", "multiple-circle")])
+    for name, key, value in (("authors_init-mlp_double-circle", ("brain", "gain"), 2.7),
+                             ("mlp_double-circle", ("brain", "gain"), 1.0),
+                             ("float64-lil_multiple-circle", ("dtype",), "float64"),
+                             ("lil_multiple-circle", ("dtype",), "float32")):
+        cfg = yaml.safe_load((jobs / name / "agent" / "config.yaml").read_text())
+        for k in key:
+            cfg = cfg[k]
+        assert cfg == value, name
+    rows = {r["system"]: r["ours"] for r in data["rows"]}
+    assert "[authors_init] LIL + double-circle (N_mov 17)" not in rows  # the ablation retrains the MLP only
+    claims = {c["claim"]: c for c in data["claims"]}
+    brain_claim = "the MLP brain gives a smaller error than the LIL (NMSE, both bodies)"
+    ablated = claims["[authors_init: MLP Xavier-normal gain 2.7 (the authors' NARMA code)] " + brain_claim]
+    lil = rows["LIL + double-circle (N_mov 17)"]  # the first variant's LIL, read by the ablation's claim
+    mlp = rows["[authors_init] MLP + double-circle (N_mov 17)"]
+    assert f"{mlp:.3g} vs LIL + double-circle (N_mov 17) {lil:.3g}" in ablated["evidence"]
