@@ -58,6 +58,7 @@ CLAIMS_MNIST = "tests/test_claims_mnist.py"
 CLAIMS_TS = "tests/test_claims_timeseries.py"
 TS = "bptsb_ros/experiments/"
 EDGES = "tests/test_validation_edges.py"
+SEEDS = "tests/test_seeds.py"
 NUMBERS = "tests/test_reported_numbers.py"
 RECORDED_QOS = ("tests/test_bags_writer.py", "tests/test_bags_recorder.py::test_stop_signal_keeps_every_message")
 LEARN = "tests/test_trainers_learn.py::"
@@ -1069,6 +1070,47 @@ MUTANTS: tuple[Mutant, ...] = (
            "        return tree",
            "the guard's saved parameters are the live tensors, not copies",
            ("tests/test_guard.py",)),
+    # -- verdicts over seeds, stored numbers, the aggregate ------------------------------------------------------
+    Mutant("seeds-wilson-z-squared", "bptsb_ros/experiments/claim_rules.py", "    z2 = z * z\n", "    z2 = z\n",
+           "the Wilson interval with z in place of z²", (SEEDS,)),
+    Mutant("seeds-half-may-test", "bptsb_ros/experiments/claim_rules.py",
+           "    if 2 * testable < seeds or testable == 0:", "    if 2 * testable <= seeds or testable == 0:",
+           "a claim testable in exactly half the seeds counts as not testable", (SEEDS,)),
+    Mutant("seeds-holds-looser", "bptsb_ros/experiments/claim_rules.py", "    if lo > 0.5:\n", "    if lo > 0.4:\n",
+           "a claim holds over seeds when its interval's lower end is above 0.4", (SEEDS,)),
+    Mutant("seeds-population-sd", "bptsb_ros/experiments/seeds.py", "float(arr.std(ddof=1))", "float(arr.std())",
+           "the rows' spread as the population standard deviation", (SEEDS,)),
+    Mutant("seeds-row-occurrence", "bptsb_ros/experiments/seeds.py", "            seen[base] = seen.get(base, 0) + 1\n",
+           "            seen[base] = 1\n", "rows that repeat a key in one result are merged", (SEEDS,)),
+    Mutant("seeds-missing-claim-fails", "bptsb_ros/experiments/seeds.py",
+           'verdicts = [claims[text]["holds"] if text in claims else None for claims in keyed]',
+           'verdicts = [claims[text]["holds"] if text in claims else False for claims in keyed]',
+           "a seed that made no such claim counts as failing it", (SEEDS,)),
+    Mutant("seeds-paper-range-open", "bptsb_ros/experiments/seeds.py", "bool(lo <= paper <= hi)",
+           "bool(lo < paper <= hi)", "the paper's value at our seeds' minimum is outside their range", (SEEDS,)),
+    Mutant("seeds-finished-seed-rerun", "bptsb_ros/experiments/seeds.py", '    return "finished"\n',
+           '    return "unfinished"\n', "a finished seed is resumed instead of reused", (SEEDS,)),
+    Mutant("measured-nan-raw", "bptsb_ros/experiments/measured.py",
+           '        return value if math.isfinite(value) else {"@float": repr(value)}', "        return value",
+           "non-finite numbers stored as raw NaN (not JSON)", (SEEDS,)),
+    Mutant("measured-dtype-lost", "bptsb_ros/experiments/measured.py", '"dtype": value.dtype.name,',
+           '"dtype": "float64",', "stored arrays lose their dtype", (SEEDS,)),
+    Mutant("memory-by-epoch-last-only", "bptsb_ros/experiments/memory_task.py",
+           "all(abs(v - n.target_f1) > EQUAL_TOL for v in dc)",
+           "all(abs(v - n.target_f1) > EQUAL_TOL for v in dc[-1:])",
+           "the double circle's output IPC read at the last epoch only", (CLAIMS_TS,)),
+    Mutant("narma-ipc-memory-inclusive", "bptsb_ros/experiments/narma_ipc.py",
+           'memory["mlp"] > NONLINEAR_MEMORY_MIN,', 'memory["mlp"] >= NONLINEAR_MEMORY_MIN,',
+           "nonlinear memory at the bound counts", (CLAIMS_TS,)),
+    Mutant("narma-ipc-memory-no-delay", "bptsb_ros/experiments/narma_ipc.py",
+           "    memory_terms = (res.degrees >= 2) & (res.max_delays() >= 1)", "    memory_terms = res.degrees >= 2",
+           "instantaneous nonlinearity counted as nonlinear memory",
+           ("tests/test_timeseries.py::test_narma_ipc_smoke",)),
+    Mutant("narma-ablation-overwrites", "bptsb_ros/experiments/narma_emulation.py",
+           "        both = {**errors[main], **errors[name]}", "        both = {**errors[name], **errors[main]}",
+           "an ablation's retrained systems judged as the first variant's", (
+               "tests/test_timeseries.py::test_narma_emulation_ablations_retrain_what_they_name_and_compare_with_the_first"
+               "_variant",)),
 )
 
 

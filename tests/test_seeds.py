@@ -404,3 +404,13 @@ def test_report_shows_k_of_n_strips_and_means_not_the_seeds_alone(toy_seeds, tmp
     assert "- **split** 1/4 `✗✗✗✓` value above 2" in text
     assert "- **split** 2/4 `✓✗✓✗` value even" in text
     assert "![seeds](runs/toy/seeds.png)" in text
+
+
+def test_python_api_runs_seeds(toy_seeds, tmp_path):
+    import bptsb_ros as bp
+
+    data = bp.run_experiment(toy_seeds, seeds=[0, 5], out=tmp_path / "api", log=lambda m: None)
+    assert data["seeds"] == [0, 5] and data["rows"][0]["per_seed"] == [0.0, 5.0]
+    assert (tmp_path / "api" / "seed-5" / "result.json").is_file()
+    gone = bp.run_experiment(toy_seeds, seeds=[1, 2], log=lambda m: None)  # a temporary directory
+    assert gone["rows"][0]["ours"] == pytest.approx(1.5) and gone["figures"] == []
