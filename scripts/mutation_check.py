@@ -1102,10 +1102,10 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("narma-ipc-memory-inclusive", "bptsb_ros/experiments/narma_ipc.py",
            'memory["mlp"] > NONLINEAR_MEMORY_MIN,', 'memory["mlp"] >= NONLINEAR_MEMORY_MIN,',
            "nonlinear memory at the bound counts", (CLAIMS_TS,)),
-    Mutant("narma-ipc-memory-no-delay", "bptsb_ros/experiments/narma_ipc.py",
-           "    memory_terms = (res.degrees >= 2) & (res.max_delays() >= 1)", "    memory_terms = res.degrees >= 2",
+    Mutant("ipc-memory-no-delay", "bptsb_ros/analysis/ipc.py",
+           "(self.degrees >= 2) & (self.max_delays() >= 1)", "(self.degrees >= 2)",
            "instantaneous nonlinearity counted as nonlinear memory",
-           ("tests/test_timeseries.py::test_narma_ipc_smoke",)),
+           ("tests/test_ipc.py::test_planted_quadratic_map_has_degree_two_capacity_where_expected",)),
     Mutant("narma-ablation-overwrites", "bptsb_ros/experiments/narma_emulation.py",
            "        both = {**errors[main], **errors[name]}", "        both = {**errors[name], **errors[main]}",
            "an ablation's retrained systems judged as the first variant's", (

@@ -261,7 +261,7 @@ def run(ctx: Context) -> None:
     res = ipc_groups(to_unit_interval(u), groups, labels, max_degree=3, max_delay=max_delay, washout=washout,
                      surrogates=surrogates, seed=ctx.seed, progress=ctx.progress)
     bd = res.by_degree()
-    memory_terms = (res.degrees >= 2) & (res.max_delays() >= 1)
+    memory = res.nonlinear_memory()
 
     def deg(label: str) -> np.ndarray:
         return bd[res.group(label)]
@@ -270,7 +270,7 @@ def run(ctx: Context) -> None:
     for lab in res.labels:
         g = res.group(lab)
         summary[lab] = {"total": float(res.total[g]), "rank": int(res.rank[g]), "by_degree": bd[g].tolist(),
-                        "nonlinear_memory": float(res.capacity[g, memory_terms].sum())}
+                        "nonlinear_memory": float(memory[g])}
     for name, brain in trained:
         sys_label = f"{prefix(name)}{brain.upper()}"
         tag = "" if name == main else f"[{name}] "
@@ -292,7 +292,7 @@ def run(ctx: Context) -> None:
         systems[(name, brain)] = SystemIpc(
             nmse=[float(results[f"{prefix(name)}{brain}"][f"nmse_{e}"]) for e in stages], output=bd[outs].tolist(),
             output_terms=res.capacity[outs].tolist(), masses={i: bd[c].tolist() for i, c in coords.items()},
-            nonlinear_memory={i: res.capacity[c][:, memory_terms].sum(axis=1).tolist() for i, c in coords.items()})
+            nonlinear_memory={i: memory[c].tolist() for i, c in coords.items()})
         ctx.row(f"{'' if name == main else f'[{name}] '}{brain.upper()} + double circle, epoch {last}",
                 "nonlinear memory of the masses (degree ≥ 2, Δt ≥ 1, summed)", "1",
                 float(sum(sum(v) for v in systems[(name, brain)].nonlinear_memory.values())))
