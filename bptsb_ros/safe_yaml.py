@@ -34,8 +34,10 @@ class _BoundedLoader(yaml.SafeLoader):
 
 
 def _check_expansion(root: yaml.Node, limit: int) -> None:
-    """Raise UntrustedYamlError if the document under ``root`` has more than ``limit`` nodes once expanded."""
+    """Raise UntrustedYamlError if the document under ``root`` has more than ``limit`` nodes once expanded, or if
+    an alias refers to a node that contains it (``&a [*a]``: a document that expands forever)."""
     sizes: dict[int, int] = {}
+    open_: set[int] = set()  # nodes whose children are being sized: meeting one again is a cycle
     stack: list[tuple[yaml.Node, bool]] = [(root, False)]
     while stack:
         node, children_done = stack.pop()
@@ -46,11 +48,16 @@ def _check_expansion(root: yaml.Node, limit: int) -> None:
             continue
         kids = [k for pair in node.value for k in pair] if isinstance(node, yaml.MappingNode) else list(node.value)
         if children_done:
-            total = 1 + sum(sizes.get(id(k), 0) for k in kids)
+            total = 1 + sum(sizes[id(k)] for k in kids)
             if total > limit:
                 raise UntrustedYamlError(f"YAML document expands to more than {limit} nodes (alias bomb?)")
             sizes[id(node)] = total
+            open_.discard(id(node))
         else:
+            if id(node) in open_:
+                raise UntrustedYamlError("YAML document has a recursive alias (a node that contains itself), which "
+                                         "expands without end")
+            open_.add(id(node))
             stack.append((node, True))
             stack.extend((k, False) for k in kids if id(k) not in sizes)
 

@@ -18,14 +18,14 @@ import numpy as np
 from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import read_metadata
-from bptsb_ros.bags.reader import list_topics, read_published
+from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute, dt_to_ns
 
 #: closed loops: the feedback layer drives the body (the offline comparison runs the closed loop)
 LOOPS_CLOSED = ("lissajous_closed", "locomotion_closed")
 #: loops whose body awaits the wind of every step from ``wind_source``
 LOOPS_WIND = ("locomotion_headwind", "lissajous_switching")
-#: node name (any namespace) of the body simulator, the owner of the body's topics
+#: node name of the body simulator, the owner of the body's topics (in the run's namespace)
 BODY_NODE = "body_sim"
 
 
@@ -94,14 +94,19 @@ def _topic(key: str, namespace: str = "") -> str:
     return f"{namespace}/{TOPICS[key].name.lstrip('/')}" if namespace else absolute(TOPICS[key].name)
 
 
+def node_in(namespace: str, node: str) -> str:
+    """The fully qualified name of ``node`` in ``namespace`` (a name that starts with ``/`` is one already)."""
+    return node if node.startswith("/") else f"{namespace.rstrip('/')}/{node}"
+
+
 def expected_publishers(loop: str | None, body_node: str = BODY_NODE, namespace: str = "") -> dict[str, str | None]:
-    """Topic -> the node that owns it in ``loop`` (None: any publisher): the body's topics are ``body_node``'s,
-    ``task/input`` is ``task_input``'s, and ``env/wind`` is ``wind_source``'s in the loops that await it (a user may
-    publish wind in the others)."""
-    owners: dict[str, str | None] = {_topic(k, namespace): body_node for k in (
+    """Topic -> the fully qualified node that owns it in ``loop`` (None: any publisher), every node in the run's
+    ``namespace``: the body's topics are ``body_node``'s, ``task/input`` is ``task_input``'s, and ``env/wind`` is
+    ``wind_source``'s in the loops that await it (a user may publish wind in the others)."""
+    owners: dict[str, str | None] = {_topic(k, namespace): node_in(namespace, body_node) for k in (
         "positions", "spring_lengths", "rest_length", "markers", "perturbation")}
-    owners[_topic("task_input", namespace)] = "task_input"
-    owners[_topic("wind", namespace)] = "wind_source" if loop in LOOPS_WIND else None
+    owners[_topic("task_input", namespace)] = node_in(namespace, "task_input")
+    owners[_topic("wind", namespace)] = node_in(namespace, "wind_source") if loop in LOOPS_WIND else None
     return owners
 
 
@@ -110,7 +115,9 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     """Read the body topics of a bag into a :class:`BagRun` (``skip_damaged``: skip chunks failing their CRC).
 
     Only the messages of each topic's owner are used (:func:`expected_publishers` for ``loop``, default the bag's
-    ``custom_data`` loop; the body is the node named ``body_node``); ``provenance`` reports the others. Raises
+    ``custom_data`` loop; the body is the node named ``body_node`` in the run's namespace, and where that name has
+    several publishers, the one :class:`~bptsb_ros.analysis.provenance.OwnMessages` resolves); ``provenance`` reports
+    the others. Raises
     :class:`BagError` when a step has two different messages from the owner.
     """
     topics = list_topics(bag)
@@ -122,7 +129,7 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
         raise BagError(f"bag {bag} has no {pos_topic} topic (geometry_msgs/PoseArray); topics: {', '.join(topics)}")
     wanted = [t for t in (names[k] for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input",
                                               "wind", "perturbation")) if t in topics]
-    own = OwnMessages(bag, expected_publishers(loop or custom.get("loop"), body_node, ns))
+    own = OwnMessages(bag, expected_publishers(loop or custom.get("loop"), body_node, ns), topic_publishers(bag))
     wind_ns: dict[int, tuple[float, float]] = {}
     kicks_ns: dict[int, np.ndarray] = {}
     pos: dict[int, np.ndarray] = {}
@@ -152,7 +159,7 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
                                "expected, all finite)")
             own.put(kicks_ns, _stamp_ns(msg), kick.reshape(-1, 2), topic, publisher)
     if not pos and own.report.foreign.get(pos_topic):
-        raise BagError(f"bag {bag} has no {pos_topic} messages from {body_node}, only from "
+        raise BagError(f"bag {bag} has no {pos_topic} messages from {node_in(ns, body_node)}, only from "
                        + ", ".join(f"{name} ({n})" for name, n in own.report.foreign[pos_topic].most_common()))
     if not pos:
         raise BagError(f"bag {bag} has no messages on {pos_topic}")

@@ -21,7 +21,7 @@ import torch
 
 from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
-from bptsb_ros.bags.reader import list_topics, read_published
+from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
 
 
@@ -49,8 +49,8 @@ def read_stream_topics(bag: str | Path, dt: float, skip_damaged: bool = False, p
     images: dict[int, np.ndarray] = {}
     labels: dict[int, int] = {}
     resets: dict[int, np.ndarray] = {}
-    own = OwnMessages(bag, {_topic("image"): "image_streamer", _topic("label"): "image_streamer",
-                            _topic("reset_cmd"): "mnist_brain"})
+    own = OwnMessages(bag, {_topic("image"): "/image_streamer", _topic("label"): "/image_streamer",
+                            _topic("reset_cmd"): "/mnist_brain"}, topic_publishers(bag))
     if provenance is not None:
         own.report = provenance
     for (topic, _type, _t, msg), publisher in read_published(bag, wanted, skip_damaged=skip_damaged):

@@ -244,6 +244,23 @@ def _topics_of(summary: Summary) -> dict[str, str]:
     return {ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id else "" for ch in summary.channels.values()}
 
 
+def topic_publishers(path: str | Path) -> dict[str, dict[str, tuple[PublisherId, int]]]:
+    """topic -> GID -> (the publisher, its message count) of every publisher a channel of the bag names (from
+    the MCAP summaries; channels without publisher identities are left out)."""
+    out: dict[str, dict[str, tuple[PublisherId, int]]] = {}
+    for file in mcap_files(path):
+        with _McapFile(file) as mf:
+            stats = mf.summary.statistics
+            for cid, publisher in mf.publishers().items():
+                if publisher is None:
+                    continue
+                topic = mf.summary.channels[cid].topic
+                n = stats.channel_message_counts.get(cid, 0) if stats is not None else 0
+                old = out.setdefault(topic, {}).get(publisher.gid)
+                out[topic][publisher.gid] = (publisher, n + (old[1] if old else 0))
+    return out
+
+
 def list_topics(path: str | Path) -> dict[str, str]:
     """Map each topic of a bag to its ``pkg/msg/Type``."""
     topics: dict[str, str] = {}
