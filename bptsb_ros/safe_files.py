@@ -103,18 +103,32 @@ def atomic_writer(path: str | Path, mode: str = "wb") -> Iterator[IO[Any]]:
     (:func:`check_write_target`, checked before and again just before the rename). ``mode``: ``"wb"`` or ``"w"``
     (UTF-8 text). The file gets the usual permissions (0666 less the umask).
     """
-    if mode not in ("wb", "w"):
-        raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")
     path = Path(path)
     check_write_target(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    f, tmp = temp_file_beside(path, mode)
     try:
-        os.fchmod(fd, 0o666 & ~_UMASK)
-        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as f:
+        with f:
             yield f
         check_write_target(path)
         os.replace(tmp, path)
     except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def temp_file_beside(path: str | Path, mode: str = "wb", suffix: str = ".tmp") -> tuple[IO[Any], Path]:
+    """A new temporary file in ``path``'s folder (``.NAME.<random>SUFFIX``) open for writing, and its path: made
+    by ``tempfile.mkstemp`` (``O_EXCL``: never an existing file, never through a symbolic link), with the usual
+    permissions (0666 less the umask). The caller renames it into place or removes it."""
+    if mode not in ("wb", "w"):
+        raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    try:
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        return os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})), Path(tmp)
+    except BaseException:
+        os.close(fd)
         Path(tmp).unlink(missing_ok=True)
         raise
 

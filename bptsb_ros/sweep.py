@@ -41,6 +41,7 @@ import csv
 import dataclasses
 import functools
 import hashlib
+import io
 import json
 import math
 import os
@@ -55,6 +56,7 @@ from typing import Any
 
 from bptsb_ros.rundir_lock import LOCK_NAME, hold_run_dir
 from bptsb_ros.runner import Placement, RunInfo, connect_placement, ran_on, run_calls
+from bptsb_ros.safe_files import write_atomic
 from bptsb_ros.sweep_errors import SchedulerError, SweepError  # noqa: F401 - callers import both from here
 
 JOB_FILE = "job.json"
@@ -295,9 +297,7 @@ def execute_job(job: Job, run_dir: str | Path, key: str | None = None) -> dict[s
     except Exception as err:  # noqa: BLE001 - a failing job is reported, the sweep goes on
         record = {"name": job.name, "key": key, "status": "failed", "wall_s": round(time.perf_counter() - t0, 3),
                   "error": f"{type(err).__name__}: {err}", "traceback": traceback.format_exc(), "ran_on": ran_on()}
-    tmp = run_dir / (JOB_FILE + ".tmp")
-    tmp.write_text(json.dumps(record, indent=2))
-    tmp.replace(run_dir / JOB_FILE)  # atomic: a killed job leaves no half-written record
+    write_atomic(run_dir / JOB_FILE, json.dumps(record, indent=2))  # a killed job leaves no half-written record
     return record
 
 
@@ -494,19 +494,19 @@ def write_tables(out: str | Path, records: list[dict[str, Any]]) -> tuple[Path, 
     out = Path(out)
     summary = {"jobs": len(records), "done": sum(r["status"] == "done" for r in records),
                "failed": [r["name"] for r in records if r["status"] != "done"], "records": records}
-    (out / SWEEP_JSON).write_text(json.dumps(summary, indent=2))
+    write_atomic(out / SWEEP_JSON, json.dumps(summary, indent=2))
     rows = [(name, r, res) for r in records for name, res in _table_rows(r)]
     keys: list[str] = []
     for _, _, res in rows:
         for k, v in res.items():
             if k not in keys and not isinstance(v, (dict, list)):
                 keys.append(k)
-    with (out / SWEEP_CSV).open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["name", "status", "wall_s", "error", *keys])
-        for name, r, res in rows:
-            writer.writerow([name, r["status"], r.get("wall_s"), r.get("error", ""),
-                             *[res.get(k, "") for k in keys]])
+    table = io.StringIO(newline="")
+    writer = csv.writer(table)
+    writer.writerow(["name", "status", "wall_s", "error", *keys])
+    for name, r, res in rows:
+        writer.writerow([name, r["status"], r.get("wall_s"), r.get("error", ""), *[res.get(k, "") for k in keys]])
+    write_atomic(out / SWEEP_CSV, table.getvalue())
     return out / SWEEP_JSON, out / SWEEP_CSV
 
 

@@ -23,6 +23,7 @@ from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
+from bptsb_ros.safe_files import write_atomic
 
 
 def _topic(key: str) -> str:
@@ -147,7 +148,7 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
     if gif and len(run.springs):
         files.append(animate_run(out_dir / "replay.gif", run))
     metrics["files"] = [str(f) for f in files]
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_atomic(out_dir / "metrics.json", json.dumps(metrics, indent=2))
     return metrics
 
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -221,12 +220,11 @@ def _check_fields(item: Any, fields: dict[str, type], where: str) -> None:
 
 
 def write_result(out_dir: Path, result: ExperimentResult) -> Path:
-    """Write ``out_dir/result.json`` atomically (a crash never leaves half a file)."""
-    path = out_dir / RESULT_FILE
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result.to_json(), indent=2, allow_nan=False))
-    os.replace(tmp, path)
-    return path
+    """Write ``out_dir/result.json`` atomically, as a regular file only (a crash never leaves half a file;
+    :func:`~bptsb_ros.safe_files.write_atomic`)."""
+    from bptsb_ros.safe_files import write_atomic
+
+    return write_atomic(out_dir / RESULT_FILE, json.dumps(result.to_json(), indent=2, allow_nan=False))
 
 
 MAX_RESULT_BYTES = 50_000_000

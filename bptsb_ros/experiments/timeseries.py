@@ -114,8 +114,11 @@ class NarmaJob:
         target = task.target(u)
         cmp_y = pos[:, agent.body.cmp_local, 1]
         out[f"nmse_{epochs}"] = nmse(cmp_y[self.washout:], target[self.washout:])
-        np.savez(run_dir / f"states_{epochs}.npz", u=u, positions=pos, target=target,
-                 movable=agent.body.topology.movable, cmp_index=agent.body.topology.cmp_index)
+        from bptsb_ros.safe_files import atomic_writer
+
+        with atomic_writer(run_dir / f"states_{epochs}.npz") as f:
+            np.savez(f, u=u, positions=pos, target=target, movable=agent.body.topology.movable,
+                     cmp_index=agent.body.topology.cmp_index)
 
 
 @dataclass(frozen=True)

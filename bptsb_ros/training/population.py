@@ -41,6 +41,7 @@ from bptsb_ros.body.msdn import SimulationDiverged, diverged_message, parameter_
 from bptsb_ros.brains import LinearInputLayer
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
+from bptsb_ros.safe_files import atomic_writer, write_atomic
 from bptsb_ros.tasks.base import Task
 from bptsb_ros.tasks.narma import NarmaTask, brain_input
 from bptsb_ros.threads import configure_threads
@@ -337,7 +338,7 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
         raise ValueError(f"cannot train as one population: {why}")
     for d, agent in zip(dirs, agents):
         if d is not None:
-            (d / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
+            write_atomic(d / "config.yaml", yaml.safe_dump(agent.config, sort_keys=False))
     pop = _Population(agents, cfg0)
     tc, n = cfg0.training, cfg0.narma
     interactive = sys.stderr.isatty()
@@ -435,9 +436,8 @@ def _save_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, 
              "rates": [[g["lr"] for g in m.param_groups] for m in pop.members],
              "guards": [g.state_dict() for g in guards], "rngs": [t.rng.bit_generator.state for t in tasks],
              "active": active.tolist(), "failures": [[f.index, str(f.error)] for f in failures]}
-    tmp = path.with_suffix(".tmp")
-    torch.save(state, tmp)
-    tmp.replace(path)
+    with atomic_writer(path) as f:
+        torch.save(state, f)
 
 
 def _read_state(path: Path) -> Any:
@@ -492,7 +492,7 @@ def _member_diverged(run_dir: Path | None, update: int, why: str, guard: UpdateG
         return TrainingDiverged(f"update {update}: {why} (trained in memory: nothing was written)")
     report = {"update": update, "error": why, "losses": guard.history, "parameters": ranges,
               "last_good_update": None, "guard": guard.summary(), "population": True}
-    (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
+    write_atomic(run_dir / "diverged.json", json.dumps(report, indent=2))
     return TrainingDiverged(f"update {update}: {why} (a population member: no checkpoint is kept; details in "
                             f"{run_dir / 'diverged.json'})")
 

@@ -22,6 +22,7 @@ from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
+from bptsb_ros.safe_files import write_atomic
 from bptsb_ros.tasks import get_task
 from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
@@ -171,7 +172,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         if "task_state" in payload["extra"]:
             task.load_state_dict(payload["extra"]["task_state"])
     if run_dir is not None:
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
+        write_atomic(run_dir / "config.yaml", yaml.safe_dump(agent.config, sort_keys=False))
 
     total = task.num_updates()
     tc = cfg.training
@@ -247,7 +248,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
             kept = "no checkpoint was saved: no window completed"
         report = {"update": update, "error": why, "losses": losses, "parameters": agent.body.parameter_ranges(),
                   "last_good_update": None if good is None else good["extra"]["update"], "guard": guard.summary()}
-        (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
+        write_atomic(run_dir / "diverged.json", json.dumps(report, indent=2))
         return TrainingDiverged(f"update {update}: {why} ({kept}; details in {run_dir / 'diverged.json'})")
 
     decay_at = set(step_decay_updates(total)) if tc.lr_decay else set()  # the published switching schedule
@@ -352,7 +353,7 @@ def write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
     from bptsb_ros.analysis.plots import plot_loss
     from bptsb_ros.analysis.style import FIGURES
 
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_atomic(run_dir / "metrics.json", json.dumps(metrics, indent=2))
     with FIGURES:
         files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], task.loss_label,
                                                          metrics["name"])]
