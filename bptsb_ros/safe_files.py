@@ -126,7 +126,9 @@ def temp_file_beside(path: str | Path, mode: str = "wb", suffix: str = ".tmp") -
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
     try:
         os.fchmod(fd, 0o666 & ~_UMASK)
-        return os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})), Path(tmp)
+        f = os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"}))
+        (f.raw if "b" in mode else f.buffer.raw).name = tmp  # its path in messages, not the descriptor's number
+        return f, Path(tmp)
     except BaseException:
         os.close(fd)
         Path(tmp).unlink(missing_ok=True)
