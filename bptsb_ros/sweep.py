@@ -326,6 +326,37 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def result_problem(job: Job, result: dict[str, Any]) -> str | None:
+    """Why a recorded ``result`` cannot be ``job``'s (None when it can): a job whose callable has a ``seed`` must
+    report that seed; one whose callable names its ``members`` (a population of trainings) must give exactly one
+    result per member, each with its own seed or ``diverged``; the callable's own ``result_problem(result)``, if it
+    has one, is asked too."""
+    fn = job.fn
+    members = getattr(fn, "members", None)
+    if isinstance(members, tuple) and all(isinstance(m, tuple) and len(m) == 2 for m in members):
+        names = [str(name) for name, _ in members]
+        if sorted(result) != sorted(names):
+            extra = sorted(set(result) - set(names))
+            what = f"names {extra[0][:40]!r}, not a member" if extra else "lacks a member's result"
+            return f"its result {what} of this job ({len(names)} members)"
+        for name, member in members:
+            value = result[name]
+            if not isinstance(value, dict):
+                return f"its result of member {name} is not a mapping"
+            if "diverged" in value:
+                continue
+            if value.get("seed") != getattr(member, "seed", value.get("seed")):
+                return f"its result of member {name} is of seed {str(value.get('seed'))[:20]}, not {member.seed}"
+            check = getattr(member, "result_problem", None)
+            problem = check(value) if callable(check) else None
+            if problem:
+                return f"member {name}: {problem}"
+    elif hasattr(fn, "seed") and "seed" in result and result["seed"] != fn.seed:
+        return f"its result is of seed {str(result['seed'])[:20]}, not {fn.seed}"
+    check = getattr(fn, "result_problem", None)
+    return check(result) if callable(check) else None
+
+
 def finished_record(job: Job, run_dir: Path, key: str) -> tuple[dict[str, Any] | None, str | None]:
     """(the record, None) if ``run_dir/job.json`` is a valid finished record of ``job`` (see the module
     docstring); else (None, why it is not trusted), or (None, None) when there is no record or it says failed."""
@@ -353,6 +384,9 @@ def finished_record(job: Job, run_dir: Path, key: str) -> tuple[dict[str, Any] |
         return None, "wall_s is not a non-negative number"
     if not isinstance(record["result"], dict):
         return None, "result is not a mapping"
+    problem = result_problem(job, record["result"])
+    if problem:
+        return None, problem
     files = record["files"]
     if not isinstance(files, dict) or not all(isinstance(n, int) and not isinstance(n, bool) for n in files.values()):
         return None, "files is not a mapping of sizes"
