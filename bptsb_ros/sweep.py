@@ -22,8 +22,12 @@ Resuming: a job whose ``job.json`` is a valid finished record *of this job* is s
 status ``done``, the job's name, its ``key`` (a hash of what the job is: its callable and arguments, for
 :class:`TrainJob` also the config file's content), a number ``wall_s``, a ``result`` mapping, and ``files``
 (path → size of every file the job left in its directory) matching the directory now. Any other record is not
-trusted: the job runs again (with one line saying why). Failed and unfinished jobs run again. A job that raises
-is recorded as failed with its error and traceback; the other jobs go on.
+trusted: the job runs again (with one line saying why); so does a record whose result does not fit the job
+(:func:`result_problem`: another seed, a population's result naming other trainings). Failed and unfinished jobs
+run again. A job that raises is recorded as failed with its error and traceback; the other jobs go on. A job that
+does not end by itself — its worker process dies, the Dask scheduler goes away, no worker is left — is *lost*
+(status ``lost`` in the tables): the sweep finishes the others, writes its tables and raises :class:`JobsLost`
+naming them, so no result is ever made of the jobs that did finish alone; running it again runs the lost ones.
 
 Where jobs run (:mod:`bptsb_ros.runner`, the one runner of the package): ``workers`` local processes
 (``concurrent.futures`` with the ``spawn`` start method; 0: this process), or, with
@@ -55,9 +59,15 @@ from pathlib import Path
 from typing import Any
 
 from bptsb_ros.rundir_lock import LOCK_NAME, hold_run_dir
-from bptsb_ros.runner import Placement, RunInfo, connect_placement, ran_on, run_calls
+from bptsb_ros.runner import JobLost, Placement, RunInfo, close_client, connect_placement, ran_on, run_calls
 from bptsb_ros.safe_files import write_atomic
 from bptsb_ros.sweep_errors import SchedulerError, SweepError  # noqa: F401 - callers import both from here
+
+
+class JobsLost(SweepError):
+    """Jobs of a sweep did not end by themselves (:class:`~bptsb_ros.runner.JobLost`: a worker died, the Dask
+    cluster cancelled or lost them); the sweep's tables record them with status ``lost``, and a rerun runs them."""
+
 
 JOB_FILE = "job.json"
 SWEEP_JSON = "sweep.json"
@@ -66,6 +76,8 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=+-]*$")
 MAX_JOBS = 100_000
 """Most seeds one ``--seeds`` may name (a larger sweep is almost surely a typo, and would not fit in memory)."""
 MAX_SEED = 2**63 - 1
+#: the status of a job that did not end by itself (its worker died, the cluster lost it)
+LOST = "lost"
 DEFAULT_CONNECT_TIMEOUT = 20.0
 """Seconds to wait for a Dask scheduler to answer (``bptsb sweep --connect-timeout``)."""
 
@@ -413,6 +425,7 @@ def run_sweep(
     notice: Callable[[str], None] | None = None,
     gang: int | None = None,
     n_gangs: int | None = None,
+    worker_wait_s: float | None = None,
 ) -> SweepResult:
     """Run every job not already done in ``out_dir``; write ``sweep.json`` and ``sweep.csv``.
 
@@ -433,11 +446,15 @@ def run_sweep(
             a thread per job, their held-force windows as one batched simulation); None or 1: a process per job.
         n_gangs: instead of ``gang``: split the jobs still to do into this many gangs of consecutive jobs (as many
             as there are workers: one gang each, also when a resumed sweep has fewer jobs left).
+        worker_wait_s: on a Dask cluster, how long to wait for a worker (before the first job, and when none is
+            left; default :data:`bptsb_ros.runner.WORKER_WAIT_S`); ``notice`` hears what the sweep waits for.
 
     Raises:
         SweepError: bad job names or scheduler address (nothing was created).
         SchedulerError: the scheduler did not answer as a Dask scheduler within ``connect_timeout``.
         RunDirLocked: another bptsb process holds ``out_dir`` (:mod:`bptsb_ros.rundir_lock`); nothing was touched.
+        JobsLost: jobs did not end by themselves (a worker died, the cluster cancelled or lost them); the tables
+            are written (those jobs with status ``lost``) and a rerun in ``out_dir`` runs them.
     """
     names = [j.name for j in jobs]
     bad = [n for n in names if not _NAME.match(n)]
@@ -496,9 +513,11 @@ def run_sweep(
 
             def finish(i: int, record: Any, where: dict[str, Any] | None, error: BaseException | None) -> None:
                 members = [todo[j] for j in groups[i]]
-                if error is not None:  # execute_job never raises: the worker process died or the task was lost
-                    record = [{"name": job.name, "status": "failed", "wall_s": None,
-                               "error": f"worker failed: {type(error).__name__}: {error}"} for job in members]
+                if error is not None:  # execute_job raises only where its record cannot be written
+                    status = LOST if isinstance(error, JobLost) else "failed"
+                    record = [{"name": job.name, "status": status, "wall_s": None,
+                               "error": f"{'lost' if status == LOST else 'worker failed'}: {type(error).__name__}: "
+                                        f"{error}"} for job in members]
                 for job, rec in zip(members, record if isinstance(record, list) else [record]):
                     records[job.name] = rec
                     counts["done" if rec["status"] == "done" else "failed"] += 1
@@ -513,12 +532,18 @@ def run_sweep(
                 else:
                     calls.append((f"gang of {len(members)} from {members[0].name}", execute_gang,
                                   (members, dirs, [keys[job.name] for job in members])))
-            info = run_calls(calls, placement, threads=threads, client=client, on_done=finish, report=report)
+            info = run_calls(calls, placement, threads=threads, client=client, on_done=finish, report=report,
+                             notice=notice, worker_wait_s=worker_wait_s)
         finally:
             if client is not None:
-                client.close()
+                close_client(client)
         ordered = [records[n] for n in names]
         write_tables(out, ordered)
+    lost = [r for r in ordered if r["status"] == LOST]
+    if lost:  # a job that did not end is no result: the run fails, and a rerun (--resume) runs them again
+        names_lost = ", ".join(r["name"] for r in lost[:5]) + (f" and {len(lost) - 5} more" if len(lost) > 5 else "")
+        raise JobsLost(f"{len(lost)} of {len(jobs)} jobs did not finish: {names_lost} ({lost[0]['error']}); the "
+                       f"finished ones are kept in {out}: run the same command again to run the others")
     return SweepResult(out, ordered, skipped, info)
 
 
