@@ -3,7 +3,8 @@
 ``yaml.safe_load`` builds no objects, but a few hundred bytes of nested aliases (an "alias bomb") expand to
 billions of nodes as soon as anything walks or prints the result. :func:`load_untrusted_yaml` counts the
 expanded size on the composed node graph (where an alias is one shared node) before constructing anything,
-and bounds the text length; :func:`bounded_repr` bounds what an error message repeats of a value.
+and bounds the text length; :func:`bounded_repr` bounds what an error message repeats of a value, and
+:func:`printable` escapes the control characters of untrusted text before it reaches a terminal.
 """
 
 from __future__ import annotations
@@ -101,3 +102,12 @@ def bounded_repr(value: Any, limit: int = 80) -> str:
     _REPR.maxstring = _REPR.maxother = _REPR.maxlong = limit
     text = _REPR.repr(value)
     return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def printable(text: str) -> str:
+    """``text`` with every character that is not printable (control bytes such as ESC, BEL or CR, bidirectional
+    overrides, line separators) written as its escape (``\\x1b``, ``\\u202e``): untrusted names and excerpts printed
+    in a message cannot set a terminal's title or colours, move its cursor or break the message's line."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)

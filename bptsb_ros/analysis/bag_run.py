@@ -18,8 +18,10 @@ import numpy as np
 from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import read_metadata
+from bptsb_ros.bags.msgdefs import normalize_type
 from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute, dt_to_ns
+from bptsb_ros.safe_yaml import printable
 
 #: closed loops: the feedback layer drives the body (the offline comparison runs the closed loop)
 LOOPS_CLOSED = ("lissajous_closed", "locomotion_closed")
@@ -129,6 +131,10 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
         raise BagError(f"bag {bag} has no {pos_topic} topic (geometry_msgs/PoseArray); topics: {', '.join(topics)}")
     wanted = [t for t in (names[k] for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input",
                                               "wind", "perturbation")) if t in topics]
+    for key, topic in names.items():
+        if topic in wanted and normalize_type(topics[topic] or "x/msg/none") != TOPICS[key].type:
+            raise BagError(f"bag {bag}: {topic} is of type {printable(topics[topic][:80])}, not "
+                           f"{TOPICS[key].type}: not a recording of this package's loop")
     own = OwnMessages(bag, expected_publishers(loop or custom.get("loop"), body_node, ns), topic_publishers(bag))
     wind_ns: dict[int, tuple[float, float]] = {}
     kicks_ns: dict[int, np.ndarray] = {}
@@ -140,24 +146,29 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     for (topic, _type, _t, msg), publisher in read_published(bag, wanted, skip_damaged=skip_damaged):
         if not own.keep(topic, publisher):
             continue
-        if topic == pos_topic:
-            own.put(pos, _stamp_ns(msg), np.array([(p.position.x, p.position.y) for p in msg.poses]), topic, publisher)
-        elif topic == names["spring_lengths"]:
-            own.put(lengths, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
-        elif topic == names["rest_length"]:
-            own.put(rests, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
-        elif topic == names["markers"] and markers is None:
-            markers = msg
-        elif topic == names["task_input"] and len(msg.position):
-            own.put(inputs_ns, _stamp_ns(msg), float(msg.position[0]), topic, publisher)
-        elif topic == names["wind"]:
-            own.put(wind_ns, _stamp_ns(msg), (float(msg.vector.x), float(msg.vector.y)), topic, publisher)
-        elif topic == names["perturbation"]:
-            kick = np.asarray(msg.position, dtype=np.float64)
-            if kick.size % 2 or not np.isfinite(kick).all():
-                raise BagError(f"bag {bag}: a {topic} message holds {kick.size} values (x, y per movable mass "
-                               "expected, all finite)")
-            own.put(kicks_ns, _stamp_ns(msg), kick.reshape(-1, 2), topic, publisher)
+        try:  # a message of the right type name may still lack its fields (a schema of the bag's own)
+            if topic == pos_topic:
+                own.put(pos, _stamp_ns(msg), np.array([(p.position.x, p.position.y) for p in msg.poses]), topic,
+                        publisher)
+            elif topic == names["spring_lengths"]:
+                own.put(lengths, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
+            elif topic == names["rest_length"]:
+                own.put(rests, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
+            elif topic == names["markers"] and markers is None:
+                markers = msg
+            elif topic == names["task_input"] and len(msg.position):
+                own.put(inputs_ns, _stamp_ns(msg), float(msg.position[0]), topic, publisher)
+            elif topic == names["wind"]:
+                own.put(wind_ns, _stamp_ns(msg), (float(msg.vector.x), float(msg.vector.y)), topic, publisher)
+            elif topic == names["perturbation"]:
+                kick = np.asarray(msg.position, dtype=np.float64)
+                if kick.size % 2 or not np.isfinite(kick).all():
+                    raise BagError(f"bag {bag}: a {topic} message holds {kick.size} values (x, y per movable mass "
+                                   "expected, all finite)")
+                own.put(kicks_ns, _stamp_ns(msg), kick.reshape(-1, 2), topic, publisher)
+        except (AttributeError, TypeError, ValueError, IndexError) as err:
+            raise BagError(f"bag {bag}: a {topic} message does not hold what a {_type} holds "
+                           f"({type(err).__name__}: {printable(str(err)[:120])})") from None
     if not pos and own.report.foreign.get(pos_topic):
         raise BagError(f"bag {bag} has no {pos_topic} messages from {node_in(ns, body_node)}, only from "
                        + ", ".join(f"{name} ({n})" for name, n in own.report.foreign[pos_topic].most_common()))
@@ -173,7 +184,11 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
         dt_ns = dt_to_ns(dt)
     steps = (stamps + dt_ns // 2) // dt_ns  # nearest step, as ros.topics.stamp_to_step
     positions = np.stack([pos[s] for s in stamps])
-    springs, fixed, cmp = _layout_from_markers(markers, positions)
+    try:
+        springs, fixed, cmp = _layout_from_markers(markers, positions)
+    except (AttributeError, TypeError, ValueError, IndexError) as err:
+        raise BagError(f"bag {bag}: its {names['markers']} message does not hold what a MarkerArray holds "
+                       f"({type(err).__name__}: {printable(str(err)[:120])})") from None
 
     def stack(d: dict[int, np.ndarray]) -> np.ndarray | None:
         return np.stack([d[s] for s in stamps]) if d and all(s in d for s in stamps) else None

@@ -31,6 +31,7 @@ import numpy as np
 
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.publishers import PublisherId
+from bptsb_ros.safe_yaml import printable
 
 V = TypeVar("V")
 
@@ -60,7 +61,11 @@ class Provenance:
                 "duplicates": dict(self.duplicates), "shared_names": dict(self.shared_names)}
 
     def warnings(self, bag: object) -> list[str]:
-        """One line per finding worth telling the user (unchecked publishers, foreign messages, duplicates)."""
+        """One line per finding worth telling the user (unchecked publishers, foreign messages, duplicates); the
+        bag's names in them have their control characters escaped."""
+        return [printable(line) for line in self._warnings(bag)]
+
+    def _warnings(self, bag: object) -> list[str]:
         lines = []
         if not self.checked:
             lines.append(f"warning: bag {bag} does not record who published its messages (recorded before publisher "
