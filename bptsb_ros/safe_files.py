@@ -14,6 +14,8 @@ node), a FIFO, a directory, a socket or a symbolic link — with :class:`UnsafeF
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import stat
 import tempfile
@@ -111,8 +113,10 @@ def atomic_writer(path: str | Path, mode: str = "wb") -> Iterator[IO[Any]]:
             yield f
         check_write_target(path)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as err:
         tmp.unlink(missing_ok=True)
+        if isinstance(err, OSError) and err.filename is None:  # a full disk: name the file it was writing
+            err.filename = str(path)
         raise
 
 
@@ -170,3 +174,21 @@ def open_for_writing(path: str | Path, mode: str = "wb") -> IO[Any]:
     except BaseException:
         os.close(fd)
         raise
+
+
+def json_text(data: Any, **kwargs: Any) -> str:
+    """``data`` as strict JSON text (``json.dumps`` with ``kwargs``): a float that is not finite — which JSON has
+    no way to write, and which ``json.dumps`` writes as the invalid ``NaN`` — becomes ``null``."""
+    return json.dumps(_finite_or_none(data), allow_nan=False, **kwargs)
+
+
+def _finite_or_none(value: Any) -> Any:
+    if getattr(value, "shape", None) == () and hasattr(value, "item"):  # a numpy or torch scalar
+        value = value.item()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(v) for v in value]
+    return value

@@ -241,3 +241,102 @@ def test_a_sweep_reuses_only_records_that_fit_the_job(tmp_path):
     (run_dir / "job.json").write_text(json.dumps(record))
     assert finished_record(job, run_dir, job_key(job))[0] == record
     assert np.isclose(record["result"][names[0]]["nmse"], 0.5)
+
+
+# -- strict JSON -------------------------------------------------------------------------------------------------
+
+def _strict(text: str):
+    def refuse(constant):
+        raise ValueError(f"{constant} is not JSON")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_metrics_json_is_strict_json_whatever_the_numbers(tmp_path, monkeypatch):
+    """A training time or an evaluation that is not finite is written as null (JSON has no NaN), not as the
+    invalid NaN that json.dumps writes by default."""
+    import bptsb_ros.training.trainer as trainer
+
+    real = trainer.training_metrics
+
+    def nan_time(*args, **kwargs):
+        metrics = real(*args, **kwargs)
+        metrics["train_seconds"] = float("nan")
+        metrics["guard"]["rates"]["k"] = float("inf")
+        return metrics
+
+    monkeypatch.setattr(trainer, "training_metrics", nan_time)
+    res = train(load_config(REPO / "config" / "narma_adam.yaml", [*SMALL, "epochs=2"]), tmp_path / "run",
+                progress=False)
+    assert np.isnan(res.metrics["train_seconds"])  # the result in memory keeps the number
+    written = _strict((tmp_path / "run" / "metrics.json").read_text())
+    assert written["train_seconds"] is None and written["guard"]["rates"]["k"] is None
+    assert written["evaluation"]["nmse_test"] == res.metrics["evaluation"]["nmse_test"]
+
+
+def test_a_population_state_with_an_impossible_time_or_all_members_stopped(population_state, tmp_path):
+    """seconds NaN is refused; every member stopped, each with its recorded failure, is a state a population can
+    reach (all diverged): it resumes to no result and every failure, without a KeyError."""
+    from bptsb_ros.training.population import train_population
+
+    state, _ = population_state
+    path = tmp_path / "population.pt"
+    bad = copy.deepcopy(state)
+    bad["seconds"] = float("nan")
+    torch.save(bad, path)
+    with pytest.raises(ConfigError, match="seconds is nan, not a time ≥ 0"):
+        train_population(_members(5), [tmp_path / "m0", tmp_path / "m1"], progress=False, state_path=path)
+    stopped = copy.deepcopy(state)
+    stopped["active"] = [False, False]
+    stopped["failures"] = [[0, "update 1: loss is nan"], [1, "update 2: diverged"]]
+    torch.save(stopped, path)
+    results, failures = train_population(_members(5), [tmp_path / "m0", tmp_path / "m1"], progress=False,
+                                         state_path=path)
+    assert results == [None, None] and [(f.index, str(f.error)) for f in failures] == [
+        (0, "update 1: loss is nan"), (1, "update 2: diverged")]
+
+
+def test_a_full_disk_during_a_periodic_checkpoint_is_one_line_and_keeps_the_last_one(tmp_path, monkeypatch, capsys):
+    import errno
+
+    import bptsb_ros.safe_files as safe_files
+
+    real, written = safe_files.temp_file_beside, []
+
+    class Full:
+        """A file whose writes fail as on a full disk (after the first checkpoint)."""
+
+        def __init__(self, f):
+            self.f, self.name = f, f.name
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def __getattr__(self, name):
+            return getattr(self.f, name)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+    def full_after_one(path, mode="wb", suffix=".tmp"):
+        f, tmp = real(path, mode, suffix)
+        if Path(path).name == "checkpoint.pt":
+            written.append(path)
+            if len(written) > 1:
+                return Full(f), tmp
+        return f, tmp
+
+    monkeypatch.setattr(safe_files, "temp_file_beside", full_after_one)
+    run = tmp_path / "run"
+    argv = ["train", str(REPO / "config" / "narma_adam.yaml"), *[a for s in SMALL for a in ("--set", s)],
+            "--set", "epochs=4", "--set", "training.checkpoint_every=1", "--out", str(run), "--no-progress"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == f"bptsb train: cannot write {run / 'checkpoint.pt'}: No space left on device"
+    assert "Traceback" not in err and len(written) == 2
+    kept = torch.load(run / "checkpoint.pt", weights_only=True)
+    assert kept["extra"]["update"] == 1  # the last checkpoint that was written, whole
+    assert not [p.name for p in run.iterdir() if p.name.endswith(".tmp")]

@@ -11,7 +11,6 @@ in float64. They agree when the live loop equals the offline drawing (lockstep: 
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,7 @@ from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
-from bptsb_ros.safe_files import write_atomic
+from bptsb_ros.safe_files import json_text, write_atomic
 
 
 def _topic(key: str) -> str:
@@ -148,7 +147,7 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
     if gif and len(run.springs):
         files.append(animate_run(out_dir / "replay.gif", run))
     metrics["files"] = [str(f) for f in files]
-    write_atomic(out_dir / "metrics.json", json.dumps(metrics, indent=2))
+    write_atomic(out_dir / "metrics.json", json_text(metrics, indent=2))
     return metrics
 
 

@@ -22,7 +22,7 @@ from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
-from bptsb_ros.safe_files import write_atomic
+from bptsb_ros.safe_files import json_text, write_atomic
 from bptsb_ros.tasks import get_task
 from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import CheckpointError, checkpoint_path, read_checkpoint, save_checkpoint
@@ -361,7 +361,7 @@ def write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
     from bptsb_ros.analysis.plots import plot_loss
     from bptsb_ros.analysis.style import FIGURES
 
-    write_atomic(run_dir / "metrics.json", json.dumps(metrics, indent=2))
+    write_atomic(run_dir / "metrics.json", json_text(metrics, indent=2))  # strict JSON: NaN is written null
     with FIGURES:
         files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], task.loss_label,
                                                          metrics["name"])]
