@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from bptsb_ros.live.phases import PHASES, row_from_summary
+from bptsb_ros.safe_files import open_for_writing
 
 #: the loops ``bptsb bench --live`` runs by default
 LIVE_LOOPS: tuple[str, ...] = ("lissajous_closed", "narma")
@@ -77,7 +78,7 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
     log = workdir / f"{tag}_launch.log"
     progress(f"bench --live: {loop} for {seconds:g} s sim time, recorded; log {log}")
     started = time.monotonic()
-    with log.open("w") as out:
+    with open_for_writing(log, "w") as out:
         code = subprocess.run(launch_argv(loop, bag, seconds, agent, params), stdout=out, stderr=subprocess.STDOUT,
                               stdin=subprocess.DEVNULL).returncode
     result: dict[str, Any] = {"loop": loop, "sim_seconds": seconds, "launch_exit_code": code,

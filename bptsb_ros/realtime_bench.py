@@ -32,6 +32,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from bptsb_ros.safe_files import open_for_writing
+
 #: the realtime targets: (key of the statistics, bound, what it means); a statistic meets its target when <= bound
 #: (deadline misses: == 0)
 TARGETS: tuple[tuple[str, float, str], ...] = (
@@ -112,7 +114,7 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
     procs = start_busy(busy)
     started = time.monotonic()
     try:
-        with log.open("w") as out:
+        with open_for_writing(log, "w") as out:
             code = subprocess.run(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                   env=None if env is None else dict(env)).returncode
     finally:

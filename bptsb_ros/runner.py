@@ -19,6 +19,7 @@ which :class:`RunInfo` sums up for the provenance of a result.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import socket
@@ -26,6 +27,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,6 +40,18 @@ LOCAL_POOL = "local pool"
 
 class JobFailed(RuntimeError):
     """One job of :func:`run_jobs` raised; the message names the job and the error."""
+
+
+class JobLost(RuntimeError):
+    """A job that did not end by itself: its worker process died, or the Dask cluster cancelled or lost it (the
+    scheduler went away, no worker was left). It is a failed job, never a result; the message says what happened."""
+
+
+#: how long a Dask run waits for a worker [s]: before the first job (with a line saying so), and whenever none is
+#: left while jobs are still to run (then the rest are lost)
+WORKER_WAIT_S = 300.0
+#: how often a Dask run checks its scheduler and workers while no job ends [s]
+DASK_POLL_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -146,24 +160,32 @@ def call_limited(fn: Callable[..., Any], args: tuple, threads: int | None,
 
 #: one job: (name, fn, args); fn(*args) runs in the worker and must be picklable with its arguments
 Call = tuple[str, Callable[..., Any], tuple]
-#: called once per job as it ends: (index, value, ran_on, error); error is the exception the job (or its
-#: worker) raised, value and ran_on are then None
+#: called once per job as it ends: (index, value, ran_on, error); error is the exception the job raised, or a
+#: :class:`JobLost` when it did not end by itself (its worker died, the cluster lost it); value and ran_on are then
+#: None
 OnDone = Callable[[int, Any, "dict[str, Any] | None", "BaseException | None"], None]
 
 
 def run_calls(calls: Sequence[Call], placement: Placement, *, threads: int | None = 1, client: Any = None,
-              on_done: OnDone, report: Callable[[int], None] | None = None) -> RunInfo:
+              on_done: OnDone, report: Callable[[int], None] | None = None,
+              notice: Callable[[str], None] | None = None, worker_wait_s: float | None = None) -> RunInfo:
     """Run every call where ``placement`` says (``client``: a connected ``distributed.Client`` for its
-    scheduler); ``on_done`` hears of each as it ends, ``report`` the number running after every change.
-    Returns what was used."""
+    scheduler); ``on_done`` hears of each as it ends, ``report`` the number running after every change,
+    ``notice`` (default: stderr) what a Dask run waits for. Returns what was used.
+
+    On a Dask cluster without a worker, the run says so and waits up to ``worker_wait_s`` (default
+    :data:`WORKER_WAIT_S`) for one, then raises :class:`~bptsb_ros.sweep_errors.SchedulerError`; jobs the cluster
+    cancels or loses (the scheduler goes away, no worker is left for that long) end as :class:`JobLost`."""
     report = report or (lambda running: None)
     if not calls:
         return RunInfo(placement.where, 0, 0)
     if placement.scheduler:
         if client is None:
             raise ValueError("a scheduler placement needs a connected client")
+        wait_s = WORKER_WAIT_S if worker_wait_s is None else float(worker_wait_s)
+        _wait_for_a_worker(client, placement.scheduler, wait_s, notice or _stderr)
         info = RunInfo(placement.where, _cluster_workers(client), len(calls))
-        _run_dask(calls, client, threads, info, on_done, report)
+        _run_dask(calls, client, threads, info, on_done, report, wait_s)
     elif placement.pool_size(len(calls)) == 0:
         info = RunInfo(IN_PROCESS, 1 if calls else 0, len(calls))
         for i, (_, fn, args) in enumerate(calls):
@@ -187,6 +209,36 @@ def _cluster_workers(client: Any) -> int:
         return len(client.scheduler_info().get("workers", {}))
     except Exception:  # noqa: BLE001 - a count for the record only
         return 0
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def _wait_for_a_worker(client: Any, address: str, wait_s: float, notice: Callable[[str], None]) -> None:
+    """Return once the cluster has a worker; say what the run waits for when it has none; SchedulerError after
+    ``wait_s`` seconds without one."""
+    from bptsb_ros.sweep_errors import SchedulerError
+
+    if _live_workers(client) > 0:
+        return
+    notice(f"waiting up to {wait_s:g} s for a worker to join the Dask scheduler at {address} (it has none; start "
+           f"one with `dask worker {address}`)")
+    try:
+        client.wait_for_workers(1, timeout=wait_s)
+    except Exception:  # noqa: BLE001 - distributed's TimeoutError, or the scheduler went away meanwhile
+        raise SchedulerError(f"no worker joined the Dask scheduler at {address} within {wait_s:g} s; nothing was "
+                             f"run (start workers with `dask worker {address}`, then run the command again)") from None
+
+
+def _live_workers(client: Any) -> int:
+    """Workers the scheduler knows now (-1: the scheduler cannot be asked)."""
+    try:
+        return len(client.scheduler_info(n_workers=-1).get("workers", {}))
+    except TypeError:  # an older distributed without n_workers
+        return _cluster_workers(client)
+    except Exception:  # noqa: BLE001 - the connection is gone
+        return -1
 
 
 #: how often a pool worker checks that the process that started it is still alive [s]
@@ -226,7 +278,10 @@ def _run_pool(calls: Sequence[Call], workers: int, threads: int | None, info: Ru
                     i = pending.pop(fut)
                     try:
                         value, where = fut.result()
-                    except Exception as err:  # noqa: BLE001 - the job raised, or its worker process died
+                    except BrokenProcessPool as err:  # its worker process died under it
+                        on_done(i, None, None, JobLost(f"its worker process died ({_first_line(err)})"))
+                        continue
+                    except Exception as err:  # noqa: BLE001 - the job raised
                         on_done(i, None, None, err)
                         continue
                     info.add(where)
@@ -241,8 +296,8 @@ def _run_pool(calls: Sequence[Call], workers: int, threads: int | None, info: Ru
 
 
 def _run_dask(calls: Sequence[Call], client: Any, threads: int | None, info: RunInfo, on_done: OnDone,
-              report: Callable[[int], None]) -> None:
-    from distributed import as_completed
+              report: Callable[[int], None], wait_s: float) -> None:
+    from distributed import wait as dask_wait
 
     stamp = time.time_ns()  # fresh task keys: a resumed sweep never reuses an old result held by the cluster
     futures = {client.submit(call_limited, fn, args, threads, False, os.getpid(), key=f"bptsb-{name}-{i}-{stamp}",
@@ -254,17 +309,71 @@ def _run_dask(calls: Sequence[Call], client: Any, threads: int | None, info: Run
         except Exception:  # noqa: BLE001 - counts only
             return 0
 
+    def lose_the_rest(why: str) -> None:
+        for fut in list(futures):
+            with contextlib.suppress(Exception):
+                fut.cancel()
+            on_done(futures.pop(fut), None, None, JobLost(why))
+
     report(running())
-    for fut in as_completed(list(futures)):
-        i = futures.pop(fut)
-        try:
-            value, where = fut.result()
-        except Exception as err:  # noqa: BLE001 - the job raised, the worker died or the task was lost
-            on_done(i, None, None, err)
-        else:
+    no_worker_since: float | None = None
+    while futures:
+        done = [f for f in futures if f.done()]
+        if not done:
+            # distributed's wait raises on its timeout and on cancelled futures: both are seen below
+            with contextlib.suppress(Exception):
+                dask_wait(list(futures), timeout=DASK_POLL_S, return_when="FIRST_COMPLETED")
+            done = [f for f in futures if f.done()]
+        for fut in done:
+            i = futures.pop(fut)
+            try:
+                value, where = fut.result()
+            except Exception as err:  # noqa: BLE001 - the job raised, or the cluster cancelled or lost it
+                lost = fut.status != "error" or _is_lost(err)
+                on_done(i, None, None, JobLost(f"the Dask cluster lost it ({type(err).__name__}: "
+                                               f"{_first_line(err)})") if lost else err)
+                continue
             info.add(where)
             on_done(i, value, where, None)
-        report(running())
+        if done:
+            report(running())
+            continue
+        if client.status not in ("running", "newly-created"):
+            lose_the_rest(f"the connection to the Dask scheduler was lost (client {client.status})")
+            break
+        workers = _live_workers(client)
+        if workers == 0:
+            no_worker_since = no_worker_since or time.monotonic()
+            if time.monotonic() - no_worker_since > wait_s:
+                lose_the_rest(f"no Dask worker was left for {wait_s:g} s")
+        else:
+            no_worker_since = None
+
+
+def _is_lost(err: BaseException) -> bool:
+    """A Dask error that says the cluster lost the job, not that the job raised (a worker died under it)."""
+    return type(err).__name__ in ("KilledWorker", "FutureCancelledError", "CancelledError", "CommClosedError")
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0][:200] if text else "no message"
+
+
+def close_client(client: Any) -> None:
+    """Close a ``distributed.Client`` without its logs: a client whose scheduler went away logs its failed
+    reconnection as tracebacks while it closes (the run has said what happened in one line already)."""
+    import logging
+
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL + 1)
+    try:
+        client.close(timeout=10)
+    except Exception:  # noqa: BLE001 - closing a client whose scheduler is gone
+        pass
+    finally:
+        quiet.setLevel(level)
 
 
 def connect_placement(placement: Placement, timeout: float) -> Any:
@@ -307,7 +416,7 @@ def run_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], placement: Placement
                          threads=threads, client=client, on_done=done)
     finally:
         if client is not None:
-            client.close()
+            close_client(client)
     if errors:
         first = min(errors)
         err = errors[first]

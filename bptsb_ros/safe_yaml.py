@@ -3,7 +3,8 @@
 ``yaml.safe_load`` builds no objects, but a few hundred bytes of nested aliases (an "alias bomb") expand to
 billions of nodes as soon as anything walks or prints the result. :func:`load_untrusted_yaml` counts the
 expanded size on the composed node graph (where an alias is one shared node) before constructing anything,
-and bounds the text length; :func:`bounded_repr` bounds what an error message repeats of a value.
+and bounds the text length; :func:`bounded_repr` bounds what an error message repeats of a value, and
+:func:`printable` escapes the control characters of untrusted text before it reaches a terminal.
 """
 
 from __future__ import annotations
@@ -34,8 +35,10 @@ class _BoundedLoader(yaml.SafeLoader):
 
 
 def _check_expansion(root: yaml.Node, limit: int) -> None:
-    """Raise UntrustedYamlError if the document under ``root`` has more than ``limit`` nodes once expanded."""
+    """Raise UntrustedYamlError if the document under ``root`` has more than ``limit`` nodes once expanded, or if
+    an alias refers to a node that contains it (``&a [*a]``: a document that expands forever)."""
     sizes: dict[int, int] = {}
+    open_: set[int] = set()  # nodes whose children are being sized: meeting one again is a cycle
     stack: list[tuple[yaml.Node, bool]] = [(root, False)]
     while stack:
         node, children_done = stack.pop()
@@ -46,11 +49,16 @@ def _check_expansion(root: yaml.Node, limit: int) -> None:
             continue
         kids = [k for pair in node.value for k in pair] if isinstance(node, yaml.MappingNode) else list(node.value)
         if children_done:
-            total = 1 + sum(sizes.get(id(k), 0) for k in kids)
+            total = 1 + sum(sizes[id(k)] for k in kids)
             if total > limit:
                 raise UntrustedYamlError(f"YAML document expands to more than {limit} nodes (alias bomb?)")
             sizes[id(node)] = total
+            open_.discard(id(node))
         else:
+            if id(node) in open_:
+                raise UntrustedYamlError("YAML document has a recursive alias (a node that contains itself), which "
+                                         "expands without end")
+            open_.add(id(node))
             stack.append((node, True))
             stack.extend((k, False) for k in kids if id(k) not in sizes)
 
@@ -94,3 +102,12 @@ def bounded_repr(value: Any, limit: int = 80) -> str:
     _REPR.maxstring = _REPR.maxother = _REPR.maxlong = limit
     text = _REPR.repr(value)
     return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def printable(text: str) -> str:
+    """``text`` with every character that is not printable (control bytes such as ESC, BEL or CR, bidirectional
+    overrides, line separators) written as its escape (``\\x1b``, ``\\u202e``): untrusted names and excerpts printed
+    in a message cannot set a terminal's title or colours, move its cursor or break the message's line."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)

@@ -26,6 +26,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bptsb_ros.safe_files import open_for_writing
+
 SPIN = "while True: pass"
 
 
@@ -58,7 +60,7 @@ def soak_run(mode: str, seconds: float, busy: int, workdir: Path, loop: str = "l
     procs = start_busy(busy)
     started = time.monotonic()
     try:
-        with log.open("w") as out:
+        with open_for_writing(log, "w") as out:
             code = subprocess.run(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
     finally:
         wall = time.monotonic() - started

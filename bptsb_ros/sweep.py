@@ -22,8 +22,12 @@ Resuming: a job whose ``job.json`` is a valid finished record *of this job* is s
 status ``done``, the job's name, its ``key`` (a hash of what the job is: its callable and arguments, for
 :class:`TrainJob` also the config file's content), a number ``wall_s``, a ``result`` mapping, and ``files``
 (path → size of every file the job left in its directory) matching the directory now. Any other record is not
-trusted: the job runs again (with one line saying why). Failed and unfinished jobs run again. A job that raises
-is recorded as failed with its error and traceback; the other jobs go on.
+trusted: the job runs again (with one line saying why); so does a record whose result does not fit the job
+(:func:`result_problem`: another seed, a population's result naming other trainings). Failed and unfinished jobs
+run again. A job that raises is recorded as failed with its error and traceback; the other jobs go on. A job that
+does not end by itself — its worker process dies, the Dask scheduler goes away, no worker is left — is *lost*
+(status ``lost`` in the tables): the sweep finishes the others, writes its tables and raises :class:`JobsLost`
+naming them, so no result is ever made of the jobs that did finish alone; running it again runs the lost ones.
 
 Where jobs run (:mod:`bptsb_ros.runner`, the one runner of the package): ``workers`` local processes
 (``concurrent.futures`` with the ``spawn`` start method; 0: this process), or, with
@@ -41,6 +45,7 @@ import csv
 import dataclasses
 import functools
 import hashlib
+import io
 import json
 import math
 import os
@@ -54,8 +59,15 @@ from pathlib import Path
 from typing import Any
 
 from bptsb_ros.rundir_lock import LOCK_NAME, hold_run_dir
-from bptsb_ros.runner import Placement, RunInfo, connect_placement, ran_on, run_calls
+from bptsb_ros.runner import JobLost, Placement, RunInfo, close_client, connect_placement, ran_on, run_calls
+from bptsb_ros.safe_files import write_atomic
 from bptsb_ros.sweep_errors import SchedulerError, SweepError  # noqa: F401 - callers import both from here
+
+
+class JobsLost(SweepError):
+    """Jobs of a sweep did not end by themselves (:class:`~bptsb_ros.runner.JobLost`: a worker died, the Dask
+    cluster cancelled or lost them); the sweep's tables record them with status ``lost``, and a rerun runs them."""
+
 
 JOB_FILE = "job.json"
 SWEEP_JSON = "sweep.json"
@@ -64,6 +76,8 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=+-]*$")
 MAX_JOBS = 100_000
 """Most seeds one ``--seeds`` may name (a larger sweep is almost surely a typo, and would not fit in memory)."""
 MAX_SEED = 2**63 - 1
+#: the status of a job that did not end by itself (its worker died, the cluster lost it)
+LOST = "lost"
 DEFAULT_CONNECT_TIMEOUT = 20.0
 """Seconds to wait for a Dask scheduler to answer (``bptsb sweep --connect-timeout``)."""
 
@@ -295,9 +309,7 @@ def execute_job(job: Job, run_dir: str | Path, key: str | None = None) -> dict[s
     except Exception as err:  # noqa: BLE001 - a failing job is reported, the sweep goes on
         record = {"name": job.name, "key": key, "status": "failed", "wall_s": round(time.perf_counter() - t0, 3),
                   "error": f"{type(err).__name__}: {err}", "traceback": traceback.format_exc(), "ran_on": ran_on()}
-    tmp = run_dir / (JOB_FILE + ".tmp")
-    tmp.write_text(json.dumps(record, indent=2))
-    tmp.replace(run_dir / JOB_FILE)  # atomic: a killed job leaves no half-written record
+    write_atomic(run_dir / JOB_FILE, json.dumps(record, indent=2))  # a killed job leaves no half-written record
     return record
 
 
@@ -324,6 +336,37 @@ def gangs_of(count: int, gang: int | None) -> list[range]:
 
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def result_problem(job: Job, result: dict[str, Any]) -> str | None:
+    """Why a recorded ``result`` cannot be ``job``'s (None when it can): a job whose callable has a ``seed`` must
+    report that seed; one whose callable names its ``members`` (a population of trainings) must give exactly one
+    result per member, each with its own seed or ``diverged``; the callable's own ``result_problem(result)``, if it
+    has one, is asked too."""
+    fn = job.fn
+    members = getattr(fn, "members", None)
+    if isinstance(members, tuple) and all(isinstance(m, tuple) and len(m) == 2 for m in members):
+        names = [str(name) for name, _ in members]
+        if sorted(result) != sorted(names):
+            extra = sorted(set(result) - set(names))
+            what = f"names {extra[0][:40]!r}, not a member" if extra else "lacks a member's result"
+            return f"its result {what} of this job ({len(names)} members)"
+        for name, member in members:
+            value = result[name]
+            if not isinstance(value, dict):
+                return f"its result of member {name} is not a mapping"
+            if "diverged" in value:
+                continue
+            if value.get("seed") != getattr(member, "seed", value.get("seed")):
+                return f"its result of member {name} is of seed {str(value.get('seed'))[:20]}, not {member.seed}"
+            check = getattr(member, "result_problem", None)
+            problem = check(value) if callable(check) else None
+            if problem:
+                return f"member {name}: {problem}"
+    elif hasattr(fn, "seed") and "seed" in result and result["seed"] != fn.seed:
+        return f"its result is of seed {str(result['seed'])[:20]}, not {fn.seed}"
+    check = getattr(fn, "result_problem", None)
+    return check(result) if callable(check) else None
 
 
 def finished_record(job: Job, run_dir: Path, key: str) -> tuple[dict[str, Any] | None, str | None]:
@@ -353,6 +396,9 @@ def finished_record(job: Job, run_dir: Path, key: str) -> tuple[dict[str, Any] |
         return None, "wall_s is not a non-negative number"
     if not isinstance(record["result"], dict):
         return None, "result is not a mapping"
+    problem = result_problem(job, record["result"])
+    if problem:
+        return None, problem
     files = record["files"]
     if not isinstance(files, dict) or not all(isinstance(n, int) and not isinstance(n, bool) for n in files.values()):
         return None, "files is not a mapping of sizes"
@@ -379,6 +425,7 @@ def run_sweep(
     notice: Callable[[str], None] | None = None,
     gang: int | None = None,
     n_gangs: int | None = None,
+    worker_wait_s: float | None = None,
 ) -> SweepResult:
     """Run every job not already done in ``out_dir``; write ``sweep.json`` and ``sweep.csv``.
 
@@ -399,11 +446,15 @@ def run_sweep(
             a thread per job, their held-force windows as one batched simulation); None or 1: a process per job.
         n_gangs: instead of ``gang``: split the jobs still to do into this many gangs of consecutive jobs (as many
             as there are workers: one gang each, also when a resumed sweep has fewer jobs left).
+        worker_wait_s: on a Dask cluster, how long to wait for a worker (before the first job, and when none is
+            left; default :data:`bptsb_ros.runner.WORKER_WAIT_S`); ``notice`` hears what the sweep waits for.
 
     Raises:
         SweepError: bad job names or scheduler address (nothing was created).
         SchedulerError: the scheduler did not answer as a Dask scheduler within ``connect_timeout``.
         RunDirLocked: another bptsb process holds ``out_dir`` (:mod:`bptsb_ros.rundir_lock`); nothing was touched.
+        JobsLost: jobs did not end by themselves (a worker died, the cluster cancelled or lost them); the tables
+            are written (those jobs with status ``lost``) and a rerun in ``out_dir`` runs them.
     """
     names = [j.name for j in jobs]
     bad = [n for n in names if not _NAME.match(n)]
@@ -462,9 +513,11 @@ def run_sweep(
 
             def finish(i: int, record: Any, where: dict[str, Any] | None, error: BaseException | None) -> None:
                 members = [todo[j] for j in groups[i]]
-                if error is not None:  # execute_job never raises: the worker process died or the task was lost
-                    record = [{"name": job.name, "status": "failed", "wall_s": None,
-                               "error": f"worker failed: {type(error).__name__}: {error}"} for job in members]
+                if error is not None:  # execute_job raises only where its record cannot be written
+                    status = LOST if isinstance(error, JobLost) else "failed"
+                    record = [{"name": job.name, "status": status, "wall_s": None,
+                               "error": f"{'lost' if status == LOST else 'worker failed'}: {type(error).__name__}: "
+                                        f"{error}"} for job in members]
                 for job, rec in zip(members, record if isinstance(record, list) else [record]):
                     records[job.name] = rec
                     counts["done" if rec["status"] == "done" else "failed"] += 1
@@ -479,12 +532,18 @@ def run_sweep(
                 else:
                     calls.append((f"gang of {len(members)} from {members[0].name}", execute_gang,
                                   (members, dirs, [keys[job.name] for job in members])))
-            info = run_calls(calls, placement, threads=threads, client=client, on_done=finish, report=report)
+            info = run_calls(calls, placement, threads=threads, client=client, on_done=finish, report=report,
+                             notice=notice, worker_wait_s=worker_wait_s)
         finally:
             if client is not None:
-                client.close()
+                close_client(client)
         ordered = [records[n] for n in names]
         write_tables(out, ordered)
+    lost = [r for r in ordered if r["status"] == LOST]
+    if lost:  # a job that did not end is no result: the run fails, and a rerun (--resume) runs them again
+        names_lost = ", ".join(r["name"] for r in lost[:5]) + (f" and {len(lost) - 5} more" if len(lost) > 5 else "")
+        raise JobsLost(f"{len(lost)} of {len(jobs)} jobs did not finish: {names_lost} ({lost[0]['error']}); the "
+                       f"finished ones are kept in {out}: run the same command again to run the others")
     return SweepResult(out, ordered, skipped, info)
 
 
@@ -494,19 +553,19 @@ def write_tables(out: str | Path, records: list[dict[str, Any]]) -> tuple[Path, 
     out = Path(out)
     summary = {"jobs": len(records), "done": sum(r["status"] == "done" for r in records),
                "failed": [r["name"] for r in records if r["status"] != "done"], "records": records}
-    (out / SWEEP_JSON).write_text(json.dumps(summary, indent=2))
+    write_atomic(out / SWEEP_JSON, json.dumps(summary, indent=2))
     rows = [(name, r, res) for r in records for name, res in _table_rows(r)]
     keys: list[str] = []
     for _, _, res in rows:
         for k, v in res.items():
             if k not in keys and not isinstance(v, (dict, list)):
                 keys.append(k)
-    with (out / SWEEP_CSV).open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["name", "status", "wall_s", "error", *keys])
-        for name, r, res in rows:
-            writer.writerow([name, r["status"], r.get("wall_s"), r.get("error", ""),
-                             *[res.get(k, "") for k in keys]])
+    table = io.StringIO(newline="")
+    writer = csv.writer(table)
+    writer.writerow(["name", "status", "wall_s", "error", *keys])
+    for name, r, res in rows:
+        writer.writerow([name, r["status"], r.get("wall_s"), r.get("error", ""), *[res.get(k, "") for k in keys]])
+    write_atomic(out / SWEEP_CSV, table.getvalue())
     return out / SWEEP_JSON, out / SWEEP_CSV
 
 

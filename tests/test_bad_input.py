@@ -207,3 +207,40 @@ def test_body_sim_refuses_a_perturbation_beyond_any_step_in_one_line(tmp_path, r
                  "--timeout", "120", "--log-dir", str(tmp_path / "logs")], ros_env)
     assert out.returncode == 1 and "Traceback" not in out.stdout, out.stdout[-3000:]
     assert "parameter 'perturb_at': 1e+307 s is more than 1e+09 steps" in out.stdout
+
+
+RECURSIVE = ["&a [*a]", "&m {x: *m}", "&a [1, [2, *a]]"]
+
+
+@pytest.mark.parametrize("text", RECURSIVE)
+def test_a_recursive_yaml_alias_is_refused_at_once(text):
+    """A 7-byte self-referencing alias expands without end; the one safe loader refuses it (every YAML input of the
+    package goes through it), and a shared alias that is no cycle still loads."""
+    from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
+
+    with pytest.raises(UntrustedYamlError, match="recursive alias"):
+        load_untrusted_yaml(text, "t")
+    assert load_untrusted_yaml("a: &a [1]\nb: [*a, [*a]]", "t") == {"a": [1], "b": [[1], [[1]]]}
+
+
+def test_recursive_aliases_in_every_yaml_input_give_one_line(tmp_path, capsys):
+    import shutil
+
+    cfg = tmp_path / "loop.yaml"
+    cfg.write_text("task: lissajous\nbody: &b {shape: *b}\n")
+    bag = tmp_path / "bag"
+    shutil.copytree(REPO / "bags" / "lissajous_closed_example", bag)
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: &a {version: 9, files: [*a]}\n")
+    runs = [["train", str(cfg), "--out", str(tmp_path / "t")],
+            ["sweep", str(cfg), "--seeds", "0", "--out", str(tmp_path / "s"), "--workers", "0"],
+            ["reproduce", "memory-task", "--set", "delays=&a [*a]", "--out", str(tmp_path / "r")],
+            ["bag", "info", str(bag)], ["replay", str(bag), "--out", str(tmp_path / "p"), "--no-gif"]]
+    for argv in runs:
+        code = main(argv)
+        err = capsys.readouterr().err
+        assert code in (1, 2) and "recursive alias" in err and err.count("\n") == 1, (argv, err)
+    assert not (tmp_path / "t").exists() and not (tmp_path / "r").exists()
+    # recover treats the unreadable metadata.yaml as damage: rebuilt from the data, the old one kept beside it
+    assert main(["bag", "recover", str(bag)]) == 0
+    assert "recursive alias" in capsys.readouterr().out
+    assert (bag / "metadata.yaml.damaged").read_text().startswith("rosbag2_bagfile_information: &a")

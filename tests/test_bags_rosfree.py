@@ -228,8 +228,8 @@ def test_bad_schemas_and_messages_are_one_line_errors(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("text, why", [
-    ("lab_msgs/Loop child\n", "RecursionError"),  # a type that contains itself
-    ("lab_msgs/Missing child\n", "KeyError"),  # a nested type the schema never defines
+    ("lab_msgs/Loop child\n", r"nests types more than 32 deep \(a type that contains itself\?\)"),
+    ("lab_msgs/Missing child\n", "cannot be used: KeyError"),  # a nested type the schema never defines
 ])
 def test_a_schema_whose_deserialiser_cannot_be_built_is_one_error(text, why) -> None:
     from mcap.records import Schema
@@ -237,7 +237,7 @@ def test_a_schema_whose_deserialiser_cannot_be_built_is_one_error(text, why) -> 
     from bptsb_ros.bags.decode import rosbags_decoder
 
     schema = Schema(id=1, name="lab_msgs/msg/Loop", encoding="ros2msg", data=text.encode())
-    with pytest.raises(BagError, match=f"schema of lab_msgs/msg/Loop cannot be used: {why}"):
+    with pytest.raises(BagError, match=f"schema of lab_msgs/msg/Loop {why}"):
         rosbags_decoder(schema)
 
 

@@ -16,6 +16,7 @@ from bptsb_ros.experiments import run_experiment
 from bptsb_ros.experiments.experiment_settings import (
     SETTINGS_DIR,
     SettingsError,
+    load_settings_file,
     parse_settings,
     resolve_settings,
 )
@@ -93,10 +94,10 @@ def test_every_experiment_has_a_settings_file_and_every_file_an_experiment():
 
 # -- the loader's validation: the accepted edge and just past it -----------------------------------------------
 
-_SPEC = {"epochs": {"type": "int", "min": 1, "help": "training epochs"},
-         "n_train": {"type": "int", "nullable": True, "min": 1, "help": "images (null: all)"},
+_SPEC = {"epochs": {"type": "int", "min": 1, "max": 1000, "help": "training epochs"},
+         "n_train": {"type": "int", "nullable": True, "min": 1, "max": 1000, "help": "images (null: all)"},
          "rate": {"type": "float", "min": 0.0, "max": 1.0, "help": "a share"},
-         "hold": {"type": "list[int]", "length": 2, "min": 1, "help": "range"},
+         "hold": {"type": "list[int]", "length": 2, "min": 1, "max": 1000, "help": "range"},
          "config": {"type": "str", "help": "packaged config"}}
 _GOOD = {"epochs": 1, "n_train": None, "rate": 1, "hold": [1, 3], "config": "narma"}
 
@@ -164,7 +165,8 @@ def test_loader_refuses_a_scale_that_lacks_a_setting_or_a_bad_declaration():
 
 
 _VSPEC = {"label": {"type": "str", "help": "row label"},
-          "hold": {"type": "list[int]", "length": 2, "min": 1, "nullable": True, "help": "periods (null: the scale's)"}}
+          "hold": {"type": "list[int]", "length": 2, "min": 1, "max": 1000, "nullable": True,
+                   "help": "periods (null: the scale's)"}}
 
 
 def test_variants_are_checked_like_the_settings_and_kept_in_file_order():
@@ -233,8 +235,10 @@ def test_overrides_are_typed_as_the_setting_and_unknown_keys_refused():
 
 
 def test_a_rule_across_settings_is_checked_before_the_training(tmp_path):
-    for stages in ("[1, 5]", "[0, 5, 3]", "[0, 5, 5]"):
-        with pytest.raises(SettingsError, match="stages must start at 0 .* and grow"):
+    for stages, why in (("[1, 5]", r"stages\[0\] == 0 does not hold \(stages = \(1, 5\)\): the first stage is the "
+                                   "untrained system"),
+                        ("[0, 5, 3]", "stages must start at 0 .* and grow"), ("[0, 5, 5]", "and grow")):
+        with pytest.raises(SettingsError, match=why):
             run_experiment("narma-ipc", scale="smoke", out_dir=tmp_path / "x", force=True, progress=False,
                            settings=[f"stages={stages}"])
     assert not (tmp_path / "x" / "sweep").exists()
@@ -267,7 +271,7 @@ def toy_with_settings(tmp_path, monkeypatch):
     folder = tmp_path / "settings"
     folder.mkdir()
     (folder / "toy-settings.yaml").write_text(
-        "settings:\n  gain: {type: int, min: 1, help: what the seed is multiplied by}\n"
+        "settings:\n  gain: {type: int, min: 1, max: 100, help: what the seed is multiplied by}\n"
         "  label: {type: str, help: the row's system}\n"
         "smoke: {gain: 2, label: toy}\nshort: {gain: 3, label: toy}\npaper: {gain: 5, label: toy}\n")
     monkeypatch.setattr("bptsb_ros.experiments.experiment_settings.SETTINGS_DIR", folder)
@@ -330,3 +334,72 @@ def test_float_settings_read_exponents_and_the_recorded_set_reads_back(given, va
     assert arg == f"--set {recorded}"
     again = resolve_settings("locomotion-headwind", "smoke", [arg.removeprefix("--set ")])
     assert again["wind_period"] == value
+
+
+# -- bounds of every setting and rules across settings -------------------------------------------------------------
+
+@pytest.mark.parametrize("name", sorted(PLANTED))
+def test_every_number_setting_has_bounds(name):
+    parsed = load_settings_file(name)
+    for spec in [*parsed.specs.values(), *parsed.variant_specs.values()]:
+        if spec.type.removeprefix("list[").removesuffix("]") in ("int", "float", "number"):
+            assert spec.min is not None and spec.max is not None, (name, spec.name)
+
+
+def test_a_number_setting_without_bounds_is_refused():
+    doc = _doc()
+    del doc["settings"]["epochs"]["max"]
+    with pytest.raises(SettingsError, match="x.yaml: settings.epochs needs a max: every number has bounds"):
+        parse_settings(doc, "x.yaml")
+    doc = _doc()
+    doc["settings"]["hold"]["min"] = 2000
+    with pytest.raises(SettingsError, match="x.yaml: settings.hold: min 2000 is above max 1000"):
+        parse_settings(doc, "x.yaml")
+
+
+@pytest.mark.parametrize("experiment, override, why", [
+    ("lissajous-closed-loop", "sim_time=1e300", r"--set sim_time must be ≤ 100000, got '1e300'"),
+    ("locomotion-closed-loop-20", "n_agents=1000000000", r"--set n_agents must be ≤ 1000, got 1000000000"),
+    ("memory-task", "delays=[1000000000]", r"--set delays\[0\] must be ≤ 1000, got 1000000000"),
+    ("memory-task", "eval_inputs=10000000000", r"--set eval_inputs must be ≤ 1000000, got 10000000000"),
+    ("memory-task", "washout=200", r"settings of memory-task at scale smoke \(with --set\): washout \+ max_delay < "
+                                   r"eval_inputs does not hold \(eval_inputs = 150, max_delay = 10, washout = 200\)"),
+    ("memory-task", "delays=[3]", r"len\(delays\) >= 2 does not hold \(delays = \(3,\)\): the claims compare"),
+    ("mnist-labelmap", "grid=4", r"grid % 2 == 1 does not hold \(grid = 4\)"),
+    ("lissajous-timing", "hold=[8, 3]", r"hold\[0\] <= hold\[1\] does not hold"),
+    ("locomotion-headwind", "gait_time=5", r"gait_time <= eval_time does not hold \(eval_time = 2, gait_time = 5\)"),
+])
+def test_hostile_settings_are_one_line_before_any_work(experiment, override, why, tmp_path, capsys):
+    with pytest.raises(SettingsError, match=why):
+        resolve_settings(experiment, "smoke", [override])
+    out = tmp_path / "run"
+    assert main(["reproduce", experiment, "--scale", "smoke", "--set", override, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and not out.exists()
+
+
+def test_settings_within_the_bounds_and_rules_are_taken():
+    got = resolve_settings("memory-task", "smoke", ["washout=100", "delays=[2, 3]", "eval_inputs=1000000"])
+    assert (got["washout"], got["delays"], got["eval_inputs"]) == (100, (2, 3), 1_000_000)
+    assert resolve_settings("mnist-labelmap", "smoke", ["grid=1001"])["grid"] == 1001
+    assert resolve_settings("lissajous-closed-loop", "smoke", ["sim_time=100000"])["sim_time"] == 100_000
+
+
+@pytest.mark.parametrize("check, why", [
+    ("epochs < nope", "names nope, which is not a setting"),
+    ("config < 3", r"reads config \(str\) as a number"),
+    ("epochs << 3", "is not a rule like"),
+    ("epochs = 3", "cannot read ' = 3'"),
+    ("max(epochs) < 3", r"reads epochs \(int\) as a list of numbers"),
+    ("epochs + ", "is not a rule like"),
+    ("epochs; import os", "cannot read"),
+])
+def test_malformed_rules_are_refused(check, why):
+    doc = {**_doc(), "rules": [{"check": check, "help": "a reason"}]}
+    with pytest.raises(SettingsError, match=why):
+        parse_settings(doc, "x.yaml")
+    doc = {**_doc(), "rules": [{"check": "hold[0] * 2 + epochs % 2 <= max(hold) + len(hold)", "help": "ok"}]}
+    assert len(parse_settings(doc, "x.yaml").rules) == 1
+    with pytest.raises(SettingsError, match=r"x.yaml: short: hold\[0\] \* 2 \+ epochs % 2 <= max\(hold\) \+ "
+                                           r"len\(hold\) does not hold"):
+        parse_settings({**doc, "short": {**_GOOD, "hold": [3, 3]}}, "x.yaml")

@@ -236,6 +236,9 @@ def recorded(monkeypatch):
     calls = []
 
     def record(self, fname, **kwargs):
+        if hasattr(fname, "write"):  # the temporary file of safe_files.atomic_writer: .NAME.<random>.tmp
+            tmp = Path(fname.name)
+            fname = tmp.with_name(tmp.name[1:].rsplit(".", 2)[0])
         calls.append((Path(fname), kwargs.get("dpi"), matplotlib.rcParams["pdf.fonttype"]))
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", record)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bptsb_ros.safe_files import atomic_writer
 from bptsb_ros.sim.trajectory import Trajectory
 
 STRAIN_LIMIT = 0.3  # colour scale saturates at ±30 % strain
@@ -118,5 +119,7 @@ def animate_trajectory(
         frames.append(image.quantize(palette=palette, dither=Image.Dither.NONE))
     plt.close(fig)
     path.parent.mkdir(parents=True, exist_ok=True)
-    frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(round(1000 / fps)), loop=0)
+    with atomic_writer(path) as f:
+        frames[0].save(f, format="GIF", save_all=True, append_images=frames[1:], duration=int(round(1000 / fps)),
+                       loop=0)
     return path

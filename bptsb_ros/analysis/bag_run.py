@@ -18,14 +18,16 @@ import numpy as np
 from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import read_metadata
-from bptsb_ros.bags.reader import list_topics, read_published
+from bptsb_ros.bags.msgdefs import normalize_type
+from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute, dt_to_ns
+from bptsb_ros.safe_yaml import printable
 
 #: closed loops: the feedback layer drives the body (the offline comparison runs the closed loop)
 LOOPS_CLOSED = ("lissajous_closed", "locomotion_closed")
 #: loops whose body awaits the wind of every step from ``wind_source``
 LOOPS_WIND = ("locomotion_headwind", "lissajous_switching")
-#: node name (any namespace) of the body simulator, the owner of the body's topics
+#: node name of the body simulator, the owner of the body's topics (in the run's namespace)
 BODY_NODE = "body_sim"
 
 
@@ -94,14 +96,19 @@ def _topic(key: str, namespace: str = "") -> str:
     return f"{namespace}/{TOPICS[key].name.lstrip('/')}" if namespace else absolute(TOPICS[key].name)
 
 
+def node_in(namespace: str, node: str) -> str:
+    """The fully qualified name of ``node`` in ``namespace`` (a name that starts with ``/`` is one already)."""
+    return node if node.startswith("/") else f"{namespace.rstrip('/')}/{node}"
+
+
 def expected_publishers(loop: str | None, body_node: str = BODY_NODE, namespace: str = "") -> dict[str, str | None]:
-    """Topic -> the node that owns it in ``loop`` (None: any publisher): the body's topics are ``body_node``'s,
-    ``task/input`` is ``task_input``'s, and ``env/wind`` is ``wind_source``'s in the loops that await it (a user may
-    publish wind in the others)."""
-    owners: dict[str, str | None] = {_topic(k, namespace): body_node for k in (
+    """Topic -> the fully qualified node that owns it in ``loop`` (None: any publisher), every node in the run's
+    ``namespace``: the body's topics are ``body_node``'s, ``task/input`` is ``task_input``'s, and ``env/wind`` is
+    ``wind_source``'s in the loops that await it (a user may publish wind in the others)."""
+    owners: dict[str, str | None] = {_topic(k, namespace): node_in(namespace, body_node) for k in (
         "positions", "spring_lengths", "rest_length", "markers", "perturbation")}
-    owners[_topic("task_input", namespace)] = "task_input"
-    owners[_topic("wind", namespace)] = "wind_source" if loop in LOOPS_WIND else None
+    owners[_topic("task_input", namespace)] = node_in(namespace, "task_input")
+    owners[_topic("wind", namespace)] = node_in(namespace, "wind_source") if loop in LOOPS_WIND else None
     return owners
 
 
@@ -110,7 +117,9 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     """Read the body topics of a bag into a :class:`BagRun` (``skip_damaged``: skip chunks failing their CRC).
 
     Only the messages of each topic's owner are used (:func:`expected_publishers` for ``loop``, default the bag's
-    ``custom_data`` loop; the body is the node named ``body_node``); ``provenance`` reports the others. Raises
+    ``custom_data`` loop; the body is the node named ``body_node`` in the run's namespace, and where that name has
+    several publishers, the one :class:`~bptsb_ros.analysis.provenance.OwnMessages` resolves); ``provenance`` reports
+    the others. Raises
     :class:`BagError` when a step has two different messages from the owner.
     """
     topics = list_topics(bag)
@@ -122,7 +131,11 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
         raise BagError(f"bag {bag} has no {pos_topic} topic (geometry_msgs/PoseArray); topics: {', '.join(topics)}")
     wanted = [t for t in (names[k] for k in ("positions", "spring_lengths", "rest_length", "markers", "task_input",
                                               "wind", "perturbation")) if t in topics]
-    own = OwnMessages(bag, expected_publishers(loop or custom.get("loop"), body_node, ns))
+    for key, topic in names.items():
+        if topic in wanted and normalize_type(topics[topic] or "x/msg/none") != TOPICS[key].type:
+            raise BagError(f"bag {bag}: {topic} is of type {printable(topics[topic][:80])}, not "
+                           f"{TOPICS[key].type}: not a recording of this package's loop")
+    own = OwnMessages(bag, expected_publishers(loop or custom.get("loop"), body_node, ns), topic_publishers(bag))
     wind_ns: dict[int, tuple[float, float]] = {}
     kicks_ns: dict[int, np.ndarray] = {}
     pos: dict[int, np.ndarray] = {}
@@ -133,26 +146,31 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     for (topic, _type, _t, msg), publisher in read_published(bag, wanted, skip_damaged=skip_damaged):
         if not own.keep(topic, publisher):
             continue
-        if topic == pos_topic:
-            own.put(pos, _stamp_ns(msg), np.array([(p.position.x, p.position.y) for p in msg.poses]), topic, publisher)
-        elif topic == names["spring_lengths"]:
-            own.put(lengths, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
-        elif topic == names["rest_length"]:
-            own.put(rests, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
-        elif topic == names["markers"] and markers is None:
-            markers = msg
-        elif topic == names["task_input"] and len(msg.position):
-            own.put(inputs_ns, _stamp_ns(msg), float(msg.position[0]), topic, publisher)
-        elif topic == names["wind"]:
-            own.put(wind_ns, _stamp_ns(msg), (float(msg.vector.x), float(msg.vector.y)), topic, publisher)
-        elif topic == names["perturbation"]:
-            kick = np.asarray(msg.position, dtype=np.float64)
-            if kick.size % 2 or not np.isfinite(kick).all():
-                raise BagError(f"bag {bag}: a {topic} message holds {kick.size} values (x, y per movable mass "
-                               "expected, all finite)")
-            own.put(kicks_ns, _stamp_ns(msg), kick.reshape(-1, 2), topic, publisher)
+        try:  # a message of the right type name may still lack its fields (a schema of the bag's own)
+            if topic == pos_topic:
+                own.put(pos, _stamp_ns(msg), np.array([(p.position.x, p.position.y) for p in msg.poses]), topic,
+                        publisher)
+            elif topic == names["spring_lengths"]:
+                own.put(lengths, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
+            elif topic == names["rest_length"]:
+                own.put(rests, _stamp_ns(msg), np.asarray(msg.position, dtype=np.float64), topic, publisher)
+            elif topic == names["markers"] and markers is None:
+                markers = msg
+            elif topic == names["task_input"] and len(msg.position):
+                own.put(inputs_ns, _stamp_ns(msg), float(msg.position[0]), topic, publisher)
+            elif topic == names["wind"]:
+                own.put(wind_ns, _stamp_ns(msg), (float(msg.vector.x), float(msg.vector.y)), topic, publisher)
+            elif topic == names["perturbation"]:
+                kick = np.asarray(msg.position, dtype=np.float64)
+                if kick.size % 2 or not np.isfinite(kick).all():
+                    raise BagError(f"bag {bag}: a {topic} message holds {kick.size} values (x, y per movable mass "
+                                   "expected, all finite)")
+                own.put(kicks_ns, _stamp_ns(msg), kick.reshape(-1, 2), topic, publisher)
+        except (AttributeError, TypeError, ValueError, IndexError) as err:
+            raise BagError(f"bag {bag}: a {topic} message does not hold what a {_type} holds "
+                           f"({type(err).__name__}: {printable(str(err)[:120])})") from None
     if not pos and own.report.foreign.get(pos_topic):
-        raise BagError(f"bag {bag} has no {pos_topic} messages from {body_node}, only from "
+        raise BagError(f"bag {bag} has no {pos_topic} messages from {node_in(ns, body_node)}, only from "
                        + ", ".join(f"{name} ({n})" for name, n in own.report.foreign[pos_topic].most_common()))
     if not pos:
         raise BagError(f"bag {bag} has no messages on {pos_topic}")
@@ -166,7 +184,11 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
         dt_ns = dt_to_ns(dt)
     steps = (stamps + dt_ns // 2) // dt_ns  # nearest step, as ros.topics.stamp_to_step
     positions = np.stack([pos[s] for s in stamps])
-    springs, fixed, cmp = _layout_from_markers(markers, positions)
+    try:
+        springs, fixed, cmp = _layout_from_markers(markers, positions)
+    except (AttributeError, TypeError, ValueError, IndexError) as err:
+        raise BagError(f"bag {bag}: its {names['markers']} message does not hold what a MarkerArray holds "
+                       f"({type(err).__name__}: {printable(str(err)[:120])})") from None
 
     def stack(d: dict[int, np.ndarray]) -> np.ndarray | None:
         return np.stack([d[s] for s in stamps]) if d and all(s in d for s in stamps) else None

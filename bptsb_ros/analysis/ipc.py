@@ -254,9 +254,9 @@ class IPCResult:
         }
 
     def write_json(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.write_text(json.dumps(self.to_json()))
-        return path
+        from bptsb_ros.safe_files import write_atomic
+
+        return write_atomic(path, json.dumps(self.to_json()))
 
 
 def _check_inputs(u: Any, groups: Sequence[Any], washout: int, max_delay: int,

@@ -11,7 +11,6 @@ in float64. They agree when the live loop equals the offline drawing (lockstep: 
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,8 +20,9 @@ import torch
 
 from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
-from bptsb_ros.bags.reader import list_topics, read_published
+from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
+from bptsb_ros.safe_files import json_text, write_atomic
 
 
 def _topic(key: str) -> str:
@@ -49,8 +49,8 @@ def read_stream_topics(bag: str | Path, dt: float, skip_damaged: bool = False, p
     images: dict[int, np.ndarray] = {}
     labels: dict[int, int] = {}
     resets: dict[int, np.ndarray] = {}
-    own = OwnMessages(bag, {_topic("image"): "image_streamer", _topic("label"): "image_streamer",
-                            _topic("reset_cmd"): "mnist_brain"})
+    own = OwnMessages(bag, {_topic("image"): "/image_streamer", _topic("label"): "/image_streamer",
+                            _topic("reset_cmd"): "/mnist_brain"}, topic_publishers(bag))
     if provenance is not None:
         own.report = provenance
     for (topic, _type, _t, msg), publisher in read_published(bag, wanted, skip_damaged=skip_damaged):
@@ -147,7 +147,7 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
     if gif and len(run.springs):
         files.append(animate_run(out_dir / "replay.gif", run))
     metrics["files"] = [str(f) for f in files]
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_atomic(out_dir / "metrics.json", json_text(metrics, indent=2))
     return metrics
 
 

@@ -11,11 +11,11 @@ anything is touched. Symbolic links inside the folder are never followed: a path
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
+
+from bptsb_ros.safe_files import atomic_writer, write_atomic
 
 MANIFEST = ".bptsb-report-manifest.json"
 WRITTEN_BY = "bptsb report"
@@ -94,7 +94,9 @@ class OwnedFolder:
         for rel, src in copies.items():
             target = self.root / rel
             target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, target)
+            with open(src, "rb") as source, atomic_writer(target) as copy:
+                shutil.copyfileobj(source, copy)
+            shutil.copystat(src, target)
         for rel in sorted(self.files - set(copies)):
             target = self._checked(rel, refuse=False)
             if target is not None and target.is_file() and not target.is_symlink():
@@ -127,10 +129,7 @@ class OwnedFolder:
     def _write_manifest(self, files: set[str], dirs: set[str]) -> None:
         data = {"written_by": WRITTEN_BY, "note": "bptsb report replaces or removes only the files listed here",
                 "files": sorted(files), "dirs": sorted(dirs)}
-        fd, tmp = tempfile.mkstemp(prefix=".manifest-", suffix=".tmp", dir=self.root)
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=1)
-        os.replace(tmp, self.root / MANIFEST)
+        write_atomic(self.root / MANIFEST, json.dumps(data, indent=1))
 
 
 def _is_plain_relative(entry: object) -> bool:

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from bptsb_ros.body.shapes import Topology
+from bptsb_ros.safe_files import atomic_writer
 
 FIXED_COLOR = "#5f5f5f"
 MOVABLE_COLOR = "#0072B2"  # the style's blue, vermillion and green (Okabe-Ito: colour-blind safe)
@@ -102,7 +103,8 @@ def _render(topology: Topology, path: Path, mass_labels: bool, spring_labels: bo
                  f"{topology.n_springs} springs")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    with atomic_writer(path) as f:
+        fig.savefig(f, format=path.suffix[1:] or "png", dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return path
 

@@ -12,7 +12,6 @@ body fails the replay, and a bag that does not record publishers is read whole w
 from __future__ import annotations
 
 import errno
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ from bptsb_ros.analysis.bag_run import (
     recording_summary,
 )
 from bptsb_ros.bags.errors import BagError
+from bptsb_ros.safe_files import json_text, write_atomic
 
 
 # -- metrics ---------------------------------------------------------------------------------------
@@ -187,7 +187,7 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
             metrics["offline_comparison"] = {"skipped": str(err)}
     files = _write(out_dir, segment, metrics, plots, task, gif)
     metrics["files"] = [str(f) for f in files]
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=float))
+    write_atomic(out_dir / "metrics.json", json_text(metrics, indent=2, default=float))
     return metrics
 
 

@@ -30,6 +30,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib import cycler  # noqa: E402
 
+from bptsb_ros.safe_files import atomic_writer  # noqa: E402
+
 #: PNG resolution [dots per inch]
 DPI = 200
 #: pyplot keeps global state and is not thread-safe: threads that make figures (the trainings of a gang,
@@ -160,7 +162,8 @@ def save(fig, path: str | Path) -> Path:
         for out in files:
             meta = {".png": {"Software": software}, ".pdf": {"Creator": software, "CreationDate": None},
                     ".svg": {"Creator": software, "Date": None}}[out.suffix]
-            fig.savefig(out, dpi=DPI, metadata=meta)
+            with atomic_writer(out) as f:  # a regular file only, never through a planted link
+                fig.savefig(f, format=out.suffix[1:], dpi=DPI, metadata=meta)
     plt.close(fig)
     return path
 

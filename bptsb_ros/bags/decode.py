@@ -29,7 +29,7 @@ from typing import Any
 from mcap.records import Schema
 
 from bptsb_ros.bags.errors import BagError, MessageDefinitionError
-from bptsb_ros.bags.msgdefs import DELIMITER, get_message_class, normalize_type
+from bptsb_ros.bags.msgdefs import DELIMITER, get_message_class, message_definition, normalize_type
 
 #: Decoder names accepted by :class:`MessageDecoder` (and ``read_messages(..., decoder=...)``).
 DECODERS = ("auto", "rclpy", "rosbags")
@@ -84,8 +84,75 @@ def _check_bound(bound: object, msgtype: str) -> None:
         raise BagError(f"the bag's schema of {msgtype} gives a bound {bound!r} that is not a whole number")
 
 
+#: most fields a schema's type may expand to (nested types and fixed arrays of strings or types counted per
+#: element: rosbags writes a line of code for each); the largest installed message, InteractiveMarkerUpdate,
+#: expands to 87, and generating the decoder of 1,000 string fields took 3.7 s (``string[4096]``: 20 s)
+MAX_SCHEMA_FIELDS = 1_000
+#: longest fixed array of numbers a schema may declare (decoded with numpy, whatever its length; a message that
+#: holds it is bounded by the bag's chunks anyway); the installed messages have at most 36 elements
+MAX_FIXED_ARRAY = 1_000_000
+#: deepest nesting of types (the installed messages: 5)
+MAX_SCHEMA_DEPTH = 32
+#: most declaration lines (fields and constants, comments left out) a schema's text may hold, counted before it is
+#: parsed: the installed InteractiveMarkerUpdate's full text has 112, and rosbags took 1.1 s to parse 5,000 and 19 s
+#: for 60,000
+MAX_SCHEMA_LINES = 2_000
+
+
+def declaration_lines(text: str, encoding: str) -> int:
+    """Lines of a schema's text that declare something (neither blank nor a comment nor a type's separator)."""
+    comment = "#" if encoding == "ros2msg" else "//"
+    return sum(1 for line in text.splitlines()
+               if (body := line.split(comment, 1)[0].strip()) and not body.startswith(("MSG: ", "IDL: ", "====")))
+
+
+def schema_size(typs: dict[str, Any], msgtype: str) -> int:
+    """The fields ``msgtype`` expands to in the parsed schema ``typs``, nested types and fixed arrays of strings or
+    types counted per element; :class:`BagError` as soon as it passes :data:`MAX_SCHEMA_FIELDS`, for a fixed array
+    longer than :data:`MAX_FIXED_ARRAY`, or nesting deeper than :data:`MAX_SCHEMA_DEPTH` (a type that contains
+    itself never ends)."""
+    from rosbags.interfaces import Nodetype
+
+    sizes: dict[str, int] = {}
+
+    def field_size(desc: Any, depth: int) -> int:
+        node = Nodetype(desc[0])
+        if node == Nodetype.NAME:
+            return type_size(desc[1], depth + 1)
+        if node == Nodetype.ARRAY:
+            element, length = desc[1]
+            if length > MAX_FIXED_ARRAY:
+                raise BagError(f"the bag's schema of {msgtype} declares a fixed array of {length:,} elements; the "
+                               f"most read is {MAX_FIXED_ARRAY:,}")
+            numeric = Nodetype(element[0]) == Nodetype.BASE and element[1][0] not in ("string", "wstring")
+            return 1 if numeric else length * field_size(element, depth)
+        if node == Nodetype.SEQUENCE:
+            return field_size(desc[1][0], depth)
+        return 1
+
+    def type_size(name: str, depth: int) -> int:
+        if depth > MAX_SCHEMA_DEPTH:
+            raise BagError(f"the bag's schema of {msgtype} nests types more than {MAX_SCHEMA_DEPTH} deep (a type "
+                           "that contains itself?)")
+        if name not in sizes:
+            if name not in typs:
+                return 1  # a dangling name: rosbags says so when the type is used
+            total = 0
+            for _, desc in typs[name][1]:
+                total += field_size(desc, depth)
+                if total > MAX_SCHEMA_FIELDS:
+                    raise BagError(f"the bag's schema of {msgtype} expands to more than {MAX_SCHEMA_FIELDS:,} fields "
+                                   "(nested types and fixed arrays counted per element); that is not a message "
+                                   "this package reads")
+            sizes[name] = total
+        return sizes[name]
+
+    return type_size(msgtype, 0)
+
+
 def check_typesdict(typs: dict[str, Any], msgtype: str) -> None:
-    """Refuse parsed types whose names could not be plain Python identifiers (rosbags turns them into code)."""
+    """Refuse parsed types whose names could not be plain Python identifiers (rosbags turns them into code), and
+    schemas that expand too far (:func:`schema_size`)."""
     for name, (consts, fields) in typs.items():
         _check_name("type", name, _TYPENAME, msgtype)
         for fname, ftype, value in consts:
@@ -97,9 +164,14 @@ def check_typesdict(typs: dict[str, Any], msgtype: str) -> None:
         for fname, desc in fields:
             _check_name("field", fname, _IDENT, msgtype)
             _check_desc(desc, msgtype)
+    schema_size(typs, msgtype)
 
 
 def _types_from_schema(msgtype: str, encoding: str, text: str) -> dict[str, Any]:
+    lines = declaration_lines(text, encoding)
+    if lines > MAX_SCHEMA_LINES:
+        raise BagError(f"the bag's schema of {msgtype} declares {lines:,} fields and constants; the most read is "
+                       f"{MAX_SCHEMA_LINES:,}")
     typesys = _import_typesys()
     if encoding == "ros2msg":
         return typesys.get_types_from_msg(text, msgtype)
@@ -175,6 +247,54 @@ def rosbags_decoder(schema: Schema) -> Callable[[bytes], Any]:
     return decode
 
 
+def installed_mismatch(schema: Schema) -> str | None:
+    """Why the bag's definition of a message type differs from the definition installed here (one line), or None:
+    when they agree (compared as parsed: fields, types, bounds and constants, not comments), when the schema has no
+    text or another encoding than the installed one, or when the type is not installed."""
+    if not schema.data or len(schema.data) > MAX_SCHEMA_BYTES:
+        return None
+    try:
+        msgtype = normalize_type(schema.name)
+        installed = message_definition(msgtype)
+        text = schema.data.decode("utf-8")
+    except (MessageDefinitionError, UnicodeDecodeError, OSError):
+        return None
+    if installed.encoding != schema.encoding or text == installed.text:
+        return None
+    return _definition_difference(msgtype, schema.encoding, text, installed.text)
+
+
+@functools.lru_cache(maxsize=64)
+def _definition_difference(msgtype: str, encoding: str, text: str, installed: str) -> str | None:
+    ours = _types_from_schema(msgtype, encoding, installed)
+    try:
+        theirs = _types_from_schema(msgtype, encoding, text)
+    except BagError:
+        raise
+    except Exception:  # noqa: BLE001 - malformed text: the decoder says why it cannot be parsed
+        return None
+    check_typesdict(theirs, msgtype)
+    for name in [msgtype, *sorted((set(ours) | set(theirs)) - {msgtype})]:  # the type itself first
+        if ours.get(name) == theirs.get(name):
+            continue
+        if name not in theirs or name not in ours:
+            what = "lacks the type" if name not in theirs else "adds a type"
+            detail = f"{what} {name}"
+        else:
+            want, got = ours[name][1], theirs[name][1]
+            names_want, names_got = [f for f, _ in want], [f for f, _ in got]
+            if names_want != names_got:
+                detail = (f"{name} has the fields {', '.join(names_got[:8])}, the installed one "
+                          f"{', '.join(names_want[:8])}")
+            else:
+                field = next((f for (f, a), (_, b) in zip(want, got) if a != b), None)
+                detail = f"{name}.{field} has another type" if field else f"{name} has other constants"
+        return (f"the bag's schema of {msgtype} defines it differently from the installed {msgtype}: {detail}; its "
+                "messages would decode differently with ROS and without, so they are not read (record the bag "
+                "again, or read it where its definition is installed)")
+    return None
+
+
 class MessageDecoder:
     """Decodes the messages of one read: picks rclpy or rosbags per schema (see the module docstring).
 
@@ -202,6 +322,9 @@ class MessageDecoder:
         return found
 
     def _choose(self, schema: Schema) -> tuple[str, Callable[[bytes], Any]]:
+        problem = installed_mismatch(schema)
+        if problem:  # rclpy would decode with the installed definition, rosbags with the bag's: neither is right
+            raise BagError(problem)
         if self.decoder in ("auto", "rclpy"):
             deserialize = rclpy_deserializer()
             if deserialize is None and self.decoder == "rclpy":

@@ -11,6 +11,7 @@ import yaml
 
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.qos import QosProfile, qos_profiles_from_value, qos_profiles_to_list
+from bptsb_ros.safe_files import write_atomic
 from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 METADATA_FILENAME = "metadata.yaml"
@@ -156,12 +157,9 @@ class BagMetadata:
 
 
 def write_metadata(bag_dir: str | Path, metadata: BagMetadata) -> Path:
-    """Write ``<bag_dir>/metadata.yaml`` atomically (temporary file + rename) and return its path."""
-    path = Path(bag_dir) / METADATA_FILENAME
-    tmp = path.with_name(METADATA_FILENAME + ".tmp")
-    tmp.write_text(metadata.to_yaml(), encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    """Write ``<bag_dir>/metadata.yaml`` atomically (:func:`~bptsb_ros.safe_files.write_atomic`: a regular file
+    only, a temporary file + rename) and return its path."""
+    return write_atomic(Path(bag_dir) / METADATA_FILENAME, metadata.to_yaml())
 
 
 def read_metadata(bag_dir: str | Path) -> BagMetadata:

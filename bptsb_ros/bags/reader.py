@@ -36,7 +36,7 @@ from bptsb_ros.bags.metadata import METADATA_FILENAME, BagMetadata, TopicInfo, b
 from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, names_from_record
 from bptsb_ros.bags.qos import qos_profiles_from_value
 from bptsb_ros.bags.recording import RECORDING_RECORD, recorded_loss
-from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
+from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml, printable
 
 
 class BagMessage(NamedTuple):
@@ -195,7 +195,7 @@ class _McapFile:
             chunk = Chunk.read(ReadDataStream(BytesIO(body)))
             get_chunk_data_stream(chunk, validate_crc=True)
         except Exception as exc:  # CRC mismatch, bad compression, malformed fields: the mcap parser's errors vary
-            return f"{type(exc).__name__}: {str(exc)[:160]}"
+            return printable(f"{type(exc).__name__}: {str(exc)[:160]}")
         return ""
 
     def publishers(self) -> dict[int, PublisherId | None]:
@@ -242,6 +242,23 @@ def damaged_chunk_error(damaged: list[DamagedChunk]) -> BagError:
 
 def _topics_of(summary: Summary) -> dict[str, str]:
     return {ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id else "" for ch in summary.channels.values()}
+
+
+def topic_publishers(path: str | Path) -> dict[str, dict[str, tuple[PublisherId, int]]]:
+    """topic -> GID -> (the publisher, its message count) of every publisher a channel of the bag names (from
+    the MCAP summaries; channels without publisher identities are left out)."""
+    out: dict[str, dict[str, tuple[PublisherId, int]]] = {}
+    for file in mcap_files(path):
+        with _McapFile(file) as mf:
+            stats = mf.summary.statistics
+            for cid, publisher in mf.publishers().items():
+                if publisher is None:
+                    continue
+                topic = mf.summary.channels[cid].topic
+                n = stats.channel_message_counts.get(cid, 0) if stats is not None else 0
+                old = out.setdefault(topic, {}).get(publisher.gid)
+                out[topic][publisher.gid] = (publisher, n + (old[1] if old else 0))
+    return out
 
 
 def list_topics(path: str | Path) -> dict[str, str]:
@@ -577,4 +594,4 @@ def format_info(info: BagInfo) -> str:
         lines.append(("DAMAGED:           " if i == 0 else pad) + text)
     if info.damaged_chunks:
         lines.append(pad + f"run `bptsb bag recover {info.path}` to rebuild the bag from its intact chunks")
-    return "\n".join(lines)
+    return "\n".join(printable(line) for line in lines)  # names and types are the bag's data: control bytes escaped

@@ -50,7 +50,7 @@ from bptsb_ros.bags.metadata import (
 from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, names_from_record
 from bptsb_ros.bags.qos import qos_profiles_from_value
 from bptsb_ros.bags.writer import CUSTOM_DATA_RECORD, DEFAULT_CHUNK_SIZE, McapStream
-from bptsb_ros.safe_files import UnsafeFileError, open_regular
+from bptsb_ros.safe_files import UnsafeFileError, open_regular, temp_file_beside
 from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -414,9 +414,13 @@ def recover_file(
     except UnsafeFileError as err:
         raise BagError(str(err)) from None
     total = os.fstat(source.fileno()).st_size
-    tmp = path.with_name(path.name + ".recovering")
     try:
-        with source as f, open(tmp, "wb") as out_file:
+        out_file, tmp = temp_file_beside(path, suffix=".recovering")
+    except BaseException:
+        source.close()
+        raise
+    try:
+        with source as f, out_file:
             out = McapStream(out_file, chunk_size=chunk_size, compression=compression)
             scan = _Scan(out)
             used, reason = scan.run(f, total)

@@ -31,6 +31,7 @@ from bptsb_ros.bags.metadata import BagMetadata, FileInfo, TopicInfo, write_meta
 from bptsb_ros.bags.msgdefs import MessageDefinition, message_definition, normalize_type, type_description_hash
 from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, base_channel_metadata
 from bptsb_ros.bags.qos import QosProfile, qos_profiles_to_yaml
+from bptsb_ros.safe_files import UnsafeFileError, open_for_writing
 
 DEFAULT_CHUNK_SIZE = 768 * 1024  # bytes, the rosbag2_storage_mcap default
 DEFAULT_FLUSH_PERIOD_S = 1.0
@@ -219,7 +220,10 @@ class BagWriter:
         created = not self.path.exists()
         self.path.mkdir(parents=True, exist_ok=True)
         self.mcap_path = self.path / mcap_filename(self.path)
-        self._file = open(self.mcap_path, "wb")  # closed in close()
+        try:
+            self._file = open_for_writing(self.mcap_path)  # closed in close()
+        except UnsafeFileError as err:
+            raise BagError(str(err)) from None
         try:
             self._mcap = McapStream(self._file, chunk_size=chunk_size, compression=compression,
                                     custom_data=custom_data)

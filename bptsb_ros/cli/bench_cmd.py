@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -72,6 +70,8 @@ def _check_workdir(workdir: Path | None) -> int | None:
     runtime failure, not a usage error; the bench never writes into another run's files)."""
     from bptsb_ros.cli.common import fail
 
+    if workdir is not None and workdir.exists() and not workdir.is_dir():
+        return fail(NAME, f"--workdir {workdir} exists and is not a directory")
     if workdir is not None and workdir.exists() and any(workdir.iterdir()):
         return fail(NAME, f"--workdir {workdir} exists and is not empty")
     return None
@@ -79,18 +79,18 @@ def _check_workdir(workdir: Path | None) -> int | None:
 
 def _write(out: Path, report: dict, complete: bool = True) -> int | None:
     """Write ``report`` as JSON to ``out``, with ``"complete"`` first (false while measurements are still to come),
-    atomically (a temporary file beside it, then a rename: a reader or a kill never sees half a file); None, or
-    the exit status of a write that failed (after one line)."""
+    atomically and only as a regular file (:func:`bptsb_ros.safe_files.write_atomic`: a reader or a kill never sees
+    half a file, a device or a planted link is never written through); None, or the exit status of a write that
+    failed (after one line)."""
     from bptsb_ros.cli.common import fail
+    from bptsb_ros.safe_files import UnsafeFileError, write_atomic
 
-    tmp = out.with_name(f".{out.name}.tmp")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps({"complete": complete, **report}, indent=2))
-        os.replace(tmp, out)
+        write_atomic(out, json.dumps({"complete": complete, **report}, indent=2))
+    except UnsafeFileError as err:
+        return fail(NAME, f"cannot write --out: {err}")
     except OSError as err:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
         return fail(NAME, f"cannot write --out {out}: {err.strerror or err}")
     return None
 

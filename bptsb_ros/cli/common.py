@@ -39,9 +39,12 @@ class UsageError(ValueError):
 def fail(command: str, message: object, code: int = FAILURE) -> int:
     """Print ``bptsb <command>: <message>`` as one line to stderr and return ``code`` (the exit status).
 
-    ``message`` (an exception or a text) is flattened to one line: its lines, stripped, joined with ``"; "``.
+    ``message`` (an exception or a text) is flattened to one line: its lines, stripped, joined with ``"; "``, every
+    control character left escaped (``\\x1b``: a name read from a file cannot drive the terminal).
     """
-    text = "; ".join(s.strip() for s in str(message).splitlines() if s.strip()) or "failed"
+    from bptsb_ros.safe_yaml import printable
+
+    text = "; ".join(printable(s.strip()) for s in str(message).splitlines() if s.strip()) or "failed"
     print(f"bptsb {command}: {text}", file=sys.stderr)
     return code
 

@@ -166,11 +166,15 @@ def run(args: argparse.Namespace) -> int:
         data["source"]["tau"] = series.tau
     import json
 
+    from bptsb_ros.safe_files import UnsafeFileError, write_atomic
+
     shown = [lab for lab in res.labels if not lab.startswith("all ")] if args.bag else res.labels
     try:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "ipc.json").write_text(json.dumps(data))
+        write_atomic(out / "ipc.json", json.dumps(data))
         plot_ipc_bars(out / "ipc.png", res, shown, title=f"IPC of {args.bag or args.input}")
+    except UnsafeFileError as err:  # a link or a device planted where a result goes
+        return fail(NAME, f"cannot write --out: {err}")
     except OSError as err:  # --out was checked before computing; it changed since
         return fail(NAME, f"cannot write --out {out}: {err.strerror or err}")
     for s in res.summary():

@@ -17,6 +17,7 @@ from typing import IO
 
 from bptsb_ros.cli.common import FAILURE, USAGE, fail, finite_float
 from bptsb_ros.live.loops import LOOPS, bag_target_problem, format_parameter, loops_help
+from bptsb_ros.safe_files import open_for_writing, write_atomic
 
 NAME = "launch"
 HELP = "start a live loop (body_sim + brains [+ recorder]) as separate ROS 2 processes"
@@ -203,7 +204,7 @@ class Launcher:
                                                               if c not in (self.body, self.recorder)] + [self.body]
         hook = die_with_parent_hook()
         for child in order:
-            log = child.log_path.open("w")  # closed by _pump
+            log = open_for_writing(child.log_path, "w")  # closed by _pump
             try:
                 child.proc = subprocess.Popen(child.argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                               stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=hook)
@@ -367,7 +368,7 @@ def _check_recording(launcher: Launcher, rows: list[tuple[str, str]], bag: Path,
         return rows
     if isinstance(summary, dict):
         summary["recording"] = {**loss.to_dict(), "allowed": allow_loss}
-        summary_path.write_text(json.dumps(summary, indent=2) + "\n")
+        write_atomic(summary_path, json.dumps(summary, indent=2) + "\n")
     if not loss.any:
         return rows
     launcher.failures[:] = [f for f in launcher.failures if not f.startswith("recorder: failed (exit 1)")]

@@ -24,8 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", default=None, choices=sorted(LOOPS),
                         help="loop that was run (default: from the bag's custom_data)")
     parser.add_argument("--body-node", default="body_sim", metavar="NAME",
-                        help="node name of the body simulator: only its messages on the body topics are used; those "
-                        "of other publishers are ignored and reported (default: body_sim)")
+                        help="node name of the body simulator, in the run's namespace (or a full /NS/NAME): only its "
+                        "messages on the body topics are used; those of other publishers are ignored and reported "
+                        "(default: body_sim)")
     parser.add_argument("--no-gif", action="store_true", help="skip the animation")
     parser.add_argument("--skip-damaged", action="store_true",
                         help="skip bag chunks that fail their CRC check (with a warning) instead of stopping")

@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bptsb_ros.safe_files import atomic_writer, write_atomic
+
 TRAIN_IMAGES = "train-images-idx3-ubyte"
 TRAIN_LABELS = "train-labels-idx1-ubyte"
 TEST_IMAGES = "t10k-images-idx3-ubyte"
@@ -310,10 +312,8 @@ def download(directory: str | Path, *, include_train: bool = True, mirrors: tupl
                 errors.append(f"{url}: MD5 {digest}, expected {GZ_MD5[name]}")
                 continue
             target = directory / f"{name}.gz"
-            tmp = target.with_suffix(".gz.part")
             try:
-                tmp.write_bytes(payload)
-                tmp.replace(target)
+                write_atomic(target, payload)
             except OSError as err:
                 raise MnistError(f"{target}: cannot write ({err.strerror or err})") from None
             written.append(target)
@@ -339,10 +339,10 @@ def write_custom_set(directory: str | Path, test_x: np.ndarray, test_y: np.ndarr
     for name, array in items:
         data = encode_idx(array)
         if gz:
-            with gzip.open(directory / f"{name}.gz", "wb") as handle:
+            with atomic_writer(directory / f"{name}.gz") as raw, gzip.GzipFile(fileobj=raw, mode="wb") as handle:
                 handle.write(data)
         else:
-            (directory / name).write_bytes(data)
+            write_atomic(directory / name, data)
         lines.append(f"{hashlib.md5(data).hexdigest()}  {name}")
-    (directory / CHECKSUM_FILE).write_text("\n".join(lines) + "\n")
+    write_atomic(directory / CHECKSUM_FILE, "\n".join(lines) + "\n")
     return directory

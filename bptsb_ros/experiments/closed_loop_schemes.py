@@ -27,6 +27,7 @@ from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded
 from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.safe_files import write_atomic
 from bptsb_ros.sim.population import run_population
 from bptsb_ros.tasks.lissajous import windowed_shift_error_batch
 from bptsb_ros.tasks.lissajous_switching import CURVE_1, CURVE_SWITCH, CURVE_TIMING, Curve
@@ -161,7 +162,7 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     out["scheme1_diverged_at_update"] = res1.diverged
     out["scheme1_guard"] = res1.guard
     Path(run_dir).mkdir(parents=True, exist_ok=True)
-    Path(run_dir, "scheme.json").write_text(json.dumps(out))
+    write_atomic(Path(run_dir, "scheme.json"), json.dumps(out))
     return out
 
 

@@ -23,10 +23,20 @@ not a size)::
 
 The experiment reads them in file order as ``ctx.settings.variants`` (name → values); result.json records them.
 
+Rules between settings (``rules``): each a comparison (< <= == != >= >) of two expressions of ``+ - * %`` over
+numbers, settings, items of list settings (``hold[0]``) and ``max``, ``min`` or ``len`` of one; checked on the
+resolved values before the experiment starts (a rule that reads a null setting holds)::
+
+    rules:
+      - {check: "washout < eval_inputs", help: "the NMSE is taken over the held-out inputs after the washout"}
+      - {check: "grid % 2 == 1", help: "the label map has a cell at Δ = 0"}
+
 Types: ``int``, ``float`` (an int is taken as a float), ``number`` (an int or a float, kept as written: a
 duration the code passes on as it is), ``str``, ``bool`` and ``list[T]`` of those (a tuple in the code).
 Declaration keys besides ``type`` and ``help``: ``min`` and ``max`` (inclusive; of every item of a list),
-``length`` (of a list) and ``nullable`` (null allowed). Every scale gives exactly the declared settings.
+``length`` (of a list) and ``nullable`` (null allowed). A number (or list of numbers) must declare both ``min`` and
+``max``: every setting has bounds a user would never need to exceed (``--set sim_time=1e300`` is refused, not run
+until killed). Every scale gives exactly the declared settings.
 
 The file is read with the project's bounded safe YAML loader; every problem is one :class:`SettingsError`
 line naming the file and the setting, with a "did you mean" for a misspelt name. ``--set KEY=VALUE``
@@ -39,6 +49,7 @@ from __future__ import annotations
 import difflib
 import json
 import math
+import operator
 import re
 import shlex
 from collections.abc import Iterator, Mapping, Sequence
@@ -51,8 +62,9 @@ from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted
 #: the packaged settings files, one per experiment (``<experiment name>.yaml``)
 SETTINGS_DIR = Path(__file__).resolve().with_name("settings")
 SCALES = ("smoke", "short", "paper")
-SECTIONS = ("settings", *SCALES, "variant_settings", "variants")
+SECTIONS = ("settings", *SCALES, "variant_settings", "variants", "rules")
 SCALAR_TYPES = ("int", "float", "number", "str", "bool")
+NUMBER_TYPES = ("int", "float", "number")
 TYPES = (*SCALAR_TYPES, *(f"list[{t}]" for t in SCALAR_TYPES))
 SPEC_KEYS = ("type", "help", "min", "max", "length", "nullable")
 SETTING_NAME = re.compile(r"[a-z][a-z0-9_]*")
@@ -155,6 +167,144 @@ class ParsedSettings:
     values: dict[str, dict[str, Any]]
     variant_specs: dict[str, SettingSpec] = field(default_factory=dict)
     variants: dict[str, dict[str, Any]] = field(default_factory=dict)
+    rules: tuple[Rule, ...] = ()
+
+
+_RULE_TOKEN = re.compile(r"\s*(?:(?P<num>[0-9]+(?:\.[0-9]+)?)|(?P<name>[a-z][a-z0-9_]*)|"
+                         r"(?P<op><=|>=|==|!=|<|>|\+|-|\*|%|\(|\)|\[|\]))")
+_COMPARE = {"<": operator.lt, "<=": operator.le, "==": operator.eq, "!=": operator.ne, ">=": operator.ge,
+            ">": operator.gt}
+_ARITHMETIC = {"+": operator.add, "-": operator.sub, "*": operator.mul, "%": operator.mod}
+_FUNCTIONS = {"max": max, "min": min, "len": len}
+MAX_RULE_CHARS = 200
+
+#: an expression of a rule: ``("num", value)``, ``("setting", name, index, function)`` (index: an item of a list
+#: setting or None; function: ``max``, ``min``, ``len`` of one or None) or ``(op, left, right)`` (+ - * %)
+Expr = tuple
+
+
+def _evaluate(expr: Expr, values: Mapping[str, Any]) -> float | None:
+    """The value of ``expr`` for the settings ``values`` (None where it reads a null setting or an empty list)."""
+    if expr[0] == "num":
+        return expr[1]
+    if expr[0] == "setting":
+        _, name, index, function = expr
+        v = values.get(name)
+        if v is None:
+            return None
+        if function is not None:
+            return _FUNCTIONS[function](v) if len(v) or function == "len" else None
+        if index is not None:
+            return v[index] if index < len(v) else None
+        return v
+    left, right = _evaluate(expr[1], values), _evaluate(expr[2], values)
+    return None if left is None or right is None else _ARITHMETIC[expr[0]](left, right)
+
+
+def _names(expr: Expr) -> set[str]:
+    if expr[0] == "num":
+        return set()
+    if expr[0] == "setting":
+        return {expr[1]}
+    return _names(expr[1]) | _names(expr[2])
+
+
+@dataclass(frozen=True)
+class Rule:
+    """``left op right`` over the settings (``check``: its text), with the reason it must hold (``help``)."""
+
+    check: str
+    help: str
+    left: Expr
+    op: str
+    right: Expr
+
+    def problem(self, values: Mapping[str, Any]) -> str | None:
+        """Why the rule fails for ``values`` (None when it holds, or when a setting it reads is null)."""
+        left, right = _evaluate(self.left, values), _evaluate(self.right, values)
+        if left is None or right is None or _COMPARE[self.op](left, right):
+            return None
+        given = ", ".join(f"{n} = {_shown(values[n])}" for n in sorted(_names(self.left) | _names(self.right)))
+        return f"{self.check} does not hold ({given}): {self.help}"
+
+
+def _parse_rule(raw: Any, specs: Mapping[str, SettingSpec], where: str) -> Rule:
+    """A rule ``{check: "a + b < c", help: ...}``: sums and differences of products of terms (a number, a setting,
+    ``name[i]``, ``max(name)``, ``min(name)``, ``len(name)``, each possibly ``% N``) compared with one of
+    < <= == != >= >."""
+    if not isinstance(raw, Mapping) or set(raw) != {"check", "help"} or not isinstance(raw["check"], str) \
+            or not isinstance(raw["help"], str) or not raw["help"].strip():
+        raise SettingsError(f"{where} must be a mapping {{check: \"a < b\", help: why it must hold}}, got "
+                            f"{bounded_repr(raw)}")
+    text = raw["check"]
+    if len(text) > MAX_RULE_CHARS:
+        raise SettingsError(f"{where}: the check is longer than {MAX_RULE_CHARS} characters")
+    tokens, pos = [], 0
+    while pos < len(text.rstrip()):
+        m = _RULE_TOKEN.match(text, pos)
+        if not m or m.end() == pos:
+            raise SettingsError(f"{where}: cannot read {bounded_repr(text[pos:pos + 20])} in {bounded_repr(text)}")
+        tokens.append((m.lastgroup, m.group(m.lastgroup)))
+        pos = m.end()
+    tokens.append(("end", ""))
+    at = [0]
+
+    def peek() -> tuple[str, str]:
+        return tokens[at[0]]
+
+    def take(kind: str, value: str | None = None) -> str:
+        k, v = tokens[at[0]]
+        if k != kind or (value is not None and v != value):
+            raise SettingsError(f"{where}: {bounded_repr(text)} is not a rule like \"a + b < c\" (at "
+                                f"{bounded_repr(v or 'the end')})")
+        at[0] += 1
+        return v
+
+    def atom() -> Expr:
+        kind, value = peek()
+        if kind == "num":
+            take("num")
+            return ("num", float(value) if "." in value else int(value))
+        name = take("name")
+        function = index = None
+        if name in _FUNCTIONS and peek() == ("op", "("):
+            take("op", "(")
+            function, name = name, take("name")
+            take("op", ")")
+        if peek() == ("op", "["):
+            take("op", "[")
+            index = int(take("num"))
+            take("op", "]")
+        spec = specs.get(name)
+        if spec is None:
+            raise SettingsError(f"{where}: {bounded_repr(text)} names {name}, which is not a setting"
+                                f"{_close(name, list(specs))}")
+        as_list = function is not None or index is not None
+        if as_list != spec.type.startswith("list[") or spec.type.removeprefix("list[").removesuffix("]") not in \
+                NUMBER_TYPES and function != "len":
+            raise SettingsError(f"{where}: {bounded_repr(text)} reads {name} ({spec.type}) as "
+                                f"{'a list of numbers' if as_list else 'a number'}")
+        return ("setting", name, index, function)
+
+    def factor() -> Expr:
+        expr = atom()
+        while peek() in (("op", "*"), ("op", "%")):
+            expr = (take("op"), expr, atom())
+        return expr
+
+    def side() -> Expr:
+        expr = factor()
+        while peek() in (("op", "+"), ("op", "-")):
+            expr = (take("op"), expr, factor())
+        return expr
+
+    left = side()
+    op = take("op")
+    if op not in _COMPARE:
+        raise SettingsError(f"{where}: {bounded_repr(text)} compares with {op!r}, not one of {', '.join(_COMPARE)}")
+    right = side()
+    take("end")
+    return Rule(text, " ".join(raw["help"].split()), left, op, right)
 
 
 def _spec(name: Any, raw: Any, where: str) -> SettingSpec:
@@ -175,6 +325,10 @@ def _spec(name: Any, raw: Any, where: str) -> SettingSpec:
         v = raw.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
             raise SettingsError(f"{where}.{key} must be a number, got {bounded_repr(v)}")
+        if v is None and raw["type"].removeprefix("list[").removesuffix("]") in NUMBER_TYPES:
+            raise SettingsError(f"{where} needs a {key}: every number has bounds a user would never need to exceed")
+    if raw.get("min") is not None and raw.get("max") is not None and raw["min"] > raw["max"]:
+        raise SettingsError(f"{where}: min {raw['min']} is above max {raw['max']}")
     length = raw.get("length")
     if length is not None and (not raw["type"].startswith("list[") or isinstance(length, bool)
                                or not isinstance(length, int) or length < 0):
@@ -215,7 +369,15 @@ def parse_settings(doc: Any, source: str) -> ParsedSettings:
                 raise SettingsError(f"{source}: {scale} lacks the setting {key}")
         values[scale] = {key: spec.check(given[key], f"{source}: {scale}.{key}") for key, spec in specs.items()}
     variant_specs, variants = _parse_variants(doc, source)
-    return ParsedSettings(source, specs, values, variant_specs, variants)
+    raw_rules = doc.get("rules", [])
+    if not isinstance(raw_rules, list):
+        raise SettingsError(f"{source}: rules must be a list of {{check: ..., help: ...}}")
+    rules = tuple(_parse_rule(raw, specs, f"{source}: rules[{i}]") for i, raw in enumerate(raw_rules))
+    for scale in SCALES:  # the packaged values keep the rules too
+        problem = next((p for r in rules if (p := r.problem(values[scale]))), None)
+        if problem:
+            raise SettingsError(f"{source}: {scale}: {problem}")
+    return ParsedSettings(source, specs, values, variant_specs, variants, rules)
 
 
 def _parse_variants(doc: Mapping, source: str) -> tuple[dict[str, SettingSpec], dict[str, dict[str, Any]]]:
@@ -377,4 +539,9 @@ def resolve_settings(experiment: str, scale: str, overrides: Overrides | None = 
         values[key] = specs[key].check(value, where)
         if key not in overridden:
             overridden.append(key)
+    for rule in parsed.rules if parsed else ():  # across settings, before any work
+        problem = rule.problem(values)
+        if problem:
+            given = " (with --set)" if overridden else ""
+            raise SettingsError(f"settings of {experiment} at scale {scale}{given}: {problem}")
     return Settings(experiment, scale, values, specs, overridden, parsed.variants if parsed else None)

@@ -45,6 +45,7 @@ from bptsb_ros.experiments.lissajous_agents import (
 from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.safe_files import write_atomic
 from bptsb_ros.sim.population import run_population
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.tasks.lissajous import windowed_shift_error_batch
@@ -324,7 +325,7 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any]
                "integrator": agent.body.integrator, "lr_decay": bool(variant["lr_decay"]),
                "lr_k_first": res.lr_k[0] if res.lr_k else None, "lr_k_last": res.lr_k[-1] if res.lr_k else None,
                **by_condition, "guard": res.guard}
-    Path(run_dir, "switching.json").write_text(json.dumps({**summary, "losses": res.losses}))
+    write_atomic(Path(run_dir, "switching.json"), json.dumps({**summary, "losses": res.losses}))
     return summary
 
 

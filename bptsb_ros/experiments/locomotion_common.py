@@ -24,6 +24,7 @@ from bptsb_ros.agent import Agent
 from bptsb_ros.body.msdn import PROJECTIONS, BodyState
 from bptsb_ros.brains import FeedbackLayer, SineWaveGenerator
 from bptsb_ros.config import FeedbackConfig
+from bptsb_ros.safe_files import atomic_writer
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
 from bptsb_ros.sweep import Job, SweepResult
 
@@ -182,8 +183,9 @@ def forward_agent_job(settings: AgentSettings, seed: int, run_dir: Path) -> dict
         vel = simulate_closed_loop(agent.body, vel_fl, steps, state=start)
         v_vel = centre_speed(vel.r[:, 0, :, 0], dt)
     gait_steps = int(round(settings.gait_time / dt))
-    np.savez_compressed(run_dir / "gait.npz", r=open_roll.r[: gait_steps + 1 : GAIT_STRIDE, 0].double().numpy(),
-                        dt=dt * GAIT_STRIDE, springs=np.asarray(agent.body.topology.springs))
+    with atomic_writer(run_dir / "gait.npz") as f:
+        np.savez_compressed(f, r=open_roll.r[: gait_steps + 1 : GAIT_STRIDE, 0].double().numpy(),
+                            dt=dt * GAIT_STRIDE, springs=np.asarray(agent.body.topology.springs))
 
     def ratio(v: float) -> float:
         return v / v_open if v_open > 0 else float("nan")

@@ -40,6 +40,7 @@ from bptsb_ros.experiments.result import (
 )
 from bptsb_ros.rundir_lock import LOCK_NAME, dir_is_empty, hold_run_dir
 from bptsb_ros.runner import Placement
+from bptsb_ros.safe_files import UnsafeFileError, write_atomic
 
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
@@ -367,9 +368,10 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
                                   f"(no {RUN_MARKER}); remove it yourself or choose another --out")
         _clear_run(out)  # nothing of the earlier run (jobs of another scale, say) may leak into this one
     try:
-        (out / RUN_MARKER).write_text(f"bptsb reproduce {name}\n")
-    except OSError as err:
-        raise ExperimentError(f"cannot create the output directory {out}: {err.strerror or err}") from None
+        write_atomic(out / RUN_MARKER, f"bptsb reproduce {name}\n")
+    except (OSError, UnsafeFileError) as err:
+        raise ExperimentError(f"cannot create the output directory {out}: {getattr(err, 'strerror', None) or err}") \
+            from None
     result = ExperimentResult(exp.name, exp.paper_ref, scale, int(seed), settings=settings.to_json())
     command = f"bptsb reproduce {name} --scale {scale} --seed {seed} --out {out}" + (" --resume" if resume else "")
     if data_dir is not None:
@@ -488,8 +490,8 @@ def _seconds(value: Any) -> bool:
 
 def _write_attempts(out: Path, attempts: list[dict[str, Any]]) -> None:
     try:
-        (out / ATTEMPTS_FILE).write_text(json.dumps(attempts, indent=1) + "\n")
-    except OSError:
+        write_atomic(out / ATTEMPTS_FILE, json.dumps(attempts, indent=1) + "\n")
+    except (OSError, UnsafeFileError):
         pass  # the record only improves the wall time of a later --resume; the run itself goes on
 
 

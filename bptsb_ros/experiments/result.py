@@ -322,18 +322,17 @@ def _check_fields(item: Any, fields: dict[str, type], where: str) -> None:
 
 
 def write_result(out_dir: Path, result: ExperimentResult) -> Path:
-    """Write ``out_dir/result.json`` atomically (a crash never leaves half a file)."""
+    """Write ``out_dir/result.json`` atomically, as a regular file only (a crash never leaves half a file)."""
     return write_json_result(out_dir, result.to_json())
 
 
 def write_json_result(out_dir: Path, data: dict[str, Any]) -> Path:
-    """Validate ``data`` (a single-seed or aggregate result) and write it as ``out_dir/result.json`` atomically."""
-    from bptsb_ros.safe_files import write_text_atomic
+    """Validate ``data`` (a single-seed or aggregate result) and write it as ``out_dir/result.json`` atomically, as a
+    regular file only (:func:`~bptsb_ros.safe_files.write_atomic`)."""
+    from bptsb_ros.safe_files import write_atomic
 
     validate_result(data, str(out_dir / RESULT_FILE))
-    path = out_dir / RESULT_FILE
-    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
-    return path
+    return write_atomic(out_dir / RESULT_FILE, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 MAX_RESULT_BYTES = 50_000_000

@@ -95,6 +95,16 @@ class NarmaJob:
         out["nmse"] = out[f"nmse_{self.stages[-1]}"]
         return out
 
+    def result_problem(self, result: dict[str, Any]) -> str | None:
+        """Why a recorded result cannot be this job's (the sweep asks before reusing it): its NMSEs, losses and
+        training time are numbers ≥ 0 (``"nan"`` or ``"inf"`` as the record writes a non-finite one)."""
+        for key, value in result.items():
+            if not key.startswith(("nmse", "loss_last", "train_seconds")) or value in ("nan", "inf"):
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+                return f"its {key} is {str(value)[:40]}, not a number ≥ 0"
+        return None
+
     def stage_config(self, epochs: int) -> Any:
         """The config trained up to ``epochs`` (0: the untrained agent's, in float64)."""
         from bptsb_ros.experiments.common import packaged_config
@@ -114,8 +124,11 @@ class NarmaJob:
         target = task.target(u)
         cmp_y = pos[:, agent.body.cmp_local, 1]
         out[f"nmse_{epochs}"] = nmse(cmp_y[self.washout:], target[self.washout:])
-        np.savez(run_dir / f"states_{epochs}.npz", u=u, positions=pos, target=target,
-                 movable=agent.body.topology.movable, cmp_index=agent.body.topology.cmp_index)
+        from bptsb_ros.safe_files import atomic_writer
+
+        with atomic_writer(run_dir / f"states_{epochs}.npz") as f:
+            np.savez(f, u=u, positions=pos, target=target, movable=agent.body.topology.movable,
+                     cmp_index=agent.body.topology.cmp_index)
 
 
 @dataclass(frozen=True)

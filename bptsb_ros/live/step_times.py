@@ -18,8 +18,6 @@ period (it finished after the next step was due; the same rule as the body's ``d
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -65,14 +63,10 @@ class StepTimes:
         arrays["period"] = np.array(period, dtype=np.float64)
         for key, value in (meta or {}).items():
             arrays[f"meta_{key}"] = np.array(str(value))
-        handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-        try:
-            with os.fdopen(handle, "wb") as out:
-                np.savez(out, **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        from bptsb_ros.safe_files import atomic_writer
+
+        with atomic_writer(path) as out:
+            np.savez(out, **arrays)
 
 
 def load_step_times(path: str | Path, meta: tuple[str, ...] = ("executor",)) -> dict[str, Any]:

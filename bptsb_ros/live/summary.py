@@ -9,12 +9,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from bptsb_ros.safe_files import write_atomic
+
 
 def write_summary(path: str | Path, summary: Mapping[str, Any]) -> None:
     """Write the run summary as JSON (parent folders created)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(summary, indent=2) + "\n")
+    write_atomic(path, json.dumps(summary, indent=2) + "\n")
 
 
 def summary_text(summary: Mapping[str, Any]) -> str:

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from bptsb_ros.ros.params import render_params_yaml
+from bptsb_ros.safe_files import write_atomic
 
 #: node name -> module holding its ``PARAMS`` (brains also get COMMON_PARAMS)
 NODES: dict[str, str] = {
@@ -42,7 +43,7 @@ def write_all(config_dir: str | Path) -> list[Path]:
     out = []
     for node in NODES:
         path = Path(config_dir) / f"{node}_params.yaml"
-        path.write_text(render(node))
+        write_atomic(path, render(node))
         out.append(path)
     return out
 

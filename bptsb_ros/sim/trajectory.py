@@ -49,6 +49,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from bptsb_ros.safe_files import atomic_writer
+
 if TYPE_CHECKING:
     from bptsb_ros.body.msdn import MSDN
     from bptsb_ros.sim.rollout import Rollout
@@ -171,7 +173,7 @@ class Trajectory:
             "format_version": np.int64(FORMAT_VERSION),
         }
         arrays.update({EXTRA_PREFIX + name: value for name, value in self.extras.items()})
-        with path.open("wb") as fh:
+        with atomic_writer(path) as fh:
             np.savez_compressed(fh, **arrays)
         return path
 

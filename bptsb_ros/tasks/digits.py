@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bptsb_ros.safe_files import write_atomic
+
 DATA_FILE = Path(__file__).with_name("digit_targets.json")
 #: digit height [m]: size/8 for the paper's size-4 bodies (the published scaling)
 HEIGHT = 0.5
@@ -106,7 +108,7 @@ def write_targets(path: Path = DATA_FILE) -> Path:
     doc = {"description": "CMP target trajectories for the digits 0-9; made by bptsb_ros/tasks/digits.py",
            "dt": DT, "height_m": HEIGHT, "mean_speed_m_per_s": MEAN_SPEED, "min_duration_s": MIN_DURATION,
            "targets": {str(d): np.round(t, 6).tolist() for d, t in enumerate(targets)}}
-    path.write_text(json.dumps(doc, separators=(",", ":")) + "\n")
+    write_atomic(path, json.dumps(doc, separators=(",", ":")) + "\n")
     return path
 
 

@@ -332,7 +332,10 @@ def save_system(system: ImageToBody, path, extra: dict[str, Any] | None = None) 
 
     payload = {"spec": json.dumps(system.spec.to_json()), "state": system.state_dict(),
                "extra": json.dumps(extra or {})}
-    torch.save(payload, path)
+    from bptsb_ros.safe_files import atomic_writer
+
+    with atomic_writer(path) as f:
+        torch.save(payload, f)
 
 
 def load_system(path) -> tuple[ImageToBody, dict[str, Any]]:

@@ -18,6 +18,7 @@ import torch
 
 from bptsb_ros.agent import Agent, build_agent
 from bptsb_ros.config import validate
+from bptsb_ros.safe_files import atomic_writer
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -46,9 +47,8 @@ def save_checkpoint(run_dir: str | Path, agent: Agent, extra: dict[str, Any] | N
         "modules": modules if modules is not None else {name: m.state_dict() for name, m in agent.modules().items()},
         "extra": extra or {},
     }
-    tmp = path.with_suffix(".pt.tmp")
-    torch.save(payload, tmp)
-    tmp.replace(path)
+    with atomic_writer(path) as f:
+        torch.save(payload, f)
     return path
 
 

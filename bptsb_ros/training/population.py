@@ -41,12 +41,22 @@ from bptsb_ros.body.msdn import SimulationDiverged, diverged_message, parameter_
 from bptsb_ros.brains import LinearInputLayer
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
+from bptsb_ros.safe_files import atomic_writer, write_atomic
 from bptsb_ros.tasks.base import Task
 from bptsb_ros.tasks.narma import NarmaTask, brain_input
 from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import save_checkpoint
-from bptsb_ros.training.guard import UpdateGuard
+from bptsb_ros.training.guard import RESET_AFTER, UpdateGuard
 from bptsb_ros.training.optim import make_optimizer
+from bptsb_ros.training.resume_checks import (
+    ResumeStateError,
+    check_finite,
+    check_guard,
+    check_like,
+    check_rate,
+    check_tensor,
+    check_whole,
+)
 from bptsb_ros.training.trainer import (
     TrainingDiverged,
     TrainResult,
@@ -337,7 +347,7 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
         raise ValueError(f"cannot train as one population: {why}")
     for d, agent in zip(dirs, agents):
         if d is not None:
-            (d / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
+            write_atomic(d / "config.yaml", yaml.safe_dump(agent.config, sort_keys=False))
     pop = _Population(agents, cfg0)
     tc, n = cfg0.training, cfg0.narma
     interactive = sys.stderr.isatty()
@@ -435,9 +445,8 @@ def _save_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, 
              "rates": [[g["lr"] for g in m.param_groups] for m in pop.members],
              "guards": [g.state_dict() for g in guards], "rngs": [t.rng.bit_generator.state for t in tasks],
              "active": active.tolist(), "failures": [[f.index, str(f.error)] for f in failures]}
-    tmp = path.with_suffix(".tmp")
-    torch.save(state, tmp)
-    tmp.replace(path)
+    with atomic_writer(path) as f:
+        torch.save(state, f)
 
 
 def _read_state(path: Path) -> Any:
@@ -466,6 +475,11 @@ def _load_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, 
             state.get("configs") != [c.model_dump(mode="json") for c in cfgs]:
         raise ConfigError(f"{path} is the state of another population (other trainings or configs); remove it to "
                           "start this one afresh")
+    try:  # untrusted data: a state this very population could have saved, before any of it is used
+        _check_state(state, cfgs, pop, guards, tasks)
+    except ResumeStateError as err:
+        raise ConfigError(f"{path} is not a state this population could have saved ({err}); remove it to start the "
+                          "population afresh") from None
     with torch.no_grad():
         for n in STACKED:
             getattr(pop, n).copy_(state["params"][n])
@@ -485,6 +499,105 @@ def _load_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, 
     return int(state["update"]), float(state["seconds"])
 
 
+#: longest failure message kept from a state
+MAX_MESSAGE = 4000
+
+
+def _check_state(state: dict, cfgs: Sequence[ExperimentConfig], pop: _Population, guards: Sequence[UpdateGuard],
+                 tasks: Sequence[Task]) -> None:
+    """Raise :class:`ResumeStateError` unless ``state`` is one :func:`_save_state` could have written for this
+    population (:mod:`~bptsb_ros.training.resume_checks`): every entry present with the population's shapes, finite,
+    the update within 0 … epochs, each member's rates in (0, its config rate], step counts and loss histories that
+    fit the update, its guard's counters within their rules, a random generator state numpy takes, and the stopped
+    members exactly those with a recorded failure."""
+    n = len(cfgs)
+    missing = [k for k in ("update", "seconds", "params", "steps", "moments", "rates", "guards", "rngs", "active",
+                           "failures") if k not in state]
+    if missing:
+        raise ResumeStateError(f"it lacks {', '.join(missing)}")
+    update = check_whole(state["update"], "update", 0, cfgs[0].epochs)
+    seconds = state["seconds"]
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 <= seconds < float("inf"):
+        raise ResumeStateError(f"seconds is {str(seconds)[:40]}, not a time ≥ 0")
+    params = state["params"]
+    check_like(params, {name: getattr(pop, name).detach() for name in STACKED}, "params")
+    check_finite(params, "params")
+    for name in ("k", "d", "l"):
+        if bool((params[name] < 0).any()):
+            raise ResumeStateError(f"params.{name} has a negative value; k, d and l are ≥ 0")
+    steps = check_tensor(state["steps"], "steps", (n,), torch.float64)
+    for b, count in enumerate(steps.tolist()):
+        check_whole(count, f"steps[{b}]", 0, update)
+    moments = state["moments"]
+    if not isinstance(moments, list) or len(moments) != len(pop.groups):
+        raise ResumeStateError(f"moments is not one list per parameter group ({len(pop.groups)})")
+    for g, (group, saved) in enumerate(zip(pop.groups, moments)):
+        fresh = [*group.exp_avg, *group.exp_avg_sq]
+        if not isinstance(saved, list) or len(saved) != len(fresh):
+            raise ResumeStateError(f"moments[{g}] is not {len(fresh)} tensors")
+        for i, (x, t) in enumerate(zip(saved, fresh)):
+            check_tensor(x, f"moments[{g}][{i}]", t.shape, t.dtype)
+            check_finite(x, f"moments[{g}][{i}]")
+            if i >= len(group.exp_avg) and bool((x < 0).any()):
+                raise ResumeStateError(f"moments[{g}][{i}] (Adam's second moment) has a negative value")
+    for key in ("rates", "guards", "rngs", "active"):
+        if not isinstance(state[key], list) or len(state[key]) != n:
+            raise ResumeStateError(f"{key} is not a list of one entry per member ({n})")
+    active = state["active"]
+    if not all(isinstance(a, bool) for a in active):
+        raise ResumeStateError("active is not a list of true or false")
+    for b, rates in enumerate(state["rates"]):
+        if not isinstance(rates, list) or len(rates) != len(pop.groups):
+            raise ResumeStateError(f"rates[{b}] is not one rate per parameter group ({len(pop.groups)})")
+        for group, lr in zip(pop.groups, rates):
+            check_rate(lr, f"rates[{b}] ({group.name})", pop.rates0[group.name])
+    for b, (guard, saved) in enumerate(zip(guards, state["guards"])):
+        check_guard(saved, f"guards[{b}]", patience=guard.patience, reset_after=RESET_AFTER,
+                    params=[p[b] for g in pop.groups for p in g.params], updates=update if active[b] else None,
+                    check_optimizer=lambda s, w, b=b: _check_member_optimizer(s, w, pop, b, update))
+        if len(saved["history"]) > update:
+            raise ResumeStateError(f"guards[{b}].history holds {len(saved['history'])} losses, more than the "
+                                   f"{update} updates")
+    for b, (task, rng) in enumerate(zip(tasks, state["rngs"])):
+        probe = type(task.rng.bit_generator)()
+        try:
+            probe.state = rng
+        except (ValueError, TypeError, KeyError) as err:
+            raise ResumeStateError(f"rngs[{b}] is not a state of the member's random generator ({err})") from None
+    failures = state["failures"]
+    if not isinstance(failures, list) or not all(
+            isinstance(f, (list, tuple)) and len(f) == 2 and isinstance(f[0], int) and not isinstance(f[0], bool)
+            and isinstance(f[1], str) and len(f[1]) <= MAX_MESSAGE for f in failures):
+        raise ResumeStateError("failures is not a list of [member, message] pairs")
+    failed = [f[0] for f in failures]
+    stopped = [b for b in range(n) if not active[b]]
+    if len(set(failed)) != len(failed) or sorted(failed) != stopped:
+        raise ResumeStateError(f"the stopped members {stopped} are not those with a recorded failure "
+                               f"{sorted(failed)[:10]}")
+
+
+def _check_member_optimizer(saved: Any, where: str, pop: _Population, b: int, update: int) -> None:
+    """A member's optimiser state as :meth:`_MemberOptimizer.state_dict` makes it (rates, step count, moments)."""
+    if not isinstance(saved, dict) or not isinstance(saved.get("param_groups"), list) \
+            or len(saved["param_groups"]) != len(pop.groups):
+        raise ResumeStateError(f"{where} is not a member's optimiser state ({len(pop.groups)} parameter groups)")
+    for group, saved_group in zip(pop.groups, saved["param_groups"]):
+        check_rate(saved_group.get("lr") if isinstance(saved_group, dict) else None, f"{where} ({group.name})",
+                   pop.rates0[group.name])
+    check_whole(saved.get("step"), f"{where}.step", 0, update)
+    fresh = pop.members[b].state_dict()
+    for key in ("exp_avg", "exp_avg_sq"):
+        lists = saved.get(key)
+        if not isinstance(lists, list) or len(lists) != len(fresh[key]):
+            raise ResumeStateError(f"{where}.{key} is not one list per parameter group")
+        for i, (got, want) in enumerate(zip(lists, fresh[key])):
+            if not isinstance(got, list) or len(got) != len(want):
+                raise ResumeStateError(f"{where}.{key}[{i}] is not {len(want)} tensors")
+            for j, (x, t) in enumerate(zip(got, want)):
+                check_tensor(x, f"{where}.{key}[{i}][{j}]", t.shape, t.dtype)
+                check_finite(x, f"{where}.{key}[{i}][{j}]")
+
+
 def _member_diverged(run_dir: Path | None, update: int, why: str, guard: UpdateGuard,
                      ranges: str) -> TrainingDiverged:
     """Record a member that cannot continue (``diverged.json``) and build its error, as ``train`` words it."""
@@ -492,7 +605,7 @@ def _member_diverged(run_dir: Path | None, update: int, why: str, guard: UpdateG
         return TrainingDiverged(f"update {update}: {why} (trained in memory: nothing was written)")
     report = {"update": update, "error": why, "losses": guard.history, "parameters": ranges,
               "last_good_update": None, "guard": guard.summary(), "population": True}
-    (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
+    write_atomic(run_dir / "diverged.json", json.dumps(report, indent=2))
     return TrainingDiverged(f"update {update}: {why} (a population member: no checkpoint is kept; details in "
                             f"{run_dir / 'diverged.json'})")
 

@@ -22,13 +22,15 @@ from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
+from bptsb_ros.safe_files import json_text, write_atomic
 from bptsb_ros.tasks import get_task
 from bptsb_ros.threads import configure_threads
-from bptsb_ros.training.checkpoint import read_checkpoint, save_checkpoint
+from bptsb_ros.training.checkpoint import CheckpointError, checkpoint_path, read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
 from bptsb_ros.training.fused import fused_training
-from bptsb_ros.training.guard import UpdateGuard, copy_state
+from bptsb_ros.training.guard import RESET_AFTER, UpdateGuard, copy_state
 from bptsb_ros.training.optim import divide_rates_, make_optimizer, step_decay_updates
+from bptsb_ros.training.resume_checks import ResumeStateError, check_resume_checkpoint
 
 
 class TrainingDiverged(RuntimeError):
@@ -151,12 +153,19 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     start = 0
     if payload is not None and run_dir is not None:
         _check_resumable(payload["config"], agent.config, run_dir)
+        try:  # untrusted data: the state this very training could have saved, before any of it is used
+            start = check_resume_checkpoint(payload, agent, task, optimizer, task.num_updates(),
+                                            patience=cfg.training.reject_patience, reset_after=RESET_AFTER)
+        except ResumeStateError as err:
+            raise CheckpointError(f"cannot resume from {checkpoint_path(run_dir)}: {err}") from None
         for name, module in agent.modules().items():
             module.load_state_dict(payload["modules"][name])
         extra = payload["extra"]
         optimizer.load_state_dict(extra["optimizer"])
-        task.load_state_dict(extra["task_state"])
-        start = int(extra["update"])
+        try:
+            task.load_state_dict(extra["task_state"])
+        except (ValueError, TypeError, KeyError) as err:  # e.g. a random generator's state numpy refuses
+            raise CheckpointError(f"cannot resume from {checkpoint_path(run_dir)}: extra.task_state: {err}") from None
     elif init_from is not None:
         payload = read_checkpoint(init_from)
         if payload["config"].get("task") != cfg.task:
@@ -171,7 +180,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         if "task_state" in payload["extra"]:
             task.load_state_dict(payload["extra"]["task_state"])
     if run_dir is not None:
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(agent.config, sort_keys=False))
+        write_atomic(run_dir / "config.yaml", yaml.safe_dump(agent.config, sort_keys=False))
 
     total = task.num_updates()
     tc = cfg.training
@@ -247,7 +256,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
             kept = "no checkpoint was saved: no window completed"
         report = {"update": update, "error": why, "losses": losses, "parameters": agent.body.parameter_ranges(),
                   "last_good_update": None if good is None else good["extra"]["update"], "guard": guard.summary()}
-        (run_dir / "diverged.json").write_text(json.dumps(report, indent=2))
+        write_atomic(run_dir / "diverged.json", json.dumps(report, indent=2))
         return TrainingDiverged(f"update {update}: {why} ({kept}; details in {run_dir / 'diverged.json'})")
 
     decay_at = set(step_decay_updates(total)) if tc.lr_decay else set()  # the published switching schedule
@@ -352,7 +361,7 @@ def write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
     from bptsb_ros.analysis.plots import plot_loss
     from bptsb_ros.analysis.style import FIGURES
 
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_atomic(run_dir / "metrics.json", json_text(metrics, indent=2))  # strict JSON: NaN is written null
     with FIGURES:
         files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], task.loss_label,
                                                          metrics["name"])]
