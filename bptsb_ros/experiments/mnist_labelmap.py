@@ -16,18 +16,22 @@ label maps drawn around drawings of their own digits (:func:`claims`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt
-from bptsb_ros.experiments.measured import judge
+from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.mnist_analysis import labelmap_analysis
+from bptsb_ros.experiments.mnist_claims import over_seeds
 from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
 from bptsb_ros.experiments.mnist_drawing import BATCH, SHAPE, scale_settings, system_label, system_meta
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 
 #: the paper's label-map body (Fig. 2(d)/(e)): multiple circle with N_mov = 17 movable masses
 N_MOV = 17
@@ -41,18 +45,26 @@ class LabelMapNumbers:
 
     size: (P,) label-map size of each mass, the mean over the 10 labels of the share of cells keeping the original
     label; joined: (P,) bool, a spring joins the mass to the CMP; masses: (P,) the masses' indices in the body (for
-    the evidence); centre_labels: (10,) the label of digit d's Δ = 0 cell (the unshifted best sample of d)."""
+    the evidence); centre_labels: (10,) the label of digit d's Δ = 0 cell (the unshifted best sample of d);
+    boundary, regions: (P,) how intricate each mass's maps are, the mean over the 10 labels of the share of
+    edge-adjacent cells with different labels and of the number of single-label regions
+    (:func:`~bptsb_ros.experiments.mnist_analysis.map_intricacy`; None: not measured, a run made before they were).
+    """
 
     size: np.ndarray
     joined: np.ndarray
     masses: np.ndarray
     centre_labels: np.ndarray
+    boundary: np.ndarray | None = None
+    regions: np.ndarray | None = None
 
     @classmethod
     def from_details(cls, maps: dict[str, Any]) -> LabelMapNumbers:
         """From :func:`~bptsb_ros.experiments.mnist_analysis.labelmap_analysis`' return value."""
+        extra = {k: np.asarray(maps[f"{k}_per_mass"], float) for k in ("boundary", "regions")
+                 if f"{k}_per_mass" in maps}
         return cls(np.asarray(maps["size_per_mass"], float), np.asarray(maps["joined_to_cmp"], bool),
-                   np.asarray(maps["masses"], int), np.asarray(maps["centre_labels"], int))
+                   np.asarray(maps["masses"], int), np.asarray(maps["centre_labels"], int), **extra)
 
 
 def premise(n: LabelMapNumbers) -> str | None:
@@ -164,3 +176,22 @@ def run(ctx: Context) -> None:
     ctx.judge(claims, LabelMapNumbers.from_details(maps), label)
     ctx.result.details = {"system": source, "spec": spec.to_json(), "epochs": s["epochs"], "label_maps": maps,
                           "data": data.description}
+
+
+@seed_figure("mnist-labelmap")
+def seed_figures(out: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: each placed mass's label-map size (what the claims read), masses joined to the CMP in their
+    own colour, the "mostly" bound ½ dotted."""
+    from bptsb_ros.analysis.seed_plots import Bars, plot_bars_over_seeds
+
+    first = next((calls[0][1][0] for r in per_seed if (calls := stored_calls(r, claims)) and calls[0][1]), None)
+    if first is None:
+        return []
+    size = over_seeds(per_seed, claims, lambda num: num.size if len(num.size) == len(first.size) else
+                      np.full(len(first.size), np.nan))
+    groups = ["joined to the CMP" if j else "not joined to the CMP" for j in np.asarray(first.joined, bool)]
+    return [plot_bars_over_seeds(out / "label_map_sizes_over_seeds.png",
+                                 [Bars([str(int(m)) for m in first.masses], size, "label-map size [-]",
+                                       hline=(MOSTLY, "½: 'mostly occupied by the original label'"), groups=groups,
+                                       xlabel="placed mass (its index in the body) [-]")],
+                                 f"{system_label('mlp', N_MOV)}: label-map size per mass over {len(seeds)} seeds")]
