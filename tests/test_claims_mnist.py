@@ -173,7 +173,10 @@ def maps(others, joined, centre=None, boundary=None, regions=None) -> lm.LabelMa
 
 
 def labelmap(others, joined, centre=None) -> list[bool | None]:
-    return verdicts(lm.claims(maps(others, joined, centre)))
+    """The first three claims (sizes); the maps' intricacy is not planted here (its claim: not testable)."""
+    got = verdicts(lm.claims(maps(others, joined, centre)))
+    assert got[3] is None
+    return got[:3]
 
 
 def test_mnist_labelmap_claims():
@@ -205,13 +208,38 @@ def test_mnist_labelmap_premise():
     others, joined = [0.8] * 11 + [0.9], [0.6, 0.65, 0.7, 0.55]
     centre = np.arange(10)
     centre[3] = 5  # the best 3 draws a 5: its maps are not around a drawing of its own digit
-    c = lm.claims(maps(others, joined, centre))
-    assert verdicts(c) == [None, None, None] and all("digit 3 → 5" in x.evidence for x in c)
+    c = lm.claims(maps(others, joined, centre, np.full(16, 0.2), np.full(16, 2.0)))
+    assert verdicts(c) == [None] * 4 and all("digit 3 → 5" in x.evidence for x in c)
     assert labelmap(others, joined, centre[:9] * 0 + np.arange(9)) == [None, None, None]  # fewer than 10 digits
-    one_kind = lm.LabelMapNumbers(np.full(16, 0.8), np.zeros(16, bool), np.arange(20, 36), np.arange(10))
-    assert verdicts(lm.claims(one_kind)) == [None, None, None]
+    one_kind = lm.LabelMapNumbers(np.full(16, 0.8), np.zeros(16, bool), np.arange(20, 36), np.arange(10),
+                                  np.full(16, 0.2), np.full(16, 2.0))
+    assert verdicts(lm.claims(one_kind)) == [None] * 4
     assert verdicts(lm.claims(lm.LabelMapNumbers(np.full(16, 0.8), np.ones(16, bool), np.arange(20, 36),
-                                                 np.arange(10)))) == [None, None, None]
+                                                 np.arange(10), np.full(16, 0.2), np.full(16, 2.0)))) == [None] * 4
+
+
+def test_mnist_labelmap_maps_of_the_masses_joined_to_the_cmp_are_intricate():
+    others, joined = [0.8] * 11 + [0.9], [0.6, 0.65, 0.7, 0.55]
+
+    def intricate(boundary, regions, centre=None):
+        return lm.claims(maps(others, joined, centre, boundary, regions))[3]
+
+    # joined masses (the last 4): boundary 0.3, 4 regions; the others 0.1, 2 regions
+    b, r = [0.1] * 12 + [0.3] * 4, [2.0] * 12 + [4.0] * 4
+    c = intricate(b, r)
+    assert c.holds is True and "boundary share: joined 0.3, others 0.1" in c.evidence
+    assert intricate([0.1] * 12 + [0.1] * 4, r).holds is False  # equal boundary shares
+    assert intricate([0.1] * 12 + [0.1000001] * 4, r).holds is True
+    assert intricate(b, [2.0] * 12 + [2.0] * 4).holds is False  # as many regions: both are needed
+    assert intricate(b, [2.0] * 12 + [2.0 + 1e-12] * 4).holds is False  # equal up to rounding
+    # the means, not the extremes: one intricate non-joined mass among eleven plain ones does not refute it
+    assert intricate([0.05] * 11 + [0.9] + [0.3] * 4, r).holds is True  # others' mean 0.121
+    assert intricate([0.05] * 11 + [0.9] + [0.1] * 4, r).holds is False  # joined 0.1 < 0.121
+    centre = np.arange(10)
+    centre[7] = 1
+    assert intricate(b, r, centre).holds is None
+    c = lm.claims(maps(others, joined))[3]
+    assert c.holds is None and "not measured" in c.evidence
 
 
 # -- mnist-specific100: [high accuracy, MLP < LIL, 65 < 17, brain separates, body every label, body > brain,

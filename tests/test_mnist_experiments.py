@@ -284,7 +284,16 @@ def test_mnist_labelmap_smoke(tiny_mnist, tmp_path):
     for v in sizes.values():  # a size is a share of the 10 maps' grid² cells
         assert v * 10 * grid * grid == pytest.approx(round(v * 10 * grid * grid))
     _, _, errs = _redraw(system, images[120:150].reshape(30, -1) / np.float32(255), labels[120:150])
-    assert verdicts_of(result) == labelmap_verdicts(sizes, best_draw_own_digit(errs, labels[120:150]))
+    starts = best_draw_own_digit(errs, labels[120:150])
+    # the maps' intricacy per mass (mean over its 10 maps): shares of the 2G(G − 1) neighbour pairs, region counts
+    details = result["details"]["label_maps"]
+    joined_mask = np.asarray(details["joined_to_cmp"], bool)
+    intricate = []
+    for key, unit in (("boundary_per_mass", 10 * 2 * grid * (grid - 1)), ("regions_per_mass", 10)):
+        v = np.asarray(details[key])
+        assert v.shape == (16,) and np.allclose(v * unit, np.round(v * unit))
+        intricate.append(v[joined_mask].mean() > v[~joined_mask].mean() + 1e-9)
+    assert verdicts_of(result) == labelmap_verdicts(sizes, starts) + [all(intricate) if starts else None]
 
 
 def verdicts_of(result: dict) -> list[bool | None]:

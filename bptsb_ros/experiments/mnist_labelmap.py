@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt
+from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt, fmt_pair
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.mnist_analysis import labelmap_analysis
 from bptsb_ros.experiments.mnist_claims import over_seeds
@@ -127,6 +127,28 @@ def others_mostly_claim(n: LabelMapNumbers, label: str) -> Claim:
     return Claim(text, not at_most(float(size[p]), MOSTLY), f"smallest among the masses not joined: {_mass(n, p)}")
 
 
+def joined_intricate_claim(n: LabelMapNumbers, label: str) -> Claim:
+    """The maps of the masses joined to the CMP are more intricate than the others': their mean boundary share and
+    their mean number of single-label regions are both larger, strictly beyond EPS (the measure of
+    :func:`~bptsb_ros.experiments.mnist_analysis.map_intricacy`)."""
+    text = (f"{label}: the label maps of the masses joined to the CMP are intricate (mean share of adjacent cells "
+            "with different labels and mean single-label regions per map, joined > the others)")
+    if n.boundary is None or n.regions is None:
+        return Claim.not_testable(text, "not measured by this run (its stored numbers predate this claim)")
+    if (why := premise(n)) is not None:
+        return Claim.not_testable(text, why)
+    joined = np.asarray(n.joined, bool)
+    parts = []
+    holds = True
+    for what, values in (("boundary share", n.boundary), ("regions per map", n.regions)):
+        v = np.asarray(values, float)
+        mj, mo = float(v[joined].mean()), float(v[~joined].mean())
+        holds = holds and not at_most(mj, mo)
+        a, b = fmt_pair(mj, mo)
+        parts.append(f"{what}: joined {a}, others {b}")
+    return Claim(text, holds, "; ".join(parts))
+
+
 @judge("mnist-labelmap")
 def claims(n: LabelMapNumbers, label: str = system_label("mlp", N_MOV)) -> list[Claim]:
     """The paper (main text, "Division of functional roles", Fig. 2(d)/(e)): "The map structures of the mass points
@@ -139,14 +161,19 @@ def claims(n: LabelMapNumbers, label: str = system_label("mlp", N_MOV)) -> list[
     * joined smaller: mean size over the masses joined to the CMP < mean over the others, strictly (beyond EPS);
     * largest not joined, smallest joined: every mass at the maximum size is not joined, every one at the minimum
       is (ties within EPS; a tie across the two kinds refutes the sentence);
-    * others mostly original: every mass not joined to the CMP has size > 1/2 ("mostly occupied"), strictly.
+    * others mostly original: every mass not joined to the CMP has size > 1/2 ("mostly occupied"), strictly;
+    * joined intricate ("The map structures of the mass points directly connected to the CMP were intricate"):
+      against the other maps, which the sentence sets apart ("Conversely"), the joined masses' maps have the larger
+      mean share of edge-adjacent cells with different labels and the larger mean number of single-label regions
+      (both, strictly beyond EPS; :func:`joined_intricate_claim`).
 
-    Premise of all three (:func:`premise`): the maps start from drawings of their own digits, each digit's Δ = 0
+    Premise of all four (:func:`premise`): the maps start from drawings of their own digits, each digit's Δ = 0
     cell carries its own label (the paper shifts masses from "the proper positions to realize the best
     trajectory"; the size is "the proportion of the original label area", meaningless around a drawing of another
     digit), and the body has placed masses of both kinds.
     """
-    return [joined_smaller_claim(n, label), extremes_claim(n, label), others_mostly_claim(n, label)]
+    return [joined_smaller_claim(n, label), extremes_claim(n, label), others_mostly_claim(n, label),
+            joined_intricate_claim(n, label)]
 
 
 @experiment(
