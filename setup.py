@@ -125,6 +125,7 @@ setup(
         "distributed",  # bptsb sweep --scheduler: jobs on a Dask cluster; LocalCluster in the tests
         "threadpoolctl",  # one BLAS/OpenMP thread inside every job of the runner (local and Dask workers)
         "scikit-learn",
+        "scipy",  # connected regions of the label maps (scipy.ndimage); scikit-learn depends on it too
     ],
     extras_require={
         # A full ROS 2 Jazzy install provides these through apt; without one they come as wheels.

@@ -17,6 +17,7 @@ from bptsb_ros.analysis import autonomy_plots as A
 from bptsb_ros.analysis import locomotion_plots as L
 from bptsb_ros.analysis import mnist_plots as M
 from bptsb_ros.analysis import plots as P
+from bptsb_ros.analysis import seed_plots as S
 from bptsb_ros.analysis import timeseries_plots as T
 
 RNG_SEED = 3
@@ -324,11 +325,37 @@ def return_rate(out: Path) -> Path:
     return L.plot_return_rate(out / "return_rate.png", sigmas, rates, mean, example, 7, 5.0, DT)
 
 
+def bars_over_seeds(out: Path) -> Path:
+    """Five readouts over four seeds (one seed without the last system), the paper's values and a bound; beside
+    them sixteen masses in two groups with a bound of ½."""
+    rng = _rng()
+    acc = 95 + rng.normal(0, 0.8, (4, 5))
+    acc[2, 4] = np.nan
+    names = ["only brain", "double-circle (N_mov 17)", "double-circle (N_mov 65)", "multiple-circle (N_mov 17)",
+             "multiple-circle (N_mov 65)"]
+    sizes = rng.uniform(0.4, 1.0, (4, 16))
+    return S.plot_bars_over_seeds(out / "bars_over_seeds.png", [
+        S.Bars(names, acc, "test accuracy [%]", paper=[91.18, 95.69, 96.77, 95.36, 96.22], bars=False,
+               hline=(95.0, "95 %: a bound")),
+        S.Bars([str(m) for m in range(20, 36)], sizes, "label-map size [-]", hline=(0.5, "½"),
+               groups=["not joined"] * 12 + ["joined"] * 4, xlabel="placed mass [index]")],
+        "Planted numbers over 4 seeds")
+
+
+def band(out: Path) -> Path:
+    rng = _rng()
+    digits = np.arange(10)
+    brain, body = rng.uniform(0, 0.5, (3, 10)), rng.uniform(0.3, 0.8, (3, 10))
+    return S.plot_band(out / "band.png", digits, {"brain": brain, "body": body}, xlabel="digit [-]",
+                       ylabel="silhouette [-]", title="Planted curves over 3 seeds", hline=0.0, highlight=(5, 7, 8),
+                       highlight_label="digits 5, 7, 8")
+
+
 CASES: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     loss, lissajous, speed, series, spring_lengths, ipc_bars, ipc_panels, memory_error, narma_emulation, targets,
     best_drawings, error_bars, pca, label_maps, label_map_sizes, curves, live_drawings, perturbation,
     switching_curves, switching_dynamics, bifurcation, timing, scheme_ratios, perturbed_run, gaits,
-    closed_open_ratios, headwind_speed, speed_vs_wind, return_rate)}
+    closed_open_ratios, headwind_speed, speed_vs_wind, return_rate, bars_over_seeds, band)}
 
 
 if __name__ == "__main__":

@@ -284,7 +284,16 @@ def test_mnist_labelmap_smoke(tiny_mnist, tmp_path):
     for v in sizes.values():  # a size is a share of the 10 maps' grid² cells
         assert v * 10 * grid * grid == pytest.approx(round(v * 10 * grid * grid))
     _, _, errs = _redraw(system, images[120:150].reshape(30, -1) / np.float32(255), labels[120:150])
-    assert verdicts_of(result) == labelmap_verdicts(sizes, best_draw_own_digit(errs, labels[120:150]))
+    starts = best_draw_own_digit(errs, labels[120:150])
+    # the maps' intricacy per mass (mean over its 10 maps): shares of the 2G(G − 1) neighbour pairs, region counts
+    details = result["details"]["label_maps"]
+    joined_mask = np.asarray(details["joined_to_cmp"], bool)
+    intricate = []
+    for key, unit in (("boundary_per_mass", 10 * 2 * grid * (grid - 1)), ("regions_per_mass", 10)):
+        v = np.asarray(details[key])
+        assert v.shape == (16,) and np.allclose(v * unit, np.round(v * unit))
+        intricate.append(v[joined_mask].mean() > v[~joined_mask].mean() + 1e-9)
+    assert verdicts_of(result) == labelmap_verdicts(sizes, starts) + [all(intricate) if starts else None]
 
 
 def verdicts_of(result: dict) -> list[bool | None]:
@@ -294,7 +303,7 @@ def verdicts_of(result: dict) -> list[bool | None]:
 def test_mnist_specific100_smoke(tiny_mnist, tmp_path):
     from bptsb_ros.tasks.mnist_drawing import load_system
 
-    data, _, _ = tiny_mnist
+    data, images, labels = tiny_mnist
     result = reproduce("mnist-specific100", data, tmp_path / "sp")
     assert "20 images (2 per digit" in result["provenance"]["data"]
     for (shape, n_mov), masses in MASSES.items():
@@ -335,12 +344,61 @@ def test_mnist_specific100_smoke(tiny_mnist, tmp_path):
     assert body_2d == pytest.approx(sil.mean(), abs=2e-3)
     assert got[4] == every([(sil[y == d].mean() > 0, analysed) for d in range(10)])
     assert got[5] == every([(body_2d > brain_2d, analysed)])
-    sizes = {r["system"]: r["ours"] for r in result["rows"] if r["metric"].startswith("label-map size")}
+    sizes = {r["system"]: r["ours"] for r in result["rows"]
+             if r["metric"].startswith("label-map size") and r["system"].startswith(f"{name}: ")}
     assert len(sizes) == 16
-    assert all(k.startswith(f"{name}: mass ") for k in sizes)
     chosen = result["details"]["label_maps"]["best_sample_per_digit"]
     assert chosen == [int(np.flatnonzero(y == d)[np.argmin(errs[y == d, d])]) for d in range(10)]
-    assert got[6:] == labelmap_verdicts(sizes, best_draw_own_digit(errs, y))[:2]
+    assert got[6:8] == labelmap_verdicts(sizes, best_draw_own_digit(errs, y))[:2]
+    # the brain's outputs per label: RMS radius against the distance to the nearest other label's mean, by hand
+    brain = _redraw(system, x, y)[0]
+    means = np.stack([brain[y == d].mean(0) for d in range(10)])
+    radius = np.array([np.sqrt(((brain[y == d] - means[d]) ** 2).sum(1).mean()) for d in range(10)])
+    between = np.linalg.norm(means[:, None] - means[None], axis=-1) + np.diag(np.full(10, np.inf))
+    median = np.median(radius / between.min(1))
+    assert rows[(f"{name}: brain output (initial positions)", "RMS radius of a label's outputs / distance to the "
+                 "nearest other label's mean (median over the labels)")] == pytest.approx(median, rel=1e-4)
+    assert got[8] == every([(median > 0.1, analysed)])
+
+    # the same system trained on all data (mnist-drawing's smoke settings: 50 images, 1 epoch), trained here
+    full_name = "MLP + multiple-circle (N_mov 17), all data"
+    full, extra = load_system(tmp_path / "sp" / "systems" / "all-data" / "mlp-multiple_circle-37.pt")
+    assert_paper_body(full, 17)
+    assert (extra["experiment"], extra["scale"], extra["seed"], extra["epochs"]) == ("mnist-drawing", "smoke", 0, 1)
+    assert "trained here" in result["details"]["all_data"]["system"]
+    assert "n_train 50; n_test 30" in extra["data"]
+    test_x, test_y = images[120:150].reshape(30, -1) / np.float32(255), labels[120:150]
+    _, full_drawing, full_errs = _redraw(full, test_x, test_y)
+    full_acc = rows[(full_name, "test drawings nearest to their own target")]
+    assert full_acc == pytest.approx(100 * np.mean(full_errs.argmin(1) == test_y))
+    centred = full_drawing.reshape(30, -1) - full_drawing.reshape(30, -1).mean(0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    full_body = rows[(f"{full_name}: body output (CMP trajectory)", "silhouette of the labels, 2-D PCA")]
+    assert full_body == pytest.approx(_silhouettes(centred @ vt[:2].T, test_y).mean(), abs=2e-3)
+    full_brain = rows[(f"{full_name}: brain output (initial positions)", "silhouette of the labels, 2-D PCA")]
+    assert got[9] == every([(body_2d - brain_2d > full_body - full_brain, analysed and learned(full_acc, 30))])
+    intricacy = {(who, what): rows[(who, f"label maps: {what}")] for who in (name, full_name)
+                 for what in ("share of adjacent cells with different labels (mean over the maps)",
+                              "single-label regions per map (mean)")}
+    grid = result["details"]["label_maps"]["grid"]
+    for (_, what), v in intricacy.items():  # a mean over 16 masses × 10 maps of shares of 2G(G − 1) pairs / counts
+        unit = 16 * 10 * (2 * grid * (grid - 1) if what.startswith("share") else 1)
+        assert v * unit == pytest.approx(round(v * unit))
+    starts = best_draw_own_digit(errs, y) and best_draw_own_digit(full_errs, test_y)
+    assert got[10] == every([(intricacy[(name, w)] > intricacy[(full_name, w)] + 1e-9, starts)
+                             for w in {w for _, w in intricacy}])
+
+    # an mnist-drawing run beside a later run holds that system (same scale, seed, data, epochs): reused, not trained
+    import shutil
+
+    (tmp_path / "mnist-drawing" / "systems").mkdir(parents=True)
+    shutil.copy(tmp_path / "sp" / "systems" / "all-data" / "mlp-multiple_circle-37.pt",
+                tmp_path / "mnist-drawing" / "systems")
+    again = reproduce("mnist-specific100", data, tmp_path / "sp2")
+    assert again["details"]["all_data"]["system"].startswith("reused ")
+    assert not (tmp_path / "sp2" / "systems" / "all-data").exists()
+    full_rows = [r for r in result["rows"] if r["system"].startswith(full_name)]
+    assert full_rows and full_rows == [r for r in again["rows"] if r["system"].startswith(full_name)]
 
 
 def test_mnist_readout_smoke(tiny_mnist, tmp_path):

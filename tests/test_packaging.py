@@ -151,7 +151,7 @@ def test_setup_py_and_package_xml_agree() -> None:
 ROSDEP_KEYS: dict[str, str | None] = {
     "numpy": "python3-numpy", "yaml": "python3-yaml", "pydantic": "python3-pydantic",
     "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "PIL": "python3-pil", "numba": "python3-numba",
-    "sklearn": "python3-sklearn", "torch": None, "mcap": None, "distributed": None,
+    "sklearn": "python3-sklearn", "scipy": "python3-scipy", "torch": None, "mcap": None, "distributed": None,
     "rosbags": None,
     "threadpoolctl": None,
 }

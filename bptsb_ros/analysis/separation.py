@@ -7,6 +7,8 @@
 * ``probe_accuracy``: a linear probe: multinomial logistic regression on the standardised features, fitted
   on one half of the points and scored on the other (:func:`held_out`: stratified by label when every label has
   two points), the share of correctly labelled held-out points.
+* ``label_spread``: how far each label's points lie from their label's mean (RMS radius) against the distance
+  from that mean to the nearest other label's mean: whether a label's outputs are one point.
 """
 
 from __future__ import annotations
@@ -91,3 +93,24 @@ def separation_scores(features: np.ndarray, labels: np.ndarray, seed: int = 0) -
             "per_label_2d": silhouette_per_label(pts, labels), "probe_2d": probe_accuracy(pts, labels, seed),
             "silhouette_full": silhouette(full, labels), "probe_accuracy": probe_accuracy(features, labels, seed),
             "probe_n": len(test), "probe_chance": float(np.bincount(labels[test]).max() / len(test))}
+
+
+def label_spread(features: np.ndarray, labels: np.ndarray, n_labels: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """(radius, gap), each (n_labels,), in the features' unit: ``radius[d]`` the RMS distance of label d's points
+    from their mean, √(mean_i ‖x_i − μ_d‖²); ``gap[d]`` the distance from μ_d to the nearest other label's mean
+    (Euclidean, all features). NaN for a label with fewer than two points (one point has no spread to tell),
+    and its mean is left out of the others' gaps; a gap is NaN when no other label has two points."""
+    x = np.asarray(features, dtype=np.float64).reshape(len(labels), -1)
+    labels = np.asarray(labels)
+    radius, gap = np.full(n_labels, np.nan), np.full(n_labels, np.nan)
+    present = [d for d in range(n_labels) if np.count_nonzero(labels == d) >= 2]
+    if not present:
+        return radius, gap
+    means = np.stack([x[labels == d].mean(0) for d in present])
+    for i, d in enumerate(present):
+        radius[d] = float(np.sqrt(((x[labels == d] - means[i]) ** 2).sum(1).mean()))
+    dist = np.linalg.norm(means[:, None] - means[None], axis=-1)
+    np.fill_diagonal(dist, np.inf)
+    if len(present) > 1:
+        gap[present] = dist.min(1)
+    return radius, gap

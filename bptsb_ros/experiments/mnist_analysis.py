@@ -59,12 +59,39 @@ def best_per_digit(errors: np.ndarray, labels: np.ndarray) -> np.ndarray:
     return np.asarray(out)
 
 
+def map_intricacy(maps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How intricate label maps are (the supplement: "more complex and intricate map structures"), for ``maps``
+    (..., G, G) of labels: ``boundary`` (...), the share of the 2G(G − 1) pairs of edge-adjacent cells whose labels
+    differ (0: one label everywhere; 1: a checkerboard), and ``regions`` (...), the number of connected single-label
+    regions (4-connected: cells touching only at a corner are apart). A map split by one straight line has
+    boundary G / (2G(G − 1)) = 1 / (2(G − 1)) and 2 regions."""
+    from scipy import ndimage
+
+    maps = np.asarray(maps)
+    lead, (rows, cols) = maps.shape[:-2], maps.shape[-2:]
+    flat = maps.reshape(-1, rows, cols)
+    pairs = rows * (cols - 1) + cols * (rows - 1)
+    differ = (flat[:, 1:, :] != flat[:, :-1, :]).sum((1, 2)) + (flat[:, :, 1:] != flat[:, :, :-1]).sum((1, 2))
+    boundary = differ / pairs if pairs else np.zeros(len(flat))
+    cross = np.zeros((3, 3, 3), bool)  # 4-connectivity inside each map, none across maps
+    cross[1] = [[0, 1, 0], [1, 1, 1], [0, 1, 0]]
+    regions = np.zeros(len(flat), np.int64)
+    for value in np.unique(flat):  # one labelling of the whole stack per label value
+        parts, count = ndimage.label(flat == value, structure=cross)
+        if count:
+            owner = np.zeros(count + 1, np.int64)
+            owner[parts[parts > 0]] = np.nonzero(parts)[0]  # the map each region lies in
+            regions += np.bincount(owner[1:], minlength=len(flat))
+    return boundary.reshape(lead), regions.reshape(lead)
+
+
 def labelmap_analysis(ctx: Context, system, evaluation: dict[str, np.ndarray], labels: np.ndarray, grid: int,
                       system_label: str, prefix: str = "") -> dict[str, Any]:
     """Label maps of every placed mass around each digit's best sample (its lowest-error one), Δ over
     ±:func:`label_map_half_width` on a ``grid`` × ``grid`` lattice (odd, so Δ = 0 is a cell); sizes per mass, rows
     and figures like Fig. 2(d)/(e). Returns what the label-map claims rest on (``size_per_mass``,
-    ``joined_to_cmp``, ``masses``, ``centre_labels``: the label of each digit's Δ = 0 cell) and the maps' sizes."""
+    ``joined_to_cmp``, ``masses``, ``centre_labels``: the label of each digit's Δ = 0 cell; ``boundary_per_mass``,
+    ``regions_per_mass``: the maps' :func:`map_intricacy`, mean over the 10 labels) and the maps' sizes."""
     from bptsb_ros.analysis.mnist_plots import plot_label_map_sizes, plot_label_maps
     from bptsb_ros.tasks.mnist_drawing import joined_to_cmp, label_maps
 
@@ -78,6 +105,7 @@ def labelmap_analysis(ctx: Context, system, evaluation: dict[str, np.ndarray], l
     maps = label_maps(system, base, half_width=half, grid=grid)
     size = maps["size"]  # (10, P)
     per_mass = size.mean(0)
+    boundary, regions = map_intricacy(maps["labels"])  # (10, P) each
     joined = joined_to_cmp(system)[maps["masses"]]
     centre = maps["labels"][:, 0, grid // 2, grid // 2]  # Δ = 0: the same unshifted body for every mass
     idx = [int(system.body.movable_index[m]) for m in maps["masses"]]
@@ -96,4 +124,5 @@ def labelmap_analysis(ctx: Context, system, evaluation: dict[str, np.ndarray], l
                                     f"{system_label}: label-map size per mass"))
     return {"grid": grid, "half_width_m": half, "masses": idx, "joined_to_cmp": joined.tolist(),
             "size_per_mass": per_mass.tolist(), "size_per_label_and_mass": size.tolist(),
-            "best_sample_per_digit": best.tolist(), "centre_labels": [int(c) for c in centre]}
+            "best_sample_per_digit": best.tolist(), "centre_labels": [int(c) for c in centre],
+            "boundary_per_mass": boundary.mean(0).tolist(), "regions_per_mass": regions.mean(0).tolist()}

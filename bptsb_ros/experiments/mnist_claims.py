@@ -10,12 +10,15 @@ planted numbers. What they share:
   for an output in the PCA plane, a held-out linear probe's answer;
 * claims over several comparisons (MLP < LIL "for both bodies"): :func:`all_of`, a three-valued AND: one
   comparison that fails refutes the claim; otherwise one whose premise failed leaves it not testable;
-* the label separation of one output in the 2-D PCA plane (:class:`Separation`).
+* the label separation of one output in the 2-D PCA plane (:class:`Separation`);
+* the numbers a claim function read in each seed of a multi-seed run, for the across-seed figures
+  (:func:`over_seeds`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -128,3 +131,23 @@ def more_separated(brain: Separation, body: Separation) -> Check:
 def classifies(name: str, sep: Separation) -> Check:
     """The output classifies the labels: its 2-D linear probe :func:`learned` (beats chance by the margin)."""
     return Check(sep.probe.text(f"{name} (linear probe in the 2-D PCA plane, held-out half)"), learned(sep.probe))
+
+
+def over_seeds(per_seed: Sequence[Mapping[str, Any]], fn: Callable[..., list[Claim]],
+               pick: Callable[[Any], Sequence[float]]) -> np.ndarray:
+    """(seeds, k): ``pick(numbers)`` (k values) of the numbers the claim function ``fn`` was called with (its first
+    argument, as stored in each seed's result.json and decoded by
+    :func:`~bptsb_ros.experiments.measured.stored_calls`; its first call); a row of NaN for a seed whose result
+    stored no such call (k from the seeds that did; (seeds, 0) when none did)."""
+    from bptsb_ros.experiments.measured import stored_calls
+
+    rows: list[np.ndarray | None] = []
+    for result in per_seed:
+        calls = stored_calls(result, fn)
+        rows.append(np.asarray(pick(calls[0][1][0]), dtype=float).ravel() if calls and calls[0][1] else None)
+    width = next((len(r) for r in rows if r is not None), 0)
+    out = np.full((len(per_seed), width), np.nan)
+    for i, r in enumerate(rows):
+        if r is not None and len(r) == width:
+            out[i] = r
+    return out

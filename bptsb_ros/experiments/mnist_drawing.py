@@ -16,16 +16,21 @@ Claims: the paper's two sentences on Fig. 2(b), each comparison made between sys
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import fmt
 from bptsb_ros.experiments.measured import judge
-from bptsb_ros.experiments.mnist_claims import Check, Skill, all_of, not_learned
+from bptsb_ros.experiments.mnist_claims import Check, Skill, all_of, not_learned, over_seeds
 from bptsb_ros.experiments.mnist_common import body_label, body_nodes, load_data, run_jobs, train_drawing_job
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 
 BRAINS = ("lil", "mlp")
 #: the paper's "N_mov = 17, 65": movable masses (multiple circle: 37 and 101 masses)
@@ -169,3 +174,22 @@ def run(ctx: Context) -> None:
         "bodies": {body_label(SHAPE, n): {"masses": body_nodes(SHAPE, n), "placed_by_the_brain": n - 1}
                    for n in N_MOV},
     }
+
+
+@seed_figure("mnist-drawing")
+def seed_figures(out: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: each system's mean test drawing MSE and its share of drawings nearest to their own target (the
+    claims' comparisons and their premise)."""
+    from bptsb_ros.analysis.seed_plots import Bars, plot_bars_over_seeds
+
+    keys = [(b, n) for n in N_MOV for b in BRAINS]
+    names = [f"{b.upper()} {n}" for b, n in keys]
+    mse = over_seeds(per_seed, claims, lambda num: [num.mse.get(k, math.nan) for k in keys])
+    acc = over_seeds(per_seed, claims, lambda num: [100 * num.skill[k].accuracy if k in num.skill else math.nan
+                                                    for k in keys])
+    return [plot_bars_over_seeds(out / "errors_over_seeds.png",
+                                 [Bars(names, mse, "test drawing MSE [m²]", title="mean test drawing error",
+                                       xlabel="brain and N_mov"),
+                                  Bars(names, acc, "drawings of the right digit [%]", xlabel="brain and N_mov",
+                                       title="drawings nearest to their own target")],
+                                 f"MNIST drawing, multiple-circle bodies: the four systems over {len(seeds)} seeds")]

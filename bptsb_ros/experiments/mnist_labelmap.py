@@ -16,18 +16,22 @@ label maps drawn around drawings of their own digits (:func:`claims`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt
-from bptsb_ros.experiments.measured import judge
+from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt, fmt_pair
+from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.mnist_analysis import labelmap_analysis
+from bptsb_ros.experiments.mnist_claims import over_seeds
 from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
 from bptsb_ros.experiments.mnist_drawing import BATCH, SHAPE, scale_settings, system_label, system_meta
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 
 #: the paper's label-map body (Fig. 2(d)/(e)): multiple circle with N_mov = 17 movable masses
 N_MOV = 17
@@ -41,18 +45,26 @@ class LabelMapNumbers:
 
     size: (P,) label-map size of each mass, the mean over the 10 labels of the share of cells keeping the original
     label; joined: (P,) bool, a spring joins the mass to the CMP; masses: (P,) the masses' indices in the body (for
-    the evidence); centre_labels: (10,) the label of digit d's Δ = 0 cell (the unshifted best sample of d)."""
+    the evidence); centre_labels: (10,) the label of digit d's Δ = 0 cell (the unshifted best sample of d);
+    boundary, regions: (P,) how intricate each mass's maps are, the mean over the 10 labels of the share of
+    edge-adjacent cells with different labels and of the number of single-label regions
+    (:func:`~bptsb_ros.experiments.mnist_analysis.map_intricacy`; None: not measured, a run made before they were).
+    """
 
     size: np.ndarray
     joined: np.ndarray
     masses: np.ndarray
     centre_labels: np.ndarray
+    boundary: np.ndarray | None = None
+    regions: np.ndarray | None = None
 
     @classmethod
     def from_details(cls, maps: dict[str, Any]) -> LabelMapNumbers:
         """From :func:`~bptsb_ros.experiments.mnist_analysis.labelmap_analysis`' return value."""
+        extra = {k: np.asarray(maps[f"{k}_per_mass"], float) for k in ("boundary", "regions")
+                 if f"{k}_per_mass" in maps}
         return cls(np.asarray(maps["size_per_mass"], float), np.asarray(maps["joined_to_cmp"], bool),
-                   np.asarray(maps["masses"], int), np.asarray(maps["centre_labels"], int))
+                   np.asarray(maps["masses"], int), np.asarray(maps["centre_labels"], int), **extra)
 
 
 def premise(n: LabelMapNumbers) -> str | None:
@@ -115,6 +127,28 @@ def others_mostly_claim(n: LabelMapNumbers, label: str) -> Claim:
     return Claim(text, not at_most(float(size[p]), MOSTLY), f"smallest among the masses not joined: {_mass(n, p)}")
 
 
+def joined_intricate_claim(n: LabelMapNumbers, label: str) -> Claim:
+    """The maps of the masses joined to the CMP are more intricate than the others': their mean boundary share and
+    their mean number of single-label regions are both larger, strictly beyond EPS (the measure of
+    :func:`~bptsb_ros.experiments.mnist_analysis.map_intricacy`)."""
+    text = (f"{label}: the label maps of the masses joined to the CMP are intricate (mean share of adjacent cells "
+            "with different labels and mean single-label regions per map, joined > the others)")
+    if n.boundary is None or n.regions is None:
+        return Claim.not_testable(text, "not measured by this run (its stored numbers predate this claim)")
+    if (why := premise(n)) is not None:
+        return Claim.not_testable(text, why)
+    joined = np.asarray(n.joined, bool)
+    parts = []
+    holds = True
+    for what, values in (("boundary share", n.boundary), ("regions per map", n.regions)):
+        v = np.asarray(values, float)
+        mj, mo = float(v[joined].mean()), float(v[~joined].mean())
+        holds = holds and not at_most(mj, mo)
+        a, b = fmt_pair(mj, mo)
+        parts.append(f"{what}: joined {a}, others {b}")
+    return Claim(text, holds, "; ".join(parts))
+
+
 @judge("mnist-labelmap")
 def claims(n: LabelMapNumbers, label: str = system_label("mlp", N_MOV)) -> list[Claim]:
     """The paper (main text, "Division of functional roles", Fig. 2(d)/(e)): "The map structures of the mass points
@@ -127,14 +161,19 @@ def claims(n: LabelMapNumbers, label: str = system_label("mlp", N_MOV)) -> list[
     * joined smaller: mean size over the masses joined to the CMP < mean over the others, strictly (beyond EPS);
     * largest not joined, smallest joined: every mass at the maximum size is not joined, every one at the minimum
       is (ties within EPS; a tie across the two kinds refutes the sentence);
-    * others mostly original: every mass not joined to the CMP has size > 1/2 ("mostly occupied"), strictly.
+    * others mostly original: every mass not joined to the CMP has size > 1/2 ("mostly occupied"), strictly;
+    * joined intricate ("The map structures of the mass points directly connected to the CMP were intricate"):
+      against the other maps, which the sentence sets apart ("Conversely"), the joined masses' maps have the larger
+      mean share of edge-adjacent cells with different labels and the larger mean number of single-label regions
+      (both, strictly beyond EPS; :func:`joined_intricate_claim`).
 
-    Premise of all three (:func:`premise`): the maps start from drawings of their own digits, each digit's Δ = 0
+    Premise of all four (:func:`premise`): the maps start from drawings of their own digits, each digit's Δ = 0
     cell carries its own label (the paper shifts masses from "the proper positions to realize the best
     trajectory"; the size is "the proportion of the original label area", meaningless around a drawing of another
     digit), and the body has placed masses of both kinds.
     """
-    return [joined_smaller_claim(n, label), extremes_claim(n, label), others_mostly_claim(n, label)]
+    return [joined_smaller_claim(n, label), extremes_claim(n, label), others_mostly_claim(n, label),
+            joined_intricate_claim(n, label)]
 
 
 @experiment(
@@ -164,3 +203,22 @@ def run(ctx: Context) -> None:
     ctx.judge(claims, LabelMapNumbers.from_details(maps), label)
     ctx.result.details = {"system": source, "spec": spec.to_json(), "epochs": s["epochs"], "label_maps": maps,
                           "data": data.description}
+
+
+@seed_figure("mnist-labelmap")
+def seed_figures(out: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: each placed mass's label-map size (what the claims read), masses joined to the CMP in their
+    own colour, the "mostly" bound ½ dotted."""
+    from bptsb_ros.analysis.seed_plots import Bars, plot_bars_over_seeds
+
+    first = next((calls[0][1][0] for r in per_seed if (calls := stored_calls(r, claims)) and calls[0][1]), None)
+    if first is None:
+        return []
+    size = over_seeds(per_seed, claims, lambda num: num.size if len(num.size) == len(first.size) else
+                      np.full(len(first.size), np.nan))
+    groups = ["joined to the CMP" if j else "not joined to the CMP" for j in np.asarray(first.joined, bool)]
+    return [plot_bars_over_seeds(out / "label_map_sizes_over_seeds.png",
+                                 [Bars([str(int(m)) for m in first.masses], size, "label-map size [-]",
+                                       hline=(MOSTLY, "½: 'mostly occupied by the original label'"), groups=groups,
+                                       xlabel="placed mass (its index in the body) [-]")],
+                                 f"{system_label('mlp', N_MOV)}: label-map size per mass over {len(seeds)} seeds")]

@@ -12,9 +12,14 @@ Claims: the paper's sentence on Fig. 2(c), judged in the 2-D PCA plane the figur
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
-from bptsb_ros.experiments.claim_rules import fmt
+import numpy as np
+
+from bptsb_ros.experiments.claim_rules import fmt, fmt_pair
 from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.mnist_analysis import pca_analysis
 from bptsb_ros.experiments.mnist_claims import (
@@ -25,6 +30,7 @@ from bptsb_ros.experiments.mnist_claims import (
     classifies,
     more_separated,
     not_learned,
+    over_seeds,
 )
 from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
 from bptsb_ros.experiments.mnist_drawing import (
@@ -37,6 +43,7 @@ from bptsb_ros.experiments.mnist_drawing import (
 )
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 
 #: the paper's Fig. 2(c) system: MLP + multiple circle with N_mov = 17 movable masses
 N_MOV = 17
@@ -76,12 +83,17 @@ def claims(n: PcaNumbers) -> list[Claim]:
     * each output classified the labels: the 2-D probe of the brain output and of the body output each beat
       chance by the :func:`~bptsb_ros.experiments.mnist_claims.learned` margin;
     * more separation in the body: silhouette (2-D) body > brain, strictly;
-    * especially labels 5, 7 and 8: each of those digits' mean silhouette (2-D) is larger in the body output
-      than in the brain output (the minimal reading of "especially": the body separates them better).
+    * especially labels 5, 7 and 8: "more separation ... especially with respect to labels 5, 7, 8 in the output of
+      the body" singles out three digits at which the body's gain over the brain stands out. The gain of digit d
+      is its mean silhouette (2-D) in the body output minus that in the brain output; the claim holds when at
+      each of 5, 7 and 8 the gain is positive and larger than the median gain of the other seven digits
+      (strictly), i.e. each emphasised digit lies in the upper half of the gains (the digits the paper names are
+      among those the body improves most), not merely "body > brain", which would hold at every digit
+      whenever the body separates better overall.
 
     Premise of all three: the system learned the task (its test drawings nearest to their own target more often
     than chance by the margin); the paper's division-of-roles argument is about an optimised system. For the
-    third also: every emphasised digit is among the test images.
+    third also: every digit is among the test images (the gains of all ten are compared).
     """
     label = n.label
     premise = not_learned({label: n.drawing}, "the system did not learn to draw")
@@ -91,13 +103,19 @@ def claims(n: PcaNumbers) -> list[Claim]:
     sep = more_separated(n.brain, n.body)
     out.append(all_of(f"{label}: the body's output separates the labels more than the brain's (silhouette in the "
                       "2-D PCA plane, body > brain)", [Check(sep.text, sep.holds, premise or sep.premise)]))
+    gain = np.asarray(n.body.per_label, float) - np.asarray(n.brain.per_label, float)
+    rest = np.array([gain[d] for d in range(10) if d not in EMPHASISED])
+    missing = [d for d in range(10) if not math.isfinite(gain[d])]
+    why = premise or (f"no test image of digit {', '.join(map(str, missing))}" if missing else None)
+    bar = float(np.median(rest)) if not missing else float("nan")
     per = []
     for d in EMPHASISED:
-        b, y = n.brain.per_label[d], n.body.per_label[d]
-        missing = None if math.isfinite(b) and math.isfinite(y) else f"no test image of digit {d}"
-        per.append(Check(f"digit {d}: body {fmt(y)} vs brain {fmt(b)}", bool(y > b), premise or missing))
-    out.append(all_of(f"{label}: especially digits 5, 7 and 8 are separated more by the body (mean silhouette of "
-                      "each digit in the 2-D PCA plane, body > brain)", per))
+        g, m = fmt_pair(gain[d], bar)
+        per.append(Check(f"digit {d}: gain {g} (body {fmt(n.body.per_label[d])} − brain {fmt(n.brain.per_label[d])}) "
+                         f"vs the other digits' median gain {m}", bool(gain[d] > 0 and gain[d] > bar), why))
+    out.append(all_of(f"{label}: especially digits 5, 7 and 8 are separated more by the body (gain of each digit's "
+                      "mean silhouette in the 2-D PCA plane, body − brain: positive at 5, 7 and 8 and above the "
+                      "median gain of the other seven digits)", per))
     return out
 
 
@@ -130,3 +148,24 @@ def run(ctx: Context) -> None:
                                                Separation.from_scores(scores["body"]), label))
     ctx.result.details = {"system": source, "spec": spec.to_json(), "epochs": s["epochs"], "scores": scores,
                           "data": data.description}
+
+
+@seed_figure("mnist-pca")
+def seed_figures(out: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: each digit's mean silhouette (2-D PCA) in the brain and the body output, and the body's gain
+    (body − brain) the "especially 5, 7, 8" claim reads, digits 5, 7 and 8 shaded."""
+    from bptsb_ros.analysis.seed_plots import plot_band
+
+    brain = over_seeds(per_seed, claims, lambda num: num.brain.per_label)
+    body = over_seeds(per_seed, claims, lambda num: num.body.per_label)
+    digits = np.arange(brain.shape[1])
+    shade = {"highlight": EMPHASISED, "highlight_label": "digits 5, 7, 8 (the paper's 'especially')"}
+    return [plot_band(out / "pca_digits_over_seeds.png", digits,
+                      {"brain output (initial positions)": brain, "body output (CMP trajectory)": body},
+                      xlabel="digit [-]", ylabel="mean silhouette of the digit, 2-D PCA [-]",
+                      title=f"{system_label('mlp', N_MOV)}: label separation per digit over {len(seeds)} seeds",
+                      **shade),
+            plot_band(out / "pca_gain_over_seeds.png", digits, {"body − brain": body - brain}, xlabel="digit [-]",
+                      ylabel="silhouette gain of the body, 2-D PCA [-]", hline=0.0,
+                      title=f"{system_label('mlp', N_MOV)}: the body's gain per digit over {len(seeds)} seeds",
+                      **shade)]

@@ -14,17 +14,21 @@ Claims: the supplement's sentences on its table, each comparison between systems
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import at_most, fmt
 from bptsb_ros.experiments.measured import judge
-from bptsb_ros.experiments.mnist_claims import Check, Skill, all_of, not_learned
+from bptsb_ros.experiments.mnist_claims import Check, Skill, all_of, not_learned, over_seeds
 from bptsb_ros.experiments.mnist_common import body_label, body_nodes, job_log, load_data, run_jobs
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 from bptsb_ros.training.guard import WINDOW
 
 #: (shape or None, the paper's N_mov (movable masses), the paper's accuracy [%]): the columns of its table
@@ -45,6 +49,10 @@ class ReadoutNumbers:
     alone as (None, 0), as a :class:`~bptsb_ros.experiments.mnist_claims.Skill` (accuracy in [0, 1])."""
 
     skill: dict[tuple[str | None, int], Skill]
+
+
+def _short(shape: str) -> str:
+    return "DC" if shape == "double_circle" else "MC"
 
 
 def _name(key: tuple[str | None, int]) -> str:
@@ -168,3 +176,19 @@ def run(ctx: Context) -> None:
                                              "train_accuracy": r["train_accuracy"],
                                              "epoch_accuracy": r["epoch_accuracy"], "guard": r["guard"]}
                                       for (shape, n, nodes, name, _), r in zip(chosen, results)}}
+
+
+@seed_figure("mnist-readout")
+def seed_figures(out: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: each system's test accuracy (what the claims read) with the paper's table value."""
+    from bptsb_ros.analysis.seed_plots import Bars, plot_bars_over_seeds
+
+    keys = [(shape, n) for shape, n, _ in SYSTEMS]
+    acc = over_seeds(per_seed, claims, lambda num: [100 * num.skill[k].accuracy if k in num.skill else math.nan
+                                                    for k in keys])
+    return [plot_bars_over_seeds(out / "accuracy_over_seeds.png",
+                                 [Bars(["only brain" if s is None else f"{_short(s)} {n}" for s, n in keys], acc,
+                                       "test accuracy [%]", paper=[paper for *_, paper in SYSTEMS], bars=False,
+                                       xlabel="body (DC, MC: double, multiple circle) and N_mov",
+                                       hline=(100 * BODY_ACCURACY, "95 %: the paper's bound for the bodies"))],
+                                 f"MNIST readout: test accuracy per system over {len(seeds)} seeds")]
