@@ -3,6 +3,7 @@ recomputation from what it saved (rows ↔ claims, rows ↔ saved systems)."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -489,3 +490,22 @@ def test_a_readout_job_runs_the_guard_it_is_given():
     for factor, window in ((10.0, 5), (0.0, 7)):
         res = train_readout_job(None, 0, 0, x, y, x[:10], y[:10], epochs=1, guard_factor=factor, guard_window=window)
         assert (res["guard"]["factor"], res["guard"]["window"]) == (factor, window)
+
+
+def test_mnist_analyses_share_one_seeds_all_data_system_in_a_multi_seed_layout(tiny_mnist, tmp_path):
+    """mnist-pca of seed 1 trains the all-data system (no mnist-drawing run beside it); mnist-labelmap and
+    mnist-specific100 of seed 1 reuse it, and seed 0 of mnist-labelmap (another seed) does not."""
+    from bptsb_ros.experiments.seeds import run_seeds
+
+    data, _, _ = tiny_mnist
+    quiet = {"workers": 0, "data_dir": data, "split": "test-8k-2k", "log": lambda m: None}
+    run_seeds("mnist-pca", [1], out_dir=tmp_path / "mnist-pca", **quiet)
+    trained = tmp_path / "mnist-pca" / "seed-1" / "systems" / "mlp-multiple_circle-37.pt"
+    assert trained.is_file()
+    run_seeds("mnist-labelmap", [0, 1], out_dir=tmp_path / "mnist-labelmap", **quiet)
+    seeds = {s: json.loads((tmp_path / "mnist-labelmap" / f"seed-{s}" / "result.json").read_text()) for s in (0, 1)}
+    assert seeds[1]["details"]["system"] == f"reused {trained}"
+    assert not seeds[0]["details"]["system"].startswith("reused")
+    run_seeds("mnist-specific100", [1], out_dir=tmp_path / "mnist-specific100", **quiet)
+    one = json.loads((tmp_path / "mnist-specific100" / "seed-1" / "result.json").read_text())
+    assert one["details"]["all_data"]["system"].startswith("reused ")

@@ -179,14 +179,34 @@ def reusable_checkpoint(path: Path, meta: dict[str, Any]) -> bool:
     return all(extra.get(k) == v for k, v in meta.items())
 
 
+#: where runs beside this one keep trained drawing systems (experiment → folder inside its run), in order of preference
+_SYSTEM_FOLDERS = (("mnist-drawing", "systems"), ("mnist-pca", "systems"), ("mnist-labelmap", "systems"),
+                   ("mnist-specific100", "systems/all-data"))
+
+
+def sibling_systems(ctx: Context, name: str) -> list[Path]:
+    """Where a drawing system ``name`` trained with all the data may lie in the runs beside this one (for the same
+    seed: :meth:`Context.sibling_run`): mnist-drawing's, or the one mnist-pca, mnist-labelmap or mnist-specific100
+    trained when they found none to reuse."""
+    return [ctx.sibling_run(exp) / folder / f"{name}.pt" for exp, folder in _SYSTEM_FOLDERS
+            if exp != ctx.result.experiment]
+
+
+def first_reusable(candidates: Sequence[Path], meta: dict[str, Any]) -> Path | None:
+    """The first of ``candidates`` that holds a system trained with exactly ``meta``, or None."""
+    return next((c for c in candidates if reusable_checkpoint(c, meta)), None)
+
+
 def obtain_drawing_system(ctx: Context, spec, data: Data, *, epochs: int, batch: int, meta: dict[str, Any],
-                          reuse: Path | None = None):
-    """A trained drawing system and its test evaluation: loaded from ``reuse`` when that checkpoint was
-    trained with ``meta``, else trained here (written to ``out_dir/systems``). Returns (system, evaluation,
-    source description)."""
+                          reuse: Path | Sequence[Path] | None = None):
+    """A trained drawing system and its test evaluation: loaded from ``reuse`` (a checkpoint, or the first of
+    several) when that checkpoint was trained with ``meta``, else trained here (written to ``out_dir/systems``).
+    Returns (system, evaluation, source description)."""
     from bptsb_ros.tasks.mnist_drawing import evaluate_drawing, load_system
 
-    if reuse is not None and reusable_checkpoint(reuse, meta):
+    found = first_reusable([reuse] if isinstance(reuse, Path) else list(reuse or ()), meta)
+    if found is not None:
+        reuse = found
         system, _ = load_system(reuse)
         ctx.log(f"reusing the trained system {reuse}")
         return system, evaluate_drawing(system, data.test_x, data.test_y), f"reused {reuse}"

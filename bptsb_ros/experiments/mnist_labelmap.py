@@ -27,7 +27,7 @@ from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt, fmt_pair
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.mnist_analysis import labelmap_analysis
 from bptsb_ros.experiments.mnist_claims import over_seeds
-from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
+from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system, sibling_systems
 from bptsb_ros.experiments.mnist_drawing import BATCH, SHAPE, scale_settings, system_label, system_meta
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
@@ -194,7 +194,7 @@ def run(ctx: Context) -> None:
     grid = ctx.settings["grid"]
     data = load_data(ctx, s["n_train"], s["n_test"])
     spec = SystemSpec(brain="mlp", shape=SHAPE, nodes=body_nodes(SHAPE, N_MOV))
-    reuse = ctx.sibling_run("mnist-drawing") / "systems" / f"{spec.name}.pt"
+    reuse = sibling_systems(ctx, spec.name)
     system, ev, source = obtain_drawing_system(ctx, spec, data, epochs=s["epochs"], batch=BATCH,
                                                meta=system_meta(ctx, data.key, s["epochs"]), reuse=reuse)
     label = system_label("mlp", N_MOV)

@@ -32,7 +32,7 @@ from bptsb_ros.experiments.mnist_claims import (
     not_learned,
     over_seeds,
 )
-from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
+from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system, sibling_systems
 from bptsb_ros.experiments.mnist_drawing import (
     BATCH,
     SHAPE,
@@ -135,7 +135,7 @@ def run(ctx: Context) -> None:
     s = scale_settings(ctx)
     data = load_data(ctx, s["n_train"], s["n_test"])
     spec = SystemSpec(brain="mlp", shape=SHAPE, nodes=body_nodes(SHAPE, N_MOV))
-    reuse = ctx.sibling_run("mnist-drawing") / "systems" / f"{spec.name}.pt"
+    reuse = sibling_systems(ctx, spec.name)
     system, ev, source = obtain_drawing_system(ctx, spec, data, epochs=s["epochs"], batch=BATCH,
                                                meta=system_meta(ctx, data.key, s["epochs"]), reuse=reuse)
     label = system_label("mlp", N_MOV)

@@ -41,9 +41,10 @@ from bptsb_ros.experiments.mnist_claims import (
 )
 from bptsb_ros.experiments.mnist_common import (
     body_nodes,
+    first_reusable,
     load_data,
-    reusable_checkpoint,
     run_jobs,
+    sibling_systems,
     specific_images,
     train_drawing_job,
 )
@@ -304,9 +305,9 @@ def run(ctx: Context) -> None:
     b, shape, m = ANALYSED
     full_spec = SystemSpec(brain=b, shape=shape, nodes=body_nodes(shape, m))
     full_meta = system_meta(ctx, full_data.key, full_settings["epochs"])
-    reuse = ctx.sibling_run("mnist-drawing") / "systems" / f"{full_spec.name}.pt"
-    reused = reusable_checkpoint(reuse, full_meta)
-    full_path = reuse if reused else ctx.out_dir / "systems" / "all-data" / f"{full_spec.name}.pt"
+    reuse = first_reusable(sibling_systems(ctx, full_spec.name), full_meta)
+    reused = reuse is not None
+    full_path = reuse if reuse is not None else ctx.out_dir / "systems" / "all-data" / f"{full_spec.name}.pt"
     if not reused:
         jobs.append(dict(spec_json=full_spec.to_json(), seed=ctx.seed, train_x=full_data.train_x,
                          train_y=full_data.train_y, test_x=full_data.test_x, test_y=full_data.test_y,
