@@ -22,7 +22,7 @@ VPY := $(VENV)/bin/python
 PIP := $(VPY) -m pip
 STAMP := $(VENV)/.bptsb-install.stamp
 # The package is installed editable: code changes need no reinstall, but changes to what gets installed do.
-INSTALL_INPUTS := Makefile pyproject.toml setup.py setup.cfg package.xml resource/bptsb_ros \
+INSTALL_INPUTS := Makefile pyproject.toml setup.py setup.cfg MANIFEST.in package.xml resource/bptsb_ros \
 	$(wildcard launch/*.launch.py) $(wildcard config/*.yaml) $(wildcard config/*.json)
 
 # DDS discovery stays on this host; the domain can be overridden (tests pick their own private one).
@@ -41,7 +41,7 @@ PIP_FILTER := sed -u -e "/Location 'file:.*' is ignored/d"
 help:
 	@echo "make demo       train a small Lissajous agent, simulate it, write plots and an animation"
 	@echo "make test       ruff + pytest on 2 processes (bootstraps .venv on the first run; PYTEST_ARGS='-x -k name' narrows it)"
-	@echo "make venv       create/refresh .venv (torch $(TORCH_VERSION), bptsb_ros[ros,dev])"
+	@echo "make venv       create/refresh .venv (torch $(TORCH_VERSION), bptsb_ros[train,ros,dask,dev])"
 	@echo "make lint       ruff check"
 	@echo "make mutation   apply each listed one-line bug to a temporary copy and check that the tests catch it"
 	@echo "make bench      speed benchmark -> bench.json"
@@ -53,7 +53,7 @@ venv: $(STAMP)
 $(STAMP): $(INSTALL_INPUTS)
 	@if [ ! -x $(VPY) ]; then echo "creating $(VENV) with $$($(PYTHON) --version)"; $(PYTHON) -m venv $(VENV); fi
 	$(PIP) install "torch==$(TORCH_VERSION)" 2>&1 | $(PIP_FILTER)
-	$(PIP) install -e ".[ros,dev]" 2>&1 | $(PIP_FILTER)
+	$(PIP) install -e ".[train,ros,dask,dev]" 2>&1 | $(PIP_FILTER)
 	$(VPY) -c "import torch, rclpy, bptsb_ros; print('venv ready: torch', torch.__version__)"
 	@touch $@
 

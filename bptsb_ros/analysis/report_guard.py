@@ -1,0 +1,71 @@
+"""What ``bptsb report`` may replace: a results page is never replaced by one made from other runs.
+
+A page the report writes records the results it was made from, one key per result.json
+(``experiment/scale/seed``), in an HTML comment on its second line (:func:`sources_line`). Writing a page over an
+existing one is allowed only if every result the old page shows is among the new page's results
+(:func:`check_replace`), so a page of paper-scale runs is never replaced by one of a single smoke run; ``--force``
+replaces it all the same. Pages written before the comment existed are read by their section headings
+(``## name (scale, seed N)``). A page shows one scale unless it is asked to mix them (:func:`check_scales`).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+SOURCES_PREFIX = "<!-- bptsb report results: "
+SOURCES_SUFFIX = " -->"
+_KEY = re.compile(r"[a-z0-9][a-z0-9_-]*/[a-z]+/-?\d+")
+_LEGACY_HEADING = re.compile(r"^## ([a-z0-9][a-z0-9_-]*) \(([a-z]+), seed (-?\d+)\)\s*$", re.MULTILINE)
+#: how much of an existing page is read for its record [characters]
+MAX_PAGE_CHARS = 4 << 20
+
+
+class ReplaceRefused(RuntimeError):
+    """The report would replace a page made from other runs, or mix scales; one line saying what to do."""
+
+
+def result_key(result: dict[str, Any]) -> str:
+    """``experiment/scale/seed`` of one result.json."""
+    return f"{result['experiment']}/{result['scale']}/{result['seed']}"
+
+
+def sources_line(results: Iterable[dict[str, Any]]) -> str:
+    """The comment line that records a page's results (sorted keys, space-separated)."""
+    return SOURCES_PREFIX + " ".join(sorted({result_key(r) for r in results})) + SOURCES_SUFFIX
+
+
+def page_sources(text: str) -> set[str]:
+    """The results an existing page was made from: its sources comment, else its legacy section headings."""
+    for line in text.splitlines()[:5]:
+        if line.startswith(SOURCES_PREFIX) and line.endswith(SOURCES_SUFFIX):
+            keys = line[len(SOURCES_PREFIX):-len(SOURCES_SUFFIX)].split()
+            return {k for k in keys if _KEY.fullmatch(k)}
+    return {f"{name}/{scale}/{seed}" for name, scale, seed in _LEGACY_HEADING.findall(text)}
+
+
+def check_replace(out: Path, results: Iterable[dict[str, Any]], *, force: bool) -> None:
+    """Refuse (ReplaceRefused) to write the page ``out`` over an existing one that shows results the new page would
+    not have, unless ``force``. An absent page, or one that is not a file, is left to the report's own checks."""
+    if force or out.is_symlink() or not out.is_file():
+        return
+    try:
+        with out.open(encoding="utf-8", errors="replace") as f:
+            old = page_sources(f.read(MAX_PAGE_CHARS))
+    except OSError:
+        return  # unreadable: the report's own check of the page says so
+    lost = sorted(old - {result_key(r) for r in results})
+    if lost:
+        shown = ", ".join(lost[:3]) + (f" and {len(lost) - 3} more" if len(lost) > 3 else "")
+        raise ReplaceRefused(f"{out} shows results that are not under this runs directory ({shown}): it was made "
+                             "from other runs; choose another --out, or pass --force to replace it")
+
+
+def check_scales(results: Iterable[dict[str, Any]], *, mix: bool) -> None:
+    """Refuse (ReplaceRefused) results of more than one scale on one page, unless ``mix``."""
+    scales = sorted({r["scale"] for r in results})
+    if len(scales) > 1 and not mix:
+        raise ReplaceRefused(f"the runs directory holds results of the scales {', '.join(scales)}: a page shows one "
+                             "scale; point at a folder of one scale, or pass --mix-scales")

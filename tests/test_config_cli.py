@@ -1,0 +1,63 @@
+"""`bptsb config show/list` and `bptsb train` take a packaged config's name from any directory; a missing
+package folder is one line, not a traceback."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from bptsb_ros.cli import main
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _packaged_names() -> list[str]:
+    return sorted(p.stem for p in (REPO / "config").glob("*.yaml") if not p.stem.endswith("_params"))
+
+
+def test_config_list_names_the_experiment_configs(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["config", "list"]) == 0
+    assert capsys.readouterr().out.split() == _packaged_names()
+
+
+def test_config_show_resolves_a_packaged_name_from_anywhere(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["config", "show", "lissajous_single", "--set", "sim_time=7"]) == 0
+    out = capsys.readouterr().out
+    shown = yaml.safe_load(out)
+    assert shown["sim_time"] == 7 and shown["task"] == "lissajous" and shown["brain"]["type"] == "swg"
+
+
+def test_config_show_without_the_package_files_is_one_line(capsys, monkeypatch):
+    from bptsb_ros import package_data
+
+    monkeypatch.setattr(package_data, "checkout_root", lambda: None)
+    monkeypatch.setattr(package_data, "_ament_share", lambda kind: None)
+    assert main(["config", "show", "lissajous_single"]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "config files are missing" in err
+
+
+@pytest.mark.parametrize("argument, message", [
+    ("config/lissajous_single.yaml", "give the name alone"),
+    ("no_such_config", "no packaged config named 'no_such_config' (packaged: "),
+    ("elsewhere/none.yaml", "config file not found: elsewhere/none.yaml"),
+])
+def test_train_names_what_is_wrong_with_its_config_argument(argument, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", argument, "--out", "run", "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_train_takes_a_packaged_name(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "lissajous_single", "--set", "sim_time=2", "--set", "feedback.fit_time=2", "--out", "run",
+                 "--no-progress"]) == 0
+    assert (tmp_path / "run" / "checkpoint.pt").is_file()
+    assert yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["sim_time"] == 2
+    assert "None" not in capsys.readouterr().out
