@@ -36,7 +36,7 @@ export PIP_PROGRESS_BAR := off
 # This machine's pip config names local package indexes that lack most projects; pip warns once per project.
 PIP_FILTER := sed -u -e "/Location 'file:.*' is ignored/d"
 
-.PHONY: help venv test lint mutation demo bench docs clean distclean
+.PHONY: help venv test lint mutation demo bench docs check-install clean distclean
 
 help:
 	@echo "make demo       train a small Lissajous agent, simulate it, write plots and an animation"
@@ -46,6 +46,7 @@ help:
 	@echo "make mutation   apply each listed one-line bug to a temporary copy and check that the tests catch it"
 	@echo "make bench      speed benchmark -> bench.json"
 	@echo "make docs       build the documentation site (mkdocs, warnings are errors) -> site/"
+	@echo "make check-install  build the wheel and sdist, install them into fresh venvs, use them from elsewhere"
 	@echo "make clean      remove build outputs and caches; make distclean also removes .venv and runs/"
 
 venv: $(STAMP)
@@ -78,6 +79,11 @@ bench: venv
 # statically: nothing is imported). NO_MKDOCS_2_WARNING silences mkdocs-material's banner about MkDocs 2.0.
 docs: venv
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
+
+# The package as a user installs it: wheel + sdist (twine check), fresh venvs (training route with the CPU torch,
+# light route without torch), the README's example and a smoke reproduction from another folder; prints sizes.
+check-install: venv
+	bash scripts/check_install.sh
 
 clean:
 	rm -rf build install log dist .eggs *.egg-info .pytest_cache .ruff_cache bench.json site

@@ -100,26 +100,28 @@ def code_lines(lines: list[str]) -> set[int]:
 
 def rewrite(obj: Object, docstring: str, collection: Any, package: str) -> str:
     """``docstring`` with every role written as a cross-reference (rendered targets) or as code (the rest); in
-    code blocks, as the bare name."""
+    code blocks, as the bare name. A role's target may be broken over two lines."""
+    import bisect
+
     lines = docstring.split("\n")
     code = code_lines(lines)
-    return "\n".join(_rewrite_line(obj, line, i in code, collection, package) for i, line in enumerate(lines))
+    starts = [0]
+    for line in lines[:-1]:
+        starts.append(starts[-1] + len(line) + 1)
 
-
-def _rewrite_line(obj: Object, line: str, in_code: bool, collection: Any, package: str) -> str:
     def replace(match: re.Match[str]) -> str:
-        content = match.group(1).strip()
+        content = re.sub(r"\s+", "", match.group(1)) if "<" not in match.group(1) else match.group(1).strip()
         titled = _TITLED.fullmatch(content)
-        title, target = (titled.group(1), titled.group(2)) if titled else (None, content)
+        title, target = (titled.group(1), re.sub(r"\s+", "", titled.group(2))) if titled else (None, content)
         shown = title or (target.lstrip("~").split(".")[-1] if target.startswith("~") else target.lstrip("."))
-        if in_code:
+        if bisect.bisect_right(starts, match.start()) - 1 in code:
             return shown
         found = resolve(obj, target, collection, package)
         if found is None or not _rendered(found):
             return f"`{shown}`"
         return f"[`{shown}`][{found.path}]"
 
-    return ROLE.sub(replace, line)
+    return ROLE.sub(replace, docstring)
 
 
 def _walk(obj: Object):

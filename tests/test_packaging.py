@@ -341,6 +341,23 @@ def test_citation_file_cites_the_paper_and_this_version() -> None:
     assert [a["family-names"] for a in paper["authors"]] == ["Tomioka", "Inoue", "Kuniyoshi", "Nakajima"]
     assert (REPO_ROOT / "LICENSE").read_text().lstrip().startswith("Apache License")
     assert cff["license"] == "Apache-2.0"
+    assert cff["references"][0]["title"] == paper["title"] and cff["references"][0]["type"] == "article"
+
+
+def test_the_version_is_released_in_the_changelog_on_the_citations_date() -> None:
+    """The version has a CHANGELOG section dated as CITATION.cff's date-released (not "unreleased")."""
+    import datetime
+    import re
+    import xml.etree.ElementTree as ET
+
+    import yaml
+
+    version = ET.parse(REPO_ROOT / "package.xml").getroot().findtext("version")
+    released = str(yaml.safe_load((REPO_ROOT / "CITATION.cff").read_text())["date-released"])
+    datetime.date.fromisoformat(released)
+    heading = re.search(rf"^## {re.escape(version)} — (.+)$", (REPO_ROOT / "CHANGELOG.md").read_text(), re.MULTILINE)
+    assert heading, f"CHANGELOG.md has no section for {version}"
+    assert heading.group(1).strip() == released
 
 
 def test_pyproject_names_the_setuptools_backend_and_the_installed_version_matches() -> None:
