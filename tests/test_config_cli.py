@@ -61,3 +61,34 @@ def test_train_takes_a_packaged_name(capsys, tmp_path, monkeypatch):
     assert (tmp_path / "run" / "checkpoint.pt").is_file()
     assert yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["sim_time"] == 2
     assert "None" not in capsys.readouterr().out
+
+
+def test_bptsb_help_is_a_short_page_of_one_line_per_command():
+    import subprocess
+    import sys
+
+    from bptsb_ros.cli import SUBCOMMANDS, SUMMARIES
+
+    assert set(SUMMARIES) == set(SUBCOMMANDS)
+    out = subprocess.run([sys.executable, "-m", "bptsb_ros.cli", "--help"], capture_output=True, text=True,
+                         timeout=60, cwd=REPO).stdout
+    lines = out.splitlines()
+    assert len(lines) <= 30, out
+    for name in SUBCOMMANDS:
+        row = next(line for line in lines if line.strip().startswith(name + " "))
+        assert row.rstrip().endswith(SUMMARIES[name]), row  # the summary on the command's own line, whole
+
+
+def test_a_missing_extra_is_one_line_naming_it(capsys, monkeypatch):
+    from bptsb_ros.cli import main
+
+    def needs_torch(args):
+        raise ModuleNotFoundError("No module named 'torch'", name="torch")
+
+    import bptsb_ros.cli.config_cmd as config_cmd
+
+    monkeypatch.setattr(config_cmd, "run", needs_torch)
+    assert main(["config", "list"]) == 1
+    err = capsys.readouterr().err
+    assert err.strip() == ('bptsb: torch is not installed, and this command needs it: pip install "bptsb_ros[train]" '
+                           "(docs: Getting started, Install)")

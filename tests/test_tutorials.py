@@ -55,3 +55,12 @@ def test_a_tutorial_runs(name, tmp_path):
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])
               if o.get("output_type") == "error"]
     assert errors == []
+
+
+@pytest.mark.parametrize("name", sorted(SMALL))
+def test_a_tutorial_links_no_page_by_a_relative_path(name):
+    """The site renders a notebook as it is (no link rewriting): a relative link to a .md page would be dead in
+    the site, so the tutorials name pages in words."""
+    nb = json.loads((TUTORIALS / name).read_text())
+    text = "".join("".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "markdown")
+    assert not re.findall(r"\]\((?![a-z]+:)[^)]*\)", text)
