@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -249,7 +249,8 @@ def run_experiment(name: str, *, scale: Literal["smoke", "short", "paper"] = "sm
                    progress: bool = False, workers: int | None = None, scheduler: str | None = None,
                    data: str | os.PathLike[str] | None = None, split: str = "auto",
                    log: Callable[[str], None] | None = None,
-                   settings: Mapping[str, Any] | None = None) -> ExperimentResult:
+                   settings: Mapping[str, Any] | None = None,
+                   seeds: Iterable[int] | None = None) -> ExperimentResult | dict[str, Any]:
     """Run one of the paper's experiments (what ``bptsb reproduce NAME`` runs) and return its result.
 
     Args:
@@ -270,10 +271,13 @@ def run_experiment(name: str, *, scale: Literal["smoke", "short", "paper"] = "sm
         settings: overrides of the experiment's settings at ``scale`` (as ``bptsb reproduce --set``), e.g.
             ``{"epochs": 3}``; each checked against the setting's type (``bptsb reproduce NAME --show-config``
             lists them).
+        seeds: run the experiment once per seed instead (as ``bptsb reproduce --seeds``), each seed in
+            ``out/seed-N/``, and return the aggregate over them (``seed`` is then unused).
 
     Returns:
         The result: ``rows`` (our numbers beside the paper's), ``claims`` (each ``holds`` True, False or None:
-        not testable), ``details``, ``wall_s``.
+        not testable), ``details``, ``wall_s``. With ``seeds``: the aggregate result.json content (each row's
+        mean, sd and range over the seeds; each claim's ``verdict`` over the seeds and ``holds_in: [k, n]``).
 
     Raises:
         ExperimentError: unknown name or scale, ``out`` holds something else, or ``resume`` without ``out``.
@@ -281,6 +285,19 @@ def run_experiment(name: str, *, scale: Literal["smoke", "short", "paper"] = "sm
     """
     from bptsb_ros.experiments.registry import ExperimentError, execute_experiment
 
+    if seeds is not None:
+        from bptsb_ros.experiments.seeds import run_seeds
+
+        multi = {"scale": scale, "force": force, "resume": resume, "progress": progress, "log": log,
+                 "workers": workers, "scheduler": scheduler, "data_dir": data, "split": split, "settings": settings}
+        if out is not None:
+            return run_seeds(name, list(seeds), out_dir=out, **multi)[1]
+        if resume:
+            raise ExperimentError("resume continues an unfinished run in a directory; give out=")
+        with tempfile.TemporaryDirectory(prefix="bptsb-experiment-") as tmp:
+            data_out = run_seeds(name, list(seeds), out_dir=Path(tmp) / "run", **multi)[1]
+        data_out["figures"] = []  # they were in the temporary directory
+        return data_out
     options: dict[str, Any] = {"scale": scale, "seed": seed, "force": force, "resume": resume, "progress": progress,
                                "log": log, "workers": workers, "scheduler": scheduler, "data_dir": data,
                                "split": split, "settings": settings}

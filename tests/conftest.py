@@ -130,3 +130,22 @@ def _restore_stop_signals():
     for sig, handler in saved.items():
         if signal.getsignal(sig) is not handler and handler is not None:
             signal.signal(sig, handler)
+
+
+@pytest.fixture(autouse=True)
+def _every_judged_run_judges_again(monkeypatch):
+    """Every experiment run in a test that judged its claims through ``Context.judge`` must judge to the same
+    claims again from its stored numbers (what ``bptsb reproduce --rejudge`` relies on): a run that mixes judged
+    claims with claims made another way, or whose stored numbers decode to other values, fails the test that ran
+    it, whichever test that is."""
+    from bptsb_ros.experiments import registry
+
+    real = registry._rejudges_to_itself
+
+    def strict(result, log):
+        ok = real(result, log)
+        if result.measured and not ok:
+            pytest.fail(f"{result.experiment}: its claims do not judge again to themselves from result.measured")
+        return ok
+
+    monkeypatch.setattr(registry, "_rejudges_to_itself", strict)

@@ -309,7 +309,7 @@ def test_closed_loop_schemes_smoke(tmp_path):
     d, rows = data["details"], _rows(data)
     err = {k: np.array([[np.nan if v is None else v for v in row] for row in d["errors"][k]]) for k in d["errors"]}
     ratio2 = err["scheme2"] / err["before"]
-    assert rows[("scheme 2, (1,2,0), seed 0", "E_after / E_before")] == pytest.approx(ratio2[0, 0])
+    assert rows[("scheme 2, (1,2,0), training 1", "E_after / E_before")] == pytest.approx(ratio2[0, 0])
     improved3 = int(np.sum(err["scheme3"] / err["before"] < 1))
     assert rows[("scheme 3", "systems improved (ratio < 1)")] == improved3
     draws1 = int(np.sum(err["scheme1"] / 0.02 < 0.1))  # (1,2,0) target mean square: 0.2²/2 = 0.02 m²

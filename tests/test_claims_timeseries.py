@@ -83,13 +83,15 @@ TARGET_TERMS = (0.5, 0.1, 0.2, 0.2)
 
 
 def ipc_system(nmse_last=0.5, out_mid=(0.5, 0.3, 0.3), out_last=(0.6, 0.3, 0.1), terms_mid=TARGET_TERMS,
-               terms_last=(0.6, 0.1, 0.15, 0.1), masses=None) -> nipc.SystemIpc:
+               terms_last=(0.6, 0.1, 0.15, 0.1), masses=None, memory=None) -> nipc.SystemIpc:
     """Three stages (0, 10, 100); the untrained output is linear, (1, 0, 0) by degree and (1, 0, 0, 0) by term.
     The middle stage is planted nearer the target and more nonlinear than the last, so that a claim comparing the
     wrong stages differs."""
     masses = masses or {i: [(0.9, 0.05, 0.0), (0.9, 0.0, 0.05)] for i in range(3)}
+    memory = memory if memory is not None else {i: (0.05, 0.05) for i in range(3)}  # 0.3 over the masses
     return nipc.SystemIpc(nmse=[20.0, 3.0, nmse_last], output=[(1.0, 0.0, 0.0), out_mid, out_last],
-                          output_terms=[(1.0, 0.0, 0.0, 0.0), terms_mid, terms_last], masses=masses)
+                          output_terms=[(1.0, 0.0, 0.0, 0.0), terms_mid, terms_last], masses=masses,
+                          nonlinear_memory=memory)
 
 
 MLP_MASSES = {i: [(0.8, 0.1, 0.0), (0.8, 0.0, 0.1)] for i in range(3)}  # degree >= 2: 0.2 per mass, LIL 0.1
@@ -106,7 +108,7 @@ def narma_ipc(lil=None, mlp=None, totals=None) -> list[bool | None]:
 def test_narma_ipc_all_hold():
     # distance to the target's terms: untrained |1 − .5| + .1 + .2 + .2 = 1.0; last LIL .1 + 0 + .05 + .1 = .25,
     # MLP .05; degrees 2, 3 grow from 0; LIL degree 3 .1 < .2; distance over degrees 2, 3: MLP 0 + .05, LIL .1 + .1
-    assert narma_ipc() == [True, True, True, True, True, True]
+    assert narma_ipc() == [True, True, True, True, True, True, True]
 
 
 def test_narma_ipc_asymptotic_to_the_target():
@@ -189,12 +191,13 @@ def test_narma_ipc_premise_the_systems_learned():
     c = nipc.claims(nipc.NarmaIpcNumbers((0, 10, 100), {"lil": ipc_system(), "mlp": unlearned}, TARGET,
                                          TARGET_TERMS, {"target": 1.0}))
     # the LIL's own claim stays testable; the rank needs no training
-    assert verdicts(c) == [None, None, True, None, None, True]
+    assert verdicts(c) == [None, None, True, None, None, True, None]
     assert "MLP + double circle at epoch 100 did not learn (NMSE 1" in c[3].evidence
     learned = ipc_system(nmse_last=0.9999, out_last=(0.6, 0.2, 0.15), terms_last=(0.5, 0.1, 0.2, 0.15),
                          masses=MLP_MASSES)
-    assert narma_ipc(mlp=learned) == [True] * 6
-    assert narma_ipc(lil=ipc_system(nmse_last=1.0)) == [None, None, None, None, None, True]
+    assert narma_ipc(mlp=learned) == [True] * 7
+    # the nonlinear-memory claim reads the MLP system alone
+    assert narma_ipc(lil=ipc_system(nmse_last=1.0)) == [None, None, None, None, None, True, True]
     # the untrained stage's NMSE (20) is the baseline, not a premise; a testable contradiction is still false
     assert narma_ipc(lil=ipc_system(nmse_last=2.0), mlp=ipc_system(terms_last=(1, 0, 0, 0), masses=MLP_MASSES,
                                                                    out_last=(0.8, 0.0, 0.2)))[:2] == [False, False]
@@ -328,6 +331,21 @@ def test_msdn_nonlinearity_premise_the_body_responds():
     assert nonlinearity(chain={1.0: bc(0.001, 0.0)})[1] is True  # a small linear response is a response
 
 
+def test_narma_ipc_the_body_holds_nonlinear_memories():
+    def mlp(memory, nmse_last=0.5):
+        return ipc_system(nmse_last=nmse_last, out_last=(0.6, 0.2, 0.15), terms_last=(0.5, 0.1, 0.2, 0.15),
+                          masses=MLP_MASSES, memory=memory)
+
+    assert narma_ipc(mlp=mlp({0: (0.1, 0.0), 1: (0.0, 0.0), 2: (0.0, 0.0001)}))[6] is True  # 0.1001 > 0.1
+    assert narma_ipc(mlp=mlp({0: (0.1, 0.0), 1: (0.0, 0.0), 2: (0.0, 0.0)}))[6] is False  # 0.1 is not more
+    # the LIL system's nonlinear memory does not count for the MLP's
+    assert narma_ipc(mlp=mlp({i: (0.0, 0.0) for i in range(3)}), lil=ipc_system(memory={0: (5.0, 5.0)}))[6] is False
+    c = nipc.claims(nipc.NarmaIpcNumbers((0, 10, 100), {"lil": ipc_system(), "mlp": mlp({})}, TARGET, TARGET_TERMS,
+                                         {"target": 1.0}))
+    assert c[6].holds is None and "did not measure" in c[6].evidence  # a run that did not store it
+    assert narma_ipc(mlp=mlp({0: (1.0, 1.0)}, nmse_last=1.0))[6] is None  # the MLP did not learn
+
+
 # -- memory-task: [error grows with Δt, multiple circle generally smaller, more accurate at Δt = 8, output IPC,
 #    CMP neighbours, rank] --------------------------------------------------------------------------------------------
 DELAYS = (1, 4, 8, 12, 17)
@@ -346,18 +364,38 @@ def seeds(means, first=None) -> list[list[float]]:
 
 
 def memory(dc=DC, mc=MC, delays=DELAYS, out_f1=(0.5, 0.8), target_f1=1.0, near=0.3, far=0.1, totals=None,
-           first=None) -> list[bool | None]:
+           first=None, by_stage=None) -> list[bool | None]:
     per_mass = {i: far for i in range(12)} | {i: near for i in NEIGHBOURS}
     first = first or {}
     n = mem.MemoryNumbers(delays, {"double-circle": seeds(dc, first.get("double-circle")),
                                    "multiple-circle": seeds(mc, first.get("multiple-circle"))}, 8,
                           {"double-circle": out_f1[0], "multiple-circle": out_f1[1]}, target_f1, per_mass, NEIGHBOURS,
-                          totals or {"double-circle: output (CMP y)": 1.0, "target": 1.0})
+                          totals or {"double-circle: output (CMP y)": 1.0, "target": 1.0}, (0, 10, 100),
+                          by_stage if by_stage is not None else {"double-circle": (0.1, 0.3, out_f1[0]),
+                                                                 "multiple-circle": (0.1, 0.9, out_f1[1])})
     return verdicts(mem.claims(n))
 
 
 def test_memory_all_hold():
-    assert memory() == [True, True, True, True, True, True]
+    assert memory() == [True, True, True, True, True, True, True]
+
+
+def test_memory_output_ipc_by_training_epoch():
+    def by_epoch(dc, mc, target_f1=1.0):
+        return memory(by_stage={"double-circle": dc, "multiple-circle": mc}, target_f1=target_f1)[6]
+
+    assert by_epoch((0.1, 0.3, 0.5), (0.1, 0.9, 0.8)) is True
+    # 0.1 off the target's 1 counts as equal (as in claim 4): the double circle reached it at one epoch
+    assert by_epoch((0.1, 0.9, 0.5), (0.1, 0.9, 0.8)) is False
+    assert by_epoch((0.1, 0.8999, 0.5), (0.1, 0.9, 0.8)) is True
+    assert by_epoch((0.1, 0.3, 0.5), (0.8, 0.9, 0.8)) is False  # the multiple circle did not grow with training
+    assert by_epoch((0.1, 0.3, 0.5), (0.1, 0.9, 0.5)) is False  # half of the target's is not most of it
+    assert by_epoch((0.1, 0.3, 0.5), (0.1, 0.9, 0.5001)) is True
+    assert by_epoch((0.1, 0.3), (0.1, 0.9, 0.8)) is None  # not measured at every epoch
+    assert memory(by_stage={})[6] is None
+    # the first seeds' systems at Δt = 8 did not learn: not testable, as claim 4
+    assert memory(by_stage={"double-circle": (0.1, 0.3, 0.5), "multiple-circle": (0.1, 0.9, 0.8)},
+                  first={"double-circle": (2, 1.0)})[6] is None
 
 
 def test_memory_error_grows_with_delay():
@@ -416,18 +454,18 @@ def test_memory_premise_the_systems_learned():
                                      8, {"double-circle": 0.5, "multiple-circle": 0.8}, 1.0,
                                      {i: 0.1 for i in range(14)} | {i: 0.3 for i in NEIGHBOURS}, NEIGHBOURS,
                                      {"target": 1.0}))
-    assert verdicts(c) == [None, None, True, True, True, True]
+    assert verdicts(c) == [None, None, True, True, True, True, None]  # no stages stored: the 7th not measured
     assert "LIL + double-circle at Δt = 17 did not learn (NMSE 1" in c[0].evidence
-    assert memory(dc=(*DC[:4], 0.9999)) == [True] * 6
+    assert memory(dc=(*DC[:4], 0.9999)) == [True] * 7
     # a testable body that contradicts "regardless of the body shape" makes it false
     assert memory(dc=(*DC[:4], 1.0), mc=MC[::-1])[0] is False
     # Δt = 8 unlearned (mean 1.0) on the multiple circle
     assert memory(mc=(0.2, 0.3, 1.0, 0.5, 0.6))[:3] == [None, None, None]
     # the IPC is the first seed's: its NMSE at Δt = 8 is the premise (the mean over seeds, 0.4, learned)
     first_mc = {"multiple-circle": (2, 1.0)}
-    assert memory(first=first_mc) == [True, True, True, None, None, True]
-    assert memory(first={"double-circle": (2, 1.0)}) == [True, True, True, None, True, True]
-    assert memory(first={"multiple-circle": (2, 0.7999)}) == [True] * 6
+    assert memory(first=first_mc) == [True, True, True, None, None, True, None]
+    assert memory(first={"double-circle": (2, 1.0)}) == [True, True, True, None, True, True, None]
+    assert memory(first={"multiple-circle": (2, 0.7999)}) == [True] * 7
     with pytest.raises(ValueError, match="focus 8"):
         mem.claims(mem.MemoryNumbers((1, 4), {"double-circle": seeds(DC[:2]), "multiple-circle": seeds(MC[:2])}, 8,
                                      {}, 1.0, {}, NEIGHBOURS, {"target": 1.0}))

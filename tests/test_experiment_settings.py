@@ -42,15 +42,15 @@ PLANTED: dict[str, dict[str, tuple]] = {
     "mnist-specific100": {"per_digit": (2, 10, 10), "epochs": (1, 150, 1000), "grid": (3, 15, 41)},
     "mnist-readout": {**_MNIST, "epochs": (1, 2, 100), "guard_factor": (0, 0, 0), "guard_window": (5, 5, 5)},
     "narma-emulation": {"epochs": (1, 120, 40000), "eval_inputs": (150, 1000, 3000), "washout": (30, 100, 100),
-                        **_NARMA_CONFIG},
+                        **_NARMA_CONFIG, "ablations": (False, False, True)},
     # its `last = ctx.pick(smoke=1, short=300, paper=40000)` was the last stage (the training's length): no setting
     "narma-ipc": {"stages": ((0, 1), (0, 30, 100, 300), (0, 400, 4000, 40000)),
                   "eval_inputs": (250, 2000, 4000), "max_delay": (10, 20, 20), "washout": (30, 100, 100),
-                  **_NARMA_CONFIG},
+                  **_NARMA_CONFIG, "ablations": (False, False, True)},
     "memory-task": {"epochs": (1, 60, 40000), "delays": ((1, 8, 17), (1, 4, 8, 12, 17), tuple(range(1, 18))),
                     "n_seeds": (1, 2, 5), "eval_inputs": (150, 800, 3000), "max_delay": (10, 20, 20),
                     "washout": (30, 100, 100), "gangs": (True, True, True), "population": (True, True, True),
-                    **_NARMA_CONFIG},
+                    "ipc_stages": ((0, 1), (0, 6, 60), (0, 400, 4000, 40000)), **_NARMA_CONFIG},
     "target-ipc": {"samples": (1500, 6000, 10000)},
     "msdn-nonlinearity": {"blocks": (800, 3000, 5000), "max_delay": (10, 20, 20)},
     "lissajous-closed-loop": {"sim_time": (10, 1000, 2000), "fit_time": (10, 100, 100), "eval_periods": (2, 10, 10)},
@@ -247,7 +247,7 @@ def test_show_config_prints_the_resolved_settings_and_runs_nothing(capsys, tmp_p
     text = capsys.readouterr().out
     shown = yaml.safe_load(text)
     assert shown == {"stages": [0, 400, 4000, 40000], "eval_inputs": 4000, "max_delay": 20,
-                     "washout": 100, "config": "narma", "config_overrides": []}
+                     "washout": 100, "config": "narma", "config_overrides": [], "ablations": True}
     assert re.search(r"^eval_inputs: 4000 +# held-out inputs", text, re.M)  # each setting with its help text
     assert not out.exists()
     assert main(["reproduce", "narma-ipc", "--show-config", "--scale", "smoke", "--set", "washout=3"]) == 0

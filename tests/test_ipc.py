@@ -72,6 +72,8 @@ def test_planted_quadratic_map_has_degree_two_capacity_where_expected(u):
     bd = res.by_degree()[0]
     assert bd[1] == pytest.approx(1.0, abs=0.01) and bd[0] < 0.01 and bd[2] < 0.01
     assert res.total[0] <= res.rank[0] + 1e-9
+    # nonlinear memory: the part on a past input, P̃₁(u(t−1))P̃₁(u(t−3)), not the instantaneous P̃₂(u(t))
+    assert res.nonlinear_memory()[0] == pytest.approx(b2 / (a2 + b2), abs=0.03)
 
 
 def test_total_never_exceeds_rank_and_noise_states_have_none(u):

@@ -114,3 +114,11 @@ def test_report_without_arguments_writes_beside_the_runs_not_over_reproduction_m
 ])
 def test_a_record_that_is_not_keys_records_nothing(line):
     assert page_sources(f"x\n{line}\n") == set()
+
+
+def test_an_aggregate_over_seeds_records_each_seed():
+    from bptsb_ros.analysis.report_guard import result_keys
+
+    assert result_keys({"experiment": "narma-ipc", "scale": "paper", "seeds": [0, 1, 2]}) == {
+        "narma-ipc/paper/0", "narma-ipc/paper/1", "narma-ipc/paper/2"}
+    assert result_keys({"experiment": "narma-ipc", "scale": "paper", "seed": 4}) == {"narma-ipc/paper/4"}

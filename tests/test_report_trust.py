@@ -219,7 +219,7 @@ def test_the_page_carries_no_markup_from_the_data(tmp_path):
     assert "<script" not in text and "<img" not in text and "](javascript:" not in text
     assert not re.search(r"!\[[^\]]*\]\(http", text) and "\n# injected" not in text
     table = [line for line in text.splitlines() if line.startswith("| ") and "evil" in line]
-    assert sorted(len(re.findall(r"(?<!\\)\|", line)) for line in table) == [6, 9]  # the row, the summary
+    assert sorted(len(re.findall(r"(?<!\\)\|", line)) for line in table) == [6, 10]  # the row, the summary
 
 
 @pytest.mark.parametrize("mutate", [
@@ -306,7 +306,7 @@ def test_not_testable_round_trips_and_is_shown_and_counted_apart(tmp_path):
     run.mkdir(parents=True)
     assert [c["holds"] for c in read_result(write_result(run, res))["claims"]] == [True, False, None]
     text = build_report(tmp_path / "runs", tmp_path / "R.md").read_text()
-    assert "| smoke | 0 | 1 | 1 | 1 |" in text  # ✓ 1, ✗ 1, not testable 1
+    assert "| smoke | 1 (0) | 1 | 1 | 0 | 1 |" in text  # ✓ 1, ✗ 1, split 0, not testable 1
     assert "- ∅ not testable: C holds — the baseline diverged" in text
     assert "- ✓ A holds — a" in text and "- ✗ B holds — b" in text
 

@@ -108,7 +108,7 @@ def test_report_page_has_tables_claims_and_figures(tmp_path, toy_experiment):
     assert "| toy | value | 7 | 2 | m |" in text and "| toy | value | 1 | 2 | m |" in text
     assert "- ✓ ours exceeds the paper's 2 — ours = 7" in text
     assert "- ✗ ours exceeds the paper's 2 — ours = 1" in text
-    assert "| smoke | 3 | 1 | 0 | 0 |" in text and "| short | 0 | 0 | 1 | 0 |" in text  # ✓, ✗, not testable
+    assert "| smoke | 1 (3) | 1 | 0 | 0 | 0 |" in text and "| short | 1 (0) | 0 | 1 | 0 | 0 |" in text  # ✓ ✗ split ∅
     links = [line[line.index("](") + 2:-1] for line in text.splitlines() if line.startswith("![")]
     assert len(links) == 2 and all((page.parent / link).is_file() for link in links)
     assert all(link.startswith("REPRODUCTION_figures/") for link in links)  # copied beside the page

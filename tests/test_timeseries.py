@@ -226,7 +226,20 @@ def test_narma_ipc_smoke(tmp_path):
     assert mlp3 == pytest.approx(ipc_sum["MLP output, epoch 1"]["by_degree"][2])
     # every bar (outputs, masses, target) within 0.1 of the rank of one
     assert data["claims"][5]["holds"] == all(abs(v["total"] - 1) <= 0.1 + 1e-9 for v in ipc_sum.values())
-    assert len(data["claims"]) == 6
+    assert len(data["claims"]) == 7
+    # the masses' nonlinear memory: one mass coordinate recomputed alone, its degree >= 2 terms with a past input
+    # picked from the basis terms here (a term is ((delay, order), ...); degree = the orders' sum)
+    movable = list(st["movable"])
+    mass = movable[0]
+    x = st["positions"][:, 0, 0]
+    alone_x = ipc(2 * st["u"] - 1, x, max_delay=d["max_delay"], washout=d["washout"], surrogates=d["surrogates"],
+                  seed=0)
+    picked = [i for i, t in enumerate(alone_x.terms) if sum(n for _, n in t) >= 2 and max(dl for dl, _ in t) >= 1]
+    assert ipc_sum[f"MLP mass {mass} x"]["nonlinear_memory"] == pytest.approx(
+        float(alone_x.capacity[0, picked].sum()), abs=1e-9)
+    summed = sum(v["nonlinear_memory"] for k, v in ipc_sum.items() if k.startswith("MLP mass"))
+    assert rows[("MLP + double circle, epoch 1", "nonlinear memory of the masses (degree ≥ 2, Δt ≥ 1, summed)")] \
+        == pytest.approx(summed)
     assert (tmp_path / "narma_ipc.png").is_file()
 
 
@@ -235,8 +248,12 @@ def test_memory_task_smoke(tmp_path):
     d = data["details"]
     for body in ("double-circle", "multiple-circle"):
         for i, dt in enumerate(d["delays"]):
-            # the smoke scale trains each body's systems as one population: a member's directory is in its job's
-            (member,) = (tmp_path / "sweep" / "jobs").glob(f"population*/{body}_dt{dt}_s0")
+            # the smoke scale trains each body's systems as one population (a member's directory is in its job's),
+            # except the first seed's Δt = 8 system, measured at every IPC stage: a training of its own
+            jobs = tmp_path / "sweep" / "jobs"
+            name = f"{body}_dt{dt}_s0"
+            (member,) = [*jobs.glob(f"population*/{name}"), *jobs.glob(name)]
+            assert (member.parent == jobs) == (dt == 8)
             st = _states(member, d["epochs"])
             np.testing.assert_array_equal(st["target"][dt:], st["u"][:-dt])  # y(t) = u(t − Δt)
             w = d["washout"]
@@ -253,7 +270,14 @@ def test_memory_task_smoke(tmp_path):
     wins = int(np.sum(mean["multiple-circle"] < mean["double-circle"]))
     learned = max(mean["double-circle"].max(), mean["multiple-circle"].max()) < 1
     assert data["claims"][1]["holds"] == ((2 * wins > len(d["delays"])) if learned else None)
-    assert len(data["claims"]) == 6
+    assert len(data["claims"]) == 7
+    # the Δt = 8 outputs by training epoch: the untrained one is the job's epoch-0 states, the last the trained one's
+    rows = {(r["system"], r["metric"]): r["ours"] for r in data["rows"]}
+    for body in ("double-circle", "multiple-circle"):
+        assert (tmp_path / "sweep" / "jobs" / f"{body}_dt8_s0" / "states_0.npz").is_file()
+        last = rows[(f"LIL + {body} (N_mov 17), Δt = 8, epoch {d['epochs']}", "output F₁(u(t−8)) capacity")]
+        assert last == rows[(f"LIL + {body} (N_mov 17), Δt = 8", "output F₁(u(t−8)) capacity")]
+        assert (f"LIL + {body} (N_mov 17), Δt = 8, epoch 0", "output F₁(u(t−8)) capacity") in rows
     assert {p.rsplit("/", 1)[-1] for p in data["figures"]} == {"memory_error.png", "memory_ipc.png"}
 
 
@@ -302,3 +326,31 @@ def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
     assert [c["holds"] for c in claims] == [None, None]
     assert all("LIL + multiple-circle (N_mov 17): training diverged (TrainingDiverged: update 11" in c["evidence"]
                for c in claims)
+
+
+def test_narma_emulation_ablations_retrain_what_they_name_and_compare_with_the_first_variant(tmp_path):
+    import yaml
+
+    _, data = run_experiment("narma-emulation", scale="smoke", out_dir=tmp_path, progress=False,
+                             settings={"ablations": True})
+    jobs = tmp_path / "sweep" / "jobs"
+    assert sorted(p.name for p in jobs.iterdir()) == sorted(
+        [f"{b}_{body}" for b in ("lil", "mlp") for body in ("double-circle", "multiple-circle")]
+        + [f"authors_init-mlp_{body}" for body in ("double-circle", "multiple-circle")]
+        + [f"float64-{b}_{body}" for b in ("lil", "mlp") for body in ("double-circle", "multiple-circle")])
+    for name, key, value in (("authors_init-mlp_double-circle", ("brain", "gain"), 2.7),
+                             ("mlp_double-circle", ("brain", "gain"), 1.0),
+                             ("float64-lil_multiple-circle", ("dtype",), "float64"),
+                             ("lil_multiple-circle", ("dtype",), "float32")):
+        cfg = yaml.safe_load((jobs / name / "agent" / "config.yaml").read_text())
+        for k in key:
+            cfg = cfg[k]
+        assert cfg == value, name
+    rows = {r["system"]: r["ours"] for r in data["rows"]}
+    assert "[authors_init] LIL + double-circle (N_mov 17)" not in rows  # the ablation retrains the MLP only
+    claims = {c["claim"]: c for c in data["claims"]}
+    brain_claim = "the MLP brain gives a smaller error than the LIL (NMSE, both bodies)"
+    ablated = claims["[authors_init: MLP Xavier-normal gain 2.7 (the authors' NARMA code)] " + brain_claim]
+    lil = rows["LIL + double-circle (N_mov 17)"]  # the first variant's LIL, read by the ablation's claim
+    mlp = rows["[authors_init] MLP + double-circle (N_mov 17)"]
+    assert f"{mlp:.3g} vs LIL + double-circle (N_mov 17) {lil:.3g}" in ablated["evidence"]

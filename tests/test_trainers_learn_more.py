@@ -326,6 +326,37 @@ def test_scheme1_a_few_updates_lower_the_closed_loop_loss(monkeypatch):
     assert res.guard["events"] == [] and final < 0.9 * first, (res.losses, first, final)
 
 
+@pytest.mark.parametrize("fl_mask", ["the SWG's", "every spring"])
+def test_scheme1_feedback_layer_drives_only_the_springs_the_swg_drives(monkeypatch, fl_mask):
+    """An SWG that drives springs 0, 2, 3, 5, 6, … (not 1, 4, 7, …): scheme 1's FL starts from the seeded N(0, 0.1²)
+    draw on those rows and zero on the others, whether the FL's own mask is the SWG's or (as ``build_agent`` makes
+    it) every spring; after two updates the other rows are still zero and those springs keep their rest length."""
+    from bptsb_ros.training import closed_loop_schemes as cls
+
+    monkeypatch.setattr(cls, "FL_LR", 1e-2)
+    agent = lissajous_agent()
+    n_springs, width = agent.feedback.weight.shape
+    driven = torch.arange(n_springs) % 3 != 1
+    agent.brain.driven.copy_(driven)
+    if fl_mask == "the SWG's":
+        agent.feedback.driven.copy_(driven)
+    else:
+        assert agent.feedback.driven.all()
+    start = copy.deepcopy(agent)
+    cls.train_scheme1(start, liss_target, 0, window=W_CL, seed=4)  # no update: the FL as scheme 1 starts it
+    draw = torch.empty(n_springs, width, dtype=F64).normal_(0.0, 0.1, generator=torch.Generator().manual_seed(4))
+    assert torch.equal(start.feedback.weight, draw * driven.unsqueeze(-1))
+    res = cls.train_scheme1(agent, liss_target, 2, window=W_CL, seed=4, lr=SMALL)
+    w = agent.feedback.weight
+    assert res.diverged is None and res.guard["events"] == []
+    assert torch.equal(w[~driven], torch.zeros_like(w[~driven]))
+    assert not torch.equal(w[driven], draw[driven])  # the driven rows did train
+    with torch.no_grad():
+        rest = agent.feedback.rest_length(agent.body.l, agent.body.initial_state(1))[0]
+    assert torch.equal(rest[~driven], agent.body.l[~driven])
+    assert bool((rest[driven] != agent.body.l[driven]).all())
+
+
 def open_window(agent, state) -> tuple[torch.Tensor, torch.Tensor, object]:
     """The SWG-driven open loop from ``state``: trajectory loss, the (state k, SWG signal k+1) FL loss, final."""
     body = agent.body

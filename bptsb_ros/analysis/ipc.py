@@ -214,6 +214,11 @@ class IPCResult:
         first = {t: i for i, t in reversed(list(enumerate(self.tuples)))}
         return {t: self.threshold[:, first[t]] for t in dict.fromkeys(self.tuples)}
 
+    def nonlinear_memory(self) -> np.ndarray:
+        """(G,) capacity of the basis functions of degree ≥ 2 that involve a past input (longest delay ≥ 1): the
+        nonlinear memory of each state set, as opposed to its instantaneous nonlinearity (delay 0 only)."""
+        return self.capacity[:, (self.degrees >= 2) & (self.max_delays() >= 1)].sum(axis=1)
+
     def max_delays(self) -> np.ndarray:
         """(F,) the longest delay of each basis function."""
         return np.array([max(d for d, _ in t) for t in self.terms])

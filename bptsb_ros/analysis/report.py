@@ -58,7 +58,10 @@ def _fmt(value: Any) -> str:
 
 def find_results(runs_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
     """Every valid result.json under ``runs_dir`` (invalid ones raise ResultError naming the file)."""
-    found = [(p, read_result(p)) for p in sorted(runs_dir.rglob(RESULT_FILE))]
+    from bptsb_ros.experiments.seeds import in_multi_seed_run
+
+    # a seed's own result of a multi-seed run is part of that run's aggregate, not a page section of its own
+    found = [(p, read_result(p)) for p in sorted(runs_dir.rglob(RESULT_FILE)) if not in_multi_seed_run(p.parent)]
     order = _paper_order()
     scales = {"paper": 0, "short": 1, "smoke": 2}
     found.sort(key=lambda pr: (order.get(pr[1]["experiment"], len(order)), pr[1]["experiment"],
@@ -115,13 +118,16 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
              "the command shown; *paper* is the paper's value (— where the paper gives no number). A claim's "
              "verdict is computed from our numbers by the experiment's code, never written by hand: ✓ holds, "
              "✗ does not hold, ∅ not testable (a premise of the claim failed, named in its evidence, so our "
-             "numbers say nothing about it either way).", "",
-             "| experiment | paper | scale | seed | claims ✓ | ✗ | ∅ not testable | wall time |",
-             "|---|---|---|---|---|---|---|---|"]
+             "numbers say nothing about it either way).", ""]
+    if any("seeds" in r for _, r in results):
+        lines += [_SEEDS_METHOD, ""]
+    lines += ["| experiment | paper | scale | seeds | claims ✓ | ✗ | split | ∅ not testable | wall time |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for _, r in results:
-        held, failed, untestable = claim_counts(r["claims"])
+        held, failed, split, untestable = verdict_counts(r)
+        seeds = f"{len(r['seeds'])} ({_seed_range(r['seeds'])})" if "seeds" in r else f"1 ({r['seed']})"
         lines.append(f"| [{r['experiment']}](#{_anchor(r)}) | {md_text(r['paper_ref'])} | {r['scale']} | "
-                     f"{r['seed']} | {held} | {failed} | {untestable} | {_duration(r['wall_s'])} |")
+                     f"{seeds} | {held} | {failed} | {split} | {untestable} | {_duration(r['wall_s'])} |")
     missing = missing_experiments(r["experiment"] for _, r in results)
     if missing:
         lines += ["", f"Not on this page (no run under the runs directory): {', '.join(missing)}. "
@@ -129,19 +135,11 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
     copies: dict[str, Path] = {}
     used_dirs: set[str] = set()
     for path, r in results:
-        lines += ["", f"## {r['experiment']} ({r['scale']}, seed {r['seed']})", "",
-                  f"Paper: {md_text(r['paper_ref'])}. Wall time {_duration(r['wall_s'])}."]
-        lines += _provenance_lines(r.get("provenance") or {})
-        lines += _settings_lines(r.get("settings") or {})
-        if r["rows"]:
-            lines += ["", "| system | metric | ours | paper | unit |", "|---|---|---|---|---|"]
-            lines += [f"| {md_text(row['system'])} | {md_text(row['metric'])} | {_fmt(row['ours'])} | "
-                      f"{_fmt(row['paper'])} | {md_text(row['unit'])} |" for row in r["rows"]]
-        if r["claims"]:
-            lines += ["", "Claims of the paper:", ""]
-            lines += [f"- {claim_mark(c['holds'])}{':' if c['holds'] is None else ''} {md_text(c['claim'])} — "
-                      f"{md_text(c['evidence'])}" for c in r["claims"]]
-        dest = _unique_dir(f"{r['experiment']}-{r['scale']}-seed{r['seed']}", used_dirs)
+        if "seeds" in r:
+            lines += _aggregate_lines(r)
+        else:
+            lines += _single_lines(r)
+        dest = _unique_dir(f"{r['experiment']}-{r['scale']}-{_seed_slug(r)}", used_dirs)
         figure_lines = _figure_lines(path.parent, r["figures"], dest, figures.root, out.parent, copies, warn)
         if figure_lines:
             lines += [""] + figure_lines
@@ -151,6 +149,105 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
         raise ReportError(str(err)) from None
     _write_page(out, "\n".join(lines) + "\n")
     return out
+
+
+_SEEDS_METHOD = (
+    "One run is one draw, so an experiment is run once per seed (`bptsb reproduce NAME --seeds …`, each seed an "
+    "independent draw of every training, evaluation and noise) and each claim is judged in every seed. *k/n*: the "
+    "claim holds in k of the n seeds that could test it; the strip shows each seed in order (✓ holds, ✗ fails, "
+    "∅ not testable). The verdict over seeds: **✓** when the 95 % Wilson interval of k/n lies above ½, **✗** when "
+    "it lies below ½, **split** when it contains ½ (the seeds do not settle it), **∅** when fewer than half the "
+    "seeds could test it. Rows give the mean ± sample standard deviation over the seeds with a value, their range "
+    "and how many; *in range* says whether the paper's number lies within our seeds' range.")
+
+
+def verdict_counts(r: dict[str, Any]) -> tuple[int, int, int, int]:
+    """(✓, ✗, split, ∅) among a result's claims: an aggregate's verdicts over seeds, or one seed's verdicts."""
+    if "seeds" in r:
+        verdicts = [c["verdict"] for c in r["claims"]]
+        return tuple(verdicts.count(v) for v in ("holds", "fails", "split", "not_testable"))  # type: ignore[return-value]
+    held, failed, untestable = claim_counts(r["claims"])
+    return held, failed, 0, untestable
+
+
+def _seed_range(seeds: list[int]) -> str:
+    from bptsb_ros.experiments.seeds import format_seeds
+
+    return format_seeds(seeds)
+
+
+def _seed_slug(r: dict[str, Any]) -> str:
+    return f"seeds{_seed_range(r['seeds'])}" if "seeds" in r else f"seed{r['seed']}"
+
+
+def _strip(per_seed: list[bool | None]) -> str:
+    return "".join("✓" if v is True else "✗" if v is False else "∅" for v in per_seed)
+
+
+def _mean_text(row: dict[str, Any]) -> str:
+    """``mean ± sd (min–max, n)`` of an aggregate row; — without values."""
+    if row["ours"] is None:
+        return "—"
+    if row["n"] == 1:
+        return f"{_fmt(row['ours'])} (1 seed)"
+    return f"{_fmt(row['ours'])} ± {_fmt(row['ours_sd'])} ({_fmt(row['ours_min'])}–{_fmt(row['ours_max'])}, {row['n']})"
+
+
+def _aggregate_lines(r: dict[str, Any]) -> list[str]:
+    from bptsb_ros.experiments.result import verdict_mark
+
+    n = len(r["seeds"])
+    lines = ["", f"## {r['experiment']} ({r['scale']}, {n} seeds: {_seed_range(r['seeds'])})", "",
+             f"Paper: {md_text(r['paper_ref'])}. Wall time {_duration(r['wall_s'])} for the {n} seeds."]
+    lines += _provenance_lines(r.get("provenance") or {})
+    lines += _judged_lines(r)
+    lines += _settings_lines(r.get("settings") or {})
+    if r["rows"]:
+        lines += ["", "| system | metric | ours: mean ± sd (range, seeds) | paper | paper in our range | unit |",
+                  "|---|---|---|---|---|---|"]
+        for row in r["rows"]:
+            inside = {True: "yes", False: "no", None: ""}[row.get("paper_in_range")]
+            lines.append(f"| {md_text(row['system'])} | {md_text(row['metric'])} | {_mean_text(row)} | "
+                         f"{_fmt(row['paper'])} | {inside} | {md_text(row['unit'])} |")
+    if r["claims"]:
+        lines += ["", "Claims of the paper (verdict over seeds, k/n, each seed in order):", ""]
+        for c in r["claims"]:
+            k, m = c["holds_in"]
+            lines.append(f"- **{verdict_mark(c['verdict'])}** {k}/{m} `{_strip(c['per_seed'])}` "
+                         f"{md_text(c['claim'])} — {md_text(c['evidence'])}")
+    return lines
+
+
+def _judged_lines(r: dict[str, Any]) -> list[str]:
+    """Which code judged the claims: the aggregate's own record, and the seeds' claim-code digests."""
+    judged = r.get("judged") or {}
+    details = r.get("details") or {}
+    digests = [d for d in details.get("claim_code", []) if d and d != "None"]
+    commits = [c for c in details.get("seed_commits", []) if c and c != "None"]
+    parts = []
+    if len(commits) > 1:
+        parts.append(f"the seeds ran at commits {', '.join(commits)}")
+    if judged.get("rejudged"):
+        parts.append(f"claims judged again from the stored numbers at commit {judged.get('git_commit')}")
+    if digests:
+        parts.append(f"claim code {', '.join(digests)}")
+    return [f"- judged: {md_text('; '.join(parts))}"] if parts else []
+
+
+def _single_lines(r: dict[str, Any]) -> list[str]:
+    lines = ["", f"## {r['experiment']} ({r['scale']}, seed {r['seed']})", "",
+             f"Paper: {md_text(r['paper_ref'])}. Wall time {_duration(r['wall_s'])}."]
+    lines += _provenance_lines(r.get("provenance") or {})
+    lines += _settings_lines(r.get("settings") or {})
+    if r["rows"]:
+        lines += ["", "| system | metric | ours | paper | unit |", "|---|---|---|---|---|"]
+        lines += [f"| {md_text(row['system'])} | {md_text(row['metric'])} | {_fmt(row['ours'])} | "
+                  f"{_fmt(row['paper'])} | {md_text(row['unit'])} |" for row in r["rows"]]
+    if r["claims"]:
+        lines += ["", "Claims of the paper:", ""]
+        lines += [f"- {claim_mark(c['holds'])}{':' if c['holds'] is None else ''} {md_text(c['claim'])} — "
+                  f"{md_text(c['evidence'])}" for c in r["claims"]]
+    return lines
 
 
 _ABSOLUTE_PATH = re.compile(r"(?<![\w.~-])/(?:[^\s/]+/)*([^\s/]+)")
@@ -254,7 +351,12 @@ def _write_page(out: Path, text: str) -> None:
 
 
 def _anchor(r: dict[str, Any]) -> str:
-    return f"{r['experiment']}-{r['scale']}-seed-{r['seed']}".lower()
+    """The page anchor of a result's section (GitHub's slug of its heading)."""
+    if "seeds" in r:
+        text = f"{r['experiment']} ({r['scale']}, {len(r['seeds'])} seeds: {_seed_range(r['seeds'])})"
+    else:
+        text = f"{r['experiment']} ({r['scale']}, seed {r['seed']})"
+    return re.sub(r"[^\w\- ]", "", text.lower()).replace(" ", "-")
 
 
 def _duration(seconds: float) -> str:

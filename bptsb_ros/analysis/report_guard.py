@@ -1,11 +1,12 @@
 """What ``bptsb report`` may replace: a results page is never replaced by one made from other runs.
 
-A page the report writes records the results it was made from, one key per result.json
-(``experiment/scale/seed``), in an HTML comment on its second line (:func:`sources_line`). Writing a page over an
-existing one is allowed only if every result the old page shows is among the new page's results
-(:func:`check_replace`), so a page of paper-scale runs is never replaced by one of a single smoke run; ``--force``
-replaces it all the same. Pages written before the comment existed are read by their section headings
-(``## name (scale, seed N)``). A page shows one scale unless it is asked to mix them (:func:`check_scales`).
+A page the report writes records the results it was made from, one key per run of one seed
+(``experiment/scale/seed``; an aggregate over seeds gives one per seed), in an HTML comment on its second line
+(:func:`sources_line`). Writing a page over an existing one is allowed only if every result the old page shows
+is among the new page's results (:func:`check_replace`), so a page of paper-scale runs is never replaced by one
+of a single smoke run; ``--force`` replaces it all the same. Pages written before the comment existed are read
+by their section headings (``## name (scale, seed N)``). A page shows one scale unless it is asked to mix them
+(:func:`check_scales`).
 """
 
 from __future__ import annotations
@@ -27,14 +28,19 @@ class ReplaceRefused(RuntimeError):
     """The report would replace a page made from other runs, or mix scales; one line saying what to do."""
 
 
-def result_key(result: dict[str, Any]) -> str:
-    """``experiment/scale/seed`` of one result.json."""
-    return f"{result['experiment']}/{result['scale']}/{result['seed']}"
+def result_keys(result: dict[str, Any]) -> set[str]:
+    """``experiment/scale/seed`` of one result.json: one key, or one per seed of an aggregate over seeds."""
+    seeds = result["seeds"] if "seeds" in result else [result["seed"]]
+    return {f"{result['experiment']}/{result['scale']}/{seed}" for seed in seeds}
+
+
+def _keys(results: Iterable[dict[str, Any]]) -> set[str]:
+    return {key for r in results for key in result_keys(r)}
 
 
 def sources_line(results: Iterable[dict[str, Any]]) -> str:
     """The comment line that records a page's results (sorted keys, space-separated)."""
-    return SOURCES_PREFIX + " ".join(sorted({result_key(r) for r in results})) + SOURCES_SUFFIX
+    return SOURCES_PREFIX + " ".join(sorted(_keys(results))) + SOURCES_SUFFIX
 
 
 def page_sources(text: str) -> set[str]:
@@ -56,7 +62,7 @@ def check_replace(out: Path, results: Iterable[dict[str, Any]], *, force: bool) 
             old = page_sources(f.read(MAX_PAGE_CHARS))
     except OSError:
         return  # unreadable: the report's own check of the page says so
-    lost = sorted(old - {result_key(r) for r in results})
+    lost = sorted(old - _keys(results))
     if lost:
         shown = ", ".join(lost[:3]) + (f" and {len(lost) - 3} more" if len(lost) > 3 else "")
         raise ReplaceRefused(f"{out} shows results that are not under this runs directory ({shown}): it was made "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 NAME = "reproduce"
 HELP = ("Reproduce one experiment of the paper (--list names them): train, evaluate, compare with the paper's "
@@ -17,7 +18,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "reproduces")
     parser.add_argument("--scale", choices=("smoke", "short", "paper"), default="short",
                         help="smoke: seconds (tests); short: minutes on 2 cores; paper: the paper's settings")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    seed = parser.add_mutually_exclusive_group()
+    seed.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    seed.add_argument("--seeds", default=None, metavar="LIST",
+                      help="one run per seed (e.g. 0-9 or 0,3,5), each in OUT/seed-N/, then OUT/result.json with "
+                           "every row's mean, sd and range and every claim's verdict over the seeds (k of n)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
                         help="override one of the experiment's settings at this scale (repeatable; the value is "
                              "YAML, checked as the setting's type; --show-config lists them)")
@@ -28,7 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     what.add_argument("--force", action="store_true", help="replace an existing result.json in --out")
     what.add_argument("--resume", action="store_true",
                       help="continue an unfinished run in --out (no result.json): trainings that are jobs keep what "
-                           "finished (the sweep resumes); the rest runs again")
+                           "finished (the sweep resumes); the rest runs again; with --seeds, finished seeds are kept "
+                           "(more seeds extend a finished run)")
+    what.add_argument("--rejudge", action="store_true",
+                      help="train nothing: judge the claims of the finished run in --out again with this version's "
+                           "claim code, from the numbers it stored, and rewrite its result.json")
     parser.add_argument("--data", default=None,
                         help="data directory for experiments that read a data set (MNIST: the IDX files; "
                              "default $BPTSB_MNIST_DIR)")
@@ -52,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.data.mnist import MnistError
     from bptsb_ros.experiments import ExperimentError, experiments, get_experiment, run_experiment
     from bptsb_ros.experiments.experiment_settings import SettingsError, resolve_settings
-    from bptsb_ros.experiments.result import claim_mark
+    from bptsb_ros.experiments.result import ResultError, claim_mark
+    from bptsb_ros.experiments.seeds import SeedsError, parse_seeds, run_seeds
     from bptsb_ros.rundir_lock import RunDirLocked
     from bptsb_ros.runner import JobFailed
     from bptsb_ros.sweep import SchedulerError, SweepError
@@ -78,13 +88,22 @@ def run(args: argparse.Namespace) -> int:
     if args.show_config:
         print(settings.show(), end="")
         return 0
+    if args.rejudge:
+        return _rejudge(args)
     try:
-        path, result = run_experiment(args.name, scale=args.scale, seed=args.seed, out_dir=args.out,
+        if args.seeds is not None:
+            path, result = run_seeds(args.name, parse_seeds(args.seeds), scale=args.scale, out_dir=args.out,
+                                     force=args.force, resume=args.resume, progress=not args.no_progress,
+                                     workers=args.workers, scheduler=scheduler, data_dir=args.data,
+                                     split=args.split, settings=args.settings)
+            _print_aggregate(result, path)
+            return 0
+        path, result = run_experiment(args.name, scale=args.scale, seed=args.seed or 0, out_dir=args.out,
                                       force=args.force, resume=args.resume, progress=not args.no_progress,
                                       workers=args.workers, scheduler=scheduler, data_dir=args.data,
                                       split=args.split, settings=args.settings)
     except (SchedulerError, RunDirLocked, JobFailed, ExperimentError, SettingsError, ConfigError, SweepError,
-            MnistError, OSError) as err:  # the arguments were fine: --out, data, training, the scheduler, I/O
+            MnistError, SeedsError, ResultError, OSError) as err:  # the arguments were fine: --out, data, ...
         hint = "" if isinstance(err, (RunDirLocked, ExperimentError)) else _unfinished_hint(args)  # refused up front
         return fail(NAME, f"{err}{hint}")
     except (RuntimeError, ValueError) as err:  # raised by an experiment's own code: failed jobs, a bad setting
@@ -128,3 +147,53 @@ def summary_table(rows: list[dict]) -> list[str]:
     widths = [max(len(row[i]) for row in [head, *body]) for i in range(len(head))]
     return ["  ".join(c.rjust(w) if i in (2, 3) else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))).rstrip()
             for row in [head, *body]]
+
+
+def _rejudge(args: argparse.Namespace) -> int:
+    """``--rejudge``: the claims of the finished run in ``--out`` judged again from its stored numbers."""
+    from pathlib import Path
+
+    from bptsb_ros.cli.common import fail
+    from bptsb_ros.experiments.result import ResultError
+    from bptsb_ros.experiments.seeds import rejudge_run
+    from bptsb_ros.rundir_lock import RunDirLocked, hold_run_dir
+
+    out = Path(args.out) if args.out else Path("runs") / "reproduce" / args.name
+    if not out.is_dir():
+        return fail(NAME, f"--rejudge needs a finished run in --out, and {out} is not a directory")
+    try:
+        with hold_run_dir(out):
+            data = rejudge_run(out)
+    except (ResultError, RunDirLocked, OSError) as err:
+        return fail(NAME, err)
+    if data["experiment"] != args.name:
+        print(f"note: {out} holds a run of {data['experiment']}, judged again as such", file=sys.stderr)
+    if "seeds" in data:
+        _print_aggregate(data, out / "result.json")
+    else:
+        for claim in data["claims"]:
+            print(f"{_mark(claim['holds'])} {claim['claim']} ({claim['evidence']})")
+    return 0
+
+
+def _mark(holds: bool | None) -> str:
+    from bptsb_ros.experiments.result import claim_mark
+
+    return claim_mark(holds)
+
+
+def _print_aggregate(result: dict, path) -> None:
+    """An aggregate's rows (mean ± sd, range) and claims (k of n, verdict over seeds), then its path."""
+    from bptsb_ros.experiments.result import verdict_mark
+
+    n = len(result["seeds"])
+    for row in result["rows"]:
+        ours = "—" if row["ours"] is None else (f"{row['ours']:.4g} ± {row['ours_sd']:.2g} "
+                                                f"({row['ours_min']:.4g}–{row['ours_max']:.4g}, {row['n']} seeds)")
+        paper = "" if row["paper"] is None else f"  paper {row['paper']}"
+        print(f"{row['system']} | {row['metric']}: {ours}{paper} {row['unit']}")
+    for claim in result["claims"]:
+        k, m = claim["holds_in"]
+        print(f"{verdict_mark(claim['verdict'])} {k}/{m} of {n} seeds: {claim['claim']}")
+    print(json.dumps({"result": str(path), "seeds": result["seeds"], "wall_s": result["wall_s"],
+                      "figures": result["figures"]}))

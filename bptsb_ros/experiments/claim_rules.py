@@ -53,3 +53,42 @@ def fmt_pair(a: float, b: float) -> tuple[str, str]:
         return fmt(a), fmt(b)
     digits = next((d for d in range(3, 13) if f"{a:.{d}g}" != f"{b:.{d}g}"), 12)
     return f"{a:.{digits}g}", f"{b:.{digits}g}"
+
+
+# ------------------------------------------------------------------------------------ verdicts over seeds
+#: the four verdicts of a claim over seeds (an aggregate result.json's ``claims[].verdict``)
+VERDICTS = ("holds", "fails", "split", "not_testable")
+#: the normal quantile of the two-sided 95 % Wilson interval
+WILSON_Z = 1.959963984540054
+
+
+def wilson_interval(k: int, n: int, z: float = WILSON_Z) -> tuple[float, float]:
+    """The Wilson score interval of a proportion ``k`` of ``n`` (two-sided; 95 % at the default ``z``).
+
+    Wilson, not the normal-approximation (Wald) interval: with 3–10 seeds and k at or near 0 or n, Wald's interval
+    collapses to a point (10 of 10 would be "certain"), while Wilson's keeps the uncertainty of a small sample
+    (10 of 10: 0.72–1). Raises ValueError unless 0 ≤ k ≤ n and n ≥ 1."""
+    if isinstance(k, bool) or isinstance(n, bool) or not (0 <= k <= n) or n < 1:
+        raise ValueError(f"a proportion needs 0 <= k <= n and n >= 1, got k={k!r}, n={n!r}")
+    p = k / n
+    z2 = z * z
+    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = z / (1 + z2 / n) * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def verdict_over_seeds(holds: int, testable: int, seeds: int) -> str:
+    """The verdict of a claim over ``seeds`` runs, ``testable`` of which could test it and ``holds`` of those found
+    it to hold: ``"not_testable"`` when fewer than half the seeds could test it; else ``"holds"`` when the 95 %
+    Wilson interval of holds/testable lies wholly above ½, ``"fails"`` when it lies wholly below ½, ``"split"``
+    otherwise (the seeds do not settle it)."""
+    if not (0 <= holds <= testable <= seeds) or seeds < 1:
+        raise ValueError(f"need 0 <= holds <= testable <= seeds, seeds >= 1; got {holds}, {testable}, {seeds}")
+    if 2 * testable < seeds or testable == 0:
+        return "not_testable"
+    lo, hi = wilson_interval(holds, testable)
+    if lo > 0.5:
+        return "holds"
+    if hi < 0.5:
+        return "fails"
+    return "split"

@@ -22,7 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import DRAWS_NMSE
+from bptsb_ros.experiments.common import derived_seeds
 from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded, train_single_curve
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.sim.population import run_population
@@ -53,6 +55,7 @@ class SchemeNumbers:
     note: str = ""
 
 
+@judge("closed-loop-schemes")
 def claims(n: SchemeNumbers) -> list[Claim]:
     """The paper (supplement, "Simultaneous training for a closed loop"): "We trained 15 systems and Scheme 1 could
     not make any systems draw the desired trajectory, even after repeated parameter updates." and "In regard to the
@@ -164,6 +167,7 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
 
 @experiment(
     "closed-loop-schemes",
+    parallel=True,
     paper_ref="supplement 'Simultaneous training for a closed loop' and its table",
     summary="3 curves × 5 seeds (jobs): scheme 1 (closed loop from scratch), 2 (BPTSB through SWG + body + FL, "
             "L = L_traj + 0.1·L_FB), 3 (FL re-fitted by regression after every update); E_after / E_before",
@@ -173,7 +177,8 @@ def run(ctx: Context) -> None:
     n_curves, seeds = ctx.settings["n_curves"], ctx.settings["n_seeds"]
     pre_time, add_time = ctx.settings["pretrain_time"], ctx.settings["add_time"]
     eval_periods, scheme1_time = ctx.settings["eval_periods"], ctx.settings["scheme1_time"]
-    grid = [(ci, s) for ci in range(n_curves) for s in range(ctx.seed, ctx.seed + seeds)]
+    inner = derived_seeds(ctx.seed, seeds)
+    grid = [(ci, s) for ci in range(n_curves) for s in inner]
     jobs = [(str(ctx.out_dir / f"curve{ci}_seed{s}"), (CURVES[ci].alpha, CURVES[ci].beta, CURVES[ci].delta), s,
              pre_time, add_time, eval_periods, scheme1_time) for ci, s in grid]
     ctx.log(f"closed-loop-schemes: {len(jobs)} jobs (preliminary {pre_time} s, schemes {add_time} s)")
@@ -182,17 +187,17 @@ def run(ctx: Context) -> None:
     table = {k: np.full((n_curves, seeds), np.nan) for k in ("before", "scheme1", "scheme2", "scheme3")}
     for (ci, s), res in zip(grid, results, strict=True):
         for k in table:
-            table[k][ci, s - ctx.seed] = res[k]
+            table[k][ci, inner.index(s)] = res[k]
     ms = np.array([[r["target_mean_square"] for r in results[i * seeds:(i + 1) * seeds]] for i in range(n_curves)])
     ratio2 = table["scheme2"] / table["before"]
     ratio3 = table["scheme3"] / table["before"]
     for ci in range(n_curves):
         for j in range(seeds):
-            paper_col = (ctx.seed + j) if ctx.seed + j < 5 else None
-            p2 = PAPER_SCHEME2[ci][paper_col] if paper_col is not None else None
-            p3 = PAPER_SCHEME3[ci][paper_col] if paper_col is not None else None
-            ctx.row(f"scheme 2, {CURVES[ci]}, seed {ctx.seed + j}", "E_after / E_before", "1", ratio2[ci, j], p2)
-            ctx.row(f"scheme 3, {CURVES[ci]}, seed {ctx.seed + j}", "E_after / E_before", "1", ratio3[ci, j], p3)
+            # the paper's table has a column per seed; ours are other draws, matched by position
+            p2 = PAPER_SCHEME2[ci][j] if j < len(PAPER_SCHEME2[ci]) else None
+            p3 = PAPER_SCHEME3[ci][j] if j < len(PAPER_SCHEME3[ci]) else None
+            ctx.row(f"scheme 2, {CURVES[ci]}, training {j + 1}", "E_after / E_before", "1", ratio2[ci, j], p2)
+            ctx.row(f"scheme 3, {CURVES[ci]}, training {j + 1}", "E_after / E_before", "1", ratio3[ci, j], p3)
     n = n_curves * seeds
     failed = [f"{r['curve']} seed {r['seed']}: {r['preliminary_diverged']}" for r in results
               if r["preliminary_diverged"]]
@@ -208,15 +213,15 @@ def run(ctx: Context) -> None:
     ctx.row("preliminary training", "diverged (no system to improve)", f"of {n}", len(failed), 0)
     trained1 = np.array([[r["scheme1_diverged_at_update"] is None for r in results[i * seeds:(i + 1) * seeds]]
                          for i in range(n_curves)])
-    ctx.result.claims.extend(claims(SchemeNumbers(table["before"], table["scheme1"], table["scheme2"],
-                                                  table["scheme3"], ms, trained1, note)))
+    ctx.judge(claims, SchemeNumbers(table["before"], table["scheme1"], table["scheme2"],
+                                                  table["scheme3"], ms, trained1, note))
     ctx.phase("plotting the scheme ratios")
     from bptsb_ros.analysis.autonomy_plots import plot_scheme_ratios
 
     ctx.figure(plot_scheme_ratios(ctx.out_dir / "schemes.png", [str(c) for c in CURVES[:n_curves]],
-                                  list(range(ctx.seed, ctx.seed + seeds)), ratio2, ratio3,
+                                  inner, ratio2, ratio3,
                                   np.array(PAPER_SCHEME2)[:n_curves], np.array(PAPER_SCHEME3)[:n_curves]))
-    ctx.result.details = {"seeds": list(range(ctx.seed, ctx.seed + seeds)),
+    ctx.result.details = {"seeds": inner,
                           "curves": [str(c) for c in CURVES[:n_curves]],
                           "preliminary_sim_time_s": pre_time, "scheme_sim_time_s": add_time,
                           "scheme1_sim_time_s": scheme1_time, "eval_periods": eval_periods,

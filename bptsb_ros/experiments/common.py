@@ -64,3 +64,17 @@ def config_source(text: str) -> Path:
         raise ConfigError(f"config file not found: {echo(text)} (the packaged config of that name is "
                           f"{path.stem}: give the name alone, without a folder or .yaml)")
     return path
+
+
+#: how far apart the seeds of two runs' trainings lie: a run of seed s that trains several systems (agents, seeds
+#: of a table) gives them seeds SEED_STRIDE · s, SEED_STRIDE · s + 1, …, so runs of different seeds never share a
+#: training (``--seeds 0-9`` are ten independent draws) and seed 0's are 0, 1, … as before
+SEED_STRIDE = 1000
+
+
+def derived_seeds(seed: int, n: int) -> list[int]:
+    """The seeds of the ``n`` trainings of a run of seed ``seed`` (:data:`SEED_STRIDE`); ValueError for more than
+    :data:`SEED_STRIDE` trainings, which would overlap the next seed's."""
+    if not 0 <= n <= SEED_STRIDE:
+        raise ValueError(f"a run trains at most {SEED_STRIDE} systems of its own seeds, asked for {n}")
+    return [SEED_STRIDE * seed + i for i in range(n)]

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, draws, fmt
 from bptsb_ros.experiments.common import packaged_config
 from bptsb_ros.experiments.lissajous_agents import single_threaded
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 
@@ -33,6 +34,7 @@ class ClosedLoopNumbers:
     target_mean_square: float
 
 
+@judge("lissajous-closed-loop")
 def claims(n: ClosedLoopNumbers) -> list[Claim]:
     """The paper (main text, "Autonomous behavior through brain function transfer"): "As a result, although the
     error was larger than it was with the SWG, the system autonomously drew a Lissajous curve by properly feeding
@@ -91,7 +93,7 @@ def run(ctx: Context) -> None:
     ctx.row("FL / SWG", "error ratio", "1", ratio, "> 1 (qualitative)")
     ctx.row("FL (closed loop)", "error / target mean square", "1", closed_err / target_ms)
     ctx.row("SWG (open loop)", "error / target mean square", "1", open_err / target_ms)
-    ctx.result.claims.extend(claims(ClosedLoopNumbers(open_err, closed_err, target_ms)))
+    ctx.judge(claims, ClosedLoopNumbers(open_err, closed_err, target_ms))
     for name in ("lissajous.png", "loss.png"):
         ctx.figure(ctx.out_dir / "agent" / name)
     ctx.result.details = {"sim_time_s": sim_time, "fit_time_s": fit_time, "eval_periods": periods,

@@ -33,6 +33,7 @@ import numpy as np
 
 from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, at_most, draws, fmt
 from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded, train_single_curve
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.sim.perturbation import perturbation_batch
@@ -71,6 +72,7 @@ def _falls(sigmas: np.ndarray, rate: np.ndarray) -> tuple[bool, float]:
     return bool(rate[-1] < rate[0] and r < FALL_R), r
 
 
+@judge("lissajous-perturbation")
 def claims(n: PerturbationNumbers) -> list[Claim]:
     """The paper (main text): "As the standard deviation of the perturbation increased, the return rates tended to
     decrease (Fig. 4(c)). However, the return rates of the sinusoidal drive and closed-loop control were almost the
@@ -255,9 +257,8 @@ def _kick_variant(ctx: Context, trained: TrainedAgent, name: str, help_text: str
         ctx.row(f"{tag}{'SWG' if name == 'open' else 'FL'} batched sweep", "rollouts per second", "1/s", rows / wall)
     ctx.row(f"{tag}SWG (open loop)", "unperturbed error / target mean square", "1", e_open_orig / target_ms)
     ctx.row(f"{tag}FL (closed loop)", "unperturbed error / target mean square", "1", e_closed_orig / target_ms)
-    for c in claims(PerturbationNumbers(SIGMAS, rate_open, rate_closed, e_open_orig / target_ms,
-                                        e_closed_orig / target_ms, float(rate_literal[0]))):
-        ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+    ctx.judge(claims, PerturbationNumbers(SIGMAS, rate_open, rate_closed, e_open_orig / target_ms,
+                                          e_closed_orig / target_ms, float(rate_literal[0])), label=label)
     ctx.phase("plotting the return rates")
     from bptsb_ros.analysis.autonomy_plots import plot_perturbation
 
@@ -312,9 +313,8 @@ def _restart_variant(ctx: Context, trained: TrainedAgent, name: str, help_text: 
     for loop, loop_name in (("open", "SWG (open loop)"), ("closed", "FL (closed loop)")):
         ctx.row(f"{tag}{loop_name}", "unperturbed error E_orig", "m²", orig[loop])
         ctx.row(f"{tag}{loop_name}", "unperturbed error / target mean square", "1", orig[loop] / target_ms)
-    for c in claims(PerturbationNumbers(SIGMAS, rate_open, rate_closed, orig["open"] / target_ms,
-                                        orig["closed"] / target_ms)):
-        ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+    ctx.judge(claims, PerturbationNumbers(SIGMAS, rate_open, rate_closed, orig["open"] / target_ms,
+                                          orig["closed"] / target_ms), label=label)
     ctx.result.details.setdefault("variants", {})[name] = {
         "help": help_text, "trial": "restart", "window_steps": window, "eval_windows": values["eval_windows"],
         "run_periods": values["run_periods"], "errors_open": e_open, "errors_closed": e_closed,

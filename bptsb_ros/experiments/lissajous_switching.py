@@ -42,6 +42,7 @@ from bptsb_ros.experiments.lissajous_agents import (
     single_threaded,
     train_single_curve,
 )
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.sim.population import run_population
@@ -89,6 +90,7 @@ class SwitchingNumbers:
     curve_on: str = "(2,1,π/2)"
 
 
+@judge("lissajous-switching")
 def switching_claims(n: SwitchingNumbers, tag: str = "") -> list[Claim]:
     """The paper (supplement, "Behavioral switching"): "We prepared a system that was trained to draw a single curve
     in advance and optimized it for switching behaviors through additional training. [...] As a result, the
@@ -150,6 +152,7 @@ class BifurcationNumbers:
     trained_nmse: dict[float, float] = field(default_factory=dict)
 
 
+@judge("lissajous-bifurcation")
 def bifurcation_claims(n: BifurcationNumbers, tag: str = "") -> list[Claim]:
     """The paper (supplement, "Behavioral switching", Fig. (d)): "In the system that learned to switch Lissajous
     curves according to F_wind, the respective maxima [...] are plotted when F_wind varies between [−1.0, 2.0]" and
@@ -210,6 +213,7 @@ class TimingNumbers:
     curve_on: str = "(1,3,0)"
 
 
+@judge("lissajous-timing")
 def timing_claims(n: TimingNumbers, tag: str = "") -> list[Claim]:
     """The paper (supplement, "Switching timing"): "The trajectory of the system trained with random switch timings
     could converge to the trained trajectory no matter when the wind switched. On the other hand, the trajectory of
@@ -382,6 +386,7 @@ def _variant_suffix(ctx: Context, name: str) -> str:
 # -- lissajous-switching ---------------------------------------------------------------------------------------
 @experiment(
     "lissajous-switching",
+    parallel=True,
     paper_ref="supplement 'Behavioral switching', Fig. (a), (b)",
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
             "F_wind = 1 (the authors' protocol: (2,1,π/4)), each settings variant a job; both curves drawn, CMP x/y "
@@ -424,8 +429,8 @@ def run_switching(ctx: Context) -> None:
                     second.beta if wind_seg else CURVE_1.beta)
     for name, v in variants.items():
         tag = "" if name == main_name else f" [{v['label']}]"
-        ctx.result.claims.extend(switching_claims(SwitchingNumbers(pre_err[name], tests[name]["segments"], transient,
-                                                                   str(variant_curve(v))), tag))
+        ctx.judge(switching_claims, SwitchingNumbers(pre_err[name], tests[name]["segments"], transient,
+                                                     str(variant_curve(v))), tag)
     ctx.phase("plotting the switching curves")
     from bptsb_ros.analysis.autonomy_plots import plot_switching_curves, plot_switching_dynamics
 
@@ -490,6 +495,7 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
 # -- lissajous-bifurcation -------------------------------------------------------------------------------------
 @experiment(
     "lissajous-bifurcation",
+    parallel=True,
     paper_ref="supplement 'Behavioral switching', Fig. (d)",
     summary="each settings variant's switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): "
             "maxima of the CMP's x and y after a transient, period of each orbit",
@@ -542,7 +548,7 @@ def run_bifurcation(ctx: Context) -> None:
             ctx.row(f"{label}: F_wind = {f:g} (trained)", f"phase-locked MSE to {curve} / target mean square", "1",
                     trained_nmse[f])
         tag = "" if name == main_name else f" [{label}]"
-        ctx.result.claims.extend(bifurcation_claims(BifurcationNumbers(winds, per, trained_nmse), tag))
+        ctx.judge(bifurcation_claims, BifurcationNumbers(winds, per, trained_nmse), tag)
         from bptsb_ros.analysis.autonomy_plots import plot_bifurcation
 
         show = [-1.0, -0.5, 0.0, 0.4, 1.0, 1.5, 2.0]
@@ -618,6 +624,7 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
 
 @experiment(
     "lissajous-timing",
+    parallel=True,
     paper_ref="supplement 'Switching timing' and its figure",
     summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing in each "
             "settings variant (paper wind, published wind, the authors' protocol: six jobs); the wind switched on "
@@ -656,8 +663,8 @@ def run_timing(ctx: Context) -> None:
         tag = "" if name == main_name else f" [{variants[name]['label']}]"
         ctx.row(f"{fixed} timing", "longest band of failing n", "count", longest_run(~out[fixed]["converged"])[0],
                 "48 (22…69)")
-        ctx.result.claims.extend(timing_claims(TimingNumbers(out[fixed]["to_target"], out[random_]["to_target"],
-                                                             last, str(variant_curve(variants[name]))), tag))
+        ctx.judge(timing_claims, TimingNumbers(out[fixed]["to_target"], out[random_]["to_target"],
+                                               last, str(variant_curve(variants[name]))), tag)
     ctx.phase("plotting the convergence")
     from bptsb_ros.analysis.autonomy_plots import plot_timing
 

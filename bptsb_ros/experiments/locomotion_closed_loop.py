@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bptsb_ros.experiments.common import derived_seeds
 from bptsb_ros.experiments.locomotion_common import (
     PAPER_AGENTS,
     PAPER_SUCCESSES,
@@ -24,6 +25,7 @@ from bptsb_ros.experiments.locomotion_common import (
     AgentSettings,
     train_agents,
 )
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 
@@ -37,6 +39,7 @@ class ClosedLoopCounts:
     success: np.ndarray
 
 
+@judge("locomotion-closed-loop-20")
 def claims(n: ClosedLoopCounts) -> list[Claim]:
     """The paper (main text): "Here, success in autonomous locomotion was declared when the ratios of the
     locomotion speed in closed-loop control and in open-loop control were 0.7 or more. When we created closed-loop
@@ -87,13 +90,14 @@ def agent_settings(ctx: Context) -> AgentSettings:
 
 @experiment(
     "locomotion-closed-loop-20",
+    parallel=True,
     paper_ref="main text 'Autonomous behavior through brain function transfer' (8 of 20 agents); Fig. 4(a)",
     summary="train 20 caterpillar agents forward (sweep jobs), fit each FL (σ 0.2), close the loops; count "
             "closed/open speed ≥ 0.7; variants: SWG→FL transition period, velocity FL",
 )
 def run(ctx: Context) -> None:
     settings, n_agents = settings_for(ctx)
-    seeds = list(range(ctx.seed, ctx.seed + n_agents))
+    seeds = derived_seeds(ctx.seed, n_agents)
     sweep = train_agents(ctx, settings, seeds)
     results = sweep.results()
     failed = {r["name"]: r.get("error") for r in sweep.failed}
@@ -117,9 +121,8 @@ def run(ctx: Context) -> None:
     ctx.row("variant: FL on mass velocities", "agents with closed/open ≥ 0.7", "agents", vel)
     ctx.row("SWG (open loop)", "agents moving forward (open-loop speed > 0)", "agents",
             sum(r["open_speed"] > 0 for r in rows), PAPER_AGENTS)
-    verdicts = claims(ClosedLoopCounts(np.array([r["open_speed"] for r in rows], dtype=float),
+    verdicts = ctx.judge(claims, ClosedLoopCounts(np.array([r["open_speed"] for r in rows], dtype=float),
                                        np.array([bool(r["success"]) for r in rows], dtype=bool)))
-    ctx.result.claims.extend(verdicts)
     ctx.phase(f"plotting the gaits and ratios of {len(seeds)} agents")
     from bptsb_ros.analysis.locomotion_plots import plot_closed_open_ratios, plot_gaits
     ctx.figure(plot_gaits(ctx.out_dir / "gaits.png", {s: _load_gait(sweep.out_dir, s) for s in seeds},

@@ -119,14 +119,11 @@ def adopt_sibling_agents(jobs: list[Job], where: Path, out_dir: Path, log) -> li
     siblings that are ``bptsb reproduce`` runs of this user are read (a shared parent such as ``/tmp`` may hold
     anyone's directories), and only regular files are copied (symbolic links are left behind)."""
     from bptsb_ros.experiments.registry import RUN_MARKER
+    from bptsb_ros.experiments.seeds import sibling_run_dirs
     from bptsb_ros.sweep import finished_record, job_key
 
-    here = Path(out_dir).resolve()
-    try:
-        siblings = [p / AGENTS_DIR for p in sorted(here.parent.iterdir())
-                    if p.resolve() != here and _own_run(p, RUN_MARKER) and (p / AGENTS_DIR / "jobs").is_dir()]
-    except OSError:
-        return []
+    siblings = [p / AGENTS_DIR for p in sibling_run_dirs(Path(out_dir))
+                if _own_run(p, RUN_MARKER) and (p / AGENTS_DIR / "jobs").is_dir()]
     copied = []
     for job in jobs:
         key = job_key(job)

@@ -19,9 +19,10 @@ import numpy as np
 import torch
 
 from bptsb_ros.experiments.claim_rules import at_most
-from bptsb_ros.experiments.common import packaged_config
+from bptsb_ros.experiments.common import derived_seeds, packaged_config
 from bptsb_ros.experiments.locomotion_closed_loop import agent_settings
 from bptsb_ros.experiments.locomotion_common import batched_centre_x, late_speed, task_state, train_agents
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.tasks.locomotion import wind_blowing
@@ -73,6 +74,7 @@ class HeadwindNumbers:
     """the trained headwind F [N] (< 0): the sweep's regions are read relative to it (the paper: −1)"""
 
 
+@judge("locomotion-headwind")
 def claims(n: HeadwindNumbers) -> list[Claim]:
     """The paper (supplement, "Behavioral switching", locomotion):
 
@@ -154,11 +156,12 @@ def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
 
     settings = agent_settings(ctx)
-    sweep = train_agents(ctx, settings, [ctx.seed])
+    agent_seed = derived_seeds(ctx.seed, 1)[0]
+    sweep = train_agents(ctx, settings, [agent_seed])
     if sweep.failed:
         raise RuntimeError(f"the forward agent failed: {sweep.failed[0].get('error')}")
-    forward_dir = sweep.out_dir / "jobs" / f"seed-{ctx.seed}"
-    v_max = float(sweep.results()[f"seed-{ctx.seed}"]["open_speed"])
+    forward_dir = sweep.out_dir / "jobs" / f"seed-{agent_seed}"
+    v_max = float(sweep.results()[f"seed-{agent_seed}"]["open_speed"])
     if not v_max > 0:
         raise RuntimeError(f"the forward agent does not move forward (speed {v_max:.3g} m/s); no target v_max/2")
     target = v_max / 2
@@ -233,8 +236,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
         ctx.row(f"{tag}after switching training", f"speed at F_wind = {fv:g}", "m/s",
                 float(v[np.isclose(winds, fv)][0]))
     blocks = phase_blocks(traces["switching"]["t"], period)
-    for c in claims(HeadwindNumbers(target, sw, blocks, winds, v, force)):
-        ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+    ctx.judge(claims, HeadwindNumbers(target, sw, blocks, winds, v, force), label=label)
     ctx.phase("plotting the speeds")
     from bptsb_ros.analysis.locomotion_plots import plot_headwind_speed, plot_speed_vs_wind
     ctx.figure(plot_headwind_speed(ctx.out_dir / f"headwind_speed{suffix}.png", traces, target, force, period))

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from bptsb_ros.experiments.claim_rules import at_most
+from bptsb_ros.experiments.common import derived_seeds
 from bptsb_ros.experiments.locomotion_closed_loop import settings_for
 from bptsb_ros.experiments.locomotion_common import (
     SUCCESS_RATIO,
@@ -31,6 +32,7 @@ from bptsb_ros.experiments.locomotion_common import (
     task_state,
     train_agents,
 )
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 
@@ -58,6 +60,7 @@ class PerturbationRates:
     closed_succeeded: bool
 
 
+@judge("locomotion-perturbation")
 def claims(n: PerturbationRates) -> list[Claim]:
     """The paper (main text): "As the standard deviation of the perturbation increased, the return rates tended to
     decrease (Fig. 4(c)). However, the return rates of the sinusoidal drive and closed-loop control were almost the
@@ -127,6 +130,7 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
 
 @experiment(
     "locomotion-perturbation",
+    parallel=True,
     paper_ref="Fig. 4(b), (c); Methods 'Locomotion task' (perturbation)",
     summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
             "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded; variants paper (positions "
@@ -136,7 +140,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
 
     settings, n_agents = settings_for(ctx)
-    seeds = list(range(ctx.seed, ctx.seed + n_agents))
+    seeds = derived_seeds(ctx.seed, n_agents)
     n_noise, max_agents = ctx.settings["n_noise"], ctx.settings["max_agents"]
     before_s, after_s = ctx.settings["before_time"], ctx.settings["after_time"]
     sweep = train_agents(ctx, settings, seeds)
@@ -165,9 +169,8 @@ def run(ctx: Context) -> None:
             for sg in (0.0, 0.3, 0.5, 1.0):
                 i = int(np.argmin(np.abs(sigmas - sg)))
                 ctx.row(f"{tag}{loop_name}", f"return rate at σ = {sg:.1f}{unit}", "1", float(mean[loop][i]))
-        for c in claims(PerturbationRates(sigmas, mean["open"], mean["closed"], all(v > 0 for v in v_before_open),
-                                          not fallback)):
-            ctx.result.claims.append(Claim(label + c.claim, c.holds, c.evidence))
+        ctx.judge(claims, PerturbationRates(sigmas, mean["open"], mean["closed"], all(v > 0 for v in v_before_open),
+                                            not fallback), label=label)
         per_variant[name] = {"help": DRAW_TEXT[draw], "draw": draw, "rates": rates, "mean": mean,
                              "v_before_open": v_before_open, "example": example}
     first = per_variant[next(iter(per_variant))]

@@ -18,11 +18,13 @@ it compares learned, NMSE < 1).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import at_most
+from bptsb_ros.experiments.common import derived_seeds
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import RANK_TOL, all_of, fmt, not_learned, rank_reached
@@ -63,8 +65,13 @@ class MemoryNumbers:
     per_mass_f1: Mapping[int, float]
     cmp_neighbours: Sequence[int]
     totals: Mapping[str, float]
+    #: the epoch counts (0 = untrained) at which the first seed's Δt = focus outputs were measured, and body → the
+    #: output's F₁(u(t−focus)) capacity at each (empty: not measured)
+    stages: Sequence[int] = ()
+    output_f1_by_stage: Mapping[str, Sequence[float]] = field(default_factory=dict)
 
 
+@judge("memory-task")
 def claims(n: MemoryNumbers) -> list[Claim]:
     """The supplement ("Memory task"), on its figure:
 
@@ -84,6 +91,11 @@ def claims(n: MemoryNumbers) -> list[Claim]:
        masses joined to the CMP exceeds that of the other movable masses (the CMP excluded).
     6. Caption: "The total capacity reached the rank of one in all cases": every IPC bar within :data:`RANK_TOL`
        of 1 (inclusive). No premise.
+    7. Caption of (c), "the IPC values of the system output, which are arranged from left to right according to
+       training epochs", with 4's "even after sufficient training epochs": at every measured epoch the double
+       circle's output F₁(u(t−focus)) differs from the target's by more than :data:`EQUAL_TOL`, while the
+       multiple circle's is larger at the last epoch than untrained and there more than half the target's.
+       Premise: 4's.
 
     Premise of 1-5: the systems each reads learned (NMSE < 1): 1 and 2 every (body, Δt) (mean over seeds), 3 both
     bodies at Δt = focus (mean over seeds), 4 and 5 the first-seed systems whose IPC they read.
@@ -160,6 +172,24 @@ def claims(n: MemoryNumbers) -> list[Claim]:
     holds, evidence = rank_reached(n.totals)
     out.append(Claim(f"the total capacity reaches the rank of one in all cases (every IPC bar at Δt = {n.focus}; "
                      f"|total − 1| ≤ {RANK_TOL:g})", holds, evidence))
+
+    text = (f"by training epoch (Δt = {n.focus}): the double circle's output {focus} stays off the target's at every "
+            f"epoch (by > {EQUAL_TOL:g}), while the multiple circle's grows from the untrained one to more than half "
+            "the target's")
+    by_stage = {b: [float(v) for v in n.output_f1_by_stage.get(b, ())] for b in BODY_NAMES}
+    premise = not_learned({f"{system(b, n.focus)} (first seed)": first[b] for b in BODY_NAMES})
+    if len(n.stages) < 2 or any(len(by_stage[b]) != len(n.stages) for b in BODY_NAMES):
+        out.append(Claim.not_testable(text, "the run did not measure the output's IPC at two or more training epochs"))
+    elif premise:
+        out.append(Claim.not_testable(text, premise))
+    else:
+        dc, mc = by_stage["double-circle"], by_stage["multiple-circle"]
+        holds = (all(abs(v - n.target_f1) > EQUAL_TOL for v in dc) and mc[-1] > mc[0]
+                 and mc[-1] > 0.5 * n.target_f1)
+        shown = "; ".join(f"{b}: " + ", ".join(f"{fmt(v)} (epoch {e})" for e, v in zip(n.stages, by_stage[b],
+                                                                                     strict=True))
+                          for b in BODY_NAMES)
+        out.append(Claim(text, bool(holds), f"output {focus}: {shown}; target {fmt(n.target_f1)}"))
     return out
 
 
@@ -186,6 +216,7 @@ def id_list(ids: Sequence[int]) -> str:
 
 @experiment(
     "memory-task",
+    parallel=True,
     paper_ref="Supplement 'Memory task' (Fig. 'The memory task')",
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
 )
@@ -205,24 +236,33 @@ def run(ctx: Context) -> None:
     from bptsb_ros.sweep import Job
 
     epochs, delays, eval_inputs = ctx.settings["epochs"], ctx.settings["delays"], ctx.settings["eval_inputs"]
-    seeds = [ctx.seed + i for i in range(ctx.settings["n_seeds"])]
+    seeds = derived_seeds(ctx.seed, ctx.settings["n_seeds"])
     surrogates = 1000  # per degree tuple, the reference's (ipc-module's) default: cheap at every scale
     max_delay, washout = ctx.settings["max_delay"], ctx.settings["washout"]
     config, extra = ctx.settings["config"], ctx.settings["config_overrides"]
-    jobs = []
+    # the stages below the training's length, then the trained system itself
+    stages = tuple(sorted({0, *(e for e in ctx.settings["ipc_stages"] if e < epochs), epochs}))
+    focus = FOCUS_DELAY if FOCUS_DELAY in delays else delays[len(delays) // 2]
+    jobs, staged = [], []
     for body in BODIES:
         for dt in delays:
             for seed in seeds:
                 over = narma_overrides(ctx.scale, epochs, body, "lil", ("narma.target=memory", f"narma.delay={dt}",
                                                                        *extra))
-                jobs.append(Job(f"{body}_dt{dt}_s{seed}", NarmaJob(config, tuple(over), seed, (epochs,), eval_inputs,
-                                                                   washout=washout)))
+                # the first seed's Δt = focus system is measured at every stage of ipc_stages (a training of its
+                # own; a population member equals its solo training)
+                job = Job(f"{body}_dt{dt}_s{seed}", NarmaJob(config, tuple(over), seed,
+                                                             stages if (dt, seed) == (focus, seeds[0]) else (epochs,),
+                                                             eval_inputs, washout=washout))
+                (staged if (dt, seed) == (focus, seeds[0]) else jobs).append(job)
     populations: dict[str, str] = {}
     if ctx.settings["population"]:  # each body's trainings as populations, as many at once as the run has slots
         jobs, populations = population_jobs(jobs, -(-ctx.slots(len(jobs)) // len(BODIES)))
-        ctx.log(f"memory-task: {len(populations)} trainings ({config}, {epochs} epochs) as {len(jobs)} populations")
+        ctx.log(f"memory-task: {len(populations) + len(staged)} trainings ({config}, {epochs} epochs) as "
+                f"{len(jobs)} populations and {len(staged)} trainings measured at epochs {list(stages)}")
     else:
-        ctx.log(f"memory-task: {len(jobs)} trainings ({config}, {epochs} epochs) as parallel jobs")
+        ctx.log(f"memory-task: {len(jobs) + len(staged)} trainings ({config}, {epochs} epochs) as parallel jobs")
+    jobs = staged + jobs  # the staged trainings first: they take longest alone
     results = run_jobs(ctx, jobs, ctx.out_dir / "sweep", gangs=ctx.settings["gangs"] and not populations)
     err = {b: np.array([[results[f"{b}_dt{dt}_s{s}"]["nmse"] for s in seeds] for dt in delays]) for b in BODIES}
     for b in BODIES:
@@ -232,12 +272,16 @@ def run(ctx: Context) -> None:
     rho = {b: spearman(np.array(delays), err[b].mean(axis=1)) for b in BODIES}
     avg = {b: float(err[b].mean()) for b in BODIES}
 
-    # IPC at Δt = 8 (first seed): the output and every movable coordinate, both bodies, one call
-    focus = FOCUS_DELAY if FOCUS_DELAY in delays else delays[len(delays) // 2]
+    # IPC at Δt = 8 (first seed): the output at every stage and every movable coordinate, both bodies, one call
     groups, labels, states, cmp_neighbours, movable = [], [], {}, {}, {}
     u = None
     for b in BODIES:
-        st = load_states(job_dir(ctx.out_dir / "sweep", f"{b}_dt{focus}_s{seeds[0]}", populations), epochs)
+        where = job_dir(ctx.out_dir / "sweep", f"{b}_dt{focus}_s{seeds[0]}", populations)
+        for e in stages[:-1]:
+            early = load_states(where, e)
+            groups.append(early["positions"][:, list(early["movable"]).index(int(early["cmp_index"])), 1])
+            labels.append(f"{b}: output, epoch {e}")
+        st = load_states(where, epochs)
         states[b] = st
         u = st["u"]
         movable[b] = [int(i) for i in st["movable"]]
@@ -262,14 +306,21 @@ def run(ctx: Context) -> None:
         per_mass[b] = {k: float(max(res.capacity[res.group(f"{b}: ID {k} {a}"), f] for a in "xy"))
                        for k in range(len(movable[b])) if k != cmp_id}
     out_f = {b: float(res.capacity[res.group(f"{b}: output (CMP y)"), f]) for b in BODIES}
+    by_stage = {b: [float(res.capacity[res.group(f"{b}: output, epoch {e}"), f]) for e in stages[:-1]] + [out_f[b]]
+                for b in BODIES}
+    for b in BODIES:
+        for e, v in zip(stages, by_stage[b], strict=True):
+            ctx.row(f"LIL + {b} (N_mov {N_MOV}), Δt = {focus}, epoch {e}", f"output F₁(u(t−{focus})) capacity", "1",
+                    v)
     for b in BODIES:
         ctx.row(f"LIL + {b} (N_mov {N_MOV}), Δt = {focus}", f"output F₁(u(t−{focus})) capacity", "1", out_f[b],
                 "target: 1")
-    ctx.result.claims.extend(claims(MemoryNumbers(
+    ctx.judge(claims, MemoryNumbers(
         delays=tuple(delays), nmse={b: err[b].tolist() for b in BODIES}, focus=focus, output_f1=out_f,
         target_f1=float(res.capacity[res.group("target"), f]), per_mass_f1=per_mass["multiple-circle"],
         cmp_neighbours=cmp_neighbours["multiple-circle"],
-        totals={lab: float(res.total[res.group(lab)]) for lab in res.labels})))
+        totals={lab: float(res.total[res.group(lab)]) for lab in res.labels}, stages=stages,
+        output_f1_by_stage=by_stage))
 
     ctx.phase("plotting the errors and IPC")
     # figures (a) error vs Δt, (b) Δt = focus series, (c) IPC

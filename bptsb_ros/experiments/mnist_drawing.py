@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import fmt
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.mnist_claims import Check, Skill, all_of, not_learned
 from bptsb_ros.experiments.mnist_common import body_label, body_nodes, load_data, run_jobs, train_drawing_job
 from bptsb_ros.experiments.registry import Context, experiment
@@ -71,6 +72,7 @@ class DrawingNumbers:
     skill: dict[tuple[str, int], Skill]
 
 
+@judge("mnist-drawing")
 def claims(n: DrawingNumbers) -> list[Claim]:
     """The paper (main text, "Division of functional roles", on Fig. 2(b)): "As for the brain, the error was smaller
     in the MLP than in the LIL, reflecting the contribution of the nonlinearity of the brain to its performance.
@@ -103,6 +105,7 @@ def system_meta(ctx: Context, data_key: str, epochs: int) -> dict:
 
 @experiment(
     "mnist-drawing",
+    parallel=True,
     paper_ref="Fig. 2(a)/(b); Methods 'MNIST classification and drawing task'",
     summary="{LIL, MLP} × multiple-circle N_mov 17/65: image → initial positions → released body draws the digit",
 )
@@ -134,7 +137,7 @@ def run(ctx: Context) -> None:
         per_digit[label[spec.name]] = [float(err[data.test_y == d].mean()) if (data.test_y == d).any() else None
                                        for d in range(10)]
     by = {(b, n): mean[spec.name] for b, n, spec in chosen}
-    ctx.result.claims.extend(claims(DrawingNumbers(by, {(b, n): skill[spec.name] for b, n, spec in chosen})))
+    ctx.judge(claims, DrawingNumbers(by, {(b, n): skill[spec.name] for b, n, spec in chosen}))
 
     ctx.phase("plotting the drawings, errors and training curves")
     targets = load_targets()

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import EPS, at_most, fmt
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.mnist_analysis import labelmap_analysis
 from bptsb_ros.experiments.mnist_common import body_nodes, load_data, obtain_drawing_system
 from bptsb_ros.experiments.mnist_drawing import BATCH, SHAPE, scale_settings, system_label, system_meta
@@ -114,6 +115,7 @@ def others_mostly_claim(n: LabelMapNumbers, label: str) -> Claim:
     return Claim(text, not at_most(float(size[p]), MOSTLY), f"smallest among the masses not joined: {_mass(n, p)}")
 
 
+@judge("mnist-labelmap")
 def claims(n: LabelMapNumbers, label: str = system_label("mlp", N_MOV)) -> list[Claim]:
     """The paper (main text, "Division of functional roles", Fig. 2(d)/(e)): "The map structures of the mass points
     directly connected to the CMP were intricate, ... Conversely, other maps were mostly occupied by the original
@@ -147,12 +149,12 @@ def run(ctx: Context) -> None:
     grid = ctx.settings["grid"]
     data = load_data(ctx, s["n_train"], s["n_test"])
     spec = SystemSpec(brain="mlp", shape=SHAPE, nodes=body_nodes(SHAPE, N_MOV))
-    reuse = ctx.out_dir.parent / "mnist-drawing" / "systems" / f"{spec.name}.pt"
+    reuse = ctx.sibling_run("mnist-drawing") / "systems" / f"{spec.name}.pt"
     system, ev, source = obtain_drawing_system(ctx, spec, data, epochs=s["epochs"], batch=BATCH,
                                                meta=system_meta(ctx, data.key, s["epochs"]), reuse=reuse)
     label = system_label("mlp", N_MOV)
     ctx.row(label, "test drawing MSE (mean)", "m²", float(ev["errors"].mean()))
     maps = labelmap_analysis(ctx, system, ev, data.test_y, grid, label)
-    ctx.result.claims.extend(claims(LabelMapNumbers.from_details(maps), label))
+    ctx.judge(claims, LabelMapNumbers.from_details(maps), label)
     ctx.result.details = {"system": source, "spec": spec.to_json(), "epochs": s["epochs"], "label_maps": maps,
                           "data": data.description}

@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 from bptsb_ros.experiments.claim_rules import fmt
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.mnist_analysis import pca_analysis
 from bptsb_ros.experiments.mnist_claims import (
     Check,
@@ -57,6 +58,7 @@ class PcaNumbers:
     label: str = system_label("mlp", N_MOV)
 
 
+@judge("mnist-pca")
 def claims(n: PcaNumbers) -> list[Claim]:
     """The paper (main text, "Division of functional roles", Fig. 2(c)): "We verified this by compressing these
     outputs into two dimensions using principal component analysis (PCA). Although each output classified the
@@ -110,7 +112,7 @@ def run(ctx: Context) -> None:
     s = scale_settings(ctx)
     data = load_data(ctx, s["n_train"], s["n_test"])
     spec = SystemSpec(brain="mlp", shape=SHAPE, nodes=body_nodes(SHAPE, N_MOV))
-    reuse = ctx.out_dir.parent / "mnist-drawing" / "systems" / f"{spec.name}.pt"
+    reuse = ctx.sibling_run("mnist-drawing") / "systems" / f"{spec.name}.pt"
     system, ev, source = obtain_drawing_system(ctx, spec, data, epochs=s["epochs"], batch=BATCH,
                                                meta=system_meta(ctx, data.key, s["epochs"]), reuse=reuse)
     label = system_label("mlp", N_MOV)
@@ -119,7 +121,7 @@ def run(ctx: Context) -> None:
     ctx.row(label, "test drawings nearest to their own target", "%", 100 * acc)
     scores = pca_analysis(ctx, ev, data.test_y, f"{label}: outputs on {len(data.test_y)} test images, 2-D PCA",
                           label)
-    ctx.result.claims.extend(claims(PcaNumbers(Skill.of(acc, data.test_y), Separation.from_scores(scores["brain"]),
-                                               Separation.from_scores(scores["body"]), label)))
+    ctx.judge(claims, PcaNumbers(Skill.of(acc, data.test_y), Separation.from_scores(scores["brain"]),
+                                               Separation.from_scores(scores["body"]), label))
     ctx.result.details = {"system": source, "spec": spec.to_json(), "epochs": s["epochs"], "scores": scores,
                           "data": data.description}

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import at_most, fmt
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.mnist_claims import Check, Skill, all_of, not_learned
 from bptsb_ros.experiments.mnist_common import body_label, body_nodes, job_log, load_data, run_jobs
 from bptsb_ros.experiments.registry import Context, experiment
@@ -50,6 +51,7 @@ def _name(key: tuple[str | None, int]) -> str:
     return "only brain" if key[0] is None else body_label(*key)
 
 
+@judge("mnist-readout")
 def claims(n: ReadoutNumbers) -> list[Claim]:
     """The supplement ("MNIST classification by reading states out", on its table): "The system without bodies was
     attributed 91.18% accuracy. On the other hand, the systems that included bodies achieved higher than 95%
@@ -123,6 +125,7 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
 
 @experiment(
     "mnist-readout",
+    parallel=True,
     paper_ref="supplement 'MNIST classification by reading states out' (Table)",
     summary="LIL → body → states every 0.1 s for 1 s → linear readout; only brain vs double/multiple-circle N_mov "
             "17/65",
@@ -142,8 +145,8 @@ def run(ctx: Context) -> None:
     for (shape, n, _, name, paper), res in zip(chosen, results):
         acc[(shape, n)] = 100 * res["accuracy"]
         ctx.row(name, "test accuracy", "%", acc[(shape, n)], paper)
-    ctx.result.claims.extend(claims(ReadoutNumbers({(shape, n): Skill.of(res["accuracy"], data.test_y)
-                                                    for (shape, n, *_), res in zip(chosen, results)})))
+    ctx.judge(claims, ReadoutNumbers({(shape, n): Skill.of(res["accuracy"], data.test_y)
+                                                    for (shape, n, *_), res in zip(chosen, results)}))
     names = [name for *_, name, _ in chosen]
     ctx.phase("plotting the accuracy and training curves")
     ctx.figure(plot_curves(ctx.out_dir / "accuracy.png",

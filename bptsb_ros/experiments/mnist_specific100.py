@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 from bptsb_ros.experiments.claim_rules import fmt
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.mnist_analysis import labelmap_analysis, pca_analysis
 from bptsb_ros.experiments.mnist_claims import (
     Check,
@@ -67,6 +68,7 @@ def _name(key: tuple[str, str, int]) -> str:
     return f"{b.upper()} {_short(shape)} N_mov {m}"
 
 
+@judge("mnist-specific100")
 def claims(n: Specific100Numbers) -> list[Claim]:
     """The supplement ("MNIST classification with specific inputs", Fig. S): "With the specific 100 images used for
     training and testing, all systems achieved high accuracy in drawing the label numbers (Fig. S(a)). The MLP
@@ -137,6 +139,7 @@ def systems() -> list[tuple[str, str, int, object]]:
 
 @experiment(
     "mnist-specific100",
+    parallel=True,
     paper_ref="supplement 'MNIST classification with specific inputs' (Fig. S: errors, label-map sizes, PCA)",
     summary="100 fixed images (10 per digit) train = test: {LIL, MLP} × four bodies; errors, PCA, label maps",
 )
@@ -175,9 +178,9 @@ def run(ctx: Context) -> None:
     pca = pca_analysis(ctx, res, y, f"{label[analysed.name]} trained on 100 specific images: 2-D PCA", analysed_label)
     system, _ = load_system(res["checkpoint"])
     maps = labelmap_analysis(ctx, system, res, y, grid, analysed_label)
-    ctx.result.claims.extend(claims(Specific100Numbers(mean, skill, Separation.from_scores(pca["brain"]),
+    ctx.judge(claims, Specific100Numbers(mean, skill, Separation.from_scores(pca["brain"]),
                                                        Separation.from_scores(pca["body"]),
-                                                       LabelMapNumbers.from_details(maps))))
+                                                       LabelMapNumbers.from_details(maps)))
 
     ctx.phase("plotting the drawings and errors")
     targets = load_targets()

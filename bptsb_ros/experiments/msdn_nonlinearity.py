@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import fmt
@@ -62,6 +63,7 @@ def _responds(c: BodyCapacity) -> bool:
     return bool(math.isfinite(c.total) and c.total > 0)
 
 
+@judge("msdn-nonlinearity")
 def claims(n: NonlinearityNumbers) -> list[Claim]:
     """The supplement ("Nonlinearity in linear mass-spring-damper networks"):
 
@@ -178,7 +180,7 @@ def run(ctx: Context) -> None:
     numbers = NonlinearityNumbers(*({float(sc): BodyCapacity(v["degree_1"], v["degree_2plus"])
                                      for sc, v in summary[name].items()}
                                     for name in ("double-circle (N_mov 17)", "1-D chain (8 movable)")))
-    ctx.result.claims.extend(claims(numbers))
+    ctx.judge(claims, numbers)
     ctx.result.details = {"blocks": blocks, "tau": TAU, "washout": washout, "max_delay": max_delay, "max_degree": 3,
                           "surrogates": surrogates, "threshold": res.settings["threshold"],
                           "definition": res.settings["definition"], "input_scales": list(SCALES),

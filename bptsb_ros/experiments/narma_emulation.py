@@ -24,6 +24,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from bptsb_ros.experiments.claim_rules import fmt_pair
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, ExperimentError, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import all_of, not_learned
@@ -60,6 +61,7 @@ def _pair(n: EmulationNumbers, better: tuple[str, str], worse: tuple[str, str]) 
     return bool(n.nmse[better] < n.nmse[worse]), text
 
 
+@judge("narma-emulation")
 def claims(n: EmulationNumbers) -> list[Claim]:
     """The paper (main text, "Distribution of computational properties"):
 
@@ -89,6 +91,7 @@ def claims(n: EmulationNumbers) -> list[Claim]:
 
 @experiment(
     "narma-emulation",
+    parallel=True,
     paper_ref="Fig. 3(a, b); Methods 'Time-series emulation task'",
     summary="train {LIL, MLP} x {double-circle, multiple-circle} (N_mov 17) on the expanded NARMA2; NMSE table",
 )
@@ -96,53 +99,79 @@ def run(ctx: Context) -> None:
     import numpy as np
 
     from bptsb_ros.analysis.timeseries_plots import plot_narma_emulation
-    from bptsb_ros.experiments.timeseries import NarmaJob, guard_record, load_states, narma_overrides, run_jobs
+    from bptsb_ros.experiments.timeseries import (
+        NarmaJob,
+        ablation_variants,
+        guard_record,
+        load_states,
+        narma_overrides,
+        run_jobs,
+    )
     from bptsb_ros.sweep import Job
     from bptsb_ros.tasks.narma import nmse
 
     epochs, eval_inputs, washout = ctx.settings["epochs"], ctx.settings["eval_inputs"], ctx.settings["washout"]
     config, extra = ctx.settings["config"], ctx.settings["config_overrides"]
-    jobs = [Job(f"{brain}_{body}", NarmaJob(config, tuple(narma_overrides(ctx.scale, epochs, body, brain, extra)),
-                                            ctx.seed, (epochs,), eval_inputs, washout=washout))
-            for body, brain in SYSTEMS]
-    ctx.log(f"narma-emulation: {len(jobs)} trainings ({config}, {epochs} epochs) as parallel jobs")
+    variants = ablation_variants(ctx)
+    main = next(iter(variants))
+    jobs, systems_of = [], {}
+    for name, v in variants.items():
+        systems_of[name] = [(body, brain) for body, brain in SYSTEMS if brain in v["brains"]]
+        for body, brain in systems_of[name]:
+            overrides = (*narma_overrides(ctx.scale, epochs, body, brain, extra), *v["variant_overrides"])
+            jobs.append(Job(job_name(name, main, body, brain),
+                            NarmaJob(config, tuple(overrides), ctx.seed, (epochs,), eval_inputs, washout=washout)))
+    ctx.log(f"narma-emulation: {len(jobs)} trainings ({config}, {epochs} epochs; variants "
+            f"{', '.join(variants)}) as parallel jobs")
     results = run_jobs(ctx, jobs, ctx.out_dir / "sweep", diverged_ok=True)
-    errors: dict[tuple[str, str], float] = {}
+    errors: dict[str, dict[tuple[str, str], float]] = {}
+    diverged: dict[str, dict[tuple[str, str], str]] = {}
     series = {}
-    diverged = {(body, brain): results[f"{brain}_{body}"]["diverged"] for body, brain in SYSTEMS
-                if "diverged" in results[f"{brain}_{body}"]}
-    for body, brain in SYSTEMS:
-        if (body, brain) in diverged:  # the simulation blew up in training: no emulation at all (error ∞)
-            errors[(body, brain)] = math.inf
-            ctx.row(f"{system_name(body, brain)} (training diverged)", "NMSE (held-out, after washout)", "1",
-                    float("nan"), "figure table (not in our text)")
-            continue
-        st = load_states(ctx.out_dir / "sweep" / "jobs" / f"{brain}_{body}", epochs)
-        movable = list(st["movable"])
-        out = st["positions"][:, movable.index(int(st["cmp_index"])), 1]
-        errors[(body, brain)] = nmse(out[washout:], st["target"][washout:])
-        series[(body, brain)] = (st["u"], st["target"], out)
-        ctx.row(system_name(body, brain), "NMSE (held-out, after washout)", "1", errors[(body, brain)],
-                "figure table (not in our text)")
-        if abs(errors[(body, brain)] - results[f"{brain}_{body}"]["nmse"]) >= 1e-9:  # two paths, one number
-            job_nmse = results[f"{brain}_{body}"]["nmse"]
-            raise ExperimentError(f"{system_name(body, brain)}: NMSE from the stored states "
-                                  f"{errors[(body, brain)]:.12g} differs from the job's {job_nmse:.12g}")
-    verdicts = claims(EmulationNumbers(errors, diverged))
-    ctx.result.claims.extend(verdicts)
+    for name, v in variants.items():
+        tag = "" if name == main else f"[{name}] "
+        errors[name], diverged[name] = {}, {}
+        for body, brain in systems_of[name]:
+            job = job_name(name, main, body, brain)
+            if "diverged" in results[job]:  # the simulation blew up in training: no emulation at all (error ∞)
+                errors[name][(body, brain)] = math.inf
+                diverged[name][(body, brain)] = results[job]["diverged"]
+                ctx.row(f"{tag}{system_name(body, brain)} (training diverged)", "NMSE (held-out, after washout)",
+                        "1", float("nan"), "figure table (not in our text)")
+                continue
+            st = load_states(ctx.out_dir / "sweep" / "jobs" / job, epochs)
+            movable = list(st["movable"])
+            out = st["positions"][:, movable.index(int(st["cmp_index"])), 1]
+            errors[name][(body, brain)] = nmse(out[washout:], st["target"][washout:])
+            if name == main:
+                series[(body, brain)] = (st["u"], st["target"], out)
+            ctx.row(f"{tag}{system_name(body, brain)}", "NMSE (held-out, after washout)", "1",
+                    errors[name][(body, brain)], "figure table (not in our text)")
+            if abs(errors[name][(body, brain)] - results[job]["nmse"]) >= 1e-9:  # two paths, one number
+                raise ExperimentError(f"{system_name(body, brain)}: NMSE from the stored states "
+                                      f"{errors[name][(body, brain)]:.12g} differs from the job's "
+                                      f"{results[job]['nmse']:.12g}")
+        # a variant that retrains only some brains compares them with the first variant's other systems
+        both = {**errors[main], **errors[name]}
+        gone = {**diverged[main], **diverged[name]}
+        label = "" if name == main else f"[{name}: {v['help']}] "
+        verdicts = ctx.judge(claims, EmulationNumbers(both, gone), label=label)
+        if name == main:
+            main_verdicts = verdicts
 
-    # Fig. 3(b): input, target and the four outputs on the held-out sequence, and the error table
-    u, target, _ = next(iter(series.values()))
-    # systems whose training diverged have no output to draw
+    # Fig. 3(b): input, target and the four outputs on the held-out sequence, and the error table (first variant)
     ctx.phase("plotting the emulation")
-    ctx.figure(plot_narma_emulation(ctx.out_dir / "narma_emulation.png", np.arange(washout, min(washout + 100, len(u))),
-                                    u, target, {system_name(*k): out for k, (_, _, out) in series.items()},
-                                    {system_name(*k): errors[k] for k in series},
-                                    f"expanded NARMA emulation ({config}, {epochs} epochs)"))
-    guards = {system_name(body, brain): guard_record(ctx.out_dir / "sweep" / "jobs" / f"{brain}_{body}")
-              for body, brain in SYSTEMS}
+    if series:
+        u, target, _ = next(iter(series.values()))
+        ctx.figure(plot_narma_emulation(ctx.out_dir / "narma_emulation.png",
+                                        np.arange(washout, min(washout + 100, len(u))), u, target,
+                                        {system_name(*k): out for k, (_, _, out) in series.items()},
+                                        {system_name(*k): errors[main][k] for k in series},
+                                        f"expanded NARMA emulation ({config}, {epochs} epochs)"))
+    guards = {f"{'' if name == main else f'[{name}] '}{system_name(body, brain)}":
+              guard_record(ctx.out_dir / "sweep" / "jobs" / job_name(name, main, body, brain))
+              for name in variants for body, brain in systems_of[name]}
     notes = []
-    if any(c.holds is False for c in verdicts):
+    if any(c.holds is False for c in main_verdicts):
         notes.append(f"one seed per system ({config}, {epochs} epochs): the ordering of close errors can flip "
                      "between seeds")
     for name, g in guards.items():
@@ -150,7 +179,18 @@ def run(ctx: Context) -> None:
             notes.append(f"{name}: the update guard rejected {g['rejections']} updates and divided every learning "
                          f"rate {g['divisions']} times, the 10th time at update {g['tenth_division_update']}: "
                          "from there on its parameters barely changed")
-    ctx.result.details = {"notes": notes, "config": config, "epochs": epochs, "eval_inputs": eval_inputs,
-                          "washout": washout, "jobs": results, "guard": guards,
-                          "nmse": {system_name(b, br): (None if math.isinf(v) else v) for (b, br), v in errors.items()},
-                          "diverged": {system_name(*k): v for k, v in diverged.items()}}
+    ctx.result.details = {
+        "notes": notes, "config": config, "epochs": epochs, "eval_inputs": eval_inputs, "washout": washout,
+        "variants": {name: {**v, "systems": [system_name(*k) for k in systems_of[name]]} for name, v in
+                     variants.items()},
+        "jobs": results, "guard": guards,
+        "nmse": {system_name(b, br): (None if math.isinf(v) else v) for (b, br), v in errors[main].items()},
+        "diverged": {system_name(*k): v for k, v in diverged[main].items()},
+        "variant_nmse": {name: {system_name(b, br): (None if math.isinf(x) else x) for (b, br), x in e.items()}
+                         for name, e in errors.items() if name != main}}
+
+
+def job_name(variant: str, main: str, body: str, brain: str) -> str:
+    """The sweep job of one system in one variant (the first variant's keep their plain names)."""
+    return f"{brain}_{body}" if variant == main else f"{variant}-{brain}_{body}"
+

@@ -34,6 +34,7 @@ from bptsb_ros.experiments.result import (
     SCALES,
     Claim,
     ExperimentResult,
+    ResultError,
     Row,
     write_result,
 )
@@ -169,6 +170,30 @@ class Context:
     def row(self, system: str, metric: str, unit: str, ours: float | None, paper: float | str | None = None) -> None:
         self.result.rows.append(Row(system, metric, unit, ours, paper))
 
+    def judge(self, fn: Callable[..., list[Claim]], *args: Any, label: str = "", **kwargs: Any) -> list[Claim]:
+        """The claims of the registered claim function ``fn(*args, **kwargs)`` (:func:`~bptsb_ros.experiments.
+        measured.judge`), each prefixed with ``label``, appended to the result; the call and its arguments are
+        recorded in ``result.measured`` so the claims can be judged again from the stored numbers
+        (:func:`~bptsb_ros.experiments.measured.rejudge`). Returns the claims as recorded."""
+        from bptsb_ros.experiments.measured import record
+
+        entry = record(fn, args, kwargs, label)
+        claims = [Claim(label + c.claim, c.holds, c.evidence) for c in fn(*args, **kwargs)]
+        self.result.measured.append(entry)
+        self.result.claims.extend(claims)
+        return claims
+
+    def sibling_run(self, experiment: str) -> Path:
+        """Where a run of ``experiment`` beside this one lies, for the same seed: ``OUT/../EXPERIMENT`` for a
+        single run, ``OUT/../../EXPERIMENT/seed-N`` when this run is seed N of a multi-seed run
+        (``bptsb reproduce --seeds``). The path may not exist; what lies there is checked by whoever reads it."""
+        from bptsb_ros.experiments.seeds import in_multi_seed_run
+
+        here = self.out_dir
+        if in_multi_seed_run(here):
+            return here.parent.parent / experiment / here.name
+        return here.parent / experiment
+
     def claim(self, claim: str, holds: bool | None, evidence: str) -> bool | None:
         """Record a paper claim with the computed verdict (None: not testable, ``evidence`` names the failed
         premise); returns the verdict as recorded (True, False or None)."""
@@ -192,12 +217,15 @@ class Experiment:
     paper_ref: str
     summary: str
     run: Callable[[Context], None]
+    #: the run spreads several independent trainings over ``--workers`` (so ``--seeds`` runs its seeds one after
+    #: another, each with every worker, rather than side by side)
+    parallel: bool = False
 
 
 _REGISTRY: dict[str, Experiment] = {}
 
 
-def experiment(name: str, *, paper_ref: str, summary: str):
+def experiment(name: str, *, paper_ref: str, summary: str, parallel: bool = False):
     """Decorator registering ``run(ctx)`` as the paper experiment ``name`` (a slug: its result.json must
     pass :func:`~bptsb_ros.experiments.result.validate_result`, so a bad name fails here, not after the run).
     How long it takes at each scale is data: :mod:`~bptsb_ros.experiments.durations`."""
@@ -207,7 +235,7 @@ def experiment(name: str, *, paper_ref: str, summary: str):
     def register(fn: Callable[[Context], None]) -> Callable[[Context], None]:
         if name in _REGISTRY and _REGISTRY[name].run is not fn:
             raise ValueError(f"experiment {name!r} registered twice")
-        _REGISTRY[name] = Experiment(name, paper_ref, summary, fn)
+        _REGISTRY[name] = Experiment(name, paper_ref, summary, fn, parallel)
         return fn
 
     return register
@@ -350,11 +378,7 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
     result.provenance = {
         "command": command + (f" --scheduler {scheduler}" if scheduler else f" --workers {workers}"
                               if workers is not None else ""),
-        "python": platform.python_version(),
-        "package_version": _package_version(),
-        "versions": _library_versions(),
-        "machine": f"{platform.machine()}, {_cpu_count()} cores",
-        "git_commit": _git_commit(),
+        **base_provenance(),
         # what the independent jobs really used, one entry per batch (Context.run_jobs / Context.sweep):
         # scheduler (its address, "local pool" or "this process"), workers, jobs, ran_in (distinct processes)
         "jobs": [],
@@ -377,8 +401,44 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
             _write_attempts(out, attempts)
     result.wall_s = round(sum(a["wall_s"] for a in attempts), 2)
     result.provenance["attempts"] = attempts
+    result.judged = judged_by(complete=_rejudges_to_itself(result, ctx.log))
     path = write_result(out, result)
     return path, result
+
+
+def base_provenance() -> dict[str, Any]:
+    """What every result records of where it was made: Python, package and library versions, machine, commit."""
+    return {"python": platform.python_version(), "package_version": _package_version(),
+            "versions": _library_versions(), "machine": f"{platform.machine()}, {_cpu_count()} cores",
+            "git_commit": _git_commit()}
+
+
+def judged_by(*, complete: bool, rejudged: bool = False) -> dict[str, Any]:
+    """Which code judged a result's claims: the package version, its git commit, a digest of the experiments'
+    code (:func:`~bptsb_ros.experiments.measured.claim_code_digest`), whether every claim can be judged again
+    from the stored numbers (``complete``) and whether this is such a judgement (``rejudged``)."""
+    from bptsb_ros.experiments.measured import claim_code_digest
+
+    return {"package_version": _package_version(), "git_commit": _git_commit(), "code_digest": claim_code_digest(),
+            "complete": bool(complete), "rejudged": bool(rejudged),
+            "at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+
+def _rejudges_to_itself(result: ExperimentResult, log: Callable[[str], None]) -> bool:
+    """True when judging ``result.measured`` again gives exactly ``result.claims`` (every claim went through
+    :meth:`Context.judge`); else a warning line, and a later ``--rejudge`` cannot recompute this run's claims."""
+    from bptsb_ros.experiments.measured import rejudge
+
+    try:
+        again = rejudge(result.measured)
+    except (ResultError, ValueError, TypeError) as err:
+        log(f"{result.experiment}: warning: the stored numbers do not judge again ({err})")
+        return False
+    if again != result.claims:
+        log(f"{result.experiment}: warning: {len(result.claims)} claims, but the stored numbers judge "
+            f"{len(again)} (or others); `--rejudge` cannot recompute this run's claims")
+        return False
+    return True
 
 
 def _start_attempt(out: Path, *, resume: bool) -> list[dict[str, Any]]:

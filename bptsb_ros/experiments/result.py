@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bptsb_ros.experiments.claim_rules import verdict_over_seeds
 
 SCALES = ("smoke", "short", "paper")
 RESULT_FILE = "result.json"
@@ -103,6 +104,11 @@ class ExperimentResult:
     provenance: dict[str, Any] = field(default_factory=dict)
     #: the experiment's resolved settings (``ctx.settings``), as JSON values
     settings: dict[str, Any] = field(default_factory=dict)
+    #: every claim function call with its encoded arguments (:mod:`~bptsb_ros.experiments.measured`), so the
+    #: claims can be judged again from the stored numbers
+    measured: list[dict[str, Any]] = field(default_factory=list)
+    #: which code judged the claims (:func:`judged_by`)
+    judged: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
@@ -143,9 +149,13 @@ _CLAIM = {"claim": str, "evidence": str}
 
 
 def validate_result(data: Any, source: str = "result") -> None:
-    """Raise :class:`ResultError` unless ``data`` follows the result.json schema."""
+    """Raise :class:`ResultError` unless ``data`` follows the result.json schema: one seed's run, or (with
+    ``seeds``) the aggregate of several (:func:`validate_aggregate`)."""
     if not isinstance(data, dict):
         raise ResultError(f"{source}: must be a JSON object, got {type(data).__name__}")
+    if "seeds" in data:
+        validate_aggregate(data, source)
+        return
     for key, kind in _TOP.items():
         if key not in data:
             raise ResultError(f"{source}: missing key {key!r}")
@@ -157,9 +167,12 @@ def validate_result(data: Any, source: str = "result") -> None:
                           f"digits, '-' and '_'), got {name!r:.80}")
     if not _finite(data["wall_s"]) or data["wall_s"] < 0:
         raise ResultError(f"{source}: wall_s must be a finite number of seconds ≥ 0, got {data['wall_s']!r}")
-    for key in ("details", "provenance"):
+    for key in ("details", "provenance", "judged"):
         if key in data and not isinstance(data[key], dict):
             raise ResultError(f"{source}: {key} must be an object, got {type(data[key]).__name__}")
+    if "measured" in data and not (isinstance(data["measured"], list)
+                                   and all(isinstance(m, dict) for m in data["measured"])):
+        raise ResultError(f"{source}: measured must be a list of objects (judge calls)")
     if "settings" in data:
         _check_settings(data["settings"], source)
     if data["scale"] not in SCALES:
@@ -185,6 +198,94 @@ def validate_result(data: Any, source: str = "result") -> None:
     for i, fig in enumerate(data["figures"]):
         if not isinstance(fig, str) or Path(fig).is_absolute() or ".." in Path(fig).parts:
             raise ResultError(f"{source}: figures[{i}] must be a path inside the run directory, got {fig!r}")
+
+
+#: an aggregate claim's verdict over seeds (the rule: :func:`bptsb_ros.experiments.claim_rules.verdict_over_seeds`)
+AGGREGATE_VERDICTS = ("holds", "fails", "split", "not_testable")
+_AGG_TOP = {"experiment": str, "paper_ref": str, "scale": str, "seeds": list, "wall_s": (int, float), "rows": list,
+            "claims": list, "figures": list}
+MAX_SEEDS = 1000
+
+
+def verdict_mark(verdict: str) -> str:
+    """How a verdict over seeds is shown: ``✓`` holds, ``✗`` fails, ``split``, ``∅`` not testable."""
+    return {"holds": "✓", "fails": "✗", "split": "split", "not_testable": "∅"}[verdict]
+
+
+def validate_aggregate(data: dict[str, Any], source: str = "result") -> None:
+    """Raise :class:`ResultError` unless ``data`` is a valid aggregate over seeds (``bptsb reproduce --seeds``)::
+
+        {"experiment", "paper_ref", "scale", "seeds": [int], "wall_s", "figures", "details"?, "provenance"?,
+         "settings"?, "seed_runs": {seed: folder},
+         "rows": [{"system", "metric", "unit", "ours" (mean | null), "ours_sd", "ours_min", "ours_max", "n",
+                   "per_seed": [number | null, one per seed], "paper", "paper_in_range": bool | null}],
+         "claims": [{"claim", "evidence", "verdict": "holds" | "fails" | "split" | "not_testable",
+                     "holds_in": [k, n], "not_testable_in": int, "per_seed": [true | false | null, one per seed],
+                     "interval": [lo, hi] | null}]}
+    """
+    for key, kind in _AGG_TOP.items():
+        if key not in data:
+            raise ResultError(f"{source}: missing key {key!r}")
+        if not isinstance(data[key], kind):
+            raise ResultError(f"{source}: {key} has the wrong type ({type(data[key]).__name__})")
+    name = data["experiment"]
+    if len(name) > MAX_SLUG_LEN or not EXPERIMENT_SLUG.fullmatch(name):
+        raise ResultError(f"{source}: experiment must be a name like 'lissajous-closed-loop', got {name!r:.80}")
+    if data["scale"] not in SCALES:
+        raise ResultError(f"{source}: scale must be one of {', '.join(SCALES)}, got {data['scale']!r:.40}")
+    seeds = data["seeds"]
+    if not seeds or len(seeds) > MAX_SEEDS or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0
+                                                       for s in seeds) or len(set(seeds)) != len(seeds):
+        raise ResultError(f"{source}: seeds must be 1 to {MAX_SEEDS} distinct whole numbers >= 0")
+    if not _finite(data["wall_s"]) or data["wall_s"] < 0:
+        raise ResultError(f"{source}: wall_s must be a finite number of seconds ≥ 0, got {data['wall_s']!r:.40}")
+    for key in ("details", "provenance", "seed_runs", "judged"):
+        if key in data and not isinstance(data[key], dict):
+            raise ResultError(f"{source}: {key} must be an object, got {type(data[key]).__name__}")
+    if "settings" in data:
+        _check_settings(data["settings"], source)
+    n_seeds = len(seeds)
+    for i, row in enumerate(data["rows"]):
+        where = f"{source}: rows[{i}]"
+        _check_fields(row, _ROW, where)
+        per = row.get("per_seed")
+        if not isinstance(per, list) or len(per) != n_seeds or not all(v is None or _finite(v) for v in per):
+            raise ResultError(f"{where}.per_seed must hold a finite number or null for each of the {n_seeds} seeds")
+        values = [v for v in per if v is not None]
+        if row.get("n") != len(values) or isinstance(row.get("n"), bool):
+            raise ResultError(f"{where}.n must count the seeds with a value ({len(values)})")
+        for key in ("ours", "ours_sd", "ours_min", "ours_max"):
+            if key not in row or not (row[key] is None if not values else _finite(row[key])):
+                raise ResultError(f"{where}.{key} must be a finite number (null when no seed has a value)")
+        if values and not (row["ours_min"] <= row["ours"] <= row["ours_max"] or math.isclose(
+                row["ours_min"], row["ours_max"])):
+            raise ResultError(f"{where}: ours must lie between ours_min and ours_max")
+        if "paper" not in row or not (row["paper"] is None or isinstance(row["paper"], str) or _finite(row["paper"])):
+            raise ResultError(f"{where}.paper must be a finite number, a text or null")
+        if row.get("paper_in_range", None) is not None and not isinstance(row["paper_in_range"], bool):
+            raise ResultError(f"{where}.paper_in_range must be true, false or null")
+    for i, claim in enumerate(data["claims"]):
+        where = f"{source}: claims[{i}]"
+        _check_fields(claim, _CLAIM, where)
+        if claim.get("verdict") not in AGGREGATE_VERDICTS:
+            raise ResultError(f"{where}.verdict must be one of {', '.join(AGGREGATE_VERDICTS)}, got "
+                              f"{claim.get('verdict')!r:.40}")
+        per = claim.get("per_seed")
+        if not isinstance(per, list) or len(per) != n_seeds or not all(v is None or isinstance(v, bool) for v in per):
+            raise ResultError(f"{where}.per_seed must hold true, false or null for each of the {n_seeds} seeds")
+        k, n = sum(v is True for v in per), sum(v is not None for v in per)
+        if claim.get("holds_in") != [k, n] or claim.get("not_testable_in") != n_seeds - n:
+            raise ResultError(f"{where}: holds_in must be [{k}, {n}] and not_testable_in {n_seeds - n} (from "
+                              "per_seed)")
+        evidence = claim.get("per_seed_evidence", [""] * n_seeds)
+        if not isinstance(evidence, list) or len(evidence) != n_seeds or not all(isinstance(e, str) for e in evidence):
+            raise ResultError(f"{where}.per_seed_evidence must hold a text for each of the {n_seeds} seeds")
+        if claim["verdict"] != verdict_over_seeds(k, n, n_seeds):
+            raise ResultError(f"{where}: verdict {claim['verdict']!r} is not what the rule gives for {k} of {n} "
+                              f"testable in {n_seeds} seeds")
+    for i, fig in enumerate(data["figures"]):
+        if not isinstance(fig, str) or Path(fig).is_absolute() or ".." in Path(fig).parts:
+            raise ResultError(f"{source}: figures[{i}] must be a path inside the run directory, got {fig!r:.80}")
 
 
 def _setting_scalar(value: Any) -> bool:
@@ -222,10 +323,16 @@ def _check_fields(item: Any, fields: dict[str, type], where: str) -> None:
 
 def write_result(out_dir: Path, result: ExperimentResult) -> Path:
     """Write ``out_dir/result.json`` atomically (a crash never leaves half a file)."""
+    return write_json_result(out_dir, result.to_json())
+
+
+def write_json_result(out_dir: Path, data: dict[str, Any]) -> Path:
+    """Validate ``data`` (a single-seed or aggregate result) and write it as ``out_dir/result.json`` atomically."""
+    from bptsb_ros.safe_files import write_text_atomic
+
+    validate_result(data, str(out_dir / RESULT_FILE))
     path = out_dir / RESULT_FILE
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result.to_json(), indent=2, allow_nan=False))
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
     return path
 
 

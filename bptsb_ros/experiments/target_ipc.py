@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bptsb_ros.experiments.claim_rules import at_most
+from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.timeseries_claims import Term, fmt, term_name
@@ -73,6 +74,7 @@ def _no_profile(n: TargetIpcNumbers, names: Sequence[str]) -> str | None:
     return "no IPC profile to read (" + "; ".join(bad) + ")" if bad else None
 
 
+@judge("target-ipc")
 def claims(n: TargetIpcNumbers) -> list[Claim]:
     """The supplement ("The target IPC"), on the figure of the four targets' IPC:
 
@@ -203,7 +205,7 @@ def run(ctx: Context) -> None:
     numbers = TargetIpcNumbers({name: TargetProfile(
         terms={terms[f]: float(c) for f, c in enumerate(res.capacity[g]) if c > 0},
         by_degree=bd[g].tolist(), total=float(res.total[g])) for g, name in enumerate(res.labels)})
-    ctx.result.claims.extend(claims(numbers))
+    ctx.judge(claims, numbers)
     notes: list[str] = []
     ctx.result.details = {"notes": notes, "samples": samples, "washout": washout, "max_delay": max_delay,
                           "max_degree": 3, "surrogates": surrogates, "threshold": res.settings["threshold"],

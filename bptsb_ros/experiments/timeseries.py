@@ -234,3 +234,13 @@ def guard_record(run_dir: Path) -> dict[str, Any] | None:
 def load_states(run_dir: Path, epochs: int) -> dict[str, np.ndarray]:
     with np.load(run_dir / f"states_{epochs}.npz", allow_pickle=False) as data:
         return {k: data[k] for k in data.files}
+
+
+def ablation_variants(ctx: Any) -> dict[str, dict]:
+    """The variants this run trains: the first (the package's defaults) always, the ablations after it when the
+    ``ablations`` setting is on. Each: ``help`` (what it changes), ``brains`` (which brains it retrains; the other
+    systems are the first variant's) and ``variant_overrides`` (``--set`` overrides of the training config)."""
+    variants = ctx.settings.variants
+    names = list(variants)
+    chosen = names if ctx.settings["ablations"] else names[:1]
+    return {name: dict(variants[name]) for name in chosen}

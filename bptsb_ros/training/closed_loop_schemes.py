@@ -97,9 +97,12 @@ def _finish(agent: Agent) -> None:
 
 def train_scheme1(agent: Agent, target: Target, updates: int, *, window: int = 100, lr: LearningRates = CLOSED_LOOP_LR,
                   init_std: float = 0.1, seed: int = 0, reject_factor: float = 0.0) -> SchemeTraining:
-    """Scheme 1: closed loop from scratch; the FL starts from W ~ N(0, init_std²) (bias included)."""
+    """Scheme 1: closed loop from scratch; the FL starts from W ~ N(0, init_std²) (bias included) on the springs the
+    SWG drives, and zero on the others. The FL stands in for the SWG, so it drives no spring the SWG does not: its
+    ``driven`` mask becomes its own AND the SWG's (the masked rows get no gradient, so they stay zero)."""
     body, fb = agent.body, agent.feedback
     with torch.no_grad():
+        fb.driven.logical_and_(agent.brain.driven)
         fb.weight.normal_(0.0, init_std, generator=torch.Generator().manual_seed(seed))
         fb.weight.mul_(fb.driven.unsqueeze(-1))
     opt = _optimizer(agent, lr, with_swg=False, with_fl=True)
