@@ -59,8 +59,8 @@ step "README example from $(pwd)"
 "$T/python" readme_example.py | tee readme_example.out
 grep -q "CMP error" readme_example.out
 step "bptsb config show / list, bptsb train NAME"
-"$T/bptsb" config show lissajous_single --set sim_time=5 | grep -q "sim_time: 5"
-"$T/bptsb" config list | grep -qx narma
+"$T/bptsb" config show lissajous_single --set sim_time=5 >config_show.txt && grep -q "sim_time: 5" config_show.txt
+"$T/bptsb" config list >config_list.txt && grep -qx narma config_list.txt
 "$T/bptsb" train lissajous_single --set sim_time=5 --set feedback.fit_time=5 --out train_run --no-progress >/dev/null
 test -f train_run/checkpoint.pt
 step "bptsb reproduce lissajous-closed-loop --scale smoke"

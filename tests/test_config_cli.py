@@ -92,3 +92,17 @@ def test_a_missing_extra_is_one_line_naming_it(capsys, monkeypatch):
     err = capsys.readouterr().err
     assert err.strip() == ('bptsb: torch is not installed, and this command needs it: pip install "bptsb_ros[train]" '
                            "(docs: Getting started, Install)")
+
+
+def test_a_closed_pipe_ends_the_command_quietly(tmp_path):
+    """`bptsb config list | true`: the reader is gone before the command writes; no traceback, the status of a
+    process stopped by SIGPIPE (141)."""
+    import shlex
+    import subprocess
+    import sys
+
+    line = (f"{shlex.quote(sys.executable)} -m bptsb_ros.cli config list 2>err.txt | true; "
+            "echo ${PIPESTATUS[0]} > status.txt")
+    subprocess.run(["bash", "-c", line], cwd=tmp_path, timeout=60, check=True)
+    assert (tmp_path / "err.txt").read_text() == ""
+    assert (tmp_path / "status.txt").read_text().strip() == "141"

@@ -114,6 +114,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("bptsb: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout went away (`bptsb config list | head -1`): stop quietly
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes
+        return 141  # as a process killed by SIGPIPE
     except ModuleNotFoundError as err:  # a library of an extra that this install does not have
         extra = EXTRAS.get((err.name or "").split(".")[0])
         if extra is None:
