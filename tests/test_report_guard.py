@@ -40,8 +40,10 @@ def test_the_page_records_its_results_and_they_read_back():
 
 
 def test_a_page_from_before_the_record_is_read_by_its_headings():
-    text = "# Reproduction\n\n## narma-ipc (paper, seed 0)\n\ntext\n\n## memory-task (short, seed 2)\n"
-    assert page_sources(text) == {"narma-ipc/paper/0", "memory-task/short/2"}
+    text = ("# Reproduction\n\n## narma-ipc (paper, seed 0)\n\ntext\n\n## memory-task (short, seed 2)\n\n"
+            "## target-ipc (paper, 4 seeds: 0-2,7)\n\n## msdn-nonlinearity (paper, 3 seeds: 5-1)\n")
+    assert page_sources(text) == {"narma-ipc/paper/0", "memory-task/short/2", "target-ipc/paper/0",
+                                  "target-ipc/paper/1", "target-ipc/paper/2", "target-ipc/paper/7"}
     committed = page_sources((REPO / "REPRODUCTION.md").read_text(encoding="utf-8"))
     assert len(committed) >= 19 and all(k.split("/")[1] == "paper" for k in committed)
 

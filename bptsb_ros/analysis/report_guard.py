@@ -5,8 +5,8 @@ A page the report writes records the results it was made from, one key per run o
 (:func:`sources_line`). Writing a page over an existing one is allowed only if every result the old page shows
 is among the new page's results (:func:`check_replace`), so a page of paper-scale runs is never replaced by one
 of a single smoke run; ``--force`` replaces it all the same. Pages written before the comment existed are read
-by their section headings (``## name (scale, seed N)``). A page shows one scale unless it is asked to mix them
-(:func:`check_scales`).
+by their section headings (``## name (scale, seed N)``, ``## name (scale, 5 seeds: 0-4)``). A page shows one
+scale unless it is asked to mix them (:func:`check_scales`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,10 @@ from typing import Any
 SOURCES_PREFIX = "<!-- bptsb report results: "
 SOURCES_SUFFIX = " -->"
 _KEY = re.compile(r"[a-z0-9][a-z0-9_-]*/[a-z]+/-?\d+")
-_LEGACY_HEADING = re.compile(r"^## ([a-z0-9][a-z0-9_-]*) \(([a-z]+), seed (-?\d+)\)\s*$", re.MULTILINE)
+_LEGACY_HEADING = re.compile(r"^## ([a-z0-9][a-z0-9_-]*) \(([a-z]+), (?:seed (-?\d+)|\d+ seeds: ([\d,-]+))\)\s*$",
+                             re.MULTILINE)
+#: most seeds one heading's range may name (a range is data read from a page)
+MAX_HEADING_SEEDS = 10_000
 #: how much of an existing page is read for its record [characters]
 MAX_PAGE_CHARS = 4 << 20
 
@@ -49,7 +52,24 @@ def page_sources(text: str) -> set[str]:
         if line.startswith(SOURCES_PREFIX) and line.endswith(SOURCES_SUFFIX):
             keys = line[len(SOURCES_PREFIX):-len(SOURCES_SUFFIX)].split()
             return {k for k in keys if _KEY.fullmatch(k)}
-    return {f"{name}/{scale}/{seed}" for name, scale, seed in _LEGACY_HEADING.findall(text)}
+    keys = set()
+    for name, scale, seed, seeds in _LEGACY_HEADING.findall(text):
+        keys |= {f"{name}/{scale}/{s}" for s in ([seed] if seed else _seed_list(seeds))}
+    return keys
+
+
+def _seed_list(text: str) -> list[str]:
+    """The seeds of a heading's range (``0-4,7``, as ``format_seeds`` writes it); none if it is not one."""
+    out: list[str] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        if not lo.isdigit() or (hi and not hi.isdigit()):
+            return []
+        first, last = int(lo), int(hi or lo)
+        if last < first or len(out) + last - first >= MAX_HEADING_SEEDS:
+            return []
+        out += [str(s) for s in range(first, last + 1)]
+    return out
 
 
 def check_replace(out: Path, results: Iterable[dict[str, Any]], *, force: bool) -> None:
