@@ -22,7 +22,7 @@ VPY := $(VENV)/bin/python
 PIP := $(VPY) -m pip
 STAMP := $(VENV)/.bptsb-install.stamp
 # The package is installed editable: code changes need no reinstall, but changes to what gets installed do.
-INSTALL_INPUTS := Makefile pyproject.toml setup.py setup.cfg package.xml resource/bptsb_ros \
+INSTALL_INPUTS := Makefile pyproject.toml setup.py setup.cfg MANIFEST.in package.xml resource/bptsb_ros \
 	$(wildcard launch/*.launch.py) $(wildcard config/*.yaml) $(wildcard config/*.json)
 
 # DDS discovery stays on this host; the domain can be overridden (tests pick their own private one).
@@ -36,16 +36,17 @@ export PIP_PROGRESS_BAR := off
 # This machine's pip config names local package indexes that lack most projects; pip warns once per project.
 PIP_FILTER := sed -u -e "/Location 'file:.*' is ignored/d"
 
-.PHONY: help venv test lint mutation demo bench docs clean distclean
+.PHONY: help venv test lint mutation demo bench docs check-install clean distclean
 
 help:
 	@echo "make demo       train a small Lissajous agent, simulate it, write plots and an animation"
 	@echo "make test       ruff + pytest on 2 processes (bootstraps .venv on the first run; PYTEST_ARGS='-x -k name' narrows it)"
-	@echo "make venv       create/refresh .venv (torch $(TORCH_VERSION), bptsb_ros[ros,dev])"
+	@echo "make venv       create/refresh .venv (torch $(TORCH_VERSION), bptsb_ros[train,ros,dask,dev])"
 	@echo "make lint       ruff check"
 	@echo "make mutation   apply each listed one-line bug to a temporary copy and check that the tests catch it"
 	@echo "make bench      speed benchmark -> bench.json"
 	@echo "make docs       build the documentation site (mkdocs, warnings are errors) -> site/"
+	@echo "make check-install  build the wheel and sdist, install them into fresh venvs, use them from elsewhere"
 	@echo "make clean      remove build outputs and caches; make distclean also removes .venv and runs/"
 
 venv: $(STAMP)
@@ -53,7 +54,7 @@ venv: $(STAMP)
 $(STAMP): $(INSTALL_INPUTS)
 	@if [ ! -x $(VPY) ]; then echo "creating $(VENV) with $$($(PYTHON) --version)"; $(PYTHON) -m venv $(VENV); fi
 	$(PIP) install "torch==$(TORCH_VERSION)" 2>&1 | $(PIP_FILTER)
-	$(PIP) install -e ".[ros,dev]" 2>&1 | $(PIP_FILTER)
+	$(PIP) install -e ".[train,ros,dask,dev]" 2>&1 | $(PIP_FILTER)
 	$(VPY) -c "import torch, rclpy, bptsb_ros; print('venv ready: torch', torch.__version__)"
 	@touch $@
 
@@ -78,6 +79,11 @@ bench: venv
 # statically: nothing is imported). NO_MKDOCS_2_WARNING silences mkdocs-material's banner about MkDocs 2.0.
 docs: venv
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
+
+# The package as a user installs it: wheel + sdist (twine check), fresh venvs (training route with the CPU torch,
+# light route without torch), the README's example and a smoke reproduction from another folder; prints sizes.
+check-install: venv
+	bash scripts/check_install.sh
 
 clean:
 	rm -rf build install log dist .eggs *.egg-info .pytest_cache .ruff_cache bench.json site

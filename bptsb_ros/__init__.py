@@ -2,8 +2,9 @@
 brains, trained offline in torch and run live as ROS 2 nodes recorded to MCAP bags.
 
 The version follows semantic versioning: the minor number grows with each round of new experiments or
-interfaces, the patch number with fixes only; every release has its section in CHANGELOG.md. The same
-version is stated in ``setup.py`` and ``package.xml`` (a test keeps the three equal).
+interfaces, the patch number with fixes only; every release has its section in CHANGELOG.md. The version is
+stated once, in ``package.xml``: ``setup.py`` reads it from there, and ``__version__`` is the installed
+distribution's (or, imported from a source checkout, that checkout's ``package.xml``).
 
 The Python API (``import bptsb_ros as bp``; :mod:`bptsb_ros.api`): ``bp.load_config``, ``bp.build_agent``,
 ``bp.train``, ``bp.simulate``, ``bp.fit_feedback``, ``bp.ipc``, ``bp.run_experiment`` and the types they
@@ -15,8 +16,6 @@ from __future__ import annotations
 
 import importlib
 from typing import TYPE_CHECKING, Any
-
-__version__ = "0.2.0"
 
 #: public name → the module that defines it (imported on first access)
 _LAZY: dict[str, str] = {
@@ -83,8 +82,28 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from bptsb_ros.training.trainer import TrainingDiverged, TrainResult
 
 
+def _version() -> str:
+    """The package's version: a source checkout's ``package.xml`` where the package is imported from one, else
+    the installed distribution's metadata (written from that same ``package.xml`` by ``setup.py``)."""
+    from bptsb_ros.package_data import checkout_root
+
+    root = checkout_root()
+    if root is not None:
+        import xml.etree.ElementTree as ET
+
+        found = ET.parse(root / "package.xml").getroot().findtext("version")
+        if found:
+            return found.strip()
+    from importlib.metadata import version
+
+    return version(__name__)
+
+
 def __getattr__(name: str) -> Any:
     """Import the module defining a public name on first access (PEP 562) and cache the name here."""
+    if name == "__version__":
+        globals()[name] = value = _version()
+        return value
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

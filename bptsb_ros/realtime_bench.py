@@ -55,8 +55,10 @@ SOURCES = ("rest_length", "force", "wind", "reset")
 
 
 def example_agent() -> Path:
-    """The example agent shipped in the source tree (``bags/lissajous_agent``: closed Lissajous loop, dt 0.01 s)."""
-    return Path(__file__).resolve().parents[1] / "bags" / "lissajous_agent"
+    """The package's example agent (``bags/lissajous_agent``: closed Lissajous loop, dt 0.01 s)."""
+    from bptsb_ros.package_data import example_agent as packaged
+
+    return packaged()
 
 
 def late_commands(summary: dict[str, Any]) -> int:

@@ -9,7 +9,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-77}"
 BPTSB="${BPTSB:-.venv/bin/bptsb}"
 OUT="${DEMO_OUT:-runs/demo}"
-SIM_TIME="${DEMO_SIM_TIME:-1000}"      # seconds of simulated training (the paper's config: 2000)
+SIM_TIME="${DEMO_SIM_TIME:-2000}"      # seconds of simulated training (the paper's and the config's: 2000)
 rm -rf "$OUT"
 mkdir -p "$OUT"
 

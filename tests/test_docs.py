@@ -73,18 +73,55 @@ def test_readme_is_a_front_page():
     assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines; at most {README_MAX_LINES}"
 
 
-def test_readme_links_resolve():
-    text = README.read_text(encoding="utf-8")
-    targets = re.findall(r"\]\(([^)\s]+)\)", text)
-    assert targets, "README.md links nothing"
+#: a Markdown link or image: [text](target) / ![alt](target "title")
+_LINK = re.compile(r"!?\[(?:[^\][]|\[[^\]]*\])*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
+_CODE = re.compile(r"^(```|~~~).*?^\1[^\n]*$|`[^`\n]*`", re.MULTILINE | re.DOTALL)
+
+
+def relative_links(text: str) -> list[str]:
+    """The relative link targets of a Markdown text (no scheme, no bare #anchor), outside code."""
+    text = _CODE.sub("", text)
+    return [t for t in _LINK.findall(text) if not re.match(r"[A-Za-z][A-Za-z0-9+.-]*:", t) and not t.startswith("#")]
+
+
+def test_relative_links_are_found_outside_code():
+    text = "[a](x.md) ![b](img/y.png \"t\") [c](https://e.org) [d](#anchor) `[e](code.md)`\n```\n[f](no.md)\n```\n"
+    assert relative_links(text) == ["x.md", "img/y.png"]
+
+
+def test_every_relative_link_resolves_in_the_repository():
+    """README.md and every page link files by their path in the repository (the site build maps them)."""
+    sources = [README, *sorted((REPO / "docs").rglob("*.md")), REPO / "bptsb_ros" / "ros" / "TOPICS.md",
+               REPO / "REPRODUCTION.md", REPO / "bags" / "README.md"]
     missing = []
-    for target in targets:
-        if re.match(r"[a-z]+:", target) or target.startswith("#"):
-            continue
-        path = target.split("#", 1)[0]
-        if not (REPO / path).exists():
-            missing.append(target)
-    assert missing == [], f"README.md links to missing files: {missing}"
+    for source in sources:
+        for target in relative_links(source.read_text(encoding="utf-8")):
+            if not (source.parent / target.split("#", 1)[0]).exists():
+                missing.append(f"{source.relative_to(REPO)}: {target}")
+    assert missing == [], "links to missing files:\n" + "\n".join(missing)
+
+
+def test_every_public_module_has_an_api_page_and_bptsb_ros_api_comes_first():
+    """Each module of the package (less private ones and ``__main__``) is documented by a page's ``:::``
+    directive, itself or through a documented package (show_submodules); the API section opens with
+    bptsb_ros.api."""
+    import pkgutil
+
+    import bptsb_ros
+
+    config = yaml.safe_load((REPO / "mkdocs.yml").read_text(encoding="utf-8"))
+    api = next(item["API reference"] for item in config["nav"] if isinstance(item, dict) and "API reference" in item)
+    pages = [next(iter(entry.values())) for entry in api]
+    assert pages[0] == "api/api.md"
+    documented = set()
+    for page in pages:
+        documented |= set(re.findall(r"^::: ([\w.]+)$", (REPO / "docs" / page).read_text(), re.MULTILINE))
+    assert "bptsb_ros.api" in documented
+    modules = [m.name for m in pkgutil.walk_packages(bptsb_ros.__path__, "bptsb_ros.")
+               if not any(part.startswith("_") for part in m.name.split("."))]
+    assert len(modules) > 100
+    undocumented = [m for m in modules if not any(m == d or m.startswith(d + ".") for d in documented)]
+    assert undocumented == []
 
 
 def test_pages_speak_of_no_machine_path_or_work_item():
@@ -100,7 +137,8 @@ def test_strict_validation_is_configured():
     assert config["strict"] is True
     assert config["validation"] == {"omitted_files": "warn", "absolute_links": "warn", "unrecognized_links": "warn",
                                     "anchors": "warn"}
-    assert config["plugins"][1]["mkdocstrings"]["handlers"]["python"]["options"]["docstring_style"] == "google"
+    mkdocstrings = next(p["mkdocstrings"] for p in config["plugins"] if isinstance(p, dict) and "mkdocstrings" in p)
+    assert mkdocstrings["handlers"]["python"]["options"]["docstring_style"] == "google"
 
 
 class _Text(HTMLParser):
@@ -140,11 +178,30 @@ def test_site_builds_strictly(tmp_path):
         assert (site / page).is_file(), page
     # the API reference rendered the docstrings (read statically: rclpy is not imported for api/ros)
     api = {name: (site / "api" / name / "index.html").read_text(encoding="utf-8")
-           for name in ("body", "brains", "training", "tasks", "experiments", "analysis", "sim", "bags", "data",
-                        "config", "ros")}
+           for name in ("api", "body", "brains", "training", "tasks", "experiments", "analysis", "sim", "bags",
+                        "data", "config", "ros", "jobs", "files", "bench", "cli")}
     assert "Advance one step of" in api["body"]  # MSDN.step's docstring
     assert "bptsb_ros.ros.body_sim" in api["ros"]
     assert "BagWriter" in api["bags"]
+    assert 'id="bptsb_ros.api.load_config"' in api["api"] and 'id="bptsb_ros.api.train"' in api["api"]
+    # the docstrings' Sphinx roles are links or code, never raw text, and the links are there
+    raw = [(name, m) for name, html in api.items() for m in re.findall(r":(?:func|class|meth|mod|attr|data):<code>",
+                                                                      html)]
+    assert raw == []
+    assert '<a class="autorefs autorefs-internal" href="#bptsb_ros.training.guard.UpdateGuard">' in api["training"]
+    assert api["api"].count('class="autorefs autorefs-internal"') >= 10  # bptsb_ros.api's roles: load_config, ...
+
+    # every relative link and image of every page lands on a file of the site
+    dead = []
+    for page in sorted(site.rglob("*.html")):
+        html = page.read_text(encoding="utf-8")
+        for target in re.findall(r'(?:href|src)="([^"#?]+)[^"]*"', html):
+            if re.match(r"[A-Za-z][A-Za-z0-9+.-]*:|//", target) or target.startswith("/"):
+                continue
+            resolved = (page.parent / target).resolve()
+            if not (resolved.is_file() or (resolved / "index.html").is_file()):
+                dead.append(f"{page.relative_to(site)}: {target}")
+    assert dead == [], "\n".join(dead[:20])
 
     # what the site shows, docstrings included, ties itself to no machine (REPRODUCTION.md records where its
     # runs were made: it is the report's provenance)

@@ -24,7 +24,7 @@ PACKAGE = "bptsb_ros"
 NODES = ("body_sim", "swg_brain", "mlp_brain", "feedback_brain", "task_input", "recorder", "wind_source",
          "image_streamer", "mnist_brain")
 # Top-level entries of the checkout that are not part of the package source.
-NOT_SOURCE = {".git", ".venv", ".ci", "build", "install", "log", "runs", "bags", "tests", "dist",
+NOT_SOURCE = {".git", ".venv", ".ci", "build", "install", "log", "runs", "tests", "dist", "site", "reproduction",
               ".pytest_cache", ".ruff_cache", "bench.json"}
 
 
@@ -129,18 +129,27 @@ def test_pip_install_registers_the_package_under_the_venv_prefix() -> None:
     assert _package_prefix_from_index(prefix) == str(prefix)
 
 
-def test_setup_py_and_package_xml_agree() -> None:
-    """Name and version are stated twice (setup.py for pip, package.xml for ROS tools): they must match."""
+def test_the_version_is_stated_once_in_package_xml() -> None:
+    """package.xml holds the version (ROS tools read it there); setup.py reads it from there and states no other,
+    ``bptsb_ros.__version__`` and the installed metadata are the same."""
+    import re
     import xml.etree.ElementTree as ET
 
     manifest = ET.parse(REPO_ROOT / "package.xml").getroot()
     assert manifest.get("format") == "3"
     assert manifest.findtext("name") == PACKAGE
     assert manifest.findtext("export/build_type") == "ament_python"
+    version = manifest.findtext("version")
+    assert re.fullmatch(r"\d+\.\d+\.\d+", version)
+    for path in ("setup.py", f"{PACKAGE}/__init__.py", "setup.cfg", "pyproject.toml"):
+        text = (REPO_ROOT / path).read_text()
+        assert version not in text, f"{path} states the version {version} itself"
     setup_text = (REPO_ROOT / "setup.py").read_text()
-    assert f'version="{manifest.findtext("version")}"' in setup_text, "setup.py version differs from package.xml"
-    init_text = (REPO_ROOT / PACKAGE / "__init__.py").read_text()
-    assert f'__version__ = "{manifest.findtext("version")}"' in init_text, "__version__ differs from package.xml"
+    assert "version=VERSION" in setup_text and 'findtext("version")' in setup_text
+    import bptsb_ros
+
+    assert bptsb_ros.__version__ == version
+    assert importlib.metadata.version(PACKAGE) == version, "the installed metadata is stale (make venv)"
     for node in NODES:
         assert f'"{node}": "bptsb_ros.ros.{node}"' in setup_text, f"{node} is not an entry point in setup.py"
 
@@ -178,15 +187,33 @@ def _canonical(name: str) -> str:
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
-def _install_requires() -> set[str]:
-    """Distribution names (canonical) of setup.py's install_requires, read from its syntax tree."""
+def _requirement_lists() -> dict[str, list[str]]:
+    """setup.py's requirement lists, read from its syntax tree: ``install_requires`` and each module-level list
+    (TRAIN, ROS, DASK, DOCS, DEV) the extras are made of."""
     import ast
-    import re
 
+    lists: dict[str, list[str]] = {}
     for node in ast.walk(ast.parse((REPO_ROOT / "setup.py").read_text())):
         if isinstance(node, ast.keyword) and node.arg == "install_requires":
-            return {_canonical(re.split(r"[\s<>=!~;\[]", ast.literal_eval(elt))[0]) for elt in node.value.elts}
-    raise AssertionError("setup.py has no install_requires")
+            lists["install_requires"] = [ast.literal_eval(elt) for elt in node.value.elts]
+        elif isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name) \
+                and node.targets[0].id.isupper() and isinstance(node.value, ast.List):
+            lists[node.targets[0].id] = [ast.literal_eval(elt) for elt in node.value.elts]
+    assert "install_requires" in lists, "setup.py has no install_requires"
+    return lists
+
+
+def _names(requirements: list[str]) -> set[str]:
+    import re
+
+    return {_canonical(re.split(r"[\s<>=!~;\[]", r)[0]) for r in requirements}
+
+
+def _install_requires() -> set[str]:
+    """Distribution names (canonical) a runtime import may come from: install_requires and the runtime extras
+    (train, dask; ros packages are checked against package.xml)."""
+    lists = _requirement_lists()
+    return _names(lists["install_requires"] + lists["TRAIN"] + lists["DASK"])
 
 
 def _manifest_dependencies() -> tuple[set[str], str]:
@@ -314,6 +341,23 @@ def test_citation_file_cites_the_paper_and_this_version() -> None:
     assert [a["family-names"] for a in paper["authors"]] == ["Tomioka", "Inoue", "Kuniyoshi", "Nakajima"]
     assert (REPO_ROOT / "LICENSE").read_text().lstrip().startswith("Apache License")
     assert cff["license"] == "Apache-2.0"
+    assert cff["references"][0]["title"] == paper["title"] and cff["references"][0]["type"] == "article"
+
+
+def test_the_version_is_released_in_the_changelog_on_the_citations_date() -> None:
+    """The version has a CHANGELOG section dated as CITATION.cff's date-released (not "unreleased")."""
+    import datetime
+    import re
+    import xml.etree.ElementTree as ET
+
+    import yaml
+
+    version = ET.parse(REPO_ROOT / "package.xml").getroot().findtext("version")
+    released = str(yaml.safe_load((REPO_ROOT / "CITATION.cff").read_text())["date-released"])
+    datetime.date.fromisoformat(released)
+    heading = re.search(rf"^## {re.escape(version)} — (.+)$", (REPO_ROOT / "CHANGELOG.md").read_text(), re.MULTILINE)
+    assert heading, f"CHANGELOG.md has no section for {version}"
+    assert heading.group(1).strip() == released
 
 
 def test_pyproject_names_the_setuptools_backend_and_the_installed_version_matches() -> None:
@@ -328,3 +372,82 @@ def test_pyproject_names_the_setuptools_backend_and_the_installed_version_matche
     except importlib.metadata.PackageNotFoundError:
         pytest.skip(f"{PACKAGE} is not pip-installed (make venv installs it)")
     assert installed == ET.parse(REPO_ROOT / "package.xml").getroot().findtext("version")
+
+
+def test_the_light_install_leaves_torch_numba_and_sklearn_to_extras() -> None:
+    """The base install is the light route (bags, replay, IPC): torch, numba and scikit-learn come with the
+    ``train`` extra, Dask with ``dask``; requirements-ros.txt (docs/ros/index.md) is the base plus ``train``."""
+    lists = _requirement_lists()
+    base = _names(lists["install_requires"])
+    assert not base & {"torch", "numba", "scikit-learn", "distributed"}, base
+    assert {"torch", "numba", "scikit-learn"} <= _names(lists["TRAIN"])
+    lines = [line.split("#")[0].strip() for line in (REPO_ROOT / "requirements-ros.txt").read_text().splitlines()]
+    assert sorted(filter(None, lines)) == sorted(lists["install_requires"] + lists["TRAIN"])
+
+
+def test_the_built_wheel_carries_the_package_data_and_finds_it_anywhere(tmp_path: Path) -> None:
+    """A wheel built from the checkout holds the configs, launch files, layouts, the example agent and bag, the
+    experiment settings and durations; unpacked away from the checkout, bptsb_ros.package_data finds them there."""
+    import zipfile
+
+    out = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
+                          str(tmp_path / "dist"), str(REPO_ROOT)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    (wheel,) = (tmp_path / "dist").glob(f"{PACKAGE}-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    expected = {f"{PACKAGE}/share/config/{p.name}" for p in (REPO_ROOT / "config").iterdir() if p.is_file()}
+    expected |= {f"{PACKAGE}/share/launch/{p.name}" for p in (REPO_ROOT / "launch").glob("*.launch.py")}
+    for kind, folder in (("lissajous_agent", "bags/lissajous_agent"),
+                         ("lissajous_closed_example", "bags/lissajous_closed_example")):
+        expected |= {f"{PACKAGE}/share/examples/{kind}/{p.name}" for p in (REPO_ROOT / folder).iterdir()}
+    expected |= {f"{PACKAGE}/experiments/durations.yaml", f"{PACKAGE}/experiments/settings/narma-ipc.yaml",
+                 f"{PACKAGE}/py.typed"}
+    assert expected <= names, sorted(expected - names)
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    code = ("from bptsb_ros import package_data as d, __version__; from bptsb_ros.experiments.common import "
+            "packaged_configs; print(__version__); print(d.config_dir()); print(d.launch_dir()); "
+            "print(d.example_agent()); print(' '.join(packaged_configs()))")
+    env = dict(os.environ, PYTHONPATH=str(site), AMENT_PREFIX_PATH="")
+    run = subprocess.run([sys.executable, "-c", code], cwd=elsewhere, env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 0, run.stderr
+    version, config, launch, agent, names_line = run.stdout.splitlines()
+    import xml.etree.ElementTree as ET
+
+    assert version == ET.parse(REPO_ROOT / "package.xml").getroot().findtext("version")
+    assert Path(config) == site / PACKAGE / "share" / "config"
+    assert Path(launch) == site / PACKAGE / "share" / "launch"
+    assert (Path(agent) / "checkpoint.pt").is_file()
+    assert "lissajous_single" in names_line.split() and "body_sim_params" not in names_line.split()
+
+
+def test_package_data_lists_what_setup_py_copies_and_finds_the_checkout() -> None:
+    import ast
+
+    from bptsb_ros import package_data
+
+    tree = ast.parse((REPO_ROOT / "setup.py").read_text())
+    copied = next(ast.literal_eval(node.value) for node in ast.walk(tree) if isinstance(node, ast.Assign)
+                  and getattr(node.targets[0], "id", None) == "SHARED_DATA")
+    assert {name: source for name, (source, _) in copied.items()} == package_data.SHARED
+    assert package_data.checkout_root() == REPO_ROOT
+    assert package_data.config_dir() == REPO_ROOT / "config"  # an editable install reads the checkout
+    assert package_data.rviz_config().is_file() and package_data.foxglove_layout().is_file()
+    with pytest.raises(ValueError, match="unknown package data"):
+        package_data.data_dir("../etc")
+
+
+def test_missing_package_data_is_one_line_naming_where_it_looked(monkeypatch: pytest.MonkeyPatch) -> None:
+    from bptsb_ros import package_data
+    from bptsb_ros.config import ConfigError
+    from bptsb_ros.experiments.common import packaged_configs
+
+    monkeypatch.setattr(package_data, "checkout_root", lambda: None)
+    monkeypatch.setattr(package_data, "_ament_share", lambda kind: None)
+    with pytest.raises(package_data.PackageDataError, match="config files are missing"):
+        package_data.config_dir()
+    with pytest.raises(ConfigError, match="reinstall bptsb_ros"):
+        packaged_configs()

@@ -159,7 +159,7 @@ def test_experiment_names_just_outside_the_slug_refused(name):
 
 def test_an_experiment_is_registered_only_under_a_slug():
     with pytest.raises(ValueError, match="not a slug"):
-        experiment("../escaped", paper_ref="-", summary="-", durations={})
+        experiment("../escaped", paper_ref="-", summary="-")
     assert "../escaped" not in _REGISTRY
 
 
@@ -319,7 +319,7 @@ def _premise_failed(ctx: Context) -> None:
 
 
 def test_reproduce_prints_the_not_testable_state(tmp_path, capsys):
-    experiment("toy-premise", paper_ref="Table 0", summary="planted", durations={"smoke": "0 s"})(_premise_failed)
+    experiment("toy-premise", paper_ref="Table 0", summary="planted")(_premise_failed)
     try:
         assert main(["reproduce", "toy-premise", "--out", str(tmp_path / "r"), "--no-progress"]) == 0
         out = capsys.readouterr().out

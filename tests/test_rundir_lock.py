@@ -114,7 +114,7 @@ def _toy(ctx: Context) -> None:
 
 @pytest.fixture
 def toy_experiment():
-    experiment("toy-lock", paper_ref="Table 0", summary="planted", durations={"smoke": "0 s"})(_toy)
+    experiment("toy-lock", paper_ref="Table 0", summary="planted")(_toy)
     yield "toy-lock"
     _REGISTRY.pop("toy-lock", None)
 

@@ -293,7 +293,7 @@ def _toy_run(ctx: Context) -> None:
 
 @pytest.fixture
 def toy_seeds():
-    experiment("toy-seeds", paper_ref="Table 0", summary="planted", durations={"smoke": "0 s"})(_toy_run)
+    experiment("toy-seeds", paper_ref="Table 0", summary="planted")(_toy_run)
     yield "toy-seeds"
     _REGISTRY.pop("toy-seeds", None)
 

@@ -64,9 +64,11 @@ def plot_loss(path: Path, losses: Sequence[float], loss_label: str, title: str =
 
 
 @styled
-def plot_lissajous(path: Path, t: np.ndarray, curves: dict[str, np.ndarray], target: np.ndarray) -> Path:
+def plot_lissajous(path: Path, t: np.ndarray, curves: dict[str, np.ndarray], target: np.ndarray,
+                   closes_at: float | None = None) -> Path:
     """CMP trajectories (label → (T, 2) [m]) over the target curve (T, 2) [m], and x(t), y(t) of the first
-    curve; ``t``: (T,) [s]."""
+    curve; ``t``: (T,) [s]. ``closes_at`` [s from t[0]]: where the loop closes (the feedback layer takes over from
+    the SWG), marked on both panels."""
     fig, axes = plt.subplots(1, 2, figsize=size(DOUBLE, 0.42), gridspec_kw={"width_ratios": [1, 1.5]})
     ax = axes[0]
     ax.plot(target[:, 0], target[:, 1], "--", color=TARGET, lw=1.2, label="target")
@@ -74,14 +76,20 @@ def plot_lissajous(path: Path, t: np.ndarray, curves: dict[str, np.ndarray], tar
     for i, (label, xy) in enumerate(curves.items()):  # later curves wide and pale underneath: coincident ones show
         style = {"lw": 1.0, "alpha": 0.9, "zorder": 3} if i == 0 else {"lw": 3.0, "alpha": 0.35, "zorder": 2}
         ax.plot(xy[:, 0], xy[:, 1], color=palette[i % len(palette)], label=label, **style)
+    first_label, first = next(iter(curves.items()))
+    tt = t - t[0]
+    closing = f"loop closes (t = {closes_at:g} s)" if closes_at is not None else ""
+    if closes_at is not None:
+        k = int(np.argmin(np.abs(tt - closes_at)))
+        ax.plot(first[k, 0], first[k, 1], "o", color=TARGET, ms=5, zorder=4, label=closing)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title("CMP trajectory")
     legend_outside(ax, "below", ncol=1)
     ax = axes[1]
-    first_label, first = next(iter(curves.items()))
-    tt = t - t[0]
+    if closes_at is not None:
+        ax.axvline(closes_at, color=TARGET, lw=1.0, ls="-.", label=closing)
     ax.plot(tt, target[:, 0], "--", color=TARGET, lw=0.8, label="target x")
     ax.plot(tt, target[:, 1], ":", color=TARGET, lw=0.8, label="target y")
     ax.plot(tt, first[:, 0], color=BLUE, lw=1.0, label=f"x, {first_label}")

@@ -240,6 +240,10 @@ def _lissajous_autonomy(agent_dir: str | Path, loop: str, segment: BagRun, off: 
     return out
 
 
+#: loops whose first ``open_loop_steps`` steps the SWG drives before the feedback layer closes the loop
+CLOSED_LOOPS = ("lissajous_closed",)
+
+
 def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | None, gif: bool) -> list[Path]:
     from bptsb_ros.analysis import plots as P
 
@@ -252,7 +256,10 @@ def _write(out_dir: Path, run: BagRun, metrics: dict, plots: dict, task: str | N
         curves = {f"live ({metrics.get('loop') or 'bag'})": plots["cmp"]}
         if off is not None:
             curves["offline simulation"] = off
-        files.append(P.plot_lissajous(out_dir / "lissajous.png", plots["t"], curves, plots["target"]))
+        warm = int(run.custom.get("open_loop_steps", 0) or 0)
+        closes = (warm - int(run.steps[0])) * run.dt if metrics.get("loop") in CLOSED_LOOPS and warm > 0 else None
+        files.append(P.plot_lissajous(out_dir / "lissajous.png", plots["t"], curves, plots["target"],
+                                      closes_at=closes if closes is not None and closes >= 0 else None))
     elif task == "locomotion" and "speed" in plots:
         speeds = {"live": plots["speed"]}
         if "speed" in plots.get("offline", {}):

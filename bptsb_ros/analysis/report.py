@@ -24,6 +24,7 @@ from typing import Any
 
 from bptsb_ros.analysis.markdown import md_link_target, md_pre, md_text
 from bptsb_ros.analysis.owned_folder import OwnedFolder, OwnedFolderError
+from bptsb_ros.analysis.report_guard import sources_line
 from bptsb_ros.experiments.result import RESULT_FILE, ResultError, claim_mark, read_result
 from bptsb_ros.safe_files import write_text_atomic
 
@@ -91,8 +92,12 @@ def _warn(message: str) -> None:
     print(f"bptsb report: warning: {message}", file=sys.stderr)
 
 
-def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], None] = _warn) -> Path:
+def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], None] = _warn,
+                 check: Callable[[list[dict[str, Any]]], None] | None = None) -> Path:
     """Write the Markdown page ``out`` from the results under ``runs_dir``; returns its path.
+
+    ``check(results)`` runs before anything is written and may refuse the page by raising
+    (:mod:`~bptsb_ros.analysis.report_guard`); the page's second line records the results it shows.
 
     Raises ResultError for a result.json that breaks the schema, ReportError (nothing written) where ``out``
     or its figures folder is not the report's to overwrite; ``warn`` gets one line per figure skipped.
@@ -101,12 +106,14 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
     results = find_results(runs_dir)
     if not results:
         raise ResultError(f"no {RESULT_FILE} under {runs_dir} (run `bptsb reproduce NAME` first)")
+    if check is not None:
+        check([r for _, r in results])
     _check_page(out)
     try:
         figures = OwnedFolder.open(out.parent / f"{out.stem}_figures")
     except OwnedFolderError as err:
         raise ReportError(str(err)) from None
-    lines = [PAGE_MARKER, TITLE, "",
+    lines = [PAGE_MARKER, sources_line(r for _, r in results), TITLE, "",
              "Made by `bptsb report` from the `result.json` of each `bptsb reproduce` run. *ours* is measured by "
              "the command shown; *paper* is the paper's value (— where the paper gives no number). A claim's "
              "verdict is computed from our numbers by the experiment's code, never written by hand: ✓ holds, "

@@ -14,7 +14,8 @@ HELP = (
     "                records), reports what was dropped, rewrites the .mcap with indexes and summary (the\n"
     "                damaged file is kept as <file>.damaged, .damaged.1, ...: never overwritten) and rebuilds\n"
     "                a missing, unreadable or inconsistent metadata.yaml\n"
-    "Example: bptsb bag info bags/demo"
+    "Example: bptsb bag info bags/lissajous_closed_example (the example bag of a source checkout; installed, it is "
+    "bptsb_ros.package_data.example_bag())"
 )
 
 

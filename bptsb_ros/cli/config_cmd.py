@@ -4,7 +4,6 @@ key mapping (`mapping`)."""
 from __future__ import annotations
 
 import argparse
-import re
 
 NAME = "config"
 HELP = (
@@ -12,10 +11,10 @@ HELP = (
     "  bptsb config import THEIRS.yaml [--out OURS.yaml] [--task NAME]: translate the authors' flat YAML (simTime, "
     "lr_spring, nodes, ...) into our config; every key mapped, every default filled (from the task's packaged "
     "config) and every key left unmapped is printed and written as a comment header.\n"
-    "  bptsb config show NAME|FILE [--set KEY=VALUE]: print the resolved config (NAME: config/NAME.yaml).\n"
-    "  bptsb config mapping: print the table of the authors' keys and ours."
+    "  bptsb config show NAME|FILE [--set KEY=VALUE]: print the resolved config (NAME: a packaged config).\n"
+    "  bptsb config mapping: print the table of the authors' keys and ours.\n"
+    "  bptsb config list: print the names of the packaged configs."
 )
-_PACKAGED_NAME = re.compile(r"[A-Za-z0-9_]+")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,11 +31,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="replace an existing --out that bptsb config import wrote (never any other file)")
     show = sub.add_parser("show", help="print a resolved config", description="Print a config with every key "
                           "resolved (profile, --set overrides and config.py's defaults applied).")
-    show.add_argument("config", help="a packaged config's name (lissajous_single: config/lissajous_single.yaml) "
-                                     "or a file")
+    show.add_argument("config", help="a packaged config's name (lissajous_single, narma, ...; bptsb config "
+                                     "list names them) or a YAML file")
     show.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                       help="override a config key (dotted for sections), as for bptsb train")
     sub.add_parser("mapping", help="print the authors' keys and where they go in ours")
+    sub.add_parser("list", help="print the names of the packaged experiment configs",
+                   description="Print the names of the packaged experiment configs, one a line (bptsb train NAME, "
+                               "bptsb config show NAME).")
 
 
 def _import(args: argparse.Namespace) -> int:
@@ -64,13 +66,13 @@ def _show(args: argparse.Namespace) -> int:
 
     from bptsb_ros.cli.common import config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
-    from bptsb_ros.experiments.common import config_dir
+    from bptsb_ros.experiments.common import config_source
 
     try:
-        if _PACKAGED_NAME.fullmatch(args.config) and (config_dir() / f"{args.config}.yaml").is_file():
-            path = config_dir() / f"{args.config}.yaml"
-        else:
-            path = args.config
+        path = config_source(args.config)
+    except ConfigError as err:  # an unknown packaged name, a missing file
+        return fail("config show", err)
+    try:
         cfg = load_config(path, args.overrides)
     except ConfigError as err:  # the file's fault (1), or the --set arguments' (2)
         return fail("config show", err, config_error_code(path, args.overrides))
@@ -84,6 +86,16 @@ def run(args: argparse.Namespace) -> int:
         return _import(args)
     if args.action == "show":
         return _show(args)
+    if args.action == "list":
+        from bptsb_ros.cli.common import fail
+        from bptsb_ros.config import ConfigError
+        from bptsb_ros.experiments.common import packaged_configs
+
+        try:
+            print("\n".join(packaged_configs()))
+        except ConfigError as err:
+            return fail("config list", err)
+        return 0
     from bptsb_ros.config_import import mapping_table
 
     print("\n".join(mapping_table()))

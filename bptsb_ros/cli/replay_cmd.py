@@ -36,12 +36,16 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.analysis.replay import replay
     from bptsb_ros.bags.errors import BagError
     from bptsb_ros.cli.common import fail
-    from bptsb_ros.training.checkpoint import CheckpointError
 
+    errors: tuple[type[Exception], ...] = (BagError, ValueError)
+    if args.agent:  # only the offline comparison with an agent needs torch (the light install has none)
+        from bptsb_ros.training.checkpoint import CheckpointError
+
+        errors += (CheckpointError,)
     try:
         metrics = replay(args.bag, args.out, args.agent, args.task, args.loop, gif=not args.no_gif,
                          skip_damaged=args.skip_damaged, body_node=args.body_node)
-    except (BagError, CheckpointError, ValueError) as err:  # the bag's or the agent's contents
+    except errors as err:  # the bag's or the agent's contents
         return fail(NAME, err)
     except OSError as err:
         return fail(NAME, f"cannot write --out {args.out}: {err.strerror or err}")

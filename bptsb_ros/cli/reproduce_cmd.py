@@ -14,7 +14,8 @@ HELP = ("Reproduce one experiment of the paper (--list names them): train, evalu
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("name", nargs="?", help="experiment name (see --list)")
     parser.add_argument("--list", action="store_true",
-                        help="list every experiment with the paper section it reproduces")
+                        help="a table of every experiment: its measured time at each scale and the paper figure it "
+                             "reproduces")
     parser.add_argument("--scale", choices=("smoke", "short", "paper"), default="short",
                         help="smoke: seconds (tests); short: minutes on 2 cores; paper: the paper's settings")
     seed = parser.add_mutually_exclusive_group()
@@ -67,9 +68,11 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.sweep import SchedulerError, SweepError
 
     if args.list:
-        for exp in experiments().values():
-            times = "; ".join(f"{k}: {v}" for k, v in exp.durations.items())
-            print(f"{exp.name:28s} {exp.paper_ref}\n{'':28s} {exp.summary}\n{'':28s} ({times})")
+        from bptsb_ros.experiments.durations import durations, reproduce_table
+
+        print("\n".join(reproduce_table(((e.name, e.paper_ref) for e in experiments().values()), durations())))
+        print("Wall times measured on 2 CPU cores (bptsb_ros/experiments/durations.yaml says when and how); "
+              "bptsb reproduce NAME --show-config --scale SCALE shows what a scale runs.")
         return 0
     if not args.name:
         return fail(NAME, "name an experiment (bptsb reproduce --list)", USAGE)
@@ -101,16 +104,49 @@ def run(args: argparse.Namespace) -> int:
                                       split=args.split, settings=args.settings)
     except (SchedulerError, RunDirLocked, JobFailed, ExperimentError, SettingsError, ConfigError, SweepError,
             MnistError, SeedsError, ResultError, OSError) as err:  # the arguments were fine: --out, data, ...
-        return fail(NAME, err)
+        hint = "" if isinstance(err, (RunDirLocked, ExperimentError)) else _unfinished_hint(args)  # refused up front
+        return fail(NAME, f"{err}{hint}")
     except (RuntimeError, ValueError) as err:  # raised by an experiment's own code: failed jobs, a bad setting
-        return fail(NAME, f"{args.name} failed: {err}")
-    for row in result["rows"]:
-        print(f"{row['system']:28s} {row['metric']:40s} ours {row['ours']!s:>12.12} paper {row['paper']!s:>10.10} "
-              f"{row['unit']}")
+        return fail(NAME, f"{args.name} failed: {err}{_unfinished_hint(args)}")
+    print("\n".join(summary_table(result["rows"])))
     for claim in result["claims"]:
         print(f"{claim_mark(claim['holds'])} {claim['claim']} ({claim['evidence']})")
     print(json.dumps({"result": str(path), "wall_s": result["wall_s"], "figures": result["figures"]}))
     return 0
+
+
+def _unfinished_hint(args: argparse.Namespace) -> str:
+    """What to do with the unfinished run a failed attempt left in its output directory (it made something there:
+    a run that failed before that leaves nothing, and the same command runs again as it is); else nothing."""
+    from pathlib import Path
+
+    from bptsb_ros.experiments.registry import RUN_MARKER
+    from bptsb_ros.experiments.result import RESULT_FILE
+
+    out = Path(args.out) if args.out is not None else Path("runs") / "reproduce" / args.name
+    if (out / RUN_MARKER).is_file() and not (out / RESULT_FILE).exists():
+        return f"; the unfinished run stays in {out}: add --resume to continue it, or --force to start again"
+    return ""
+
+
+def _cell(value: object) -> str:
+    """A number or text of the summary: — where there is none, 4 significant digits, texts whole."""
+    if value is None:
+        return "—"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return str(value)
+    return f"{value:.4g}"
+
+
+def summary_table(rows: list[dict]) -> list[str]:
+    """The rows of a result as an aligned table (system, metric, ours, paper, unit), every text whole."""
+    if not rows:
+        return []
+    head = ("system", "metric", "ours", "paper", "unit")
+    body = [(str(r["system"]), str(r["metric"]), _cell(r["ours"]), _cell(r["paper"]), str(r["unit"])) for r in rows]
+    widths = [max(len(row[i]) for row in [head, *body]) for i in range(len(head))]
+    return ["  ".join(c.rjust(w) if i in (2, 3) else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))).rstrip()
+            for row in [head, *body]]
 
 
 def _rejudge(args: argparse.Namespace) -> int:

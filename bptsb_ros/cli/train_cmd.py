@@ -6,11 +6,12 @@ import argparse
 import json
 
 NAME = "train"
-HELP = "Train a brain-body agent with BPTSB from a YAML experiment config (config/*.yaml)."
+HELP = ("Train a brain-body agent with BPTSB from an experiment config: a packaged config's name (bptsb config show "
+        "NAME prints one) or a YAML file.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("config", help="experiment YAML, e.g. config/lissajous_single.yaml")
+    parser.add_argument("config", help="a packaged config's name (lissajous_single, narma, ...) or a YAML file")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a config key (dotted for sections): --set sim_time=20 --set training.lr.k=100")
     parser.add_argument("--seed", type=int, default=None, help="random seed (overrides the config's)")
@@ -25,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.cli.common import USAGE, config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
+    from bptsb_ros.experiments.common import config_source
     from bptsb_ros.rundir_lock import RunDirLocked
     from bptsb_ros.training.checkpoint import CheckpointError
     from bptsb_ros.training.trainer import TrainingDiverged, train
@@ -32,9 +34,13 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and args.force:
         return fail(NAME, "--resume and --force exclude each other", USAGE)
     try:
-        cfg = load_config(args.config, args.overrides, args.seed)
+        path = config_source(args.config)
+    except ConfigError as err:  # an unknown packaged name, a missing file
+        return fail(NAME, err)
+    try:
+        cfg = load_config(path, args.overrides, args.seed)
     except ConfigError as err:  # the file's fault (1), or the --set / --seed arguments' (2)
-        return fail(NAME, err, config_error_code(args.config, args.overrides, args.seed))
+        return fail(NAME, err, config_error_code(path, args.overrides, args.seed))
     try:
         result = train(cfg, args.out, resume=args.resume, overwrite=args.force, progress=not args.no_progress)
     except (ConfigError, CheckpointError, TrainingDiverged, RunDirLocked) as err:  # --out's contents, divergence

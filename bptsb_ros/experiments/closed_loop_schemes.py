@@ -172,13 +172,6 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     paper_ref="supplement 'Simultaneous training for a closed loop' and its table",
     summary="3 curves × 5 seeds (jobs): scheme 1 (closed loop from scratch), 2 (BPTSB through SWG + body + FL, "
             "L = L_traj + 0.1·L_FB), 3 (FL re-fitted by regression after every update); E_after / E_before",
-    durations={"smoke": "≈ 5 s on 2 busy cores (1 curve × 1 seed)",
-               "short": "375 s measured 2026-11-27 on 2 busy cores (3 curves × 2 seeds = 6 jobs on 2 workers; 200 "
-                        "s preliminary, 50 s per scheme)",
-               "paper": "566 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
-                        "1,710 s on the numba backend 2026-12-02 at load 4-8 (15 "
-                        "preliminary trainings of 2,000 s and the three schemes as jobs on 2 workers); 208 s on 2 "
-                        "lightly loaded cores 2026-11-27"},
 )
 @single_threaded
 def run(ctx: Context) -> None:

@@ -7,24 +7,17 @@ from pathlib import Path
 
 from bptsb_ros.config import ConfigError, ExperimentConfig, Overrides, echo, load_config
 
-PACKAGE = "bptsb_ros"
-
 
 def config_dir() -> Path:
-    """The directory of the packaged experiment configs: ``config/`` of a source checkout, else the ament
-    share directory of an installed package."""
-    source = Path(__file__).resolve().parents[2] / "config"
-    if source.is_dir():
-        return source
+    """The directory of the packaged experiment configs (:func:`bptsb_ros.package_data.config_dir`: the
+    installed package's copy, a source checkout's ``config/``, or the ament share); ConfigError if none is there."""
+    from bptsb_ros.package_data import PackageDataError
+    from bptsb_ros.package_data import config_dir as packaged_dir
+
     try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-    except ImportError:
-        raise ConfigError(f"the packaged configs are not at {source} and ament_index_python is missing") from None
-    try:
-        return Path(get_package_share_directory(PACKAGE)) / "config"
-    except PackageNotFoundError:
-        raise ConfigError(f"the packaged configs are not at {source} and {PACKAGE} is not in the ament "
-                          "index (set AMENT_PREFIX_PATH)") from None
+        return packaged_dir()
+    except PackageDataError as err:
+        raise ConfigError(str(err)) from None
 
 
 #: what a packaged config's name looks like (a name, never a path)
@@ -51,6 +44,26 @@ def packaged_config_path(name: str) -> Path:
 def packaged_config(name: str, overrides: Overrides | None = None, seed: int | None = None) -> ExperimentConfig:
     """Load ``config/<name>.yaml`` with ``--set``-style overrides (or a mapping of them)."""
     return load_config(packaged_config_path(name), overrides, seed)
+
+
+def looks_like_path(text: str) -> bool:
+    """Whether a config argument is a file's path (a path separator, or a ``.yaml``/``.yml`` suffix) rather than
+    a packaged config's name."""
+    return "/" in text or "\\" in text or text.lower().endswith((".yaml", ".yml"))
+
+
+def config_source(text: str) -> Path:
+    """The file a config argument names: a path as given, or a packaged config's name (``lissajous_single``) as
+    that config's file. A missing path whose name is a packaged config's gets a ConfigError that says so (``bptsb
+    train config/lissajous_single.yaml`` outside the checkout); an unknown name one naming the packaged ones."""
+    if not looks_like_path(text):
+        return packaged_config_path(text)
+    path = Path(text)
+    if not path.is_file() and path.suffix.lower() in (".yaml", ".yml") and CONFIG_NAME.fullmatch(path.stem) \
+            and path.stem in packaged_configs():
+        raise ConfigError(f"config file not found: {echo(text)} (the packaged config of that name is "
+                          f"{path.stem}: give the name alone, without a folder or .yaml)")
+    return path
 
 
 #: how far apart the seeds of two runs' trainings lie: a run of seed s that trains several systems (agents, seeds

@@ -73,12 +73,6 @@ def claims(n: ClosedLoopNumbers) -> list[Claim]:
     "lissajous-closed-loop",
     paper_ref="Fig. 4(a); Methods 'Lissajous curve drawing task'",
     summary="train SWG + double-circle (N_mov 13) on the (1,2,0) Lissajous curve, fit the FL (σ 0.08), close the loop",
-    durations={"smoke": "≈ 4 s on 2 busy cores",
-               "short": "17 s measured 2026-11-27 on 2 cores, 15 s on 2 busy cores 2026-12-02 (1,000 s of "
-                        "training, the FL fit, evaluation and plots)",
-               "paper": "4 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); 16 "
-                        "s on the numba backend 2026-12-02, 2 shared cores (2,000 s of "
-                        "training, the original simTime)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:

@@ -209,11 +209,6 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
     summary="displace the movable masses by N(0, σ²), σ = 0…1 step 0.1 × seeds, open loop (SWG) and closed loop "
             "(FL), one batched run each; return rate vs σ; variants paper (a kick of the running cycle) and authors "
             "(a restart from the displaced layout at t = 0)",
-    durations={"smoke": "≈ 5 s on 2 busy cores",
-               "short": "82–192 s measured on 2 cores (1,000 s training; 11 × 100 rows, 50 periods)",
-               "paper": "49 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
-                        "148 s on the numba backend 2026-12-02, 2 shared cores (2,000 s "
-                        "training; 11 × 100 rows, 300 periods, both variants)"},
 )
 @single_threaded
 def run(ctx: Context) -> None:

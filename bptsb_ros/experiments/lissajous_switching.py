@@ -392,15 +392,6 @@ def _variant_suffix(ctx: Context, name: str) -> str:
     summary="additional training of the single-curve agent to draw (1,2,0) without and (2,1,π/2) with wind "
             "F_wind = 1 (the authors' protocol: (2,1,π/4)), each settings variant a job; both curves drawn, CMP x/y "
             "frequencies (FFT) swap with the wind",
-    durations={"smoke": "≈ 8 s on 2 busy cores",
-               "short": "107 s measured 2026-12-02 on 2 cores shared with other work (2 × 1,000 s preliminary, "
-                        "verlet and published integrator, + 3 × 2,000 s switching training, the three variants, 3 "
-                        "jobs on 2 workers); the committed run of 2026-11-27, an earlier build without the "
-                        "authors' variant, took 455 s",
-               "paper": "54 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
-                        "415 s on the numba backend 2026-12-02, 2 shared cores (2,000 s "
-                        "preliminary training per integrator + 3 × 30,000 s of switching training, the three "
-                        "variants, as jobs on 2 workers)"},
 )
 @single_threaded
 def run_switching(ctx: Context) -> None:
@@ -509,13 +500,6 @@ def _curve_error(trained: TrainedAgent, curve: Curve, periods: int) -> float:
     paper_ref="supplement 'Behavioral switching', Fig. (d)",
     summary="each settings variant's switching agent under F_wind ∈ [−1, 2] step 0.05 (61 rows, one batched run): "
             "maxima of the CMP's x and y after a transient, period of each orbit",
-    durations={"smoke": "≈ 11 s on 2 busy cores",
-               "short": "155 s measured 2026-12-02 on 2 cores shared with other work (2 preliminary trainings, 3 "
-                        "switching trainings as jobs, then one sweep per variant); the committed run of "
-                        "2026-11-27, an earlier build, took 492 s",
-               "paper": "34 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
-                        "723 s on the numba backend 2026-12-02, 2 shared cores (the preliminary "
-                        "and the three switching trainings, then one 61-value sweep per variant)"},
 )
 @single_threaded
 def run_bifurcation(ctx: Context) -> None:
@@ -646,14 +630,6 @@ def timing_convergence(trained: TrainedAgent, shift: float, *, settle: int, run:
     summary="(1,2,0) ↔ (1,3,0) by wind, trained with fixed (n = 0) and random (n ∈ [0, 99]) switch timing in each "
             "settings variant (paper wind, published wind, the authors' protocol: six jobs); the wind switched on "
             "at every n = 0…99 (one batched run each): which runs converge",
-    durations={"smoke": "≈ 12 s on 2 busy cores",
-               "short": "147 s measured 2026-12-02 on 2 cores shared with other work (2 × 1,000 s preliminary, "
-                        "verlet and published integrator, + 6 × 2,000 s switching: fixed and random timing in "
-                        "each of the three variants; 6 jobs on 2 workers); the committed run of 2026-11-27, an "
-                        "earlier build, took 599 s",
-               "paper": "41 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
-                        "319 s on the numba backend 2026-12-02, 2 shared cores (six 30,000 s "
-                        "switching trainings: fixed and random timing in each variant, as jobs on 2 workers)"},
 )
 @single_threaded
 def run_timing(ctx: Context) -> None:

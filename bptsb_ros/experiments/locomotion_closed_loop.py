@@ -94,12 +94,6 @@ def agent_settings(ctx: Context) -> AgentSettings:
     paper_ref="main text 'Autonomous behavior through brain function transfer' (8 of 20 agents); Fig. 4(a)",
     summary="train 20 caterpillar agents forward (sweep jobs), fit each FL (σ 0.2), close the loops; count "
             "closed/open speed ≥ 0.7; variants: SWG→FL transition period, velocity FL",
-    durations={"smoke": "≈ 7 s on 2 busy cores (2 agents, 4 s of training)",
-               "short": "86 s measured 2026-12-02 on 2 busy cores (20 agents, 200 s of training each, 2 workers); "
-                        "the committed run of 2026-11-27, an earlier build, took 25 min",
-               "paper": "74 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
-                        "567 s on the numba backend 2026-12-02, 2 shared cores (20 agents, 1000 s each, 2 "
-                        "workers); 75 s on 2 lightly loaded cores 2026-11-27"},
 )
 def run(ctx: Context) -> None:
     settings, n_agents = settings_for(ctx)

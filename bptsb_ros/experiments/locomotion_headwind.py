@@ -151,13 +151,6 @@ def claims(n: HeadwindNumbers) -> list[Claim]:
     summary="forward agent → additional training at v_max/2 under a periodic headwind F = −1; speed under the "
             "switching wind (c) and speed vs F_wind ∈ [−2, 1] (e, one batched simulation); variants paper and "
             "authors (−15 N in 100 s / 100 s phases, their rates, ÷10 at 80 % / 90 %)",
-    durations={"smoke": "≈ 11 s on 2 busy cores",
-               "short": "143 s measured 2026-12-02 on 2 busy cores (2,000 s of switching training; forward agent "
-                        "reused from locomotion-closed-loop-20); the committed run of 2026-11-27, an earlier "
-                        "build, took 13 min",
-               "paper": "21 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run); "
-                        "151 s on the numba backend 2026-12-02, 2 shared cores (10,000 s of switching training "
-                        "per variant; forward agent reused)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint

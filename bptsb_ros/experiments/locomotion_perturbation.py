@@ -135,13 +135,6 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     summary="return rate vs perturbation σ 0.0…1.0 × 100 seeds (one batched simulation per agent and loop), open "
             "(SWG) and closed (FL) loop, for the agents whose closed loop succeeded; variants paper (positions "
             "N(0, σ²)) and authors (positions N(0, (σP/8)²), velocities N(0, (σS)²))",
-    durations={"smoke": "≈ 8 s on 2 busy cores",
-               "short": "83 s measured 2026-12-02 on 2 busy cores after locomotion-closed-loop-20 (its 20 agents "
-                        "reused); the committed run of 2026-11-27, an earlier build, took 122 s",
-               "paper": "20 s measured (fused backend, 2026-12-03, on 2 cores shared with a paper-scale MNIST run; "
-                        "one successful agent); 1,337 s on the numba backend 2026-12-02 with four (agents reused; 11 "
-                        "σ × 100 "
-                        "seeds per successful agent, loop and draw)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint

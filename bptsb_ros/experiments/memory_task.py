@@ -219,11 +219,6 @@ def id_list(ids: Sequence[int]) -> str:
     parallel=True,
     paper_ref="Supplement 'Memory task' (Fig. 'The memory task')",
     summary="LIL + double-/multiple-circle (N_mov 17) reproduce u(t − Δt); error vs Δt, Δt = 8 series and IPC",
-    durations={"smoke": "≈ 11 s on 2 busy cores",
-               "short": "284 s measured 2026-11-27 on 2 cores (Adam, 60 epochs, Δt = 1, 4, 8, 12, 17, 2 seeds, 2 "
-                        "workers)",
-               "paper": "8,399 s (2.3 h) measured 2026-12-03 on 2 workers as two populations of 85 (an interrupted "
-                        "attempt and its resume; ≈ 4.7 h in gangs, ≈ 5.8 h alone)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval

@@ -113,12 +113,6 @@ def system_meta(ctx: Context, data_key: str, epochs: int) -> dict:
     parallel=True,
     paper_ref="Fig. 2(a)/(b); Methods 'MNIST classification and drawing task'",
     summary="{LIL, MLP} × multiple-circle N_mov 17/65: image → initial positions → released body draws the digit",
-    durations={"smoke": "≈ 1 min on 2 busy cores (most of it the figures)",
-               "short": "614 s measured 2026-11-27 on 2 cores with the 8,000 training images of --split "
-                        "test-8k-2k (3 epochs, 2 processes); with the 60,000 of the MNIST training set about 7× "
-                        "as long (≈ 75 min, not measured)",
-               "paper": "3,172 s measured 2026-12-03 on 2 cores shared with the test suite and other runs "
-                        "(60,000 images × 50 epochs, 4 systems as jobs on 2 workers)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_best_drawings, plot_curves, plot_error_bars

@@ -180,12 +180,6 @@ def claims(n: LabelMapNumbers, label: str = system_label("mlp", N_MOV)) -> list[
     "mnist-labelmap",
     paper_ref="Fig. 2(d)/(e); Methods; supplement 'Label maps'",
     summary="MLP + multiple-circle N_mov 17: label maps per placed mass, label-map sizes, joined-to-CMP claim",
-    durations={"smoke": "≈ 20 s",
-               "short": "174 s measured 2026-11-27 on 2 cores training its own system on --split test-8k-2k "
-                        "(8,000 images, 3 epochs); less reusing a short mnist-drawing run, about 7× as long "
-                        "training on the 60,000 training images",
-               "paper": "87 s measured 2026-12-03 reusing a paper-scale mnist-drawing run (41×41 grids: 268,960 "
-                        "bodies; 2 shared cores), else training its own system too (not measured)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.tasks.mnist_drawing import SystemSpec

@@ -123,11 +123,6 @@ def claims(n: PcaNumbers) -> list[Claim]:
     "mnist-pca",
     paper_ref="Fig. 2(c); main text 'Division of functional roles'",
     summary="MLP + multiple-circle N_mov 17: brain vs body output in 2-D PCA, label separation (silhouette, probe)",
-    durations={"smoke": "≈ 20 s on 2 busy cores",
-               "short": "81 s measured 2026-11-27 on 2 cores reusing a short mnist-drawing run (--split "
-                        "test-8k-2k); training its own system takes as long as mnist-drawing's",
-               "paper": "42 s measured 2026-12-03 reusing a paper-scale mnist-drawing run (2 shared cores), else "
-                        "training its own system, one of mnist-drawing's four (not measured)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.tasks.mnist_drawing import SystemSpec

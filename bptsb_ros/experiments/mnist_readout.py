@@ -137,12 +137,6 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
     paper_ref="supplement 'MNIST classification by reading states out' (Table)",
     summary="LIL → body → states every 0.1 s for 1 s → linear readout; only brain vs double/multiple-circle N_mov "
             "17/65",
-    durations={"smoke": "≈ 5-15 s on 2 busy cores",
-               "short": "568 s measured 2026-11-27 on 2 cores with the 8,000 training images of --split "
-                        "test-8k-2k (2 epochs, 2 processes); with the 60,000 of the MNIST training set about 7× "
-                        "as long (≈ 65 min, not measured)",
-               "paper": "6,610 s measured 2026-12-03 on 2 cores (60,000 images × 100 epochs, 5 systems, 2 workers; "
-                        "other work ran beside it part of the time: 3,063 s for 50 epochs on idle cores)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_curves

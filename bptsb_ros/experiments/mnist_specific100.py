@@ -270,15 +270,6 @@ def systems() -> list[tuple[str, str, int, object]]:
     parallel=True,
     paper_ref="supplement 'MNIST classification with specific inputs' (Fig. S: errors, label-map sizes, PCA)",
     summary="100 fixed images (10 per digit) train = test: {LIL, MLP} × four bodies; errors, PCA, label maps",
-    durations={"smoke": "≈ 1 min on 2 busy cores (most of it the figures)",
-               "short": "1,323 s measured 2026-11-27 on 2 cores (150 epochs of 2 batches, 8 systems; 2 processes), "
-                        "before the system trained on all data was added: reused from a short mnist-drawing run "
-                        "beside it, else one more training of that run's four",
-               "paper": "434 s measured 2026-12-03 on 2 cores shared with other runs (8 systems, 1,000 epochs of "
-                        "2 batches; the paper gives no epoch count), before the system trained on all data was "
-                        "added: reused from a paper-scale mnist-drawing run beside it (about 2 min for its PCA "
-                        "and label maps, as mnist-pca and mnist-labelmap), else trained here, one of "
-                        "mnist-drawing's N_mov 17 trainings (965-980 s each in its paper run)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.mnist_plots import plot_best_drawings, plot_error_bars

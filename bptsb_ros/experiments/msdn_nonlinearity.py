@@ -129,9 +129,6 @@ def _bodies(seed: int):
     paper_ref="Supplement 'Nonlinearity in linear mass-spring-damper networks'",
     summary="IPC of an untrained double-circle body under LIL forces (degree >= 2 present) vs a 1-D chain "
             "(degree 1 only)",
-    durations={"smoke": "≈ 6 s on 2 busy cores",
-               "short": "314 s measured 2026-11-27 on 2 cores",
-               "paper": "25 s measured 2026-12-02 on 2 cores shared with other work"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval

@@ -94,10 +94,6 @@ def claims(n: EmulationNumbers) -> list[Claim]:
     parallel=True,
     paper_ref="Fig. 3(a, b); Methods 'Time-series emulation task'",
     summary="train {LIL, MLP} x {double-circle, multiple-circle} (N_mov 17) on the expanded NARMA2; NMSE table",
-    durations={"smoke": "≈ 7 s on 2 busy cores",
-               "short": "673 s measured 2026-11-27 on 2 cores (Adam, 120 epochs, 2 workers)",
-               "paper": "4,197 s measured for the committed run (40,000 SGD epochs, 4 systems, 2 workers, numba "
-                        "backend); the fused episodes since make an update ≈ 2× as fast (docs/speed.md)"},
 )
 def run(ctx: Context) -> None:
     import numpy as np

@@ -206,10 +206,6 @@ def claims(n: NarmaIpcNumbers) -> list[Claim]:
     parallel=True,
     paper_ref="Fig. 3(c)",
     summary="IPC of the output at several epochs, of the target and of every mass's x, y (LIL, MLP; double circle)",
-    durations={"smoke": "≈ 6 s on 2 busy cores",
-               "short": "196 s measured 2026-11-27 on 2 cores (Adam, 300 epochs, 2 workers)",
-               "paper": "880 s measured 2026-11-27 (2 systems × 40,000 SGD epochs on 2 workers, then the IPC of "
-                        "4 stages with 200 surrogates; numba backend, 2 lightly loaded cores)"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval

@@ -218,9 +218,6 @@ class Experiment:
     paper_ref: str
     summary: str
     run: Callable[[Context], None]
-    #: how long each scale takes (text for --list): the run's wall time (``wall_s``), measured on 2 cores, with the
-    #: date, or said to be an estimate
-    durations: dict[str, str]
     #: the run spreads several independent trainings over ``--workers`` (so ``--seeds`` runs its seeds one after
     #: another, each with every worker, rather than side by side)
     parallel: bool = False
@@ -229,16 +226,17 @@ class Experiment:
 _REGISTRY: dict[str, Experiment] = {}
 
 
-def experiment(name: str, *, paper_ref: str, summary: str, durations: dict[str, str], parallel: bool = False):
+def experiment(name: str, *, paper_ref: str, summary: str, parallel: bool = False):
     """Decorator registering ``run(ctx)`` as the paper experiment ``name`` (a slug: its result.json must
-    pass :func:`~bptsb_ros.experiments.result.validate_result`, so a bad name fails here, not after the run)."""
+    pass :func:`~bptsb_ros.experiments.result.validate_result`, so a bad name fails here, not after the run).
+    How long it takes at each scale is data: :mod:`~bptsb_ros.experiments.durations`."""
     if len(name) > MAX_SLUG_LEN or not EXPERIMENT_SLUG.fullmatch(name):
         raise ValueError(f"experiment name {name!r} is not a slug ([a-z0-9][a-z0-9_-]*)")
 
     def register(fn: Callable[[Context], None]) -> Callable[[Context], None]:
         if name in _REGISTRY and _REGISTRY[name].run is not fn:
             raise ValueError(f"experiment {name!r} registered twice")
-        _REGISTRY[name] = Experiment(name, paper_ref, summary, fn, dict(durations), parallel)
+        _REGISTRY[name] = Experiment(name, paper_ref, summary, fn, parallel)
         return fn
 
     return register
@@ -395,9 +393,14 @@ def _run_locked(exp: Experiment, out: Path, *, scale: str, seed: int, force: boo
     t0 = time.perf_counter()
     try:
         exp.run(ctx)
-    finally:  # a failed or interrupted attempt records its time too, for the --resume that follows
-        attempts[-1]["wall_s"] = round(time.perf_counter() - t0, 2)
-        _write_attempts(out, attempts)
+    except BaseException:
+        if not resume and _holds_only_bookkeeping(out):
+            _clear_run(out)  # it failed before it made anything: the same command can run again as it is
+        raise
+    finally:  # a failed or interrupted attempt that made something records its time, for the --resume that follows
+        if (out / RUN_MARKER).is_file():
+            attempts[-1]["wall_s"] = round(time.perf_counter() - t0, 2)
+            _write_attempts(out, attempts)
     result.wall_s = round(sum(a["wall_s"] for a in attempts), 2)
     result.provenance["attempts"] = attempts
     result.judged = judged_by(complete=_rejudges_to_itself(result, ctx.log))
@@ -507,6 +510,11 @@ def _newest_mtime(out: Path, *, after: float, before: float) -> float:
         if after <= mtime <= before and path.name not in (ATTEMPTS_FILE, RUN_MARKER, LOCK_NAME):
             newest = max(newest, mtime)
     return newest
+
+
+def _holds_only_bookkeeping(out: Path) -> bool:
+    """``out`` holds nothing but this run's marker, attempts record and lock (the experiment wrote nothing yet)."""
+    return all(entry.name in (RUN_MARKER, ATTEMPTS_FILE, LOCK_NAME) for entry in out.iterdir())
 
 
 def _clear_run(out: Path) -> None:

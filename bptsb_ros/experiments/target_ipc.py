@@ -169,9 +169,6 @@ def targets(w: np.ndarray) -> dict[str, np.ndarray]:
     "target-ipc",
     paper_ref="Supplement 'The target IPC' (Fig. 'The target IPC')",
     summary="IPC profiles of NARMA2, NARMA10, expanded NARMA and the memory target (Δt = 8)",
-    durations={"smoke": "≈ 2 s on 2 busy cores",
-               "short": "199 s measured 2026-11-27 on 2 cores",
-               "paper": "7 s measured 2026-12-02 on 2 cores shared with other work"},
 )
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, to_unit_interval

@@ -691,12 +691,7 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
 
 
 def rviz_config() -> Path:
-    """The RViz config of the package (``config/bptsb.rviz``): the installed share copy, else the source tree's."""
-    try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-    except ImportError:
-        return Path(__file__).resolve().parents[2] / "config" / "bptsb.rviz"
-    try:
-        return Path(get_package_share_directory("bptsb_ros")) / "config" / "bptsb.rviz"
-    except PackageNotFoundError:
-        return Path(__file__).resolve().parents[2] / "config" / "bptsb.rviz"
+    """The RViz config of the package (``config/bptsb.rviz``; :func:`bptsb_ros.package_data.rviz_config`)."""
+    from bptsb_ros.package_data import rviz_config as packaged
+
+    return packaged()
