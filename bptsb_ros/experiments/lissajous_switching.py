@@ -253,7 +253,7 @@ def bifurcation_claims(n: BifurcationNumbers, tag: str = "") -> list[Claim]:
                          (f"periodic from F = {winds[0]:.2f} to {end:.2f}{after}" if math.isfinite(end) else
                           f"F = {winds[0]:.2f} is already {_period_word(int(per[0]))}")))
     for a, b in CHAOTIC_INTERVALS:
-        chaos_text = (f"chaotic (aperiodic) orbits for F_wind ∈ ({a:g}, {b:g}){tag} (at least {CHAOTIC_SHARE:.0%} "
+        chaos_text = (f"chaotic (aperiodic) orbits for F_wind ∈ ({a:.1f}, {b:.1f}){tag} (at least {CHAOTIC_SHARE:.0%} "
                       f"of the grid values inside aperiodic on the record)")
         inside = (winds > a + 1e-9) & (winds < b - 1e-9)
         if not learned:

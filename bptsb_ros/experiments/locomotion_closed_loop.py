@@ -194,9 +194,9 @@ def seed_figures(out_dir: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Se
     for res in per_seed:
         for _, args, _ in stored_calls(res, claims):
             n = args[0]
-            forward = np.asarray(n.open_speed, float) > 0
-            counts.append(int(np.sum(np.asarray(n.success, bool) & forward)))
-            totals.append(int(forward.sum()))
+            moving = np.asarray(n.open_speed, float) > 0
+            counts.append(int(np.sum(np.asarray(n.success, bool) & moving)))
+            totals.append(int(moving.sum()))
     if not counts:
         return []
     agents = f"{min(totals)}–{max(totals)}" if min(totals) != max(totals) else f"{totals[0]}"
