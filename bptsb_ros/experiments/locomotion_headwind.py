@@ -326,11 +326,11 @@ def seed_figures(out_dir: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Se
             n = args[0]
             if n.diverged:
                 continue
-            f = f"{n.force:g}"
+            half = 0.025 * abs(n.force)  # half a grid step: the sweep steps by 0.05 × |trained F|
             panel = panels.setdefault(n.variant or "paper", {
                 "x": np.asarray(n.winds, float), "curves": {"after switching training": []},
-                "spans": [(min(n.force, 0.0) - 0.025 * abs(n.force), n.force + 0.025 * abs(n.force),
-                           f"trained: F = {f} N"), (-0.025 * abs(n.force), 0.025 * abs(n.force), "trained: F = 0")]})
+                "spans": [(n.force - half, n.force + half, f"trained: F = {n.force:g} N"),
+                          (-half, half, "trained: F = 0")]})
             panel["curves"]["after switching training"].append(np.asarray(n.speeds, float) / n.target)
     if not panels:
         return []
