@@ -199,8 +199,9 @@ def plot_period_map(path: Path, x: np.ndarray, panels: Mapping[str, tuple[Sequen
     for i, (lo, hi, words) in enumerate(spans):
         strip.axvspan(lo, hi, color="0.8" if i % 2 == 0 else "0.65", lw=0)
         strip.text((lo + hi) / 2, 0.5, words, ha="center", va="center", fontsize=6)
-    strip.set_yticks([])
-    strip.set_ylabel("paper", rotation=0, ha="right", va="center")
+    strip.set_ylim(0, 1)
+    strip.set_yticks([0.5], ["paper"])
+    strip.set_ylabel("regions", rotation=0, ha="right", va="center")
     strip.tick_params(length=0)
     for ax, (name, (seeds, per)) in zip(axes[1:], panels.items(), strict=False):
         per = np.asarray(per).reshape(len(seeds), len(x))
