@@ -342,6 +342,14 @@ def bars_over_seeds(out: Path) -> Path:
         "Planted numbers over 4 seeds")
 
 
+def seed_summary(out: Path) -> Path:
+    per_seed = [{"experiment": "planted", "claims": [
+        {"claim": "the first claim", "holds": h, "evidence": "planted"},
+        {"claim": "a second claim with a longer text that the strip shortens", "holds": g, "evidence": "planted"}]}
+        for h, g in ((True, None), (True, False), (False, True))]
+    return S.plot_seed_summary(out / "seeds.png", per_seed, [0, 1, 2])
+
+
 def band(out: Path) -> Path:
     rng = _rng()
     digits = np.arange(10)
@@ -351,11 +359,48 @@ def band(out: Path) -> Path:
                        highlight_label="digits 5, 7, 8")
 
 
+def band_panels(out: Path) -> Path:
+    rng = _rng()
+    sigmas = np.arange(0, 1.01, 0.1)
+    curves = {"SWG (open loop)": 1 - sigmas * rng.uniform(0.3, 0.6, (4, 1)),
+              "FL (closed loop)": 1 - sigmas * rng.uniform(0.4, 0.9, (4, 1))}
+    return S.plot_band_panels(out / "band_panels.png", {"paper": {"x": sigmas, "curves": curves},
+                                                        "authors": {"x": sigmas, "curves": curves,
+                                                                    "spans": [(0.3, 0.5, "a region")]}},
+                              xlabel="perturbation σ [m]", ylabel="return rate [-]", title="planted", hline=0.5,
+                              ylim=(-0.03, 1.03))
+
+
+def share_panels(out: Path) -> Path:
+    rng = _rng()
+    n = np.arange(100)
+    shares = {"fixed": rng.random((5, 100)) < np.where((n >= 22) & (n <= 69), 0.2, 0.9), "random": np.ones((5, 100))}
+    return S.plot_share_panels(out / "share_panels.png", {"paper wind": {"x": n, "shares": shares,
+                                                                         "spans": [(21.5, 69.5, "paper: fails")]}},
+                               xlabel="switch phase n [1/100 period]", ylabel="seeds converging [share]",
+                               title="planted")
+
+
+def period_map(out: Path) -> Path:
+    rng = _rng()
+    winds = np.round(np.arange(-1.0, 2.0001, 0.05), 10)
+    per = np.where(winds < 0.2, 1, rng.choice([0, 1, 2, -1], (4, len(winds))))
+    return S.plot_period_map(out / "period_map.png", winds, {"paper wind": ([0, 1, 2, 3], per),
+                                                             "published wind": ([0, 1, 2, 3], per[::-1])},
+                             xlabel="F_wind [N]", title="planted", spans=[(-1.0, 0.2, "stable"), (0.2, 0.6, "chaotic")])
+
+
+def count_histogram(out: Path) -> Path:
+    return S.plot_count_histogram(out / "counts.png", [4, 1, 3, 8, 4, 2], total=20, paper=8,
+                                  xlabel="agents whose closed loop succeeded [agents]", title="planted")
+
+
 CASES: dict[str, Callable[[Path], Path]] = {f.__name__: f for f in (
     loss, lissajous, speed, series, spring_lengths, ipc_bars, ipc_panels, memory_error, narma_emulation, targets,
     best_drawings, error_bars, pca, label_maps, label_map_sizes, curves, live_drawings, perturbation,
     switching_curves, switching_dynamics, bifurcation, timing, scheme_ratios, perturbed_run, gaits,
-    closed_open_ratios, headwind_speed, speed_vs_wind, return_rate, bars_over_seeds, band)}
+    closed_open_ratios, headwind_speed, speed_vs_wind, return_rate, bars_over_seeds, seed_summary, band, band_panels,
+    share_panels, period_map, count_histogram)}
 
 
 if __name__ == "__main__":

@@ -275,9 +275,10 @@ def test_figure_files(name, tmp_path, caught):
 
 def test_every_plot_function_has_a_case():
     """A new plot function without planted data here fails: every public plot_* of the plotting modules."""
-    from bptsb_ros.analysis import autonomy_plots, locomotion_plots, mnist_plots, plots, timeseries_plots
+    from bptsb_ros.analysis import autonomy_plots, locomotion_plots, mnist_plots, plots, seed_plots, timeseries_plots
 
-    names = {n for m in (autonomy_plots, locomotion_plots, mnist_plots, plots, timeseries_plots) for n in dir(m)
+    names = {n for m in (autonomy_plots, locomotion_plots, mnist_plots, plots, seed_plots, timeseries_plots)
+             for n in dir(m)
              if n.startswith("plot_") and getattr(m, n).__module__ == m.__name__}
     covered = {f"plot_{c}" for c in figure_cases.CASES}
     assert names <= covered, f"plot functions without a case in tests/figure_cases.py: {sorted(names - covered)}"

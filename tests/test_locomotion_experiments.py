@@ -159,8 +159,10 @@ def test_init_from_continues_a_run(tmp_path):
         train(packaged_config("narma", ["epochs=1"]), tmp_path / "c", progress=False, init_from=tmp_path / "a")
 
 
-def test_smoke_runs_match_their_records(tmp_path):
-    """The three experiments at smoke scale, sharing their agents; every row and claim recomputed."""
+def test_smoke_runs_match_their_records(tmp_path, monkeypatch):
+    """The three experiments at smoke scale, sharing their agents; every row and claim recomputed. The headwind's
+    authors' variant is planted to diverge (as at paper scale, seed 1): it is a row and a reason, its claims not
+    testable, and the paper variant's evaluation is kept."""
     _, cl = run_experiment("locomotion-closed-loop-20", scale="smoke", out_dir=tmp_path / "cl", progress=False,
                            workers=0, log=lambda m: None)
     assert not list(tmp_path.glob("_locomotion-agents-*")) and sorted(p.name for p in tmp_path.iterdir()) == ["cl"]
@@ -199,22 +201,50 @@ def test_smoke_runs_match_their_records(tmp_path):
     assert holds[0] == ((mean["open"][sig >= 0.6].mean() < mean["open"][sig <= 0.4].mean()) if moves else None)
     some_fail = min(mean["open"].min(), mean["closed"].min()) < 1
     same_testable = moves and not d["fallback_best_agent"] and some_fail
-    assert holds[2] == ((np.abs(mean["open"] - mean["closed"]).mean() <= 0.15 + 1e-9) if same_testable else None)
+    assert holds[2] == ((np.abs(mean["open"] - mean["closed"]).max() <= 0.2 + 1e-9) if same_testable else None)
+    # the standstill claims (open, closed) read the runs that did not return, as fractions of the speed before,
+    # pooled over the perturbed agents that moved forward (stored in `measured`; recomputed here)
+    assert [e["args"][0]["fields"]["variant"] for e in pe["measured"]
+            if e["judge"] == "locomotion-perturbation"] == ["paper", "authors"]
+    stored = [e["args"][0]["fields"] for e in pe["measured"] if e["judge"] == "locomotion-perturbation-standstill"]
+    assert len(stored) == 4  # two loops, two draws
+    for i, (loop, n) in enumerate(zip(("SWG (open loop)", "FL (closed loop)"), stored[:2], strict=True)):
+        assert pe["claims"][3 + i]["claim"].startswith(f"{loop}: some perturbed runs that did not return")
+        early, late = (np.array([np.nan if isinstance(x, dict) else x for x in n[k]["@array"]], float)
+                       for k in ("early", "late"))
+        assert not np.any(late >= 0.7) and n["runs"] in (0, 33 * len(d["agents"]))  # 11 σ × 3 noise seeds each
+        rate = np.array(d["return_rate_per_agent"]["open" if i == 0 else "closed"])
+        if n["runs"]:
+            assert len(late) == round(float(np.sum(1 - rate)) * 3)  # every run that did not return, and only those
+        still = np.any((np.abs(late) <= 0.1 + 1e-9) & (early < 0.5))
+        assert pe["claims"][3 + i]["holds"] == ((bool(still)) if n["moving"] and len(late) else None)
     # the authors' draw: its own rows and claims, recomputed from its own rates; the paper's variant is the first
     assert d["variants"]["paper"]["return_rate_mean"] == d["return_rate_mean"]
     au = d["variants"]["authors"]
-    assert au["draw"] == "authors" and len(pe["claims"]) == 6
-    assert all(c["claim"].startswith("[authors: ") for c in pe["claims"][3:])
+    assert au["draw"] == "authors" and len(pe["claims"]) == 10
+    assert all(c["claim"].startswith("[authors: ") for c in pe["claims"][5:])
     am = {k: np.array(v) for k, v in au["return_rate_mean"].items()}
     rows = {(r["system"], r["metric"]): r["ours"] for r in pe["rows"]}
     assert rows[("authors: SWG (open loop)", "return rate at σ = 0.5")] == pytest.approx(am["open"][5])
     assert rows[("SWG (open loop)", "return rate at σ = 0.5 m")] == pytest.approx(mean["open"][5])
     a_moves = all(v > 0 for v in au["open_speed_before"])
-    assert pe["claims"][3]["holds"] == ((am["open"][sig >= 0.6].mean() < am["open"][sig <= 0.4].mean())
+    assert pe["claims"][5]["holds"] == ((am["open"][sig >= 0.6].mean() < am["open"][sig <= 0.4].mean())
                                         if a_moves else None)
     a_same = a_moves and not d["fallback_best_agent"] and min(am["open"].min(), am["closed"].min()) < 1
-    assert pe["claims"][5]["holds"] == ((np.abs(am["open"] - am["closed"]).mean() <= 0.15 + 1e-9) if a_same else None)
+    assert pe["claims"][7]["holds"] == ((np.abs(am["open"] - am["closed"]).max() <= 0.2 + 1e-9) if a_same else None)
 
+    import bptsb_ros.training.trainer as trainer
+    from bptsb_ros.training.trainer import TrainingDiverged
+
+    real_train, configs = trainer.train, {}
+
+    def train(cfg, run_dir, **kwargs):
+        configs[run_dir.name] = cfg
+        if run_dir.name == "switching-authors":
+            raise TrainingDiverged("update 3464: planted; the guard has nothing to undo")
+        return real_train(cfg, run_dir, **kwargs)
+
+    monkeypatch.setattr(trainer, "train", train)
     _, hw = run_experiment("locomotion-headwind", scale="smoke", out_dir=tmp_path / "hw", progress=False,
                            workers=0, log=lambda m: None)
     d = hw["details"]
@@ -234,25 +264,44 @@ def test_smoke_runs_match_their_records(tmp_path):
                 and abs(ph["windy_late"] - ph["calm"]) <= 0.25 * d["target"] + 1e-9)
     assert drop == (recovers if all(blocks[k] > 0 for k in ("calm", "windy_early", "windy_late")) else None)
     assert {"headwind_speed.png", "speed_vs_wind.png"} <= set(hw["figures"])
-    # the authors' switching protocol: its own training (−15 N, 200 s period, their rates, ÷10 schedule), rows
-    # and claims read relative to its trained wind
+    # the authors' switching protocol: its own training (−15 N, 200 s period, their rates, ÷10 schedule) was asked
+    # for and diverged: a row and a reason, its four claims not testable (the same texts as a trained variant's)
+    cfg = configs["switching-authors"]
+    assert cfg.locomotion.wind_force == -15.0 and cfg.locomotion.wind_period == 200.0 and cfg.training.lr_decay
+    assert (cfg.training.lr.k, cfg.training.lr.d, cfg.training.lr.l) == (1.0, 0.1, 0.01)
     au = d["variants"]["authors"]
-    assert au["wind_force"] == -15.0 and au["wind_period_s"] == 200.0 and au["lr_decay"] is True
-    assert au["lr"] == {"k": 1.0, "d": 0.1, "l": 0.01, "amplitude": 1e-5, "phase": 1e-4}
+    assert au["wind_force"] == -15.0 and au["wind_period_s"] == 200.0 and "planted" in au["diverged"]
     assert d["variants"]["paper"]["wind_force"] == -1.0 and d["variants"]["paper"]["lr"]["d"] == 0.01
-    aw = np.array(au["speed_vs_wind"]["F_wind"])
-    assert aw[0] == -30.0 and aw[-1] == 15.0 and np.any(np.isclose(aw, -15.0))
     a_claims = hw["claims"][4:]
     assert len(hw["claims"]) == 8 and all(c["claim"].startswith("[authors] ") for c in a_claims)
-    av = np.array([np.nan if u is None else u for u in au["speed_vs_wind"]["switching"]])
-    a_err = np.abs(av - au["target"]) / au["target"]
-    a_learned = all(a_err[np.isclose(aw, f)][0] <= 0.25 + 1e-9 for f in (0.0, -15.0))
-    a_far = (np.mean(np.nan_to_num(a_err[aw < -15], nan=np.inf)) > 0.5) if a_learned else None
+    assert all(c["holds"] is None and "update 3464: planted" in c["evidence"] for c in a_claims)
     assert a_claims[3]["claim"].startswith("[authors] the speed is far from the target when F_wind < −15")
-    assert a_claims[3]["holds"] == a_far
+    assert [e["args"][0]["fields"]["variant"] for e in hw["measured"]] == ["paper", "authors"]
     rows = {(r["system"], r["metric"]): r["ours"] for r in hw["rows"]}
-    assert rows[("authors: after switching training", "speed at F_wind = -15")] == pytest.approx(
-        av[np.isclose(aw, -15.0)][0], nan_ok=True)
+    assert rows[("authors: switching training", "diverged (1) or finished (0)")] == 1
+    assert rows[("switching training", "diverged (1) or finished (0)")] == 0
+    assert rows[("after switching training", "speed at F_wind = -1")] == pytest.approx(v[np.isclose(winds, -1.0)][0],
+                                                                                        nan_ok=True)
+
+
+def test_a_seed_without_agents_is_a_result_not_a_failed_run(tmp_path, monkeypatch):
+    """Every forward training failing (planted) leaves locomotion-perturbation and -headwind a result.json with their
+    claims not testable and the reason, instead of a failed run that would hold up the aggregate over seeds."""
+    import bptsb_ros.experiments.locomotion_common as common
+
+    def fail(settings, seed, run_dir):
+        raise RuntimeError("planted: the forward training diverged")
+
+    monkeypatch.setattr(common, "forward_agent_job", fail)
+    _, pe = run_experiment("locomotion-perturbation", scale="smoke", out_dir=tmp_path / "pe", progress=False,
+                           workers=0, log=lambda m: None)
+    assert len(pe["claims"]) == 10 and all(c["holds"] is None and "planted" in c["evidence"] for c in pe["claims"])
+    assert {(r["system"], r["metric"]): r["ours"] for r in pe["rows"]} == {
+        ("forward agents", "agents whose training finished"): 0}
+    _, hw = run_experiment("locomotion-headwind", scale="smoke", out_dir=tmp_path / "hw", progress=False,
+                           workers=0, log=lambda m: None)
+    assert len(hw["claims"]) == 8 and all(c["holds"] is None and "planted" in c["evidence"] for c in hw["claims"])
+    assert hw["figures"] == [] and "planted" in hw["details"]["diverged"]
 
 
 def test_agent_settings_pass_the_projection_to_the_training_and_keep_the_clamp_key():

@@ -167,10 +167,11 @@ def test_context_records_where_jobs_ran(tmp_path, cluster):
 
 
 # -- every family: --workers 1 and --scheduler decide where the experiment's jobs run ----------------------------
-#: (experiment, module attribute replaced by a planted job, the planted job, the error the run then ends with)
+#: (experiment, module attribute replaced by a planted job, the planted job, the error the run then ends with; None:
+#: the run ends with a result whose claims are all not testable)
 FAMILIES = {
     "locomotion": ("locomotion-headwind", "bptsb_ros.experiments.locomotion_common.forward_agent_job",
-                   marker_agent_job, RuntimeError),
+                   marker_agent_job, None),
     "timeseries": ("narma-emulation", "bptsb_ros.experiments.timeseries.NarmaJob", MarkerNarmaJob, RuntimeError),
     "schemes": ("closed-loop-schemes", "bptsb_ros.experiments.closed_loop_schemes.scheme_job", marker_scheme_job,
                 JobFailed),
@@ -193,6 +194,12 @@ def _run_family(family: str, out: Path, monkeypatch, mnist_dir, **where) -> None
     name, target, planted, error = FAMILIES[family]
     monkeypatch.setattr(target, planted)
     data = {"data_dir": mnist_dir} if family == "mnist" else {}
+    if error is None:  # a failed forward agent is a result of the run (every claim not testable), not a failure
+        _, result = run_experiment(name, scale="smoke", out_dir=out, progress=False, log=lambda m: None, **data,
+                                   **where)
+        assert result["claims"] and all(c["holds"] is None and "planted" in c["evidence"]
+                                        for c in result["claims"])
+        return
     with pytest.raises(error, match="planted|MarkerStop|forward agent failed"):
         run_experiment(name, scale="smoke", out_dir=out, progress=False, log=lambda m: None, **data, **where)
 

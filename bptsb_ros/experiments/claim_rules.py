@@ -9,8 +9,12 @@ is met at the bound itself even when the number was computed in floating point (
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from bptsb_ros.experiments.result import Claim
 
 #: phase-locked (or, for a closed loop, minimum-over-shifts) MSE / target mean square below which a curve counts as
 #: drawn: the error is a tenth of the figure's own size (a body at rest at the figure's centre scores 1)
@@ -27,6 +31,35 @@ def at_most(x: float, bound: float) -> bool:
 def draws(nmse: float) -> bool:
     """The curve is drawn: error / target mean square < :data:`DRAWS_NMSE` (strict; NaN, a blow-up, is not)."""
     return bool(nmse < DRAWS_NMSE)
+
+
+#: two return-rate curves (open and closed loop) are "almost the same" when they differ by at most this at every σ
+SAME_RATE = 0.2
+
+
+def almost_same_rates(rate_a: np.ndarray, rate_b: np.ndarray) -> tuple[bool, float, int]:
+    """The paper's "the return rates of the sinusoidal drive and closed-loop control were almost the same" (Fig.
+    4(c), Lissajous and locomotion): the two curves over σ differ by at most :data:`SAME_RATE` at every σ
+    (inclusive). Returns (holds, the largest |difference|, the index of the σ where it is).
+
+    One rule for both tasks, pointwise rather than on average: the sentence compares two curves, and two curves
+    that agree everywhere but one σ, where they differ by 0.5, are not "almost the same" (a mean over 11 σ would
+    call that gap 0.05). 0.2 leaves room for the sampling noise of a rate of 100 trials: the difference of two
+    independent rates of 100 has a standard deviation of at most 0.071, so 0.2 is 2.8 of them, and two loops of
+    equal robustness pass at all 11 σ in about 95 % of draws even at rates near ½. NaN (no rate) fails."""
+    diff = np.abs(np.asarray(rate_a, dtype=float) - np.asarray(rate_b, dtype=float))
+    if diff.size == 0 or np.isnan(diff).any():
+        return False, float("nan"), -1
+    worst = int(np.argmax(diff))
+    return at_most(float(diff[worst]), SAME_RATE), float(diff[worst]), worst
+
+
+def all_not_testable(claims: list[Claim], reason: str) -> list[Claim]:
+    """The same claims (same texts), every one not testable because ``reason``: the claims of a system whose training
+    diverged, so a seed where it did keeps its place among the seeds (∅ for it) instead of losing the run."""
+    from bptsb_ros.experiments.result import Claim  # result.py imports this module
+
+    return [Claim.not_testable(c.claim, reason) for c in claims]
 
 
 def longest_run(mask: np.ndarray) -> tuple[int, int, int]:

@@ -8,8 +8,9 @@ The closed-loop error is the paper's: per-period minimum over time shifts of the
 ``eval_periods`` periods after as many periods of settling in the closed loop.
 
 Claims (:func:`claims`): scheme 1 draws no curve (closed-loop error < :data:`DRAWS_NMSE` × target mean square
-counts as drawing); schemes 2 and 3 improve only some systems, at most half of them (ratio E_after / E_before < 1:
-paper "only 7" and "a mere 6" of 15).
+counts as drawing) and its closed loops come to rest (the CMP's motion over the evaluation periods below
+:data:`STATIONARY_MS` × the target mean square); schemes 2 and 3 improve only some systems, at most half of them
+(ratio E_after / E_before < 1: paper "only 7" and "a mere 6" of 15).
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ from bptsb_ros.tasks.lissajous_switching import CURVE_1, CURVE_SWITCH, CURVE_TIM
 __all__ = ["DRAWS_NMSE", "SchemeNumbers", "claims", "run", "scheme_job"]
 
 CURVES = (CURVE_1, CURVE_SWITCH, CURVE_TIMING)
+#: a closed loop is in a stationary state when the CMP's motion (mean square about its mean) is below this ×
+#: the target's mean square: an RMS motion under a tenth of the figure's
+STATIONARY_MS = 0.01
 #: the paper's table: E_after / E_before per curve (rows as CURVES) and seed 0..4
 PAPER_SCHEME2 = ((1.00, 1.15, 0.87, 1.09, 0.59), (2.11, 1.24, 0.99, 0.68, 1.04), (0.97, 1.26, 0.94, 1.18, 0.82))
 PAPER_SCHEME3 = ((0.83, 1.68, 1.11, 1.89, 1.62), (0.58, 1.56, 0.34, 0.67, 1.33), (0.65, 1.03, 1.33, 1.08, 0.66))
@@ -45,7 +49,9 @@ class SchemeNumbers:
     """What the claims of closed-loop-schemes rest on, each (curves, seeds): the closed-loop errors [m²] of the
     preliminary agent (``before``, NaN: its training diverged) and after each scheme (NaN: diverged);
     ``target_mean_square`` [m²]; ``scheme1_trained``: scheme 1's training finished without diverging;
-    ``note``: which preliminary trainings diverged (for the evidence)."""
+    ``note``: which preliminary trainings diverged (for the evidence); ``scheme1_motion``: the mean square [m²] of
+    the CMP about its mean over the evaluation periods of scheme 1's closed loop (NaN: diverged; None: a run made
+    before it was measured)."""
 
     before: np.ndarray
     scheme1: np.ndarray
@@ -54,6 +60,7 @@ class SchemeNumbers:
     target_mean_square: np.ndarray
     scheme1_trained: np.ndarray
     note: str = ""
+    scheme1_motion: np.ndarray | None = None
 
 
 @judge("closed-loop-schemes")
@@ -66,6 +73,12 @@ def claims(n: SchemeNumbers) -> list[Claim]:
 
     * scheme 1 draws nothing: no system's closed-loop error < :data:`DRAWS_NMSE` × target mean square. Premise: some
       scheme-1 training finished (a training that diverged made no attempt to draw).
+    * "All the systems transitioned into a stationary state quickly after the body started moving due to the
+      distribution of the initial values of the feedback weights": every scheme-1 system whose training finished
+      has a closed loop at rest — the CMP's motion (mean square about its mean over the evaluation periods, after
+      as many periods of settling) below :data:`STATIONARY_MS` × the target mean square. A closed loop that blew
+      up is not at rest. "Quickly" is not tested: the state is measured after the training and the settling.
+      Premises: some scheme-1 training finished, and the motion was measured.
     * schemes 2 and 3 improve only some systems: 0 < improved ≤ half of the systems with a preliminary agent
       ("only 7", "a mere 6" of 15: fewer than half). Improved: E_after / E_before < 1 (a diverged scheme is not).
       Premise: at least two systems with a preliminary agent (with one, "some but not most" cannot happen).
@@ -82,6 +95,21 @@ def claims(n: SchemeNumbers) -> list[Claim]:
         with np.errstate(invalid="ignore"):
             drawn1 = int(np.sum(np.asarray(n.scheme1, float) / np.asarray(n.target_mean_square, float) < DRAWS_NMSE))
         out.append(Claim(text1, drawn1 == 0, f"{drawn1} of {total} draw ({int(trained1.sum())} trainings finished)"))
+    text_rest = (f"scheme 1's closed loops transition into a stationary state (CMP motion mean square < {STATIONARY_MS}"
+                 " × target mean square in every system whose scheme-1 training finished)")
+    if not trained1.any():
+        out.append(Claim.not_testable(text_rest, f"every scheme-1 training diverged ({total} of {total})"))
+    elif n.scheme1_motion is None:
+        out.append(Claim.not_testable(text_rest, "the CMP's motion in scheme 1's closed loop was not measured in this "
+                                                 "run"))
+    else:
+        with np.errstate(invalid="ignore"):
+            rest = np.asarray(n.scheme1_motion, float) / np.asarray(n.target_mean_square, float) < STATIONARY_MS
+        k = int(np.sum(rest & trained1))
+        worst = np.asarray(n.scheme1_motion, float)[trained1] / np.asarray(n.target_mean_square, float)[trained1]
+        out.append(Claim(text_rest, k == int(trained1.sum()),
+                         f"{k} of {int(trained1.sum())} at rest; largest motion / target mean square "
+                         f"{float(np.max(worst)) if np.isfinite(worst).all() else float('nan'):.3g}"))
     valid = int(np.sum(np.isfinite(before)))
     for name, after in (("scheme 2", n.scheme2), ("scheme 3", n.scheme3)):
         text = f"{name} improves only some systems (more than none, at most half; paper: 7 and 6 of 15)"
@@ -98,15 +126,22 @@ def claims(n: SchemeNumbers) -> list[Claim]:
 def closed_loop_error(trained: TrainedAgent, state, curve: Curve, periods: int) -> float:
     """Closed-loop error [m²] from ``state``: settle ``periods`` periods, then the windowed shift-min error over
     ``periods`` periods. NaN if the loop blew up."""
+    return closed_loop_run(trained, state, curve, periods)[0]
+
+
+def closed_loop_run(trained: TrainedAgent, state, curve: Curve, periods: int) -> tuple[float, float]:
+    """(closed-loop error [m²] as :func:`closed_loop_error`, the CMP's motion: its mean square about its mean over
+    the same ``periods`` periods [m²], per coordinate as the target mean square); NaN, NaN if the loop blew up."""
     agent, period = trained.agent, trained.period
     steps = 2 * periods * period
     pop = run_population(agent.body, steps, state, feedback=agent.feedback)
     if bool(pop.diverged.any()):
-        return float("nan")
+        return float("nan"), float("nan")
     cmp = pop.tracked[-(periods * period + 1):, :, 0].double().numpy()
     k_first = state.step + steps - periods * period
     t = (k_first + np.arange(cmp.shape[0] + period)) * agent.dt
-    return float(windowed_shift_error_batch(cmp, curve.target(t, trained.amplitude, trained.omega), period)[0])
+    error = float(windowed_shift_error_batch(cmp, curve.target(t, trained.amplitude, trained.omega), period)[0])
+    return error, float(np.mean((cmp - cmp.mean(0)) ** 2))
 
 
 def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_time: float, add_time: float,
@@ -156,8 +191,8 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
         out[f"{name}_diverged_at_update"] = res.diverged
         out[f"{name}_guard"] = res.guard
     res1 = train_scheme1(fresh, target, max(1, int(round(scheme1_time / (period * fresh.dt)))), seed=seed)
-    out["scheme1"] = float("nan") if res1.diverged is not None else closed_loop_error(
-        TrainedAgent(fresh, res1.state, {}, Path(run_dir)), res1.state, c, eval_periods)
+    out["scheme1"], out["scheme1_motion"] = (float("nan"), float("nan")) if res1.diverged is not None else \
+        closed_loop_run(TrainedAgent(fresh, res1.state, {}, Path(run_dir)), res1.state, c, eval_periods)
     out["scheme1_loss_first_last"] = [res1.losses[0], res1.losses[-1]] if res1.losses else None
     out["scheme1_diverged_at_update"] = res1.diverged
     out["scheme1_guard"] = res1.guard
@@ -214,8 +249,13 @@ def run(ctx: Context) -> None:
     ctx.row("preliminary training", "diverged (no system to improve)", f"of {n}", len(failed), 0)
     trained1 = np.array([[r["scheme1_diverged_at_update"] is None for r in results[i * seeds:(i + 1) * seeds]]
                          for i in range(n_curves)])
+    motion1 = np.full((n_curves, seeds), np.nan)
+    for (ci, s), res in zip(grid, results, strict=True):
+        motion1[ci, inner.index(s)] = res["scheme1_motion"]
+    ctx.row("scheme 1", "closed loops at rest (CMP motion < 0.01 × target mean square)", f"of {n}",
+            int(np.sum(motion1 / ms < STATIONARY_MS)), "15 of 15")
     ctx.judge(claims, SchemeNumbers(table["before"], table["scheme1"], table["scheme2"],
-                                                  table["scheme3"], ms, trained1, note))
+                                    table["scheme3"], ms, trained1, note, motion1))
     ctx.phase("plotting the scheme ratios")
     from bptsb_ros.analysis.autonomy_plots import plot_scheme_ratios
 
@@ -226,7 +266,8 @@ def run(ctx: Context) -> None:
                           "curves": [str(c) for c in CURVES[:n_curves]],
                           "preliminary_sim_time_s": pre_time, "scheme_sim_time_s": add_time,
                           "scheme1_sim_time_s": scheme1_time, "eval_periods": eval_periods,
-                          "errors": table, "target_mean_square": ms, "ratio_scheme2": ratio2, "ratio_scheme3": ratio3,
+                          "errors": table, "scheme1_motion": motion1, "target_mean_square": ms,
+                          "ratio_scheme2": ratio2, "ratio_scheme3": ratio3,
                           "jobs": results, "preliminary_diverged": failed,
                           "fl_learning_rate": "1.0 (schemes 1, 2; not in the paper)",
                           "scheme1_fl_init": "W ~ N(0, 0.1²)", "scheme3_fit": "ridge (AIC) on the last 10 windows, "

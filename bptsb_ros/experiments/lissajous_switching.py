@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,8 +34,9 @@ import numpy as np
 import torch
 
 from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, periodicity
+from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.config import LearningRates
-from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, at_most, draws, fmt, longest_run
+from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, all_not_testable, at_most, draws, fmt, longest_run
 from bptsb_ros.experiments.lissajous_agents import (
     TrainedAgent,
     load_trained,
@@ -42,9 +44,10 @@ from bptsb_ros.experiments.lissajous_agents import (
     single_threaded,
     train_single_curve,
 )
-from bptsb_ros.experiments.measured import judge
+from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 from bptsb_ros.safe_files import write_atomic
 from bptsb_ros.sim.population import run_population
 from bptsb_ros.sim.rollout import simulate_open_loop
@@ -61,16 +64,29 @@ from bptsb_ros.tasks.lissajous_switching import (
     wind_vector,
 )
 
-__all__ = ["BAND_MIN", "DRAWS_NMSE", "FREQ_TOL", "BifurcationNumbers", "SwitchingNumbers", "TimingNumbers",
-           "bifurcation_claims", "switching_claims", "timing_claims"]
+__all__ = ["BAND_TOL", "CHAOTIC_INTERVALS", "CHAOTIC_SHARE", "DRAWS_NMSE", "FREQ_TOL", "PAPER_BAND", "STABLE_END",
+           "STABLE_END_TOL", "BifurcationNumbers", "SwitchingNumbers", "TimingNumbers", "bifurcation_claims",
+           "switching_claims", "timing_claims"]
 
 #: dominant frequencies agree when within this [Hz] (the test runs' FFT bin is 1/(segment length) ≤ 0.1 Hz)
 FREQ_TOL = 0.1
 #: x and y frequencies count as different when at least this far apart [Hz] (the curves' are 1 and 2 Hz)
 FREQ_APART = 0.5
-#: the fixed-timing system "fails for a band" when at least this many consecutive n fail
-BAND_MIN = 5
+#: the paper's band of switch phases n where the fixed-timing system "converged to different attractors"
+PAPER_BAND = (22, 69)
+#: how far [in n, hundredths of a period] each end of our band may lie from the paper's (a tenth of a period)
+BAND_TOL = 10
+#: the paper's bifurcation diagram: "a stable trajectory was drawn from −1 to around 0.2" ...
+STABLE_END = 0.2
+#: ... "around": the last stable F_wind of the run from −1 within this of 0.2 [N] (two grid steps of 0.05)
+STABLE_END_TOL = 0.1
+#: ... "but chaotic behaviors were observed when F_wind ∈ (0.2, 0.6), (1.2, 2.0)" (open intervals)
+CHAOTIC_INTERVALS = ((0.2, 0.6), (1.2, 2.0))
+#: share of the grid values inside such an interval that must be aperiodic for it to count as chaotic
+CHAOTIC_SHARE = 0.5
 BIFURCATION_WINDS = np.round(np.arange(-1.0, 2.0001, 0.05), 10)
+#: the segments of lissajous-switching's test run: calm, windy, calm
+TEST_SEGMENTS = ("before (no wind)", "wind", "after (no wind)")
 #: the wind values the switching agent was trained on (binary F_wind)
 TRAINED_WINDS = (0.0, 1.0)
 
@@ -83,12 +99,13 @@ class SwitchingNumbers:
     pre_nmse: the single-curve agent's (1,2,0) phase-locked MSE / target mean square before the switching training;
     segments: per test segment ("before (no wind)", "wind", "after (no wind)") its "nmse" (phase-locked MSE /
     target mean square) and the CMP's dominant frequencies "f_x", "f_y" [Hz]; transient: periods left out at the
-    start of each segment."""
+    start of each segment; diverged: why there is no trained system to test ("": there is one)."""
 
     pre_nmse: float
     segments: dict[str, dict[str, float]]
     transient: int = 0
     curve_on: str = "(2,1,π/2)"
+    diverged: str = ""
 
 
 @judge("lissajous-switching")
@@ -106,7 +123,11 @@ def switching_claims(n: SwitchingNumbers, tag: str = "") -> list[Claim]:
       single curve in advance");
     * the first curve's error grew: its error after (no-wind segment before the wind) > before the additional
       training; premise: the switching was learned (both curves drawn), the paper's "although".
+
+    A variant whose preliminary or switching training diverged (``n.diverged``) has the same claims, not testable.
     """
+    if n.diverged:
+        return all_not_testable(switching_claims(replace(n, diverged=""), tag), n.diverged)
     seg = n.segments
     pre_ok = draws(n.pre_nmse)
     pre_failed = (f"the single-curve agent did not draw (1,2,0) before the switching training (MSE / target mean "
@@ -144,29 +165,61 @@ def switching_claims(n: SwitchingNumbers, tag: str = "") -> list[Claim]:
 class BifurcationNumbers:
     """What the claims of lissajous-bifurcation (one wind variant) rest on.
 
-    winds: (W,) F_wind values; period: (W,) the CMP's period in SWG periods (m ≥ 1; 0 aperiodic on the record;
-    −1 diverged); trained_nmse: {F_wind: phase-locked MSE / target mean square} at the trained values
-    (:data:`TRAINED_WINDS`: (1,2,0) at 0, the displaced (2,1,π/2) at 1), from the same sweep."""
+    winds: (W,) F_wind values, ascending from −1; period: (W,) the CMP's period in SWG periods (m ≥ 1; 0 aperiodic
+    on the record; −1 diverged); trained_nmse: {F_wind: phase-locked MSE / target mean square} at the trained
+    values (:data:`TRAINED_WINDS`: (1,2,0) at 0, the displaced second curve at 1), from the same sweep; variant: the
+    variant's label (figures over seeds); diverged: why there is no trained system to sweep ("": there is one)."""
 
     winds: np.ndarray
     period: np.ndarray
     trained_nmse: dict[float, float] = field(default_factory=dict)
+    variant: str = ""
+    diverged: str = ""
+
+
+def stable_run_end(winds: np.ndarray, period: np.ndarray) -> float:
+    """The last F_wind of the run of periodic orbits (period ≥ 1) that starts at the grid's first value; NaN when
+    the first value is not periodic."""
+    periodic = np.asarray(period) >= 1
+    if not periodic.size or not periodic[0]:
+        return float("nan")
+    stop = periodic.size if periodic.all() else int(np.argmin(periodic))
+    return float(np.asarray(winds, float)[stop - 1])
 
 
 @judge("lissajous-bifurcation")
 def bifurcation_claims(n: BifurcationNumbers, tag: str = "") -> list[Claim]:
     """The paper (supplement, "Behavioral switching", Fig. (d)): "In the system that learned to switch Lissajous
-    curves according to F_wind, the respective maxima [...] are plotted when F_wind varies between [−1.0, 2.0]" and
-    "An important conclusion derived from this analysis is that it is possible for there to be more diverse dynamics
-    embedded in brain–body coupling systems than they have learned."
+    curves according to F_wind, the respective maxima [...] are plotted when F_wind varies between [−1.0, 2.0]";
+    "Various bifurcation structures were observed: A stable trajectory was drawn from −1 to around 0.2, but chaotic
+    behaviors were observed when F_wind ∈ (0.2, 0.6), (1.2, 2.0)" and "An important conclusion derived from this
+    analysis is that it is possible for there to be more diverse dynamics embedded in brain–body coupling systems
+    than they have learned."
+
+    What the sweep measures per F_wind is the CMP's period on the record after a transient (``period``): the
+    smallest m ≤ 8 with CMP(t + m SWG periods) ≈ CMP(t) (relative RMS difference ≤ 1e-3), 0 when there is none.
+    The paper read "stable" and "chaotic" off its bifurcation diagram (the local maxima of x and y per F_wind),
+    where a periodic orbit is a few points and anything else a cloud; the period is the number behind that picture,
+    so here **stable** = periodic (period m ≥ 1, any m: a period-2 orbit is a few points too, and the sentence
+    contrasts stable with chaotic) and **chaotic** = aperiodic on the record (which, like the diagram, does not
+    tell chaos from quasi-periodicity or from a period above 8). A diverged orbit (−1) is neither.
 
     * period 1 at the trained F_wind = 0 and 1: the orbit repeats after one SWG period there, as the trained curves
-      do; premise: the system learned to switch (at F = 0 and F = 1 of the sweep it draws its curve, phase-locked
-      MSE < :data:`DRAWS_NMSE` × target mean square);
-    * more diverse than learned: some untrained F_wind give a period-m (m ≥ 2) or aperiodic orbit; premise: the
-      learned dynamics is the trained one (switching learned, and period 1 at the trained values; a period-m orbit
-      elsewhere is no more diverse than a period-m orbit at a trained value).
+      do;
+    * stable from −1 to around 0.2: the grid's run of periodic values that starts at F_wind = −1 ends within
+      ±:data:`STABLE_END_TOL` of :data:`STABLE_END` (its last periodic value in [0.1, 0.3]; the grid steps by 0.05);
+    * chaotic in (0.2, 0.6) and in (1.2, 2.0): in each open interval at least :data:`CHAOTIC_SHARE` of the grid
+      values are aperiodic (one claim per interval; "chaotic behaviors were observed" there, and chaotic regions of
+      driven oscillators hold periodic windows, so not every value must be aperiodic);
+    * more diverse than learned: some untrained F_wind give a period-m (m ≥ 2) or aperiodic orbit.
+
+    Premise of every claim: the system learned to switch (at F = 0 and F = 1 of the sweep it draws its curve,
+    phase-locked MSE < :data:`DRAWS_NMSE` × target mean square); of "more diverse", also period 1 at the trained
+    values (a period-m orbit elsewhere is no more diverse than a period-m orbit at a trained value). A variant whose
+    training diverged (``n.diverged``) has the same claims, not testable.
     """
+    if n.diverged:
+        return all_not_testable(bifurcation_claims(replace(n, diverged=""), tag), n.diverged)
     winds, per = np.asarray(n.winds, float), np.asarray(n.period)
     trained = np.zeros(len(winds), bool)
     for f in TRAINED_WINDS:
@@ -186,6 +239,32 @@ def bifurcation_claims(n: BifurcationNumbers, tag: str = "") -> list[Claim]:
     per_text = ", ".join(f"at F = {f:g}: {p}" for f, p in per_trained.items())
     out = [Claim(p1_text, p1, f"period (in SWG periods; 0 = aperiodic, −1 = diverged) {per_text}") if learned
            else Claim.not_testable(p1_text, not_learned)]
+    lo_end, hi_end = STABLE_END - STABLE_END_TOL, STABLE_END + STABLE_END_TOL
+    stable_text = (f"a stable (periodic) orbit from F_wind = −1 to around {STABLE_END:g}{tag} (the run of periodic "
+                   f"values from −1 ends at {lo_end:g} … {hi_end:g})")
+    if not learned:
+        out.append(Claim.not_testable(stable_text, not_learned))
+    else:
+        end = stable_run_end(winds, per)
+        beyond = per[winds > end + 1e-9] if math.isfinite(end) else per
+        after = (f"; the next value, F = {winds[winds > end + 1e-9][0]:.2f}, is "
+                 f"{_period_word(int(beyond[0]))}" if len(beyond) and math.isfinite(end) else "")
+        holds = math.isfinite(end) and winds[0] <= -1 + 1e-9 and at_most(abs(end - STABLE_END), STABLE_END_TOL)
+        out.append(Claim(stable_text, bool(holds),
+                         (f"periodic from F = {winds[0]:.2f} to {end:.2f}{after}" if math.isfinite(end) else
+                          f"F = {winds[0]:.2f} is already {_period_word(int(per[0]))}")))
+    for a, b in CHAOTIC_INTERVALS:
+        chaos_text = (f"chaotic (aperiodic) orbits for F_wind ∈ ({a:.1f}, {b:.1f}){tag} (at least {CHAOTIC_SHARE:.0%} "
+                      f"of the grid values inside aperiodic on the record)")
+        inside = (winds > a + 1e-9) & (winds < b - 1e-9)
+        if not learned:
+            out.append(Claim.not_testable(chaos_text, not_learned))
+        elif not inside.any():
+            raise ValueError(f"the F_wind grid has no value inside ({a:g}, {b:g})")
+        else:
+            k, m = int(np.sum(per[inside] == 0)), int(inside.sum())
+            out.append(Claim(chaos_text, k >= CHAOTIC_SHARE * m,
+                             f"{k} of {m} aperiodic; aperiodic at F = {_ranges(winds[inside & (per == 0)])}"))
     div_text = (f"more diverse dynamics than trained{tag}: some untrained F_wind give period-m (m ≥ 2) or "
                 "aperiodic orbits")
     untrained = per[~trained]
@@ -202,16 +281,24 @@ def bifurcation_claims(n: BifurcationNumbers, tag: str = "") -> list[Claim]:
     return out
 
 
+def _period_word(p: int) -> str:
+    return f"period {p}" if p >= 1 else ("aperiodic" if p == 0 else "diverged")
+
+
 @dataclass(frozen=True)
 class TimingNumbers:
     """What the claims of lissajous-timing (one wind variant) rest on: per switch phase n = 0…99 the phase-locked
-    MSE of the run to the (1,3,0) target / target mean square over its last ``last`` periods (inf: diverged), for
-    the system trained with the fixed (n = 0) and with random timing."""
+    MSE of the run to the second curve's target / target mean square over its last ``last`` periods (inf:
+    diverged), for the system trained with the fixed (n = 0) and with random timing; ``fixed_diverged``,
+    ``random_diverged``: why that system was not trained ("": it was); variant: the variant's label (figures)."""
 
     fixed_to_target: np.ndarray
     random_to_target: np.ndarray
     last: int = 0
     curve_on: str = "(1,3,0)"
+    variant: str = ""
+    fixed_diverged: str = ""
+    random_diverged: str = ""
 
 
 @judge("lissajous-timing")
@@ -222,33 +309,60 @@ def timing_claims(n: TimingNumbers, tag: str = "") -> list[Claim]:
     was blowing when 22 ≤ n ≤ 69."
 
     A run converges to the trained trajectory when it draws the target (phase-locked MSE < :data:`DRAWS_NMSE` ×
-    target mean square over the last periods). Premise of each claim: the system switches at its trained timing,
-    n = 0 (its n = 0 run draws the target: "the behavioral switching was achieved under training conditions").
+    target mean square over the last periods); a run that does not (a diverged one included) fails. Premise of
+    each claim: the system switches at its trained timing, n = 0 (its n = 0 run draws the target: "the behavioral
+    switching was achieved under training conditions"), and its training did not diverge.
 
     * random timing: every n = 0…99 converges;
-    * fixed timing: a band of at least :data:`BAND_MIN` consecutive n does not converge.
+    * fixed timing, the paper's band: the failing n form one band at the paper's place — the longest run of
+      consecutive failing n starts within ±:data:`BAND_TOL` of 22 and ends within ±:data:`BAND_TOL` of 69, and no n
+      fails outside 22 − :data:`BAND_TOL` … 69 + :data:`BAND_TOL` (a few n beside the band's ends may fail or not:
+      where a switch lands on the basin boundary of a trained system is its own, and ±10 n is a tenth of a period).
     """
     fixed, rand = np.asarray(n.fixed_to_target, float), np.asarray(n.random_to_target, float)
     crit = f"MSE to the {n.curve_on} target < {DRAWS_NMSE} × target mean square over the last {n.last} periods"
     out = []
     rand_text = f"the random-timing system converges to the trained trajectory for every n = 0…99{tag} ({crit})"
-    if not draws(rand[0]):
+    if n.random_diverged:
+        out.append(Claim.not_testable(rand_text, n.random_diverged))
+    elif not draws(rand[0]):
         out.append(Claim.not_testable(rand_text, f"the random-timing system does not switch at n = 0 (its n = 0 run's "
                                                  f"MSE / target mean square is {fmt(rand[0])})"))
     else:
         conv = rand < DRAWS_NMSE
         out.append(Claim(rand_text, bool(conv.all()), f"{int(conv.sum())}/{len(conv)} converge"))
-    fixed_text = f"the fixed-timing system fails for a band of n{tag} (≥ {BAND_MIN} consecutive n; paper 22 ≤ n ≤ 69)"
-    if not draws(fixed[0]):
+    (p_lo, p_hi), tol = PAPER_BAND, BAND_TOL
+    fixed_text = (f"the fixed-timing system fails to converge for one band of n at the paper's {p_lo} ≤ n ≤ {p_hi}"
+                  f"{tag} (longest run of failing n from {p_lo - tol}…{p_lo + tol} to {p_hi - tol}…{p_hi + tol}, "
+                  f"none failing outside {p_lo - tol}…{p_hi + tol})")
+    if n.fixed_diverged:
+        out.append(Claim.not_testable(fixed_text, n.fixed_diverged))
+    elif not draws(fixed[0]):
         out.append(Claim.not_testable(fixed_text, f"the fixed-timing system does not switch at its trained n = 0 (its "
                                                   f"n = 0 run's MSE / target mean square is {fmt(fixed[0])})"))
     else:
         fail = ~(fixed < DRAWS_NMSE)
-        band = longest_run(fail)
-        out.append(Claim(fixed_text, band[0] >= BAND_MIN,
-                         f"{int(fail.sum())} of {len(fail)} fail; longest band n = {band[1]}…{band[2]} ({band[0]} "
-                         "values)" if band[0] else "every n converges"))
+        length, a, b = longest_run(fail)
+        idx = np.arange(len(fail))
+        stray = idx[fail & ((idx < p_lo - tol) | (idx > p_hi + tol))]
+        holds = length > 0 and abs(a - p_lo) <= tol and abs(b - p_hi) <= tol and stray.size == 0
+        evidence = (f"{int(fail.sum())} of {len(fail)} fail; longest band n = {a}…{b} ({length} values)"
+                    if length else "every n converges")
+        if stray.size:
+            evidence += f"; failing outside {p_lo - tol}…{p_hi + tol}: n = {_int_ranges(stray)}"
+        out.append(Claim(fixed_text, bool(holds), evidence))
     return out
+
+
+def _int_ranges(values: np.ndarray) -> str:
+    """[3, 4, 5, 9] → '3…5, 9'."""
+    runs: list[list[int]] = []
+    for v in (int(x) for x in values):
+        if runs and v == runs[-1][1] + 1:
+            runs[-1][1] = v
+        else:
+            runs.append([v, v])
+    return ", ".join(f"{a}…{b}" if b > a else f"{a}" for a, b in runs)
 
 
 def phase_locked_nmse(cmp: np.ndarray, target: np.ndarray) -> float:
@@ -291,7 +405,10 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any]
 
     ``variant`` (a settings variant, :mod:`~bptsb_ros.experiments.experiment_settings`): ``published_wind``,
     ``curve_on``, ``hold`` (null: ``hold``), ``shift_of_size`` (null: the CMP's own mean wind shift,
-    :func:`wind_offset`), ``lr``, ``lr_decay``; its ``integrator`` is the pretrained agent's (``pre_dir``)."""
+    :func:`wind_offset`), ``lr``, ``lr_decay``; its ``integrator`` is the pretrained agent's (``pre_dir``).
+
+    A training that diverges with nothing for the guard to undo is a result, not a failure: the summary's
+    ``diverged`` says why (None when it finished), and no checkpoint is written."""
     from bptsb_ros.training.checkpoint import save_checkpoint
 
     pre = load_trained(Path(pre_dir), {})
@@ -309,11 +426,20 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any]
     steps = int(round(sim_time / agent.dt))
     schedule = wind_schedule(steps, period, np.random.default_rng(seed), hold_periods=hold, timing=timing)
     target = switch_targets(CURVE_1, curve_on, pre.amplitude, pre.omega, shift)
-    res = train_switching(agent, pre.state, schedule, target, lr=variant_lr(variant), window=period,
-                          published_wind=published, lr_decay=bool(variant["lr_decay"]))
+    curve = [curve_on.alpha, curve_on.beta, curve_on.delta]
+    try:
+        res = train_switching(agent, pre.state, schedule, target, lr=variant_lr(variant), window=period,
+                              published_wind=published, lr_decay=bool(variant["lr_decay"]))
+    except SimulationDiverged as err:  # a result of this variant (its claims ∅), not a failure of the experiment
+        summary = {"variant": variant["label"], "diverged": f"the switching training diverged ({err})",
+                   "wind_shift_x_m": shift, "sim_time_s": sim_time, "timing": str(timing), "curve_on": curve,
+                   "hold_periods": list(hold), "published_wind": published, "integrator": agent.body.integrator,
+                   "lr_decay": bool(variant["lr_decay"])}
+        Path(run_dir).mkdir(parents=True, exist_ok=True)
+        Path(run_dir, "switching.json").write_text(json.dumps(summary))
+        return summary
     s = res.state
     by_condition = loss_by_condition(np.asarray(res.losses), schedule, period)
-    curve = [curve_on.alpha, curve_on.beta, curve_on.delta]
     extra = {"task_state": {"r": s.r, "v": s.v, "a": s.a, "length": s.length, "step": s.step},
              "losses": res.losses, "wind_shift_x": shift, "timing": str(timing), "curve_on": curve,
              "published_wind": published, "hold_periods": list(hold)}
@@ -324,7 +450,7 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any]
                "wind_on_fraction": float(schedule.mean()), "hold_periods": list(hold), "published_wind": published,
                "integrator": agent.body.integrator, "lr_decay": bool(variant["lr_decay"]),
                "lr_k_first": res.lr_k[0] if res.lr_k else None, "lr_k_last": res.lr_k[-1] if res.lr_k else None,
-               **by_condition, "guard": res.guard}
+               **by_condition, "guard": res.guard, "diverged": None}
     write_atomic(Path(run_dir, "switching.json"), json.dumps({**summary, "losses": res.losses}))
     return summary
 
@@ -344,24 +470,59 @@ def loss_by_condition(losses: np.ndarray, schedule: np.ndarray, window: int, sha
     return out
 
 
-def _pretrain(ctx: Context, integrator: str = "verlet") -> TrainedAgent:
+def _pretrain(ctx: Context, integrator: str = "verlet") -> TrainedAgent | str:
     """The preliminary single-curve agent under ``integrator`` (run directory ``pretrained``, or
-    ``pretrained_<integrator>`` for another than verlet)."""
+    ``pretrained_<integrator>`` for another than verlet); why there is none, in words, if its training diverged."""
+    from bptsb_ros.training.trainer import TrainingDiverged
+
     sim_time = ctx.settings["pretrain_time"]
     ctx.log(f"{ctx.result.experiment}: preliminary single-curve training ({sim_time} s, seed {ctx.seed}, "
             f"{integrator} integrator)")
     name = "pretrained" if integrator == "verlet" else f"pretrained_{integrator}"
-    return train_single_curve(ctx.out_dir / name, sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
-                              fit_time=10, eval_periods=2, extra=[f"body.integrator={integrator}"])
+    try:
+        return train_single_curve(ctx.out_dir / name, sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
+                                  fit_time=10, eval_periods=2, extra=[f"body.integrator={integrator}"])
+    except TrainingDiverged as err:
+        return f"the preliminary single-curve training ({integrator} integrator) diverged ({err})"
 
 
-def _pretrain_variants(ctx: Context) -> dict[str, TrainedAgent]:
-    """One preliminary agent per integrator the variants use: variant name → its preliminary agent."""
-    pre: dict[str, TrainedAgent] = {}
+def _pretrain_variants(ctx: Context) -> dict[str, TrainedAgent | str]:
+    """One preliminary agent per integrator the variants use: variant name → its preliminary agent, or why there
+    is none (its training diverged)."""
+    pre: dict[str, TrainedAgent | str] = {}
     for v in ctx.settings.variants.values():
         if v["integrator"] not in pre:
             pre[v["integrator"]] = _pretrain(ctx, v["integrator"])
     return {name: pre[v["integrator"]] for name, v in ctx.settings.variants.items()}
+
+
+def _train_switching(ctx: Context, pres: dict[str, TrainedAgent | str],
+                     systems: list[tuple[str, str, str | int, str]]) -> dict[str, dict[str, Any]]:
+    """The switching trainings of ``systems`` (label, run directory name, timing, variant name) as jobs: label →
+    the job's summary, whose ``diverged`` says why a system has no trained agent (its preliminary or its switching
+    training diverged; None when it has one). A diverged system is a result: its claims are not testable."""
+    settings = _switching_settings(ctx)
+    variants = ctx.settings.variants
+    todo = [sys_ for sys_ in systems if isinstance(pres[sys_[3]], TrainedAgent)]
+    jobs = [(str(ctx.out_dir / run_name), str(pres[name].run_dir), ctx.seed, variants[name], timing,
+             settings["sim_time"], settings["hold"]) for _, run_name, timing, name in todo]
+    ctx.log(f"{ctx.result.experiment}: switching training ({settings['sim_time']} s), {len(jobs)} systems as jobs"
+            + (f"; {len(systems) - len(todo)} without a preliminary agent" if len(todo) < len(systems) else ""))
+    done = ctx.run_jobs(switching_job, jobs, names=[label for label, *_ in todo]) if jobs else []
+    out = {label: summary for (label, *_), summary in zip(todo, done, strict=True)}
+    for label, _, timing, name in systems:
+        if label not in out:
+            out[label] = {"variant": variants[name]["label"], "timing": str(timing), "diverged": pres[name]}
+    for label, summary in out.items():
+        if summary["diverged"]:
+            ctx.log(f"{ctx.result.experiment}: {label}: {summary['diverged']}")
+    return {label: out[label] for label, *_ in systems}
+
+
+def _diverged_row(ctx: Context, system: str, summary: dict[str, Any]) -> None:
+    """The row of a system's training: 1 when it diverged (its claims are then not testable), 0 when it finished;
+    over seeds, the share of seeds where it diverged."""
+    ctx.row(system, "training diverged (1) or finished (0)", "1", 1.0 if summary["diverged"] else 0.0, 0)
 
 
 def _switching_settings(ctx: Context) -> dict[str, Any]:
@@ -398,28 +559,30 @@ def run_switching(ctx: Context) -> None:
     pres = _pretrain_variants(ctx)
     settings = _switching_settings(ctx)
     variants = ctx.settings.variants
-    pre_err = {name: _curve_error(pre, CURVE_1, ctx.settings["pretrain_eval_periods"]) for name, pre in pres.items()}
-    jobs = [(str(ctx.out_dir / name), str(pres[name].run_dir), ctx.seed, v, "random", settings["sim_time"],
-             settings["hold"]) for name, v in variants.items()]
-    ctx.log(f"lissajous-switching: switching training ({settings['sim_time']} s, random timing), "
-            f"{len(jobs)} variants as jobs: {', '.join(v['label'] for v in variants.values())}")
-    summaries = ctx.run_jobs(switching_job, jobs, names=[v["label"] for v in variants.values()])
+    pre_err = {name: _curve_error(pre, CURVE_1, ctx.settings["pretrain_eval_periods"])
+               for name, pre in pres.items() if isinstance(pre, TrainedAgent)}
+    summaries = _train_switching(ctx, pres, [(v["label"], name, "random", name) for name, v in variants.items()])
     seg = ctx.settings["segment_periods"]  # periods per test segment
     transient = ctx.settings["transient_periods"]
     ctx.phase(f"the switching test of {len(variants)} trained agents (calm, windy, calm)")
     tests = {}
-    for (name, v), summary in zip(variants.items(), summaries, strict=True):
-        sw = load_trained(ctx.out_dir / name, summary)
-        tests[name] = _switching_test(sw, summary["wind_shift_x_m"], bool(v["published_wind"]), seg, transient,
-                                      ctx.seed, variant_curve(v))
+    for name, v in variants.items():
+        summary = summaries[v["label"]]
+        if not summary["diverged"]:
+            sw = load_trained(ctx.out_dir / name, summary)
+            tests[name] = _switching_test(sw, summary["wind_shift_x_m"], bool(v["published_wind"]), seg, transient,
+                                          ctx.seed, variant_curve(v))
     main_name = next(iter(variants))
     for name, v in variants.items():
         label = v["label"]
         prefix = "" if name == main_name else f"{label}: "
-        if name == main_name or pres[name] is not pres[main_name]:
+        if name in pre_err and (name == main_name or pres[name] is not pres[main_name]):
             ctx.row(f"{prefix}single-curve agent (before switching training)", "(1,2,0) MSE / target mean square",
                     "1", pre_err[name])
-        _loss_rows(ctx, f"{label}: switching training", summaries[list(variants).index(name)])
+        _diverged_row(ctx, f"{label}: switching agent", summaries[label])
+        if name not in tests:
+            continue
+        _loss_rows(ctx, f"{label}: switching training", summaries[label])
         second = variant_curve(v)
         for seg_label, s_v in tests[name]["segments"].items():
             wind_seg = seg_label == "wind"
@@ -428,10 +591,13 @@ def run_switching(ctx: Context) -> None:
                     second.alpha if wind_seg else CURVE_1.alpha)
             ctx.row(f"{label}: CMP, {seg_label}", "dominant frequency y", "Hz", s_v["f_y"],
                     second.beta if wind_seg else CURVE_1.beta)
+    nothing = {k: {"nmse": float("nan"), "f_x": float("nan"), "f_y": float("nan")} for k in TEST_SEGMENTS}
     for name, v in variants.items():
         tag = "" if name == main_name else f" [{v['label']}]"
-        ctx.judge(switching_claims, SwitchingNumbers(pre_err[name], tests[name]["segments"], transient,
-                                                     str(variant_curve(v))), tag)
+        ctx.judge(switching_claims, SwitchingNumbers(pre_err.get(name, float("nan")),
+                                                     tests[name]["segments"] if name in tests else nothing,
+                                                     transient, str(variant_curve(v)),
+                                                     summaries[v["label"]]["diverged"] or ""), tag)
     ctx.phase("plotting the switching curves")
     from bptsb_ros.analysis.autonomy_plots import plot_switching_curves, plot_switching_dynamics
 
@@ -444,9 +610,8 @@ def run_switching(ctx: Context) -> None:
             lo, hi = max(on_at - 3 * period, 0), min(on_at + 3 * period, len(test["wind"]))
             ctx.figure(plot_switching_dynamics(ctx.out_dir / "switching_dynamics.png", test["t"][lo:hi],
                                                test["r"][lo:hi], test["wind"][lo:hi], pres[name].agent.body.cmp_local))
-    labels = [v["label"] for v in variants.values()]
     ctx.result.details = {"seed": ctx.seed, "variants": ctx.settings.variants_json(),
-                          "switching_training": dict(zip(labels, summaries, strict=True)),
+                          "switching_training": summaries,
                           "test_runs": {variants[k]["label"]: {
                               "segment_periods": seg, "transient_periods": transient,
                               "wind_on_step": v["wind_on_step"], "wind_off_step": v["wind_off_step"],
@@ -474,8 +639,8 @@ def _switching_test(sw: TrainedAgent, shift: float, published: bool, seg: int, t
     cmp = r[:, agent.body.cmp_local]
     t = (sw.state.step + np.arange(steps + 1)) * dt
     target = switch_targets(CURVE_1, curve_on, sw.amplitude, sw.omega, shift)(t, wind)
-    windows = {"before (no wind)": (transient * period, on_at), "wind": (on_at + transient * period, off_at),
-               "after (no wind)": (off_at + transient * period, steps + 1)}
+    windows = dict(zip(TEST_SEGMENTS, ((transient * period, on_at), (on_at + transient * period, off_at),
+                                       (off_at + transient * period, steps + 1)), strict=True))
     seg_out = segment_errors(cmp, target, windows)
     for label, (a, b) in windows.items():
         fx, fy = dominant_frequency(cmp[a:b], dt)
@@ -506,10 +671,7 @@ def run_bifurcation(ctx: Context) -> None:
     pres = _pretrain_variants(ctx)
     settings = _switching_settings(ctx)
     variants = ctx.settings.variants
-    jobs = [(str(ctx.out_dir / name), str(pres[name].run_dir), ctx.seed, v, "random", settings["sim_time"],
-             settings["hold"]) for name, v in variants.items()]
-    ctx.log(f"lissajous-bifurcation: switching training ({settings['sim_time']} s), {len(jobs)} variants as jobs")
-    summaries = ctx.run_jobs(switching_job, jobs, names=[v["label"] for v in variants.values()])
+    summaries = _train_switching(ctx, pres, [(v["label"], name, "random", name) for name, v in variants.items()])
     transient, record = ctx.settings["transient_periods"], ctx.settings["record_periods"]
     winds = BIFURCATION_WINDS
     main_name = next(iter(variants))
@@ -518,8 +680,16 @@ def run_bifurcation(ctx: Context) -> None:
                                "variants": ctx.settings.variants_json()}
     ctx.phase(f"the wind sweep ({len(winds)} winds, {transient + record} periods) of {len(variants)} trained agents "
               "and its plots")
-    for (name, v), summary in zip(variants.items(), summaries, strict=True):
+    for name, v in variants.items():
         label, published, second = v["label"], bool(v["published_wind"]), variant_curve(v)
+        summary = summaries[label]
+        tag = "" if name == main_name else f" [{label}]"
+        _diverged_row(ctx, f"{label}: switching agent", summary)
+        if summary["diverged"]:
+            ctx.judge(bifurcation_claims, BifurcationNumbers(winds, np.full(len(winds), -1), {}, label,
+                                                             summary["diverged"]), tag)
+            details[label] = {"switching_training": summary}
+            continue
         sw = load_trained(ctx.out_dir / name, summary)
         period, body = sw.period, sw.agent.body
         pop = run_population(body, (transient + record) * period, repeat_state(sw.state, len(winds)),
@@ -534,11 +704,17 @@ def run_bifurcation(ctx: Context) -> None:
         ctx.row(f"{label}: F_wind grid", "values with a period-1 orbit (1 s)", "count", n_p1)
         ctx.row(f"{label}: F_wind grid", "values with a period-m orbit, m ≥ 2", "count", n_multi)
         ctx.row(f"{label}: F_wind grid", "values aperiodic on the record (chaotic or quasi-periodic)", "count",
-                n_aper, "chaotic in (0.2, 0.6) and (1.2, 2.0)")
+                n_aper)
         ctx.row(f"{label}: F_wind grid", "values that diverged", "count", int(np.sum(per < 0)))
         low = winds <= 0.2
         ctx.row(f"{label}: F_wind ∈ [−1, 0.2]", "fraction periodic", "1", float(np.mean(per[low] >= 1)),
                 "1 (stable)")
+        ctx.row(f"{label}: run of periodic F_wind from −1", "last periodic F_wind", "N",
+                stable_run_end(winds, per), STABLE_END)
+        for lo, hi in CHAOTIC_INTERVALS:
+            inside = (winds > lo + 1e-9) & (winds < hi - 1e-9)
+            ctx.row(f"{label}: F_wind ∈ ({lo:g}, {hi:g})", "fraction aperiodic (chaotic)", "1",
+                    float(np.mean(per[inside] == 0)), "chaotic")
         # the premise "the system learned to switch": at the trained F_wind it draws its curve (the sweep's own rows)
         t = (sw.state.step + transient * period + np.arange(cmp.shape[0])) * sw.agent.dt
         shift = float(summary["wind_shift_x_m"])
@@ -548,8 +724,7 @@ def run_bifurcation(ctx: Context) -> None:
             trained_nmse[f] = phase_locked_nmse(cmp[:, i], curve.target(t, sw.amplitude, sw.omega, dx))
             ctx.row(f"{label}: F_wind = {f:g} (trained)", f"phase-locked MSE to {curve} / target mean square", "1",
                     trained_nmse[f])
-        tag = "" if name == main_name else f" [{label}]"
-        ctx.judge(bifurcation_claims, BifurcationNumbers(winds, per, trained_nmse), tag)
+        ctx.judge(bifurcation_claims, BifurcationNumbers(winds, per, trained_nmse, label), tag)
         from bptsb_ros.analysis.autonomy_plots import plot_bifurcation
 
         show = [-1.0, -0.5, 0.0, 0.4, 1.0, 1.5, 2.0]
@@ -562,7 +737,7 @@ def run_bifurcation(ctx: Context) -> None:
     details["notes"] = _training_note(settings["sim_time"]) + ((
         " A damped body driven by a periodic signal under a constant force settles on a periodic orbit unless the "
         "training made it strongly nonlinear; the paper's chaotic windows need the switching agent it trained.")
-        if any(c.startswith("more diverse dynamics") for c in failed) else "")
+        if any(c.startswith(("more diverse dynamics", "chaotic")) for c in failed) else "")
     ctx.result.details = details
 
 
@@ -641,14 +816,15 @@ def run_timing(ctx: Context) -> None:
     systems = [(timing if name == main_name else f"{timing}, {v['label']}",
                 timing if name == main_name else f"{timing}_{name}", timing, name)
                for name, v in variants.items() for timing in ("fixed", "random")]
-    jobs = [(str(ctx.out_dir / run_name), str(pres[name].run_dir), ctx.seed, variants[name], timing,
-             settings["sim_time"], settings["hold"]) for _, run_name, timing, name in systems]
-    ctx.log(f"lissajous-timing: {len(jobs)} switching trainings ({settings['sim_time']} s each) as jobs")
-    summaries = ctx.run_jobs(switching_job, jobs, names=[f"{label} timing" for label, *_ in systems])
+    summaries = _train_switching(ctx, pres, systems)
     settle, run, last = ctx.settings["settle_periods"], ctx.settings["run_periods"], ctx.settings["last_periods"]
     ctx.phase(f"the convergence test of {len(systems)} trained agents (100 starts each)")
     out: dict[str, dict] = {}
-    for (label, run_name, timing, name), summary in zip(systems, summaries, strict=True):
+    for label, run_name, timing, name in systems:
+        summary = summaries[label]
+        _diverged_row(ctx, f"{label} timing: switching agent", summary)
+        if summary["diverged"]:
+            continue
         trained = load_trained(ctx.out_dir / run_name, summary)
         v = variants[name]
         out[label] = timing_convergence(trained, summary["wind_shift_x_m"], settle=settle, run=run, last=last,
@@ -660,25 +836,37 @@ def run_timing(ctx: Context) -> None:
                 float(out[label]["to_target"][0]))
         _loss_rows(ctx, f"{label} timing: switching training", summary)
     pairs = [(systems[2 * i][0], systems[2 * i + 1][0], name) for i, name in enumerate(variants)]
+    never = np.full(100, np.inf)  # a system that was not trained: its claims are not testable
     for fixed, random_, name in pairs:
         tag = "" if name == main_name else f" [{variants[name]['label']}]"
-        ctx.row(f"{fixed} timing", "longest band of failing n", "count", longest_run(~out[fixed]["converged"])[0],
-                "48 (22…69)")
-        ctx.judge(timing_claims, TimingNumbers(out[fixed]["to_target"], out[random_]["to_target"],
-                                               last, str(variant_curve(variants[name]))), tag)
+        if fixed in out:
+            fail = ~out[fixed]["converged"]
+            band = longest_run(fail)
+            ctx.row(f"{fixed} timing", "longest band of failing n", "count", band[0], 48)
+            ctx.row(f"{fixed} timing", "first n of the longest failing band", "n", band[1] if band[0] else None,
+                    PAPER_BAND[0])
+            ctx.row(f"{fixed} timing", "last n of the longest failing band", "n", band[2] if band[0] else None,
+                    PAPER_BAND[1])
+        ctx.judge(timing_claims, TimingNumbers(out[fixed]["to_target"] if fixed in out else never,
+                                               out[random_]["to_target"] if random_ in out else never,
+                                               last, str(variant_curve(variants[name])), variants[name]["label"],
+                                               summaries[fixed]["diverged"] or "",
+                                               summaries[random_]["diverged"] or ""), tag)
     ctx.phase("plotting the convergence")
     from bptsb_ros.analysis.autonomy_plots import plot_timing
 
-    shifts = {label: summary["wind_shift_x_m"] for (label, *_), summary in zip(systems, summaries, strict=True)}
+    shifts = {label: summaries[label].get("wind_shift_x_m") for label, *_ in systems}
     for fixed, random_, name in pairs:
         curve = variant_curve(variants[name])
-        ctx.figure(plot_timing(ctx.out_dir / f"timing{_variant_suffix(ctx, name)}.png",
-                               {k: out[k] for k in (fixed, random_)}, period=pres[name].period,
-                               target=lambda t, s, c=curve, p=pres[name]: c.target(t, p.amplitude, p.omega, s),
-                               shifts=shifts))
+        drawn = {k: out[k] for k in (fixed, random_) if k in out}
+        if drawn:
+            ctx.figure(plot_timing(ctx.out_dir / f"timing{_variant_suffix(ctx, name)}.png", drawn,
+                                   period=pres[name].period,
+                                   target=lambda t, s, c=curve, p=pres[name]: c.target(t, p.amplitude, p.omega, s),
+                                   shifts=shifts))
     ctx.result.details = {
         "seed": ctx.seed, "variants": ctx.settings.variants_json(),
-        "switching_training": {label: sm for (label, *_), sm in zip(systems, summaries, strict=True)},
+        "switching_training": summaries,
         "settle_periods": settle, "run_periods": run, "compare_last_periods": last,
         "converged_criterion": f"phase-locked MSE(run_n, second-curve target) / target mean square < {DRAWS_NMSE}",
         **{f"{k}_to_reference": v["to_reference"] for k, v in out.items()},
@@ -687,3 +875,60 @@ def run_timing(ctx: Context) -> None:
         "notes": _training_note(settings["sim_time"]) + " Every n converging means the wind switch reaches no second "
                  "attractor of the trained system at this training length.",
     }
+
+
+# -- figures over seeds -----------------------------------------------------------------------------------------
+@seed_figure("lissajous-bifurcation")
+def bifurcation_seed_figures(out_dir: Path, per_seed: Sequence[Mapping[str, Any]],
+                             seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: the CMP's orbit class (period 1, period m ≥ 2, aperiodic, diverged) at every F_wind, one row
+    per seed and one panel per variant, under the paper's stable and chaotic regions (the periods
+    :func:`bifurcation_claims` read; a seed whose variant diverged has no row)."""
+    from bptsb_ros.analysis.seed_plots import plot_period_map
+
+    panels: dict[str, tuple[list[int], list[np.ndarray]]] = {}
+    winds = None
+    for seed, res in zip(seeds, per_seed, strict=True):
+        for _, args, _ in stored_calls(res, bifurcation_claims):
+            n = args[0]
+            if n.diverged:
+                continue
+            winds = np.asarray(n.winds, float)
+            rows = panels.setdefault(n.variant or "switching agent", ([], []))
+            rows[0].append(seed)
+            rows[1].append(np.asarray(n.period))
+    if winds is None:
+        return []
+    spans = [(-1.0, STABLE_END, "paper: stable"), *((a, b, "paper: chaotic") for a, b in CHAOTIC_INTERVALS)]
+    return [plot_period_map(out_dir / "bifurcation_seeds.png", winds,
+                            {k: (s, np.stack(p)) for k, (s, p) in panels.items()}, spans=spans,
+                            xlabel="F_wind [N] (trained: 0 and 1)",
+                            title=f"The CMP's orbit per F_wind over {len(seeds)} seeds (period on the record)")]
+
+
+@seed_figure("lissajous-timing")
+def timing_seed_figures(out_dir: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: per switch phase n, the share of seeds whose run converged to the trained trajectory, for the
+    fixed- and the random-timing system, one panel per variant, the paper's failing band 22…69 shaded (what
+    :func:`timing_claims` read; a system whose training diverged is left out)."""
+    from bptsb_ros.analysis.seed_plots import plot_share_panels
+
+    panels: dict[str, dict[str, Any]] = {}
+    for res in per_seed:
+        for _, args, _ in stored_calls(res, timing_claims):
+            n = args[0]
+            panel = panels.setdefault(n.variant or "switching agents", {
+                "x": np.arange(len(n.fixed_to_target)), "shares": {"fixed timing (n = 0)": [], "random timing": []},
+                "spans": [(PAPER_BAND[0] - 0.5, PAPER_BAND[1] + 0.5, "paper: fixed timing fails")]})
+            for key, values, why in (("fixed timing (n = 0)", n.fixed_to_target, n.fixed_diverged),
+                                     ("random timing", n.random_to_target, n.random_diverged)):
+                if not why:
+                    panel["shares"][key].append(np.asarray(values, float) < DRAWS_NMSE)
+    for panel in panels.values():
+        panel["shares"] = {k: v for k, v in panel["shares"].items() if v}
+    panels = {k: p for k, p in panels.items() if p["shares"]}
+    if not panels:
+        return []
+    return [plot_share_panels(out_dir / "timing_seeds.png", panels, xlabel="switch phase n [1/100 period]",
+                              ylabel="seeds converging [share]",
+                              title=f"Convergence to the trained curve after the switch, over {len(seeds)} seeds")]

@@ -12,8 +12,10 @@ SWG to the FL over a few seconds) and another FL state (the mass velocities).
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -25,9 +27,10 @@ from bptsb_ros.experiments.locomotion_common import (
     AgentSettings,
     train_agents,
 )
-from bptsb_ros.experiments.measured import judge
+from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 
 
 @dataclass(frozen=True)
@@ -173,3 +176,26 @@ def _load_gait(sweep_dir: Path, seed: int) -> dict | None:
         return None
     with np.load(gait) as data:
         return {k: data[k] for k in ("r", "springs", "dt")}
+
+
+@seed_figure("locomotion-closed-loop-20")
+def seed_figures(out_dir: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: how many seeds gave each success count (agents whose closed loop locomotes, of those that move
+    forward: what :func:`claims` counted), with the paper's 8 of 20 marked."""
+    from bptsb_ros.analysis.seed_plots import plot_count_histogram
+
+    counts, totals = [], []
+    for res in per_seed:
+        for _, args, _ in stored_calls(res, claims):
+            n = args[0]
+            moving = np.asarray(n.open_speed, float) > 0
+            counts.append(int(np.sum(np.asarray(n.success, bool) & moving)))
+            totals.append(int(moving.sum()))
+    if not counts:
+        return []
+    agents = f"{min(totals)}–{max(totals)}" if min(totals) != max(totals) else f"{totals[0]}"
+    return [plot_count_histogram(out_dir / "success_count_seeds.png", counts, total=max(max(totals), PAPER_AGENTS),
+                                 paper=PAPER_SUCCESSES,
+                                 xlabel=f"agents whose closed loop succeeded, of {agents} moving forward [agents]",
+                                 title=f"Closed-loop successes per seed ({len(seeds)} seeds; paper: "
+                                       f"{PAPER_SUCCESSES} of {PAPER_AGENTS})")]

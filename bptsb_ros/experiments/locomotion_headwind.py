@@ -13,18 +13,22 @@ Claims, each with its criterion and premise: :func:`claims`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
-from bptsb_ros.experiments.claim_rules import at_most
+from bptsb_ros.experiments.claim_rules import all_not_testable, at_most
 from bptsb_ros.experiments.common import derived_seeds, packaged_config
 from bptsb_ros.experiments.locomotion_closed_loop import agent_settings
 from bptsb_ros.experiments.locomotion_common import batched_centre_x, late_speed, task_state, train_agents
-from bptsb_ros.experiments.measured import judge
+from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 from bptsb_ros.tasks.locomotion import wind_blowing
 
 #: relative distance to the target within which the speed "is maintained"
@@ -72,6 +76,10 @@ class HeadwindNumbers:
     speeds: np.ndarray
     force: float = -1.0
     """the trained headwind F [N] (< 0): the sweep's regions are read relative to it (the paper: −1)"""
+    variant: str = ""
+    """the switching protocol's variant name (figures over seeds)"""
+    diverged: str = ""
+    """why there is no agent after the switching training ("": there is one)"""
 
 
 @judge("locomotion-headwind")
@@ -90,7 +98,12 @@ def claims(n: HeadwindNumbers) -> list[Claim]:
        F_wind < −1 exceeds :data:`INTERP` (farther than "somewhat close"; a diverged speed is infinitely far).
        Premise of 3 and 4: at the trained F_wind = 0 and −1 of the same sweep the speed is within :data:`NEAR` ×
        v_tgt ("interpolation was performed in an unlearned parameter region" presumes the learned one).
+
+    A variant whose training diverged, or a seed whose forward agent could not be trained (``n.diverged``), has the
+    same claims, not testable.
     """
+    if n.diverged:
+        return all_not_testable(claims(replace(n, diverged="")), n.diverged)
     tgt, ph, blocks = n.target, n.phases, n.blocks
     winds = np.asarray(n.winds, float)
     if not n.force < 0:
@@ -158,18 +171,38 @@ def run(ctx: Context) -> None:
     settings = agent_settings(ctx)
     agent_seed = derived_seeds(ctx.seed, 1)[0]
     sweep = train_agents(ctx, settings, [agent_seed])
-    if sweep.failed:
-        raise RuntimeError(f"the forward agent failed: {sweep.failed[0].get('error')}")
-    forward_dir = sweep.out_dir / "jobs" / f"seed-{agent_seed}"
-    v_max = float(sweep.results()[f"seed-{agent_seed}"]["open_speed"])
-    if not v_max > 0:
-        raise RuntimeError(f"the forward agent does not move forward (speed {v_max:.3g} m/s); no target v_max/2")
-    target = v_max / 2
-    forward = (load_agent(forward_dir), task_state(read_checkpoint(forward_dir)))
     variants = ctx.settings.variants or {"paper": {"wind_force": -1.0, "wind_period": None,
                                                    "lr": (1.0, 1e-2, 1e-3, 1e-5, 1e-4), "lr_decay": False}}
+    forward_dir = sweep.out_dir / "jobs" / f"seed-{agent_seed}"
+    why = None
+    if sweep.failed:
+        why = f"the forward agent's training failed ({str(sweep.failed[0].get('error'))[:300]})"
+    else:
+        v_max = float(sweep.results()[f"seed-{agent_seed}"]["open_speed"])
+        if not v_max > 0:
+            why = f"the forward agent does not move forward (speed {v_max:.3g} m/s): no target v_max/2"
+    ctx.row("forward agent", "training failed or no forward motion (1) or usable (0)", "1", 1.0 if why else 0.0, 0)
+    if why:  # a result of this seed (every claim ∅), not a failure of the run
+        ctx.log(f"locomotion-headwind: {why}")
+        for vi, (name, variant) in enumerate(variants.items()):
+            _judge_diverged(ctx, name, variant, vi == 0, why)
+        ctx.result.details = {"seed": ctx.seed, "forward_settings": settings.__dict__, "diverged": why}
+        return
+    target = v_max / 2
+    forward = (load_agent(forward_dir), task_state(read_checkpoint(forward_dir)))
     for vi, (name, variant) in enumerate(variants.items()):
         _switching_variant(ctx, name, variant, vi == 0, forward, forward_dir, settings, v_max, target)
+
+
+def _judge_diverged(ctx: Context, variant_name: str, variant, first: bool, why: str) -> None:
+    """The claims of a variant with no agent to test (its training diverged, or the forward agent is missing), all
+    not testable because ``why``; the same texts as a tested variant's."""
+    force = float(variant["wind_force"])
+    winds = np.round(np.arange(-2.0, 1.0 + 1e-9, 0.05), 2) * -force
+    phases = dict.fromkeys(PHASES, float("nan"))
+    ctx.judge(claims, HeadwindNumbers(float("nan"), phases, dict.fromkeys(PHASES, 0), winds,
+                                      np.full(len(winds), np.nan), force, variant_name, why),
+              label="" if first else f"[{variant_name}] ")
 
 
 def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, forward, forward_dir, settings,
@@ -177,7 +210,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     """One switching protocol (a settings variant): its additional training, rows, claims, figures and details
     (the first variant's at the top level and unprefixed, every one also under ``details["variants"]``)."""
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.training.trainer import TrainingDiverged, train
 
     tag, label, suffix = ("", "", "") if first else (f"{variant_name}: ", f"[{variant_name}] ", f"-{variant_name}")
     sim_time = ctx.settings["switching_time"]
@@ -194,7 +227,20 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     ctx.log(f"locomotion-headwind ({variant_name}): v_max {v_max:.3f} m/s → target {target:.3f} m/s; {sim_time} s "
             f"switching training, F = {force:g} N, period {period:g} s")
     run_dir = ctx.out_dir / f"switching{suffix}"
-    res = train(cfg, run_dir, overwrite=True, init_from=forward_dir, progress=ctx.progress)
+    try:
+        res = train(cfg, run_dir, overwrite=True, init_from=forward_dir, progress=ctx.progress)
+    except TrainingDiverged as err:  # a result of this variant (its claims ∅); the other variants go on
+        why = f"the switching training diverged ({err})"
+        ctx.log(f"locomotion-headwind ({variant_name}): {why}")
+        ctx.row(f"{tag}switching training", "diverged (1) or finished (0)", "1", 1.0, 0)
+        _judge_diverged(ctx, variant_name, variant, first, why)
+        details = {"seed": ctx.seed, "v_max": v_max, "target": target, "switching_sim_time_s": sim_time,
+                   "wind_force": force, "wind_period_s": period, "diverged": why}
+        if first:
+            ctx.result.details = dict(details)
+        ctx.result.details.setdefault("variants", {})[variant_name] = details
+        return
+    ctx.row(f"{tag}switching training", "diverged (1) or finished (0)", "1", 0.0, 0)
     agents = {"switching": (load_agent(run_dir), task_state(read_checkpoint(run_dir))), "forward": forward}
     dt = agents["switching"][0].dt
 
@@ -236,7 +282,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
         ctx.row(f"{tag}after switching training", f"speed at F_wind = {fv:g}", "m/s",
                 float(v[np.isclose(winds, fv)][0]))
     blocks = phase_blocks(traces["switching"]["t"], period)
-    ctx.judge(claims, HeadwindNumbers(target, sw, blocks, winds, v, force), label=label)
+    ctx.judge(claims, HeadwindNumbers(target, sw, blocks, winds, v, force, variant_name), label=label)
     ctx.phase("plotting the speeds")
     from bptsb_ros.analysis.locomotion_plots import plot_headwind_speed, plot_speed_vs_wind
     ctx.figure(plot_headwind_speed(ctx.out_dir / f"headwind_speed{suffix}.png", traces, target, force, period))
@@ -258,3 +304,29 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     if first:
         ctx.result.details = dict(details)
     ctx.result.details.setdefault("variants", {})[variant_name] = details
+
+
+@seed_figure("locomotion-headwind")
+def seed_figures(out_dir: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: the speed after the switching training against the constant F_wind, relative to each seed's
+    own target v_tgt = v_max / 2 (seeds differ in v_max), as the mean over seeds with the band of their min–max,
+    one panel per switching protocol (what :func:`claims` read; a seed whose variant diverged has none)."""
+    from bptsb_ros.analysis.seed_plots import plot_band_panels
+
+    panels: dict[str, dict[str, Any]] = {}
+    for res in per_seed:
+        for _, args, _ in stored_calls(res, claims):
+            n = args[0]
+            if n.diverged:
+                continue
+            half = 0.025 * abs(n.force)  # half a grid step: the sweep steps by 0.05 × |trained F|
+            panel = panels.setdefault(n.variant or "paper", {
+                "x": np.asarray(n.winds, float), "curves": {"after switching training": []},
+                "spans": [(n.force - half, n.force + half, f"trained: F = {n.force:g} N"),
+                          (-half, half, "trained: F = 0")]})
+            panel["curves"]["after switching training"].append(np.asarray(n.speeds, float) / n.target)
+    if not panels:
+        return []
+    return [plot_band_panels(out_dir / "speed_vs_wind_seeds.png", panels, xlabel="F_wind [N]",
+                             ylabel="speed / target speed v_tgt [-]", hline=1.0,
+                             title=f"Speed against the wind after the switching training, over {len(seeds)} seeds")]

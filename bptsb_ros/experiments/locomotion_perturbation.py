@@ -16,12 +16,15 @@ moment; σ dimensionless). See :func:`bptsb_ros.experiments.locomotion_common.pe
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
-from bptsb_ros.experiments.claim_rules import at_most
+from bptsb_ros.experiments.claim_rules import EPS, SAME_RATE, all_not_testable, almost_same_rates
 from bptsb_ros.experiments.common import derived_seeds
 from bptsb_ros.experiments.locomotion_closed_loop import settings_for
 from bptsb_ros.experiments.locomotion_common import (
@@ -32,18 +35,22 @@ from bptsb_ros.experiments.locomotion_common import (
     task_state,
     train_agents,
 )
-from bptsb_ros.experiments.measured import judge
+from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.seeds import seed_figure
 
 SIGMAS = tuple(round(0.1 * i, 1) for i in range(11))
-#: |open − closed| return rate, averaged over σ, below which the two count as "almost the same"
-SAME_RATE = 0.15
 #: each perturbation draw in words (claims of a variant after the first are prefixed with it)
 DRAW_TEXT = {"position": "positions shifted by N(0, σ²) [m]",
              "authors": "the authors' draw: positions N(0, (σ·P/8)²), velocities N(0, (σ·S)²)"}
 #: the σ [m] at or below which a perturbation counts as weak, and at or above which as strong
 WEAK_SIGMA, STRONG_SIGMA = 0.4, 0.6
+#: a perturbed run "came to a standstill" when |its speed over the last half of the run| ≤ this × the speed before
+STANDSTILL = 0.1
+#: ... and "suddenly slowed down" when its speed over the first EARLY_SHARE of the run is < SUDDEN × the speed before
+SUDDEN = 0.5
+EARLY_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -58,6 +65,10 @@ class PerturbationRates:
     rate_closed: np.ndarray
     open_moves: bool
     closed_succeeded: bool
+    variant: str = ""
+    """the perturbation draw's variant name (figures over seeds)"""
+    diverged: str = ""
+    """why there is no agent to perturb ("": there is one)"""
 
 
 @judge("locomotion-perturbation")
@@ -69,9 +80,16 @@ def claims(n: PerturbationRates) -> list[Claim]:
 
     * each loop's rate falls: mean rate over σ ≥ 0.6 < mean over σ ≤ 0.4. Premise: the loop locomotes before the
       perturbation (open loop: it moves forward; closed loop: it is one that succeeded).
-    * almost the same: mean |rate_open − rate_closed| over σ ≤ :data:`SAME_RATE` (inclusive). Premises: both
-      loops locomote, and some σ gives a rate below 1 (otherwise no perturbation tested their robustness).
+    * almost the same: |rate_open − rate_closed| ≤ :data:`~bptsb_ros.experiments.claim_rules.SAME_RATE` at every σ
+      (:func:`~bptsb_ros.experiments.claim_rules.almost_same_rates`, the rule of lissajous-perturbation too).
+      Premises: both loops locomote, and some σ gives a rate below 1 (otherwise no perturbation tested their
+      robustness).
+
+    A seed with no agent to perturb (every forward training failed: ``n.diverged``) has the same claims, not
+    testable.
     """
+    if n.diverged:
+        return all_not_testable(claims(replace(n, diverged="")), n.diverged)
     sig = np.asarray(n.sigmas, float)
     rates = {"open": np.asarray(n.rate_open, float), "closed": np.asarray(n.rate_closed, float)}
     low, high = sig <= WEAK_SIGMA + 1e-9, sig >= STRONG_SIGMA - 1e-9
@@ -88,8 +106,8 @@ def claims(n: PerturbationRates) -> list[Claim]:
             continue
         lo_rate, hi_rate = float(rates[loop][low].mean()), float(rates[loop][high].mean())
         out.append(Claim(text, hi_rate < lo_rate, f"{hi_rate:.3f} vs {lo_rate:.3f}"))
-    same = (f"return rates of the SWG and the closed loop are almost the same (mean |difference| over σ "
-            f"≤ {SAME_RATE})")
+    same = (f"return rates of the SWG and the closed loop are almost the same (|difference| ≤ {SAME_RATE} at every "
+            "σ)")
     failed = [p for p in premise.values() if p]
     if failed:
         out.append(Claim.not_testable(same, "; ".join(failed)))
@@ -97,9 +115,62 @@ def claims(n: PerturbationRates) -> list[Claim]:
         out.append(Claim.not_testable(same, "both loops returned from every perturbation (rate 1 at every σ): no σ "
                                             "tested their robustness"))
     else:
-        gap = float(np.mean(np.abs(rates["open"] - rates["closed"])))
-        out.append(Claim(same, at_most(gap, SAME_RATE), f"mean |open − closed| = {gap:.3f}"))
+        holds, gap, worst = almost_same_rates(rates["open"], rates["closed"])
+        out.append(Claim(same, holds, f"max |open − closed| = {gap:.3f} (at σ = {sig[worst]:.1f})"))
     return out
+
+
+@dataclass(frozen=True)
+class StandstillNumbers:
+    """What the claim "some agents suddenly slowed down and came to a standstill" rests on, for one loop of one
+    perturbation draw: the perturbed runs that did not return (speed after < 0.7 × the speed before, or diverged),
+    pooled over the perturbed agents and σ.
+
+    loop: the loop's name; early, late: (K,) each run's speed over the first :data:`EARLY_SHARE` and over the last
+    half of the run after the perturbation, / its agent's speed before [1] (NaN: diverged); runs: how many runs
+    were perturbed in all (K of them did not return); moving: the agents of this loop move forward before the
+    perturbation (the premise); diverged: why there is no agent ("": there is one)."""
+
+    loop: str
+    early: np.ndarray
+    late: np.ndarray
+    runs: int
+    moving: bool
+    diverged: str = ""
+
+
+@judge("locomotion-perturbation-standstill")
+def standstill_claims(n: StandstillNumbers) -> list[Claim]:
+    """The paper (main text, on the perturbations): "In the locomotion task, cases successfully returned by
+    gradually regaining their speed. On the other hand, there were some agents that suddenly slowed down and came to
+    a standstill."
+
+    * some runs that did not return suddenly slowed down and came to a standstill: at least one with |late speed| ≤
+      :data:`STANDSTILL` × the speed before (a standstill: the centre moves less than a tenth as fast as before,
+      neither forward nor backward) whose early speed (the first :data:`EARLY_SHARE` of the run) was already below
+      :data:`SUDDEN` × the speed before (the slow-down came with the perturbation, not gradually). A diverged run
+      came to no standstill.
+
+    Premises: the loop moves forward before the perturbation, and some run did not return. One claim per loop.
+    """
+    text = (f"{n.loop}: some perturbed runs that did not return suddenly slowed down and came to a standstill (speed "
+            f"over the first {EARLY_SHARE:.0%} of the run < {SUDDEN} × the speed before, |speed| over its last half "
+            f"≤ {STANDSTILL} × the speed before)")
+    if n.diverged:
+        return [Claim.not_testable(text, n.diverged)]
+    if not n.moving:
+        return [Claim.not_testable(text, "an agent perturbed here does not move forward before the perturbation")]
+    early, late = np.asarray(n.early, float), np.asarray(n.late, float)
+    with np.errstate(invalid="ignore"):
+        lost = ~(late >= SUCCESS_RATIO)
+        still = lost & (np.abs(late) <= STANDSTILL + EPS) & (early < SUDDEN)
+        stopped = lost & (np.abs(late) <= STANDSTILL + EPS)
+    if not lost.any():
+        return [Claim.not_testable(text, f"every one of the {n.runs} perturbed runs returned")]
+    return [Claim(text, bool(still.any()),
+                  f"{int(still.sum())} of {int(lost.sum())} runs that did not return (of {n.runs}) stopped suddenly; "
+                  f"{int(stopped.sum())} came to a standstill at all; {int(np.sum(lost & ~np.isfinite(late)))} "
+                  "diverged")]
 
 
 def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before: int, after: int,
@@ -107,7 +178,8 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     """One agent, one loop type (``closed``: its FL, or None for the SWG); ``draw``: see :func:`perturbed`.
 
     Runs ``before`` steps (batch 1), then ONE batched run of len(sigmas) × n_noise perturbed copies for ``after``
-    steps. Returns v_before (scalar array), v_after (S, n), success (S, n) and the centre x traces.
+    steps. Returns v_before (scalar array), v_after (S, n; over the last half of the ``after`` run), v_early (S, n;
+    over its first :data:`EARLY_SHARE`, at least one step), success (S, n) and the centre x traces.
     """
     body = agent.body
     dt = body.dt
@@ -122,10 +194,12 @@ def return_rates(agent, state, closed, sigmas: np.ndarray, n_noise: int, before:
     start = perturbed(agent, s0, sig, seeds, rest, draw)
     x1, _ = batched_centre_x(agent, start, after, closed=closed)
     v_after = late_speed(x1, dt).reshape(len(sigmas), n_noise)
+    k = max(1, int(round(EARLY_SHARE * after)))
+    v_early = ((x1[k] - x1[0]) / (k * dt)).reshape(len(sigmas), n_noise)
     with np.errstate(invalid="ignore"):
         success = np.isfinite(v_after) & (v_after >= SUCCESS_RATIO * v_before) & (v_before > 0)
-    return {"v_before": np.asarray(v_before), "v_after": v_after, "success": success, "x_before": x0[:, 0],
-            "x_after": x1}
+    return {"v_before": np.asarray(v_before), "v_after": v_after, "v_early": v_early, "success": success,
+            "x_before": x0[:, 0], "x_after": x1}
 
 
 @experiment(
@@ -153,24 +227,35 @@ def run(ctx: Context) -> None:
         ok = ranked[:1]
     chosen = ok[:max_agents]
     sigmas = np.array(SIGMAS)
+    variants = ctx.settings.variants or {"paper": {"authors_draw": False}}
+    ctx.row("forward agents", "agents whose training finished", "agents", len(results), n_agents)
+    if not chosen:  # a result of this seed (every claim ∅), not a failure of the run
+        _no_agent(ctx, variants, sigmas, f"no agent finished its forward training ({len(sweep.failed)} of "
+                                         f"{n_agents} failed, e.g. {str(sweep.failed[0].get('error'))[:200]})"
+                  if sweep.failed else "no agent to perturb")
+        ctx.result.details = {"agents": [], "settings": settings.__dict__,
+                              "failed_jobs": {r["name"]: r.get("error") for r in sweep.failed}}
+        return
     agents = {}
     for s in chosen:
         run_dir = sweep.out_dir / "jobs" / f"seed-{s}"
         agents[s] = (load_agent(run_dir), task_state(read_checkpoint(run_dir)))
-    variants = ctx.settings.variants or {"paper": {"authors_draw": False}}
     per_variant = {}
     for vi, (name, variant) in enumerate(variants.items()):
         draw = "authors" if variant["authors_draw"] else "position"
         tag, label = ("", "") if vi == 0 else (f"{name}: ", f"[{name}: {DRAW_TEXT[draw]}] ")
         unit = " m" if draw == "position" else ""
-        rates, v_before_open, example = _variant_rates(ctx, agents, sigmas, n_noise, before_s, after_s, draw, name)
+        rates, v_before_open, example, lost = _variant_rates(ctx, agents, sigmas, n_noise, before_s, after_s, draw,
+                                                             name)
         mean = {k: np.mean(v, 0) for k, v in rates.items()}
         for loop, loop_name in (("open", "SWG (open loop)"), ("closed", "FL (closed loop)")):
             for sg in (0.0, 0.3, 0.5, 1.0):
                 i = int(np.argmin(np.abs(sigmas - sg)))
                 ctx.row(f"{tag}{loop_name}", f"return rate at σ = {sg:.1f}{unit}", "1", float(mean[loop][i]))
         ctx.judge(claims, PerturbationRates(sigmas, mean["open"], mean["closed"], all(v > 0 for v in v_before_open),
-                                            not fallback), label=label)
+                                            not fallback, name), label=label)
+        for loop in ("open", "closed"):
+            ctx.judge(standstill_claims, lost[loop], label=label)
         per_variant[name] = {"help": DRAW_TEXT[draw], "draw": draw, "rates": rates, "mean": mean,
                              "v_before_open": v_before_open, "example": example}
     first = per_variant[next(iter(per_variant))]
@@ -195,12 +280,33 @@ def run(ctx: Context) -> None:
     }
 
 
+LOOP_NAMES = {"open": "SWG (open loop)", "closed": "FL (closed loop)"}
+
+
+def _no_agent(ctx: Context, variants, sigmas: np.ndarray, why: str) -> None:
+    """Every claim of a seed with no agent to perturb, not testable because ``why``."""
+    ctx.log(f"locomotion-perturbation: {why}")
+    nothing = np.full(len(sigmas), np.nan)
+    for vi, (name, variant) in enumerate(variants.items()):
+        draw = "authors" if variant["authors_draw"] else "position"
+        label = "" if vi == 0 else f"[{name}: {DRAW_TEXT[draw]}] "
+        ctx.judge(claims, PerturbationRates(sigmas, nothing, nothing, False, False, name, why), label=label)
+        for loop in ("open", "closed"):
+            ctx.judge(standstill_claims, StandstillNumbers(LOOP_NAMES[loop], np.zeros(0), np.zeros(0), 0, False, why),
+                      label=label)
+
+
 def _variant_rates(ctx: Context, agents: dict, sigmas: np.ndarray, n_noise: int, before_s: float, after_s: float,
-                   draw: str, name: str) -> tuple[dict[str, list[np.ndarray]], list[float], dict]:
+                   draw: str, name: str) -> tuple[dict[str, list[np.ndarray]], list[float], dict,
+                                                  dict[str, StandstillNumbers]]:
     """Return rates (S,) per agent and loop under one perturbation ``draw``; the open loops' speeds before; the
-    first agent's traces (for the figure)."""
+    first agent's traces (for the figure); per loop the runs that did not return (:class:`StandstillNumbers`, speeds
+    / the speed before rounded to 1e-4, pooled over the agents that moved forward before)."""
     rates: dict[str, list[np.ndarray]] = {"open": [], "closed": []}
     v_before_open, example = [], {}
+    early: dict[str, list[np.ndarray]] = {"open": [], "closed": []}
+    late: dict[str, list[np.ndarray]] = {"open": [], "closed": []}
+    runs = {"open": 0, "closed": 0}
     for i, (s, (agent, state)) in enumerate(agents.items()):
         dt = agent.dt
         for loop, fl in (("open", None), ("closed", agent.feedback)):
@@ -213,4 +319,40 @@ def _variant_rates(ctx: Context, agents: dict, sigmas: np.ndarray, n_noise: int,
                 v_before_open.append(float(out["v_before"]))
             if i == 0:
                 example[loop] = out
-    return rates, v_before_open, example
+            v0 = float(out["v_before"])
+            if v0 > 0:
+                lost = ~out["success"]
+                early[loop].append(np.round(out["v_early"][lost] / v0, 4))
+                late[loop].append(np.round(out["v_after"][lost] / v0, 4))
+                runs[loop] += out["success"].size
+    lost_runs = {loop: StandstillNumbers(LOOP_NAMES[loop], np.concatenate(early[loop] or [np.zeros(0)]),
+                                         np.concatenate(late[loop] or [np.zeros(0)]), runs[loop], runs[loop] > 0)
+                 for loop in ("open", "closed")}
+    return rates, v_before_open, example, lost_runs
+
+
+@seed_figure("locomotion-perturbation")
+def seed_figures(out_dir: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[Path]:
+    """Across seeds: the return rate against σ of both loops (mean over each seed's perturbed agents), as the mean
+    over seeds with the band of their min–max, one panel per perturbation draw (what :func:`claims` read; a seed
+    without an agent has none)."""
+    from bptsb_ros.analysis.seed_plots import plot_band_panels
+
+    panels: dict[str, dict[str, Any]] = {}
+    for res in per_seed:
+        for _, args, _ in stored_calls(res, claims):
+            n = args[0]
+            if n.diverged:
+                continue
+            authors = n.variant == "authors"
+            panel = panels.setdefault(n.variant or "paper", {
+                "x": np.asarray(n.sigmas, float), "curves": {"SWG (open loop)": [], "FL (closed loop)": []},
+                "xlabel": "perturbation σ [-] (× P/8 for positions, × S for velocities)" if authors else
+                          "perturbation σ [m]"})
+            panel["curves"]["SWG (open loop)"].append(np.asarray(n.rate_open, float))
+            panel["curves"]["FL (closed loop)"].append(np.asarray(n.rate_closed, float))
+    if not panels:
+        return []
+    return [plot_band_panels(out_dir / "return_rate_seeds.png", panels, xlabel="perturbation σ [m]",
+                             ylabel="return rate [-]", ylim=(-0.03, 1.03),
+                             title=f"Return rate (speed after ≥ 0.7 × before) over {len(seeds)} seeds, locomotion")]
