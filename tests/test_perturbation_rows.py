@@ -44,7 +44,9 @@ def run_kick_variant(monkeypatch, tmp_path) -> tuple[ExperimentResult, dict]:
 
     def errors(trained, seeds, *, settle, run, eval_periods, sigmas=lpert.SIGMAS):
         assert (seeds, settle, run, eval_periods) == (SEEDS, 3, 20, 5)
+        # the errors over the periods before the last ones: as the last (every run settled; not what is tested here)
         return {"batch": batch, "steps": run * 100, "open": e_open.reshape(-1), "closed": e_closed.reshape(-1),
+                "open_before": e_open.reshape(-1), "closed_before": e_closed.reshape(-1),
                 "open_wall_s": 2.0, "closed_wall_s": 4.0, "open_traj": np.zeros((3, batch, 2)),
                 "closed_traj": np.zeros((3, batch, 2)), "open_diverged": np.isnan(e_open.reshape(-1)),
                 "closed_diverged": np.isnan(e_closed.reshape(-1)), "t0_open": 10.0, "t0_closed": 13.0}
