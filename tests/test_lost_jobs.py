@@ -155,9 +155,10 @@ def test_no_worker_is_waited_for_with_a_line_then_given_up(scheduler, monkeypatc
     assert time.monotonic() - t0 < 30
     err = capsys.readouterr().err
     assert f"waiting up to 1.5 s for a worker to join the Dask scheduler at {address} (it has none" in err
-    assert err.strip().splitlines()[-1] == (f"bptsb reproduce: no worker joined the Dask scheduler at {address} "
-                                           f"within 1.5 s; nothing was run (start workers with `dask worker "
-                                           f"{address}`, then run the command again)")
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"bptsb reproduce: no worker joined the Dask scheduler at {address} within 1.5 s; nothing "
+                           f"was run (start workers with `dask worker {address}`, then run the command again)")
+    assert last.endswith(f"the unfinished run stays in {out}: add --resume to continue it, or --force to start again")
     assert not (out / "result.json").exists() and not any((out / "sweep" / "jobs").iterdir())
 
 
