@@ -354,3 +354,26 @@ def test_narma_emulation_ablations_retrain_what_they_name_and_compare_with_the_f
     lil = rows["LIL + double-circle (N_mov 17)"]  # the first variant's LIL, read by the ablation's claim
     mlp = rows["[authors_init] MLP + double-circle (N_mov 17)"]
     assert f"{mlp:.3g} vs LIL + double-circle (N_mov 17) {lil:.3g}" in ablated["evidence"]
+
+
+def test_target_ipc_a_target_that_diverges_for_this_draw_is_a_row_and_leaves_its_claims_untestable(tmp_path,
+                                                                                                  monkeypatch):
+    """NARMA10 blows up for a few input draws even on [0, 0.5] (seed 4 of a paper-scale run): planted here."""
+    from bptsb_ros.experiments import target_ipc
+
+    real = target_ipc.targets
+
+    def blows_up(w):
+        ys = real(w)
+        ys["NARMA10"][500:] = np.inf
+        return ys
+
+    monkeypatch.setattr(target_ipc, "targets", blows_up)
+    _, data = run_experiment("target-ipc", scale="smoke", out_dir=tmp_path, progress=False)
+    rows = {(r["system"], r["metric"]): r["ours"] for r in data["rows"]}
+    assert rows[("NARMA10 (diverged)", "first non-finite sample of the target series")] == 500
+    assert not any(s == "NARMA10" for s, _ in rows)  # no IPC rows of a series that has none
+    verdicts = {c["claim"]: c for c in data["claims"]}
+    reads_narma10 = [c for c in verdicts.values() if "NARMA10" in c["evidence"] or "NARMA10" in c["claim"]]
+    assert reads_narma10 and all(c["holds"] is None for c in reads_narma10)
+    assert any(c["holds"] is not None for c in data["claims"])  # the others are judged as usual
