@@ -27,7 +27,7 @@ def test_step_reset_resume_services_on_a_running_body(tmp_path, ros_env, ros_dom
     from bptsb_ros.ros import messages as m
 
     summary = tmp_path / "summary.json"
-    body = start_node("body_sim", {"task": "lissajous", "mode": "lockstep", "paused": True, "step_count": 3,
+    body = start_node("body_sim", {"task": "lissajous", "mode": "lockstep", "start_paused": True, "step_count": 3,
                                    "max_steps": 30, "startup_timeout": 1.0, "final_ack_timeout": 0.0,
                                    "summary_path": str(summary)}, ros_env, tmp_path / "body.log")
     probe = Probe(ros_domain_id)

@@ -40,7 +40,7 @@ def test_calls_answer_and_refuse_with_one_clear_line():
 
 
 def test_lockstep_paused_body_takes_no_step_even_with_its_command_then_steps_n_and_equals_offline():
-    c = core(wait_for=["rest_length"], max_steps=12, command_timeout=0.2, paused=True)
+    c = core(wait_for=["rest_length"], max_steps=12, command_timeout=0.2, start_paused=True)
     seen = {}
 
     def brain(port, k):
@@ -70,7 +70,7 @@ def test_lockstep_paused_body_takes_no_step_even_with_its_command_then_steps_n_a
 
 
 def test_status_says_paused():
-    c = core(paused=True)
+    c = core(start_paused=True)
     level, message, values = c.status(c.summary())
     assert message.startswith("paused: lockstep: step 0") and ("paused", "True") in values
     c.control.call("resume")

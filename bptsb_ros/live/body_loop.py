@@ -212,12 +212,16 @@ class BodyLoop:
 
     def await_commands(self, step: int) -> None:
         """Lockstep: handle messages until every awaited source that is not silent has its command for ``step``;
-        a source whose publisher is gone, or still without it after ``command_timeout``, becomes silent."""
+        a source whose publisher is gone, or still without it after ``command_timeout``, becomes silent.
+
+        Messages are handled one at a time in the order they arrived (``spin_once``; the EventsExecutor's order), and
+        only while a command is missing: every message that arrived before the step's last command (a perturbation
+        for the step, say) is handled before the step is integrated, without an idle spin to find out that nothing
+        else is waiting."""
         core, port = self.core, self.port
         timeout = core.p["command_timeout"]
         deadline = port.now() + timeout
         while not port.stopped():
-            port.drain()
             missing = core.missing(step)
             if not missing:
                 return

@@ -24,6 +24,8 @@ LISTED_PERTURBATIONS = 20
 #: what the ROS graph reports as the node name of an endpoint whose node it has not discovered yet
 UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 PUBLISHED = BODY_OUTPUTS
+#: body outputs that say again what body/positions and the commands say: every ``state_every`` steps
+SLOW_OUTPUTS: tuple[str, ...] = ("mass_states", "spring_lengths", "rest_length", "external_force")
 SUBSCRIBED = BODY_INPUTS
 
 PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
@@ -60,6 +62,12 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "acknowledged every message", "float", minimum=0.0),
     RAW_OUTPUTS,
     Param("marker_every", 5, "publish body/markers every this many steps", "int", minimum=1, dynamic=True),
+    Param("state_every", 10, "publish body/mass_states, body/spring_lengths, body/rest_length and "
+          "body/external_force every this many steps (1: every step); /clock and body/positions, the state of every "
+          "step, go out every step", "int", minimum=1, dynamic=True),
+    Param("every_step", [], "of those four topics, the ones published every step anyway (a node that reads them, "
+          "e.g. a feedback brain on mass states: the launchers add what the loop's brains read)", "str_list",
+          choices=SLOW_OUTPUTS),
     Param("frame_id", "msdn", "frame of positions and markers (the body plane, metres, y up)", "str"),
     Param("diagnostics_period", 1.0, "wall seconds between /diagnostics messages", "float", positive=True,
           dynamic=True),
@@ -100,7 +108,8 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("reset_every", 0, "resets (body/reset, loop mnist_drawing): the body takes a reset only at steps k with "
           "k % reset_every == 0 (with 'reset' in wait_for it waits for one there, lockstep only); the state of step k "
           "is then the body at rest at layout + displacement; 0: no resets", "int", minimum=0),
-    Param("paused", False, "start paused: the first step waits for the ~/resume or ~/step service", "bool"),
+    Param("start_paused", False, "start paused: the first step waits for the ~/resume or ~/step service (whether "
+          "the body is paused now is on /diagnostics, not in this parameter)", "bool"),
     Param("step_count", 1, "steps one call of the ~/step service advances a paused body", "int", minimum=1,
           dynamic=True),
     Param("on_divergence", "restore", "when a step diverges: restore (last good state + safe command, go on) or "

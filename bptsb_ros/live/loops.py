@@ -21,6 +21,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from bptsb_ros.live.body_params import SLOW_OUTPUTS
 from bptsb_ros.ros.params import ParamValue, yaml_value
 from bptsb_ros.ros.topics import BODY_OUTPUTS, COMMAND_SOURCES, RECORDER_ACK, TOPICS, absolute, feedback_state_key
 
@@ -75,12 +76,13 @@ class Loop:
         return [k for k in self.topics() if k not in NOT_EVERY_STEP]
 
 
-#: loop topics without a message every step: markers every marker_every steps, diagnostics every second,
-#: perturbations and the MNIST stream per event or episode
-NOT_EVERY_STEP = frozenset({"markers", "diagnostics", "perturbation", "image", "label", "reset_cmd"})
+#: loop topics without a message every step: markers every marker_every steps, the body's derived state topics
+#: every state_every steps (unless a brain reads them), diagnostics every second, perturbations and the MNIST stream
+#: per event or episode
+NOT_EVERY_STEP = frozenset({"markers", "diagnostics", "perturbation", "image", "label", "reset_cmd", *SLOW_OUTPUTS})
 
 SWG = BrainSpec("swg_brain", ("clock",), ("rest_length_cmd",))
-FEEDBACK = BrainSpec("feedback_brain", ("clock", "spring_lengths"), ("rest_length_cmd",))
+FEEDBACK = BrainSpec("feedback_brain", ("clock", "positions"), ("rest_length_cmd",))
 TASK_INPUT = BrainSpec("task_input", ("clock",), ("task_input",))
 MLP = BrainSpec("mlp_brain", ("task_input",), ("force_cmd",))
 WIND = BrainSpec("wind_source", ("clock",), ("wind",))
@@ -175,11 +177,12 @@ def topic_names(keys: list[str], namespace: str = "") -> list[str]:
     return [loop_topic(k, namespace) for k in keys]
 
 
-def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True, namespace: str = "") -> list[str]:
+def startup_subscribers(loop: Loop, *, recording: bool, namespace: str = "") -> list[str]:
     """``wait_for_subscribers`` entries for ``body_sim``: how many subscribers each topic must have.
 
-    Body outputs count the recorder and every brain that subscribes (a node on sim time also has a
-    ``/clock`` subscription); brain outputs count ``body_sim`` or the next brain, and the recorder.
+    Body outputs count the recorder and every brain that subscribes (no brain has rclpy's own sim-time ``/clock``
+    subscription: each sets its clock from the stamps of the messages it answers, ``BrainNode.feed_sim_time``);
+    brain outputs count ``body_sim`` or the next brain, and the recorder.
     """
     counts: dict[str, int] = {}
     for key in loop.topics():
@@ -187,8 +190,6 @@ def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True, n
     for brain in loop.brains:
         for key in brain.triggers:
             counts[key] = counts.get(key, 0) + 1
-        if sim_time:
-            counts["clock"] += 1
     for source in loop.wait_for:
         counts[COMMAND_SOURCES[source]] = counts.get(COMMAND_SOURCES[source], 0) + 1
     return [f"{loop_topic(k, namespace)}:{n}" for k, n in counts.items() if n > 0]
@@ -235,9 +236,11 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
     """
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":
+        read = [k for k in SLOW_OUTPUTS if any(k in b.triggers for b in loop.brains)]
         params.update({
             "mode": mode,
             "wait_for": list(loop.wait_for),
+            **({"every_step": read} if read else {}),
             "wait_for_subscribers": startup_subscribers(loop, recording=recording, namespace=namespace),
             "rate_scale": rate_scale,
         })

@@ -102,6 +102,20 @@ class CommandLimits:
         return cls(float(limit), float(max_force), float(max_wind), float(min_rest_length),
                    max_displacement=body_extent(positions))
 
+    def surely_within(self, source: str, values: np.ndarray) -> bool:
+        """True when float64 ``values`` of command ``source`` are all finite and within bounds, decided by two
+        reductions (a NaN makes min and max NaN, and every comparison with NaN is False); False means "look closer"
+        (:meth:`check` and the finiteness test say why, if anything is wrong). Resets are always looked at closer."""
+        if source == "rest_length":
+            lo, lo_open, hi = self.min_rest_length, True, self.max_rest_length
+        elif source in ("force", "wind"):
+            hi = self.max_force if source == "force" else self.max_wind
+            lo, lo_open = -hi, False
+        else:
+            return False
+        low, high = values.min(), values.max()
+        return bool((low > lo if lo_open else low >= lo) and high <= hi)
+
     def check(self, source: str, values: np.ndarray) -> str | None:
         """Why finite ``values`` of command ``source`` (rest_length, force, wind, perturbation or reset) are out of
         bounds, or None."""

@@ -20,6 +20,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseArray, Vector3Stamped
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
@@ -39,6 +40,7 @@ from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import load_source
+from bptsb_ros.ros.cdr_in import JointStateReader
 from bptsb_ros.ros.params import declare_parameters
 from bptsb_ros.ros.raw_out import RawTemplate, TemplateError
 from bptsb_ros.ros.runtime import (
@@ -52,7 +54,7 @@ from bptsb_ros.ros.runtime import (
     run_node,
     wait_acked,
 )
-from bptsb_ros.ros.topics import RECORDER_ACK, absolute
+from bptsb_ros.ros.topics import RECORDER_ACK, absolute, stamp_to_step
 
 NODE = "body_sim"
 #: (key, message type) of every topic the body publishes
@@ -79,12 +81,19 @@ class BodySim(Node):
         self.body, self.dt_ns, topo = core.body, core.dt_ns, core.body.topology
         self.springs, self.fixed = np.asarray(topo.springs), np.asarray(topo.fixed)
         self.mass_diameter = 0.04 * float(np.ptp(topo.positions, axis=0).max() or 1.0)
+        self.layout = self.body.positions0.detach().numpy().astype(np.float64)  # (N, 2): fixed masses stay there
+        self.movable = self.body.movable_index.numpy()
         self.callbacks, self._intruders = 0, {}  # _intruders: source -> (publisher count, when, untrusted names)
         topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED + (RECORDER_ACK,)}
         sq = m.state_qos(p["qos_depth"])
         self.pubs = {key: self.create_publisher(kind, topic[key], sq) for key, kind in OUTPUTS}
         self._own = {absolute(pub.topic_name, self.get_namespace()): pub for pub in self.pubs.values()}
-        self.subs = {src: self.create_subscription(kind, topic[key], lambda msg, src=src: self._on_input(src, msg), sq)
+        self.topic_names = {key: pub.topic_name for key, pub in self.pubs.items()}  # a property call costs µs
+        # JointState inputs arrive as their bytes (ros.cdr_in reads the loop's own; others are deserialized)
+        self.readers = {src: JointStateReader(core.spring_names if src == "rest_length" else core.dof_names)
+                        for src, kind, _ in INPUTS if kind is JointState}
+        self.subs = {src: self.create_subscription(kind, topic[key], lambda msg, src=src: self._on_input(src, msg), sq,
+                                                   raw=src in self.readers)
                      for src, kind, key in INPUTS}
         self.ack_sub = self.create_subscription(Clock, topic[RECORDER_ACK], self._on_recorder_ack, m.ack_qos()) \
             if p["wait_for_recorder"] else None  # the recorder's latest acknowledgement (transient-local, depth 1)
@@ -116,19 +125,27 @@ class BodySim(Node):
         return res
 
     # -- intake: messages -> core ------------------------------------------------------------------------------
-    def _on_input(self, source: str, msg: JointState | Vector3Stamped) -> None:
+    def _on_input(self, source: str, msg: bytes | Vector3Stamped) -> None:
         """A message on ``source``'s topic, as values stamped with a step, to the core (with the graph's verdict on
         its topic's publishers); an unsynchronised wind holds from the next step on."""
         self.callbacks += 1
         now, topic = time.monotonic(), self.subs[source].topic_name
-        step = m.step_of(msg.header.stamp, self.dt_ns)
-        if source == "wind":
-            values, names = [msg.vector.x, msg.vector.y], None
-            if not self.core.wind_synchronised:
-                self.core.offer_wind(values, self._untrusted(source, now), topic)
-                return
-        else:
-            values, names = m.as_array(msg.effort if source == "force" else msg.position), list(msg.name)
+        if isinstance(msg, bytes):  # a JointState: read from its bytes, or deserialized when they are not the usual
+            read = self.readers[source].read(msg)
+            if read is None:
+                msg = deserialize_message(msg, JointState)
+            else:
+                step = stamp_to_step(0, read.stamp_ns, self.dt_ns)
+                values, names = read.effort if source == "force" else read.position, None  # names: checked
+        if not isinstance(msg, bytes):
+            step = m.step_of(msg.header.stamp, self.dt_ns)
+            if source == "wind":
+                values, names = [msg.vector.x, msg.vector.y], None
+                if not self.core.wind_synchronised:
+                    self.core.offer_wind(values, self._untrusted(source, now), topic)
+                    return
+            else:
+                values, names = m.as_array(msg.effort if source == "force" else msg.position), list(msg.name)
         if source == "perturbation":
             self.core.offer_perturbation(step, values, now, names, self._untrusted(source, now), topic)
         else:
@@ -183,7 +200,7 @@ class BodySim(Node):
     def _templates(self) -> dict[str, RawTemplate]:
         """Pre-serialized messages of the per-step outputs (:mod:`bptsb_ros.ros.raw_out`): the builders' layouts
         with stamps and values rewritten each step; an output that cannot be templated keeps message objects."""
-        from rclpy.serialization import deserialize_message, serialize_message
+        from rclpy.serialization import deserialize_message
 
         ns, frame, core, n = self.dt_ns, self.p["frame_id"], self.core, self.body.topology.n_masses
         e, dof = len(core.spring_names), len(core.dof_names)
@@ -202,15 +219,14 @@ class BodySim(Node):
         out = {}
         for key, (build, shapes) in builders.items():
             try:
-                out[key] = RawTemplate(build, shapes, serialize_message, deserialize_message, ns)
+                out[key] = RawTemplate(build, shapes, deserialize_message, ns)
             except TemplateError as err:
                 self.get_logger().warning(f"{key}: publishing message objects ({err})")
         return out
 
     def _publish(self, key: str, msg: Any) -> None:
-        pub = self.pubs[key]
-        pub.publish(msg)
-        self.core.count_published(pub.topic_name)
+        self.pubs[key].publish(msg)
+        self.core.count_published(self.topic_names[key])
 
     def _out(self, key: str, step: int, build: Any, *arrays: np.ndarray) -> None:
         """Publish output ``key`` of ``step``: its template's bytes, else ``build(step, *arrays)``."""
@@ -221,23 +237,33 @@ class BodySim(Node):
         self._out("clock", step, lambda k: m.clock_msg(k, self.dt_ns))
 
     def publish(self, out: StepOutput) -> None:
-        """The state of one step on the body's topics (and its perturbation, if any, first)."""
-        state, k, ns, frame, core = out.state, out.state.step, self.dt_ns, self.p["frame_id"], self.core
+        """The state of one step on the body's topics (and its perturbation, if any, first): ``body/positions``
+        every step, the topics that say it again (:data:`~bptsb_ros.live.body_params.SLOW_OUTPUTS`) every
+        ``state_every`` steps or, those in ``every_step``, every step; markers every ``marker_every`` steps."""
+        k, ns, frame, core, p = out.state.step, self.dt_ns, self.p["frame_id"], self.core, self.p
         if out.perturbation is not None:
             self._publish("perturbation", m.joint_state(k, ns, core.dof_names, position=out.perturbation,
                                                         frame_id=frame))
-        full = self.body.full_positions(state.r)[0].numpy()
-        length, rest = state.length[0].numpy(), out.rest.reshape(-1).numpy()
+        r, v, a, length, rest, force = out.arrays()
+        full = self.layout.copy()
+        full[self.movable] = r
         self._out("positions", k, lambda k, r: m.pose_array(k, ns, r, frame), full)
-        self._out("mass_states", k, lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r, velocity=v,
-                                                                     effort=f, frame_id=frame),
-                  state.r[0].numpy().reshape(-1), state.v[0].numpy().reshape(-1),
-                  m.effort_from_acceleration(state.a[0].numpy(), core.mass))
-        self._out("spring_lengths", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), length)
-        self._out("rest_length", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), rest)
-        f = np.zeros(2 * self.body.n_movable) if out.force is None else out.force.reshape(-1).numpy()
-        self._out("external_force", k, lambda k, f: m.joint_state(k, ns, core.dof_names, effort=f, frame_id=frame), f)
-        if k % self.p["marker_every"] == 0:
+        slow = k % p["state_every"] == 0
+        every = p["every_step"]
+        markers = k % p["marker_every"] == 0
+        if slow or "mass_states" in every:
+            self._out("mass_states", k, lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r,
+                                                                         velocity=v, effort=f, frame_id=frame),
+                      r.reshape(-1), v.reshape(-1), m.effort_from_acceleration(a, core.mass))
+        if slow or "spring_lengths" in every:
+            self._out("spring_lengths", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), length)
+        if slow or "rest_length" in every:
+            self._out("rest_length", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), rest)
+        if slow or "external_force" in every:
+            f = np.zeros(2 * self.body.n_movable) if force is None else force.reshape(-1)
+            self._out("external_force", k, lambda k, f: m.joint_state(k, ns, core.dof_names, effort=f,
+                                                                      frame_id=frame), f)
+        if markers:
             strain = length / np.maximum(rest, 1e-12) - 1.0
             if "markers" in self.raw:
                 rgba = np.repeat(m.strain_colors(strain), 2, axis=0)
