@@ -136,6 +136,7 @@ setup(
             "pytest>=8",
             "pytest-xdist>=3.5",  # make test runs the suite on 2 processes (tests/conftest.py: a domain per worker)
             "ruff==0.17.6",
+            "mcap-ros2-support>=0.5",  # the bag test reads every recorded message with mcap_ros2 as well as rosbags
             "colcon-core",
             "colcon-ros",
             # make docs: the documentation site and its API reference

@@ -95,6 +95,9 @@ def test_a_real_brain_behind_by_176_ticks_answers_only_the_newest(ros_domain_id)
             want = swg_rest_lengths(brain.agent.body, brain.agent.brain, 276, 1)[0].double().numpy()
         assert list(got[0].position) == list(want)
         assert sum(latch.dropped for latch in brain.latches) == 176
+        # use_sim_time without rclpy's own /clock subscription: the node's clock reads the tick it answered
+        assert brain.sim_time_fed and brain.get_clock().now().nanoseconds == 276 * brain.dt_ns
+        assert [e.node_name for e in brain.get_subscriptions_info_by_topic("/clock")].count("swg_brain") == 1
         brain.destroy_node()
     finally:
         stop.set("test")
