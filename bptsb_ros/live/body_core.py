@@ -210,6 +210,8 @@ class BodyCore:
             self.wind = np.asarray(p["wind"], dtype=np.float64)
         self.next_step = 0
         self.control = SimControl(p["start_paused"], sink=self._on_control)
+        self.control_rule = PublisherRule("control", tuple(p["control_callers"]))
+        self.pause_expired = False  # the run ended because the body stayed paused for pause_timeout
         self.resumed_at = -math.inf  # realtime: when a pause ended (silence is counted from then)
         self.stats = TimingStats()
         self.phases = StepPhases()  # lockstep: wall time per phase of a step (bptsb bench --live)
@@ -523,6 +525,8 @@ class BodyCore:
         out["divergences"] = self.divergence.events
         out["paused"] = self.control.paused
         out["control_calls"] = self.control.count
+        out["control_calls_refused"] = self.control.refused
+        out["pause_expired"] = self.pause_expired
         if self.recorder is not None:
             r = self.recorder
             out.update(recorder_waits=r.waits, recorder_wait_s=r.wait_s, recorder_acked_step=r.acked,
@@ -545,7 +549,8 @@ class BodyCore:
 
     def end_text(self, summary: Mapping[str, Any], diverged: bool, stop_reason: str | None) -> str:
         """The log lines at the end of a run: why it ended, after how many steps, and :func:`summary_text`."""
-        why = ("stopped: the simulation diverged" if diverged else
+        why = ("stopped: paused for pause_timeout" if self.pause_expired else
+               "stopped: the simulation diverged" if diverged else
                f"stopped by {stop_reason}" if stop_reason else "finished")
         return f"{why} after {summary['steps']} steps ({summary['sim_time']:.3f} s sim time)\n" + summary_text(summary)
 

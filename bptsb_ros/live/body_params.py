@@ -10,7 +10,13 @@ from __future__ import annotations
 import math
 
 from bptsb_ros.live.channels import MODES
-from bptsb_ros.live.safety import DEFAULT_MAX_FORCE, DEFAULT_MAX_WIND, DEFAULT_PERTURB_PUBLISHERS, DIVERGENCE_POLICIES
+from bptsb_ros.live.safety import (
+    DEFAULT_CONTROL_CALLERS,
+    DEFAULT_MAX_FORCE,
+    DEFAULT_MAX_WIND,
+    DEFAULT_PERTURB_PUBLISHERS,
+    DIVERGENCE_POLICIES,
+)
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS
 from bptsb_ros.ros.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, Param, ParameterError
 from bptsb_ros.ros.topics import BODY_INPUTS, BODY_OUTPUTS, COMMAND_SOURCES, DEFAULT_QOS_DEPTH, RECORDER_ACK, TOPICS
@@ -110,6 +116,14 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "is then the body at rest at layout + displacement; 0: no resets", "int", minimum=0),
     Param("start_paused", False, "start paused: the first step waits for the ~/resume or ~/step service (whether "
           "the body is paused now is on /diagnostics, not in this parameter)", "bool"),
+    Param("control_callers", list(DEFAULT_CONTROL_CALLERS), "node names ('name' or '/namespace/name') allowed to call "
+          "~/pause, ~/resume, ~/step and ~/reset; a call is refused while any other node has a client of that "
+          "service; default: the ros2 command line (ros2 service call); '*': any node", "str_list"),
+    Param("pause_timeout", 600.0, "wall seconds a paused body waits for ~/resume or ~/step before it ends the run "
+          "(exit status 1, named in the log and the run summary), so a forgotten pause cannot hold a launch forever; "
+          "0: no limit", "float", minimum=0.0),
+    Param("pause_notice_period", 30.0, "while paused, a log line every this many wall seconds says so (and how long "
+          "until pause_timeout)", "float", positive=True),
     Param("step_count", 1, "steps one call of the ~/step service advances a paused body", "int", minimum=1,
           dynamic=True),
     Param("on_divergence", "restore", "when a step diverges: restore (last good state + safe command, go on) or "

@@ -37,6 +37,9 @@ DEFAULT_PUBLISHERS: dict[str, tuple[str, ...]] = {
 #: Default publishers allowed to perturb the body (``perturb_publishers``): any node. A perturbation is a test the
 #: user runs (``ros2 topic pub``, a script), bounded by ``max_displacement``; list node names to restrict it.
 DEFAULT_PERTURB_PUBLISHERS: tuple[str, ...] = ("*",)
+#: who may call the body's simulator services by default: the node ``ros2 service call`` creates for a
+#: ``std_srvs/srv/Trigger`` (``_ros2cli_requester_<package>_<service type>``)
+DEFAULT_CONTROL_CALLERS: tuple[str, ...] = ("_ros2cli_requester_std_srvs_Trigger",)
 #: ``command_publishers`` entry that accepts commands from any node (not for a shared network).
 ANY_PUBLISHER = "*"
 #: Default limits [N] of a force-command component and of a wind component.

@@ -119,10 +119,29 @@ class BodySim(Node):
             self._status("OK" if event.control.ok else "WARN", event.text, event.control.values(), "control")
 
     def _on_call(self, name: str, res: Trigger.Response) -> Trigger.Response:
-        """A call of ``~/<name>`` (``~/step``: ``step_count`` steps) to the core's controls."""
+        """A call of ``~/<name>`` (``~/step``: ``step_count`` steps) to the core's controls, with the nodes that have
+        a client of the service (the callers, held to ``control_callers``)."""
         self.callbacks += 1
-        res.success, res.message = self.core.control.call(name, self.p["step_count"])
+        callers = self._service_clients(name)
+        untrusted = self.core.control_rule.untrusted(callers)
+        res.success, res.message = self.core.control.call(name, self.p["step_count"],
+                                                          tuple(f"{ns.rstrip('/')}/{n}" for ns, n in callers),
+                                                          tuple(untrusted))
         return res
+
+    def _service_clients(self, name: str, wait: float = 1.0) -> list[tuple[str, str]]:
+        """(namespace, node name) of every client of ``~/<name>``: the writers of its request topic (DDS name
+        ``rq<service>Request``), waiting up to ``wait`` seconds while the graph has not named one yet (a client that
+        stays unnamed is reported as such, and so not allowed)."""
+        service = next(s for s in self.control_services if s.service_name.endswith(f"/{name}"))
+        topic = f"rq{service.service_name}Request"
+        deadline = time.monotonic() + wait
+        while True:
+            clients = [(i.node_namespace, i.node_name)
+                       for i in self.get_publishers_info_by_topic(topic, no_mangle=True)]
+            if all(n != UNKNOWN_NODE for _, n in clients) or time.monotonic() > deadline:
+                return clients
+            time.sleep(0.02)
 
     # -- intake: messages -> core ------------------------------------------------------------------------------
     def _on_input(self, source: str, msg: bytes | Vector3Stamped) -> None:

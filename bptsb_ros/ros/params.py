@@ -162,7 +162,8 @@ READ_ONLY_REASONS: dict[str, str] = {
     **dict.fromkeys(("wait_for", "wait_for_subscribers", "startup_timeout", "min_subscribers"),
                     "only used while the loop starts up"),
     **dict.fromkeys(("command_timeout", "max_command_age", "min_rest_length", "max_rest_length", "max_force",
-                     "max_wind", "command_publishers", "perturb_publishers", "on_divergence"),
+                     "max_wind", "command_publishers", "perturb_publishers", "on_divergence", "control_callers",
+                     "pause_timeout"),
                     "a safety rule: it must hold for the whole run and not be loosened by anyone who can reach the "
                     "parameter services"),
     **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
