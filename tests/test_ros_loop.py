@@ -269,6 +269,11 @@ def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env
         assert pos.shape == ref.shape and np.abs(pos - ref).max() <= 1e-9
         run = read_run(bag)  # what bptsb replay reads: the bag's custom_data names the namespace
         assert run.custom["namespace"] == f"/{ns}" and np.abs(run.positions - ref).max() <= 1e-9
+        layout = json.loads((tmp_path / f"{ns}.launch" / "foxglove_layout.json").read_text())  # this robot's viewer
+        assert layout["configById"]["3D!body"]["followTf"] == f"{ns}/msdn"
+        assert f"Fixed Frame: {ns}/msdn" in (tmp_path / f"{ns}.launch" / "bptsb.rviz").read_text()
+        markers = [m for *_, m in read_messages(bag, [f"/{ns}/body/markers"])]
+        assert {mk.header.frame_id for m in markers for mk in m.markers} == {f"{ns}/msdn"}
         # state_every:=1: the body's rest lengths every step, as asked (by default every 10th)
         assert run.rest_length is not None and run.rest_length.shape == (101, agent.body.topology.n_springs)
     first = fresh_agent("lissajous", seed=0)

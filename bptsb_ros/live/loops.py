@@ -11,7 +11,9 @@ Namespaces (several robots in one ROS domain): a loop started in namespace ``/r1
 ``namespace:=r1`` or ``PushRosNamespace`` around a launch file) resolves every topic in it — also ``/clock`` and
 ``/diagnostics``, remapped to ``/r1/clock`` and ``/r1/diagnostics`` (:func:`namespace_remaps`), so each robot keeps
 its own lockstep clock and its bag holds exactly its own topics. The startup waits and the recorder's topic list use
-the resolved names (:func:`loop_topic`). Frame ids are not namespaced: every body lives in its own ``msdn`` frame.
+the resolved names (:func:`loop_topic`). The body's frame is namespaced too (``robot1/msdn``,
+:func:`bptsb_ros.live.viewers.frame_id`), and :mod:`bptsb_ros.live.viewers` writes the RViz and Foxglove
+configurations of that robot.
 """
 
 from __future__ import annotations
@@ -237,6 +239,10 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":
         read = [k for k in SLOW_OUTPUTS if any(k in b.triggers for b in loop.brains)]
+        if namespace:  # robot1/msdn: two robots in one domain never share a frame
+            from bptsb_ros.live.viewers import frame_id
+
+            params["frame_id"] = frame_id(namespace)
         params.update({
             "mode": mode,
             "wait_for": list(loop.wait_for),
@@ -670,7 +676,12 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
             return [LogInfo(msg="rviz:=true: rviz2 is not installed here; the loop runs without it")]
         namespace = namespace_of(context)
         remaps = [arg for src, dst in namespace_remaps(namespace) for arg in ("-r", f"{src}:={dst}")]
-        return [ExecuteProcess(cmd=["rviz2", "-d", str(rviz_config()), "--ros-args", "-r",
+        from bptsb_ros.live.viewers import rviz_config_text
+
+        handle, config = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_", suffix=".rviz")
+        with open(handle, "w") as out:  # the package's config with the fixed frame of the loop's namespace
+            out.write(rviz_config_text(rviz_config().read_text(), namespace))
+        return [ExecuteProcess(cmd=["rviz2", "-d", config, "--ros-args", "-r",
                                     f"__ns:={namespace or '/'}", *remaps], name="rviz2", output="screen")]
 
     recording = Condition(predicate=lambda context: bool(LaunchConfiguration("bag").perform(context)))
@@ -695,11 +706,6 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
 
 def rviz_config() -> Path:
     """The RViz config of the package (``config/bptsb.rviz``): the installed share copy, else the source tree's."""
-    try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-    except ImportError:
-        return Path(__file__).resolve().parents[2] / "config" / "bptsb.rviz"
-    try:
-        return Path(get_package_share_directory("bptsb_ros")) / "config" / "bptsb.rviz"
-    except PackageNotFoundError:
-        return Path(__file__).resolve().parents[2] / "config" / "bptsb.rviz"
+    from bptsb_ros.live.viewers import config_dir
+
+    return config_dir() / "bptsb.rviz"
