@@ -46,15 +46,15 @@ def test_lissajous_open_lockstep_equals_offline(tmp_path, ros_env):
     assert np.abs(pos - ref).max() <= 1e-9
     commands = np.array([np.asarray(m.position) for *_, m in read_messages(bag, ["/brain/rest_length"])])
     np.testing.assert_allclose(commands, roll.rest_length[:, 0].numpy(), rtol=0, atol=1e-12)
-    # the body's own rest-length topic: every state_every (10) steps, stamped with its step
+    # the body's own rest-length topic: every state_every (10) steps (at steps 6 mod 10), stamped with its step
     rest = {stamp_ns(m.header.stamp) // 10_000_000: np.asarray(m.position)
             for *_, m in read_messages(bag, ["/body/rest_length"])}
-    assert sorted(rest) == list(range(0, 101, 10))
+    assert sorted(rest) == list(range(6, 101, 10))
     for k, values in rest.items():
         np.testing.assert_allclose(values, roll.rest_length[k, 0].numpy(), rtol=0, atol=1e-12)
     counts = {t.name: t.message_count for t in bag_info(bag).topics}
     assert counts["/clock"] == counts["/brain/rest_length"] == counts["/body/positions"] == 101
-    assert counts["/body/spring_lengths"] == counts["/body/mass_states"] == 11
+    assert counts["/body/spring_lengths"] == counts["/body/mass_states"] == 10  # steps 4 and 2 mod 10
     summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
     assert summary["steps"] == 100 and summary["safe_command_steps"] == 0 and summary["rejected_total"] == 0
 
@@ -122,9 +122,9 @@ def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
     assert np.abs(agent.body.full_positions(calm.r[:, 0]).numpy() - ref).max() > 1e-3  # the wind matters
     assert np.abs(pos - ref).max() <= 1e-9
     force = {stamp_ns(m.header.stamp) // DT_NS: np.asarray(m.effort)
-             for *_, m in read_messages(bag, ["/body/external_force"])}  # every state_every (10) steps
-    assert sorted(force) == list(range(0, 101, 10))
-    np.testing.assert_array_equal([force[k][0] for k in sorted(force)], expected[::10])  # x force on mass 0
+             for *_, m in read_messages(bag, ["/body/external_force"])}  # every 10 steps, at 8 mod 10
+    assert sorted(force) == list(range(8, 101, 10))
+    np.testing.assert_array_equal([force[k][0] for k in sorted(force)], expected[8::10])  # x force on mass 0
     np.testing.assert_allclose(wind_periods(read_run(bag)), [(0.2, 0.4), (0.6, 0.8), (1.0, 1.01)], atol=1e-12)
     metrics = replay(bag, tmp_path / "replay", run, gif=False)  # the agent only from the user, never from the bag
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9

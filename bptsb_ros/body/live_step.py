@@ -26,6 +26,33 @@ from bptsb_ros.body.msdn import DIVERGENCE_LIMIT, MSDN, BodyState
 SOUND, BROKEN, RUNAWAY = 0, 1, 2
 
 
+class KernelState(BodyState):
+    """A :class:`BodyState` the kernel wrote: its numpy arrays r, v, a (1, M, 2) and length (1, E) (``arrays``), seen
+    as tensors (views, made when first read: the live loop reads the arrays)."""
+
+    def __init__(self, r: np.ndarray, v: np.ndarray, a: np.ndarray, length: np.ndarray, step: int) -> None:
+        self.arrays = (r, v, a, length)
+        self.step = step
+        self._tensors: tuple[torch.Tensor, ...] | None = None
+
+    def _tensor(self, i: int) -> torch.Tensor:
+        if self._tensors is None:
+            self._tensors = tuple(torch.from_numpy(x) for x in self.arrays)
+        return self._tensors[i]
+
+    r = property(lambda self: self._tensor(0))  # type: ignore[assignment]
+    v = property(lambda self: self._tensor(1))  # type: ignore[assignment]
+    a = property(lambda self: self._tensor(2))  # type: ignore[assignment]
+    length = property(lambda self: self._tensor(3))  # type: ignore[assignment]
+
+
+def state_arrays(state: BodyState) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """r, v, a (B, M, 2) and length (B, E) of ``state`` as C-contiguous numpy arrays (no copy where they are)."""
+    if isinstance(state, KernelState):
+        return state.arrays
+    return tuple(np.ascontiguousarray(t.detach().numpy()) for t in (state.r, state.v, state.a, state.length))
+
+
 @njit(cache=True, nogil=True)
 def soundness(r, v, a, limit, dt):  # pragma: no cover - compiled
     """0 (:data:`SOUND`): r, v, a finite and every |r| <= ``limit``; 1 (:data:`BROKEN`): not (``MSDN.check_finite``
@@ -49,8 +76,8 @@ class LiveStep:
     """``MSDN.step`` of ``body`` for one body (batch 1), on numpy arrays, with the new state's soundness code.
 
     Call it with the state of step k (a :class:`BodyState` of batch 1), the rest lengths (E,) [m] and the external
-    force (M, 2) [N] (or None) in force at step k+1, all in the body's dtype; it returns the state of step k+1 (its
-    tensors view new arrays) and :func:`soundness` of it.
+    force (M, 2) [N] (or None) in force at step k+1, all in the body's dtype; it returns the state of step k+1 (a
+    :class:`KernelState` of new arrays) and :func:`soundness` of it.
     """
 
     def __init__(self, body: MSDN, limit: float = DIVERGENCE_LIMIT) -> None:
@@ -69,14 +96,6 @@ class LiveStep:
         self.verlet = body.integrator == "verlet"
         self.clamp = bool(body.environment.ground_clamp)
         self.dt = float(body.dt)
-        self.last: tuple[BodyState, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-
-    def arrays(self, state: BodyState) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """r, v, a (1, M, 2) and length (1, E) of ``state`` as numpy arrays (the ones this step made, if it made
-        it)."""
-        if self.last is not None and self.last[0] is state:
-            return self.last[1:]
-        return tuple(np.ascontiguousarray(t.numpy()) for t in (state.r, state.v, state.a, state.length))
 
     def __call__(self, state: BodyState, rest: np.ndarray, force: np.ndarray | None) -> tuple[BodyState, int]:
         self.rest[0, 0] = rest
@@ -84,13 +103,10 @@ class LiveStep:
         if force is not None:
             self.ext[0, 0] = force
             ext = self.ext
-        r0, v0, a0, _ = self.arrays(state)
+        r0, v0, a0, _ = state_arrays(state)
         r, v, a = (np.empty(self.shape, dtype=self.np_dtype) for _ in range(3))
         length = np.empty((1, 1, self.n_springs), dtype=self.np_dtype)
         kernel.forward(r0, v0, a0, self.k, self.d, self.rest, ext, self.body.spring_i, self.body.spring_j,
                        self.offset, self.mass, self.coef, self.verlet, self.clamp, r, v, a, length)
         code = soundness(r, v, a, self.limit, self.dt)
-        new = BodyState(torch.from_numpy(r[0]), torch.from_numpy(v[0]), torch.from_numpy(a[0]),
-                        torch.from_numpy(length[0]), state.step + 1)
-        self.last = (new, r[0], v[0], a[0], length[0])
-        return new, int(code)
+        return KernelState(r[0], v[0], a[0], length[0], state.step + 1), int(code)

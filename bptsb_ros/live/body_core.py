@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bptsb_ros.body.live_step import SOUND, LiveStep
+from bptsb_ros.body.live_step import SOUND, LiveStep, state_arrays
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.live.body_params import (
     LISTED_PERTURBATIONS,
@@ -78,26 +78,27 @@ class Event:
 @dataclass
 class StepOutput:
     """What step ``state.step`` publishes: the state, the rest lengths (E,) [m] and total external force (M, 2) [N]
-    (or None: none) in force, and the perturbation (2M,) [m] applied to the state (None: none)."""
+    (or None: none) in force, as numpy arrays of the body's dtype (``rest``, ``force``: the same as tensors), and the
+    perturbation (2M,) [m] applied to the state (None: none)."""
 
     state: BodyState
-    rest: torch.Tensor
-    force: torch.Tensor | None
+    rest_np: np.ndarray
+    force_np: np.ndarray | None
     perturbation: np.ndarray | None = None
-    rest_np: np.ndarray | None = None
-    force_np: np.ndarray | None = None
-    live_step: LiveStep | None = None
+
+    @property
+    def rest(self) -> torch.Tensor:
+        return torch.from_numpy(self.rest_np)
+
+    @property
+    def force(self) -> torch.Tensor | None:
+        return None if self.force_np is None else torch.from_numpy(self.force_np)
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """The step's r, v, a (M, 2), spring lengths (E,), rest lengths (E,) and force (M, 2) (or None) as numpy
         arrays (views; no torch call where the compiled live step made the state)."""
-        if self.live_step is not None:
-            r, v, a, length = self.live_step.arrays(self.state)
-        else:
-            r, v, a, length = (t.numpy() for t in (self.state.r, self.state.v, self.state.a, self.state.length))
-        rest = self.rest_np if self.rest_np is not None else self.rest.reshape(-1).numpy()
-        force = self.force_np if self.force_np is not None or self.force is None else self.force.numpy()
-        return r[0], v[0], a[0], length[0], rest, force
+        r, v, a, length = state_arrays(self.state)
+        return r[0], v[0], a[0], length[0], self.rest_np.reshape(-1), self.force_np
 
 
 @dataclass
@@ -443,8 +444,7 @@ class BodyCore:
             new, problem = self._advance(state, rest, force)
         if problem:
             new, rest, force, safe = self._recover(state, step, problem)
-        out = StepOutput(new, torch.from_numpy(rest), None if force is None else torch.from_numpy(force),
-                         rest_np=rest, force_np=force, live_step=self.live_step)
+        out = StepOutput(new, rest, force)
         kick = self.perturbations.take(step)
         if kick is not None:
             d = torch.from_numpy(kick.values.astype(self.np_dtype)).view(1, -1, 2)
@@ -456,7 +456,6 @@ class BodyCore:
                            "applied", diagnostic=True)
             else:
                 out.state, out.perturbation = kicked, kick.values
-                out.live_step = None  # the displaced state is torch's
                 self.perturbation_count += 1
                 if len(self.perturbed) < LISTED_PERTURBATIONS:
                     self.perturbed.append(step)

@@ -69,8 +69,8 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     RAW_OUTPUTS,
     Param("marker_every", 5, "publish body/markers every this many steps", "int", minimum=1, dynamic=True),
     Param("state_every", 10, "publish body/mass_states, body/spring_lengths, body/rest_length and "
-          "body/external_force every this many steps (1: every step); /clock and body/positions, the state of every "
-          "step, go out every step", "int", minimum=1, dynamic=True),
+          "body/external_force every this many steps, at steps 2, 4, 6 and 8 modulo it (1: every step); /clock and "
+          "body/positions, the state of every step, go out every step", "int", minimum=1, dynamic=True),
     Param("every_step", [], "of those four topics, the ones published every step anyway (a node that reads them, "
           "e.g. a feedback brain on mass states: the launchers add what the loop's brains read)", "str_list",
           choices=SLOW_OUTPUTS),
@@ -156,6 +156,29 @@ def parse_wait_for_subscribers(entries: list[str]) -> list[tuple[str, int]]:
                                  "with count >= 1")
         out.append((topic, int(count)))
     return out
+
+
+def set_fifo_priority_of_other_threads(priority: int) -> int:
+    """Put every other thread of this process (the middleware's: a step that publishes waits on locks they hold,
+    so at the normal scheduler one of them preempted by another process stalls the step) under SCHED_FIFO at
+    ``priority``; returns how many took it (Linux: the threads in ``/proc/self/task``)."""
+    import os
+    import threading
+
+    me, done = threading.get_native_id(), 0
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return 0
+    for tid in tids:
+        if tid == me:
+            continue
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            done += 1
+        except OSError:  # gone meanwhile, or not allowed
+            continue
+    return done
 
 
 def set_fifo_priority(priority: int) -> str:

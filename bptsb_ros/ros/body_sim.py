@@ -31,10 +31,12 @@ from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import (
     PARAMS,
     PUBLISHED,
+    SLOW_OUTPUTS,
     SUBSCRIBED,
     UNKNOWN_NODE,
     parse_wait_for_subscribers,
     set_fifo_priority,
+    set_fifo_priority_of_other_threads,
 )
 from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
@@ -95,6 +97,7 @@ class BodySim(Node):
         self.subs = {src: self.create_subscription(kind, topic[key], lambda msg, src=src: self._on_input(src, msg), sq,
                                                    raw=src in self.readers)
                      for src, kind, key in INPUTS}
+        self.sub_topics = {src: sub.topic_name for src, sub in self.subs.items()}
         self.ack_sub = self.create_subscription(Clock, topic[RECORDER_ACK], self._on_recorder_ack, m.ack_qos()) \
             if p["wait_for_recorder"] else None  # the recorder's latest acknowledgement (transient-local, depth 1)
         self.control_services = [self.create_service(Trigger, f"~/{name}", lambda _, res, name=name:
@@ -148,7 +151,7 @@ class BodySim(Node):
         """A message on ``source``'s topic, as values stamped with a step, to the core (with the graph's verdict on
         its topic's publishers); an unsynchronised wind holds from the next step on."""
         self.callbacks += 1
-        now, topic = time.monotonic(), self.subs[source].topic_name
+        now, topic = time.monotonic(), self.sub_topics[source]
         if isinstance(msg, bytes):  # a JointState: read from its bytes, or deserialized when they are not the usual
             read = self.readers[source].read(msg)
             if read is None:
@@ -211,7 +214,7 @@ class BodySim(Node):
         return self.subs[source].get_publisher_count() == 0
 
     def topic(self, source: str) -> str:
-        return self.subs[source].topic_name
+        return self.sub_topics[source]
 
     def log(self, level: str, text: str) -> None:
         log_line(self.get_logger(), level, text)
@@ -258,7 +261,8 @@ class BodySim(Node):
     def publish(self, out: StepOutput) -> None:
         """The state of one step on the body's topics (and its perturbation, if any, first): ``body/positions``
         every step, the topics that say it again (:data:`~bptsb_ros.live.body_params.SLOW_OUTPUTS`) every
-        ``state_every`` steps or, those in ``every_step``, every step; markers every ``marker_every`` steps."""
+        ``state_every`` steps (:meth:`_slow_due`) or, those in ``every_step``, every step; markers every
+        ``marker_every`` steps."""
         k, ns, frame, core, p = out.state.step, self.dt_ns, self.p["frame_id"], self.core, self.p
         if out.perturbation is not None:
             self._publish("perturbation", m.joint_state(k, ns, core.dof_names, position=out.perturbation,
@@ -267,18 +271,17 @@ class BodySim(Node):
         full = self.layout.copy()
         full[self.movable] = r
         self._out("positions", k, lambda k, r: m.pose_array(k, ns, r, frame), full)
-        slow = k % p["state_every"] == 0
-        every = p["every_step"]
+        due = self._slow_due(k)
         markers = k % p["marker_every"] == 0
-        if slow or "mass_states" in every:
+        if due["mass_states"]:
             self._out("mass_states", k, lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r,
                                                                          velocity=v, effort=f, frame_id=frame),
                       r.reshape(-1), v.reshape(-1), m.effort_from_acceleration(a, core.mass))
-        if slow or "spring_lengths" in every:
+        if due["spring_lengths"]:
             self._out("spring_lengths", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), length)
-        if slow or "rest_length" in every:
+        if due["rest_length"]:
             self._out("rest_length", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), rest)
-        if slow or "external_force" in every:
+        if due["external_force"]:
             f = np.zeros(2 * self.body.n_movable) if force is None else force.reshape(-1)
             self._out("external_force", k, lambda k, f: m.joint_state(k, ns, core.dof_names, effort=f,
                                                                       frame_id=frame), f)
@@ -291,6 +294,14 @@ class BodySim(Node):
                 self._publish("markers", m.body_markers(k, ns, full, self.springs, self.fixed,
                                                         self.body.topology.cmp_index, strain, frame,
                                                         self.mass_diameter))
+
+    def _slow_due(self, step: int) -> dict[str, bool]:
+        """Which of the slower state topics go out at ``step``: those in ``every_step``, and each of the others once
+        every ``state_every`` steps, at steps 2, 4, 6, 8 (mod ``state_every``) in the order of
+        :data:`~bptsb_ros.live.body_params.SLOW_OUTPUTS` — spread out, and beside the markers (steps 0 and 5 mod
+        ``marker_every`` = 5), so that no step sends more than one message beyond its state and ``/clock``."""
+        n, every = self.p["state_every"], self.p["every_step"]
+        return {key: key in every or step % n == (2 * i + 2) % n for i, key in enumerate(SLOW_OUTPUTS)}
 
     def diagnostics(self, force: bool = False, error: str = "") -> None:
         """Publish the loop status every ``diagnostics_period`` (or now when ``force`` or ``error``)."""
@@ -331,8 +342,10 @@ class BodySim(Node):
         self.loop.wait_startup(self._startup_missing)
         if self.p["rt_priority"] and self.p["mode"] == "realtime":
             problem = set_fifo_priority(self.p["rt_priority"])
+            others = 0 if problem else set_fifo_priority_of_other_threads(self.p["rt_priority"])
             self.log("warning" if problem else "info", problem + "; stepping under the normal scheduler" if problem
-                     else f"stepping under SCHED_FIFO priority {self.p['rt_priority']}")
+                     else f"stepping under SCHED_FIFO priority {self.p['rt_priority']} (and {others} middleware "
+                     "thread(s) of this process)")
             self.core.rt_priority = 0 if problem else self.p["rt_priority"]
         diverged = self.loop.run()
         summary = self.core.summary()
