@@ -1,12 +1,17 @@
-"""``bptsb bench --live``: steps per second of lockstep live loops while a bag is recorded, and where each step's
-wall time goes.
+"""``bptsb bench --live``: steps per second of lockstep live loops while a bag is recorded, as a ratio to a bare
+rclpy anchor measured in the same run, where each step's wall time goes, and each node process's CPU per step.
 
 Each run is ``bptsb launch <loop> --bag DIR --duration S`` (lockstep; the recorder acknowledges, ``body_sim`` waits
 for it), exactly as a user starts it. ``body_sim`` times every step's phases (:mod:`bptsb_ros.live.phases`:
 recorder wait, publish, wait for commands, compute) and writes them into its ``body_summary.json``; start-up is not
-in them. Runs of several loops are interleaved (loop A, loop B, loop A, ...) so that a change in the machine's load
-hits every loop alike. ``lissajous_closed`` needs a fitted feedback layer: the bench fits one on a fresh Lissajous
-agent (10 s of sim time) in its work folder first.
+in them. A :class:`CpuSampler` reads the CPU time of every node process (all its threads) ten times a second, and
+the CPU of each inside the body's stepping window, divided by the steps, is its CPU per step. Between the loop runs
+runs the anchor (:mod:`bptsb_ros.live_anchor`: two processes ping-pong a 50-float message with the loops' QoS,
+pre-serialized, on the EventsExecutor, and a recorder process takes both topics every 20 ms): what the middleware
+gives on this machine now. Each loop run's ``ratio_to_anchor`` is its steps/s over the mean round trips/s of the
+anchor runs just before and after it (:func:`with_ratios`), so that a change in the machine's load hits both alike;
+runs of several loops are interleaved (anchor, loop A, anchor, loop B, anchor, ...). ``lissajous_closed`` needs a
+fitted feedback layer: the bench fits one on a fresh Lissajous agent (10 s of sim time) in its work folder first.
 
 The runs use the caller's ROS_DOMAIN_ID (use a private one).
 """
@@ -132,7 +137,7 @@ class CpuSampler:
 
 
 def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = "", params: tuple[str, ...] = (),
-             progress=print, composed: bool = False) -> dict[str, Any]:
+             progress=print) -> dict[str, Any]:
     """One recorded lockstep run of ``loop``: its row (:func:`~bptsb_ros.live.phases.row_from_summary`) with the
     launch's exit code, its wall time with start-up, the messages the recorder counted as lost, and the CPU per step
     of each node process inside the stepping window (``cpu_us_per_step``: CPU microseconds per step, every thread of
@@ -142,9 +147,9 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
 
     bag = workdir / f"{tag}_bag"
     log = workdir / f"{tag}_launch.log"
-    progress(f"bench --live: {loop}{' (composed)' if composed else ''} for {seconds:g} s sim time, recorded; log {log}")
+    progress(f"bench --live: {loop} for {seconds:g} s sim time, recorded; log {log}")
     started = time.monotonic()
-    argv = launch_argv(loop, bag, seconds, agent, params) + (["--composed"] if composed else [])
+    argv = launch_argv(loop, bag, seconds, agent, params)
     with log.open("w") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         sampler = CpuSampler(proc.pid)
@@ -152,7 +157,7 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
             code = proc.wait()
         finally:
             sampler.stop()
-    result: dict[str, Any] = {"loop": loop, "composed": composed, "sim_seconds": seconds, "launch_exit_code": code,
+    result: dict[str, Any] = {"loop": loop, "sim_seconds": seconds, "launch_exit_code": code,
                               "wall_with_startup_s": round(time.monotonic() - started, 2), "log": str(log)}
     summary_path = Path(str(bag) + ".launch") / "body_summary.json"
     if not summary_path.is_file() or not (bag / "metadata.yaml").is_file():
@@ -213,12 +218,11 @@ def _neighbour(seq: list[dict[str, Any]], i: int, direction: int, shape: str) ->
 
 def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats: int = 1,
              workdir: str | Path | None = None, params: tuple[str, ...] = (), progress=print,
-             anchor_seconds: float = 5.0, composed: bool = False) -> dict[str, Any]:
+             anchor_seconds: float = 5.0) -> dict[str, Any]:
     """``repeats`` interleaved rounds of one recorded lockstep run of each of ``loops`` (``seconds`` sim seconds
     each; ``params``: ``NODE:NAME:=VALUE`` passed to every launch of a loop with that node), each loop run between two
-    runs of the bare rclpy anchor (:mod:`bptsb_ros.live_anchor`, ``anchor_seconds`` each): anchor, loop A, anchor,
-    loop B, anchor, ... With ``composed``, every loop also runs composed (body and brains in one process) beside the
-    composed anchor. Bags and logs go to ``workdir`` (default: a new temporary folder, kept)."""
+    runs of the bare rclpy anchor (:mod:`bptsb_ros.live_anchor`, split shape, ``anchor_seconds`` each): anchor, loop
+    A, anchor, loop B, anchor, ... Bags and logs go to ``workdir`` (default: a new temporary folder, kept)."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="bptsb-bench-live-"))
     work.mkdir(parents=True, exist_ok=True)
     report: dict[str, Any] = {"cpu_count": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
@@ -228,17 +232,13 @@ def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats
     if any(loop.endswith("_closed") for loop in loops):
         progress("bench --live: fitting a feedback layer for the closed loop ...")
         agent = str(fitted_agent(work / "agent"))
-    shapes = (False, True) if composed else (False,)
     seq = report["sequence"]
-    for is_composed in shapes:
-        shape = "composed" if is_composed else "split"
-        seq.append({"kind": "anchor", **anchor_run(shape, anchor_seconds, progress)})
-        for round_ in range(repeats):
-            for loop in loops:
-                tag = f"{loop}_{shape}_{round_}"
-                seq.append({"kind": "loop", **live_run(loop, seconds, work, tag, agent if loop.endswith("_closed")
-                                                       else "", params, progress, composed=is_composed)})
-                seq.append({"kind": "anchor", **anchor_run(shape, anchor_seconds, progress)})
+    seq.append({"kind": "anchor", **anchor_run("split", anchor_seconds, progress)})
+    for round_ in range(repeats):
+        for loop in loops:
+            seq.append({"kind": "loop", **live_run(loop, seconds, work, f"{loop}_{round_}",
+                                                   agent if loop.endswith("_closed") else "", params, progress)})
+            seq.append({"kind": "anchor", **anchor_run("split", anchor_seconds, progress)})
     report["runs"] = [item for item in seq if item["kind"] == "loop"]
     report["anchors"] = [item for item in seq if item["kind"] == "anchor"]
     report["load_average_at_end"] = list(os.getloadavg())

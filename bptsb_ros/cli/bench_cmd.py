@@ -18,7 +18,8 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
         "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON. "
         "With --soak: soak the live recording instead (a realtime and a lockstep recorded run under CPU load; "
         "steps published, messages recorded, drops counted). With --live: steps/s of lockstep live loops while a bag "
-        "is recorded, each step split into recorder wait, publish, wait for commands and compute. With --realtime: "
+        "is recorded, as a ratio to a bare rclpy ping-pong anchor run between them, each step split into recorder "
+        "wait, publish, wait for commands and compute, and each node process's CPU per step. With --realtime: "
         "the closed loop at 100 Hz in realtime, idle and with one core kept busy (steps, deadline misses, step "
         "compute time and period jitter from the body's own per-step records, late commands).")
 
@@ -42,8 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="sim seconds of the lockstep run (0: skip it; default 10)")
     soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
                       help="spinning processes during the lockstep run (default 8)")
-    live = parser.add_argument_group("--live: recorded lockstep loops (bptsb_ros.bench_live; runs bptsb launch "
-                                     "<loop> --bag on this ROS_DOMAIN_ID)")
+    live = parser.add_argument_group("--live: recorded lockstep loops beside a bare rclpy anchor "
+                                     "(bptsb_ros.bench_live; runs bptsb launch <loop> --bag and the anchor on this "
+                                     "ROS_DOMAIN_ID)")
     live.add_argument("--live", action="store_true", help="time recorded lockstep live loops instead")
     live.add_argument("--live-loops", default="lissajous_closed,narma", metavar="A,B",
                       help="loops to run, comma-separated (default lissajous_closed,narma)")
