@@ -125,6 +125,7 @@ setup(
         "distributed",  # bptsb sweep --scheduler: jobs on a Dask cluster; LocalCluster in the tests
         "threadpoolctl",  # one BLAS/OpenMP thread inside every job of the runner (local and Dask workers)
         "scikit-learn",
+        "psutil",  # bptsb bench --live: the CPU time of every node process
     ],
     extras_require={
         # A full ROS 2 Jazzy install provides these through apt; without one they come as wheels.

@@ -123,7 +123,7 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "(exit status 1, named in the log and the run summary), so a forgotten pause cannot hold a launch forever; "
           "0: no limit", "float", minimum=0.0),
     Param("pause_notice_period", 30.0, "while paused, a log line every this many wall seconds says so (and how long "
-          "until pause_timeout)", "float", positive=True),
+          "until pause_timeout)", "float", positive=True, dynamic=True),
     Param("step_count", 1, "steps one call of the ~/step service advances a paused body", "int", minimum=1,
           dynamic=True),
     Param("on_divergence", "restore", "when a step diverges: restore (last good state + safe command, go on) or "

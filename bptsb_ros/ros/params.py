@@ -170,6 +170,8 @@ READ_ONLY_REASONS: dict[str, str] = {
     "timing_path": "the records cover every step of the run from the first; they are written when the node stops",
     "rt_priority": "the scheduling policy is set once, when stepping begins",
     "frame_id": "viewers and the bag expect one frame for the whole run",
+    "every_step": "a node of the loop reads these topics every step from the start (the launchers set it for the "
+                  "loop's brains); a topic must not thin out under it",
     "start_paused": "only the start; the ~/pause and ~/resume services pause and resume the running body",
     **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale", "perturb_at", "perturb_sigma",
                      "perturb_seed", "schedule", "force", "force_y", "period", "schedule_seed", "hold_periods",
