@@ -63,6 +63,11 @@ def test_step_times_grow_save_and_load(tmp_path: Path):
         np.testing.assert_array_equal(back[name], [row[i] for row in rows])
     assert back["period"] == PERIOD and back["executor"] == "events"
     assert [p.name for p in (tmp_path / "t").iterdir()] == ["times.npz"]  # no temporary file left
+    long = StepTimes()  # ten minutes at 100 Hz: the executor is still read (a 4 KiB bound on the file lost it)
+    for k in range(60_001):
+        long.append(k, 0.01 * k, 0.01 * k, 0.01 * k, 0.01 * k)
+    long.save(tmp_path / "long.npz", PERIOD, {"executor": "events"})
+    assert load_step_times(tmp_path / "long.npz")["executor"] == "events"
 
 
 def test_a_bad_timing_file_is_one_line(tmp_path: Path):
