@@ -339,7 +339,7 @@ class FakePort:
         self.outputs.append(out)
         self.t += self.cost
 
-    def diagnostics(self) -> None:
+    def diagnostics(self, slack: float = float("inf")) -> None:
         pass
 
     def log(self, level: str, text: str) -> None:

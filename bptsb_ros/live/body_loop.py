@@ -64,8 +64,9 @@ class BodyPort(Protocol):
     def publish(self, out: StepOutput) -> None:
         """Publish the outputs of one step."""
 
-    def diagnostics(self) -> None:
-        """Publish the loop status if it is due."""
+    def diagnostics(self, slack: float = math.inf) -> None:
+        """Publish the loop status if it is due; ``slack``: seconds until the next step is due (realtime), the work
+        may be left for a later turn with more time to spare."""
 
     def log(self, level: str, text: str) -> None:
         """One log line (info, warning or error)."""
@@ -232,7 +233,7 @@ class BodyLoop:
                 core.stats.deadline_misses += 1
             if core.step_times is not None:
                 core.step_times.append(step, due, began, integrated, done)
-            port.diagnostics()
+            port.diagnostics(slack=due + period - port.now())  # the time left before the next step is due
             step += 1
 
     def await_commands(self, step: int) -> None:

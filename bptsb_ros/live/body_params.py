@@ -161,7 +161,8 @@ def parse_wait_for_subscribers(entries: list[str]) -> list[tuple[str, int]]:
 def set_fifo_priority_of_other_threads(priority: int) -> int:
     """Put every other thread of this process (the middleware's: a step that publishes waits on locks they hold,
     so at the normal scheduler one of them preempted by another process stalls the step) under SCHED_FIFO at
-    ``priority``; returns how many took it (Linux: the threads in ``/proc/self/task``)."""
+    ``priority`` (one below the stepping thread's, which then preempts them); returns how many took it (Linux: the
+    threads in ``/proc/self/task``)."""
     import os
     import threading
 

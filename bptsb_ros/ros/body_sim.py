@@ -11,6 +11,7 @@ semantics in :mod:`bptsb_ros.live.sim_control`), each call reported on ``/diagno
 
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import time
@@ -59,6 +60,8 @@ from bptsb_ros.ros.runtime import (
 from bptsb_ros.ros.topics import RECORDER_ACK, absolute, stamp_to_step
 
 NODE = "body_sim"
+#: periods of ``diagnostics_period`` after which the loop status is published whatever the slack
+DIAGNOSTICS_OVERDUE = 5
 #: (key, message type) of every topic the body publishes
 OUTPUTS = (("clock", Clock), ("positions", PoseArray), ("mass_states", JointState), ("spring_lengths", JointState),
            ("rest_length", JointState), ("external_force", JointState), ("markers", MarkerArray),
@@ -106,6 +109,8 @@ class BodySim(Node):
         self.executor_name = executor_kind(self.executor_)  # the one this rclpy gave (events may fall back)
         self.executor_.add_node(self)
         self.next_diagnostics = time.monotonic() + p["diagnostics_period"]
+        self._pending_status: tuple[str, str, list[tuple[str, str]]] | None = None  # summed up, not yet published
+        self._diagnostics_cost = [0.001, 0.001]  # seconds the two parts of the diagnostics took (with a margin)
         self.loop = BodyLoop(core, self)
         self.raw = self._templates() if p["raw_outputs"] else {}
         self.get_logger().info(core.describe(p["agent"] or p["config"] or f"fresh {agent.task} agent (seed "
@@ -303,13 +308,35 @@ class BodySim(Node):
         n, every = self.p["state_every"], self.p["every_step"]
         return {key: key in every or step % n == (2 * i + 2) % n for i, key in enumerate(SLOW_OUTPUTS)}
 
-    def diagnostics(self, force: bool = False, error: str = "") -> None:
-        """Publish the loop status every ``diagnostics_period`` (or now when ``force`` or ``error``)."""
+    def diagnostics(self, force: bool = False, error: str = "", slack: float = math.inf) -> None:
+        """Publish the loop status every ``diagnostics_period`` (or now when ``force`` or ``error``).
+
+        The work (the summary with its percentiles, then the message) takes a good fraction of a millisecond, more
+        than a 1 kHz realtime body has to spare after a step: with ``slack`` (seconds until the next step is due)
+        it is done in two parts, each in a turn whose slack exceeds twice what that part took lately (a slowly
+        decaying maximum), and in any case once it is ``DIAGNOSTICS_OVERDUE`` periods late."""
         now = time.monotonic()
-        if not force and not error and now < self.next_diagnostics:
-            return
+        if not force and not error:
+            if now < self.next_diagnostics:
+                return
+            overdue = now - self.next_diagnostics > DIAGNOSTICS_OVERDUE * self.p["diagnostics_period"]
+            if self._pending_status is None:
+                if slack < self._diagnostics_cost[0] and not overdue:
+                    return
+                began = time.monotonic()
+                self._pending_status = self.core.status(self.core.summary())
+                self._diagnostics_cost[0] = max(0.9 * self._diagnostics_cost[0], 2 * (time.monotonic() - began))
+                now = time.monotonic()
+                slack -= now - began
+            if slack < self._diagnostics_cost[1] and not overdue:
+                return
+            began = now
+            self._status(*self._pending_status)
+            self._diagnostics_cost[1] = max(0.9 * self._diagnostics_cost[1], 2 * (time.monotonic() - began))
+        else:
+            self._status(*self.core.status(self.core.summary(), error))
+        self._pending_status = None
         self.next_diagnostics = now + self.p["diagnostics_period"]
-        self._status(*self.core.status(self.core.summary(), error))
 
     def _status(self, level: str, message: str, values: list[tuple[str, str]], name: str = "loop") -> None:
         """Publish one DiagnosticStatus ``<node>: <name>`` stamped with the sim time of the last step."""
@@ -340,12 +367,17 @@ class BodySim(Node):
 
     def run(self) -> int:
         self.loop.wait_startup(self._startup_missing)
+        # everything built so far (torch, numba, the agent, the middleware's objects) lives to the end: out of the
+        # garbage collector's sight, a full collection during the run does not walk it (several ms a time)
+        gc.collect()
+        gc.freeze()
         if self.p["rt_priority"] and self.p["mode"] == "realtime":
             problem = set_fifo_priority(self.p["rt_priority"])
-            others = 0 if problem else set_fifo_priority_of_other_threads(self.p["rt_priority"])
+            below = max(1, self.p["rt_priority"] - 1)
+            others = 0 if problem else set_fifo_priority_of_other_threads(below)
             self.log("warning" if problem else "info", problem + "; stepping under the normal scheduler" if problem
-                     else f"stepping under SCHED_FIFO priority {self.p['rt_priority']} (and {others} middleware "
-                     "thread(s) of this process)")
+                     else f"stepping under SCHED_FIFO priority {self.p['rt_priority']} ({others} middleware "
+                     f"thread(s) of this process at {below})")
             self.core.rt_priority = 0 if problem else self.p["rt_priority"]
         diverged = self.loop.run()
         summary = self.core.summary()
