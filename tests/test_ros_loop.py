@@ -83,6 +83,12 @@ def test_lissajous_closed_loop_equals_offline(tmp_path, ros_env):
 
     metrics = replay(bag, tmp_path / "replay", run, gif=False)
     assert metrics["loop"] == "lissajous_closed" and metrics["missing_steps"] == 0
+    # the spring lengths of every step, from the positions (body/spring_lengths goes out every 10th step)
+    from bptsb_ros.analysis.bag_run import read_run
+
+    lengths = torch.cat([open_part.length[:, 0], closed.length[1:, 0]]).numpy()
+    assert np.abs(read_run(bag).spring_lengths - lengths).max() <= 1e-9
+    assert any(f.endswith("spring_lengths.png") for f in metrics["files"])
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9
     assert metrics["live"]["trajectory_mse_shift_min"] == pytest.approx(metrics["offline"]["trajectory_mse_shift_min"])
 
