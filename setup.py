@@ -169,6 +169,7 @@ DEV = [
     "pytest>=8",
     "pytest-xdist>=3.5",  # make test runs the suite on 2 processes (tests/conftest.py: a domain per worker)
     "ruff==0.17.6",
+    "mcap-ros2-support>=0.5",  # the bag test reads every recorded message with mcap_ros2 as well as rosbags
     "colcon-core",
     "colcon-ros",
     "build",  # the wheel and sdist (python -m build), checked by twine and installed by scripts/check_install.sh
@@ -207,6 +208,7 @@ setup(
         "imageio",
         "pillow",
         "threadpoolctl",  # one BLAS/OpenMP thread inside every job of the runner (local and Dask workers)
+        "psutil",  # bptsb bench --live: the CPU time of every node process
     ],
     extras_require={
         "train": TRAIN,

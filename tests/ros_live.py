@@ -107,14 +107,14 @@ class Probe:
     """An rclpy node in the test process on ``domain`` (the ``ros_domain_id`` fixture; own context), collecting
     messages per topic."""
 
-    def __init__(self, domain: int, name: str = "test_probe") -> None:
+    def __init__(self, domain: int, name: str = "test_probe", namespace: str = "") -> None:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
 
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain)
-        self.node = Node(name, context=self.context)
+        self.node = Node(name, namespace=namespace or None, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.messages: dict[str, list[Any]] = {}

@@ -91,3 +91,44 @@ def test_diagnostics_panels_read_the_body_status(layout):
     assert summary["topicToRender"] == absolute(TOPICS["diagnostics"].name)
     status = layout["configById"]["DiagnosticStatusPanel!status"]
     assert status["topicToRender"] == "/diagnostics" and status["selectedName"] == "body_sim: loop"
+
+
+def _strings(node):
+    if isinstance(node, dict):
+        return [s for k, v in node.items() for s in [k, *_strings(v)]]
+    if isinstance(node, list):
+        return [s for v in node for s in _strings(v)]
+    return [node] if isinstance(node, str) else []
+
+
+def test_the_layout_and_the_rviz_config_of_a_namespaced_robot(layout, repo_root):
+    """For a robot in /robot1: every loop topic of the layout (keys, plotted paths, diagnostics) in /robot1, every
+    frame robot1/msdn (the frame the launchers give its body), nothing else changed; RViz's fixed frame the same."""
+    from bptsb_ros.live.loops import LOOPS, node_parameters
+    from bptsb_ros.live.viewers import foxglove_layout, rviz_config_text
+
+    frame = node_parameters(LOOPS["lissajous_open"], "body_sim", namespace="/robot1")["frame_id"]
+    assert frame == "robot1/msdn"
+    ns = foxglove_layout(layout, "/robot1")
+    panel = ns["configById"]["3D!body"]
+    assert panel["followTf"] == frame == panel["layers"]["grid"]["frameId"]
+    assert panel["topics"]["/robot1/body/markers"]["visible"] is True and "/body/markers" not in panel["topics"]
+    assert ns["configById"]["DiagnosticSummary!diagnostics"]["topicToRender"] == "/robot1/diagnostics"
+    loop_topics = {absolute(t.name) for t in TOPICS.values()}
+    before, after = _strings(layout), _strings(ns)
+    assert len(before) == len(after)
+    for old, new in zip(before, after, strict=True):
+        topic = PATH.match(old)["topic"] if PATH.match(old) else old
+        if old == "msdn":
+            assert new == "robot1/msdn"
+        elif topic in loop_topics:
+            assert new == "/robot1" + old, old
+        else:
+            assert new == old  # titles, other tools' topics (/clicked_point ...), settings
+    assert foxglove_layout(layout, "") == layout
+    rviz = rviz_config_text((repo_root / "config" / "bptsb.rviz").read_text(), "/robot1")
+    import yaml
+
+    cfg = yaml.safe_load(rviz)["Visualization Manager"]
+    assert cfg["Global Options"]["Fixed Frame"] == "robot1/msdn"
+    assert rviz.count("robot1") == 1  # the topics stay relative: rviz2 in the namespace resolves them

@@ -339,7 +339,7 @@ class FakePort:
         self.outputs.append(out)
         self.t += self.cost
 
-    def diagnostics(self) -> None:
+    def diagnostics(self, slack: float = float("inf")) -> None:
         pass
 
     def log(self, level: str, text: str) -> None:
@@ -496,9 +496,10 @@ def test_recorder_gate_waits_and_gives_up_without_progress():
     BodyLoop(c, port).run()
     gate = c.recorder
     assert gate.acked == 2 and gate.silent  # step 5 needed step 3
-    # steps 2 and 4 waited 0.01 s for a late ack (step 3's had arrived while step 2 waited for its commands);
-    # step 5 gave up once 0.3 s passed without progress, at the first 0.05 s poll beyond: 0.35 s
-    assert gate.waits == 3 and gate.wait_s == pytest.approx(0.01 + 0.01 + 0.35)
+    # steps 2 and 4 waited 0.01 s for a late ack; step 3's ack had arrived but was handled only when step 3 asked for
+    # it (no source is awaited, so nothing is handled between steps): a wait of 0 s; step 5 gave up once 0.3 s
+    # passed without progress, at the first 0.05 s poll beyond: 0.35 s
+    assert gate.waits == 4 and gate.wait_s == pytest.approx(0.01 + 0.0 + 0.01 + 0.35)
     assert any("recorder silent" in t for _, t in port.logs)
     c.recorder_ack(6, ["/forger"])
     assert gate.acked == 2 and gate.rejected == 1
@@ -564,12 +565,15 @@ def test_feedback_commands_route_clock_and_state_and_compute_the_layer_by_hand()
     a, w = fitted_agent("spring_length")
     base = a.body.l.numpy()
     closed = FeedbackCommands(a, open_loop=0)
-    assert closed.on_clock(0) is not None and np.array_equal(closed.on_clock(0).numpy(), base)
+    assert closed.on_clock(0) is not None and np.array_equal(closed.on_clock(0), base)
     assert closed.on_clock(1) is None  # answered by the state of step 0
-    s = base * 1.1  # spring lengths of some step
-    rest = closed.on_state(4, s)
-    np.testing.assert_allclose(rest[0].numpy(), base * (1 + w[:, :-1] @ s + w[:, -1]), rtol=0, atol=1e-13)
-    assert closed.on_state(4, s[:-1]) == "ignored spring lengths of step 4: 47 values, expected 48"
+    topo = a.body.topology
+    positions = np.asarray(topo.positions) * 1.1 + 0.01 * np.arange(2 * topo.n_masses).reshape(-1, 2)
+    s = np.array([np.hypot(*(positions[i] - positions[j])) for i, j in np.asarray(topo.springs)])  # by hand
+    rest = closed.on_state(4, positions)
+    np.testing.assert_allclose(rest, base * (1 + w[:, :-1] @ s + w[:, -1]), rtol=0, atol=1e-13)
+    assert closed.on_state(4, positions.reshape(-1)[:-1]) == ("ignored mass positions of step 4: 49 values, "
+                                                              "expected 50")
 
     swg = a.brain
     opened = FeedbackCommands(a, open_loop=3)
@@ -577,9 +581,9 @@ def test_feedback_commands_route_clock_and_state_and_compute_the_layer_by_hand()
         amp, phase, drv = swg.amplitude.numpy(), swg.phase.numpy(), swg.driven.numpy()
     for k in (0, 3):  # the SWG's l·(1 + A sin(ω k dt + φ)) on driven springs
         expected = base * (1 + drv * amp * np.sin(swg.omega * k * a.body.dt + phase))
-        np.testing.assert_allclose(opened.on_clock(k).numpy(), expected, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(opened.on_clock(k), expected, rtol=0, atol=1e-12)
     assert opened.on_clock(4) is None
-    assert opened.on_state(2, s) is None and opened.on_state(3, s) is not None  # the layer answers step 4 on
+    assert opened.on_state(2, positions) is None and opened.on_state(3, positions) is not None  # the layer: step 4 on
 
 
 def test_feedback_acceleration_features_are_effort_over_mass():
@@ -592,6 +596,6 @@ def test_feedback_acceleration_features_are_effort_over_mass():
     assert mass.shape == (M2 // 2,)
     effort = np.linspace(-1.0, 1.0, M2)
     feats = FeedbackCommands(a).features(effort)
-    np.testing.assert_array_equal(feats[0].numpy(), (effort.reshape(-1, 2) / mass[:, None]).reshape(-1))
+    np.testing.assert_array_equal(feats, (effort.reshape(-1, 2) / mass[:, None]).reshape(-1))
     assert FeedbackCommands(a).on_state(0, effort[:-2]) == ("ignored mass states (acceleration) of step 0: 24 values, "
                                                             "expected 26")

@@ -78,8 +78,7 @@ rclpy_serialization = pytest.importorskip("rclpy.serialization")
 def _template(build, shapes):
     from bptsb_ros.ros.raw_out import RawTemplate
 
-    return RawTemplate(build, shapes, rclpy_serialization.serialize_message, rclpy_serialization.deserialize_message,
-                       DT_NS)
+    return RawTemplate(build, shapes, rclpy_serialization.deserialize_message, DT_NS)
 
 
 def _outputs():
@@ -146,19 +145,32 @@ def test_a_builder_that_changes_its_values_cannot_be_templated():
         _template(lambda k, x: m.joint_state(0, DT_NS, ["a", "b"], position=x), [(2,)])
 
 
-def test_a_sentinel_copy_after_the_content_does_not_stop_the_template():
-    """rclpy's serialized buffer can end in bytes the content does not fill, left from an earlier serialization; a
-    copy of a sentinel there (planted here: the serializer appends the position values again) is not the field."""
+def test_template_bytes_are_exact_cdr_that_a_strict_reader_accepts():
+    """Every render is the whole message and nothing more: ``rosbags``' strict deserializer (which refuses more than
+    3 bytes after the content) reads it with the values, and it has the length of rosbags' own serialization. rclpy's
+    ``serialize_message`` leaves bytes after a ``JointState`` with empty arrays, which that reader refuses."""
+    from rosbags.typesys import Stores, get_typestore
+
     from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.raw_out import RawTemplate
+    from bptsb_ros.ros.raw_out import ros_type_name
 
-    def trailing_copy(msg):
-        return rclpy_serialization.serialize_message(msg) + np.asarray(msg.position).tobytes()
-
-    build = lambda k, x: m.joint_state(k, DT_NS, ["a", "b", "c"], position=x)  # noqa: E731
-    raw = RawTemplate(build, [(3,)], trailing_copy, rclpy_serialization.deserialize_message, DT_NS)
-    got = rclpy_serialization.deserialize_message(raw.render(5, np.array([1.0, 2.0, 3.0])), type(build(0, [0.0])))
-    assert list(got.position) == [1.0, 2.0, 3.0] and (got.header.stamp.sec, got.header.stamp.nanosec) == (0, 50_000_000)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    probe = m.joint_state(5, DT_NS, ["a", "b", "c"], position=np.arange(3.0))
+    with pytest.raises(Exception, match="size mismatch"):  # the bytes the templates were made of before
+        store.deserialize_cdr(rclpy_serialization.serialize_message(probe), "sensor_msgs/msg/JointState")
+    rng = np.random.default_rng(11)
+    for key, (build, shapes) in _outputs().items():
+        raw = _template(build, shapes)
+        arrays = [rng.uniform(-2, 2, s if isinstance(s[0], int) else s[0]) for s in shapes]
+        data = raw.render(417, *arrays)
+        want = build(417, *[a.astype(np.float32) if not isinstance(s[0], int) else a
+                            for a, s in zip(arrays, shapes, strict=True)])
+        got = store.deserialize_cdr(data, ros_type_name(want))
+        assert len(store.serialize_cdr(got, ros_type_name(want))) == len(data), key
+        if key in ("spring_lengths", "external_force", "force_cmd", "task_input"):
+            field = "effort" if key in ("external_force", "force_cmd") else "position"
+            np.testing.assert_array_equal(getattr(got, field), arrays[0])
+            assert len(got.velocity) == 0 and (got.header.stamp.sec, got.header.stamp.nanosec) == (4, 170_000_000)
 
 
 def test_command_messages_of_every_size_are_templated():
@@ -247,6 +259,24 @@ def test_rounds_lose_nothing_and_wake_once_per_batch():
     assert unbatched.taken == 50 and unbatched.sleeps == [] and n > 20
 
 
+def test_a_round_takes_the_recorded_topics_at_once_after_its_wait():
+    """``take_ready`` (the recorder's direct takes) runs once per round, after a wait that brought something, and
+    what it takes counts; a wait that timed out with nothing runs no takes."""
+    from bptsb_ros.bags.recording import take_round
+
+    spin = FakeSpin([0.001], cost=0.0)
+    calls = []
+
+    def take_ready():
+        calls.append(spin.t)
+        spin.taken += 3  # three messages waiting on other topics, taken without a spin each
+
+    assert take_round(spin.spin_once, lambda: spin.taken, lambda: spin.t, spin.sleep, 0.02, 0.05, take_ready) == 4
+    assert calls == [0.001] and spin.sleeps == [pytest.approx(0.019)]
+    assert take_round(spin.spin_once, lambda: spin.taken, lambda: spin.t, spin.sleep, 0.02, 0.05, take_ready) == 0
+    assert len(calls) == 1
+
+
 def test_a_wait_ended_by_something_else_still_makes_a_round():
     """The sim-time /clock subscription (not a recorded message) ends the wait early: the round still sleeps out
     batch_wait, so such wake-ups cannot make one round per step."""
@@ -279,11 +309,44 @@ def test_bench_params_go_to_the_loops_that_have_the_node_and_the_table():
     assert argv[argv.index("launch") + 1] == "narma" and "feedback_brain:gain:=0.5" not in argv
     assert argv.count("--param") == 2 and "--agent" not in argv and argv[argv.index("--duration") + 1] == "2"
     run = {"loop": "narma", "steps": 1001, "steps_per_s": 250.4, "recorder_ms": 0.0, "publish_ms": 1.25,
-           "commands_ms": 2.5, "compute_ms": 0.25, "other_ms": 0.0, "dropped_messages": 0, "launch_exit_code": 0}
-    table = live_table({"runs": [run, {"loop": "lissajous_closed", "error": "no summary"}]}).splitlines()
-    assert table[0].startswith("| loop | steps | steps/s | recorder ms | publish ms | commands ms | compute ms |")
-    assert table[2] == "| narma | 1001 | 250 | 0.000 | 1.250 | 2.500 | 0.250 | 0.000 | 0 | 0 |"
+           "commands_ms": 2.5, "compute_ms": 0.25, "other_ms": 0.0, "dropped_messages": 0, "launch_exit_code": 0,
+           "ratio_to_anchor": 0.5, "cpu_us_per_step": {"body_sim": 120.4, "recorder": 80.0}}
+    anchor = {"shape": "split", "round_trips_per_s": 500.8, "rtt_p50_ms": 0.25}
+    table = live_table({"runs": [run, {"loop": "lissajous_closed", "error": "no summary"}],
+                        "anchors": [anchor, {"shape": "split", "error": "no match"}]}).splitlines()
+    assert table[0].startswith("| loop | steps | steps/s | × anchor | recorder ms | publish ms | commands ms |")
+    assert table[2] == ("| narma | 1001 | 250 | 0.50 | 0.000 | 1.250 | 2.500 | 0.250 | 0.000 | "
+                        "body_sim 120, recorder 80 | 0 | 0 |")
     assert table[3].startswith("| lissajous_closed | no summary |")
+    assert table[-2:] == ["anchor (split): 501 round trips/s, p50 0.250 ms", "anchor (split): no match"]
+
+
+def test_each_loop_run_is_compared_with_the_anchor_runs_of_its_shape_around_it():
+    from bptsb_ros.bench_live import with_ratios
+
+    seq = [{"kind": "anchor", "shape": "split", "round_trips_per_s": 1000.0},
+           {"kind": "loop", "loop": "a", "steps_per_s": 300.0},
+           {"kind": "anchor", "shape": "split", "round_trips_per_s": 2000.0},
+           {"kind": "anchor", "shape": "composed", "round_trips_per_s": 4000.0},
+           {"kind": "loop", "loop": "a", "composed": True, "steps_per_s": 1000.0},
+           {"kind": "loop", "loop": "b", "steps_per_s": 100.0},
+           {"kind": "anchor", "shape": "split", "error": "failed"},
+           {"kind": "loop", "loop": "c", "error": "no summary"}]
+    report = with_ratios({"sequence": seq})
+    assert seq[1]["ratio_to_anchor"] == 0.2 and seq[1]["anchor_round_trips_per_s"] == 1500.0  # 300 / mean(1000, 2000)
+    assert seq[4]["ratio_to_anchor"] == 0.25  # only the composed anchor before it
+    assert seq[5]["ratio_to_anchor"] == 0.05  # the split one before it; the failed one after it does not count
+    assert "ratio_to_anchor" not in seq[7]
+    assert report["ratios"] == {"a (split)": [0.2], "a (composed)": [0.25], "b (split)": [0.05]}
+
+
+def test_the_cpu_sampler_reads_each_node_inside_the_window():
+    from bptsb_ros.bench_live import CpuSampler
+
+    sampler = CpuSampler.__new__(CpuSampler)  # no thread: planted samples (monotonic s, CPU s)
+    sampler.samples = {"body_sim": [(10.0, 1.0), (11.0, 1.5), (12.0, 2.5)], "late": [(11.5, 0.0), (13.0, 1.0)]}
+    cpu = sampler.cpu_in(10.5, 11.5)
+    assert cpu == {"body_sim": pytest.approx(0.75)}  # 1.25 → 2.0 by linear interpolation; "late" began inside
 
 
 @pytest.mark.parametrize("args, message", [

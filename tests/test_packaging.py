@@ -162,7 +162,7 @@ ROSDEP_KEYS: dict[str, str | None] = {
     "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "PIL": "python3-pil", "numba": "python3-numba",
     "sklearn": "python3-sklearn", "scipy": "python3-scipy", "torch": None, "mcap": None, "distributed": None,
     "rosbags": None,
-    "threadpoolctl": None,
+    "threadpoolctl": None, "psutil": "python3-psutil",
 }
 
 

@@ -35,7 +35,8 @@ def test_brain_dies_body_keeps_running_with_safe_command(tmp_path, quarantine_ro
     summary = tmp_path / "summary.json"
     body = start_node("body_sim", {
         "task": "lissajous", "duration": STEPS * DT_NS / 1e9, "wait_for": ["rest_length"], "command_timeout": 2.0,
-        "wait_for_subscribers": ["/body/rest_length:1", "/clock:2"], "summary_path": str(summary),
+        "wait_for_subscribers": ["/body/rest_length:1", "/clock:1"], "summary_path": str(summary),
+        "every_step": ["rest_length"],  # on request: the body's rest lengths every step (default: every 10th)
     }, ros_env, tmp_path / "body.log")
     brain = start_node("swg_brain", {"task": "lissajous", "use_sim_time": True}, ros_env,
                        tmp_path / "brain.log")

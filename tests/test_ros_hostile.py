@@ -60,6 +60,7 @@ def test_an_untrusted_publisher_never_steers_the_body(tmp_path, ros_env, ros_dom
         "task": "lissajous", "max_steps": STEPS, "wait_for": ["rest_length"], "command_timeout": 8.0,
         "wait_for_subscribers": ["/clock:1", "/body/rest_length:1"],
         "summary_path": str(summary), "final_ack_timeout": 1.0, "command_publishers": ["test_brain"],
+        "every_step": ["rest_length"],  # the rest lengths in force at every step, read below
     }, ros_env, tmp_path / "body.log")
     try:
         assert brain.spin_until(lambda: body.poll() is not None, 90)

@@ -109,9 +109,9 @@ def test_namespaced_launch_parameters_resolve_every_name_in_the_namespace(tmp_pa
     values = {"bag": str(tmp_path / "bag"), "namespace": "r1"}
     body = loop_node_parameters("lissajous_open", "body_sim", values)
     waits = dict(e.rsplit(":", 1) for e in body["wait_for_subscribers"])
-    # /clock: the recorder, swg_brain's trigger and its sim-time clock; the command: body_sim and the recorder
-    assert waits["/r1/clock"] == "3" and waits["/r1/body/positions"] == "1" and waits["/r1/brain/rest_length"] == "2"
-    assert all(t.startswith("/r1/") for t in waits)
+    # /clock: the recorder and swg_brain's trigger (its sim time too); the command: body_sim and the recorder
+    assert waits["/r1/clock"] == "2" and waits["/r1/body/positions"] == "1" and waits["/r1/brain/rest_length"] == "2"
+    assert all(t.startswith("/r1/") for t in waits) and body["frame_id"] == "r1/msdn"
     rec = loop_node_parameters("lissajous_open", "recorder", values)
     assert "/r1/diagnostics" in rec["topics"] and "/r1/body/rest_length" in rec["topics"]
     assert all(t.startswith("/r1/") for t in rec["topics"] + rec["ack_topics"] + [rec["ack_topic"]])
@@ -412,3 +412,66 @@ def test_mnist_drawing_launch_file_runs_one_episode(tmp_path, ros_env):
     from bptsb_ros.bags.reader import read_messages
 
     assert [m.header.stamp.nanosec for *_, m in read_messages(tmp_path / "bag", ["/body/reset"])] == [0]
+
+
+def _declared_defaults(node: str) -> dict:
+    import importlib
+
+    from bptsb_ros.bags.recording import RECORDER_PARAMS
+    from bptsb_ros.ros.brain_node import COMMON_PARAMS
+    from bptsb_ros.ros.param_files import NODES
+
+    if node == "recorder":
+        params = RECORDER_PARAMS
+    else:
+        module = importlib.import_module(NODES[node])
+        params = module.PARAMS if node == "body_sim" else COMMON_PARAMS + tuple(module.PARAMS)
+    return {p.name: p.default for p in params}
+
+
+@pytest.mark.parametrize("loop, cli, values", [
+    ("lissajous_open", ["--seed", "4", "--duration", "2", "--bag", "BAG"],
+     {"seed": "4", "duration": "2", "bag": "BAG"}),
+    ("narma", ["--mode", "realtime", "--rate-scale", "2", "--duration", "3", "--namespace", "r1", "--perturb-at", "1",
+               "--perturb-sigma", "0.1", "--perturb-seed", "5", "--bag", "BAG", "--allow-loss"],
+     {"mode": "realtime", "rate_scale": "2", "duration": "3", "namespace": "r1", "perturb_at": "1",
+      "perturb_sigma": "0.1", "perturb_seed": "5", "bag": "BAG", "allow_loss": "true"}),
+    ("lissajous_closed", ["--agent", "AGENT", "--open-loop-steps", "30", "--namespace", "/robot1", "--duration", "1"],
+     {"agent": "AGENT", "open_loop_steps": "30", "namespace": "/robot1", "duration": "1"}),
+    ("locomotion_headwind", ["--seed", "2", "--bag", "BAG"], {"seed": "2", "bag": "BAG"}),
+])
+def test_bptsb_launch_and_the_launch_files_start_the_same_nodes_with_the_same_parameters(tmp_path, loop, cli,
+                                                                                         values):
+    """The same nodes, in the same order, with the same parameters (those a node would not take at its declared
+    default), from ``bptsb launch``'s own runner and from the launch files' params files."""
+    import argparse
+
+    from bptsb_ros.cli.launch_cmd import add_arguments, node_plan
+    from bptsb_ros.live.loops import agent_loop, log_dir_of_bag, normalize_namespace
+    from bptsb_ros.live.safety import DEFAULT_MAX_WIND
+
+    agent = tmp_path / "agent"
+    if "AGENT" in cli:
+        save_fitted_agent(agent)
+    sub = {"BAG": str(tmp_path / "bag"), "AGENT": str(agent)}
+    cli = [sub.get(a, a) for a in cli]
+    values = {k: sub.get(v, v) for k, v in values.items()}
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args([loop, *cli])
+    namespace = normalize_namespace(args.namespace)
+    summary = log_dir_of_bag(args.bag) / "body_summary.json" if args.bag else tmp_path / "logs" / "body_summary.json"
+    ours = node_plan(agent_loop(LOOPS[loop], args.agent), args, namespace, summary, None, DEFAULT_MAX_WIND)
+    theirs = {node: loop_node_parameters(loop, node, values) for node in ours}
+    assert list(ours) == ["body_sim", *(b.executable for b in LOOPS[loop].brains)] + (["recorder"] if args.bag else [])
+
+    def given(node: str, params: dict) -> dict:
+        defaults = _declared_defaults(node)
+        return {k: v for k, v in params.items() if k not in defaults or defaults[k] != v}
+
+    for node in ours:
+        if not args.bag and node == "body_sim":  # a launch file without bag writes its summary to a temporary file
+            ours[node].pop("summary_path"), theirs[node].pop("summary_path", None)
+        assert given(node, ours[node]) == given(node, theirs[node]), node
+    if namespace:
+        assert ours["body_sim"]["frame_id"] == f"{namespace.strip('/')}/msdn"

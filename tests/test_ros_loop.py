@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 import torch
-from ros_live import REPO, bag_positions, bptsb, env_for, fresh_agent, save_fitted_agent, stop
+from ros_live import REPO, bag_positions, bptsb, env_for, fresh_agent, save_fitted_agent, stamp_ns, stop
 
 DT_NS = 10_000_000
 
@@ -44,10 +44,17 @@ def test_lissajous_open_lockstep_equals_offline(tmp_path, ros_env):
     roll = simulate_open_loop(agent, 100)
     ref = agent.body.full_positions(roll.r[:, 0]).numpy()
     assert np.abs(pos - ref).max() <= 1e-9
-    rest = np.array([np.asarray(m.position) for *_, m in read_messages(bag, ["/body/rest_length"])])
-    np.testing.assert_allclose(rest, roll.rest_length[:, 0].numpy(), rtol=0, atol=1e-12)
+    commands = np.array([np.asarray(m.position) for *_, m in read_messages(bag, ["/brain/rest_length"])])
+    np.testing.assert_allclose(commands, roll.rest_length[:, 0].numpy(), rtol=0, atol=1e-12)
+    # the body's own rest-length topic: every state_every (10) steps (at steps 6 mod 10), stamped with its step
+    rest = {stamp_ns(m.header.stamp) // 10_000_000: np.asarray(m.position)
+            for *_, m in read_messages(bag, ["/body/rest_length"])}
+    assert sorted(rest) == list(range(6, 101, 10))
+    for k, values in rest.items():
+        np.testing.assert_allclose(values, roll.rest_length[k, 0].numpy(), rtol=0, atol=1e-12)
     counts = {t.name: t.message_count for t in bag_info(bag).topics}
-    assert counts["/clock"] == counts["/brain/rest_length"] == counts["/body/spring_lengths"] == 101
+    assert counts["/clock"] == counts["/brain/rest_length"] == counts["/body/positions"] == 101
+    assert counts["/body/spring_lengths"] == counts["/body/mass_states"] == 10  # steps 4 and 2 mod 10
     summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
     assert summary["steps"] == 100 and summary["safe_command_steps"] == 0 and summary["rejected_total"] == 0
 
@@ -76,6 +83,12 @@ def test_lissajous_closed_loop_equals_offline(tmp_path, ros_env):
 
     metrics = replay(bag, tmp_path / "replay", run, gif=False)
     assert metrics["loop"] == "lissajous_closed" and metrics["missing_steps"] == 0
+    # the spring lengths of every step, from the positions (body/spring_lengths goes out every 10th step)
+    from bptsb_ros.analysis.bag_run import read_run
+
+    lengths = torch.cat([open_part.length[:, 0], closed.length[1:, 0]]).numpy()
+    assert np.abs(read_run(bag).spring_lengths - lengths).max() <= 1e-9
+    assert any(f.endswith("spring_lengths.png") for f in metrics["files"])
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9
     assert metrics["live"]["trajectory_mse_shift_min"] == pytest.approx(metrics["offline"]["trajectory_mse_shift_min"])
 
@@ -114,8 +127,10 @@ def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
     calm = simulate_open_loop(agent, 100)
     assert np.abs(agent.body.full_positions(calm.r[:, 0]).numpy() - ref).max() > 1e-3  # the wind matters
     assert np.abs(pos - ref).max() <= 1e-9
-    force = np.array([np.asarray(m.effort) for *_, m in read_messages(bag, ["/body/external_force"])])
-    np.testing.assert_array_equal(force[:, 0], expected)  # x force on mass 0 in force at each step
+    force = {stamp_ns(m.header.stamp) // DT_NS: np.asarray(m.effort)
+             for *_, m in read_messages(bag, ["/body/external_force"])}  # every 10 steps, at 8 mod 10
+    assert sorted(force) == list(range(8, 101, 10))
+    np.testing.assert_array_equal([force[k][0] for k in sorted(force)], expected[8::10])  # x force on mass 0
     np.testing.assert_allclose(wind_periods(read_run(bag)), [(0.2, 0.4), (0.6, 0.8), (1.0, 1.01)], atol=1e-12)
     metrics = replay(bag, tmp_path / "replay", run, gif=False)  # the agent only from the user, never from the bag
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9
@@ -240,7 +255,7 @@ def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env
 
     def run(ns: str, seed: int) -> None:
         results[ns] = bptsb(["launch", "lissajous_open", "--namespace", ns, "--seed", str(seed), "--duration", "1",
-                             "--bag", str(tmp_path / ns)], ros_env)
+                             "--bag", str(tmp_path / ns), "--param", "body_sim:state_every:=1"], ros_env)
 
     threads = [threading.Thread(target=run, args=(ns, seed)) for ns, seed in (("r1", 0), ("r2", 5))]
     for t in threads:
@@ -260,6 +275,12 @@ def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env
         assert pos.shape == ref.shape and np.abs(pos - ref).max() <= 1e-9
         run = read_run(bag)  # what bptsb replay reads: the bag's custom_data names the namespace
         assert run.custom["namespace"] == f"/{ns}" and np.abs(run.positions - ref).max() <= 1e-9
+        layout = json.loads((tmp_path / f"{ns}.launch" / "foxglove_layout.json").read_text())  # this robot's viewer
+        assert layout["configById"]["3D!body"]["followTf"] == f"{ns}/msdn"
+        assert f"Fixed Frame: {ns}/msdn" in (tmp_path / f"{ns}.launch" / "bptsb.rviz").read_text()
+        markers = [m for *_, m in read_messages(bag, [f"/{ns}/body/markers"])]
+        assert {mk.header.frame_id for m in markers for mk in m.markers} == {f"{ns}/msdn"}
+        # state_every:=1: the body's rest lengths every step, as asked (by default every 10th)
         assert run.rest_length is not None and run.rest_length.shape == (101, agent.body.topology.n_springs)
     first = fresh_agent("lissajous", seed=0)
     # r2's bag is r2's run: robot r1's offline trajectory (seed 0) is not in it

@@ -153,7 +153,8 @@ def _node_specs():
 def test_live_parameters_are_the_documented_ones():
     dynamic = {node: {p.name for p in specs if p.dynamic} for node, specs in _node_specs().items()}
     assert dynamic == {
-        "body_sim": {"wind", "rate_scale", "marker_every", "diagnostics_period", "step_count", "log_level"},
+        "body_sim": {"wind", "rate_scale", "marker_every", "state_every", "diagnostics_period", "step_count",
+                     "log_level", "pause_notice_period"},
         "feedback_brain": {"gain", "noise", "log_level"},
         "recorder": {"log_level"}, "mlp_brain": {"log_level"}, "swg_brain": {"log_level"},
         "task_input": {"log_level"}, "image_streamer": {"log_level"}, "mnist_brain": {"log_level"},

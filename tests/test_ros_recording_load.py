@@ -116,7 +116,9 @@ def frozen_runs(tmp_path_factory) -> dict[str, tuple[int, str, Path]]:
         domain, args, freeze_s = LAUNCHES[name]
         bag = bags[name]
         try:
-            code, out = _launch_with_frozen_recorder([*args, "--bag", str(bag), "--param", "body_sim:qos_depth:=40"],
+            # state_every:=1: every state topic every step (by default four of them every 10th), for the full load
+            code, out = _launch_with_frozen_recorder([*args, "--bag", str(bag), "--param", "body_sim:qos_depth:=40",
+                                                      "--param", "body_sim:state_every:=1"],
                                                      _domain_env(domain), freeze_s=freeze_s)
         except BaseException as exc:  # re-raised in the test thread below
             errors.append(exc)

@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 
 from bptsb_ros.live.channels import CommandChannel, TimingStats
-from bptsb_ros.live.loops import LOOPS, format_parameter, node_parameters, startup_subscribers, topic_names
+from bptsb_ros.live.loops import (
+    LOOPS,
+    format_parameter,
+    node_parameters,
+    startup_subscribers,
+    topic_names,
+    with_feedback_state,
+)
 from bptsb_ros.ros.params import Param, ParameterError, validate_values
 from bptsb_ros.ros.topics import TOPICS, dt_to_ns, stamp_to_step, step_to_stamp
 
@@ -111,11 +118,17 @@ def test_loop_wiring():
     narma = LOOPS["narma"]
     assert topic_names(narma.topics())[-2:] == ["/task/input", "/brain/force"]
     counts = dict(e.rsplit(":", 1) for e in startup_subscribers(narma, recording=True))
-    # /clock: recorder + task_input trigger + sim-time subscriptions of task_input and mlp_brain
-    assert counts["/clock"] == "4" and counts["/task/input"] == "2" and counts["/brain/force"] == "2"
+    # /clock: recorder + task_input (its trigger; mlp_brain takes its sim time from task/input)
+    assert counts["/clock"] == "2" and counts["/task/input"] == "2" and counts["/brain/force"] == "2"
     assert counts["/body/positions"] == "1"
     closed = dict(e.rsplit(":", 1) for e in startup_subscribers(LOOPS["lissajous_closed"], recording=False))
-    assert closed == {"/clock": "2", "/body/spring_lengths": "1", "/brain/rest_length": "1"}
+    assert closed == {"/clock": "1", "/body/positions": "1", "/brain/rest_length": "1"}
+    # the feedback brain reads the state every step: body/positions always, body/mass_states on request
+    assert "every_step" not in node_parameters(LOOPS["lissajous_closed"], "body_sim")
+    velocity = with_feedback_state(LOOPS["lissajous_closed"], "velocity")
+    assert node_parameters(velocity, "body_sim")["every_step"] == ["mass_states"]
+    assert "mass_states" not in velocity.step_topics() and "body/mass_states" in [TOPICS[k].name for k in
+                                                                                     velocity.topics()]
     body = node_parameters(LOOPS["lissajous_open"], "body_sim", mode="realtime", duration=3.0)
     assert body["wall_duration"] == 3.0 and "duration" not in body and body["wait_for"] == ["rest_length"]
     assert "perturb_at" not in body

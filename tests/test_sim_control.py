@@ -34,13 +34,20 @@ def test_calls_answer_and_refuse_with_one_clear_line():
         ("step", -1, False), ("pause", -1, True), ("pause", 4, True), ("step", 4, False), ("step", 4, True),
         ("resume", 6, True), ("resume", 6, True), ("reset", 6, True)]
     assert dict(c.calls[4].values()) == {"call": "step", "step": "4", "wall_time": "12.500000", "accepted": "True",
-                                         "paused": "True", "steps_left": "2"}
+                                         "paused": "True", "steps_left": "2", "callers": "", "untrusted_callers": ""}
+    # a call while a node not in control_callers has a client of the service: refused, counted, named in the record
+    assert c.call("pause", callers=("/_ros2cli_requester_std_srvs_Trigger", "/evil/x"), untrusted=("/evil/x",)) == (
+        False, "refused: ~/pause has client(s) not in control_callers (/evil/x); running after step 6")
+    assert not c.paused and c.refused == 1 and not c.calls[-1].ok
+    assert dict(c.calls[-1].values())["callers"] == "/_ros2cli_requester_std_srvs_Trigger, /evil/x"
+    assert dict(c.calls[-1].values())["untrusted_callers"] == "/evil/x"
+    assert c.call("pause", callers=("/_ros2cli_requester_std_srvs_Trigger",))[0] and c.paused
     with pytest.raises(ValueError, match="^unknown control call 'stop': expected one of pause, resume, step, reset$"):
         c.call("stop")
 
 
 def test_lockstep_paused_body_takes_no_step_even_with_its_command_then_steps_n_and_equals_offline():
-    c = core(wait_for=["rest_length"], max_steps=12, command_timeout=0.2, paused=True)
+    c = core(wait_for=["rest_length"], max_steps=12, command_timeout=0.2, start_paused=True)
     seen = {}
 
     def brain(port, k):
@@ -70,7 +77,7 @@ def test_lockstep_paused_body_takes_no_step_even_with_its_command_then_steps_n_a
 
 
 def test_status_says_paused():
-    c = core(paused=True)
+    c = core(start_paused=True)
     level, message, values = c.status(c.summary())
     assert message.startswith("paused: lockstep: step 0") and ("paused", "True") in values
     c.control.call("resume")
@@ -123,3 +130,24 @@ def test_realtime_pause_shifts_the_schedule_steps_n_at_the_pace_and_is_no_silenc
     assert s["safe_command_steps"] == 0 and not any(e.level == "error" for e in c.events)  # 0.5 s held > timeout
     for k, out in enumerate(port.outputs):
         np.testing.assert_array_equal(out.rest.numpy(), RESTS[k])
+
+
+def test_a_pause_is_announced_repeated_and_bounded_by_pause_timeout():
+    c = core(max_steps=5, start_paused=True, pause_timeout=1.0, pause_notice_period=0.3)
+    port = FakePort(c)
+    assert BodyLoop(c, port).run() is True and c.pause_expired
+    warnings = [t for level, t in port.logs if level == "warning"]
+    assert warnings[0] == ("paused before the first step: no step is taken until ~/resume or ~/step is called; the "
+                           "run ends if it stays paused for 1 s (pause_timeout)")
+    assert sum(t.startswith("still paused before the first step, for ") for t in warnings) == 3  # at 0.3, 0.6, 0.9 s
+    assert ("error", "paused before the first step for 1 s without ~/resume or ~/step (pause_timeout): ending the "
+            "run") in port.logs
+    assert port.outputs == [] and c.summary()["pause_expired"] is True
+    assert c.end_text(c.summary(), True, None).startswith("stopped: paused for pause_timeout after 0 steps")
+    # the other side: without a bound the body waits as long as it takes, and a resume lets it run
+    free = core(max_steps=5, start_paused=True, pause_timeout=0.0, pause_notice_period=10.0)
+    port = FakePort(free)
+    port.send(30.0, lambda: free.control.call("resume"))
+    assert BodyLoop(free, port).run() is False and not free.pause_expired and len(port.outputs) == 6
+    assert port.logs[0][1].endswith("(no pause_timeout: it waits as long as it takes)")
+    assert sum("still paused" in t for _, t in port.logs) == 2  # at 10 and 20 s

@@ -247,6 +247,7 @@ def test_lissajous_training_target_at_the_large_step(agent) -> None:
 LIVE = """
 import json, sys
 import rclpy
+from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.runtime import StopFlag
@@ -264,7 +265,7 @@ for dtype in ("float32", "float64"):
     out = {"amplitude": brain.amplitude.tolist(), "phase": brain.phase.tolist(), "driven": brain.driven.tolist(),
            "base": node.agent.body.l.tolist(), "dtype": str(node.agent.body.l.dtype), "rest": [], "stamp": []}
     for k in map(int, sys.argv[1:]):
-        node._on_clock(Clock(clock=m.stamp(k, node.dt_ns)))
+        node._on_clock(serialize_message(Clock(clock=m.stamp(k, node.dt_ns))))  # the node takes /clock raw
         out["rest"].append(list(sent[-1].position))
         out["stamp"].append(m.step_of(sent[-1].header.stamp, node.dt_ns))
     node.destroy_node()

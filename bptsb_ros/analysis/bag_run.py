@@ -35,7 +35,8 @@ BODY_NODE = "body_sim"
 class BagRun:
     """A live run read back from a bag. Rows are the recorded steps, in order.
 
-    steps: (T,) step indices; positions: (T, N, 2) [m]; spring_lengths, rest_length: (T, E) [m];
+    steps: (T,) step indices; positions: (T, N, 2) [m]; spring_lengths, rest_length: (T, E) [m] (spring lengths:
+    from ``body/spring_lengths`` where it has every step, else from the positions and the springs of the markers);
     springs: (E, 2); fixed: (N,) bool; cmp_index: −1 if none; inputs: {step: u} task inputs;
     custom: the bag's custom_data (loop, mode, agent); wind: {step: (F_x, F_y) [N]} from ``env/wind``;
     perturbations: {step: (M, 2) displacement [m]} from ``body/perturbation`` (what the body applied).
@@ -193,7 +194,11 @@ def read_run(bag: str | Path, dt: float | None = None, skip_damaged: bool = Fals
     def stack(d: dict[int, np.ndarray]) -> np.ndarray | None:
         return np.stack([d[s] for s in stamps]) if d and all(s in d for s in stamps) else None
 
-    return BagRun(dt_ns / NS_PER_S, steps, positions, stack(lengths), stack(rests), springs, fixed, cmp,
+    spring_lengths = stack(lengths)
+    if spring_lengths is None and len(springs):  # body/spring_lengths every state_every steps only: the geometry
+        d = positions[:, springs[:, 0]] - positions[:, springs[:, 1]]
+        spring_lengths = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1])
+    return BagRun(dt_ns / NS_PER_S, steps, positions, spring_lengths, stack(rests), springs, fixed, cmp,
                   {int((s + dt_ns // 2) // dt_ns): u for s, u in inputs_ns.items()}, custom,
                   {int((s + dt_ns // 2) // dt_ns): w for s, w in wind_ns.items()},
                   {int((s + dt_ns // 2) // dt_ns): d for s, d in kicks_ns.items()}, own.report)

@@ -165,13 +165,18 @@ def replay(bag: str | Path, out_dir: str | Path, agent_dir: str | Path | None = 
                    body_node=body_node, loop=loop)
     for line in run.provenance.warnings(bag):
         print(line, file=sys.stderr, flush=True)
+    from bptsb_ros.analysis import control_calls as cc
+
+    calls = cc.control_calls(bag, run.custom.get("namespace", ""), body_node)
+    for line in cc.warnings(calls, bag):
+        print(line, file=sys.stderr, flush=True)
     task = task or config.get("task")
     loop = loop or run.custom.get("loop")
     metrics: dict[str, Any] = {"bag": str(bag), "agent": str(agent_dir) if agent_dir else None,
                                **({"bag_agent": named} if named and agent_dir is None else {}), "loop": loop,
                                "mode": run.custom.get("mode"), "dt": run.dt, "recorded_steps": int(len(run.steps)),
                                "missing_steps": len(run.missing_steps), "publishers": run.provenance.to_dict(),
-                               "recording": recording_summary(run.custom)}
+                               "recording": recording_summary(run.custom), "control_calls": cc.summary(calls)}
     segment = run.rows(run.longest_contiguous())
     if metrics["missing_steps"]:
         metrics["metric_steps"] = [int(segment.steps[0]), int(segment.steps[-1])]

@@ -232,8 +232,10 @@ def rosbags_decoder(schema: Schema) -> Callable[[bytes], Any]:
         raise BagError(f"the bag's schema of {msgtype} cannot be used: {type(exc).__name__}: {why}") from None
 
     def decode(data: bytes) -> Any:
-        # rosbags' Typestore.deserialize_cdr refuses more than 3 trailing bytes; rclpy's serializer leaves up to 8
-        # (its buffer rounds up), and rclpy's deserializer ignores them, so read the CDR body directly.
+        # rosbags' Typestore.deserialize_cdr refuses more than 3 bytes after the content. Bags of bptsb_ros 0.2.0 and
+        # older carry up to 8 on their JointState topics (rclpy's serialize_message leaves them, and the nodes'
+        # templates were made with it; now they are exact CDR, ros.raw_out), and rclpy's deserializer ignores them:
+        # this reads the CDR body directly, for those bags.
         if len(data) < 4 or data[:2] not in (b"\x00\x00", b"\x00\x01"):
             raise BagError(f"a {msgtype} message is not CDR (encapsulation {bytes(data[:4]).hex() or 'empty'})")
         func = msgdef.deserialize_cdr_le if data[1] else msgdef.deserialize_cdr_be

@@ -306,18 +306,22 @@ class StepAck:
 
 
 def take_round(spin_once: Callable[[float], None], taken: Callable[[], int], clock: Callable[[], float],
-               sleep: Callable[[float], None], batch_wait: float, timeout: float = 0.05) -> int:
-    """One round of the recorder's loop: wait up to ``timeout`` [s] for a message (``spin_once``), then handle
-    whatever else is ready until a call handles no message (``taken``: messages handled so far), then sleep until
-    ``batch_wait`` [s] after the round began (no sleep when the round took longer, or ``batch_wait`` is 0, or the
-    wait timed out with nothing taken). A wait ended early by something else (a timer, the ``/clock`` of sim time)
-    counts as activity too: the round goes on, so that it cannot end a round per step. Returns the messages the
-    round handled."""
+               sleep: Callable[[float], None], batch_wait: float, timeout: float = 0.05,
+               take_ready: Callable[[], object] | None = None) -> int:
+    """One round of the recorder's loop: wait up to ``timeout`` [s] for a message (``spin_once``), then take every
+    message waiting on the recorded topics at once (``take_ready``, when given: without an executor call per
+    topic), then handle whatever else is ready until a call handles no message (``taken``: messages handled so
+    far), then sleep until ``batch_wait`` [s] after the round began (no sleep when the round took longer, or
+    ``batch_wait`` is 0, or the wait timed out with nothing taken). A wait ended early by something else (a timer,
+    the ``/clock`` of sim time) counts as activity too: the round goes on, so that it cannot end a round per step.
+    Returns the messages the round handled."""
     first = taken()
     began = clock()
     spin_once(timeout)
     if taken() == first and clock() - began >= timeout:
         return 0
+    if take_ready is not None:
+        take_ready()
     before = -1
     while taken() != before:
         before = taken()

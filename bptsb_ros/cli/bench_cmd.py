@@ -16,7 +16,8 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
         "system of the MNIST experiments and what each experiment costs at the paper's schedule; writes JSON. "
         "With --soak: soak the live recording instead (a realtime and a lockstep recorded run under CPU load; "
         "steps published, messages recorded, drops counted). With --live: steps/s of lockstep live loops while a bag "
-        "is recorded, each step split into recorder wait, publish, wait for commands and compute. With --realtime: "
+        "is recorded, as a ratio to a bare rclpy ping-pong anchor run between them, each step split into recorder "
+        "wait, publish, wait for commands and compute, and each node process's CPU per step. With --realtime: "
         "the closed loop at 100 Hz in realtime, idle and with one core kept busy (steps, deadline misses, step "
         "compute time and period jitter from the body's own per-step records, late commands).")
 
@@ -40,8 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="sim seconds of the lockstep run (0: skip it; default 10)")
     soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
                       help="spinning processes during the lockstep run (default 8)")
-    live = parser.add_argument_group("--live: recorded lockstep loops (bptsb_ros.bench_live; runs bptsb launch "
-                                     "<loop> --bag on this ROS_DOMAIN_ID)")
+    live = parser.add_argument_group("--live: recorded lockstep loops beside a bare rclpy anchor "
+                                     "(bptsb_ros.bench_live; runs bptsb launch <loop> --bag and the anchor on this "
+                                     "ROS_DOMAIN_ID)")
     live.add_argument("--live", action="store_true", help="time recorded lockstep live loops instead")
     live.add_argument("--live-loops", default="lissajous_closed,narma", metavar="A,B",
                       help="loops to run, comma-separated (default lissajous_closed,narma)")
@@ -60,6 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     rt.add_argument("--executor", choices=EXECUTORS, default=EXECUTOR.default,
                     help=f"rclpy executor of the body and the brains (their executor parameter; default "
                     f"{EXECUTOR.default}: events where rclpy has it)")
+    rt.add_argument("--realtime-factor", type=float, default=0.0, metavar="F",
+                    help="also run the loop at F times real time (rate_scale F; 10: 1 kHz wall at dt 0.01 s), idle, "
+                    "for --realtime-seconds (the condition 'factor'); default 0: not")
     rt.add_argument("--rt-priority", type=int, default=0, metavar="P",
                     help="run the body's stepping thread under SCHED_FIFO at priority P, 1-99 (its rt_priority "
                     "parameter; needs CAP_SYS_NICE or root); default 0: the normal scheduler")
@@ -184,6 +189,8 @@ def _realtime(args: argparse.Namespace) -> int:
         return fail(NAME, f"--rt-priority must be in 0..99, got {args.rt_priority}", USAGE)
     if args.realtime_busy < 1:
         return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
+    if not (math.isfinite(args.realtime_factor) and 0 <= args.realtime_factor <= 1000):
+        return fail(NAME, f"--realtime-factor must be in 0..1000, got {args.realtime_factor:g}", USAGE)
     workdir = Path(args.workdir) if args.workdir else None
     if (problem := _check_workdir(workdir)) is not None:
         return problem
@@ -195,7 +202,8 @@ def _realtime(args: argparse.Namespace) -> int:
     try:
         report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, rt_priority=args.rt_priority,
                                     workdir=workdir, update=_updater(out),
-                                    progress=lambda m: print(m, file=sys.stderr, flush=True))
+                                    progress=lambda m: print(m, file=sys.stderr, flush=True),
+                                    factor=args.realtime_factor)
     except _WriteFailed as err:
         return err.code
     if (problem := _write(out, report)) is not None:

@@ -393,8 +393,44 @@ def _brain_problem(summary_path: Path) -> str:
     return brain_problem(summary) if isinstance(summary, dict) else ""
 
 
+def node_plan(loop, args: argparse.Namespace, namespace: str, summary_path: Path, plan=None,
+              max_wind: float | None = None) -> dict[str, dict]:
+    """The parameters of every node of a ``bptsb launch`` of ``loop`` (``args`` as parsed; ``plan``: the checked
+    MNIST stream; ``max_wind``: body_sim's, passed on to a wind_source), in start order: body_sim, the brains, and
+    the recorder with ``--bag``. The launch files start the same nodes with the same parameters
+    (:func:`bptsb_ros.live.loops.loop_node_parameters`)."""
+    from bptsb_ros.live.loops import node_parameters, recorder_parameters
+
+    common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,
+                  rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps,
+                  namespace=namespace)
+    brain_common = dict(common)
+    common.update(perturb_at=-1.0 if args.perturb_at is None else args.perturb_at, perturb_sigma=args.perturb_sigma,
+                  perturb_seed=args.perturb_seed)
+
+    def with_stream(executable: str, params: dict) -> dict:
+        if plan is None:
+            return params
+        from bptsb_ros.live.mnist_loop import stream_parameters
+
+        return stream_parameters(plan, executable, params, recording=bool(args.bag), duration=args.duration)
+
+    out = {"body_sim": with_stream("body_sim", node_parameters(loop, "body_sim", summary_path=str(summary_path),
+                                                               **common))}
+    for brain in loop.brains:
+        params = with_stream(brain.executable, node_parameters(loop, brain.executable, **brain_common))
+        if brain.executable == "wind_source" and max_wind is not None:
+            params["max_wind"] = max_wind
+        out[brain.executable] = params
+    if args.bag:
+        out["recorder"] = with_stream("recorder", recorder_parameters(
+            loop, args.bag, mode=args.mode, agent=args.agent, open_loop_steps=args.open_loop_steps,
+            allow_loss=args.allow_loss, namespace=namespace))
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.live.loops import agent_loop, log_dir_of_bag, node_parameters, recorder_parameters
+    from bptsb_ros.live.loops import agent_loop, log_dir_of_bag
 
     loop = LOOPS[args.loop]
     plan = None
@@ -456,40 +492,16 @@ def run(args: argparse.Namespace) -> int:
     except OSError as err:
         return fail("launch", f"cannot create the log directory {log_dir}: {err.strerror or err}", FAILURE)
     summary_path = log_dir / "body_summary.json"
+    from bptsb_ros.live.viewers import write_viewer_configs
 
-    common = dict(agent=args.agent, seed=args.seed, mode=args.mode, duration=args.duration,
-                  rate_scale=args.rate_scale, recording=bool(args.bag), open_loop_steps=args.open_loop_steps,
-                  namespace=namespace)
-    brain_common = dict(common)
-    common.update(perturb_at=-1.0 if args.perturb_at is None else args.perturb_at, perturb_sigma=args.perturb_sigma,
-                  perturb_seed=args.perturb_seed)
-
-    def with_stream(executable: str, params: dict) -> dict:
-        if plan is None:
-            return params
-        from bptsb_ros.live.mnist_loop import stream_parameters
-
-        return stream_parameters(plan, executable, params, recording=bool(args.bag), duration=args.duration)
+    viewers = write_viewer_configs(log_dir, namespace)
 
     children: list[Child] = []
-    body_params = with_stream("body_sim", node_parameters(loop, "body_sim", summary_path=str(summary_path), **common))
-    body = Child("body_sim", node_argv("body_sim", body_params, extra["body_sim"], namespace),
-                 log_dir / "body_sim.log")
-    children.append(body)
-    for brain in loop.brains:
-        params = with_stream(brain.executable, node_parameters(loop, brain.executable, **brain_common))
-        if brain.executable == "wind_source":
-            params["max_wind"] = max_wind
-        children.append(Child(brain.executable, node_argv(brain.executable, params, extra[brain.executable], namespace),
-                              log_dir / f"{brain.executable}.log"))
-    recorder = None
-    if args.bag:
-        params = with_stream("recorder", recorder_parameters(loop, args.bag, mode=args.mode, agent=args.agent,
-                                                             open_loop_steps=args.open_loop_steps,
-                                                             allow_loss=args.allow_loss, namespace=namespace))
-        recorder = Child("recorder", node_argv("recorder", params, extra["recorder"], namespace),
-                         log_dir / "recorder.log")
-        children.append(recorder)
+    for executable, params in node_plan(loop, args, namespace, summary_path, plan, max_wind).items():
+        children.append(Child(executable, node_argv(executable, params, extra[executable], namespace),
+                              log_dir / f"{executable}.log"))
+    body = children[0]
+    recorder = children[-1] if args.bag else None
 
     stop_flag: list[str] = []
 
@@ -529,6 +541,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"[launch]   {name:<15} {verdict}", file=sys.stderr)
     if summary_path.is_file():
         print(f"[launch] body summary: {summary_path}", file=sys.stderr)
+    if viewers:
+        print(f"[launch] RViz and Foxglove configs of this robot: {', '.join(str(v) for v in viewers)}",
+              file=sys.stderr)
     if args.bag:
         print(f"[launch] bag: {args.bag}", file=sys.stderr)
     if launcher.failures:

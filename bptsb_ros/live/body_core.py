@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bptsb_ros.body.live_step import SOUND, LiveStep, state_arrays
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.live.body_params import (
     LISTED_PERTURBATIONS,
@@ -77,12 +78,27 @@ class Event:
 @dataclass
 class StepOutput:
     """What step ``state.step`` publishes: the state, the rest lengths (E,) [m] and total external force (M, 2) [N]
-    (or None: none) in force, and the perturbation (2M,) [m] applied to the state (None: none)."""
+    (or None: none) in force, as numpy arrays of the body's dtype (``rest``, ``force``: the same as tensors), and the
+    perturbation (2M,) [m] applied to the state (None: none)."""
 
     state: BodyState
-    rest: torch.Tensor
-    force: torch.Tensor | None
+    rest_np: np.ndarray
+    force_np: np.ndarray | None
     perturbation: np.ndarray | None = None
+
+    @property
+    def rest(self) -> torch.Tensor:
+        return torch.from_numpy(self.rest_np)
+
+    @property
+    def force(self) -> torch.Tensor | None:
+        return None if self.force_np is None else torch.from_numpy(self.force_np)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """The step's r, v, a (M, 2), spring lengths (E,), rest lengths (E,) and force (M, 2) (or None) as numpy
+        arrays (views; no torch call where the compiled live step made the state)."""
+        r, v, a, length = state_arrays(self.state)
+        return r[0], v[0], a[0], length[0], self.rest_np.reshape(-1), self.force_np
 
 
 @dataclass
@@ -139,7 +155,11 @@ class BodyCore:
         self.spring_names = spring_names(topo.n_springs)
         self.dof_names = mass_dof_names(body.movable_index.tolist())
         self.base = body.l.detach().clone()
+        self.base_np = self.base.numpy()
+        self.np_dtype = self.base_np.dtype
         self.mass = body.mass.detach().numpy().copy()
+        with torch.no_grad():  # the compiled one-body step where the body's steps run in the kernel
+            self.live_step = LiveStep(body) if body.uses_kernel() else None
         depth = p["qos_depth"]
         max_age = max(1, int(math.floor(p["max_command_age"] / body.dt + 1e-9)))
         amplitude = getattr(agent.brain, "amplitude", None)
@@ -153,7 +173,8 @@ class BodyCore:
         sizes = {"rest_length": (topo.n_springs, self.spring_names), "force": (2 * body.n_movable, self.dof_names),
                  "wind": (2, ["x", "y"]), "reset": (2 * body.n_movable, self.dof_names)}
         self.channels = {s: CommandChannel(s, size, names, p["mode"], max_age_steps=max_age,
-                                           bounds=lambda values, s=s: self.limits.check(s, values))
+                                           bounds=lambda values, s=s: self.limits.check(s, values),
+                                           surely_within=lambda values, s=s: self.limits.surely_within(s, values))
                          for s, (size, names) in sizes.items()}
         self.channels["reset"].every = p["reset_every"]  # 0: resets off
         allowed = tuple(p["command_publishers"])
@@ -189,7 +210,9 @@ class BodyCore:
                 raise ParameterError(f"parameter 'wind': {problem}")
             self.wind = np.asarray(p["wind"], dtype=np.float64)
         self.next_step = 0
-        self.control = SimControl(p["paused"], sink=self._on_control)
+        self.control = SimControl(p["start_paused"], sink=self._on_control)
+        self.control_rule = PublisherRule("control", tuple(p["control_callers"]))
+        self.pause_expired = False  # the run ended because the body stayed paused for pause_timeout
         self.resumed_at = -math.inf  # realtime: when a pause ended (silence is counted from then)
         self.stats = TimingStats()
         self.phases = StepPhases()  # lockstep: wall time per phase of a step (bptsb bench --live)
@@ -340,38 +363,48 @@ class BodyCore:
             self._emit("warning", f"no usable {source} command at step {step}: using the safe command",
                        f"stale:{source}")
 
-    def _command(self, step: int) -> tuple[torch.Tensor, torch.Tensor | None, bool]:
-        """Rest length (E,), external force (M, 2) or None, and whether a safe value replaced a command."""
-        dtype = self.base.dtype
+    def _command(self, step: int) -> tuple[np.ndarray, np.ndarray | None, bool]:
+        """Rest length (E,), external force (M, 2) or None (both numpy arrays of the body's dtype), and whether a safe
+        value replaced a command."""
+        dtype = self.np_dtype
         safe = False
         rest_cmd = self.channels["rest_length"].take(step)
         if rest_cmd is None:
-            rest = self.base
+            rest = self.base_np
             safe = "rest_length" in self.wait_sources
         else:
-            rest = torch.from_numpy(rest_cmd.values).to(dtype)
+            rest = rest_cmd.values.astype(dtype, copy=False)
             self.stats.age.append(step - rest_cmd.step)
         force_cmd = self.channels["force"].take(step)
-        force: torch.Tensor | None = None
+        force: np.ndarray | None = None
         if force_cmd is None:
             safe = safe or "force" in self.wait_sources
         else:
-            force = torch.from_numpy(force_cmd.values).to(dtype).view(-1, 2)
+            force = force_cmd.values.astype(dtype, copy=False).reshape(-1, 2)
             self.stats.age.append(step - force_cmd.step)
         if self.wind_synchronised:  # the wind of this step (kept when it is missing: silent source)
             wind_cmd = self.channels["wind"].take(step)
             if wind_cmd is not None:
                 self.wind = wind_cmd.values if wind_cmd.values.any() else None
         if self.wind is not None:
-            wind = torch.from_numpy(self.wind).to(dtype)
-            force = wind.expand(self.body.n_movable, 2) if force is None else force + wind
+            wind = self.wind.astype(dtype)
+            force = np.broadcast_to(wind, (self.body.n_movable, 2)).copy() if force is None else force + wind
         return rest, force, safe
 
-    def _advance(self, state: BodyState | None, rest: torch.Tensor, force: torch.Tensor | None) -> BodyState:
+    def _advance(self, state: BodyState | None, rest: np.ndarray,
+                 force: np.ndarray | None) -> tuple[BodyState, str | None]:
+        """The state after ``state`` (None: the initial state) under ``rest`` and ``force``, and why it is diverged
+        (None: it is not)."""
+        if state is not None and self.live_step is not None:
+            new, code = self.live_step(state, rest, force)
+            return new, None if code == SOUND else self.divergence_of(new)
+        rest_t, force_t = torch.from_numpy(rest), None if force is None else torch.from_numpy(force)
         with torch.no_grad():
             if state is None:
-                return self.body.initial_state(1, rest_length=rest, external_force=force)
-            return self.body.step(state, rest_length=rest, external_force=force)
+                new = self.body.initial_state(1, rest_length=rest_t, external_force=force_t)
+            else:
+                new = self.body.step(state, rest_length=rest_t, external_force=force_t)
+        return new, self.divergence_of(new)
 
     def divergence_of(self, state: BodyState) -> str | None:
         """Why ``state`` is diverged (non-finite, beyond 1e6 m, or about to be: ``safety.runaway``), or None."""
@@ -381,16 +414,16 @@ class BodyCore:
             return str(err)
         return runaway(state.v.numpy(), state.a.numpy(), self.body.dt)
 
-    def _reset(self, step: int) -> torch.Tensor | None:
+    def _reset(self, step: int) -> np.ndarray | None:
         """The accepted reset (displacements (2M,) [m]) that takes effect at ``step``, or None; a ``reset`` call
         (:attr:`control`) is a zero displacement: the layout."""
         if self.control.take_reset():
             self.channels["reset"].take(step)  # a queued body/reset of this step gives way to the call
-            return torch.zeros(2 * self.body.n_movable, dtype=torch.float64)
+            return np.zeros(2 * self.body.n_movable)
         if not self.channels["reset"].due(step):
             return None
         cmd = self.channels["reset"].take(step)
-        return None if cmd is None else torch.from_numpy(cmd.values)
+        return None if cmd is None else cmd.values
 
     def integrate(self, state: BodyState | None, step: int) -> StepOutput:
         """Step ``step`` from ``state`` (the state of step − 1; None at step 0): reset or ``MSDN.step`` under the
@@ -400,22 +433,23 @@ class BodyCore:
         reset = self._reset(step)
         if reset is not None:  # released from rest at layout + displacement: the state of step k, not integrated
             with torch.no_grad():
-                fresh = self.body.initial_state(1, rest_length=rest, external_force=force,
-                                                displacement=reset.to(rest.dtype).view(1, -1, 2))
+                fresh = self.body.initial_state(
+                    1, rest_length=torch.from_numpy(rest), external_force=None if force is None else
+                    torch.from_numpy(force), displacement=torch.from_numpy(reset.astype(self.np_dtype)).view(1, -1, 2))
             state, new = None, BodyState(fresh.r, fresh.v, fresh.a, fresh.length, step)
+            problem = self.divergence_of(new)
         else:
             if self.channels["reset"].due(step) and "reset" in self.wait_sources:
                 safe = True  # an awaited reset that never came: the body runs on, unreset
-            new = self._advance(state, rest, force)
-        problem = self.divergence_of(new)
+            new, problem = self._advance(state, rest, force)
         if problem:
             new, rest, force, safe = self._recover(state, step, problem)
         out = StepOutput(new, rest, force)
         kick = self.perturbations.take(step)
         if kick is not None:
-            d = torch.from_numpy(kick.values).to(rest.dtype).view(1, -1, 2)
+            d = torch.from_numpy(kick.values.astype(self.np_dtype)).view(1, -1, 2)
             with torch.no_grad():  # MSDN.displaced: velocities kept, a from the rest length and force of the step
-                kicked = self.body.displaced(new, d, rest, force)
+                kicked = self.body.displaced(new, d, out.rest, out.force)
             problem = self.divergence_of(kicked)
             if problem:  # the kick is dropped, not the step: the run goes on unperturbed and says so
                 self._emit("error", f"the perturbation at step {step} would diverge ({problem.split(';')[0]}); not "
@@ -436,20 +470,20 @@ class BodyCore:
         return out
 
     def _recover(self, state: BodyState | None, step: int,
-                 problem: str) -> tuple[BodyState, torch.Tensor, torch.Tensor | None, bool]:
+                 problem: str) -> tuple[BodyState, np.ndarray, np.ndarray | None, bool]:
         """A diverged step: ``on_divergence`` restores the last good state with the safe command (rest lengths of
         the agent, no brain force; the wind stays), or the run stops (raises SimulationDiverged)."""
-        rest = self.base
+        rest = self.base_np
         force = None
         if self.wind is not None:
-            force = torch.from_numpy(self.wind).to(rest.dtype).expand(self.body.n_movable, 2)
+            force = np.broadcast_to(self.wind.astype(self.np_dtype), (self.body.n_movable, 2)).copy()
 
         def reset() -> BodyState:
             with torch.no_grad():
-                fresh = self.body.initial_state(1, rest_length=rest)
+                fresh = self.body.initial_state(1, rest_length=self.base)
             return BodyState(fresh.r, fresh.v, fresh.a, fresh.length, step)
 
-        new, action = self.divergence.recover(step, lambda: self._advance(state, rest, force), reset,
+        new, action = self.divergence.recover(step, lambda: self._advance(state, rest, force)[0], reset,
                                               self.divergence_of)
         text = f"step {step} diverged ({problem.split(';')[0]}); {action}"
         self._emit("error", text, diagnostic=True)
@@ -490,6 +524,8 @@ class BodyCore:
         out["divergences"] = self.divergence.events
         out["paused"] = self.control.paused
         out["control_calls"] = self.control.count
+        out["control_calls_refused"] = self.control.refused
+        out["pause_expired"] = self.pause_expired
         if self.recorder is not None:
             r = self.recorder
             out.update(recorder_waits=r.waits, recorder_wait_s=r.wait_s, recorder_acked_step=r.acked,
@@ -512,7 +548,8 @@ class BodyCore:
 
     def end_text(self, summary: Mapping[str, Any], diverged: bool, stop_reason: str | None) -> str:
         """The log lines at the end of a run: why it ended, after how many steps, and :func:`summary_text`."""
-        why = ("stopped: the simulation diverged" if diverged else
+        why = ("stopped: paused for pause_timeout" if self.pause_expired else
+               "stopped: the simulation diverged" if diverged else
                f"stopped by {stop_reason}" if stop_reason else "finished")
         return f"{why} after {summary['steps']} steps ({summary['sim_time']:.3f} s sim time)\n" + summary_text(summary)
 

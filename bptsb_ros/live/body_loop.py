@@ -15,7 +15,9 @@ graph in ``body_sim``; plain Python objects and a fake clock in the tests.
 
 In both modes the loop holds at a step boundary while ``core.control`` is paused (:mod:`~bptsb_ros.live.sim_control`:
 pause, resume, step N, reset), handling messages and service calls; realtime shifts its schedule (and the end of
-``wall_duration``) by the time held.
+``wall_duration``) by the time held. A paused body says so in its log when the pause begins and every
+``pause_notice_period`` wall seconds after, and ends the run once it has been paused for ``pause_timeout`` (0: never):
+a forgotten pause cannot hold a launch forever.
 """
 
 from __future__ import annotations
@@ -29,6 +31,10 @@ from bptsb_ros.live.body_core import BodyCore, StepOutput
 
 #: longest single wait [s] between two looks at the stop flag
 POLL_S = 0.05
+
+
+class PausedTooLong(RuntimeError):
+    """The body stayed paused for ``pause_timeout`` wall seconds: the run ends (a failure)."""
 
 
 class BodyPort(Protocol):
@@ -58,8 +64,9 @@ class BodyPort(Protocol):
     def publish(self, out: StepOutput) -> None:
         """Publish the outputs of one step."""
 
-    def diagnostics(self) -> None:
-        """Publish the loop status if it is due."""
+    def diagnostics(self, slack: float = math.inf) -> None:
+        """Publish the loop status if it is due; ``slack``: seconds until the next step is due (realtime), the work
+        may be left for a later turn with more time to spare."""
 
     def log(self, level: str, text: str) -> None:
         """One log line (info, warning or error)."""
@@ -73,8 +80,8 @@ class BodyLoop:
         self.started = 0.0
 
     def run(self) -> bool:
-        """Step until the last step, ``wall_duration`` or a stop request; True if the run stopped because the
-        simulation diverged."""
+        """Step until the last step, ``wall_duration`` or a stop request; True if the run failed: the simulation
+        diverged, or the body stayed paused for ``pause_timeout`` (``core.pause_expired``)."""
         core, port = self.core, self.port
         self.started = port.now()  # start of stepping: realtime silence is counted from here
         core.counting = not port.stopped()  # a run stopped during startup published nothing a recorder had to get
@@ -83,6 +90,10 @@ class BodyLoop:
         except SimulationDiverged as err:
             if not core.diverged_stop:
                 port.log("error", str(err))
+            return True
+        except PausedTooLong as err:
+            core.pause_expired = True
+            port.log("error", str(err))
             return True
         return False
 
@@ -103,15 +114,30 @@ class BodyLoop:
             self.spin_for(POLL_S)
 
     def hold(self) -> float:
-        """While paused (and no ``step`` left): handle messages and calls, publish diagnostics; returns the wall
-        seconds held (0.0: not paused)."""
-        control, port = self.core.control, self.port
+        """While paused (and no ``step`` left): handle messages and calls, publish diagnostics, say so in the log;
+        returns the wall seconds held (0.0: not paused). Raises PausedTooLong after ``pause_timeout``."""
+        control, port, p = self.core.control, self.port, self.core.p
         if not control.holding():
             return 0.0
         began = port.now()
+        timeout, period = p["pause_timeout"], p["pause_notice_period"]
+        at = f"after step {control.last_step}" if control.last_step >= 0 else "before the first step"
+        bound = (f"; the run ends if it stays paused for {timeout:g} s (pause_timeout)" if timeout else
+                 " (no pause_timeout: it waits as long as it takes)")
+        port.log("warning", f"paused {at}: no step is taken until ~/resume or ~/step is called{bound}")
+        notice = began + period
         while control.holding() and not port.stopped():
             port.spin_once(POLL_S)
             port.diagnostics()
+            if not control.holding():
+                break
+            now = port.now()
+            if timeout and now - began >= timeout:
+                raise PausedTooLong(f"paused {at} for {timeout:g} s without ~/resume or ~/step (pause_timeout): "
+                                    "ending the run")
+            if now >= notice:
+                port.log("warning", f"still paused {at}, for {now - began:.0f} s: call ~/resume or ~/step{bound}")
+                notice += period
         return port.now() - began
 
     def _more(self, step: int) -> bool:
@@ -207,17 +233,21 @@ class BodyLoop:
                 core.stats.deadline_misses += 1
             if core.step_times is not None:
                 core.step_times.append(step, due, began, integrated, done)
-            port.diagnostics()
+            port.diagnostics(slack=due + period - port.now())  # the time left before the next step is due
             step += 1
 
     def await_commands(self, step: int) -> None:
         """Lockstep: handle messages until every awaited source that is not silent has its command for ``step``;
-        a source whose publisher is gone, or still without it after ``command_timeout``, becomes silent."""
+        a source whose publisher is gone, or still without it after ``command_timeout``, becomes silent.
+
+        Messages are handled one at a time in the order they arrived (``spin_once``; the EventsExecutor's order), and
+        only while a command is missing: every message that arrived before the step's last command (a perturbation
+        for the step, say) is handled before the step is integrated, without an idle spin to find out that nothing
+        else is waiting."""
         core, port = self.core, self.port
         timeout = core.p["command_timeout"]
         deadline = port.now() + timeout
         while not port.stopped():
-            port.drain()
             missing = core.missing(step)
             if not missing:
                 return

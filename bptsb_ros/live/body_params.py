@@ -10,7 +10,13 @@ from __future__ import annotations
 import math
 
 from bptsb_ros.live.channels import MODES
-from bptsb_ros.live.safety import DEFAULT_MAX_FORCE, DEFAULT_MAX_WIND, DEFAULT_PERTURB_PUBLISHERS, DIVERGENCE_POLICIES
+from bptsb_ros.live.safety import (
+    DEFAULT_CONTROL_CALLERS,
+    DEFAULT_MAX_FORCE,
+    DEFAULT_MAX_WIND,
+    DEFAULT_PERTURB_PUBLISHERS,
+    DIVERGENCE_POLICIES,
+)
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS
 from bptsb_ros.ros.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, Param, ParameterError
 from bptsb_ros.ros.topics import BODY_INPUTS, BODY_OUTPUTS, COMMAND_SOURCES, DEFAULT_QOS_DEPTH, RECORDER_ACK, TOPICS
@@ -24,6 +30,8 @@ LISTED_PERTURBATIONS = 20
 #: what the ROS graph reports as the node name of an endpoint whose node it has not discovered yet
 UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 PUBLISHED = BODY_OUTPUTS
+#: body outputs that say again what body/positions and the commands say: every ``state_every`` steps
+SLOW_OUTPUTS: tuple[str, ...] = ("mass_states", "spring_lengths", "rest_length", "external_force")
 SUBSCRIBED = BODY_INPUTS
 
 PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
@@ -60,6 +68,12 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "acknowledged every message", "float", minimum=0.0),
     RAW_OUTPUTS,
     Param("marker_every", 5, "publish body/markers every this many steps", "int", minimum=1, dynamic=True),
+    Param("state_every", 10, "publish body/mass_states, body/spring_lengths, body/rest_length and "
+          "body/external_force every this many steps, at steps 2, 4, 6 and 8 modulo it (1: every step); /clock and "
+          "body/positions, the state of every step, go out every step", "int", minimum=1, dynamic=True),
+    Param("every_step", [], "of those four topics, the ones published every step anyway (a node that reads them, "
+          "e.g. a feedback brain on mass states: the launchers add what the loop's brains read)", "str_list",
+          choices=SLOW_OUTPUTS),
     Param("frame_id", "msdn", "frame of positions and markers (the body plane, metres, y up)", "str"),
     Param("diagnostics_period", 1.0, "wall seconds between /diagnostics messages", "float", positive=True,
           dynamic=True),
@@ -100,7 +114,16 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("reset_every", 0, "resets (body/reset, loop mnist_drawing): the body takes a reset only at steps k with "
           "k % reset_every == 0 (with 'reset' in wait_for it waits for one there, lockstep only); the state of step k "
           "is then the body at rest at layout + displacement; 0: no resets", "int", minimum=0),
-    Param("paused", False, "start paused: the first step waits for the ~/resume or ~/step service", "bool"),
+    Param("start_paused", False, "start paused: the first step waits for the ~/resume or ~/step service (whether "
+          "the body is paused now is on /diagnostics, not in this parameter)", "bool"),
+    Param("control_callers", list(DEFAULT_CONTROL_CALLERS), "node names ('name' or '/namespace/name') allowed to call "
+          "~/pause, ~/resume, ~/step and ~/reset; a call is refused while any other node has a client of that "
+          "service; default: the ros2 command line (ros2 service call); '*': any node", "str_list"),
+    Param("pause_timeout", 600.0, "wall seconds a paused body waits for ~/resume or ~/step before it ends the run "
+          "(exit status 1, named in the log and the run summary), so a forgotten pause cannot hold a launch forever; "
+          "0: no limit", "float", minimum=0.0),
+    Param("pause_notice_period", 30.0, "while paused, a log line every this many wall seconds says so (and how long "
+          "until pause_timeout)", "float", positive=True, dynamic=True),
     Param("step_count", 1, "steps one call of the ~/step service advances a paused body", "int", minimum=1,
           dynamic=True),
     Param("on_divergence", "restore", "when a step diverges: restore (last good state + safe command, go on) or "
@@ -133,6 +156,30 @@ def parse_wait_for_subscribers(entries: list[str]) -> list[tuple[str, int]]:
                                  "with count >= 1")
         out.append((topic, int(count)))
     return out
+
+
+def set_fifo_priority_of_other_threads(priority: int) -> int:
+    """Put every other thread of this process (the middleware's: a step that publishes waits on locks they hold,
+    so at the normal scheduler one of them preempted by another process stalls the step) under SCHED_FIFO at
+    ``priority`` (one below the stepping thread's, which then preempts them); returns how many took it (Linux: the
+    threads in ``/proc/self/task``)."""
+    import os
+    import threading
+
+    me, done = threading.get_native_id(), 0
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return 0
+    for tid in tids:
+        if tid == me:
+            continue
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            done += 1
+        except OSError:  # gone meanwhile, or not allowed
+            continue
+    return done
 
 
 def set_fifo_priority(priority: int) -> str:

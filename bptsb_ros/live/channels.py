@@ -21,8 +21,8 @@ integrator; :meth:`CommandChannel.offer` returns a :class:`Rejection` so the nod
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -63,6 +63,8 @@ class CommandChannel:
         max_ahead: furthest step ahead of the next one a command may be stamped for (both modes).
         max_age_steps: realtime: oldest usable command, in steps behind the step being integrated.
         bounds: physical check of finite values: returns why they are out of bounds, or None.
+        surely_within: a quick test of the values (True: all finite and within bounds, so neither check can reject
+            them; False: run both checks); None: always run them.
         every: commands are taken only for steps k with k % every == 0 (1: every step; 0: none, the source is
             off); one stamped for another step is rejected (``off_schedule``). The body's resets use it.
     """
@@ -74,6 +76,7 @@ class CommandChannel:
     max_ahead: int = 1
     max_age_steps: int = 10
     bounds: Callable[[np.ndarray], str | None] | None = None
+    surely_within: Callable[[np.ndarray], bool] | None = None
     every: int = 1
     pending: dict[int, Command] = field(default_factory=dict)
     latest: Command | None = None
@@ -122,12 +125,13 @@ class CommandChannel:
             return self._reject("wrong_length", f"{what}: {vals.size} values, expected {self.size}")
         if names and list(names) != self.names:
             return self._reject("wrong_names", f"{what}: joint names do not match the body's ({self.names[0]}, …)")
-        bad = np.flatnonzero(~np.isfinite(vals))
-        if bad.size:
-            return self._reject("non_finite", f"{what}: NaN/inf at index {int(bad[0])} ({bad.size} value(s))")
-        problem = self.bounds(vals) if self.bounds is not None else None
-        if problem:
-            return self._reject("out_of_bounds", f"{what}: {problem}")
+        if self.surely_within is None or not self.surely_within(vals):
+            bad = np.flatnonzero(~np.isfinite(vals))
+            if bad.size:
+                return self._reject("non_finite", f"{what}: NaN/inf at index {int(bad[0])} ({bad.size} value(s))")
+            problem = self.bounds(vals) if self.bounds is not None else None
+            if problem:
+                return self._reject("out_of_bounds", f"{what}: {problem}")
         if not self.due(step):
             rule = f"only steps that are multiples of {self.every}" if self.every else "none: the source is off"
             return self._reject("off_schedule", f"{what}: this channel takes {rule}")
@@ -185,7 +189,9 @@ PERCENTILE_WINDOW = 10_000
 
 class RunningStats:
     """A series summarized in bounded memory: count, mean and max over every sample, and the last ``window``
-    samples for percentiles (a realtime run can last for hours; the node summarizes it every second).
+    samples for percentiles (a realtime run can last for hours; the node summarizes it every second). The window is
+    a numpy ring buffer, so that a summary costs a partition, not a conversion of 10,000 Python floats (a 1 kHz
+    body summarizes between two steps).
     """
 
     def __init__(self, values: Iterable[float] = (), window: int = PERCENTILE_WINDOW) -> None:
@@ -194,7 +200,8 @@ class RunningStats:
         self.count = 0
         self.total = 0.0
         self.max = -math.inf
-        self.recent: deque[float] = deque(maxlen=window)
+        self._ring = np.empty(window, dtype=np.float64)
+        self._next = 0
         for value in values:
             self.append(value)
 
@@ -202,8 +209,18 @@ class RunningStats:
         value = float(value)
         self.count += 1
         self.total += value
-        self.max = max(self.max, value)
-        self.recent.append(value)
+        if value > self.max:
+            self.max = value
+        self._ring[self._next] = value
+        self._next = (self._next + 1) % self._ring.size
+
+    @property
+    def recent(self) -> np.ndarray:
+        """The last ``window`` samples, oldest first (a copy)."""
+        n = min(self.count, self._ring.size)
+        if n < self._ring.size:
+            return self._ring[:n].copy()
+        return np.concatenate([self._ring[self._next:], self._ring[:self._next]])
 
     def __len__(self) -> int:
         return self.count
@@ -214,7 +231,14 @@ class RunningStats:
 
     def percentile(self, q: float) -> float:
         """The ``q``-th percentile of the last ``window`` samples (0.0 when empty)."""
-        return float(np.percentile(np.fromiter(self.recent, dtype=np.float64), q)) if self.recent else 0.0
+        return self.percentiles((q,))[0]
+
+    def percentiles(self, qs: Sequence[float]) -> list[float]:
+        """The ``qs``-th percentiles of the last ``window`` samples, in one partition (0.0 each when empty)."""
+        n = min(self.count, self._ring.size)
+        if not n:
+            return [0.0] * len(qs)
+        return [float(v) for v in np.percentile(self._ring[:n], list(qs))]
 
 
 @dataclass
@@ -257,8 +281,9 @@ class TimingStats:
                                    ("command_latency_ms", self.latency, 1e3), ("command_age_steps", self.age, 1.0)):
             if not series.count:
                 continue
+            p50, p99 = series.percentiles((50, 99))
             out[f"{key}_mean"] = series.mean * scale
-            out[f"{key}_p50"] = series.percentile(50) * scale
-            out[f"{key}_p99"] = series.percentile(99) * scale
+            out[f"{key}_p50"] = p50 * scale
+            out[f"{key}_p99"] = p99 * scale
             out[f"{key}_max"] = series.max * scale
         return out

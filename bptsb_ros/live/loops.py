@@ -11,7 +11,9 @@ Namespaces (several robots in one ROS domain): a loop started in namespace ``/r1
 ``namespace:=r1`` or ``PushRosNamespace`` around a launch file) resolves every topic in it — also ``/clock`` and
 ``/diagnostics``, remapped to ``/r1/clock`` and ``/r1/diagnostics`` (:func:`namespace_remaps`), so each robot keeps
 its own lockstep clock and its bag holds exactly its own topics. The startup waits and the recorder's topic list use
-the resolved names (:func:`loop_topic`). Frame ids are not namespaced: every body lives in its own ``msdn`` frame.
+the resolved names (:func:`loop_topic`). The body's frame is namespaced too (``robot1/msdn``,
+:func:`bptsb_ros.live.viewers.frame_id`), and :mod:`bptsb_ros.live.viewers` writes the RViz and Foxglove
+configurations of that robot.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from bptsb_ros.live.body_params import SLOW_OUTPUTS
 from bptsb_ros.ros.params import ParamValue, yaml_value
 from bptsb_ros.ros.topics import BODY_OUTPUTS, COMMAND_SOURCES, RECORDER_ACK, TOPICS, absolute, feedback_state_key
 
@@ -75,12 +78,13 @@ class Loop:
         return [k for k in self.topics() if k not in NOT_EVERY_STEP]
 
 
-#: loop topics without a message every step: markers every marker_every steps, diagnostics every second,
-#: perturbations and the MNIST stream per event or episode
-NOT_EVERY_STEP = frozenset({"markers", "diagnostics", "perturbation", "image", "label", "reset_cmd"})
+#: loop topics without a message every step: markers every marker_every steps, the body's derived state topics
+#: every state_every steps (unless a brain reads them), diagnostics every second, perturbations and the MNIST stream
+#: per event or episode
+NOT_EVERY_STEP = frozenset({"markers", "diagnostics", "perturbation", "image", "label", "reset_cmd", *SLOW_OUTPUTS})
 
 SWG = BrainSpec("swg_brain", ("clock",), ("rest_length_cmd",))
-FEEDBACK = BrainSpec("feedback_brain", ("clock", "spring_lengths"), ("rest_length_cmd",))
+FEEDBACK = BrainSpec("feedback_brain", ("clock", "positions"), ("rest_length_cmd",))
 TASK_INPUT = BrainSpec("task_input", ("clock",), ("task_input",))
 MLP = BrainSpec("mlp_brain", ("task_input",), ("force_cmd",))
 WIND = BrainSpec("wind_source", ("clock",), ("wind",))
@@ -175,11 +179,12 @@ def topic_names(keys: list[str], namespace: str = "") -> list[str]:
     return [loop_topic(k, namespace) for k in keys]
 
 
-def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True, namespace: str = "") -> list[str]:
+def startup_subscribers(loop: Loop, *, recording: bool, namespace: str = "") -> list[str]:
     """``wait_for_subscribers`` entries for ``body_sim``: how many subscribers each topic must have.
 
-    Body outputs count the recorder and every brain that subscribes (a node on sim time also has a
-    ``/clock`` subscription); brain outputs count ``body_sim`` or the next brain, and the recorder.
+    Body outputs count the recorder and every brain that subscribes (no brain has rclpy's own sim-time ``/clock``
+    subscription: each sets its clock from the stamps of the messages it answers, ``BrainNode.feed_sim_time``);
+    brain outputs count ``body_sim`` or the next brain, and the recorder.
     """
     counts: dict[str, int] = {}
     for key in loop.topics():
@@ -187,8 +192,6 @@ def startup_subscribers(loop: Loop, *, recording: bool, sim_time: bool = True, n
     for brain in loop.brains:
         for key in brain.triggers:
             counts[key] = counts.get(key, 0) + 1
-        if sim_time:
-            counts["clock"] += 1
     for source in loop.wait_for:
         counts[COMMAND_SOURCES[source]] = counts.get(COMMAND_SOURCES[source], 0) + 1
     return [f"{loop_topic(k, namespace)}:{n}" for k, n in counts.items() if n > 0]
@@ -235,9 +238,15 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
     """
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":
+        read = [k for k in SLOW_OUTPUTS if any(k in b.triggers for b in loop.brains)]
+        if namespace:  # robot1/msdn: two robots in one domain never share a frame
+            from bptsb_ros.live.viewers import frame_id
+
+            params["frame_id"] = frame_id(namespace)
         params.update({
             "mode": mode,
             "wait_for": list(loop.wait_for),
+            **({"every_step": read} if read else {}),
             "wait_for_subscribers": startup_subscribers(loop, recording=recording, namespace=namespace),
             "rate_scale": rate_scale,
         })
@@ -667,7 +676,12 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
             return [LogInfo(msg="rviz:=true: rviz2 is not installed here; the loop runs without it")]
         namespace = namespace_of(context)
         remaps = [arg for src, dst in namespace_remaps(namespace) for arg in ("-r", f"{src}:={dst}")]
-        return [ExecuteProcess(cmd=["rviz2", "-d", str(rviz_config()), "--ros-args", "-r",
+        from bptsb_ros.live.viewers import rviz_config_text
+
+        handle, config = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_", suffix=".rviz")
+        with open(handle, "w") as out:  # the package's config with the fixed frame of the loop's namespace
+            out.write(rviz_config_text(rviz_config().read_text(), namespace))
+        return [ExecuteProcess(cmd=["rviz2", "-d", config, "--ros-args", "-r",
                                     f"__ns:={namespace or '/'}", *remaps], name="rviz2", output="screen")]
 
     recording = Condition(predicate=lambda context: bool(LaunchConfiguration("bag").perform(context)))

@@ -55,13 +55,15 @@ class Newest:
 IDLE_SPINS = 2
 
 
-def pump(spin_once: Callable[[float], None], latches: Sequence[Newest], timeout: float) -> int:
+def pump(spin_once: Callable[[float], None], latches: Sequence[Newest], timeout: float,
+         idle_spins: int = IDLE_SPINS) -> int:
     """One turn of a brain's loop: wait up to ``timeout`` [s] for a message (``spin_once(timeout)`` handles at most
-    one), then handle every message that is ready (``spin_once(0.0)`` until :data:`IDLE_SPINS` in a row bring the
-    latches no message), then answer the newest message of each latch. Returns the number of answers."""
+    one), then handle every message that is ready (``spin_once(0.0)`` until ``idle_spins`` in a row bring the
+    latches no message: 1 is enough for a node whose every subscription feeds a latch), then answer the newest
+    message of each latch. Returns the number of answers."""
     spin_once(timeout)
     before, idle = sum(latch.received for latch in latches), 0
-    while idle < IDLE_SPINS:
+    while idle < idle_spins:
         spin_once(0.0)
         now = sum(latch.received for latch in latches)
         idle, before = (idle + 1 if now == before else 0), now

@@ -57,13 +57,16 @@ class StepPhases:
         return 0.0 if self.began is None else self.ended - self.began
 
     def summary(self) -> dict[str, float | int]:
-        """``loop_steps``, ``loop_wall_s``, ``loop_steps_per_s`` and ``phase_ms_<phase>`` (mean milliseconds per
-        step, also ``phase_ms_other``), or {} before the first step; the split is :func:`split` of the totals."""
+        """``loop_steps``, ``loop_wall_s``, ``loop_steps_per_s``, the stepping window ``loop_began_monotonic`` ..
+        ``loop_ended_monotonic`` (CLOCK_MONOTONIC seconds, the same clock in every process of the machine) and
+        ``phase_ms_<phase>`` (mean milliseconds per step, also ``phase_ms_other``), or {} before the first step; the
+        split is :func:`split` of the totals."""
         if not self.steps:
             return {}
         row = split(self.steps, self.wall, self.seconds)
         out: dict[str, float | int] = {"loop_steps": self.steps, "loop_wall_s": self.wall,
-                                       "loop_steps_per_s": row["steps_per_s"]}
+                                       "loop_steps_per_s": row["steps_per_s"], "loop_began_monotonic": self.began,
+                                       "loop_ended_monotonic": self.ended}
         out.update({f"phase_ms_{name}": row[f"{name}_ms"] for name in (*PHASES, "other")})
         return out
 

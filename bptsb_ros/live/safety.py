@@ -37,6 +37,9 @@ DEFAULT_PUBLISHERS: dict[str, tuple[str, ...]] = {
 #: Default publishers allowed to perturb the body (``perturb_publishers``): any node. A perturbation is a test the
 #: user runs (``ros2 topic pub``, a script), bounded by ``max_displacement``; list node names to restrict it.
 DEFAULT_PERTURB_PUBLISHERS: tuple[str, ...] = ("*",)
+#: who may call the body's simulator services by default: the node ``ros2 service call`` creates for a
+#: ``std_srvs/srv/Trigger`` (``_ros2cli_requester_<package>_<service type>``)
+DEFAULT_CONTROL_CALLERS: tuple[str, ...] = ("_ros2cli_requester_std_srvs_Trigger",)
 #: ``command_publishers`` entry that accepts commands from any node (not for a shared network).
 ANY_PUBLISHER = "*"
 #: Default limits [N] of a force-command component and of a wind component.
@@ -101,6 +104,20 @@ class CommandLimits:
         limit = max_rest_length or REST_LENGTH_EXTENT_FACTOR * body_extent(positions)
         return cls(float(limit), float(max_force), float(max_wind), float(min_rest_length),
                    max_displacement=body_extent(positions))
+
+    def surely_within(self, source: str, values: np.ndarray) -> bool:
+        """True when float64 ``values`` of command ``source`` are all finite and within bounds, decided by two
+        reductions (a NaN makes min and max NaN, and every comparison with NaN is False); False means "look closer"
+        (:meth:`check` and the finiteness test say why, if anything is wrong). Resets are always looked at closer."""
+        if source == "rest_length":
+            lo, lo_open, hi = self.min_rest_length, True, self.max_rest_length
+        elif source in ("force", "wind"):
+            hi = self.max_force if source == "force" else self.max_wind
+            lo, lo_open = -hi, False
+        else:
+            return False
+        low, high = values.min(), values.max()
+        return bool((low > lo if lo_open else low >= lo) and high <= hi)
 
     def check(self, source: str, values: np.ndarray) -> str | None:
         """Why finite ``values`` of command ``source`` (rest_length, force, wind, perturbation or reset) are out of

@@ -19,8 +19,12 @@
   back). While paused the reset shows at the next ``step`` or ``resume``.
 
 Every call is answered (``success``, ``message``) and reported as a :class:`ControlCall` to ``sink`` — the node
-publishes it on ``/diagnostics`` (status ``<node>: control``), so a bag records what was called and at which
-step.
+publishes it on ``/diagnostics`` (status ``<node>: control``), so a bag records what was called, at which step and
+by whom (``callers``: the nodes that had a client of the service when it was called; the middleware does not say
+which of them sent a request, so all are named). The callers are held to the body's command-source rule
+(``control_callers``, :class:`~bptsb_ros.live.safety.PublisherRule`): while a node not allowed has a client of a
+service, every call of it is refused (``untrusted``), as a command is rejected while a foreign node publishes on
+its topic.
 """
 
 from __future__ import annotations
@@ -45,11 +49,15 @@ class ControlCall:
     message: str
     paused: bool
     steps_left: int
+    callers: tuple[str, ...] = ()
+    untrusted: tuple[str, ...] = ()
 
     def values(self) -> list[tuple[str, str]]:
-        """Key/value texts of the call (the control diagnostic's values)."""
+        """Key/value texts of the call (the control diagnostic's values; ``callers`` and ``untrusted_callers``:
+        fully qualified node names, comma-separated)."""
         return [("call", self.name), ("step", str(self.step)), ("wall_time", f"{self.wall:.6f}"),
-                ("accepted", str(self.ok)), ("paused", str(self.paused)), ("steps_left", str(self.steps_left))]
+                ("accepted", str(self.ok)), ("paused", str(self.paused)), ("steps_left", str(self.steps_left)),
+                ("callers", ", ".join(self.callers)), ("untrusted_callers", ", ".join(self.untrusted))]
 
 
 class SimControl:
@@ -68,14 +76,24 @@ class SimControl:
         self.reset_pending = False
         self.last_step = -1  # the last integrated step
         self.count = 0
+        self.refused = 0  # calls refused for untrusted callers
         self.calls: list[ControlCall] = []
         self.sink = sink or self.calls.append
         self.clock = clock
 
-    def call(self, name: str, n: int = 1) -> tuple[bool, str]:
-        """Handle the call ``name`` (one of :data:`CALLS`; ``step``: ``n`` >= 1 steps); returns (accepted, answer)."""
+    def call(self, name: str, n: int = 1, callers: tuple[str, ...] = (),
+             untrusted: tuple[str, ...] = ()) -> tuple[bool, str]:
+        """Handle the call ``name`` (one of :data:`CALLS`; ``step``: ``n`` >= 1 steps) made while ``callers`` had
+        clients of the service, of which ``untrusted`` are not allowed (then it is refused); returns (accepted,
+        answer)."""
         at = f"after step {self.last_step}" if self.last_step >= 0 else "before the first step"
-        if name == "pause":
+        if name not in CALLS:
+            raise ValueError(f"unknown control call {name!r}: expected one of {', '.join(CALLS)}")
+        if untrusted:
+            ok, text = False, (f"refused: ~/{name} has client(s) not in control_callers ({', '.join(untrusted)}); "
+                               f"{'paused' if self.paused else 'running'} {at}")
+            self.refused += 1
+        elif name == "pause":
             ok, text = True, f"paused {at}" if not self.paused else f"already paused {at}"
             self.paused, self.steps_left = True, 0
         elif name == "resume":
@@ -89,13 +107,12 @@ class SimControl:
             else:
                 ok, text = True, f"stepping {n} step(s) {at}, then paused again"
                 self.steps_left = n
-        elif name == "reset":
+        else:  # reset
             ok, text = True, f"the next step is the body at rest at its layout (requested {at})"
             self.reset_pending = True
-        else:
-            raise ValueError(f"unknown control call {name!r}: expected one of {', '.join(CALLS)}")
         self.count += 1
-        self.sink(ControlCall(name, self.last_step, self.clock(), ok, text, self.paused, self.steps_left))
+        self.sink(ControlCall(name, self.last_step, self.clock(), ok, text, self.paused, self.steps_left,
+                              tuple(callers), tuple(untrusted)))
         return ok, text
 
     def holding(self) -> bool:

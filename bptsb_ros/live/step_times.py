@@ -76,7 +76,8 @@ def load_step_times(path: str | Path, meta: tuple[str, ...] = ("executor",)) -> 
     file."""
     from bptsb_ros.safe_npz import load_npz
 
-    arrays = load_npz(path, (*FIELDS, "period"), max_bytes=MAX_RECORDS * 8 * (len(FIELDS) + 1))
+    limit = MAX_RECORDS * 8 * (len(FIELDS) + 1)
+    arrays = load_npz(path, (*FIELDS, "period"), max_bytes=limit)
     lengths = {arrays[name].shape for name in FIELDS}
     if len(lengths) != 1 or len(next(iter(lengths))) != 1:
         raise ValueError(f"{path}: the timing columns {', '.join(FIELDS)} must be 1-D and of equal length, got "
@@ -88,7 +89,8 @@ def load_step_times(path: str | Path, meta: tuple[str, ...] = ("executor",)) -> 
     out["period"] = period
     for key in meta:
         try:
-            out[key] = str(load_npz(path, (f"meta_{key}",), max_bytes=4096)[f"meta_{key}"])
+            # the file's size is checked against the bound too: the records' bound, not the string's
+            out[key] = str(load_npz(path, (f"meta_{key}",), max_bytes=limit + 4096)[f"meta_{key}"])
         except ValueError:  # NpzError is a ValueError: an absent key (older or foreign files)
             continue
     return out

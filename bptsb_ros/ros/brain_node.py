@@ -17,20 +17,24 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from rclpy.clock import ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
+from rclpy.subscription import Subscription
+from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.live.channels import RunningStats
-from bptsb_ros.live.newest import Newest, pump
+from bptsb_ros.live.newest import IDLE_SPINS, Newest, pump
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
+from bptsb_ros.ros.cdr_in import stamp_ns
 from bptsb_ros.ros.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, OnChange, Param, ParameterError, declare_parameters
 from bptsb_ros.ros.raw_out import RawTemplate, TemplateError
-from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle, make_executor
-from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns
+from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle, executor_kind, make_executor
+from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns, stamp_to_step
 
 COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
@@ -76,6 +80,8 @@ class BrainNode(Node):
         self.latches: list[Newest] = []
         self.executor_ = make_executor(self.p["executor"], self.context)
         self.executor_.add_node(self)
+        self.sim_time_fed = False  # the node's ROS clock follows the stamps of the messages this node takes
+        self.triggers = 0  # subscriptions that feed a latch (subscribe_newest), not destroyed
         if not self.get_parameter("use_sim_time").value:
             self.get_logger().info("use_sim_time is false (set): log stamps use wall time, not the body's /clock")
 
@@ -106,19 +112,71 @@ class BrainNode(Node):
 
         if not self.p["raw_outputs"]:
             return build
-        from rclpy.serialization import deserialize_message, serialize_message
+        from rclpy.serialization import deserialize_message
 
         try:
-            return RawTemplate(build, [(len(names),)], serialize_message, deserialize_message, ns).render
+            return RawTemplate(build, [(len(names),)], deserialize_message, ns).render
         except TemplateError as err:
             self.get_logger().warning(f"publishing message objects ({err})")
             return build
 
-    def subscribe_newest(self, msg_type: type, topic: str, handler: Callable[[Any], None], qos: Any) -> None:
-        """Subscribe ``handler`` to ``topic`` so that it answers only the newest of the messages ready at once."""
+    def subscribe_newest(self, msg_type: type, topic: str, handler: Callable[[Any], None], qos: Any,
+                         raw: bool = False) -> Subscription:
+        """Subscribe ``handler`` to ``topic`` so that it answers only the newest of the messages ready at once;
+        ``raw``: it gets the message's CDR bytes (:mod:`bptsb_ros.ros.cdr_in` reads them)."""
         latch = Newest(handler)
         self.latches.append(latch)
-        self.create_subscription(msg_type, topic, latch.offer, qos)
+        self.triggers += 1
+        return self.create_subscription(msg_type, topic, latch.offer, qos, raw=raw)
+
+    def destroy_trigger(self, sub: Subscription) -> None:
+        """Destroy a subscription of :meth:`subscribe_newest` that is no longer needed."""
+        self.destroy_subscription(sub)
+        self.triggers -= 1
+
+    def idle_spins(self) -> int:
+        """Zero-timeout spins in a row without a latch message that end a turn's handling
+        (:func:`~bptsb_ros.live.newest.pump`): 2 while rclpy's own ``/clock`` callback takes turns with the latches; 0
+        for a node on the EventsExecutor with one trigger subscription (one dispatch hands the latch every message
+        waiting on it: a spin more would only find later ones); else 1."""
+        if not self.sim_time_fed:
+            return IDLE_SPINS
+        return 0 if self.triggers == 1 and executor_kind(self.executor_) == "events" else 1
+
+    def clock_step(self, data: bytes) -> int:
+        """The step of a ``/clock`` tick taken raw (deserialized when its bytes are not plain little-endian CDR);
+        with :meth:`feed_sim_time`, the node's clock is set to it."""
+        ns = stamp_ns(data)
+        if ns is None:
+            from rclpy.serialization import deserialize_message
+            from rosgraph_msgs.msg import Clock
+
+            stamp = deserialize_message(data, Clock).clock
+            ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        self.sim_time(ns)
+        return stamp_to_step(0, ns, self.dt_ns)
+
+    def sim_time(self, ns: int) -> None:
+        """With :meth:`feed_sim_time`: the node's clock reads sim time ``ns`` [ns] from now on."""
+        if self.sim_time_fed:
+            self.get_clock().set_ros_time_override(Time(nanoseconds=ns, clock_type=ClockType.ROS_TIME))
+
+    def feed_sim_time(self) -> None:
+        """``use_sim_time`` without a second ``/clock`` subscription: call it once the node has its triggers, whose
+        handlers pass every message's stamp to :meth:`sim_time` (``/clock`` ticks through :meth:`clock_step`). rclpy's
+        time source subscribes to ``/clock`` for a node on sim time and deserializes every tick in a callback of its
+        own; a node that takes stamped messages of every step anyway sets its clock from them (what the time
+        source's callback does with the ticks) and drops that subscription: one reader of ``/clock`` and one callback
+        per step fewer, and every callback of the node feeds a latch (:meth:`idle_spins`). The node's clock then
+        reads the sim time of the step it is answering. A later change of ``use_sim_time`` is the time source's again.
+        Where rclpy's time source is not as expected, nothing changes."""
+        source = getattr(self, "_time_source", None)
+        sub = getattr(source, "_clock_sub", None)
+        if sub is None or not self.get_parameter("use_sim_time").value:
+            return
+        self.destroy_subscription(sub)
+        source._clock_sub = None
+        self.sim_time_fed = True
 
     def publish_timed(self, pub: Publisher, msg: Any, started: float) -> None:
         """Record the compute time since ``started`` (monotonic seconds) and publish.
@@ -145,7 +203,7 @@ class BrainNode(Node):
     def run(self) -> int:
         """Spin until SIGINT/SIGTERM, then log a summary and let subscribers acknowledge the last messages."""
         while not self.stop:
-            pump(lambda timeout: self.executor_.spin_once(timeout_sec=timeout), self.latches, 0.1)
+            pump(lambda timeout: self.executor_.spin_once(timeout_sec=timeout), self.latches, 0.1, self.idle_spins())
         mean = 1e3 * self.compute.mean
         worst = 1e3 * self.compute.max if self.compute.count else 0.0
         dropped = sum(latch.dropped for latch in self.latches)

@@ -2,9 +2,10 @@
 ``FeedbackLayer.rest_length_from_features(l, s_k)`` = l·(1 + W·[s_k, 1]) with the agent's fitted feedback layer
 (the function ``FeedbackLayer.rest_length`` applies offline to ``state_features`` of the body state).
 
-The state comes from ``body/spring_lengths`` (state type ``spring_length``, the default) or
-``body/mass_states`` (``position``, ``velocity``, ``acceleration`` = effort / mass, see
-``messages.acceleration_from_effort``). With
+The state comes from ``body/positions`` (state type ``spring_length``, the default: the spring lengths computed from
+the mass positions as the body computes them, ``live.feedback.spring_lengths``) or ``body/mass_states``
+(``position``, ``velocity``, ``acceleration`` = effort / mass, see ``messages.acceleration_from_effort``; the
+launchers have the body publish it every step). With
 ``open_loop_steps`` = W > 0 the SWG drives steps 0…W (answering ``/clock``) and the feedback layer
 takes over from step W+1 — the paper's transfer from the SWG to the feedback layer, offline
 ``simulate_open_loop(agent, W)`` followed by ``simulate_closed_loop(..., state=final)``. With W = 0
@@ -20,7 +21,9 @@ from __future__ import annotations
 import sys
 import time
 
-import torch
+import numpy as np
+from geometry_msgs.msg import PoseArray
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
@@ -28,9 +31,10 @@ from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.live.feedback import FeedbackCommands
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
+from bptsb_ros.ros.cdr_in import JointStateReader, PoseArrayReader
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import feedback_state_key, spring_names
+from bptsb_ros.ros.topics import feedback_state_key, mass_dof_names, spring_names, stamp_to_step
 
 NODE = "feedback_brain"
 PARAMS = (
@@ -41,7 +45,7 @@ PARAMS = (
     Param("noise", 0.0, "σ of Gaussian noise added to every state feature before the feedback layer, in the "
           "state's unit (m, m/s or m/s²); 0: none", "float", minimum=0.0, dynamic=True),
     Param("noise_seed", 0, "seed of the feedback noise", "int", minimum=0),
-) + topic_params(("clock", "spring_lengths", "mass_states", "rest_length_cmd"))
+) + topic_params(("clock", "positions", "mass_states", "rest_length_cmd"))
 
 
 class FeedbackBrain(BrainNode):
@@ -65,29 +69,59 @@ class FeedbackBrain(BrainNode):
         self.state_type = agent.feedback.state_type
         self.pub = self.output(JointState, p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.command = self.joint_state_out(self.names, "position")
-        self.subscribe_newest(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth))
-        state_topic = p[f"topics.{feedback_state_key(self.state_type)}"]
-        self.subscribe_newest(JointState, state_topic, self._on_state, m.state_qos(self.depth))
+        self.clock_sub = self.subscribe_newest(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth),
+                                               raw=True)
+        self.feed_sim_time()  # from the ticks, then (past the open loop) from the states' stamps
+        key = feedback_state_key(self.state_type)
+        state_topic = p[f"topics.{key}"]
+        if key == "positions":
+            self.reader: PoseArrayReader | JointStateReader = PoseArrayReader()
+            self.subscribe_newest(PoseArray, state_topic, self._on_state, m.state_qos(self.depth), raw=True)
+        else:
+            self.reader = JointStateReader(mass_dof_names(agent.body.movable_index.tolist()))
+            self.subscribe_newest(JointState, state_topic, self._on_state, m.state_qos(self.depth), raw=True)
         self.get_logger().info(f"feedback layer of {self.source_text()}: state {self.state_type} from {state_topic}, "
                                f"{len(self.names)} springs, open loop for steps 0..{self.open_loop}, gain "
                                f"{p['gain']:g}, noise σ {p['noise']:g}")
 
-    def _send(self, step: int, rest: torch.Tensor, started: float) -> None:
-        self.publish_timed(self.pub, self.command(step, rest.reshape(-1).double().numpy()), started)
+    def _send(self, step: int, rest: np.ndarray, started: float) -> None:
+        self.publish_timed(self.pub, self.command(step, rest.reshape(-1)), started)
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, data: bytes) -> None:
         started = time.monotonic()
-        step = m.step_of(msg.clock, self.dt_ns)
+        step = self.clock_step(data)
         rest = self.commands.on_clock(step)
         if rest is not None:
             self._send(step, rest, started)
+        elif self.clock_sub is not None:  # past the open loop (sim time never goes back): the ticks are not needed
+            self.destroy_trigger(self.clock_sub)
+            self.clock_sub = None
 
-    def _on_state(self, msg: JointState) -> None:
+    def _state_values(self, data: bytes) -> tuple[int, np.ndarray]:
+        """The step and the values of a state message: positions (N, 2) of ``body/positions``, or the field of
+        ``body/mass_states`` that the state type reads (from its bytes, or deserialized when they are unusual)."""
+        read = self.reader.read(data)
+        if isinstance(self.reader, PoseArrayReader):
+            if read is not None:
+                ns, values = read
+            else:
+                msg = deserialize_message(data, PoseArray)
+                ns, values = m.stamp_ns(msg.header.stamp), m.pose_array_positions(msg)
+        else:
+            field = {"position": "position", "velocity": "velocity", "acceleration": "effort"}[self.state_type]
+            if read is not None:
+                ns, values = read.stamp_ns, getattr(read, field)
+            else:
+                msg = deserialize_message(data, JointState)
+                ns, values = m.stamp_ns(msg.header.stamp), m.as_array(getattr(msg, field))
+        if self.clock_sub is None:
+            self.sim_time(ns)
+        return stamp_to_step(0, ns, self.dt_ns), values
+
+    def _on_state(self, data: bytes) -> None:
         started = time.monotonic()
-        step = m.step_of(msg.header.stamp, self.dt_ns)
-        field = {"spring_length": msg.position, "position": msg.position, "velocity": msg.velocity,
-                 "acceleration": msg.effort}[self.state_type]
-        rest = self.commands.on_state(step, m.as_array(field), self.p["gain"], self.p["noise"])
+        step, values = self._state_values(data)
+        rest = self.commands.on_state(step, values, self.p["gain"], self.p["noise"])
         if isinstance(rest, str):
             self.warn(f"bad_state:{self.state_type}", rest)
         elif rest is not None:

@@ -63,13 +63,14 @@ class ImageStreamer(BrainNode):
         self.names = ["label"]
         self.image_pub = self.output(Image, p["topics.image"], m.command_qos(self.depth))
         self.label_pub = self.output(JointState, p["topics.label"], m.command_qos(self.depth))
-        self.create_subscription(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth))
+        self.create_subscription(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth), raw=True)
+        self.feed_sim_time()
         self.get_logger().info(f"streaming {len(self.labels)} images from {p['images']} (first {p['first']}), one "
                                f"every {self.episode_steps} steps")
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, data: bytes) -> None:
         started = time.monotonic()
-        step = m.step_of(msg.clock, self.dt_ns)
+        step = self.clock_step(data)
         index = shown_image(step, self.episode_steps, len(self.labels))
         if index is None:
             return

@@ -57,6 +57,11 @@ def stamp(step: int, dt_ns: int) -> Time:
     return Time(sec=sec, nanosec=nanosec)
 
 
+def stamp_ns(time_msg: Time) -> int:
+    """A builtin_interfaces/Time in nanoseconds."""
+    return time_msg.sec * 1_000_000_000 + time_msg.nanosec
+
+
 def step_of(time_msg: Time, dt_ns: int) -> int:
     """Step index of a stamp."""
     return stamp_to_step(time_msg.sec, time_msg.nanosec, dt_ns)

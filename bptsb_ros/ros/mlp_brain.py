@@ -2,7 +2,8 @@
 
 Each ``task/input`` message u stamped t_k becomes the force command in force at step k,
 ``bptsb_ros.agent.brain_forces(agent, input_scale·u)`` — the function the offline simulation and
-NARMA training use (the CMP gets no force). Published as ``brain/force`` (JointState effort, newtons).
+NARMA training use (the CMP gets no force), evaluated in numpy from the trained weights
+(:class:`~bptsb_ros.brains.inference.ForceMap`). Published as ``brain/force`` (JointState effort, newtons).
 """
 
 from __future__ import annotations
@@ -10,16 +11,18 @@ from __future__ import annotations
 import sys
 import time
 
-import torch
+import numpy as np
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
-from bptsb_ros.agent import brain_forces
 from bptsb_ros.brains import LinearInputLayer, MLPBrain
+from bptsb_ros.brains.inference import ForceMap
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
+from bptsb_ros.ros.cdr_in import JointStateReader
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import mass_dof_names
+from bptsb_ros.ros.topics import input_names, mass_dof_names, stamp_to_step
 from bptsb_ros.tasks.narma import brain_input
 
 NODE = "mlp_brain"
@@ -44,21 +47,30 @@ class MlpBrain(BrainNode):
         self.names = mass_dof_names(body.movable_index.tolist())
         self.pub = self.output(JointState, self.p["topics.force_cmd"], m.command_qos(self.depth))
         self.command = self.joint_state_out(self.names, "effort")
-        self.subscribe_newest(JointState, self.p["topics.task_input"], self._on_input, m.state_qos(self.depth))
+        self.forces = ForceMap(agent)
+        self.reader = JointStateReader(input_names(self.n_in))
+        self.subscribe_newest(JointState, self.p["topics.task_input"], self._on_input, m.state_qos(self.depth),
+                              raw=True)
+        self.feed_sim_time()  # from the inputs' stamps
         self.get_logger().info(f"{type(agent.brain).__name__} of {self.source_text()}: {self.n_in} input(s) × "
                                f"{self.scale:g} → forces on {body.n_movable} movable masses")
 
-    def _on_input(self, msg: JointState) -> None:
+    def _on_input(self, data: bytes) -> None:
         started = time.monotonic()
-        step = m.step_of(msg.header.stamp, self.dt_ns)
-        u = torch.from_numpy(m.as_array(msg.position)).to(self.agent.dtype)
-        if u.numel() != self.n_in or not bool(torch.isfinite(u).all()):
+        read = self.reader.read(data)
+        if read is None:  # not the usual bytes: deserialized
+            msg = deserialize_message(data, JointState)
+            ns, u = m.stamp_ns(msg.header.stamp), m.as_array(msg.position)
+        else:
+            ns, u = read.stamp_ns, read.position
+        self.sim_time(ns)
+        step = stamp_to_step(0, ns, self.dt_ns)
+        if u.size != self.n_in or not np.isfinite(u).all():
             self.warn("bad_input", f"ignored task input of step {step}: {u.tolist()} (expected {self.n_in} "
                       "finite values)")
             return
-        with torch.no_grad():
-            force = brain_forces(self.agent, brain_input(u, self.narma))
-        self.publish_timed(self.pub, self.command(step, force.reshape(-1).double().numpy()), started)
+        force = self.forces(brain_input(u.astype(self.forces.dtype), self.narma))
+        self.publish_timed(self.pub, self.command(step, force.reshape(-1)), started)
 
 
 def main(args: list[str] | None = None) -> int:

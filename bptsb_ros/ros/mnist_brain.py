@@ -50,6 +50,7 @@ class MnistBrain(BrainNode):
         self.names = mass_dof_names(self.system.body.movable_index.tolist())
         self.pub = self.output(JointState, self.p["topics.reset_cmd"], m.command_qos(self.depth))
         self.create_subscription(Image, self.p["topics.image"], self._on_image, m.state_qos(self.depth))
+        self.feed_sim_time()  # from the images' stamps
         self.get_logger().info(f"{self.system.spec.name}: images -> displacements of {self.system.n_driven} masses")
 
     def _on_image(self, msg: Image) -> None:
@@ -58,6 +59,7 @@ class MnistBrain(BrainNode):
         if problem:
             self.warn("bad_image", f"refused camera image: {problem}; no reset sent")
             return
+        self.sim_time(m.stamp_ns(msg.header.stamp))
         step = m.step_of(msg.header.stamp, self.dt_ns)
         image = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(1, IMAGE_SIDE, IMAGE_SIDE)
         with torch.no_grad():

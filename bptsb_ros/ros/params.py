@@ -162,14 +162,17 @@ READ_ONLY_REASONS: dict[str, str] = {
     **dict.fromkeys(("wait_for", "wait_for_subscribers", "startup_timeout", "min_subscribers"),
                     "only used while the loop starts up"),
     **dict.fromkeys(("command_timeout", "max_command_age", "min_rest_length", "max_rest_length", "max_force",
-                     "max_wind", "command_publishers", "perturb_publishers", "on_divergence"),
+                     "max_wind", "command_publishers", "perturb_publishers", "on_divergence", "control_callers",
+                     "pause_timeout"),
                     "a safety rule: it must hold for the whole run and not be loosened by anyone who can reach the "
                     "parameter services"),
     **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
     "timing_path": "the records cover every step of the run from the first; they are written when the node stops",
     "rt_priority": "the scheduling policy is set once, when stepping begins",
     "frame_id": "viewers and the bag expect one frame for the whole run",
-    "paused": "only the start; the ~/pause and ~/resume services pause and resume the running body",
+    "every_step": "a node of the loop reads these topics every step from the start (the launchers set it for the "
+                  "loop's brains); a topic must not thin out under it",
+    "start_paused": "only the start; the ~/pause and ~/resume services pause and resume the running body",
     **dict.fromkeys(("open_loop_steps", "input_seed", "tau", "input_scale", "perturb_at", "perturb_sigma",
                      "perturb_seed", "schedule", "force", "force_y", "period", "schedule_seed", "hold_periods",
                      "timing", "start_on", "file"), "part of the run's definition "

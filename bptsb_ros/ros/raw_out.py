@@ -5,17 +5,22 @@ and float arrays rewritten in place (no message objects built or converted per s
 hundreds of microseconds per step, a ``MarkerArray`` milliseconds. A :class:`RawTemplate` is made once from the
 same builder function the node would call every step (:mod:`bptsb_ros.ros.messages`): it serializes the builder's
 message for *sentinel* values, finds where each stamp and each value lies in the bytes, and from then on writes a
-step's stamp and values into those places of one buffer; ``Publisher.publish`` sends the bytes as they are. The
-layout is whatever rclpy's serializer produced, so the bytes are the ones the message objects would have given
-(same topics, types and values: bags, replays and subscribers see no difference; only the padding bytes between
-fields, which CDR leaves undefined and readers skip, are those of the sentinel message). The template checks at
-construction that its bytes for a second, random set of values deserialize to what the serialized message of the
-builder deserializes to, and refuses itself (:class:`TemplateError`) when they do not; the node then publishes
-message objects as before.
+step's stamp and values into those places of one buffer; ``Publisher.publish`` sends the bytes as they are.
+
+The bytes are exact CDR (:func:`exact_cdr`): made by the strict serializer of ``rosbags`` from the builder's message,
+with zeros in the alignment padding and nothing after the last field, so every reader accepts them (``rosbags``'
+``deserialize_cdr`` refuses a message with more than 3 bytes after its content, and ``rclpy.serialize_message``
+leaves up to 8 unwritten bytes after a ``JointState`` with empty arrays: bags of bptsb_ros 0.2.0 and older carry
+them on their ``JointState`` topics). The template checks at construction that its bytes for a second, random set of
+values are the exact CDR of the builder's message for those values, byte for byte, and that rclpy reads them as
+that message; it refuses itself (:class:`TemplateError`) when they are not, and the node then publishes message
+objects as before.
 """
 
 from __future__ import annotations
 
+import array
+import functools
 import struct
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -39,12 +44,8 @@ def _sentinels(shape: tuple[int, ...], dtype: np.dtype, salt: int) -> np.ndarray
 
 
 def _find_each(data: bytes, values: np.ndarray) -> np.ndarray:
-    """Byte offset of every element of ``values`` in ``data``: its first occurrence.
-
-    A value can occur twice: rclpy's serialized buffer may end in bytes the CDR content does not fill (8 of them
-    after a ``JointState`` with empty ``velocity`` and ``effort``), left from an earlier serialization in the
-    process, and those can hold an earlier template's sentinel. The content comes first, so the first occurrence
-    is the field's; a wrong pick cannot pass unnoticed, as the check render would then differ."""
+    """Byte offset of every element of ``values`` in ``data``: its first occurrence (a wrong pick cannot pass
+    unnoticed: the check render would then differ)."""
     out = np.empty(values.size, dtype=np.int64)
     for i, value in enumerate(values.reshape(-1)):
         at = data.find(value.tobytes())
@@ -52,6 +53,42 @@ def _find_each(data: bytes, values: np.ndarray) -> np.ndarray:
             raise TemplateError(f"value {i} of a field not found in the bytes")
         out[i] = at
     return out
+
+
+def ros_type_name(msg: Any) -> str:
+    """``pkg/msg/Type`` of an rclpy message object."""
+    cls = type(msg)
+    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+
+
+@functools.cache
+def _typestore() -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _as_rosbags(value: Any, store: Any) -> Any:
+    """An rclpy message (or field value) as the ``rosbags`` message of the same type and values."""
+    if hasattr(value, "get_fields_and_field_types"):
+        cls = store.types[ros_type_name(value)]
+        return cls(**{name: _as_rosbags(getattr(value, name), store) for name in value.get_fields_and_field_types()})
+    if isinstance(value, array.array):  # a numeric sequence: rosbags wants a numpy array of the element type
+        return np.frombuffer(value, dtype=value.typecode).copy() if len(value) else np.zeros(0, value.typecode)
+    if isinstance(value, list):
+        return [_as_rosbags(item, store) for item in value]
+    return value
+
+
+def exact_cdr(msg: Any) -> bytes:
+    """The CDR bytes (little endian, with their 4-byte encapsulation header) of an rclpy message of a ROS 2 Jazzy
+    type, as a strict serializer writes them: zero padding, nothing after the last field. Raises TemplateError for a
+    type that Jazzy does not define."""
+    store = _typestore()
+    name = ros_type_name(msg)
+    if name not in store.types:
+        raise TemplateError(f"{name} is not a ROS 2 Jazzy message type")
+    return bytes(store.serialize_cdr(_as_rosbags(msg, store), name))
 
 
 class RawTemplate:
@@ -62,15 +99,16 @@ class RawTemplate:
             construction only.
         shapes: the shape of each array argument (a float64 array each; ``float32`` fields of the message, such as
             colours, are given as ``(shape, "float32")``).
-        serialize: ``rclpy.serialization.serialize_message``.
-        deserialize: ``rclpy.serialization.deserialize_message``.
+        deserialize: ``rclpy.serialization.deserialize_message`` (the construction check reads the bytes with it).
         dt_ns: the time step [ns] (stamps are k·dt).
+        serialize: the serializer whose layout the template takes (default :func:`exact_cdr`).
 
     Raises TemplateError when the message cannot be templated (then publish message objects instead).
     """
 
     def __init__(self, build: Callable[..., Any], shapes: Sequence[tuple[int, ...] | tuple[tuple[int, ...], str]],
-                 serialize: Callable[[Any], bytes], deserialize: Callable[[bytes, type], Any], dt_ns: int) -> None:
+                 deserialize: Callable[[bytes, type], Any], dt_ns: int,
+                 serialize: Callable[[Any], bytes] = exact_cdr) -> None:
         self.dt_ns = dt_ns
         self.specs = [(tuple(s[0]), np.dtype(s[1])) if s and isinstance(s[0], tuple) else (tuple(s), np.dtype("f8"))
                       for s in shapes]
@@ -107,13 +145,15 @@ class RawTemplate:
 
     def _check(self, build: Callable[..., Any], serialize: Callable[[Any], bytes],
                deserialize: Callable[[bytes, type], Any]) -> None:
-        """A receiver reads the same message from a render as from the serialized builder's message (compared after
-        deserializing both: float32 fields hold the serializer's rounding on both sides)."""
+        """A render is the serialized builder's message, byte for byte, and rclpy reads it as the message the
+        builder's serialization gives (float32 fields hold the serializer's rounding on both sides)."""
         rng = np.random.default_rng(7)
         arrays = [rng.standard_normal(shape).astype(dtype) for shape, dtype in self.specs]
         want = build(12_345, *arrays)
-        kind = type(want)
-        if deserialize(self.render(12_345, *arrays), kind) != deserialize(serialize(want), kind):
+        kind, data, exact = type(want), self.render(12_345, *arrays), serialize(want)
+        if data != exact:
+            raise TemplateError("a check render is not the serialized message of the builder")
+        if deserialize(data, kind) != deserialize(exact, kind):
             raise TemplateError("a check render does not deserialize to the builder's message")
 
     def render(self, step: int, *arrays: np.ndarray) -> bytes:

@@ -46,6 +46,7 @@ from typing import Any
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
@@ -241,13 +242,30 @@ class RecorderNode(Node):
 
         return take_batch
 
+    def take_ready(self) -> None:
+        """Take every message waiting on the recorded topics, topic by topic, outside the executor (one executor
+        call per topic costs far more than the takes: rclpy rebuilds its wait set for each)."""
+        for topic, sub in list(self._recorded.items()):
+            while True:
+                try:
+                    with sub.handle:
+                        batch = sub.bptsb_take_batch()
+                except InvalidHandle:  # destroyed meanwhile
+                    break
+                if not batch:
+                    break
+                self._on_batch(topic, batch)
+                if len(batch) < BATCH:
+                    break
+
     def _on_batch(self, topic: str, batch: list[tuple[bytes, TakenInfo]]) -> None:
+        sim_now = self.get_clock().now().nanoseconds if self._use_sim_time else 0  # sim time stands still here
         for data, info in batch:
             if self._stop_ns is not None and info.source_timestamp > self._stop_ns:
                 self.after_stop += 1  # published after the stop signal: not part of the recording
                 continue
             if self._use_sim_time:
-                stamp = self.get_clock().now().nanoseconds
+                stamp = sim_now
             else:
                 stamp = info.received_timestamp or time.time_ns()
             sequence = info.publication_sequence_number
@@ -399,7 +417,8 @@ def main(args: list[str] | None = None) -> int:
                 executor.spin_once(timeout_sec=timeout)
 
             while on_stop.ns is None:  # batches: one wake-up per batch_wait while messages arrive
-                take_round(spin, lambda: node.received, time.monotonic, time.sleep, node.config.batch_wait)
+                take_round(spin, lambda: node.received, time.monotonic, time.sleep, node.config.batch_wait,
+                           take_ready=node.take_ready)
             _drain(executor, node, on_stop.ns)  # the loop ends only once a stop signal set it
         except ExternalShutdownException:
             pass

@@ -1,7 +1,8 @@
 """``swg_brain``: rest-length commands l·(1 + A sin(ω t_k + φ)) from a trained sine-wave generator.
 
 On each ``/clock`` tick t_k it publishes the rest lengths in force at step k, computed by
-``bptsb_ros.sim.rollout.swg_rest_lengths`` — the function the offline open-loop simulation uses.
+``bptsb_ros.sim.rollout.swg_rest_lengths`` — the function the offline open-loop simulation uses — for blocks of
+steps at a time (:class:`~bptsb_ros.brains.inference.SwgTable`).
 """
 
 from __future__ import annotations
@@ -9,17 +10,16 @@ from __future__ import annotations
 import sys
 import time
 
-import torch
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
+from bptsb_ros.brains.inference import SwgTable
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.params import ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.topics import spring_names
-from bptsb_ros.sim.rollout import swg_rest_lengths
 
 NODE = "swg_brain"
 PARAMS = topic_params(("clock", "rest_length_cmd"))
@@ -34,16 +34,16 @@ class SwgBrain(BrainNode):
         self.names = spring_names(self.agent.body.topology.n_springs)
         self.pub = self.output(JointState, self.p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.command = self.joint_state_out(self.names, "position")
-        self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
+        self.table = SwgTable(self.agent.body, self.agent.brain)
+        self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth), raw=True)
+        self.feed_sim_time()
         self.get_logger().info(f"SWG of {self.source_text()}: {len(self.names)} springs, "
                                f"ω = {self.agent.brain.omega:.6g} rad/s")
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, data: bytes) -> None:
         started = time.monotonic()
-        step = m.step_of(msg.clock, self.dt_ns)
-        with torch.no_grad():
-            rest = swg_rest_lengths(self.agent.body, self.agent.brain, step, 1)[0]
-        self.publish_timed(self.pub, self.command(step, rest.double().numpy()), started)
+        step = self.clock_step(data)
+        self.publish_timed(self.pub, self.command(step, self.table(step)), started)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -45,7 +45,8 @@ class TaskInput(BrainNode):
         self.names = input_names(1)
         self.pub = self.output(JointState, self.p["topics.task_input"], m.command_qos(self.depth))
         self.command = self.joint_state_out(self.names, "position")
-        self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
+        self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth), raw=True)
+        self.feed_sim_time()
         self.get_logger().info(f"NARMA input u ~ U(0, 1), seed {self.seed}, held {self.tau} steps")
 
     def _hold(self, n_inputs: int) -> None:
@@ -54,9 +55,9 @@ class TaskInput(BrainNode):
         self.series = narma_inputs(self.seed, n_inputs)
         self.held = held_inputs(self.series, self.tau, n_inputs * self.tau)
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, data: bytes) -> None:
         started = time.monotonic()
-        step = m.step_of(msg.clock, self.dt_ns)
+        step = self.clock_step(data)
         if step >= self.held.size:
             self._hold(max(2 * self.series.size, step // self.tau + 1))
         value = self.held[step : step + 1]

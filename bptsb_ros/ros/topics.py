@@ -64,9 +64,10 @@ COMMAND_SOURCES: dict[str, str] = {"rest_length": "rest_length_cmd", "force": "f
 
 
 def feedback_state_key(state_type: str) -> str:
-    """Topic key the feedback brain reads for a feedback-layer state type: ``spring_lengths`` for
-    ``spring_length``, else ``mass_states`` (position, velocity, effort)."""
-    return "spring_lengths" if state_type == "spring_length" else "mass_states"
+    """Topic key the feedback brain reads for a feedback-layer state type: ``positions`` for ``spring_length`` (the
+    brain takes the spring lengths from the mass positions, as the body computes them), else ``mass_states``
+    (position, velocity, effort)."""
+    return "positions" if state_type == "spring_length" else "mass_states"
 
 #: Default history depth of every loop topic: 10 s of steps at dt = 0.01 s.
 DEFAULT_QOS_DEPTH = 1000

@@ -112,16 +112,17 @@ class WindSource(BrainNode):
             extra = read_checkpoint(self.p["agent"])["extra"]
         self.schedule = schedule_from_parameters(self.agent.config, extra, self.p, self.agent.dt)
         self.pub = self.output(Vector3Stamped, self.p["topics.wind"], m.command_qos(self.depth))
-        self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth))
+        self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth), raw=True)
+        self.feed_sim_time()
         self.get_logger().info(f"wind: {self.schedule.describe()}")
 
     def wind_at(self, step: int) -> tuple[float, float]:
         """(F_x, F_y) in force at ``step`` [N]."""
         return self.schedule.force_at(step, self.agent.dt)
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _on_clock(self, data: bytes) -> None:
         started = time.monotonic()
-        step = m.step_of(msg.clock, self.dt_ns)
+        step = self.clock_step(data)
         out = Vector3Stamped()
         out.header.stamp = m.stamp(step, self.dt_ns)
         out.vector.x, out.vector.y = self.wind_at(step)
