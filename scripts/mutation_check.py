@@ -78,6 +78,7 @@ L_S3 = LEARN_MORE + "test_scheme3_refits_the_fl_on_the_last_windows_with_noise_a
 L_FIT = LEARN_MORE + "test_feedback_fit_from_a_running_state_reports_its_clean_input_error"
 L_S1_MASK = LEARN_MORE + "test_scheme1_feedback_layer_drives_only_the_springs_the_swg_drives"
 REPLAY_LISS = "tests/test_replay_lissajous_metrics.py"
+PINS = "tests/test_training_pins.py"
 PERT_ROWS = "tests/test_perturbation_rows.py"
 MASSES = "tests/test_unequal_masses.py"
 L_RATES = (LEARN_MORE + "test_shipped_swg_configs_use_the_paper_table",
@@ -1512,6 +1513,17 @@ MUTANTS: tuple[Mutant, ...] = (
            "    for rule in ():",
            "rules across settings are not checked on the --set values",
            ("tests/test_experiment_settings.py",)),
+    # -- the training pins: a fixed-seed short training of every family, bit for bit ----------------------------
+    Mutant("pins-trainer-fit-seed", "bptsb_ros/training/trainer.py",
+           'metrics["feedback_fit"] = fit_feedback(agent, cfg.feedback, getattr(task, "state", None), cfg.seed)',
+           'metrics["feedback_fit"] = fit_feedback(agent, cfg.feedback, getattr(task, "state", None), cfg.seed + 1)',
+           "the trainer fits the feedback layer with another noise draw",
+           (PINS,)),
+    Mutant("pins-scheme3-fit-windows", "bptsb_ros/training/closed_loop_schemes.py",
+           "xs, ys = xs[-fit_windows:], ys[-fit_windows:]",
+           "xs, ys = xs[-fit_windows - 1:], ys[-fit_windows - 1:]",
+           "scheme 3 re-fits the feedback layer on one window more than asked",
+           (PINS,)),
 )
 
 
