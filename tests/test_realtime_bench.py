@@ -230,8 +230,8 @@ def test_fifo_priority_is_set_or_refused_in_one_line():
 
 
 def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Path, monkeypatch):
-    """The launch a condition runs (subprocess replaced): the body's timing path and rt_priority, and the same
-    executor for body_sim and the loop's brain; a run that leaves no records is an error, not numbers."""
+    """The launch a condition runs (subprocess replaced): the body's timing path and rt_priority (the brain's one
+    below), and the same executor for body_sim and the loop's brain; a run that leaves no records is an error, not numbers."""
     import subprocess
 
     import bptsb_ros.realtime_bench as rb
@@ -244,7 +244,7 @@ def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Pat
     params = [argvs[0][i + 1] for i, arg in enumerate(argvs[0]) if arg == "--param"]
     assert sorted(params) == sorted([f"body_sim:timing_path:={tmp_path / 'idle' / 'step_times.npz'}",
                                      "body_sim:rt_priority:=5", "body_sim:executor:=single",
-                                     "feedback_brain:executor:=single"])
+                                     "feedback_brain:executor:=single", "feedback_brain:rt_priority:=4"])
     assert argvs[0][argvs[0].index("--duration") + 1] == "3" and argvs[0][argvs[0].index("--agent") + 1] == "a"
     assert r["launch_exit_code"] == 0 and "no body summary or no timing records" in r["error"]
     assert argvs[0][argvs[0].index("--rate-scale") + 1] == "1"

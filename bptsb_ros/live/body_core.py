@@ -406,6 +406,12 @@ class BodyCore:
                 new = self.body.step(state, rest_length=rest_t, external_force=force_t)
         return new, self.divergence_of(new)
 
+    def rehearse(self, state: BodyState | None) -> None:
+        """Compute the step after ``state`` under the trained rest lengths and throw it away (nothing of the core
+        changes): the code and data of a step are then in the CPU's caches when the real one comes (realtime)."""
+        if state is not None and self.live_step is not None:
+            self.live_step(state, self.base_np, None)
+
     def divergence_of(self, state: BodyState) -> str | None:
         """Why ``state`` is diverged (non-finite, beyond 1e6 m, or about to be: ``safety.runaway``), or None."""
         try:

@@ -27,6 +27,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import (
@@ -62,6 +63,8 @@ from bptsb_ros.ros.topics import RECORDER_ACK, absolute, stamp_to_step
 NODE = "body_sim"
 #: periods of ``diagnostics_period`` after which the loop status is published whatever the slack
 DIAGNOSTICS_OVERDUE = 5
+#: the hidden topic (nothing subscribes to it, recorders skip it) on which a realtime body rehearses publishing
+WARM_UP_TOPIC = "~/_warm_up"
 #: (key, message type) of every topic the body publishes
 OUTPUTS = (("clock", Clock), ("positions", PoseArray), ("mass_states", JointState), ("spring_lengths", JointState),
            ("rest_length", JointState), ("external_force", JointState), ("markers", MarkerArray),
@@ -113,6 +116,7 @@ class BodySim(Node):
         self._diagnostics_cost = [0.001, 0.001]  # seconds the two parts of the diagnostics took (with a margin)
         self.loop = BodyLoop(core, self)
         self.raw = self._templates() if p["raw_outputs"] else {}
+        self._warm: Any = None  # the publisher of rehearse(), made on first use
         self.get_logger().info(core.describe(p["agent"] or p["config"] or f"fresh {agent.task} agent (seed "
                                              f"{p['seed']})", trained))
 
@@ -260,24 +264,54 @@ class BodySim(Node):
         raw = self.raw.get(key)
         self._publish(key, raw.render(step, *arrays) if raw is not None else build(step, *arrays))
 
+    def rehearse(self, state: BodyState | None) -> None:
+        """The step after ``state`` computed and thrown away, ``body/positions`` and ``/clock`` rendered and the
+        positions sent on a hidden topic of this node that nothing subscribes to (rclpy's and the middleware's
+        publishing code, without a subscriber to deliver to), so that the next real step finds them in the caches."""
+        self.core.rehearse(state)
+        if self._warm is None:
+            self._warm = self.create_publisher(PoseArray, WARM_UP_TOPIC, 1)
+        positions, clock = self.raw.get("positions"), self.raw.get("clock")
+        step = state.step if state is not None else 0
+        if clock is not None:
+            clock.render(step)
+        self._warm.publish(positions.render(step, self.layout) if positions is not None else
+                           m.pose_array(step, self.dt_ns, self.layout, self.p["frame_id"]))
+
     def announce(self, step: int) -> None:
         self._out("clock", step, lambda k: m.clock_msg(k, self.dt_ns))
 
-    def publish(self, out: StepOutput) -> None:
+    def publish(self, out: StepOutput, views: bool = True) -> None:
         """The state of one step on the body's topics (and its perturbation, if any, first): ``body/positions``
         every step, the topics that say it again (:data:`~bptsb_ros.live.body_params.SLOW_OUTPUTS`) every
         ``state_every`` steps (:meth:`_slow_due`) or, those in ``every_step``, every step; markers every
-        ``marker_every`` steps."""
-        k, ns, frame, core, p = out.state.step, self.dt_ns, self.p["frame_id"], self.core, self.p
+        ``marker_every`` steps. ``views`` False: only what the loop's nodes read (the perturbation, the positions,
+        the ``every_step`` topics); :meth:`publish_views` sends the rest."""
+        k, ns, frame, core = out.state.step, self.dt_ns, self.p["frame_id"], self.core
         if out.perturbation is not None:
             self._publish("perturbation", m.joint_state(k, ns, core.dof_names, position=out.perturbation,
                                                         frame_id=frame))
-        r, v, a, length, rest, force = out.arrays()
+        r = out.arrays()[0]
         full = self.layout.copy()
         full[self.movable] = r
         self._out("positions", k, lambda k, r: m.pose_array(k, ns, r, frame), full)
-        due = self._slow_due(k)
-        markers = k % p["marker_every"] == 0
+        self._state_topics(out, full, read=True, views=views)
+
+    def publish_views(self, out: StepOutput) -> None:
+        """What :meth:`publish` with ``views`` False left out of ``out``'s step: the thinned state topics that no
+        node of the loop reads, and the markers (for viewers and the bag)."""
+        full = self.layout.copy()
+        full[self.movable] = out.arrays()[0]
+        self._state_topics(out, full, read=False, views=True)
+
+    def _state_topics(self, out: StepOutput, full: np.ndarray, read: bool, views: bool) -> None:
+        """The slower state topics due at ``out``'s step (``read``: those of ``every_step``, which nodes of the loop
+        read; ``views``: the others) and, with ``views``, the markers; ``full``: the positions of all masses (N, 2)."""
+        k, ns, frame, core, p = out.state.step, self.dt_ns, self.p["frame_id"], self.core, self.p
+        r, v, a, length, rest, force = out.arrays()
+        every = p["every_step"]
+        due = {key: on and (views if key not in every else read) for key, on in self._slow_due(k).items()}
+        markers = views and k % p["marker_every"] == 0
         if due["mass_states"]:
             self._out("mass_states", k, lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r,
                                                                          velocity=v, effort=f, frame_id=frame),
@@ -379,6 +413,8 @@ class BodySim(Node):
                      else f"stepping under SCHED_FIFO priority {self.p['rt_priority']} ({others} middleware "
                      f"thread(s) of this process at {below})")
             self.core.rt_priority = 0 if problem else self.p["rt_priority"]
+            if self.core.rt_priority and self.p["busy_wait"] > 0:
+                self._warm = self.create_publisher(PoseArray, WARM_UP_TOPIC, 1)  # made now, not in the first wait
         diverged = self.loop.run()
         summary = self.core.summary()
         self.get_logger().info(self.core.end_text(summary, diverged, self.stop.reason))
