@@ -63,6 +63,8 @@ from bptsb_ros.ros.topics import RECORDER_ACK, absolute, stamp_to_step
 NODE = "body_sim"
 #: periods of ``diagnostics_period`` after which the loop status is published whatever the slack
 DIAGNOSTICS_OVERDUE = 5
+#: seconds after which the publishers of an input topic are looked up in the graph again (same publisher count)
+GRAPH_PERIOD = 0.5
 #: the hidden topic (nothing subscribes to it, recorders skip it) on which a realtime body rehearses publishing
 WARM_UP_TOPIC = "~/_warm_up"
 #: (key, message type) of every topic the body publishes
@@ -92,6 +94,8 @@ class BodySim(Node):
         self.layout = self.body.positions0.detach().numpy().astype(np.float64)  # (N, 2): fixed masses stay there
         self.movable = self.body.movable_index.numpy()
         self.callbacks, self._intruders = 0, {}  # _intruders: source -> (publisher count, when, untrusted names)
+        self._graph_due: set[str] = set()  # sources whose periodic graph query waits for slack (realtime)
+        self._graph_cost = 0.001  # seconds a graph query took lately (with a margin)
         topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED + (RECORDER_ACK,)}
         sq = m.state_qos(p["qos_depth"])
         self.pubs = {key: self.create_publisher(kind, topic[key], sq) for key, kind in OUTPUTS}
@@ -189,15 +193,37 @@ class BodySim(Node):
 
     def _untrusted(self, source: str, now: float) -> list[str]:
         """Publishers on ``source``'s topic that its publisher rule does not allow; the graph is queried again when
-        the publisher count changes, and at least every 0.5 s (at once while a node name is still unknown)."""
+        the publisher count changes, and at least every ``GRAPH_PERIOD`` s (at once while a node name is still
+        unknown). A realtime body leaves the periodic query to the slack after a step (:meth:`_refresh_graph`; a
+        query takes 0.3 ms, at times over a millisecond), unless it is ``DIAGNOSTICS_OVERDUE`` periods late."""
         count = self.subs[source].get_publisher_count()
         cached = self._intruders.get(source)
-        if cached is None or cached[0] != count or now - cached[1] > 0.5:
-            names = self._publisher_names(self.subs[source].topic_name)
-            cached = (count, now if UNKNOWN_NODE not in {n for _, n in names} else -math.inf,
-                      self.core.publisher_rules[source].untrusted(names))
-            self._intruders[source] = cached
+        if cached is None or cached[0] != count:
+            return self._query_untrusted(source, count, now)
+        age = now - cached[1]
+        if age > GRAPH_PERIOD:
+            if self.p["mode"] != "realtime" or age > DIAGNOSTICS_OVERDUE * GRAPH_PERIOD:
+                return self._query_untrusted(source, count, now)
+            self._graph_due.add(source)
         return cached[2]
+
+    def _query_untrusted(self, source: str, count: int, now: float) -> list[str]:
+        names = self._publisher_names(self.subs[source].topic_name)
+        cached = (count, now if UNKNOWN_NODE not in {n for _, n in names} else -math.inf,
+                  self.core.publisher_rules[source].untrusted(names))
+        self._intruders[source] = cached
+        self._graph_due.discard(source)
+        return cached[2]
+
+    def _refresh_graph(self, slack: float) -> None:
+        """Query the graph for one source whose periodic query :meth:`_untrusted` left for later, when ``slack``
+        (seconds until the next step is due) exceeds twice what a query took lately (a slowly decaying maximum)."""
+        if not self._graph_due or slack < self._graph_cost:
+            return
+        source = self._graph_due.pop()
+        began = time.monotonic()
+        self._query_untrusted(source, self.subs[source].get_publisher_count(), began)
+        self._graph_cost = max(0.9 * self._graph_cost, 2 * (time.monotonic() - began))
 
     def _publisher_names(self, topic: str) -> list[tuple[str, str]]:
         """(namespace, node name) of every publisher on ``topic`` (``UNKNOWN_NODE`` while DDS has not named it)."""
@@ -349,6 +375,7 @@ class BodySim(Node):
         than a 1 kHz realtime body has to spare after a step: with ``slack`` (seconds until the next step is due)
         it is done in two parts, each in a turn whose slack exceeds twice what that part took lately (a slowly
         decaying maximum), and in any case once it is ``DIAGNOSTICS_OVERDUE`` periods late."""
+        self._refresh_graph(slack)
         now = time.monotonic()
         if not force and not error:
             if now < self.next_diagnostics:
@@ -401,6 +428,8 @@ class BodySim(Node):
 
     def run(self) -> int:
         self.loop.wait_startup(self._startup_missing)
+        for source in self.subs:  # the first command of each source then finds its publishers looked up
+            self._untrusted(source, time.monotonic())
         # everything built so far (torch, numba, the agent, the middleware's objects) lives to the end: out of the
         # garbage collector's sight, a full collection during the run does not walk it (several ms a time)
         gc.collect()
