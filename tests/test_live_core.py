@@ -656,3 +656,20 @@ def test_feedback_acceleration_features_are_effort_over_mass():
     np.testing.assert_array_equal(feats, (effort.reshape(-1, 2) / mass[:, None]).reshape(-1))
     assert FeedbackCommands(a).on_state(0, effort[:-2]) == ("ignored mass states (acceleration) of step 0: 24 values, "
                                                             "expected 26")
+
+
+def test_the_body_steps_once_at_construction_and_rehearsing_changes_nothing(monkeypatch):
+    """The live step is called once while the core is built (numba compiles or loads it then, not at the first step
+    of a realtime run); ``rehearse`` computes a step and throws it away: the next real step is as without it."""
+    from bptsb_ros.body.live_step import LiveStep
+
+    calls = []
+    real = LiveStep.__call__
+    monkeypatch.setattr(LiveStep, "__call__", lambda self, *a: calls.append(1) or real(self, *a))
+    c, plain = core(), core()
+    assert len(calls) == 2
+    s0, p0 = c.integrate(None, 0).state, plain.integrate(None, 0).state
+    c.rehearse(s0)
+    assert len(calls) == 3
+    np.testing.assert_array_equal(c.integrate(s0, 1).state.r[0].numpy(), plain.integrate(p0, 1).state.r[0].numpy())
+    assert c.summary()["steps"] == plain.summary()["steps"] == 1

@@ -231,7 +231,8 @@ def test_fifo_priority_is_set_or_refused_in_one_line():
 
 def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Path, monkeypatch):
     """The launch a condition runs (subprocess replaced): the body's timing path and rt_priority (the brain's one
-    below), and the same executor for body_sim and the loop's brain; a run that leaves no records is an error, not numbers."""
+    below), and the same executor for body_sim and the loop's brain; a run that leaves no records is an error, not
+    numbers."""
     import subprocess
 
     import bptsb_ros.realtime_bench as rb

@@ -160,6 +160,9 @@ class BodyCore:
         self.mass = body.mass.detach().numpy().copy()
         with torch.no_grad():  # the compiled one-body step where the body's steps run in the kernel
             self.live_step = LiveStep(body) if body.uses_kernel() else None
+            if self.live_step is not None:  # compiled (or loaded from numba's cache) now, not at the first step
+                first = body.initial_state(1, rest_length=self.base)
+                self.rehearse(BodyState(first.r, first.v, first.a, first.length, 0))
         depth = p["qos_depth"]
         max_age = max(1, int(math.floor(p["max_command_age"] / body.dt + 1e-9)))
         amplitude = getattr(agent.brain, "amplitude", None)
