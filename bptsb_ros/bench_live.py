@@ -1,17 +1,17 @@
 """``bptsb bench --live``: steps per second of lockstep live loops while a bag is recorded, as a ratio to a bare
 rclpy anchor measured in the same run, where each step's wall time goes, and each node process's CPU per step.
 
-Each run is ``bptsb launch <loop> --bag DIR --duration S`` (lockstep; the recorder acknowledges, ``body_sim`` waits
-for it), exactly as a user starts it. ``body_sim`` times every step's phases (:mod:`bptsb_ros.live.phases`:
-recorder wait, publish, wait for commands, compute) and writes them into its ``body_summary.json``; start-up is not
-in them. A :class:`CpuSampler` reads the CPU time of every node process (all its threads) ten times a second, and
-the CPU of each inside the body's stepping window, divided by the steps, is its CPU per step. Between the loop runs
-runs the anchor (:mod:`bptsb_ros.live_anchor`: two processes ping-pong a 50-float message with the loops' QoS,
-pre-serialized, on the EventsExecutor, and a recorder process takes both topics every 20 ms): what the middleware
-gives where it runs, now. Each loop run's ``ratio_to_anchor`` is its steps/s over the mean round trips/s of the
-anchor runs just before and after it (:func:`with_ratios`), so that a change in the machine's load hits both alike;
-runs of several loops are interleaved (anchor, loop A, anchor, loop B, anchor, ...). ``lissajous_closed`` needs a
-fitted feedback layer: the bench fits one on a fresh Lissajous agent (10 s of sim time) in its work folder first.
+Each run is ``bptsb launch <loop> --bag DIR --duration S`` (lockstep; the recorder acknowledges, ``body_sim`` waits for
+it), exactly as a user starts it. ``body_sim`` times every step's phases (:mod:`bptsb_ros.live.phases`: recorder wait,
+publish, wait for commands, compute) and writes them into its ``body_summary.json``; start-up is not in them. A
+:class:`CpuSampler` reads the CPU time of every node process (all its threads) ten times a second, and the CPU of each
+inside the body's stepping window, divided by the steps, is its CPU per step. Between the loop runs runs the anchor
+(:mod:`bptsb_ros.live_anchor`: two processes ping-pong a 50-float message with the loops' QoS, pre-serialized, on the
+EventsExecutor, and a recorder process takes both topics every 20 ms): what the middleware gives where the bench runs,
+at that time. Each loop run's ``ratio_to_anchor`` is its steps/s over the mean round trips/s of the anchor runs just
+before and after it (:func:`with_ratios`), so that a change in the machine's load hits both alike; runs of several loops
+are interleaved (anchor, loop A, anchor, loop B, anchor, ...). ``lissajous_closed`` needs a fitted feedback layer: the
+bench fits one on a fresh Lissajous agent (10 s of sim time) in its work folder first.
 
 The runs use the caller's ROS_DOMAIN_ID (use a private one).
 """

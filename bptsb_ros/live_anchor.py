@@ -1,11 +1,12 @@
 """The anchor of ``bptsb bench --live``: a bare rclpy ping-pong, measured in the same run as the loops.
 
-What the middleware alone gives where it runs, now: ``ping`` publishes a 50-float ``std_msgs/Float64MultiArray``,
-``pong`` answers every ping with one, and ``ping`` sends the next ping when the pong is in — one round trip, as a
-lockstep step is one (``/clock`` out, the command back). A ``recorder`` process takes both topics in rounds of
-20 ms, as a bag recorder does. Each side publishes pre-serialized bytes (no message objects) and handles its messages
-raw on rclpy's EventsExecutor; every topic has the loops' QoS (:func:`bptsb_ros.ros.messages.state_qos`: reliable,
-volatile, keep-last 1000). Nothing else: no stamps checked, no bag written.
+What the middleware alone gives where the bench runs, at that time: ``ping`` publishes a 50-float
+``std_msgs/Float64MultiArray``, ``pong`` answers every ping with one, and ``ping`` sends the next ping when the pong is
+in — one round trip, as a lockstep step is one (``/clock`` out, the command back). A ``recorder`` process takes both
+topics in rounds of 20 ms, as a bag recorder does. Each side publishes pre-serialized bytes (no message objects) and
+handles its messages raw on rclpy's EventsExecutor; every topic has the loops' QoS
+(:func:`bptsb_ros.ros.messages.state_qos`: reliable, volatile, keep-last 1000). Nothing else: no stamps checked, no bag
+written.
 
 Two shapes: ``split`` (ping, pong and the recorder in three processes, as a loop's body, brain and recorder) and
 ``composed`` (ping and pong as two nodes in one process on one executor, the recorder in its own; the anchor of a

@@ -112,6 +112,8 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
             "--param", f"body_sim:timing_path:={timing_path}", "--param", f"body_sim:rt_priority:={rt_priority}"]
     for node in ("body_sim", *(b.executable for b in LOOPS[loop].brains)):
         argv += ["--param", f"{node}:executor:={executor}"]
+        if rt_priority and node != "body_sim":  # the brains one below the body, which preempts them
+            argv += ["--param", f"{node}:rt_priority:={max(1, rt_priority - 1)}"]
     if agent:
         argv += ["--agent", agent]
     progress(f"realtime bench: {name}: {loop} for {seconds:g} s at {rate_scale:g}x real time with {busy} busy "

@@ -298,6 +298,7 @@ class FakePort:
         self.core, self.brain, self.cost, self.stop_at = core, brain, cost, stop_at
         self.t, self.inbox, self.seq = 0.0, [], itertools.count()
         self.outputs, self.clocks, self.logs, self.gone = [], [], [], set()
+        self.viewed = []  # the steps whose viewers' topics went out
 
     def send(self, delay: float, fn) -> None:
         heapq.heappush(self.inbox, (self.t + delay, next(self.seq), fn))
@@ -335,9 +336,13 @@ class FakePort:
         if self.brain:
             self.brain(self, step)
 
-    def publish(self, out) -> None:
+    def publish(self, out, views: bool = True) -> None:
         self.outputs.append(out)
         self.t += self.cost
+        self.viewed += [out.state.step] if views else []
+
+    def publish_views(self, out) -> None:
+        self.viewed.append(out.state.step)
 
     def diagnostics(self, slack: float = float("inf")) -> None:
         pass
@@ -371,6 +376,7 @@ def test_lockstep_loop_equals_the_offline_steps_and_rejects_a_stale_command():
     port = FakePort(c, brain)
     assert BodyLoop(c, port).run() is False
     assert port.clocks == list(range(21)) and [o.state.step for o in port.outputs] == list(range(21))
+    assert port.viewed == list(range(21))
     for got, want in zip(port.outputs, offline(RESTS), strict=True):
         np.testing.assert_array_equal(got.state.r[0].numpy(), want)
     s = c.summary()
@@ -436,7 +442,7 @@ def test_realtime_loop_schedule_jitter_misses_and_newest_command():
     port = FakePort(c, brain, cost=0.004)
     BodyLoop(c, port).run()
     applied = [o.rest.numpy() for o in port.outputs]
-    assert len(applied) == 10
+    assert len(applied) == 10 and port.viewed == list(range(10))  # each step's viewers' topics once, after it
     for k in range(10):  # clock t_{k+1} goes out after step k; the answer arrives 2 ms later, before step k+1
         np.testing.assert_array_equal(applied[k], RESTS[k - k % 2])
     s = c.summary()
@@ -448,6 +454,57 @@ def test_realtime_loop_schedule_jitter_misses_and_newest_command():
     BodyLoop(slow, port).run()
     assert slow.stats.deadline_misses == 5
     assert slow.stats.jitter.max == pytest.approx(4 * 0.005)  # step k starts 5 ms later than the one before
+
+
+class PollingPort(FakePort):
+    """A fake port whose ``drain`` takes ``poll`` seconds and ``rehearse`` 2.5 times that; records (time, timeout)
+    of every sleep (``spin_once``), the time of every poll (``drain``) and (time, step) of every rehearsal."""
+
+    def __init__(self, core: BodyCore, poll: float = 0.0001) -> None:
+        super().__init__(core)
+        self.poll, self.sleeps, self.polls, self.rehearsals = poll, [], [], []
+
+    def spin_once(self, timeout: float) -> None:
+        self.sleeps.append((self.t, timeout))
+        super().spin_once(timeout)
+
+    def drain(self) -> None:
+        self.polls.append(self.t)
+        super().drain()
+        self.t += self.poll
+
+    def rehearse(self, state) -> None:
+        self.rehearsals.append((self.t, None if state is None else state.step))
+        self.t += 2.5 * self.poll
+
+
+@pytest.mark.parametrize("rt", [0, 10])
+def test_realtime_under_rt_priority_polls_the_last_busy_wait_before_each_step(rt):
+    """Steps due at 10 ms intervals; under rt_priority the body sleeps until 2 ms (busy_wait) before each is due and
+    polls and rehearses the step after its last state from then on, the last rehearsal ending before the step is due;
+    on the normal scheduler it sleeps until the step is due; the schedule is the same."""
+    c = core(mode="realtime", max_steps=3, busy_wait=0.002)
+    c.rt_priority = rt
+    port = PollingPort(c)
+    BodyLoop(c, port).run()
+    due = [0.01 * (k + 1) for k in range(4)]  # /clock t_0 at 0, step k due one period after
+    assert c.stats.jitter.max < 0.0002 and len(port.outputs) == 4
+    sleep_ends = [t + timeout for t, timeout in port.sleeps]
+    for d in due:
+        woke = max(e for e in sleep_ends if e <= d + 1e-12)
+        assert woke == pytest.approx(d - 0.002 if rt else d, abs=1e-9)
+        polling = [t for t in port.polls if d - 0.002 - 1e-9 <= t < d]
+        assert (len(polling) >= 4) if rt else (len(polling) <= 2)
+        rehearsed = [(t, k) for t, k in port.rehearsals if d - 0.002 - 1e-9 <= t < d]
+        # a poll (0.1 ms) and a rehearsal (0.25 ms) while twice that fits before the step: polls at 2, 1.65, 1.3, 0.95
+        # ms before it, the last rehearsal over 0.6 ms before it
+        assert len(rehearsed) == (4 if rt else 0) and all(t + 0.00025 <= d - 0.0006 + 1e-9 for t, _ in rehearsed)
+        assert {k for _, k in rehearsed} <= ({None} if d == due[0] else {round(d / 0.01) - 2})
+    half = core(mode="realtime", max_steps=1, busy_wait=1.0)  # at most half a period
+    half.rt_priority = rt
+    port = PollingPort(half)
+    BodyLoop(half, port).run()
+    assert max(t + timeout for t, timeout in port.sleeps if t < 0.01) == pytest.approx(0.005 if rt else 0.01)
 
 
 def test_realtime_perturbation_lands_on_its_step_and_a_stale_one_is_rejected():
@@ -599,3 +656,20 @@ def test_feedback_acceleration_features_are_effort_over_mass():
     np.testing.assert_array_equal(feats, (effort.reshape(-1, 2) / mass[:, None]).reshape(-1))
     assert FeedbackCommands(a).on_state(0, effort[:-2]) == ("ignored mass states (acceleration) of step 0: 24 values, "
                                                             "expected 26")
+
+
+def test_the_body_steps_once_at_construction_and_rehearsing_changes_nothing(monkeypatch):
+    """The live step is called once while the core is built (numba compiles or loads it then, not at the first step
+    of a realtime run); ``rehearse`` computes a step and throws it away: the next real step is as without it."""
+    from bptsb_ros.body.live_step import LiveStep
+
+    calls = []
+    real = LiveStep.__call__
+    monkeypatch.setattr(LiveStep, "__call__", lambda self, *a: calls.append(1) or real(self, *a))
+    c, plain = core(), core()
+    assert len(calls) == 2
+    s0, p0 = c.integrate(None, 0).state, plain.integrate(None, 0).state
+    c.rehearse(s0)
+    assert len(calls) == 3
+    np.testing.assert_array_equal(c.integrate(s0, 1).state.r[0].numpy(), plain.integrate(p0, 1).state.r[0].numpy())
+    assert c.summary()["steps"] == plain.summary()["steps"] == 1

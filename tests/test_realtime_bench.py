@@ -230,8 +230,9 @@ def test_fifo_priority_is_set_or_refused_in_one_line():
 
 
 def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Path, monkeypatch):
-    """The launch a condition runs (subprocess replaced): the body's timing path and rt_priority, and the same
-    executor for body_sim and the loop's brain; a run that leaves no records is an error, not numbers."""
+    """The launch a condition runs (subprocess replaced): the body's timing path and rt_priority (the brain's one
+    below), and the same executor for body_sim and the loop's brain; a run that leaves no records is an error, not
+    numbers."""
     import subprocess
 
     import bptsb_ros.realtime_bench as rb
@@ -244,7 +245,7 @@ def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Pat
     params = [argvs[0][i + 1] for i, arg in enumerate(argvs[0]) if arg == "--param"]
     assert sorted(params) == sorted([f"body_sim:timing_path:={tmp_path / 'idle' / 'step_times.npz'}",
                                      "body_sim:rt_priority:=5", "body_sim:executor:=single",
-                                     "feedback_brain:executor:=single"])
+                                     "feedback_brain:executor:=single", "feedback_brain:rt_priority:=4"])
     assert argvs[0][argvs[0].index("--duration") + 1] == "3" and argvs[0][argvs[0].index("--agent") + 1] == "a"
     assert r["launch_exit_code"] == 0 and "no body summary or no timing records" in r["error"]
     assert argvs[0][argvs[0].index("--rate-scale") + 1] == "1"
@@ -267,7 +268,7 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     core = SimpleNamespace(summary=lambda: summaries.append(1) or {}, status=lambda s, e="": ("OK", "m", []))
     node = SimpleNamespace(p={"diagnostics_period": 1.0}, next_diagnostics=due(), _pending_status=None,
                            _diagnostics_cost=[0.001, 0.001], core=core,
-                           _status=lambda *args: published.append(args))
+                           _status=lambda *args: published.append(args), _refresh_graph=lambda slack: None)
     BodySim.diagnostics(node, slack=0.0005)  # 0.5 ms left, the summary took up to 1 ms: wait
     assert summaries == [] and published == []
     BodySim.diagnostics(node, slack=1.0)  # plenty: both parts in one turn
@@ -284,3 +285,42 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     assert len(published) == 2 and len(summaries) == 2 and node._pending_status is None
     BodySim.diagnostics(node, force=True)  # the final status: at once
     assert len(published) == 3 and len(summaries) == 3
+
+
+@pytest.mark.parametrize("mode", ["realtime", "lockstep"])
+def test_the_periodic_graph_query_of_a_realtime_body_waits_for_slack_and_not_forever(mode):
+    """``body_sim._untrusted``: the publishers of a command topic are looked up again when their count changes (at
+    once) and every GRAPH_PERIOD; a realtime body does the periodic lookup in the slack after a step
+    (``_refresh_graph``, when the slack exceeds what a lookup took), at once when it is DIAGNOSTICS_OVERDUE periods
+    late; a lockstep body at once."""
+    pytest.importorskip("rclpy")
+    from types import SimpleNamespace
+
+    from bptsb_ros.ros.body_sim import DIAGNOSTICS_OVERDUE, GRAPH_PERIOD, BodySim
+
+    count, names, lookups = [1], [[("/", "feedback_brain")]], []
+    rule = SimpleNamespace(untrusted=lambda found: [n for _, n in found if n != "feedback_brain"])
+    node = SimpleNamespace(p={"mode": mode}, _intruders={}, _graph_due=set(), _graph_cost=0.001,
+                           subs={"rest_length": SimpleNamespace(get_publisher_count=lambda: count[0], topic_name="/t")},
+                           core=SimpleNamespace(publisher_rules={"rest_length": rule}),
+                           _publisher_names=lambda topic: lookups.append(topic) or names[0])
+    node._query_untrusted = lambda *a: BodySim._query_untrusted(node, *a)
+    untrusted = lambda now: BodySim._untrusted(node, "rest_length", now)  # noqa: E731
+    assert untrusted(0.0) == [] and len(lookups) == 1
+    names[0] = [("/", "intruder")]  # the trusted publisher replaced, the count the same
+    assert untrusted(0.9 * GRAPH_PERIOD) == [] and len(lookups) == 1
+    late = 1.1 * GRAPH_PERIOD
+    if mode == "lockstep":
+        assert untrusted(late) == ["intruder"] and len(lookups) == 2
+        return
+    assert untrusted(late) == [] and len(lookups) == 1 and node._graph_due == {"rest_length"}
+    BodySim._refresh_graph(node, slack=0.0005)  # less slack than a lookup took: later
+    assert len(lookups) == 1 and node._graph_due == {"rest_length"}
+    BodySim._refresh_graph(node, slack=0.01)
+    assert len(lookups) == 2 and node._graph_due == set() and untrusted(late) == ["intruder"]
+    names[0] = [("/", "feedback_brain")]
+    seen = node._intruders["rest_length"][1]
+    assert untrusted(seen + (DIAGNOSTICS_OVERDUE + 0.1) * GRAPH_PERIOD) == [] and len(lookups) == 3  # overdue
+    count[0] = 2  # a publisher more: at once
+    names[0] = [("/", "feedback_brain"), ("/", "intruder")]
+    assert untrusted(seen + (DIAGNOSTICS_OVERDUE + 0.2) * GRAPH_PERIOD) == ["intruder"] and len(lookups) == 4

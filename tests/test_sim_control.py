@@ -118,7 +118,7 @@ def test_realtime_pause_shifts_the_schedule_steps_n_at_the_pace_and_is_no_silenc
     port = FakePort(c, brain)
     times: list[float] = []
     publish = port.publish
-    port.publish = lambda out: (times.append(port.t), publish(out))  # type: ignore[method-assign]
+    port.publish = lambda out, views=True: (times.append(port.t), publish(out, views))  # type: ignore[method-assign]
     port.send(0.035, lambda: c.control.call("pause"))  # during the wait for step 3 (due 0.04): held after it
     port.send(0.3, lambda: c.control.call("step", 2))  # held 0.26 s: steps 4, 5 at the pace, then held again
     port.send(0.6, lambda: c.control.call("resume"))  # held 0.28 s more

@@ -160,6 +160,9 @@ class BodyCore:
         self.mass = body.mass.detach().numpy().copy()
         with torch.no_grad():  # the compiled one-body step where the body's steps run in the kernel
             self.live_step = LiveStep(body) if body.uses_kernel() else None
+            if self.live_step is not None:  # compiled (or loaded from numba's cache) now, not at the first step
+                first = body.initial_state(1, rest_length=self.base)
+                self.rehearse(BodyState(first.r, first.v, first.a, first.length, 0))
         depth = p["qos_depth"]
         max_age = max(1, int(math.floor(p["max_command_age"] / body.dt + 1e-9)))
         amplitude = getattr(agent.brain, "amplitude", None)
@@ -405,6 +408,12 @@ class BodyCore:
             else:
                 new = self.body.step(state, rest_length=rest_t, external_force=force_t)
         return new, self.divergence_of(new)
+
+    def rehearse(self, state: BodyState | None) -> None:
+        """Compute the step after ``state`` under the trained rest lengths and throw it away (nothing of the core
+        changes): the code and data of a step are then in the CPU's caches when the real one comes (realtime)."""
+        if state is not None and self.live_step is not None:
+            self.live_step(state, self.base_np, None)
 
     def divergence_of(self, state: BodyState) -> str | None:
         """Why ``state`` is diverged (non-finite, beyond 1e6 m, or about to be: ``safety.runaway``), or None."""

@@ -11,7 +11,10 @@ graph in ``body_sim``; plain Python objects and a fake clock in the tests.
 * ``realtime``: step k is due at start + k·dt/``rate_scale`` wall seconds (a live change of ``rate_scale`` keeps
   the due time of the current step); the newest command is used; jitter (start − due), compute time and deadline
   misses (finished after the next step's due time) are counted, and with ``timing_path`` every step's wall times
-  are kept (:class:`~bptsb_ros.live.step_times.StepTimes`); ``wall_duration`` > 0 ends the run.
+  are kept (:class:`~bptsb_ros.live.step_times.StepTimes`); ``wall_duration`` > 0 ends the run. A step is done
+  when the outputs the loop's nodes read and the next ``/clock`` are out; the viewers' topics (markers, the thinned
+  state) follow it. Under ``rt_priority`` the body spends the last ``busy_wait`` before a step polling and rehearsing
+  it (:meth:`BodyLoop.wait_due`).
 
 In both modes the loop holds at a step boundary while ``core.control`` is paused (:mod:`~bptsb_ros.live.sim_control`:
 pause, resume, step N, reset), handling messages and service calls; realtime shifts its schedule (and the end of
@@ -61,8 +64,15 @@ class BodyPort(Protocol):
     def announce(self, step: int) -> None:
         """Publish ``/clock`` t_``step``."""
 
-    def publish(self, out: StepOutput) -> None:
-        """Publish the outputs of one step."""
+    def publish(self, out: StepOutput, views: bool = True) -> None:
+        """Publish the outputs of one step; ``views`` False: only those the loop's nodes read."""
+
+    def publish_views(self, out: StepOutput) -> None:
+        """Publish the outputs of one step that :meth:`publish` with ``views`` False left out (viewers' topics)."""
+
+    def rehearse(self, state: BodyState | None) -> None:
+        """Go through the work of a step after ``state`` without any effect (nothing published on the loop's topics,
+        nothing counted): called while a realtime body under ``rt_priority`` waits for its next step."""
 
     def diagnostics(self, slack: float = math.inf) -> None:
         """Publish the loop status if it is due; ``slack``: seconds until the next step is due (realtime), the work
@@ -154,6 +164,22 @@ class BodyLoop:
                 return
             port.spin_once(min(remaining, POLL_S))
 
+    def wait_due(self, due: float, period: float, state: BodyState | None) -> None:
+        """Realtime: handle messages until ``due`` (monotonic seconds). Under ``rt_priority`` the last ``busy_wait``
+        seconds (at most half of ``period``) are not slept: the body polls for messages and rehearses the step after
+        ``state`` (``port.rehearse``) as long as one more rehearsal ends before ``due``. A step that starts after
+        milliseconds of sleep, or of other processes on its core, finds the CPU's caches cold and costs several
+        times what the same step costs right after another."""
+        port = self.port
+        busy = min(self.core.p["busy_wait"], period / 2) if self.core.rt_priority else 0.0
+        self.spin_for(due - busy - port.now())
+        cost = 0.0  # the last rehearsal's wall time
+        while busy and not port.stopped() and (now := port.now()) < due:
+            port.drain()
+            if now + 2 * cost < due:
+                port.rehearse(state)
+                cost = port.now() - now
+
     def _lockstep(self) -> None:
         core, port = self.core, self.port
         state: BodyState | None = None
@@ -213,7 +239,7 @@ class BodyLoop:
             due = start + step * period
             if due > wall_end:
                 break
-            self.spin_for(due - port.now())
+            self.wait_due(due, period, state)
             if port.stopped():
                 break
             began = port.now()
@@ -222,7 +248,7 @@ class BodyLoop:
                 core.watch_realtime(s, step, began, self.started, port.publisher_gone(s), port.topic(s))
             out = core.integrate(state, step)
             integrated = port.now()
-            port.publish(out)
+            port.publish(out, views=False)  # what the brains read now; the viewers' topics once the step is done
             state = out.state
             if (core.max_steps == 0 or step < core.max_steps) and start + (step + 1) * period <= wall_end:
                 core.announce(step + 1, port.now())
@@ -233,6 +259,7 @@ class BodyLoop:
                 core.stats.deadline_misses += 1
             if core.step_times is not None:
                 core.step_times.append(step, due, began, integrated, done)
+            port.publish_views(out)
             port.diagnostics(slack=due + period - port.now())  # the time left before the next step is due
             step += 1
 

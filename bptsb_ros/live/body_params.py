@@ -89,6 +89,10 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("rt_priority", 0, "realtime: run the stepping thread under SCHED_FIFO at this priority (1-99; needs "
           "CAP_SYS_NICE or root, else a warning and the normal scheduler), so that other processes cannot preempt "
           "a step; 0: the normal scheduler", "int", minimum=0, maximum=99),
+    Param("busy_wait", 0.002, "realtime under rt_priority: the last this many wall seconds before each step is due "
+          "(at most half a period) are spent polling for messages instead of sleeping, so that the step starts on a "
+          "core that is not asleep and that nothing else ran on just before; 0: sleep until the step is due",
+          "float", minimum=0.0),
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
     Param("max_rest_length", 0.0, "largest accepted rest-length command [m]; 0: 10 x "
           "the diagonal of the body's bounding box", "float", minimum=0.0),

@@ -27,6 +27,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import (
@@ -62,6 +63,10 @@ from bptsb_ros.ros.topics import RECORDER_ACK, absolute, stamp_to_step
 NODE = "body_sim"
 #: periods of ``diagnostics_period`` after which the loop status is published whatever the slack
 DIAGNOSTICS_OVERDUE = 5
+#: seconds after which the publishers of an input topic are looked up in the graph again (same publisher count)
+GRAPH_PERIOD = 0.5
+#: the hidden topic (nothing subscribes to it, recorders skip it) on which a realtime body rehearses publishing
+WARM_UP_TOPIC = "~/_warm_up"
 #: (key, message type) of every topic the body publishes
 OUTPUTS = (("clock", Clock), ("positions", PoseArray), ("mass_states", JointState), ("spring_lengths", JointState),
            ("rest_length", JointState), ("external_force", JointState), ("markers", MarkerArray),
@@ -89,6 +94,8 @@ class BodySim(Node):
         self.layout = self.body.positions0.detach().numpy().astype(np.float64)  # (N, 2): fixed masses stay there
         self.movable = self.body.movable_index.numpy()
         self.callbacks, self._intruders = 0, {}  # _intruders: source -> (publisher count, when, untrusted names)
+        self._graph_due: set[str] = set()  # sources whose periodic graph query waits for slack (realtime)
+        self._graph_cost = 0.001  # seconds a graph query took lately (with a margin)
         topic = {key: p[f"topics.{key}"] for key in PUBLISHED + SUBSCRIBED + (RECORDER_ACK,)}
         sq = m.state_qos(p["qos_depth"])
         self.pubs = {key: self.create_publisher(kind, topic[key], sq) for key, kind in OUTPUTS}
@@ -113,6 +120,7 @@ class BodySim(Node):
         self._diagnostics_cost = [0.001, 0.001]  # seconds the two parts of the diagnostics took (with a margin)
         self.loop = BodyLoop(core, self)
         self.raw = self._templates() if p["raw_outputs"] else {}
+        self._warm: Any = None  # the publisher of rehearse(), made on first use
         self.get_logger().info(core.describe(p["agent"] or p["config"] or f"fresh {agent.task} agent (seed "
                                              f"{p['seed']})", trained))
 
@@ -185,15 +193,37 @@ class BodySim(Node):
 
     def _untrusted(self, source: str, now: float) -> list[str]:
         """Publishers on ``source``'s topic that its publisher rule does not allow; the graph is queried again when
-        the publisher count changes, and at least every 0.5 s (at once while a node name is still unknown)."""
+        the publisher count changes, and at least every ``GRAPH_PERIOD`` s (at once while a node name is still
+        unknown). A realtime body leaves the periodic query to the slack after a step (:meth:`_refresh_graph`; a
+        query takes 0.3 ms, at times over a millisecond), unless it is ``DIAGNOSTICS_OVERDUE`` periods late."""
         count = self.subs[source].get_publisher_count()
         cached = self._intruders.get(source)
-        if cached is None or cached[0] != count or now - cached[1] > 0.5:
-            names = self._publisher_names(self.subs[source].topic_name)
-            cached = (count, now if UNKNOWN_NODE not in {n for _, n in names} else -math.inf,
-                      self.core.publisher_rules[source].untrusted(names))
-            self._intruders[source] = cached
+        if cached is None or cached[0] != count:
+            return self._query_untrusted(source, count, now)
+        age = now - cached[1]
+        if age > GRAPH_PERIOD:
+            if self.p["mode"] != "realtime" or age > DIAGNOSTICS_OVERDUE * GRAPH_PERIOD:
+                return self._query_untrusted(source, count, now)
+            self._graph_due.add(source)
         return cached[2]
+
+    def _query_untrusted(self, source: str, count: int, now: float) -> list[str]:
+        names = self._publisher_names(self.subs[source].topic_name)
+        cached = (count, now if UNKNOWN_NODE not in {n for _, n in names} else -math.inf,
+                  self.core.publisher_rules[source].untrusted(names))
+        self._intruders[source] = cached
+        self._graph_due.discard(source)
+        return cached[2]
+
+    def _refresh_graph(self, slack: float) -> None:
+        """Query the graph for one source whose periodic query :meth:`_untrusted` left for later, when ``slack``
+        (seconds until the next step is due) exceeds twice what a query took lately (a slowly decaying maximum)."""
+        if not self._graph_due or slack < self._graph_cost:
+            return
+        source = self._graph_due.pop()
+        began = time.monotonic()
+        self._query_untrusted(source, self.subs[source].get_publisher_count(), began)
+        self._graph_cost = max(0.9 * self._graph_cost, 2 * (time.monotonic() - began))
 
     def _publisher_names(self, topic: str) -> list[tuple[str, str]]:
         """(namespace, node name) of every publisher on ``topic`` (``UNKNOWN_NODE`` while DDS has not named it)."""
@@ -260,24 +290,54 @@ class BodySim(Node):
         raw = self.raw.get(key)
         self._publish(key, raw.render(step, *arrays) if raw is not None else build(step, *arrays))
 
+    def rehearse(self, state: BodyState | None) -> None:
+        """The step after ``state`` computed and thrown away, ``body/positions`` and ``/clock`` rendered and the
+        positions sent on a hidden topic of this node that nothing subscribes to (rclpy's and the middleware's
+        publishing code, without a subscriber to deliver to), so that the next real step finds them in the caches."""
+        self.core.rehearse(state)
+        if self._warm is None:
+            self._warm = self.create_publisher(PoseArray, WARM_UP_TOPIC, 1)
+        positions, clock = self.raw.get("positions"), self.raw.get("clock")
+        step = state.step if state is not None else 0
+        if clock is not None:
+            clock.render(step)
+        self._warm.publish(positions.render(step, self.layout) if positions is not None else
+                           m.pose_array(step, self.dt_ns, self.layout, self.p["frame_id"]))
+
     def announce(self, step: int) -> None:
         self._out("clock", step, lambda k: m.clock_msg(k, self.dt_ns))
 
-    def publish(self, out: StepOutput) -> None:
+    def publish(self, out: StepOutput, views: bool = True) -> None:
         """The state of one step on the body's topics (and its perturbation, if any, first): ``body/positions``
         every step, the topics that say it again (:data:`~bptsb_ros.live.body_params.SLOW_OUTPUTS`) every
         ``state_every`` steps (:meth:`_slow_due`) or, those in ``every_step``, every step; markers every
-        ``marker_every`` steps."""
-        k, ns, frame, core, p = out.state.step, self.dt_ns, self.p["frame_id"], self.core, self.p
+        ``marker_every`` steps. ``views`` False: only what the loop's nodes read (the perturbation, the positions,
+        the ``every_step`` topics); :meth:`publish_views` sends the rest."""
+        k, ns, frame, core = out.state.step, self.dt_ns, self.p["frame_id"], self.core
         if out.perturbation is not None:
             self._publish("perturbation", m.joint_state(k, ns, core.dof_names, position=out.perturbation,
                                                         frame_id=frame))
-        r, v, a, length, rest, force = out.arrays()
+        r = out.arrays()[0]
         full = self.layout.copy()
         full[self.movable] = r
         self._out("positions", k, lambda k, r: m.pose_array(k, ns, r, frame), full)
-        due = self._slow_due(k)
-        markers = k % p["marker_every"] == 0
+        self._state_topics(out, full, read=True, views=views)
+
+    def publish_views(self, out: StepOutput) -> None:
+        """What :meth:`publish` with ``views`` False left out of ``out``'s step: the thinned state topics that no
+        node of the loop reads, and the markers (for viewers and the bag)."""
+        full = self.layout.copy()
+        full[self.movable] = out.arrays()[0]
+        self._state_topics(out, full, read=False, views=True)
+
+    def _state_topics(self, out: StepOutput, full: np.ndarray, read: bool, views: bool) -> None:
+        """The slower state topics due at ``out``'s step (``read``: those of ``every_step``, which nodes of the loop
+        read; ``views``: the others) and, with ``views``, the markers; ``full``: the positions of all masses (N, 2)."""
+        k, ns, frame, core, p = out.state.step, self.dt_ns, self.p["frame_id"], self.core, self.p
+        r, v, a, length, rest, force = out.arrays()
+        every = p["every_step"]
+        due = {key: on and (views if key not in every else read) for key, on in self._slow_due(k).items()}
+        markers = views and k % p["marker_every"] == 0
         if due["mass_states"]:
             self._out("mass_states", k, lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r,
                                                                          velocity=v, effort=f, frame_id=frame),
@@ -315,6 +375,7 @@ class BodySim(Node):
         than a 1 kHz realtime body has to spare after a step: with ``slack`` (seconds until the next step is due)
         it is done in two parts, each in a turn whose slack exceeds twice what that part took lately (a slowly
         decaying maximum), and in any case once it is ``DIAGNOSTICS_OVERDUE`` periods late."""
+        self._refresh_graph(slack)
         now = time.monotonic()
         if not force and not error:
             if now < self.next_diagnostics:
@@ -367,6 +428,8 @@ class BodySim(Node):
 
     def run(self) -> int:
         self.loop.wait_startup(self._startup_missing)
+        for source in self.subs:  # the first command of each source then finds its publishers looked up
+            self._untrusted(source, time.monotonic())
         # everything built so far (torch, numba, the agent, the middleware's objects) lives to the end: out of the
         # garbage collector's sight, a full collection during the run does not walk it (several ms a time)
         gc.collect()
@@ -379,6 +442,8 @@ class BodySim(Node):
                      else f"stepping under SCHED_FIFO priority {self.p['rt_priority']} ({others} middleware "
                      f"thread(s) of this process at {below})")
             self.core.rt_priority = 0 if problem else self.p["rt_priority"]
+            if self.core.rt_priority and self.p["busy_wait"] > 0:
+                self._warm = self.create_publisher(PoseArray, WARM_UP_TOPIC, 1)  # made now, not in the first wait
         diverged = self.loop.run()
         summary = self.core.summary()
         self.get_logger().info(self.core.end_text(summary, diverged, self.stop.reason))

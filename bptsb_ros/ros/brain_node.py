@@ -46,6 +46,10 @@ COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     EXECUTOR,
     RAW_OUTPUTS,
     LOG_LEVEL,
+    Param("rt_priority", 0, "run the node's thread under SCHED_FIFO at this priority (1-99) and its middleware threads "
+          "one below (needs CAP_SYS_NICE or root, else a warning and the normal scheduler): a realtime body at a "
+          "higher rate_scale than the other processes leave it CPU for gets its commands in time; 0: the normal "
+          "scheduler", "int", minimum=0, maximum=99),
 )
 #: ``use_sim_time`` of a brain unless given (rclpy's own default, false, is wrong for a node driven by /clock)
 USE_SIM_TIME_DEFAULT = True
@@ -200,8 +204,28 @@ class BrainNode(Node):
                 return
             time.sleep(0.005)
 
+    def realtime_priority(self, priority: int) -> None:
+        """This thread under SCHED_FIFO at ``priority``, the middleware's threads one below, and everything built so
+        far out of the garbage collector's sight (a full collection does not walk it); a refusal is logged."""
+        import gc
+
+        from bptsb_ros.live.body_params import set_fifo_priority, set_fifo_priority_of_other_threads
+
+        gc.collect()
+        gc.freeze()
+        problem = set_fifo_priority(priority)
+        if problem:
+            self.get_logger().warning(f"{problem}; running under the normal scheduler")
+            return
+        below = max(1, priority - 1)
+        others = set_fifo_priority_of_other_threads(below)
+        self.get_logger().info(f"running under SCHED_FIFO priority {priority} ({others} middleware thread(s) at "
+                               f"{below})")
+
     def run(self) -> int:
         """Spin until SIGINT/SIGTERM, then log a summary and let subscribers acknowledge the last messages."""
+        if self.p["rt_priority"]:
+            self.realtime_priority(self.p["rt_priority"])
         while not self.stop:
             pump(lambda timeout: self.executor_.spin_once(timeout_sec=timeout), self.latches, 0.1, self.idle_spins())
         mean = 1e3 * self.compute.mean

@@ -168,7 +168,7 @@ READ_ONLY_REASONS: dict[str, str] = {
                     "parameter services"),
     **dict.fromkeys(("final_ack_timeout", "summary_path"), "only used when the node stops; set it at startup"),
     "timing_path": "the records cover every step of the run from the first; they are written when the node stops",
-    "rt_priority": "the scheduling policy is set once, when stepping begins",
+    **dict.fromkeys(("rt_priority", "busy_wait"), "the scheduling policy is set once, when stepping begins"),
     "frame_id": "viewers and the bag expect one frame for the whole run",
     "every_step": "a node of the loop reads these topics every step from the start (the launchers set it for the "
                   "loop's brains); a topic must not thin out under it",
