@@ -254,7 +254,7 @@ def test_float32_window_agrees_with_the_numba_path_to_float32_rounding():
 
 
 def test_the_bench_runner_times_the_bench_workload():
-    from bptsb_ros.bench import WORKLOADS, _setup, fused_runner
+    from bptsb_ros.bench.suite import WORKLOADS, _setup, fused_runner
 
     w = WORKLOADS["lissajous"]
     _, _, state, run_window = _setup(w, True, F64, "numba")
@@ -266,7 +266,7 @@ def test_the_bench_runner_times_the_bench_workload():
 
 
 def test_the_bench_table_has_a_fused_row_with_its_ratios():
-    from bptsb_ros.bench import workload_table
+    from bptsb_ros.bench.suite import workload_table
 
     def m(train):
         return {"forward_steps_per_s": 10.0, "train_steps_per_s": train, "peak_rss_mib": 1.0}
@@ -310,7 +310,8 @@ def test_the_feedback_layer_is_fitted_after_fused_training_as_after_numba_traini
 
 
 def test_the_bench_report_holds_the_fused_ratios_and_target(monkeypatch):
-    from bptsb_ros import bench, bench_mnist
+    from bptsb_ros.bench import mnist as bench_mnist
+    from bptsb_ros.bench import suite as bench
 
     planted = {"torch": 100.0, "numba": 1000.0, "fused": 4000.0}  # train steps/s: fused / numba 4 < 5
 

@@ -260,7 +260,7 @@ def test_a_gang_reports_how_far_it_is(capsys):
 
 
 def test_the_gang_benchmark_and_its_paper_estimate():
-    from bptsb_ros import bench_gang
+    from bptsb_ros.bench import gang_speed as bench_gang
 
     # 170 trainings × 40,000 updates on 2 workers = 3.4e6 updates each; at 6 ms and 2 ms per update
     assert bench_gang.paper_estimate({"alone_ms_per_update": 6.0, "gang_ms_per_member_update": 2.0}) == {

@@ -103,7 +103,7 @@ def test_timing_records_are_realtime_only():
 
 
 def test_condition_result_counts_late_commands_and_targets():
-    from bptsb_ros.realtime_bench import condition_result, realtime_table
+    from bptsb_ros.bench.realtime import condition_result, realtime_table
 
     summary = {"deadline_misses": 2, "rest_length_rejected_stale": 3, "force_rejected_stale": 2,
                "rest_length_rejected_wrong_length": 7, "safe_command_steps": 1}
@@ -137,7 +137,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
 @pytest.fixture
 def calls(monkeypatch):
     """The bench's runs replaced by a planted report; the arguments they were given."""
-    import bptsb_ros.realtime_bench as rb
+    import bptsb_ros.bench.realtime as rb
     import bptsb_ros.soak as soak
 
     seen: list[tuple] = []
@@ -234,7 +234,7 @@ def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Pat
     executor for body_sim and the loop's brain; a run that leaves no records is an error, not numbers."""
     import subprocess
 
-    import bptsb_ros.realtime_bench as rb
+    import bptsb_ros.bench.realtime as rb
 
     argvs = []
     monkeypatch.setattr(rb.subprocess, "run", lambda argv, **kw: argvs.append(argv) or subprocess.CompletedProcess(

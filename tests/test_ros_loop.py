@@ -158,8 +158,8 @@ def test_narma_lockstep_equals_offline(tmp_path, ros_env):
 def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     """Also the body's per-step timing records (``timing_path``, what ``bptsb bench --realtime`` reads), written at
     a Ctrl-C stop too, with the executor the body was given (single here; the other runs use the default)."""
+    from bptsb_ros.bench.realtime import condition_result
     from bptsb_ros.live.step_times import load_step_times
-    from bptsb_ros.realtime_bench import condition_result
 
     bag, times = tmp_path / "bag", tmp_path / "times.npz"
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--mode", "realtime",

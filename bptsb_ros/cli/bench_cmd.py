@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
                       help="spinning processes during the lockstep run (default 8)")
     live = parser.add_argument_group("--live: recorded lockstep loops beside a bare rclpy anchor "
-                                     "(bptsb_ros.bench_live; runs bptsb launch <loop> --bag and the anchor on this "
+                                     "(bptsb_ros.bench.live; runs bptsb launch <loop> --bag and the anchor on this "
                                      "ROS_DOMAIN_ID)")
     live.add_argument("--live", action="store_true", help="time recorded lockstep live loops instead")
     live.add_argument("--live-loops", default="lissajous_closed,narma", metavar="A,B",
@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     soak.add_argument("--workdir", default="", metavar="DIR", help="bags, launch logs and timing records of the "
                       "soak, --live or --realtime (default: a new temporary directory, kept)")
     rt = parser.add_argument_group("--realtime: the closed loop at 100 Hz realtime, idle and with --realtime-busy "
-                                   "spinning processes (bptsb_ros.realtime_bench; runs bptsb launch lissajous_closed "
+                                   "spinning processes (bptsb_ros.bench.realtime; runs bptsb launch lissajous_closed "
                                    "with the example agent on this ROS_DOMAIN_ID)")
     rt.add_argument("--realtime", action="store_true", help="run the realtime bench instead of the physics benchmarks")
     rt.add_argument("--executor", choices=EXECUTORS, default=EXECUTOR.default,
@@ -149,7 +149,7 @@ def _soak(args: argparse.Namespace) -> int:
 def _live(args: argparse.Namespace) -> int:
     import math
 
-    from bptsb_ros.bench_live import live_table, run_live
+    from bptsb_ros.bench.live import live_table, run_live
     from bptsb_ros.cli.common import USAGE, fail
     from bptsb_ros.live.loops import LOOPS
 
@@ -179,8 +179,8 @@ def _live(args: argparse.Namespace) -> int:
 def _realtime(args: argparse.Namespace) -> int:
     import math
 
+    from bptsb_ros.bench.realtime import example_agent, realtime_table, run_realtime_bench
     from bptsb_ros.cli.common import USAGE, fail
-    from bptsb_ros.realtime_bench import example_agent, realtime_table, run_realtime_bench
 
     seconds = 600.0 if args.realtime_seconds is None else args.realtime_seconds
     if not (math.isfinite(seconds) and seconds > 0):
@@ -224,7 +224,7 @@ def run(args: argparse.Namespace) -> int:
         return _live(args)
     if args.realtime:
         return _realtime(args)
-    from bptsb_ros.bench import run_benchmarks, workload_table
+    from bptsb_ros.bench.suite import run_benchmarks, workload_table
 
     out = Path(args.out)
     if (problem := _write(out, {}, complete=False)) is not None:  # an unwritable --out fails now, not at the end
@@ -253,7 +253,7 @@ def run(args: argparse.Namespace) -> int:
           + ", ".join(f"{b} {h}" for b, h in sched["projected_hours"].items()))
     mnist = report.get("mnist", {})
     if "systems" in mnist:
-        from bptsb_ros.bench_mnist import mnist_table
+        from bptsb_ros.bench.mnist import mnist_table
 
         print(mnist_table(mnist))
         sched = mnist["paper_schedule"]

@@ -27,7 +27,7 @@ MEMORY_OVERRIDES = ("brain.type=lil", "body.shape=multiple_circle", "body.nodes=
 def _member(seed: int, delay: int, updates: int, out: dict[int, tuple[float, float]]) -> None:
     """Build one memory-task training, make one update, then ``updates`` more: ``out[seed]`` = (the time after the
     first update, the time at the end) [s, ``time.perf_counter``]."""
-    from bptsb_ros.bench import narma_task_update
+    from bptsb_ros.bench.workloads import narma_task_update
 
     _, update = narma_task_update((*MEMORY_OVERRIDES, f"narma.delay={delay}"), seed)
     update()

@@ -3,7 +3,7 @@
 compiled window kernel) and, for Lissajous training, the fused path (``training.backend: fused``: window,
 loss, gradients and update as compiled calls), each measurement in its own process so its peak RSS is its
 own; and the MNIST systems' training throughput in images/s with the paper-schedule estimate
-(:mod:`bptsb_ros.bench_mnist`).
+(:mod:`bptsb_ros.bench.mnist`).
 
 Speed is measured here, never asserted in a timed test. The numba kernels' first-call time (compile, or
 loading the on-disk cache) is measured separately and kept out of the steady-state figures.
@@ -18,7 +18,6 @@ import platform
 import resource
 import tempfile
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -183,33 +182,6 @@ def _measure_fused(w: Workload, dtype: torch.dtype, min_seconds: float) -> dict[
             "train_steps_per_s": round(train, 1), "train_body_steps_per_s": round(train * w.batch, 1)}
 
 
-def narma_task_update(overrides: tuple[str, ...], seed: int = 0) -> tuple[Any, Callable[[], None]]:
-    """``config/narma.yaml`` with ``overrides`` built as its trainer builds it (seeded): ``(task, update)``, where
-    ``update()`` is one training update of the task (loss, backward, SGD step, k/d/l projection)."""
-    from bptsb_ros.agent import build_agent
-    from bptsb_ros.experiments.common import packaged_config
-    from bptsb_ros.tasks.narma import NarmaTask
-    from bptsb_ros.training.optim import make_optimizer
-
-    cfg = packaged_config("narma", list(overrides), seed=seed)
-    torch.manual_seed(cfg.seed)
-    agent = build_agent(cfg)
-    task = NarmaTask(agent, cfg)
-    opt = make_optimizer(agent, cfg.training)
-    index = 0
-
-    def update() -> None:
-        nonlocal index
-        loss, _ = task.update_loss(index)
-        index += 1
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        agent.body.clamp_parameters_()
-
-    return task, update
-
-
 def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, ...] = NARMA_TASK_OVERRIDES
                         ) -> dict[str, Any]:
     """Training steps/s of the NARMA task itself (``config/narma.yaml``: double circle of 33 masses, MLP brain,
@@ -218,6 +190,8 @@ def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, 
     from bptsb_ros.threads import configure_threads
 
     threads = configure_threads(1, "numba")
+    from bptsb_ros.bench.workloads import narma_task_update
+
     task, update = narma_task_update((*overrides, f"training.backend={backend}"))
 
     first_call, train, ms = _timed(update, task.steps_per_update, min_seconds)
@@ -401,7 +375,7 @@ def run_benchmarks(quick: bool = False, progress=print, update=None) -> dict[str
         "narma_train_steps_per_s": (30_000, narma["numba"]),
         "sweep_forward_body_steps_per_s": (1_000_000, measured("sweep", "numba", "forward_body_steps_per_s")),
     }
-    from bptsb_ros import bench_mnist
+    from bptsb_ros.bench import mnist as bench_mnist
 
     progress("bench mnist (every MNIST system, batch 50; paper-schedule estimate) ...")
     report["mnist"] = bench_mnist.run_isolated(quick)
@@ -409,7 +383,7 @@ def run_benchmarks(quick: bool = False, progress=print, update=None) -> dict[str
     mnist_rates = [m["train_images_per_s"] for m in report["mnist"].get("systems", {}).values()]
     targets["mnist_slowest_system_train_images_per_s"] = (round(bench_mnist.TARGET_TRAIN_IMAGES_PER_S, 1),
                                                           min(mnist_rates) if mnist_rates else math.nan)
-    from bptsb_ros import bench_gang
+    from bptsb_ros.bench import gang_speed as bench_gang
 
     progress("bench memory-task trainings alone, as a gang and as a population (paper-schedule estimate) ...")
     report["memory_task_gang"] = bench_gang.run_isolated(quick)
