@@ -16,7 +16,7 @@ static ``data_files`` that colcon reads (its ``--symlink-install`` symlinks thos
 
 Package data: the configs, launch files, layouts and the example agent and bag have one source each in the
 repository (``config/``, ``launch/``, ``bags/``). :class:`BuildPyWithSharedData` copies them into the built
-package as ``bptsb_ros/share/...`` (``bptsb_ros.package_data.SHARED`` names them), where
+package as ``bptsb_ros/share/...`` (``bptsb_ros.files.package_data.SHARED`` names them), where
 ``importlib.resources`` finds them after any install; ``data_files`` also puts the configs and launch files
 into the ament share, ``<prefix>/share/bptsb_ros``, for ``ros2 launch``.
 
@@ -40,7 +40,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 VERSION = ET.parse(os.path.join(HERE, "package.xml")).getroot().findtext("version").strip()
 
 # Data copied into the package (bptsb_ros/share/<name>), each from one repository folder: a copy of
-# bptsb_ros.package_data.SHARED (setup.py cannot import the package it builds), with the files to take.
+# bptsb_ros.files.package_data.SHARED (setup.py cannot import the package it builds), with the files to take.
 SHARED_DATA = {
     "config": ("config", ("*.yaml", "*.json", "*.rviz")),
     "launch": ("launch", ("*.launch.py",)),
@@ -94,7 +94,7 @@ class InstallDataWithNodeWrappers(_InstallData):
 class BuildPyWithSharedData(_BuildPy):
     """``build_py`` that also copies :data:`SHARED_DATA` into the built package (``bptsb_ros/share/...``).
 
-    Not in an editable install: there the package is the checkout, whose folders ``bptsb_ros.package_data``
+    Not in an editable install: there the package is the checkout, whose folders ``bptsb_ros.files.package_data``
     reads directly."""
 
     def run(self) -> None:

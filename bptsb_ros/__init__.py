@@ -85,7 +85,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
 def _version() -> str:
     """The package's version: a source checkout's ``package.xml`` where the package is imported from one, else
     the installed distribution's metadata (written from that same ``package.xml`` by ``setup.py``)."""
-    from bptsb_ros.package_data import checkout_root
+    from bptsb_ros.files.package_data import checkout_root
 
     root = checkout_root()
     if root is not None:

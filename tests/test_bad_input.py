@@ -216,7 +216,7 @@ RECURSIVE = ["&a [*a]", "&m {x: *m}", "&a [1, [2, *a]]"]
 def test_a_recursive_yaml_alias_is_refused_at_once(text):
     """A 7-byte self-referencing alias expands without end; the one safe loader refuses it (every YAML input of the
     package goes through it), and a shared alias that is no cycle still loads."""
-    from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
+    from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, load_untrusted_yaml
 
     with pytest.raises(UntrustedYamlError, match="recursive alias"):
         load_untrusted_yaml(text, "t")

@@ -486,7 +486,7 @@ def test_ipc_npz_with_a_forged_shape_is_one_line(tmp_path, capsys):
 def test_ipc_npz_bomb_is_refused_by_its_declared_shape(tmp_path, capsys, monkeypatch):
     """64 MiB of zeros deflated to ~64 kB, against a bound of 8 MiB: refused before decompressing (the old
     np.load decompressed it all)."""
-    from bptsb_ros import safe_npz
+    from bptsb_ros.files import npz as safe_npz
 
     path = tmp_path / "bomb.npz"
     np.savez_compressed(path, u=np.zeros(2**23), states=np.zeros((10, 1)))
@@ -500,7 +500,7 @@ def test_ipc_npz_bomb_is_refused_by_its_declared_shape(tmp_path, capsys, monkeyp
 
 
 def test_npz_byte_bound_both_sides(tmp_path):
-    from bptsb_ros.safe_npz import NpzError, load_npz
+    from bptsb_ros.files.npz import NpzError, load_npz
 
     path = tmp_path / "a.npz"
     u, states = np.linspace(-1, 1, 10), np.arange(20.0).reshape(10, 2)

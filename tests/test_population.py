@@ -238,7 +238,7 @@ def test_what_can_train_as_one_population():
 
 def test_population_jobs_give_the_solo_jobs_results(tmp_path):
     from bptsb_ros.experiments.timeseries import NarmaJob, job_dir, population_jobs
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     jobs = []
     for body in ("double-circle", "multiple-circle"):
@@ -324,7 +324,7 @@ def test_an_interrupted_population_goes_on_from_its_saved_state(monkeypatch, tmp
 
 def test_run_jobs_treats_a_diverged_population_member_as_a_failed_training(tmp_path):
     from bptsb_ros.experiments.timeseries import NarmaPopulationJob, run_jobs
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     class Done:  # what the sweep returns for one population job, one member diverged
         failed: list = []

@@ -138,7 +138,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
 def calls(monkeypatch):
     """The bench's runs replaced by a planted report; the arguments they were given."""
     import bptsb_ros.bench.realtime as rb
-    import bptsb_ros.soak as soak
+    import bptsb_ros.bench.soak as soak
 
     seen: list[tuple] = []
     seen_out: list[str] = []

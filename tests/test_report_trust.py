@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from bptsb_ros.analysis.markdown import md_text
-from bptsb_ros.analysis.owned_folder import MANIFEST
 from bptsb_ros.analysis.report import ReportError, build_report
 from bptsb_ros.cli import main
 from bptsb_ros.experiments import ResultError, read_result, run_experiment, validate_result
 from bptsb_ros.experiments.registry import _REGISTRY, Context, experiment, experiments
 from bptsb_ros.experiments.result import Claim, ExperimentResult, Row, write_result
+from bptsb_ros.files.owned_folder import MANIFEST
 
 FIG = b"\x89PNG planted figure bytes"
 

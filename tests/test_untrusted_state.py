@@ -212,7 +212,7 @@ def test_a_sweep_reuses_only_records_that_fit_the_job(tmp_path):
     to results, merged into one table by the experiments), lacks a member, gives another seed or a negative NMSE,
     is not trusted: the job runs again."""
     from bptsb_ros.experiments.timeseries import NarmaJob, NarmaPopulationJob
-    from bptsb_ros.sweep import Job, job_key, result_problem
+    from bptsb_ros.jobs.sweep import Job, job_key, result_problem
 
     members = tuple((f"lil_dt{d}_s{s}", NarmaJob("narma_adam", (), s, (1,), 50)) for d, s in ((1, 0), (8, 1)))
     job = Job("population0_0", NarmaPopulationJob(members))
@@ -228,7 +228,7 @@ def test_a_sweep_reuses_only_records_that_fit_the_job(tmp_path):
     solo = Job("lil_dt1_s0", members[0][1])
     assert "of seed 7, not 0" in result_problem(solo, {"seed": 7, "nmse": 0.2})
     # in a sweep directory: the record is not trusted, with one line, and the job would run again
-    from bptsb_ros.sweep import _manifest, finished_record
+    from bptsb_ros.jobs.sweep import _manifest, finished_record
 
     run_dir = tmp_path / "jobs" / job.name
     run_dir.mkdir(parents=True)
@@ -299,7 +299,7 @@ def test_a_population_state_with_an_impossible_time_or_all_members_stopped(popul
 def test_a_full_disk_during_a_periodic_checkpoint_is_one_line_and_keeps_the_last_one(tmp_path, monkeypatch, capsys):
     import errno
 
-    import bptsb_ros.safe_files as safe_files
+    import bptsb_ros.files.safe_write as safe_files
 
     real, written = safe_files.temp_file_beside, []
 

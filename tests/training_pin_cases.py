@@ -189,7 +189,7 @@ def narma_population() -> Trained:
 
 def narma_gang() -> Trained:
     """The same three trainings and the MLP one, each in a thread of one gang (their windows run as lanes)."""
-    from bptsb_ros.gang import Gang
+    from bptsb_ros.jobs.gang import Gang
 
     cfgs = [_narma_cfg(*m) for m in _LIL_MEMBERS]
     cfgs.append(_narma_cfg("narma", 0, {"narma.target": "expanded", "training.reject_factor": 1.2}))

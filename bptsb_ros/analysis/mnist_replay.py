@@ -21,8 +21,8 @@ import torch
 from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
+from bptsb_ros.files.safe_write import json_text, write_atomic
 from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
-from bptsb_ros.safe_files import json_text, write_atomic
 
 
 def _topic(key: str) -> str:

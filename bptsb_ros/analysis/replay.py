@@ -29,7 +29,7 @@ from bptsb_ros.analysis.bag_run import (
     recording_summary,
 )
 from bptsb_ros.bags.errors import BagError
-from bptsb_ros.safe_files import json_text, write_atomic
+from bptsb_ros.files.safe_write import json_text, write_atomic
 
 
 # -- metrics ---------------------------------------------------------------------------------------

@@ -7,7 +7,7 @@ where they are; others are copied next to the page (``<page stem>_figures/<exper
 so the page and its figures can be committed.
 
 What it writes it owns, and nothing else: the page starts with :data:`PAGE_MARKER` and an existing page
-without it is refused; the figures folder is an :class:`~bptsb_ros.analysis.owned_folder.OwnedFolder`
+without it is refused; the figures folder is an :class:`~bptsb_ros.files.owned_folder.OwnedFolder`
 (its manifest lists the files the report wrote; a folder without one is refused, files added by hand are
 kept). A result.json is data: its texts are escaped (:mod:`bptsb_ros.analysis.markdown`), and a figure is
 copied only if it is a regular file inside its run directory reached through no symbolic link.
@@ -23,10 +23,10 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from bptsb_ros.analysis.markdown import md_link_target, md_pre, md_text
-from bptsb_ros.analysis.owned_folder import OwnedFolder, OwnedFolderError
 from bptsb_ros.analysis.report_guard import sources_line
 from bptsb_ros.experiments.result import RESULT_FILE, ResultError, claim_mark, read_result
-from bptsb_ros.safe_files import write_text_atomic
+from bptsb_ros.files.owned_folder import OwnedFolder, OwnedFolderError
+from bptsb_ros.files.safe_write import write_text_atomic
 
 #: the first line of every page the report writes (an HTML comment: invisible when rendered)
 PAGE_MARKER = "<!-- written by bptsb report: rerunning `bptsb report` replaces this page -->"
@@ -292,7 +292,7 @@ def _attempts_line(attempts: list[Any]) -> str:
 
 
 def _jobs_line(batch: object) -> str:
-    """One batch of ``provenance.jobs`` (:class:`bptsb_ros.runner.RunInfo`) in words; anything else as it is."""
+    """One batch of ``provenance.jobs`` (:class:`bptsb_ros.jobs.runner.RunInfo`) in words; anything else as it is."""
     if not isinstance(batch, dict):
         return str(batch)
     text = (f"{batch.get('what', 'jobs')}: {batch.get('jobs')} on {batch.get('scheduler')} "

@@ -1,4 +1,4 @@
-"""The memory task's trainings alone, as a gang (:mod:`bptsb_ros.gang`) and as a population
+"""The memory task's trainings alone, as a gang (:mod:`bptsb_ros.jobs.gang`) and as a population
 (:mod:`bptsb_ros.training.population`): wall milliseconds per training update, and what the memory task costs at
 the paper's schedule each way.
 
@@ -41,7 +41,7 @@ def measure(members: int, updates: int) -> dict[str, Any]:
     """ms per update of one training alone and of ``members`` trainings in one gang (one torch thread)."""
     import torch
 
-    from bptsb_ros.gang import Gang
+    from bptsb_ros.jobs.gang import Gang
 
     if members < 1:
         return {"error": f"a gang needs at least one training, got {members}"}

@@ -6,7 +6,7 @@ for it), exactly as a user starts it. ``body_sim`` times every step's phases (:m
 recorder wait, publish, wait for commands, compute) and writes them into its ``body_summary.json``; start-up is not
 in them. A :class:`CpuSampler` reads the CPU time of every node process (all its threads) ten times a second, and
 the CPU of each inside the body's stepping window, divided by the steps, is its CPU per step. Between the loop runs
-runs the anchor (:mod:`bptsb_ros.live_anchor`: two processes ping-pong a 50-float message with the loops' QoS,
+runs the anchor (:mod:`bptsb_ros.ros.anchor`: two processes ping-pong a 50-float message with the loops' QoS,
 pre-serialized, on the EventsExecutor, and a recorder process takes both topics every 20 ms): what the middleware
 gives on this machine now. Each loop run's ``ratio_to_anchor`` is its steps/s over the mean round trips/s of the
 anchor runs just before and after it (:func:`with_ratios`), so that a change in the machine's load hits both alike;
@@ -27,8 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bptsb_ros.files.safe_write import open_for_writing
 from bptsb_ros.live.phases import PHASES, row_from_summary
-from bptsb_ros.safe_files import open_for_writing
 
 #: the loops ``bptsb bench --live`` runs by default
 LIVE_LOOPS: tuple[str, ...] = ("lissajous_closed", "narma")
@@ -179,8 +179,8 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
 
 
 def anchor_run(shape: str, seconds: float, progress=print) -> dict[str, Any]:
-    """One run of the bare rclpy anchor (:mod:`bptsb_ros.live_anchor`) for ``seconds`` of wall time."""
-    from bptsb_ros.live_anchor import run_anchor
+    """One run of the bare rclpy anchor (:mod:`bptsb_ros.ros.anchor`) for ``seconds`` of wall time."""
+    from bptsb_ros.ros.anchor import run_anchor
 
     progress(f"bench --live: the {shape} anchor (bare rclpy ping-pong + recorder) for {seconds:g} s")
     return run_anchor(shape, seconds)
@@ -222,7 +222,7 @@ def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats
              anchor_seconds: float = 5.0) -> dict[str, Any]:
     """``repeats`` interleaved rounds of one recorded lockstep run of each of ``loops`` (``seconds`` sim seconds
     each; ``params``: ``NODE:NAME:=VALUE`` passed to every launch of a loop with that node), each loop run between two
-    runs of the bare rclpy anchor (:mod:`bptsb_ros.live_anchor`, split shape, ``anchor_seconds`` each): anchor, loop
+    runs of the bare rclpy anchor (:mod:`bptsb_ros.ros.anchor`, split shape, ``anchor_seconds`` each): anchor, loop
     A, anchor, loop B, anchor, ... Bags and logs go to ``workdir`` (default: a new temporary folder, kept)."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="bptsb-bench-live-"))
     work.mkdir(parents=True, exist_ok=True)

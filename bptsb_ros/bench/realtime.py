@@ -7,7 +7,7 @@ package's example agent, ``bags/lissajous_agent``: dt 0.01 s, so 100 steps a wal
 ``rt_priority``. Two conditions, in this order:
 
 * ``idle``: no extra load (the machine as it is: say in the report what else ran on it);
-* ``busy``: ``busy`` child processes that spin (:func:`bptsb_ros.soak.start_busy`; default 1, one core kept busy),
+* ``busy``: ``busy`` child processes that spin (:func:`bptsb_ros.bench.soak.start_busy`; default 1, one core kept busy),
   started before the launch and stopped after it.
 
 Per condition (from the body's own records, :func:`~bptsb_ros.live.step_times.timing_statistics`): steps, deadline
@@ -32,7 +32,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from bptsb_ros.safe_files import open_for_writing
+from bptsb_ros.files.safe_write import open_for_writing
 
 #: the realtime targets: (key of the statistics, bound, what it means); a statistic meets its target when <= bound
 #: (deadline misses: == 0)
@@ -58,7 +58,7 @@ SOURCES = ("rest_length", "force", "wind", "reset")
 
 def example_agent() -> Path:
     """The package's example agent (``bags/lissajous_agent``: closed Lissajous loop, dt 0.01 s)."""
-    from bptsb_ros.package_data import example_agent as packaged
+    from bptsb_ros.files.package_data import example_agent as packaged
 
     return packaged()
 
@@ -100,9 +100,9 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
     spinning processes, ``executor`` for the body and every brain, logs in ``workdir/name``; returns
     :func:`condition_result` plus the run's facts (or ``error``). ``env``: the launch's environment (default this
     process's)."""
+    from bptsb_ros.bench.soak import start_busy, stop_busy
     from bptsb_ros.live.loops import LOOPS
     from bptsb_ros.live.step_times import load_step_times
-    from bptsb_ros.soak import start_busy, stop_busy
 
     logs = workdir / name
     timing_path = logs / "step_times.npz"

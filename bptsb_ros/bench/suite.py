@@ -167,7 +167,7 @@ def _timed(update, steps_per_update: int, min_seconds: float) -> tuple[float, fl
 
 def _measure_fused(w: Workload, dtype: torch.dtype, min_seconds: float) -> dict[str, Any]:
     """Training steps/s of the fused path (forward, loss, gradients and SGD update per window)."""
-    from bptsb_ros.threads import configure_threads
+    from bptsb_ros.body.threads import configure_threads
 
     threads = configure_threads(w.batch, "numba")
     window, step, state = fused_runner(w, dtype)
@@ -187,7 +187,7 @@ def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, 
     """Training steps/s of the NARMA task itself (``config/narma.yaml``: double circle of 33 masses, MLP brain,
     3,000-step episodes, SGD; ``overrides``: ``--set`` items of that config) on the numba path or with its fused
     episodes (``body/held_window.py``)."""
-    from bptsb_ros.threads import configure_threads
+    from bptsb_ros.body.threads import configure_threads
 
     threads = configure_threads(1, "numba")
     from bptsb_ros.bench.workloads import narma_task_update
@@ -201,7 +201,7 @@ def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, 
 
 
 def _measure(w: Workload, adjoint: bool, dtype: torch.dtype, min_seconds: float, backend: str) -> dict[str, Any]:
-    from bptsb_ros.threads import configure_threads
+    from bptsb_ros.body.threads import configure_threads
 
     if w.task:
         return _measure_narma_task(backend, min_seconds, w.overrides)

@@ -15,7 +15,7 @@ HELP = (
     "                damaged file is kept as <file>.damaged, .damaged.1, ...: never overwritten) and rebuilds\n"
     "                a missing, unreadable or inconsistent metadata.yaml\n"
     "Example: bptsb bag info bags/lissajous_closed_example (the example bag of a source checkout; installed, it is "
-    "bptsb_ros.package_data.example_bag())"
+    "bptsb_ros.files.package_data.example_bag())"
 )
 
 

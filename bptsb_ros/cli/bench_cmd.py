@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="1 s per measurement and fewer batch sizes")
     parser.add_argument("--out", required=True, help="JSON file to write; rewritten after each measurement, with "
                         '"complete": false until the last one (a killed bench keeps what it measured)')
-    soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.soak; runs bptsb launch "
+    soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.bench.soak; runs bptsb launch "
                                      "lissajous_open --bag on this ROS_DOMAIN_ID)")
     soak.add_argument("--soak", action="store_true", help="run the recording soak instead of the physics benchmarks")
     soak.add_argument("--realtime-seconds", type=float, default=None, metavar="S",
@@ -84,11 +84,11 @@ def _check_workdir(workdir: Path | None) -> int | None:
 
 def _write(out: Path, report: dict, complete: bool = True) -> int | None:
     """Write ``report`` as JSON to ``out``, with ``"complete"`` first (false while measurements are still to come),
-    atomically and only as a regular file (:func:`bptsb_ros.safe_files.write_atomic`: a reader or a kill never sees
-    half a file, a device or a planted link is never written through); None, or the exit status of a write that
+    atomically and only as a regular file (:func:`bptsb_ros.files.safe_write.write_atomic`: a reader or a kill never
+    sees half a file, a device or a planted link is never written through); None, or the exit status of a write that
     failed (after one line)."""
     from bptsb_ros.cli.common import fail
-    from bptsb_ros.safe_files import UnsafeFileError, write_atomic
+    from bptsb_ros.files.safe_write import UnsafeFileError, write_atomic
 
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -122,8 +122,8 @@ def _updater(out: Path) -> Callable[[dict], None]:
 def _soak(args: argparse.Namespace) -> int:
     import math
 
+    from bptsb_ros.bench.soak import run_soak
     from bptsb_ros.cli.common import USAGE, fail
-    from bptsb_ros.soak import run_soak
 
     if args.realtime_seconds is None:
         args.realtime_seconds = 60.0

@@ -42,7 +42,7 @@ def fail(command: str, message: object, code: int = FAILURE) -> int:
     ``message`` (an exception or a text) is flattened to one line: its lines, stripped, joined with ``"; "``, every
     control character left escaped (``\\x1b``: a name read from a file cannot drive the terminal).
     """
-    from bptsb_ros.safe_yaml import printable
+    from bptsb_ros.files.untrusted_yaml import printable
 
     text = "; ".join(printable(s.strip()) for s in str(message).splitlines() if s.strip()) or "failed"
     print(f"bptsb {command}: {text}", file=sys.stderr)

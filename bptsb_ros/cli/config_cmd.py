@@ -18,7 +18,7 @@ HELP = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from bptsb_ros.config_import import TASKS
+    from bptsb_ros.config.authors import TASKS
 
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
     imp = sub.add_parser("import", help="translate the authors' YAML into our config",
@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _import(args: argparse.Namespace) -> int:
     from bptsb_ros.cli.common import fail
-    from bptsb_ros.config_import import ImportFailure, import_file, write_output
+    from bptsb_ros.config.authors import ImportFailure, import_file, write_output
 
     try:
         result = import_file(args.file, args.task)
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         except ConfigError as err:
             return fail("config list", err)
         return 0
-    from bptsb_ros.config_import import mapping_table
+    from bptsb_ros.config.authors import mapping_table
 
     print("\n".join(mapping_table()))
     return 0

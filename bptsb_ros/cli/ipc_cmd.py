@@ -111,7 +111,7 @@ def _from_npz(path: str, per_column: bool):
     import numpy as np
 
     from bptsb_ros.analysis.ipc import IPCError
-    from bptsb_ros.safe_npz import NpzError, load_npz
+    from bptsb_ros.files.npz import NpzError, load_npz
 
     try:
         arrays = load_npz(path, ("u", "states"))
@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         data["source"]["tau"] = series.tau
     import json
 
-    from bptsb_ros.safe_files import UnsafeFileError, write_atomic
+    from bptsb_ros.files.safe_write import UnsafeFileError, write_atomic
 
     shown = [lab for lab in res.labels if not lab.startswith("all ")] if args.bag else res.labels
     try:

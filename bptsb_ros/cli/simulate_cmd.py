@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         return _usage("--nodes, --swg-amplitude, --ground-clamp and --environment apply to --shape only")
 
     from bptsb_ros.body.msdn import SimulationDiverged
-    from bptsb_ros.threads import configure_threads
+    from bptsb_ros.body.threads import configure_threads
     from bptsb_ros.training.checkpoint import CheckpointError
 
     configure_threads(1, args.backend or "torch")  # one body: one thread (the kernel runs a batch of 1 serially)

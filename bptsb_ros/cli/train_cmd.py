@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.cli.common import USAGE, config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.experiments.common import config_source
-    from bptsb_ros.rundir_lock import RunDirLocked
+    from bptsb_ros.files.run_dir_lock import RunDirLocked
     from bptsb_ros.training.checkpoint import CheckpointError
     from bptsb_ros.training.trainer import TrainingDiverged, train
 

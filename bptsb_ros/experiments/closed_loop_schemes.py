@@ -28,7 +28,7 @@ from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded
 from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
-from bptsb_ros.safe_files import write_atomic
+from bptsb_ros.files.safe_write import write_atomic
 from bptsb_ros.sim.population import run_population
 from bptsb_ros.tasks.lissajous import windowed_shift_error_batch
 from bptsb_ros.tasks.lissajous_switching import CURVE_1, CURVE_SWITCH, CURVE_TIMING, Curve

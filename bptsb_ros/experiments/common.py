@@ -9,10 +9,10 @@ from bptsb_ros.config import ConfigError, ExperimentConfig, Overrides, echo, loa
 
 
 def config_dir() -> Path:
-    """The directory of the packaged experiment configs (:func:`bptsb_ros.package_data.config_dir`: the
+    """The directory of the packaged experiment configs (:func:`bptsb_ros.files.package_data.config_dir`: the
     installed package's copy, a source checkout's ``config/``, or the ament share); ConfigError if none is there."""
-    from bptsb_ros.package_data import PackageDataError
-    from bptsb_ros.package_data import config_dir as packaged_dir
+    from bptsb_ros.files.package_data import PackageDataError
+    from bptsb_ros.files.package_data import config_dir as packaged_dir
 
     try:
         return packaged_dir()

@@ -48,7 +48,7 @@ from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.seeds import seed_figure
-from bptsb_ros.safe_files import write_atomic
+from bptsb_ros.files.safe_write import write_atomic
 from bptsb_ros.sim.population import run_population
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.tasks.lissajous import windowed_shift_error_batch

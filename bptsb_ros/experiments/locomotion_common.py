@@ -24,9 +24,9 @@ from bptsb_ros.agent import Agent
 from bptsb_ros.body.msdn import PROJECTIONS, BodyState
 from bptsb_ros.brains import FeedbackLayer, SineWaveGenerator
 from bptsb_ros.config import FeedbackConfig
-from bptsb_ros.safe_files import atomic_writer
+from bptsb_ros.files.safe_write import atomic_writer
+from bptsb_ros.jobs.sweep import Job, SweepResult
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
-from bptsb_ros.sweep import Job, SweepResult
 
 #: closed-loop / open-loop speed at or above which a closed loop counts as autonomous locomotion (paper)
 SUCCESS_RATIO = 0.7
@@ -121,7 +121,7 @@ def adopt_sibling_agents(jobs: list[Job], where: Path, out_dir: Path, log) -> li
     anyone's directories), and only regular files are copied (symbolic links are left behind)."""
     from bptsb_ros.experiments.registry import RUN_MARKER
     from bptsb_ros.experiments.seeds import sibling_run_dirs
-    from bptsb_ros.sweep import finished_record, job_key
+    from bptsb_ros.jobs.sweep import finished_record, job_key
 
     siblings = [p / AGENTS_DIR for p in sibling_run_dirs(Path(out_dir))
                 if _own_run(p, RUN_MARKER) and (p / AGENTS_DIR / "jobs").is_dir()]

@@ -233,7 +233,7 @@ def run(ctx: Context) -> None:
         population_jobs,
         run_jobs,
     )
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     epochs, delays, eval_inputs = ctx.settings["epochs"], ctx.settings["delays"], ctx.settings["eval_inputs"]
     seeds = derived_seeds(ctx.seed, ctx.settings["n_seeds"])

@@ -328,8 +328,8 @@ def write_result(out_dir: Path, result: ExperimentResult) -> Path:
 
 def write_json_result(out_dir: Path, data: dict[str, Any]) -> Path:
     """Validate ``data`` (a single-seed or aggregate result) and write it as ``out_dir/result.json`` atomically, as a
-    regular file only (:func:`~bptsb_ros.safe_files.write_atomic`)."""
-    from bptsb_ros.safe_files import write_atomic
+    regular file only (:func:`~bptsb_ros.files.safe_write.write_atomic`)."""
+    from bptsb_ros.files.safe_write import write_atomic
 
     validate_result(data, str(out_dir / RESULT_FILE))
     return write_atomic(out_dir / RESULT_FILE, json.dumps(data, indent=2, allow_nan=False) + "\n")

@@ -2,7 +2,7 @@
 
 One run is one draw: trainings at the paper's rates amplify rounding, so a verdict read off one seed is a coin
 flip. :func:`run_seeds` runs one experiment per seed as independent jobs of the one runner (a local process
-pool or a Dask cluster; :mod:`bptsb_ros.runner`), each seed in ``OUT/seed-N/`` with its own ``result.json``
+pool or a Dask cluster; :mod:`bptsb_ros.jobs.runner`), each seed in ``OUT/seed-N/`` with its own ``result.json``
 exactly as ``--seed N`` would write it, then writes the aggregate ``OUT/result.json``
 (:func:`~bptsb_ros.experiments.result.validate_aggregate` gives its schema):
 
@@ -272,7 +272,7 @@ def seed_state(seed_dir: Path, *, experiment: str, scale: str, seed: int,
     """``"finished"`` (a valid result.json of this experiment, scale, seed and settings), ``"unfinished"`` (a
     reproduce run without one: resume it) or ``"new"``; SeedsError for a folder that is none of these."""
     from bptsb_ros.experiments.registry import RUN_MARKER
-    from bptsb_ros.rundir_lock import dir_is_empty
+    from bptsb_ros.files.run_dir_lock import dir_is_empty
 
     if seed_dir.is_symlink() or (seed_dir.exists() and not seed_dir.is_dir()):
         raise SeedsError(f"{seed_dir} is not a directory of this run")
@@ -300,7 +300,7 @@ def plan_placement(parallel: bool, workers: int | None, scheduler: str | None, s
     worker; locally an experiment whose run spreads several trainings over ``--workers`` (``parallel``) takes the
     seeds one after another, each with every worker, and any other runs its seeds side by side in the pool, each
     in one process — so the cores stay busy either way (at smoke scale everything runs in this process)."""
-    from bptsb_ros.runner import Placement
+    from bptsb_ros.jobs.runner import Placement
 
     if scheduler:
         return Placement(None, scheduler), 0
@@ -334,7 +334,7 @@ def run_seeds(name: str, seeds: Sequence[int], *, scale: str = "smoke", out_dir:
         base_provenance,
         get_experiment,
     )
-    from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
+    from bptsb_ros.files.run_dir_lock import dir_is_empty, hold_run_dir
 
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     exp = get_experiment(name)
@@ -436,7 +436,7 @@ def _run_seed_jobs(name: str, todo: list[int], states: Mapping[int, str], out: P
                    inner: int | None, scheduler: str | None, progress: bool,
                    log: Callable[[str], None]) -> dict[int, str]:
     """Run the seeds ``todo``; returns seed → error text for those that failed (empty: all finished)."""
-    from bptsb_ros.runner import connect_placement, run_calls
+    from bptsb_ros.jobs.runner import connect_placement, run_calls
 
     if not todo:
         return {}

@@ -124,7 +124,7 @@ class NarmaJob:
         target = task.target(u)
         cmp_y = pos[:, agent.body.cmp_local, 1]
         out[f"nmse_{epochs}"] = nmse(cmp_y[self.washout:], target[self.washout:])
-        from bptsb_ros.safe_files import atomic_writer
+        from bptsb_ros.files.safe_write import atomic_writer
 
         with atomic_writer(run_dir / f"states_{epochs}.npz") as f:
             np.savez(f, u=u, positions=pos, target=target, movable=agent.body.topology.movable,
@@ -173,7 +173,7 @@ def population_jobs(jobs: list[Any], chunks: int) -> tuple[list[Any], dict[str, 
     """Group ``NarmaJob`` sweep jobs of equal body (config, overrides other than the delay and target) into
     ``chunks`` :class:`NarmaPopulationJob` s per body, of consecutive jobs. Returns the new jobs and each
     member's job name (member → population), for :func:`job_dir`."""
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     by_body: dict[tuple, list[Any]] = {}
     for job in jobs:
@@ -200,7 +200,7 @@ def job_dir(sweep_dir: Path, name: str, populations: dict[str, str] | None = Non
 
 def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False,
              gangs: bool = False) -> dict[str, dict[str, Any]]:
-    """Run independent jobs (``bptsb_ros.sweep.Job``) as a resumable sweep in ``out_dir``, where the run's
+    """Run independent jobs (``bptsb_ros.jobs.sweep.Job``) as a resumable sweep in ``out_dir``, where the run's
     ``--workers`` / ``--scheduler`` say (``ctx``: the experiment's ``Context``, :meth:`Context.sweep`; ``gangs``:
     one gang of trainings per worker, their episodes one batched simulation). Every failure is an error, except,
     with ``diverged_ok``, a training that diverged: its result is ``{"diverged": message}`` (SGD can blow a system

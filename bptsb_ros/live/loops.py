@@ -705,7 +705,7 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
 
 
 def rviz_config() -> Path:
-    """The RViz config of the package (``config/bptsb.rviz``; :func:`bptsb_ros.package_data.rviz_config`)."""
-    from bptsb_ros.package_data import rviz_config as packaged
+    """The RViz config of the package (``config/bptsb.rviz``; :func:`bptsb_ros.files.package_data.rviz_config`)."""
+    from bptsb_ros.files.package_data import rviz_config as packaged
 
     return packaged()

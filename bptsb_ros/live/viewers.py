@@ -69,7 +69,7 @@ def write_viewer_configs(out_dir: str | Path, namespace: str) -> list[Path]:
     only: one that exists is left as it is); returns the paths written."""
     import json
 
-    from bptsb_ros.package_data import config_dir
+    from bptsb_ros.files.package_data import config_dir
 
     out, src = Path(out_dir), config_dir()
     texts = {}

@@ -11,8 +11,8 @@ import importlib
 import sys
 from pathlib import Path
 
+from bptsb_ros.files.safe_write import write_atomic
 from bptsb_ros.ros.params import render_params_yaml
-from bptsb_ros.safe_files import write_atomic
 
 #: node name -> module holding its ``PARAMS`` (brains also get COMMON_PARAMS)
 NODES: dict[str, str] = {

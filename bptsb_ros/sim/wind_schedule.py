@@ -190,7 +190,7 @@ def read_table(path: str | Path, max_force: float | None = None) -> tuple[tuple[
     the file and the problem (missing, not a regular file, over :data:`MAX_TABLE_BYTES`, unreadable, wrong header,
     bad number, t not ascending, too many rows, or a force component beyond ±``max_force`` [N] when given: the
     body's ``max_wind``, which would reject every wind of the run)."""
-    from bptsb_ros.safe_files import UnsafeFileError, read_regular
+    from bptsb_ros.files.safe_write import UnsafeFileError, read_regular
 
     path = Path(path)
     try:

@@ -10,9 +10,9 @@ import torch
 
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.adjoint import Window, rollout_window
+from bptsb_ros.body.clock import step_times
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.config import ExperimentConfig
-from bptsb_ros.sim.clock import step_times
 from bptsb_ros.sim.rollout import swg_rest_lengths
 
 

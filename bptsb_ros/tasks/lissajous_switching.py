@@ -26,9 +26,9 @@ import torch
 
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.adjoint import rollout_window
+from bptsb_ros.body.clock import step_times
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.config import LearningRates, TrainingConfig
-from bptsb_ros.sim.clock import step_times
 from bptsb_ros.sim.population import wind_force
 from bptsb_ros.sim.rollout import swg_rest_lengths
 from bptsb_ros.training.guard import UpdateGuard

@@ -332,7 +332,7 @@ def save_system(system: ImageToBody, path, extra: dict[str, Any] | None = None) 
 
     payload = {"spec": json.dumps(system.spec.to_json()), "state": system.state_dict(),
                "extra": json.dumps(extra or {})}
-    from bptsb_ros.safe_files import atomic_writer
+    from bptsb_ros.files.safe_write import atomic_writer
 
     with atomic_writer(path) as f:
         torch.save(payload, f)

@@ -29,9 +29,9 @@ import numpy as np
 import torch
 
 from bptsb_ros.body import compile_notice
+from bptsb_ros.body.clock import steps_per_period
 from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
-from bptsb_ros.sim.clock import steps_per_period
 from bptsb_ros.training import fused_kernel
 from bptsb_ros.training.fused_kernel import OUT_GRADS_OK, OUT_LOSS, OUT_STATE_OK, PARAMETERS
 

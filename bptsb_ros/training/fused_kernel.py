@@ -3,7 +3,7 @@
 The fused path of ``training.backend: fused`` (:mod:`bptsb_ros.training.fused`). Per window it does, without
 torch or autograd, what the numba path does through ~40 torch calls and the autograd engine:
 
-1. the SWG clock θ_t = ω·k_t·Δt from the integer step k_t (exactly :func:`bptsb_ros.sim.clock.clock_phase`:
+1. the SWG clock θ_t = ω·k_t·Δt from the integer step k_t (exactly :func:`bptsb_ros.body.clock.clock_phase`:
    k mod N times 2π/N in float64 when the period is N whole steps, else 2π·frac(k·c) in float64), sin θ and
    cos θ cast to the model dtype;
 2. the rest lengths l_te = l_e·(1 + m_e·A_e·(sin θ_t cos φ_e + cos θ_t sin φ_e)) (``SineWaveGenerator``,

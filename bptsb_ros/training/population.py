@@ -38,13 +38,13 @@ import yaml
 from bptsb_ros.agent import Agent, build_agent, force_inputs
 from bptsb_ros.body.held_window import PopulationWindow, held_window_unsupported, lanes_unsupported, population_readout
 from bptsb_ros.body.msdn import SimulationDiverged, diverged_message, parameter_ranges
+from bptsb_ros.body.threads import configure_threads
 from bptsb_ros.brains import LinearInputLayer
 from bptsb_ros.config import ConfigError, ExperimentConfig
-from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
-from bptsb_ros.safe_files import atomic_writer, write_atomic
+from bptsb_ros.files.run_dir_lock import dir_is_empty, hold_run_dir
+from bptsb_ros.files.safe_write import atomic_writer, write_atomic
 from bptsb_ros.tasks.base import Task
 from bptsb_ros.tasks.narma import NarmaTask, brain_input
-from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import save_checkpoint
 from bptsb_ros.training.guard import RESET_AFTER, UpdateGuard
 from bptsb_ros.training.optim import make_optimizer

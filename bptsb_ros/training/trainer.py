@@ -19,12 +19,12 @@ import yaml
 
 from bptsb_ros.agent import Agent, body_backend, build_agent
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
+from bptsb_ros.body.threads import configure_threads
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.config import ConfigError, ExperimentConfig
-from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
-from bptsb_ros.safe_files import json_text, write_atomic
+from bptsb_ros.files.run_dir_lock import dir_is_empty, hold_run_dir
+from bptsb_ros.files.safe_write import json_text, write_atomic
 from bptsb_ros.tasks import get_task
-from bptsb_ros.threads import configure_threads
 from bptsb_ros.training.checkpoint import CheckpointError, checkpoint_path, read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
 from bptsb_ros.training.fused import fused_training
@@ -111,7 +111,7 @@ def train(
         CheckpointError: ``resume`` without a readable checkpoint.
         TrainingDiverged: the simulation or the loss diverged and the guard had nothing to undo, or the
             final evaluation diverged.
-        RunDirLocked: another bptsb process holds ``run_dir`` (:mod:`bptsb_ros.rundir_lock`).
+        RunDirLocked: another bptsb process holds ``run_dir`` (:mod:`bptsb_ros.files.run_dir_lock`).
     """
     if run_dir is None:
         if resume:

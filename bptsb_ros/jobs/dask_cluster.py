@@ -2,7 +2,7 @@
 
 :func:`scheduler_address` accepts only ``tcp://HOST:PORT`` and ``HOST:PORT`` (other schemes, paths, user info,
 ports outside 1 … 65535 are usage errors); :func:`connect` returns a ``distributed.Client`` or raises
-:class:`~bptsb_ros.sweep.SchedulerError` with one line within about the timeout, whatever the other end sends
+:class:`~bptsb_ros.jobs.sweep.SchedulerError` with one line within about the timeout, whatever the other end sends
 (junk, a frame announcing 2⁶⁰ bytes) or does not send.
 """
 
@@ -13,7 +13,7 @@ import re
 import threading
 from typing import Any
 
-from bptsb_ros.sweep_errors import SchedulerError, SweepError
+from bptsb_ros.jobs.errors import SchedulerError, SweepError
 
 _HOST_LABEL = re.compile(r"^(?!-)[A-Za-z0-9_-]{1,63}(?<!-)$")
 

@@ -30,7 +30,7 @@ from typing import Any, NamedTuple
 import yaml
 
 from bptsb_ros.config import MAX_CONFIG_BYTES, ConfigError, ExperimentConfig, echo, safe_yaml, validate
-from bptsb_ros.safe_files import UnsafeFileError, open_regular, read_regular, write_text_atomic
+from bptsb_ros.files.safe_write import UnsafeFileError, open_regular, read_regular, write_text_atomic
 
 MARKER = "# written by bptsb config import from the authors' config; `bptsb config import --force` may replace it"
 """First line of every file :func:`write_output` writes; a file without it is never overwritten."""

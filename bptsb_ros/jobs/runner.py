@@ -1,7 +1,7 @@
 """The one job runner: independent jobs in this process, a local process pool, or on a Dask cluster.
 
 Every independent training of the package goes through here: ``bptsb sweep`` and the sweeps of the
-experiments (:func:`bptsb_ros.sweep.run_sweep`, run directories and resume) and the experiments' in-memory jobs
+experiments (:func:`bptsb_ros.jobs.sweep.run_sweep`, run directories and resume) and the experiments' in-memory jobs
 (:func:`run_jobs`, results in job order). Where the jobs run is a :class:`Placement`:
 
 - ``workers=0``: one after another in this process;
@@ -174,7 +174,7 @@ def run_calls(calls: Sequence[Call], placement: Placement, *, threads: int | Non
     ``notice`` (default: stderr) what a Dask run waits for. Returns what was used.
 
     On a Dask cluster without a worker, the run says so and waits up to ``worker_wait_s`` (default
-    :data:`WORKER_WAIT_S`) for one, then raises :class:`~bptsb_ros.sweep_errors.SchedulerError`; jobs the cluster
+    :data:`WORKER_WAIT_S`) for one, then raises :class:`~bptsb_ros.jobs.errors.SchedulerError`; jobs the cluster
     cancels or loses (the scheduler goes away, no worker is left for that long) end as :class:`JobLost`."""
     report = report or (lambda running: None)
     if not calls:
@@ -218,7 +218,7 @@ def _stderr(line: str) -> None:
 def _wait_for_a_worker(client: Any, address: str, wait_s: float, notice: Callable[[str], None]) -> None:
     """Return once the cluster has a worker; say what the run waits for when it has none; SchedulerError after
     ``wait_s`` seconds without one."""
-    from bptsb_ros.sweep_errors import SchedulerError
+    from bptsb_ros.jobs.errors import SchedulerError
 
     if _live_workers(client) > 0:
         return
@@ -378,10 +378,10 @@ def close_client(client: Any) -> None:
 
 def connect_placement(placement: Placement, timeout: float) -> Any:
     """A ``distributed.Client`` of ``placement``'s scheduler (None without one); see
-    :func:`bptsb_ros.dask_connect.connect` (``inproc://`` addresses are an in-process cluster's)."""
+    :func:`bptsb_ros.jobs.dask_cluster.connect` (``inproc://`` addresses are an in-process cluster's)."""
     if not placement.scheduler:
         return None
-    from bptsb_ros.dask_connect import connect, scheduler_address
+    from bptsb_ros.jobs.dask_cluster import connect, scheduler_address
 
     address = placement.scheduler
     if not address.startswith("inproc://"):

@@ -12,7 +12,7 @@ Two shapes: ``split`` (ping, pong and the recorder in three processes, as a loop
 composed loop, ``composed:=true``). :func:`run_anchor` starts them and returns the round trips per second
 over ``seconds`` of wall time after a warm-up.
 
-Run one side alone: ``python -m bptsb_ros.live_anchor ping|pong|both|recorder --seconds S`` (the ROS_DOMAIN_ID of
+Run one side alone: ``python -m bptsb_ros.ros.anchor ping|pong|both|recorder --seconds S`` (the ROS_DOMAIN_ID of
 the environment). ``ping`` and ``both`` print one JSON line with the result.
 """
 
@@ -195,7 +195,7 @@ def run_anchor(shape: str = "split", seconds: float = 5.0, env: dict[str, str] |
     and the shape (or ``error``)."""
     if shape not in SHAPES:
         raise ValueError(f"shape must be one of {SHAPES}, got {shape!r}")
-    base = [sys.executable, "-m", "bptsb_ros.live_anchor"]
+    base = [sys.executable, "-m", "bptsb_ros.ros.anchor"]
     env = dict(os.environ if env is None else env)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     others = [["recorder"]] + ([["pong"]] if shape == "split" else [])
@@ -228,7 +228,7 @@ def _stop_all(procs: list[subprocess.Popen], grace: float = 10.0) -> None:
 
 
 def main(argv: list[str] | None = None, out: Callable[[str], None] = print) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bptsb_ros.live_anchor", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m bptsb_ros.ros.anchor", description=__doc__.splitlines()[0])
     parser.add_argument("role", choices=("ping", "pong", "both", "recorder"))
     parser.add_argument("--seconds", type=float, default=5.0, help="timed wall seconds after the warm-up")
     args = parser.parse_args(argv)

@@ -44,7 +44,7 @@ def _installed(kind: str) -> Path | None:
 def checkout_root() -> Path | None:
     """The source checkout the package was imported from (the folder holding ``package.xml`` beside the
     ``bptsb_ros`` package), or None for an installed package."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]  # bptsb_ros/files/package_data.py → the checkout
     manifest = root / "package.xml"
     try:
         if manifest.is_file() and f"<name>{PACKAGE}</name>" in manifest.read_text(encoding="utf-8"):

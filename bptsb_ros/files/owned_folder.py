@@ -15,7 +15,7 @@ import shutil
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from bptsb_ros.safe_files import atomic_writer, write_atomic
+from bptsb_ros.files.safe_write import atomic_writer, write_atomic
 
 MANIFEST = ".bptsb-report-manifest.json"
 WRITTEN_BY = "bptsb report"

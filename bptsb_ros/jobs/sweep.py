@@ -16,7 +16,7 @@ Layout of a sweep directory::
     OUT/sweep.csv         the same as a table: name, status, wall_s, error, then the result keys; a job whose
                           result maps trainings to their results (a population) has a row per training,
                           named JOB/TRAINING, with the job's status and wall_s
-    OUT/.bptsb.lock       held while a sweep runs there (:mod:`bptsb_ros.rundir_lock`): one sweep per OUT
+    OUT/.bptsb.lock       held while a sweep runs there (:mod:`bptsb_ros.files.run_dir_lock`): one sweep per OUT
 
 Resuming: a job whose ``job.json`` is a valid finished record *of this job* is skipped and its record reused:
 status ``done``, the job's name, its ``key`` (a hash of what the job is: its callable and arguments, for
@@ -29,12 +29,12 @@ does not end by itself — its worker process dies, the Dask scheduler goes away
 (status ``lost`` in the tables): the sweep finishes the others, writes its tables and raises :class:`JobsLost`
 naming them, so no result is ever made of the jobs that did finish alone; running it again runs the lost ones.
 
-Where jobs run (:mod:`bptsb_ros.runner`, the one runner of the package): ``workers`` local processes
+Where jobs run (:mod:`bptsb_ros.jobs.runner`, the one runner of the package): ``workers`` local processes
 (``concurrent.futures`` with the ``spawn`` start method; 0: this process), or, with
 ``scheduler="tcp://HOST:8786"``, the workers of an existing Dask distributed cluster (a lab cluster or SLURM
 through dask-jobqueue; docs, "Reproducing"). Cluster workers must import ``bptsb_ros`` and see ``OUT`` on a
 shared file system. The scheduler address is ``tcp://HOST:PORT`` or ``HOST:PORT``; connecting gives up after
-``connect_timeout`` seconds, whatever the other end does (:mod:`bptsb_ros.dask_connect`). Inside every job,
+``connect_timeout`` seconds, whatever the other end does (:mod:`bptsb_ros.jobs.dask_cluster`). Inside every job,
 local or on the cluster, BLAS/OpenMP and torch run one thread (``threads``), and the record names where the
 job ran (``ran_on``).
 """
@@ -58,14 +58,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bptsb_ros.rundir_lock import LOCK_NAME, hold_run_dir
-from bptsb_ros.runner import JobLost, Placement, RunInfo, close_client, connect_placement, ran_on, run_calls
-from bptsb_ros.safe_files import write_atomic
-from bptsb_ros.sweep_errors import SchedulerError, SweepError  # noqa: F401 - callers import both from here
+from bptsb_ros.files.run_dir_lock import LOCK_NAME, hold_run_dir
+from bptsb_ros.files.safe_write import write_atomic
+from bptsb_ros.jobs.errors import SchedulerError, SweepError  # noqa: F401 - callers import both from here
+from bptsb_ros.jobs.runner import JobLost, Placement, RunInfo, close_client, connect_placement, ran_on, run_calls
 
 
 class JobsLost(SweepError):
-    """Jobs of a sweep did not end by themselves (:class:`~bptsb_ros.runner.JobLost`: a worker died, the Dask
+    """Jobs of a sweep did not end by themselves (:class:`~bptsb_ros.jobs.runner.JobLost`: a worker died, the Dask
     cluster cancelled or lost them); the sweep's tables record them with status ``lost``, and a rerun runs them."""
 
 
@@ -293,7 +293,7 @@ def execute_job(job: Job, run_dir: str | Path, key: str | None = None) -> dict[s
 
     ``key``: :func:`job_key` of ``job`` (computed here if not given; the sweep passes the one it checks against).
     The record names where the job ran (``ran_on``: host, process id, Dask worker address or None). Threads are
-    the runner's business (:func:`bptsb_ros.runner.call_limited` wraps this call).
+    the runner's business (:func:`bptsb_ros.jobs.runner.call_limited` wraps this call).
     """
     run_dir = Path(run_dir)
     key = key if key is not None else job_key(job)
@@ -314,9 +314,9 @@ def execute_job(job: Job, run_dir: str | Path, key: str | None = None) -> dict[s
 
 
 def execute_gang(jobs: Sequence[Job], run_dirs: Sequence[str | Path], keys: Sequence[str]) -> list[dict[str, Any]]:
-    """Run ``jobs`` as one gang (:mod:`bptsb_ros.gang`: one thread each, their held-force windows batched), each
+    """Run ``jobs`` as one gang (:mod:`bptsb_ros.jobs.gang`: one thread each, their held-force windows batched), each
     in its run directory as :func:`execute_job` runs it; their records in order."""
-    from bptsb_ros.gang import run_gang
+    from bptsb_ros.jobs.gang import run_gang
 
     out = run_gang([functools.partial(execute_job, job, run_dir, key)
                     for job, run_dir, key in zip(jobs, run_dirs, keys)], report_every_s=GANG_REPORT_S)
@@ -434,25 +434,26 @@ def run_sweep(
         workers: local worker processes (default: the CPUs available); ignored with ``scheduler``.
             ``workers=0`` runs the jobs one after another in this process (debugging).
         scheduler: address of a Dask distributed scheduler (``tcp://HOST:8786``,
-            :func:`bptsb_ros.dask_connect.scheduler_address`; or
+            :func:`bptsb_ros.jobs.dask_cluster.scheduler_address`; or
             the ``inproc://`` address of an in-process cluster) to run the jobs on.
         progress: called with the counts after every change.
         threads: BLAS/OpenMP and torch threads inside each job (1: as many jobs as cores without
-            oversubscription; None: leave them), for local and Dask workers alike (:mod:`bptsb_ros.runner`).
+            oversubscription; None: leave them), for local and Dask workers alike (:mod:`bptsb_ros.jobs.runner`).
         connect_timeout: seconds to wait for the Dask scheduler to answer.
         notice: called with one line per job whose ``job.json`` claims it finished but is not trusted (the job
             runs again); default: printed to stderr.
-        gang: run the jobs still to do in runs of this many as one gang each (:mod:`bptsb_ros.gang`: one process,
+        gang: run the jobs still to do in runs of this many as one gang each (:mod:`bptsb_ros.jobs.gang`: one process,
             a thread per job, their held-force windows as one batched simulation); None or 1: a process per job.
         n_gangs: instead of ``gang``: split the jobs still to do into this many gangs of consecutive jobs (as many
             as there are workers: one gang each, also when a resumed sweep has fewer jobs left).
         worker_wait_s: on a Dask cluster, how long to wait for a worker (before the first job, and when none is
-            left; default :data:`bptsb_ros.runner.WORKER_WAIT_S`); ``notice`` hears what the sweep waits for.
+            left; default :data:`bptsb_ros.jobs.runner.WORKER_WAIT_S`); ``notice`` hears what the sweep waits for.
 
     Raises:
         SweepError: bad job names or scheduler address (nothing was created).
         SchedulerError: the scheduler did not answer as a Dask scheduler within ``connect_timeout``.
-        RunDirLocked: another bptsb process holds ``out_dir`` (:mod:`bptsb_ros.rundir_lock`); nothing was touched.
+        RunDirLocked: another bptsb process holds ``out_dir`` (:mod:`bptsb_ros.files.run_dir_lock`); nothing was
+            touched.
         JobsLost: jobs did not end by themselves (a worker died, the cluster cancelled or lost them); the tables
             are written (those jobs with status ``lost``) and a rerun in ``out_dir`` runs them.
     """
@@ -465,7 +466,7 @@ def run_sweep(
         raise SweepError(f"job names must be distinct; repeated: {dup[:3]}")
     address = None
     if scheduler:
-        from bptsb_ros.dask_connect import scheduler_address
+        from bptsb_ros.jobs.dask_cluster import scheduler_address
 
         # inproc://: a LocalCluster(processes=False) of this very process (tests, notebooks); never from the CLI
         address = scheduler if scheduler.startswith("inproc://") else scheduler_address(scheduler)

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bptsb_ros.safe_files import open_for_writing
+from bptsb_ros.files.safe_write import open_for_writing
 
 SPIN = "while True: pass"
 

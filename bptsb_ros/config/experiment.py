@@ -26,7 +26,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from bptsb_ros.body.shapes import MAX_MASSES, build_shape
-from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
+from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 TASKS = ("lissajous", "locomotion", "narma")
 MAX_CONFIG_BYTES = 1 << 20

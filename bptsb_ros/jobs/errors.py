@@ -1,5 +1,5 @@
-"""The errors of a sweep, apart from the runner so that the Dask connection code (:mod:`bptsb_ros.dask_connect`)
-and :mod:`bptsb_ros.sweep` can both raise them without importing each other."""
+"""The errors of a sweep, apart from the runner so that the Dask connection code (:mod:`bptsb_ros.jobs.dask_cluster`)
+and :mod:`bptsb_ros.jobs.sweep` can both raise them without importing each other."""
 
 from __future__ import annotations
 
