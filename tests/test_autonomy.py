@@ -14,10 +14,10 @@ from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, period
 from bptsb_ros.cli import main
 from bptsb_ros.experiments import read_result
 from bptsb_ros.experiments.common import packaged_config
-from bptsb_ros.sim.population import run_population
+from bptsb_ros.sim.batched import run_population
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
 from bptsb_ros.tasks.lissajous import returned, windowed_shift_error, windowed_shift_error_batch
-from bptsb_ros.tasks.lissajous_switching import Curve, wind_schedule
+from bptsb_ros.tasks.switching import Curve, wind_schedule
 
 
 # -- the paper's error and success criterion ---------------------------------------------------------------
@@ -372,7 +372,7 @@ def test_scheme2_feedback_gradient_pairs_state_k_with_signal_k_plus_1(agent64, m
     import copy
 
     from bptsb_ros.config import LearningRates
-    from bptsb_ros.training import closed_loop_schemes as cls
+    from bptsb_ros.tasks import feedback_schemes as cls
 
     agent = copy.deepcopy(agent64)
     body, swg, fb = agent.body, agent.brain, agent.feedback

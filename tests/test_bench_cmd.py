@@ -8,7 +8,7 @@ import json
 import pytest
 
 from bptsb_ros.bench import gang_speed as bench_gang
-from bptsb_ros.bench import mnist as bench_mnist
+from bptsb_ros.bench import mnist_speed as bench_mnist
 from bptsb_ros.bench import suite as bench
 from bptsb_ros.cli import main
 

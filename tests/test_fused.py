@@ -310,7 +310,7 @@ def test_the_feedback_layer_is_fitted_after_fused_training_as_after_numba_traini
 
 
 def test_the_bench_report_holds_the_fused_ratios_and_target(monkeypatch):
-    from bptsb_ros.bench import mnist as bench_mnist
+    from bptsb_ros.bench import mnist_speed as bench_mnist
     from bptsb_ros.bench import suite as bench
 
     planted = {"torch": 100.0, "numba": 1000.0, "fused": 4000.0}  # train steps/s: fused / numba 4 < 5
@@ -396,7 +396,7 @@ def test_only_the_trained_parameters_gradients_must_be_finite():
 
 @pytest.mark.parametrize("published", [False, True], ids=["wind", "published-wind"])
 def test_switching_training_gives_the_numba_paths_losses_and_parameters(published):
-    from bptsb_ros.tasks.lissajous_switching import (
+    from bptsb_ros.tasks.switching import (
         CURVE_1,
         CURVE_SWITCH,
         switch_targets,

@@ -560,7 +560,7 @@ def fitted_agent(state: str):
 
 
 def test_feedback_commands_route_clock_and_state_and_compute_the_layer_by_hand():
-    from bptsb_ros.live.feedback import FeedbackCommands
+    from bptsb_ros.live.feedback_loop import FeedbackCommands
 
     a, w = fitted_agent("spring_length")
     base = a.body.l.numpy()
@@ -587,7 +587,7 @@ def test_feedback_commands_route_clock_and_state_and_compute_the_layer_by_hand()
 
 
 def test_feedback_acceleration_features_are_effort_over_mass():
-    from bptsb_ros.live.feedback import FeedbackCommands
+    from bptsb_ros.live.feedback_loop import FeedbackCommands
 
     a, w = fitted_agent("acceleration")
     with torch.no_grad():  # planted unequal masses (the paper's are all 1, where a = F / m = F · m)

@@ -404,7 +404,7 @@ def test_feedback_gain_and_noise_perturb_the_fitted_layer():
     import torch
 
     from bptsb_ros.brains.feedback import FeedbackLayer
-    from bptsb_ros.live.feedback import perturbed_rest_length
+    from bptsb_ros.live.feedback_loop import perturbed_rest_length
 
     layer = FeedbackLayer(3, 2, dtype=torch.float64)
     w = np.array([[0.1, -0.2, 0.3, 0.05], [0.0, 0.4, -0.1, -0.02]])

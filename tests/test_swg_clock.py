@@ -188,7 +188,7 @@ def test_offline_open_loop_and_training_windows_at_the_large_step(agent) -> None
 
 
 def test_population_run_at_the_large_step(agent, monkeypatch) -> None:
-    from bptsb_ros.sim.population import run_population
+    from bptsb_ros.sim.batched import run_population
 
     body = agent.body
     seen: list[torch.Tensor] = []

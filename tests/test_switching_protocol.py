@@ -15,7 +15,7 @@ from bptsb_ros.experiments.common import packaged_config
 from bptsb_ros.experiments.experiment_settings import resolve_settings
 from bptsb_ros.experiments.lissajous_switching import variant_curve, variant_lr
 from bptsb_ros.tasks.lissajous import LissajousTask
-from bptsb_ros.tasks.lissajous_switching import (
+from bptsb_ros.tasks.switching import (
     CURVE_1,
     switch_targets,
     train_switching,

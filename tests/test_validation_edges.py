@@ -22,7 +22,7 @@ from bptsb_ros.analysis.ipc import IPCError, ipc_groups
 from bptsb_ros.body.msdn import MSDN
 from bptsb_ros.body.shapes import MAX_MASSES, double_circle
 from bptsb_ros.cli import main as cli_main
-from bptsb_ros.cli.common import finite_float
+from bptsb_ros.cli.options import finite_float
 from bptsb_ros.config import ConfigError, validate
 from bptsb_ros.data import mnist
 from bptsb_ros.data.mnist import MnistError, read_pair

@@ -91,7 +91,7 @@ def switching_metrics(cmp: dict[str, np.ndarray], wind: np.ndarray, dt: float, c
     ``extra['wind_shift_x']``) with wind, after a transient of 2 periods; for each trajectory in ``cmp`` (T, 2).
     Segments shorter than transient + 1 period are left out."""
     from bptsb_ros.experiments.lissajous_switching import DRAWS_NMSE
-    from bptsb_ros.tasks.lissajous_switching import CURVE_1, Curve, switch_targets
+    from bptsb_ros.tasks.switching import CURVE_1, Curve, switch_targets
 
     _, period, amp, omega = lissajous_target(config)
     curve_on = Curve(*extra.get("curve_on", (2, 1, math.pi / 2)))

@@ -3,7 +3,7 @@
 compiled window kernel) and, for Lissajous training, the fused path (``training.backend: fused``: window,
 loss, gradients and update as compiled calls), each measurement in its own process so its peak RSS is its
 own; and the MNIST systems' training throughput in images/s with the paper-schedule estimate
-(:mod:`bptsb_ros.bench.mnist`).
+(:mod:`bptsb_ros.bench.mnist_speed`).
 
 Speed is measured here, never asserted in a timed test. The numba kernels' first-call time (compile, or
 loading the on-disk cache) is measured separately and kept out of the steady-state figures.
@@ -375,7 +375,7 @@ def run_benchmarks(quick: bool = False, progress=print, update=None) -> dict[str
         "narma_train_steps_per_s": (30_000, narma["numba"]),
         "sweep_forward_body_steps_per_s": (1_000_000, measured("sweep", "numba", "forward_body_steps_per_s")),
     }
-    from bptsb_ros.bench import mnist as bench_mnist
+    from bptsb_ros.bench import mnist_speed as bench_mnist
 
     progress("bench mnist (every MNIST system, batch 50; paper-schedule estimate) ...")
     report["mnist"] = bench_mnist.run_isolated(quick)

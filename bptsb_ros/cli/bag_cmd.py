@@ -78,7 +78,7 @@ def _recover(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.bags.errors import BagError
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
 
     try:
         return _recover(args) if args.bag_command == "recover" else _info(args)

@@ -73,7 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _check_workdir(workdir: Path | None) -> int | None:
     """None, or the exit status after one line where ``--workdir`` exists and is not empty (what is on disk: a
     runtime failure, not a usage error; the bench never writes into another run's files)."""
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
 
     if workdir is not None and workdir.exists() and not workdir.is_dir():
         return fail(NAME, f"--workdir {workdir} exists and is not a directory")
@@ -87,7 +87,7 @@ def _write(out: Path, report: dict, complete: bool = True) -> int | None:
     atomically and only as a regular file (:func:`bptsb_ros.files.safe_write.write_atomic`: a reader or a kill never
     sees half a file, a device or a planted link is never written through); None, or the exit status of a write that
     failed (after one line)."""
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
     from bptsb_ros.files.safe_write import UnsafeFileError, write_atomic
 
     try:
@@ -123,7 +123,7 @@ def _soak(args: argparse.Namespace) -> int:
     import math
 
     from bptsb_ros.bench.soak import run_soak
-    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.cli.options import USAGE, fail
 
     if args.realtime_seconds is None:
         args.realtime_seconds = 60.0
@@ -150,7 +150,7 @@ def _live(args: argparse.Namespace) -> int:
     import math
 
     from bptsb_ros.bench.live import live_table, run_live
-    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.cli.options import USAGE, fail
     from bptsb_ros.live.loops import LOOPS
 
     loops = tuple(name.strip() for name in args.live_loops.split(",") if name.strip())
@@ -180,7 +180,7 @@ def _realtime(args: argparse.Namespace) -> int:
     import math
 
     from bptsb_ros.bench.realtime import example_agent, realtime_table, run_realtime_bench
-    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.cli.options import USAGE, fail
 
     seconds = 600.0 if args.realtime_seconds is None else args.realtime_seconds
     if not (math.isfinite(seconds) and seconds > 0):
@@ -215,7 +215,7 @@ def _realtime(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     if args.soak and args.realtime:
-        from bptsb_ros.cli.common import USAGE, fail
+        from bptsb_ros.cli.options import USAGE, fail
 
         return fail(NAME, "--soak and --realtime are two different benches: choose one", USAGE)
     if args.soak:
@@ -253,7 +253,7 @@ def run(args: argparse.Namespace) -> int:
           + ", ".join(f"{b} {h}" for b, h in sched["projected_hours"].items()))
     mnist = report.get("mnist", {})
     if "systems" in mnist:
-        from bptsb_ros.bench.mnist import mnist_table
+        from bptsb_ros.bench.mnist_speed import mnist_table
 
         print(mnist_table(mnist))
         sched = mnist["paper_schedule"]

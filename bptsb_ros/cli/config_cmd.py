@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _import(args: argparse.Namespace) -> int:
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
     from bptsb_ros.config.authors import ImportFailure, import_file, write_output
 
     try:
@@ -64,7 +64,7 @@ def _import(args: argparse.Namespace) -> int:
 def _show(args: argparse.Namespace) -> int:
     import yaml
 
-    from bptsb_ros.cli.common import config_error_code, fail
+    from bptsb_ros.cli.options import config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.experiments.common import config_source
 
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "show":
         return _show(args)
     if args.action == "list":
-        from bptsb_ros.cli.common import fail
+        from bptsb_ros.cli.options import fail
         from bptsb_ros.config import ConfigError
         from bptsb_ros.experiments.common import packaged_configs
 

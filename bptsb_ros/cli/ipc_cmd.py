@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.analysis.ipc import IPCError, bag_series, ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.plots import plot_ipc_bars
     from bptsb_ros.bags.errors import BagError
-    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.cli.options import USAGE, fail
 
     problem = _option_problem(args)
     try:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from bptsb_ros.cli.common import FAILURE, USAGE, fail, finite_float
+from bptsb_ros.cli.options import FAILURE, USAGE, fail, finite_float
 from bptsb_ros.files.safe_write import open_for_writing, write_atomic
 from bptsb_ros.live.loops import LOOPS, bag_target_problem, format_parameter, loops_help
 

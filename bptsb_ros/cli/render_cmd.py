@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bptsb_ros.cli.common import DEFAULT_NODES, USAGE, fail, finite_float
+from bptsb_ros.cli.options import DEFAULT_NODES, USAGE, fail, finite_float
 
 NAME = "render"
 HELP = (

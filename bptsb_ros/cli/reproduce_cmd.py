@@ -55,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.cli.options import USAGE, fail
     from bptsb_ros.config import ConfigError
     from bptsb_ros.data.mnist import MnistError
     from bptsb_ros.experiments import ExperimentError, experiments, get_experiment, run_experiment
@@ -153,7 +153,7 @@ def _rejudge(args: argparse.Namespace) -> int:
     """``--rejudge``: the claims of the finished run in ``--out`` judged again from its stored numbers."""
     from pathlib import Path
 
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
     from bptsb_ros.experiments.result import ResultError
     from bptsb_ros.experiments.seeds import rejudge_run
     from bptsb_ros.files.run_dir_lock import RunDirLocked, hold_run_dir

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-from bptsb_ros.cli.common import USAGE, fail
+from bptsb_ros.cli.options import USAGE, fail
 
 NAME = "run"
 HELP = ("run one ROS 2 node: body_sim, swg_brain, mlp_brain, feedback_brain, task_input, recorder, image_streamer or "

@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _timeout(text: str) -> float:
-    from bptsb_ros.cli.common import finite_float
+    from bptsb_ros.cli.options import finite_float
 
     value = finite_float(text)
     if not 0 < value <= 3600:
@@ -39,7 +39,7 @@ def _timeout(text: str) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.cli.common import USAGE, config_error_code, fail
+    from bptsb_ros.cli.options import USAGE, config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.files.run_dir_lock import RunDirLocked
     from bptsb_ros.jobs.dask_cluster import scheduler_address

@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.cli.common import USAGE, config_error_code, fail
+    from bptsb_ros.cli.options import USAGE, config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.experiments.common import config_source
     from bptsb_ros.files.run_dir_lock import RunDirLocked

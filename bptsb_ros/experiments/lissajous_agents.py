@@ -16,7 +16,7 @@ import torch
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.experiments.common import packaged_config
-from bptsb_ros.tasks.lissajous_switching import CURVE_1, Curve
+from bptsb_ros.tasks.switching import CURVE_1, Curve
 
 
 @contextmanager

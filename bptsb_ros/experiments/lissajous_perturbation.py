@@ -47,10 +47,10 @@ from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.seeds import seed_figure
+from bptsb_ros.sim.batched import run_population
 from bptsb_ros.sim.perturbation import perturbation_batch
-from bptsb_ros.sim.population import run_population
 from bptsb_ros.tasks.lissajous import RETURN_RATIO, returned, windowed_shift_error_batch
-from bptsb_ros.tasks.lissajous_switching import CURVE_1
+from bptsb_ros.tasks.switching import CURVE_1
 
 SIGMAS = np.round(np.arange(0.0, 1.0001, 0.1), 10)
 #: each trial in words (claims of a variant after the first are prefixed with it); key: a restart trial

@@ -3,7 +3,7 @@ switching", Fig. (a), (b), (d); "Switching timing" and its figure).
 
 All three start from the single-curve agent (preliminary training, config/lissajous_single.yaml) and add
 BPTSB training with the paper's switching learning rates under a binary wind schedule
-(:mod:`bptsb_ros.tasks.lissajous_switching`): without wind the target is (1,2,0), with F_wind = 1 the second
+(:mod:`bptsb_ros.tasks.switching`): without wind the target is (1,2,0), with F_wind = 1 the second
 curve displaced in x by the CMP's own mean wind shift (the paper displaces it by an amount it does not give).
 
 Each experiment runs every named variant of its settings file (``ctx.settings.variants``: the paper's wind, the
@@ -49,10 +49,10 @@ from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
 from bptsb_ros.experiments.seeds import seed_figure
 from bptsb_ros.files.safe_write import write_atomic
-from bptsb_ros.sim.population import run_population
+from bptsb_ros.sim.batched import run_population
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.tasks.lissajous import windowed_shift_error_batch
-from bptsb_ros.tasks.lissajous_switching import (
+from bptsb_ros.tasks.switching import (
     CURVE_1,
     CURVE_SWITCH,
     CURVE_TIMING,

@@ -13,7 +13,7 @@ import re
 import threading
 from typing import Any
 
-from bptsb_ros.jobs.errors import SchedulerError, SweepError
+from bptsb_ros.jobs.sweep_errors import SchedulerError, SweepError
 
 _HOST_LABEL = re.compile(r"^(?!-)[A-Za-z0-9_-]{1,63}(?<!-)$")
 

@@ -174,7 +174,7 @@ def run_calls(calls: Sequence[Call], placement: Placement, *, threads: int | Non
     ``notice`` (default: stderr) what a Dask run waits for. Returns what was used.
 
     On a Dask cluster without a worker, the run says so and waits up to ``worker_wait_s`` (default
-    :data:`WORKER_WAIT_S`) for one, then raises :class:`~bptsb_ros.jobs.errors.SchedulerError`; jobs the cluster
+    :data:`WORKER_WAIT_S`) for one, then raises :class:`~bptsb_ros.jobs.sweep_errors.SchedulerError`; jobs the cluster
     cancels or loses (the scheduler goes away, no worker is left for that long) end as :class:`JobLost`."""
     report = report or (lambda running: None)
     if not calls:
@@ -218,7 +218,7 @@ def _stderr(line: str) -> None:
 def _wait_for_a_worker(client: Any, address: str, wait_s: float, notice: Callable[[str], None]) -> None:
     """Return once the cluster has a worker; say what the run waits for when it has none; SchedulerError after
     ``wait_s`` seconds without one."""
-    from bptsb_ros.jobs.errors import SchedulerError
+    from bptsb_ros.jobs.sweep_errors import SchedulerError
 
     if _live_workers(client) > 0:
         return

@@ -60,8 +60,8 @@ from typing import Any
 
 from bptsb_ros.files.run_dir_lock import LOCK_NAME, hold_run_dir
 from bptsb_ros.files.safe_write import write_atomic
-from bptsb_ros.jobs.errors import SchedulerError, SweepError  # noqa: F401 - callers import both from here
 from bptsb_ros.jobs.runner import JobLost, Placement, RunInfo, close_client, connect_placement, ran_on, run_calls
+from bptsb_ros.jobs.sweep_errors import SchedulerError, SweepError  # noqa: F401 - callers import both from here
 
 
 class JobsLost(SweepError):

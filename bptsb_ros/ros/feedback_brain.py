@@ -28,7 +28,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
-from bptsb_ros.live.feedback import FeedbackCommands
+from bptsb_ros.live.feedback_loop import FeedbackCommands
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.cdr_in import JointStateReader, PoseArrayReader

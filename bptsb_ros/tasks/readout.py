@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from bptsb_ros.brains.fnn import LinearInputLayer
-from bptsb_ros.tasks.mnist_drawing import N_PIXELS, ImageToBody, SystemSpec, iterate_batches
+from bptsb_ros.tasks.drawing import N_PIXELS, ImageToBody, SystemSpec, iterate_batches
 from bptsb_ros.training.guard import WINDOW, UpdateGuard
 
 N_CLASSES = 10

@@ -63,8 +63,8 @@ def measure_system(entry: dict[str, Any], *, min_seconds: float, min_updates: in
     """
     import torch
 
-    from bptsb_ros.tasks import mnist_drawing as draw
-    from bptsb_ros.tasks import mnist_readout as ro
+    from bptsb_ros.tasks import drawing as draw
+    from bptsb_ros.tasks import readout as ro
 
     torch.set_num_threads(1)
     if entry["kind"] == "drawing":

@@ -29,7 +29,7 @@ from bptsb_ros.body.adjoint import rollout_window
 from bptsb_ros.body.clock import step_times
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.config import LearningRates, TrainingConfig
-from bptsb_ros.sim.population import wind_force
+from bptsb_ros.sim.batched import wind_force
 from bptsb_ros.sim.rollout import swg_rest_lengths
 from bptsb_ros.training.guard import UpdateGuard
 from bptsb_ros.training.optim import divide_rates_, make_optimizer, step_decay_updates
@@ -109,7 +109,7 @@ def wind_offset(agent: Agent, state: BodyState, f_wind: float = 1.0, periods: in
                 published: bool = False) -> float:
     """Mean x shift [m] of the CMP caused by a constant wind: mean CMP x over ``periods`` periods with the
     wind minus without (both after ``periods`` periods of transient), the trained open loop from ``state``."""
-    from bptsb_ros.sim.population import run_population
+    from bptsb_ros.sim.batched import run_population
 
     body = agent.body
     steps = 2 * periods * int(round(2 * math.pi / agent.brain.omega / body.dt))
