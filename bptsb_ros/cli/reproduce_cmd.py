@@ -61,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.experiments import ExperimentError, experiments, get_experiment, run_experiment
     from bptsb_ros.experiments.experiment_settings import SettingsError, resolve_settings
     from bptsb_ros.experiments.result import ResultError, claim_mark
-    from bptsb_ros.experiments.seeds import SeedsError, parse_seeds, run_seeds
+    from bptsb_ros.experiments.seed_dirs import SeedsError, parse_seeds
+    from bptsb_ros.experiments.seeds import run_seeds
     from bptsb_ros.files.run_dir_lock import RunDirLocked
     from bptsb_ros.jobs.dask_cluster import scheduler_address
     from bptsb_ros.jobs.runner import JobFailed

@@ -37,7 +37,6 @@ import numpy as np
 from bptsb_ros.experiments.claim_rules import (
     DRAWS_NMSE,
     SAME_RATE,
-    all_not_testable,
     almost_same_rates,
     draws,
     fmt,
@@ -45,7 +44,7 @@ from bptsb_ros.experiments.claim_rules import (
 from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded, train_single_curve
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
-from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
 from bptsb_ros.sim.batched import run_population
 from bptsb_ros.sim.perturbation import perturbation_batch

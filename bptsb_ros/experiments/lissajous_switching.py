@@ -36,7 +36,7 @@ import torch
 from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, periodicity
 from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.config import LearningRates
-from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, all_not_testable, at_most, draws, fmt, longest_run
+from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, at_most, draws, fmt, longest_run
 from bptsb_ros.experiments.lissajous_agents import (
     TrainedAgent,
     load_trained,
@@ -46,7 +46,7 @@ from bptsb_ros.experiments.lissajous_agents import (
 )
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
-from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
 from bptsb_ros.files.safe_write import write_atomic
 from bptsb_ros.sim.batched import run_population

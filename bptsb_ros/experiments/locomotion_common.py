@@ -120,7 +120,7 @@ def adopt_sibling_agents(jobs: list[Job], where: Path, out_dir: Path, log) -> li
     siblings that are ``bptsb reproduce`` runs of this user are read (a shared parent such as ``/tmp`` may hold
     anyone's directories), and only regular files are copied (symbolic links are left behind)."""
     from bptsb_ros.experiments.registry import RUN_MARKER
-    from bptsb_ros.experiments.seeds import sibling_run_dirs
+    from bptsb_ros.experiments.seed_dirs import sibling_run_dirs
     from bptsb_ros.jobs.sweep import finished_record, job_key
 
     siblings = [p / AGENTS_DIR for p in sibling_run_dirs(Path(out_dir))

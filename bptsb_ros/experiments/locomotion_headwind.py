@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from bptsb_ros.experiments.claim_rules import all_not_testable, at_most
+from bptsb_ros.experiments.claim_rules import at_most
 from bptsb_ros.experiments.common import derived_seeds, packaged_config
 from bptsb_ros.experiments.locomotion_closed_loop import agent_settings
 from bptsb_ros.experiments.locomotion_common import batched_centre_x, late_speed, task_state, train_agents
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
-from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
 from bptsb_ros.tasks.locomotion import wind_blowing
 

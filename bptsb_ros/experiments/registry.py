@@ -188,7 +188,7 @@ class Context:
         """Where a run of ``experiment`` beside this one lies, for the same seed: ``OUT/../EXPERIMENT`` for a
         single run, ``OUT/../../EXPERIMENT/seed-N`` when this run is seed N of a multi-seed run
         (``bptsb reproduce --seeds``). The path may not exist; what lies there is checked by whoever reads it."""
-        from bptsb_ros.experiments.seeds import in_multi_seed_run
+        from bptsb_ros.experiments.seed_dirs import in_multi_seed_run
 
         here = self.out_dir
         if in_multi_seed_run(here):

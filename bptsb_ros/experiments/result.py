@@ -90,6 +90,12 @@ class Claim:
         return cls(claim, None, premise)
 
 
+def all_not_testable(claims: list[Claim], reason: str) -> list[Claim]:
+    """The same claims (same texts), every one not testable because ``reason``: the claims of a system whose training
+    diverged, so a seed where it did keeps its place among the seeds (∅ for it) instead of losing the run."""
+    return [Claim.not_testable(c.claim, reason) for c in claims]
+
+
 @dataclass
 class ExperimentResult:
     experiment: str

@@ -58,7 +58,7 @@ def _fmt(value: Any) -> str:
 
 def find_results(runs_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
     """Every valid result.json under ``runs_dir`` (invalid ones raise ResultError naming the file)."""
-    from bptsb_ros.experiments.seeds import in_multi_seed_run
+    from bptsb_ros.experiments.seed_dirs import in_multi_seed_run
 
     # a seed's own result of a multi-seed run is part of that run's aggregate, not a page section of its own
     found = [(p, read_result(p)) for p in sorted(runs_dir.rglob(RESULT_FILE)) if not in_multi_seed_run(p.parent)]
@@ -171,7 +171,7 @@ def verdict_counts(r: dict[str, Any]) -> tuple[int, int, int, int]:
 
 
 def _seed_range(seeds: list[int]) -> str:
-    from bptsb_ros.experiments.seeds import format_seeds
+    from bptsb_ros.experiments.seed_dirs import format_seeds
 
     return format_seeds(seeds)
 
