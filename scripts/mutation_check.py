@@ -273,7 +273,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "self.create_subscription(msg_type, topic, handler, qos)",
            "a brain answers every queued tick in order again (stays behind)",
            ("tests/test_ros_services.py::test_a_real_brain_behind_by_176_ticks_answers_only_the_newest",)),
-    Mutant("wind-periodic-half", "bptsb_ros/tasks/locomotion.py",
+    Mutant("wind-periodic-half", "bptsb_ros/sim/inputs.py",
            "return np.mod(t + 0.5 * dt, period) >= 0.5 * period",
            "return np.mod(t - 0.5 * dt, period) >= 0.5 * period",
            "the periodic wind starts blowing a step late", ("tests/test_live_autonomy.py::test_constant_and_"

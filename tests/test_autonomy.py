@@ -15,9 +15,10 @@ from bptsb_ros.cli import main
 from bptsb_ros.experiments import read_result
 from bptsb_ros.experiments.common import packaged_config
 from bptsb_ros.sim.batched import run_population
+from bptsb_ros.sim.inputs import wind_schedule
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
 from bptsb_ros.tasks.lissajous import returned, windowed_shift_error, windowed_shift_error_batch
-from bptsb_ros.tasks.switching import Curve, wind_schedule
+from bptsb_ros.tasks.switching import Curve
 
 
 # -- the paper's error and success criterion ---------------------------------------------------------------

@@ -396,13 +396,8 @@ def test_only_the_trained_parameters_gradients_must_be_finite():
 
 @pytest.mark.parametrize("published", [False, True], ids=["wind", "published-wind"])
 def test_switching_training_gives_the_numba_paths_losses_and_parameters(published):
-    from bptsb_ros.tasks.switching import (
-        CURVE_1,
-        CURVE_SWITCH,
-        switch_targets,
-        train_switching,
-        wind_schedule,
-    )
+    from bptsb_ros.sim.inputs import wind_schedule
+    from bptsb_ros.tasks.switching import CURVE_1, CURVE_SWITCH, switch_targets, train_switching
 
     schedule = wind_schedule(400, 100, np.random.default_rng(3), hold_periods=(1, 1))
     assert 0 < schedule.mean() < 1  # the wind blows part of the time

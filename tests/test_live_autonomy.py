@@ -95,7 +95,8 @@ def test_agent_wind_and_node_parameters():
     assert (s.kind, s.force, s.calm, s.period, s.hold_periods, s.timing) == (
         "switching", (15.0, 1.0), (0.0, 1.0), 2.0, (4, 6), "fixed")
     # what the switching training fed the body: wind_vector(F_wind, published) = (15·F, 1), calm included
-    from bptsb_ros.tasks.switching import wind_schedule, wind_vector
+    from bptsb_ros.sim.inputs import wind_schedule
+    from bptsb_ros.tasks.switching import wind_vector
 
     f_wind = wind_schedule(3000, 200, np.random.default_rng(0), hold_periods=(4, 6), timing="fixed")
     np.testing.assert_array_equal(s.forces(3000, DT), wind_vector(f_wind, published=True).numpy())

@@ -17,9 +17,9 @@ from bptsb_ros.experiments.common import packaged_config
 from bptsb_ros.experiments.locomotion_closed_loop import _binomial_interval
 from bptsb_ros.experiments.locomotion_common import batched_centre_x, late_speed, perturbed
 from bptsb_ros.experiments.locomotion_headwind import phase_speeds
+from bptsb_ros.sim.inputs import wind_blowing
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
 from bptsb_ros.tasks import get_task
-from bptsb_ros.tasks.locomotion import wind_blowing
 
 
 def test_wind_blowing_hand_values():

@@ -138,8 +138,8 @@ def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
 
 
 def test_narma_lockstep_equals_offline(tmp_path, ros_env):
+    from bptsb_ros.sim.inputs import narma_inputs
     from bptsb_ros.sim.rollout import held_inputs, simulate_open_loop
-    from bptsb_ros.tasks.narma import narma_inputs
 
     bag = tmp_path / "bag"
     launch_ok(["narma", "--duration", "1", "--bag", str(bag)], ros_env)

@@ -286,7 +286,7 @@ def test_zero_bias_relu_mlp_is_linear_on_nonnegative_input_only():
     homogeneous, f(a·x) = a·f(x) for a ≥ 0, so on u ∈ [0, 1] it is a linear map; on (−1, 1) it is not."""
     from bptsb_ros.brains import MLPBrain
     from bptsb_ros.config import NarmaConfig
-    from bptsb_ros.tasks.narma import brain_input
+    from bptsb_ros.sim.inputs import brain_input
 
     mlp = MLPBrain(1, 8, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     u = torch.linspace(0, 1, 11, dtype=torch.float64).unsqueeze(-1)

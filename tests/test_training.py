@@ -175,8 +175,9 @@ def test_paper_locomotion_forces_give_no_traction():
 
 def test_narma_episode_equals_the_offline_rollout_of_the_same_inputs():
     """Training, offline simulation (and the live task_input node) share one input-hold rule."""
+    from bptsb_ros.sim.inputs import narma_inputs
     from bptsb_ros.sim.rollout import held_inputs
-    from bptsb_ros.tasks.narma import NarmaTask, narma_inputs
+    from bptsb_ros.tasks.narma import NarmaTask
 
     u = narma_inputs(3, 30)
     for backend in ("numba", "fused"):

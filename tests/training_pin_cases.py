@@ -218,13 +218,8 @@ def _agent_trained(agent, losses, state, guard) -> Trained:
 
 
 def _switching(backend: str, lr_decay: bool, reject_factor: float) -> Trained:
-    from bptsb_ros.tasks.switching import (
-        CURVE_1,
-        CURVE_SWITCH,
-        switch_targets,
-        train_switching,
-        wind_schedule,
-    )
+    from bptsb_ros.sim.inputs import wind_schedule
+    from bptsb_ros.tasks.switching import CURVE_1, CURVE_SWITCH, switch_targets, train_switching
 
     agent, state = _start()
     schedule = wind_schedule(100, 25, np.random.default_rng(5), hold_periods=(1, 2))

@@ -50,6 +50,7 @@ from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
 from bptsb_ros.files.safe_write import write_atomic
 from bptsb_ros.sim.batched import run_population
+from bptsb_ros.sim.inputs import wind_schedule
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.tasks.lissajous import windowed_shift_error_batch
 from bptsb_ros.tasks.switching import (
@@ -60,7 +61,6 @@ from bptsb_ros.tasks.switching import (
     switch_targets,
     train_switching,
     wind_offset,
-    wind_schedule,
     wind_vector,
 )
 

@@ -29,7 +29,7 @@ from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
-from bptsb_ros.tasks.locomotion import wind_blowing
+from bptsb_ros.sim.inputs import wind_blowing
 
 #: relative distance to the target within which the speed "is maintained"
 NEAR = 0.25

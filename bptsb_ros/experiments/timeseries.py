@@ -116,7 +116,8 @@ class NarmaJob:
     def record(self, agent: Any, cfg: Any, run_dir: Path, epochs: int, out: dict[str, Any]) -> None:
         """Run ``agent`` (trained ``epochs``) on the held-out input: ``out["nmse_<epochs>"]`` and
         ``run_dir/states_<epochs>.npz``."""
-        from bptsb_ros.tasks.narma import NarmaTask, narma_inputs, nmse
+        from bptsb_ros.sim.inputs import narma_inputs
+        from bptsb_ros.tasks.narma import NarmaTask, nmse
 
         u = narma_inputs(self.eval_seed, self.eval_inputs)
         task = NarmaTask(agent, cfg)

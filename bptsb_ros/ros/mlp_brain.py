@@ -23,7 +23,7 @@ from bptsb_ros.ros.cdr_in import JointStateReader
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.topics import input_names, mass_dof_names, stamp_to_step
-from bptsb_ros.tasks.narma import brain_input
+from bptsb_ros.sim.inputs import brain_input
 
 NODE = "mlp_brain"
 PARAMS = (

@@ -21,8 +21,8 @@ from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.ros.topics import input_names
+from bptsb_ros.sim.inputs import narma_inputs
 from bptsb_ros.sim.rollout import held_inputs
-from bptsb_ros.tasks.narma import narma_inputs
 
 NODE = "task_input"
 PARAMS = (

@@ -19,18 +19,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from bptsb_ros.sim.inputs import wind_blowing
 from bptsb_ros.sim.rollout import Rollout, simulate_closed_loop, simulate_open_loop
 from bptsb_ros.tasks.base import SwgWindowTask
-
-
-def wind_blowing(steps: np.ndarray | torch.Tensor, dt: float, period: float) -> np.ndarray:
-    """Whether the periodic wind blows at the given steps: calm for the first half of every ``period`` [s],
-    blowing for the second half (t = step·dt); ``period`` 0: always blowing."""
-    t = np.asarray(steps, dtype=np.float64) * dt
-    if period <= 0:
-        return np.ones(t.shape, dtype=bool)
-    # a half-step margin keeps the switch on the intended step despite rounding of t / period
-    return np.mod(t + 0.5 * dt, period) >= 0.5 * period
 
 
 def forward_speed(v: torch.Tensor) -> torch.Tensor:

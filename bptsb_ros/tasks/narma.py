@@ -20,6 +20,7 @@ import torch
 from bptsb_ros.agent import brain_forces
 from bptsb_ros.body.adjoint import rollout_window
 from bptsb_ros.body.held_window import held_force_readout, held_window_unsupported
+from bptsb_ros.sim.inputs import brain_input, narma_inputs
 from bptsb_ros.sim.rollout import held_inputs
 from bptsb_ros.tasks.base import Task
 
@@ -69,25 +70,6 @@ def delay_target(u: np.ndarray, delay: int) -> np.ndarray:
     out = np.zeros(len(u))
     out[delay:] = u[: len(u) - delay] if delay else u
     return out
-
-
-def brain_input(u, narma_cfg: Any):
-    """The brain's input for task inputs u in [0, 1] (array or tensor): ``input_scale × u`` (``brain_input:
-    unit``, the paper's text) or ``input_scale × (2u − 1)`` (``symmetric``, the published code). A zero-bias ReLU
-    MLP is positively homogeneous, hence exactly linear on a non-negative input: only the symmetric input lets
-    an untrained MLP brain be nonlinear. ``narma_cfg``: the config's ``narma`` section (object or dict)."""
-    get = narma_cfg.get if isinstance(narma_cfg, dict) else lambda k, d=None: getattr(narma_cfg, k, d)
-    scale = float(get("input_scale", 20.0))
-    return scale * (2 * u - 1) if get("brain_input", "unit") == "symmetric" else scale * u
-
-
-def narma_inputs(seed: int, count: int) -> np.ndarray:
-    """(count,) inputs u ~ U(0, 1) from ``seed``; a longer series from the same seed extends a shorter one.
-
-    The held-out evaluation sequence is ``narma_inputs(narma.eval_seed, narma.n_inputs)``; the live
-    ``task_input`` node streams the same series.
-    """
-    return np.random.default_rng(seed).uniform(0.0, 1.0, count)
 
 
 def nmse(pred: np.ndarray, target: np.ndarray) -> float:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
@@ -72,24 +72,6 @@ def wind_vector(f_wind: np.ndarray | torch.Tensor | float, *, published: bool = 
     if published:
         return torch.stack([PUBLISHED_WIND * f, torch.ones_like(f)], -1)
     return torch.stack([f, torch.zeros_like(f)], -1)
-
-
-def wind_schedule(steps: int, period: int, rng: np.random.Generator, *, hold_periods: tuple[int, int] = (3, 8),
-                  timing: Literal["random", "fixed"] | int = "random", start_on: bool = False) -> np.ndarray:
-    """Binary wind (steps + 1,) in force at steps 0..steps: segments of whole periods (uniform in
-    ``hold_periods``, inclusive) plus a switch phase n/100 of a period (random n, n = 0, or a given n)."""
-    lo, hi = hold_periods
-    if not 1 <= lo <= hi:
-        raise ValueError(f"hold_periods must satisfy 1 <= lo <= hi, got {hold_periods}")
-    out = np.zeros(steps + 1)
-    on = start_on
-    k = 0
-    while k <= steps:
-        n = rng.integers(0, 100) if timing == "random" else (0 if timing == "fixed" else int(timing))
-        end = (k // period + int(rng.integers(lo, hi + 1))) * period + int(round(period * n / 100))
-        out[k:end] = float(on)
-        k, on = max(end, k + 1), not on
-    return out
 
 
 def switch_targets(curve_off: Curve, curve_on: Curve, amplitude: float, omega: float, shift_x: float):

@@ -85,7 +85,7 @@ def _swg_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, kind, 
         for e in range(n_springs):
             s = amp[e] * (sin_t[t] * cph[e] + cos_t[t] * sph[e])
             row[e] = l[e] * (one + s * (one if driven[e] else zero))
-    if kind == LOCOMOTION and ext.shape[1] > 0:  # tasks.locomotion.wind_blowing: calm, then blowing, per period
+    if kind == LOCOMOTION and ext.shape[1] > 0:  # sim.inputs.wind_blowing: calm, then blowing, per period
         dt, wind, wind_period = target[3], target[6], target[7]
         for t in range(n_steps):
             tt = np.float64(first_step + 1 + t) * dt

@@ -43,8 +43,9 @@ from bptsb_ros.brains import LinearInputLayer
 from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.files.run_dir_lock import dir_is_empty, hold_run_dir
 from bptsb_ros.files.safe_write import atomic_writer, write_atomic
+from bptsb_ros.sim.inputs import brain_input
 from bptsb_ros.tasks.base import Task
-from bptsb_ros.tasks.narma import NarmaTask, brain_input
+from bptsb_ros.tasks.narma import NarmaTask
 from bptsb_ros.training.checkpoint import save_checkpoint
 from bptsb_ros.training.guard import RESET_AFTER, UpdateGuard
 from bptsb_ros.training.optim import make_optimizer
