@@ -35,14 +35,14 @@ _LAZY: dict[str, str] = {
     "FeedbackConfig": "bptsb_ros.config",
     "Agent": "bptsb_ros.agent",
     "BodyState": "bptsb_ros.body.msdn",
-    "TrainResult": "bptsb_ros.training.trainer",
+    "TrainResult": "bptsb_ros.workflows.train",
     "Trajectory": "bptsb_ros.sim.trajectory",
     "IPCResult": "bptsb_ros.analysis.ipc",
     "ExperimentResult": "bptsb_ros.experiments.result",
     # what they raise
     "ConfigError": "bptsb_ros.config",
     "CheckpointError": "bptsb_ros.training.checkpoint",
-    "TrainingDiverged": "bptsb_ros.training.trainer",
+    "TrainingDiverged": "bptsb_ros.workflows.train",
     "SimulationDiverged": "bptsb_ros.body.msdn",
     "IPCError": "bptsb_ros.analysis.ipc",
     "ExperimentError": "bptsb_ros.experiments.registry",
@@ -79,7 +79,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from bptsb_ros.experiments.result import ExperimentResult
     from bptsb_ros.sim.trajectory import Trajectory
     from bptsb_ros.training.checkpoint import CheckpointError
-    from bptsb_ros.training.trainer import TrainingDiverged, TrainResult
+    from bptsb_ros.workflows.train import TrainingDiverged, TrainResult
 
 
 def _version() -> str:

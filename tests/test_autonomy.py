@@ -271,7 +271,7 @@ def test_lissajous_bifurcation_smoke(tmp_path, monkeypatch):
     """The three variants at smoke scale, the preliminary training of the published integrator (the authors'
     protocol's) planted to diverge: that variant's claims are not testable, the other two are judged as usual."""
     import bptsb_ros.experiments.lissajous_switching as lsw
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     _diverge_when(monkeypatch, lsw, "train_single_curve", lambda *a, **k: "body.integrator=published" in k["extra"],
                   TrainingDiverged("update 2: planted"))
@@ -418,7 +418,7 @@ def test_closed_loop_schemes_report_a_diverged_preliminary_training(tmp_path, mo
     """A preliminary training that blows up (it happened at paper scale: (1,2,0), seed 4) is reported as such and
     the other schemes and systems still run; the experiment does not fail."""
     import bptsb_ros.experiments.closed_loop_schemes as exp
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     def diverge(*args, **kwargs):
         raise TrainingDiverged("update 7: simulation diverged at step 700; planted")
@@ -453,7 +453,7 @@ def test_lissajous_perturbation_without_a_trained_agent_is_a_result(tmp_path, mo
     reason), not a failed run; a run too short to compare two evaluation windows is refused in one line."""
     import bptsb_ros.experiments.lissajous_perturbation as lp
     from bptsb_ros.experiments import run_experiment
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     _diverge_when(monkeypatch, lp, "train_single_curve", lambda *a, **k: True,
                   TrainingDiverged("update 5: planted; the guard has nothing to undo"))

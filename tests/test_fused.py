@@ -18,7 +18,7 @@ from bptsb_ros.config import ConfigError, ExperimentConfig, validate
 from bptsb_ros.tasks import get_task
 from bptsb_ros.training.fused import PARAMETERS, FusedSwgWindow, LissajousLoss, fused_training, fused_unsupported
 from bptsb_ros.training.optim import make_optimizer
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 F64 = torch.float64
 #: a small double circle (13 masses, 24 springs), 40-step windows

@@ -17,7 +17,7 @@ from bptsb_ros.body.shapes import double_circle, multiple_circle
 from bptsb_ros.config import validate
 from bptsb_ros.jobs.gang import Gang, run_gang
 from bptsb_ros.jobs.sweep import SweepError, gangs_of, run_sweep, train_jobs
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 TAU, BLOCKS = 4, 6
 

@@ -251,7 +251,7 @@ def test_trainer_undoes_a_planted_nan_and_spike_and_writes_the_events(tmp_path, 
     update 1 from θ1: update 3 must run θ1 again; update 4 evaluated the step of update 3 from θ1: update 5 runs
     θ1 once more. metrics.json lists both events."""
     from bptsb_ros.config import load_config
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     seen: list[list[torch.Tensor]] = []
     _plant_narma(monkeypatch, seen)
@@ -271,7 +271,7 @@ def test_a_resumed_run_continues_the_guard_bit_for_bit(tmp_path, monkeypatch):
     must restore θ1 from the checkpoint; the same losses, events and parameters as one run of 6 epochs."""
     from bptsb_ros.config import load_config
     from bptsb_ros.training.checkpoint import load_agent
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     _plant_narma(monkeypatch, [])
     full = train(load_config(CONFIG / "narma.yaml", ["epochs=6", *SHORT_NARMA]), tmp_path / "a", progress=False)

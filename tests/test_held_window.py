@@ -18,7 +18,7 @@ from bptsb_ros.body.msdn import MSDN, SimulationDiverged
 from bptsb_ros.body.shapes import double_circle
 from bptsb_ros.config import validate
 from bptsb_ros.tasks import get_task
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 F64 = torch.float64
 TAU, BLOCKS = 5, 7

@@ -143,7 +143,7 @@ def test_handover_blends_swg_into_fl(walker):
 
 def test_init_from_continues_a_run(tmp_path):
     from bptsb_ros.training.checkpoint import load_agent
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     base = ["sim_time=2", "locomotion.warmup_windows=0", "feedback.fit_time=2", "locomotion.eval_time=1"]
     train(packaged_config("locomotion_forward", base, seed=5), tmp_path / "a", progress=False)
@@ -233,8 +233,8 @@ def test_smoke_runs_match_their_records(tmp_path, monkeypatch):
     a_same = a_moves and not d["fallback_best_agent"] and min(am["open"].min(), am["closed"].min()) < 1
     assert pe["claims"][7]["holds"] == ((np.abs(am["open"] - am["closed"]).max() <= 0.2 + 1e-9) if a_same else None)
 
-    import bptsb_ros.training.trainer as trainer
-    from bptsb_ros.training.trainer import TrainingDiverged
+    import bptsb_ros.workflows.train as trainer
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     real_train, configs = trainer.train, {}
 

@@ -98,7 +98,7 @@ def test_the_package_writers_never_follow_planted_links(tmp_path, victim):
     from bptsb_ros.config import load_config
     from bptsb_ros.experiments.result import ExperimentResult, write_result
     from bptsb_ros.jobs.sweep import Job, execute_job, write_tables
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     run = tmp_path / "run"
     run.mkdir()

@@ -305,7 +305,7 @@ def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
     """At paper scale the LIL + multiple circle blew up under the paper's SGD rates (update 11): such a system is a
     result (no emulation: named in the claims, which it makes not testable), not a failed experiment."""
     from bptsb_ros.experiments import timeseries
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     real = timeseries.NarmaJob.__call__
 

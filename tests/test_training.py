@@ -13,7 +13,7 @@ from bptsb_ros.config import ConfigError, load_config
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.tasks.locomotion import LocomotionTask
 from bptsb_ros.training.checkpoint import CheckpointError, load_agent, read_checkpoint
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 

@@ -18,7 +18,7 @@ from bptsb_ros.config import ConfigError, load_config
 from bptsb_ros.experiments.common import packaged_config
 from bptsb_ros.experiments.timeseries import narma_overrides
 from bptsb_ros.training.checkpoint import CheckpointError
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = ["narma.n_inputs=30", "narma.washout=5", "narma.train_end=20"]
@@ -115,7 +115,7 @@ def _members(epochs: int):
 @pytest.fixture(scope="module")
 def population_state(tmp_path_factory):
     """The state of a 2-member population killed after its third update, and the uninterrupted run's losses."""
-    import bptsb_ros.training.population as population
+    import bptsb_ros.workflows.population as population
 
     mp = pytest.MonkeyPatch()
     where = tmp_path_factory.mktemp("population")
@@ -174,7 +174,7 @@ POPULATION = {
 
 @pytest.mark.parametrize("case", list(POPULATION))
 def test_a_tampered_population_state_does_not_resume(population_state, tmp_path, case):
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     state, _ = population_state
     plant, why = POPULATION[case]
@@ -190,7 +190,7 @@ def test_a_tampered_population_state_does_not_resume(population_state, tmp_path,
 
 
 def test_the_sound_population_state_resumes_to_the_uninterrupted_numbers(population_state, tmp_path):
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     state, losses = population_state
     path = tmp_path / "population.pt"
@@ -255,7 +255,7 @@ def _strict(text: str):
 def test_metrics_json_is_strict_json_whatever_the_numbers(tmp_path, monkeypatch):
     """A training time or an evaluation that is not finite is written as null (JSON has no NaN), not as the
     invalid NaN that json.dumps writes by default."""
-    import bptsb_ros.training.trainer as trainer
+    import bptsb_ros.workflows.train as trainer
 
     real = trainer.training_metrics
 
@@ -277,7 +277,7 @@ def test_metrics_json_is_strict_json_whatever_the_numbers(tmp_path, monkeypatch)
 def test_a_population_state_with_an_impossible_time_or_all_members_stopped(population_state, tmp_path):
     """seconds NaN is refused; every member stopped, each with its recorded failure, is a state a population can
     reach (all diverged): it resumes to no result and every failure, without a KeyError."""
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     state, _ = population_state
     path = tmp_path / "population.pt"

@@ -179,7 +179,7 @@ def _joined(results: list[Trained]) -> Trained:
 
 def narma_population() -> Trained:
     """Three LIL members (memory at two delays, NARMA) as one population."""
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     cfgs = [_narma_cfg(*m) for m in _LIL_MEMBERS]
     results, failures = train_population(cfgs, [None] * len(cfgs), progress=False)

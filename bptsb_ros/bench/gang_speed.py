@@ -1,5 +1,5 @@
 """The memory task's trainings alone, as a gang (:mod:`bptsb_ros.jobs.gang`) and as a population
-(:mod:`bptsb_ros.training.population`): wall milliseconds per training update, and what the memory task costs at
+(:mod:`bptsb_ros.workflows.population`): wall milliseconds per training update, and what the memory task costs at
 the paper's schedule each way.
 
 The system is the memory task's (``config/narma.yaml`` with the LIL brain, the multiple circle of 37 masses,
@@ -68,9 +68,9 @@ def measure(members: int, updates: int) -> dict[str, Any]:
 
 def measure_population(members: int, updates: int) -> dict[str, Any]:
     """ms per member-update of ``members`` trainings (Δt 1, 2, … and seeds 0, 1, … as in :func:`measure`) as one
-    population (:mod:`bptsb_ros.training.population`), after a 1-update population warmed the kernels' dispatch."""
+    population (:mod:`bptsb_ros.workflows.population`), after a 1-update population warmed the kernels' dispatch."""
     from bptsb_ros.experiments.common import packaged_config
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     def cfgs(epochs: int) -> list[Any]:
         return [packaged_config("narma", [*MEMORY_OVERRIDES, f"narma.delay={1 + s % 17}", f"epochs={epochs}"],

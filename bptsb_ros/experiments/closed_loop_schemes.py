@@ -155,7 +155,7 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     from bptsb_ros.agent import build_agent
     from bptsb_ros.experiments.common import packaged_config
     from bptsb_ros.tasks.feedback_schemes import train_scheme1, train_scheme2, train_scheme3
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     c = Curve(*curve)
     cfg = packaged_config("lissajous_single", [f"lissajous.alpha={c.alpha}", f"lissajous.beta={c.beta}",

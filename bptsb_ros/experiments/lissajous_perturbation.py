@@ -299,7 +299,7 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
 )
 @single_threaded
 def run(ctx: Context) -> None:
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     sim_time = ctx.settings["sim_time"]
     variants = ctx.settings.variants or {"paper": {"restart": False, "eval_windows": 0}}

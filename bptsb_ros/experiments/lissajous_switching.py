@@ -473,7 +473,7 @@ def loss_by_condition(losses: np.ndarray, schedule: np.ndarray, window: int, sha
 def _pretrain(ctx: Context, integrator: str = "verlet") -> TrainedAgent | str:
     """The preliminary single-curve agent under ``integrator`` (run directory ``pretrained``, or
     ``pretrained_<integrator>`` for another than verlet); why there is none, in words, if its training diverged."""
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     sim_time = ctx.settings["pretrain_time"]
     ctx.log(f"{ctx.result.experiment}: preliminary single-curve training ({sim_time} s, seed {ctx.seed}, "

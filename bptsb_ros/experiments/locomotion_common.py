@@ -160,7 +160,7 @@ def forward_agent_job(settings: AgentSettings, seed: int, run_dir: Path) -> dict
     (the paper's method) and the two variants; store a short gait. Returns the numbers."""
     from bptsb_ros.experiments.common import packaged_config
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     cfg = packaged_config("locomotion_forward", settings.overrides(), seed=seed)
     res = train(cfg, run_dir, overwrite=True, progress=False)  # a sweep job owns run_dir (a rerun replaces it)

@@ -210,7 +210,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     """One switching protocol (a settings variant): its additional training, rows, claims, figures and details
     (the first variant's at the top level and unprefixed, every one also under ``details["variants"]``)."""
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
-    from bptsb_ros.training.trainer import TrainingDiverged, train
+    from bptsb_ros.workflows.train import TrainingDiverged, train
 
     tag, label, suffix = ("", "", "") if first else (f"{variant_name}: ", f"[{variant_name}] ", f"-{variant_name}")
     sim_time = ctx.settings["switching_time"]

@@ -74,7 +74,7 @@ class NarmaJob:
     def __call__(self, run_dir: Path) -> dict[str, Any]:
         from bptsb_ros.agent import build_agent
         from bptsb_ros.training.checkpoint import load_agent
-        from bptsb_ros.training.trainer import train
+        from bptsb_ros.workflows.train import train
 
         one_torch_thread()
         out: dict[str, Any] = {"seed": self.seed}
@@ -135,7 +135,7 @@ class NarmaJob:
 @dataclass(frozen=True)
 class NarmaPopulationJob:
     """Train :class:`NarmaJob` s of one topology (one training stage each) as one population
-    (:mod:`bptsb_ros.training.population`: their episodes one batched simulation, each member's numbers its solo
+    (:mod:`bptsb_ros.workflows.population`: their episodes one batched simulation, each member's numbers its solo
     training's to rounding). Member ``name`` gets the directory ``run_dir/name`` a :class:`NarmaJob` writes;
     returns ``{name: that job's result}``, for a member that diverged ``{"diverged": "TrainingDiverged: …"}``
     (:func:`run_jobs` treats it as a failed training)."""
@@ -144,7 +144,7 @@ class NarmaPopulationJob:
 
     def __call__(self, run_dir: Path) -> dict[str, Any]:
         from bptsb_ros.training.checkpoint import load_agent
-        from bptsb_ros.training.population import train_population
+        from bptsb_ros.workflows.population import train_population
 
         one_torch_thread()
         for name, job in self.members:

@@ -162,7 +162,7 @@ class TrainJob:
 
     def __call__(self, run_dir: Path) -> dict[str, Any]:
         from bptsb_ros.config import load_config
-        from bptsb_ros.training.trainer import train
+        from bptsb_ros.workflows.train import train
 
         cfg = load_config(self.config, list(self.overrides), self.seed)
         res = train(cfg, run_dir, overwrite=True, progress=False)  # the sweep owns run_dir; a failed job reruns
@@ -572,7 +572,7 @@ def write_tables(out: str | Path, records: list[dict[str, Any]]) -> tuple[Path, 
 
 def _table_rows(record: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
     """The table rows of one job record: ``(name, result)``; a job whose result maps each of several trainings
-    to its own result (a population, :mod:`bptsb_ros.training.population`) gives a row per training,
+    to its own result (a population, :mod:`bptsb_ros.workflows.population`) gives a row per training,
     ``JOB/TRAINING``."""
     result = record.get("result") or {}
     # a flat result has no mapping among its values (the sweep's contract), so all-mappings means trainings

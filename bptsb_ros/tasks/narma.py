@@ -11,7 +11,6 @@ whole episode (no truncation). The first ``washout`` samples are discarded, samp
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -79,6 +78,7 @@ def nmse(pred: np.ndarray, target: np.ndarray) -> float:
 
 class NarmaTask(Task):
     name = "narma"
+    fused_window = "episodes"
     loss_label = "output MSE [m²]"
     paper_reference = (
         "paper: double-circle N_mov=17, LIL or MLP brain, u~U(0,1) scaled to (0,20), τ=20 steps, output = y of "
@@ -164,17 +164,3 @@ class NarmaTask(Task):
             "nmse_of_constant_mean": 1.0,
             "paper_reference": self.paper_reference,
         }
-
-    def plots(self, out_dir: Path) -> list[Path]:
-        from bptsb_ros.analysis.plots import plot_series
-
-        if not hasattr(self, "_eval"):
-            self.evaluate()
-        e = self._eval
-        n = self.cfg.narma
-        path = out_dir / "narma.png"
-        title = (f"memory task Δt = {n.delay}" if n.target == "memory" else f"expanded NARMA{n.order}")
-        plot_series(path, {"input u": e["u"], "target y": e["y"], "output (CMP y)": e["out"]},
-                    "sample [τ steps]", "u [-]; target y, output (CMP y) [m]", title=f"{title}, held-out sequence",
-                    shade=(n.train_end, n.n_inputs))
-        return [path]

@@ -357,14 +357,16 @@ def _check_resumable(saved: dict, new: dict, run_dir: Path) -> None:
 
 
 def write_outputs(run_dir: Path, task, metrics: dict[str, Any]) -> list[Path]:
-    """``metrics.json``, the loss plot and the task's plots in ``run_dir`` (under the figure lock)."""
+    """``metrics.json``, the loss plot and the task's figures (:mod:`bptsb_ros.analysis.task_plots`) in ``run_dir``
+    (under the figure lock)."""
     from bptsb_ros.analysis.plots import plot_loss
     from bptsb_ros.analysis.style import FIGURES
+    from bptsb_ros.analysis.task_plots import task_figures
 
     write_atomic(run_dir / "metrics.json", json_text(metrics, indent=2))  # strict JSON: NaN is written null
     with FIGURES:
         files = [run_dir / "metrics.json", plot_loss(run_dir / "loss.png", metrics["loss"], task.loss_label,
                                                          metrics["name"])]
-        files += task.plots(run_dir)
+        files += task_figures(task, run_dir)
     return files
 

@@ -58,7 +58,7 @@ from bptsb_ros.training.resume_checks import (
     check_tensor,
     check_whole,
 )
-from bptsb_ros.training.trainer import (
+from bptsb_ros.workflows.train import (
     TrainingDiverged,
     TrainResult,
     flatten_config,
@@ -276,7 +276,7 @@ def train_population(cfgs: Sequence[ExperimentConfig], run_dirs: Sequence[str | 
                      state_path: str | Path | None = None, save_every_s: float = 600.0,
                      stale_state: str = "refuse") -> tuple[list[TrainResult | None], list[MemberFailure]]:
     """Train every config of ``cfgs`` (one member each) as one population; member b writes to ``run_dirs[b]``
-    (None: in memory) what :func:`~bptsb_ros.training.trainer.train` writes.
+    (None: in memory) what :func:`~bptsb_ros.workflows.train.train` writes.
 
     ``state_path``: the whole population's state is saved there every ``save_every_s`` wall seconds, and a
     population started with a state file there continues from it to the numbers of an uninterrupted run (its
