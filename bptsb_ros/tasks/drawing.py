@@ -26,7 +26,8 @@ from bptsb_ros.body.msdn import MSDN
 from bptsb_ros.body.shapes import build_shape
 from bptsb_ros.brains.fnn import LinearInputLayer, MLPBrain
 from bptsb_ros.tasks.digits import load_targets, padded_targets
-from bptsb_ros.training.guard import FACTOR, UpdateGuard
+from bptsb_ros.training.guard import FACTOR
+from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
 
 N_PIXELS = 784
 #: the paper's learning rates for MNIST (supplement table): k, d, l and the LIL/MLP, plain SGD
@@ -222,39 +223,63 @@ def train_drawing(system: ImageToBody, x: np.ndarray, y: np.ndarray, *, epochs: 
     """
     targets = DigitTargets(system.spec.dt, system.body.k.dtype)
     opt = make_optimizer(system)
-    guard = UpdateGuard(opt, factor=reject_factor, log=log)
+    loop = UpdateLoop(opt, GuardRules(factor=reject_factor), log=log)
     gen = np.random.default_rng(seed)
-    xt = torch.as_tensor(x)
-    yt = torch.as_tensor(y)
-    out = TrainLog(losses=guard.history)
+    objective = _DrawingBatches(system, opt, targets, torch.as_tensor(x), torch.as_tensor(y))
+    out = TrainLog(losses=loop.losses)
     t0 = time.perf_counter()
     updates = 0
     for epoch in range(epochs):
+        objective.batches = iterate_batches(len(y), batch, gen)  # the epoch's permutation, drawn as it starts
+        if max_updates is not None:
+            objective.batches = objective.batches[:max(0, max_updates - updates)]
         epoch_sum, count = 0.0, 0
-        for idx in iterate_batches(len(y), batch, gen):
-            if max_updates is not None and updates >= max_updates:
-                break
-            labels = yt[idx]
-            steps = int(targets.steps[labels].max())
-            drawing = system.draw(xt[idx], steps)
-            loss = targets.errors(drawing, labels).mean()
-            decision = guard.backward_and_review(updates, loss)
-            if decision.stop:
-                raise FloatingPointError(f"{decision.reason} of the drawing loss at update {updates} with nothing "
-                                         f"to undo; body {system.body.parameter_ranges()}")
-            if decision.accepted:
-                opt.step()
-                system.body.clamp_parameters_()
-            updates += 1
+
+        def tally(update: int) -> None:
+            nonlocal epoch_sum, count
+            idx = objective.batches[update - objective.first]
             epoch_sum += out.losses[-1] * len(idx)
             count += len(idx)
+
+        objective.first = updates
+        try:
+            loop.run(objective, range(updates, updates + len(objective.batches)), after_update=tally)
+        except LoopStopped as stop:
+            raise FloatingPointError(f"{stop.decision.reason} of the drawing loss at update {stop.update} with "
+                                     f"nothing to undo; body {system.body.parameter_ranges()}") from None
+        updates += len(objective.batches)
         if count:
             out.epoch_losses.append(epoch_sum / count)
             if log:
                 log(f"{system.spec.name}: epoch {epoch + 1}/{epochs} train MSE {epoch_sum / count:.4g} m²")
     out.wall_s = time.perf_counter() - t0
-    out.guard = guard.summary()
+    out.guard = loop.guard.summary()
     return out
+
+
+class _DrawingBatches:
+    """The drawing training's update (an :class:`~bptsb_ros.training.loop.Objective`): the mean drawing error of
+    one batch of the epoch's ``batches`` (update ``first + j`` draws batch ``j``)."""
+
+    def __init__(self, system: ImageToBody, opt: torch.optim.Optimizer, targets: DigitTargets, xt: torch.Tensor,
+                 yt: torch.Tensor) -> None:
+        self.system, self.opt, self.targets, self.xt, self.yt = system, opt, targets, xt, yt
+        self.batches: list[np.ndarray] = []
+        self.first = 0
+
+    def measure(self, update: int) -> Measured:
+        idx = self.batches[update - self.first]
+        labels = self.yt[idx]
+        steps = int(self.targets.steps[labels].max())
+        drawing = self.system.draw(self.xt[idx], steps)
+        return Measured(self.targets.errors(drawing, labels).mean())
+
+    def step(self) -> None:
+        self.opt.step()
+        self.system.body.clamp_parameters_()
+
+    def advance(self, finite: bool) -> None:
+        del finite
 
 
 @torch.no_grad()

@@ -38,7 +38,7 @@ from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.brains import fit_ridge
 from bptsb_ros.config import LearningRates, TrainingConfig
 from bptsb_ros.sim.rollout import swg_rest_lengths
-from bptsb_ros.training.guard import UpdateGuard
+from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
 from bptsb_ros.training.optim import make_optimizer
 
 #: the paper's learning rates for the closed-loop schemes (supplementary table, "Lissajous curves (closed-loop)")
@@ -95,6 +95,48 @@ def _finish(agent: Agent) -> None:
         module.requires_grad_(False)
 
 
+class _SchemeWindow:
+    """One scheme's update as an :class:`~bptsb_ros.training.loop.Objective`: ``window_loss(state)`` → (loss, final
+    state) of the window from ``state``; the window's final state is carried on only if it stayed finite."""
+
+    def __init__(self, agent: Agent, opt: torch.optim.Optimizer, state: BodyState,
+                 window_loss: Callable[[BodyState], tuple[torch.Tensor, BodyState]],
+                 before_step: Callable[[BodyState], None] | None = None,
+                 after_step: Callable[[], None] | None = None) -> None:
+        self.agent, self.opt, self.state = agent, opt, state
+        self.window_loss, self.before_step, self.after_step = window_loss, before_step, after_step
+        self.final: BodyState | None = None
+
+    def measure(self, update: int) -> Measured:
+        del update
+        loss, self.final = self.window_loss(self.state)
+        return Measured(loss, failure=_divergence(self.agent.body, self.final))
+
+    def step(self) -> None:
+        if self.before_step is not None:
+            self.before_step(self.state)
+        self.opt.step()
+        self.agent.body.clamp_parameters_()
+        if self.after_step is not None:
+            self.after_step()
+
+    def advance(self, finite: bool) -> None:
+        if finite:
+            self.state = self.final.detach()
+
+
+def _run_scheme(agent: Agent, objective: _SchemeWindow, updates: int, reject_factor: float,
+                modules: dict[str, torch.nn.Module] | None = None) -> SchemeTraining:
+    loop = UpdateLoop(objective.opt, GuardRules(factor=reject_factor), modules=modules)
+    diverged = None
+    try:
+        loop.run(objective, range(updates))
+    except LoopStopped as stop:
+        diverged = stop.update
+    _finish(agent)
+    return SchemeTraining(loop.losses, objective.state, diverged, loop.guard.summary())
+
+
 def train_scheme1(agent: Agent, target: Target, updates: int, *, window: int = 100, lr: LearningRates = CLOSED_LOOP_LR,
                   init_std: float = 0.1, seed: int = 0, reject_factor: float = 0.0) -> SchemeTraining:
     """Scheme 1: closed loop from scratch; the FL starts from W ~ N(0, init_std²) (bias included) on the springs the
@@ -106,32 +148,18 @@ def train_scheme1(agent: Agent, target: Target, updates: int, *, window: int = 1
         fb.weight.normal_(0.0, init_std, generator=torch.Generator().manual_seed(seed))
         fb.weight.mul_(fb.driven.unsqueeze(-1))
     opt = _optimizer(agent, lr, with_swg=False, with_fl=True)
-    guard = UpdateGuard(opt, factor=reject_factor)
-    state = body.initial_state(1).detach()
-    for u in range(updates):
+
+    def window_loss(state: BodyState) -> tuple[torch.Tensor, BodyState]:
         cmp = []
         s = state
         for _i in range(window):
             s = body.step(s, fb.rest_length(body.l, s))
             cmp.append(s.r[0, body.cmp_local])
         t = step_times(state.step + 1, window, body.dt)  # float64: the target's phase stays exact
-        loss = ((torch.stack(cmp) - target(t).to(body.l.dtype)) ** 2).mean()
-        failure = _divergence(body, s)
-        decision = guard.backward_and_review(u, loss, diverged=failure)
-        if decision.stop:
-            return _stopped(agent, guard, state, u)
-        if decision.accepted:
-            opt.step()
-            body.clamp_parameters_()
-        if failure is None:
-            state = s.detach()
-    _finish(agent)
-    return SchemeTraining(guard.history, state, None, guard.summary())
+        return ((torch.stack(cmp) - target(t).to(body.l.dtype)) ** 2).mean(), s
 
-
-def _stopped(agent: Agent, guard: UpdateGuard, state: BodyState, update: int) -> SchemeTraining:
-    _finish(agent)
-    return SchemeTraining(guard.history, state, update, guard.summary())
+    return _run_scheme(agent, _SchemeWindow(agent, opt, body.initial_state(1).detach(), window_loss), updates,
+                       reject_factor)
 
 
 def train_scheme2(agent: Agent, state: BodyState, target: Target, updates: int, *, window: int = 100,
@@ -140,9 +168,8 @@ def train_scheme2(agent: Agent, state: BodyState, target: Target, updates: int, 
     """Scheme 2: BPTSB through SWG + body + FL (open loop), L = L_traj + α·L_FB; the FL as fitted before."""
     body, swg, fb = agent.body, agent.brain, agent.feedback
     opt = _optimizer(agent, lr, with_swg=True, with_fl=True)
-    guard = UpdateGuard(opt, factor=reject_factor)
-    state = state.detach()
-    for u in range(updates):
+
+    def window_loss(state: BodyState) -> tuple[torch.Tensor, BodyState]:
         first = state.step + 1
         rest = swg_rest_lengths(body, swg, first, window)
         win = rollout_window(body, state, rest)
@@ -152,18 +179,9 @@ def train_scheme2(agent: Agent, state: BodyState, target: Target, updates: int, 
         lengths = torch.cat([state.length, win.length[:-1, 0]])  # (W, E): steps first−1 .. first+W−2
         l_fb = ((fb.signal_from_features(lengths) - swg.signal_at_steps(torch.arange(first, first + window), body.dt))
                 ** 2).mean()
-        loss = l_traj + alpha * l_fb
-        failure = _divergence(body, win.final)
-        decision = guard.backward_and_review(u, loss, diverged=failure)
-        if decision.stop:
-            return _stopped(agent, guard, state, u)
-        if decision.accepted:
-            opt.step()
-            body.clamp_parameters_()
-        if failure is None:
-            state = win.final.detach()
-    _finish(agent)
-    return SchemeTraining(guard.history, state, None, guard.summary())
+        return l_traj + alpha * l_fb, win.final
+
+    return _run_scheme(agent, _SchemeWindow(agent, opt, state.detach(), window_loss), updates, reject_factor)
 
 
 def train_scheme3(agent: Agent, state: BodyState, target: Target, updates: int, *, window: int = 100,
@@ -173,32 +191,31 @@ def train_scheme3(agent: Agent, state: BodyState, target: Target, updates: int, 
     the last ``fit_windows`` accepted windows' (state k, SWG signal k+1) pairs with input noise σ = ``noise``."""
     body, swg, fb = agent.body, agent.brain, agent.feedback
     opt = _optimizer(agent, lr, with_swg=True, with_fl=False)
-    guard = UpdateGuard(opt, factor=reject_factor, modules={"feedback": fb})  # a restore brings the FL back too
     rng = np.random.default_rng(seed)
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
-    state = state.detach()
-    for u in range(updates):
+    lengths: list[torch.Tensor] = []  # the measured window's lengths (W, 1, E), for the refit
+
+    def window_loss(state: BodyState) -> tuple[torch.Tensor, BodyState]:
         first = state.step + 1
         rest = swg_rest_lengths(body, swg, first, window)
         win = rollout_window(body, state, rest)
         t = step_times(first, window, body.dt)
-        loss = ((win.r[:, 0, body.cmp_local] - target(t).to(body.l.dtype)) ** 2).mean()
-        failure = _divergence(body, win.final)
-        decision = guard.backward_and_review(u, loss, diverged=failure)
-        if decision.stop:
-            return _stopped(agent, guard, state, u)
-        if decision.accepted:
-            with torch.no_grad():
-                xs.append(torch.cat([state.length, win.length[:-1, 0]]).double().numpy())
-                ys.append(swg.signal_at_steps(torch.arange(first, first + window), body.dt).double().numpy())
-            opt.step()
-            body.clamp_parameters_()
-            xs, ys = xs[-fit_windows:], ys[-fit_windows:]
-            x = np.concatenate(xs)
-            weights, _ = fit_ridge(x + noise * rng.standard_normal(x.shape), np.concatenate(ys))
-            fb.load_fit(weights)
-        if failure is None:
-            state = win.final.detach()
-    _finish(agent)
-    return SchemeTraining(guard.history, state, None, guard.summary())
+        lengths[:] = [win.length]
+        return ((win.r[:, 0, body.cmp_local] - target(t).to(body.l.dtype)) ** 2).mean(), win.final
+
+    def keep_pairs(state: BodyState) -> None:  # before the step: the SWG signal of the parameters just measured
+        first = state.step + 1
+        with torch.no_grad():
+            xs.append(torch.cat([state.length, lengths[0][:-1, 0]]).double().numpy())
+            ys.append(swg.signal_at_steps(torch.arange(first, first + window), body.dt).double().numpy())
+
+    def refit() -> None:
+        nonlocal xs, ys
+        xs, ys = xs[-fit_windows:], ys[-fit_windows:]
+        x = np.concatenate(xs)
+        weights, _ = fit_ridge(x + noise * rng.standard_normal(x.shape), np.concatenate(ys))
+        fb.load_fit(weights)
+
+    objective = _SchemeWindow(agent, opt, state.detach(), window_loss, keep_pairs, refit)
+    return _run_scheme(agent, objective, updates, reject_factor, modules={"feedback": fb})  # a restore brings the FL

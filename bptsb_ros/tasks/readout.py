@@ -19,7 +19,8 @@ from torch import nn
 
 from bptsb_ros.brains.fnn import LinearInputLayer
 from bptsb_ros.tasks.drawing import N_PIXELS, ImageToBody, SystemSpec, iterate_batches
-from bptsb_ros.training.guard import WINDOW, UpdateGuard
+from bptsb_ros.training.guard import WINDOW
+from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
 
 N_CLASSES = 10
 #: Adam learning rates for the readout experiment. The paper gives none for it; plain SGD with the drawing
@@ -124,31 +125,50 @@ def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs:
         FloatingPointError: a non-finite loss or gradient the guard cannot undo.
     """
     opt = make_optimizer(model)
-    guard = UpdateGuard(opt, factor=reject_factor, window=reject_window, log=log)
+    loop = UpdateLoop(opt, GuardRules(factor=reject_factor, window=reject_window), log=log)
     gen = np.random.default_rng(seed)
-    xt, yt = torch.as_tensor(x), torch.as_tensor(y)
-    out = ReadoutLog(losses=guard.history)
+    objective = _ReadoutBatches(model, opt, torch.as_tensor(x), torch.as_tensor(y))
+    out = ReadoutLog(losses=loop.losses)
     t0 = time.perf_counter()
     updates = 0
     for epoch in range(epochs):
-        for idx in iterate_batches(len(y), batch, gen):
-            loss = nn.functional.cross_entropy(model(xt[idx]), yt[idx])
-            decision = guard.backward_and_review(updates, loss)
-            if decision.stop:
-                raise FloatingPointError(f"{model.spec.name}: {decision.reason} of the readout loss in epoch "
-                                         f"{epoch + 1} with nothing to undo")
-            if decision.accepted:
-                opt.step()
-                if model.system is not None:
-                    model.system.body.clamp_parameters_()
-            updates += 1
+        objective.batches = iterate_batches(len(y), batch, gen)  # the epoch's permutation, drawn as it starts
+        objective.first = updates
+        try:
+            loop.run(objective, range(updates, updates + len(objective.batches)))
+        except LoopStopped as stop:
+            raise FloatingPointError(f"{model.spec.name}: {stop.decision.reason} of the readout loss in epoch "
+                                     f"{epoch + 1} with nothing to undo") from None
+        updates += len(objective.batches)
         if test is not None:
             out.epoch_accuracy.append(accuracy(model, *test))
             if log:
                 log(f"{model.spec.name}: epoch {epoch + 1}/{epochs} test accuracy {100 * out.epoch_accuracy[-1]:.2f} %")
     out.wall_s = time.perf_counter() - t0
-    out.guard = guard.summary()
+    out.guard = loop.guard.summary()
     return out
+
+
+class _ReadoutBatches:
+    """The readout training's update (an :class:`~bptsb_ros.training.loop.Objective`): the cross-entropy of one
+    batch of the epoch's ``batches`` (update ``first + j`` reads batch ``j``)."""
+
+    def __init__(self, model: ReadoutSystem, opt: torch.optim.Optimizer, xt: torch.Tensor, yt: torch.Tensor) -> None:
+        self.model, self.opt, self.xt, self.yt = model, opt, xt, yt
+        self.batches: list[np.ndarray] = []
+        self.first = 0
+
+    def measure(self, update: int) -> Measured:
+        idx = self.batches[update - self.first]
+        return Measured(nn.functional.cross_entropy(self.model(self.xt[idx]), self.yt[idx]))
+
+    def step(self) -> None:
+        self.opt.step()
+        if self.model.system is not None:
+            self.model.system.body.clamp_parameters_()
+
+    def advance(self, finite: bool) -> None:
+        del finite
 
 
 @torch.no_grad()

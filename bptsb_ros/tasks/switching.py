@@ -31,8 +31,8 @@ from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.config import LearningRates, TrainingConfig
 from bptsb_ros.sim.batched import wind_force
 from bptsb_ros.sim.rollout import swg_rest_lengths
-from bptsb_ros.training.guard import UpdateGuard
-from bptsb_ros.training.optim import divide_rates_, make_optimizer, step_decay_updates
+from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
+from bptsb_ros.training.optim import make_optimizer, step_decay_updates
 
 #: the paper's learning rates for switching (supplementary table, "Lissajous curves (switching)")
 SWITCHING_LR = LearningRates(k=1e3, d=1e2, l=1e0, amplitude=1e0, phase=1e1)
@@ -148,12 +148,10 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
     if agent.feedback is not None:
         agent.feedback.requires_grad_(False)
     opt = make_optimizer(agent, TrainingConfig(lr=lr, update_steps=window))
-    guard = UpdateGuard(opt, factor=reject_factor)
+    loop = UpdateLoop(opt, GuardRules(factor=reject_factor))
     dtype = body.l.dtype
     forces = wind_force(body, wind_vector(torch.as_tensor(schedule), published=published_wind).to(dtype))  # (S+1, M, 2)
-    k_start = state.step
     updates = (len(schedule) - 1) // window
-    state = state.detach()
     if backend is None:
         backend = str(agent.config.get("training", {}).get("backend", "numba"))
     fused = None
@@ -162,47 +160,68 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
 
         fused = FusedSwgWindow(body, swg, opt, window, GivenTargetLoss(body.cmp_local))
     decay_at = step_decay_updates(updates, min_updates=lr_decay_min_updates) if lr_decay else []
-    lr_k: list[float] = []
-    k_group = next((g for g in opt.param_groups if g.get("name") == "k"), opt.param_groups[0])
-    for u in range(updates):
-        for _ in range(decay_at.count(u)):
-            divide_rates_(opt, 10.0)
-        lr_k.append(float(k_group["lr"]))
-        first = state.step + 1
-        rel = first - k_start
-        ext = forces[rel:rel + window].unsqueeze(1)  # (W, 1, M, 2)
-        t = step_times(first, window, body.dt)  # float64: the target's phase stays exact at large t
-        wind = torch.as_tensor(schedule[rel:rel + window], dtype=dtype)
-        if fused is None:
-            rest = swg_rest_lengths(body, swg, first, window)
-            win = rollout_window(body, state, rest, ext)
-            loss = ((win.r[:, 0, body.cmp_local] - target(t, wind).to(dtype)) ** 2).mean()
-            final = win.final.detach()
-            failure = None
-            try:
-                body.check_finite(final)
-            except SimulationDiverged as err:
-                failure = str(err)
-            decision = guard.backward_and_review(u, loss, diverged=failure)
-        else:  # the window, loss and gradients in one compiled call
-            fused.set_inputs(target(t, wind), ext)
-            value, grads_ok, final, failure = fused.run(state)
-            guard.optimizer.zero_grad(set_to_none=True)  # as backward_and_review: no stale gradients
-            decision = guard.review(u, value, grads_finite=grads_ok, diverged=failure)
-        if decision.stop:
-            for module in agent.modules().values():
-                module.requires_grad_(False)
-            raise SimulationDiverged(f"switching update {u}: {failure or decision.reason}; nothing to undo")
-        if decision.accepted:
-            if fused is None:
-                opt.step()
-                body.clamp_parameters_()
-            else:
-                fused.step()
-        if failure is None:
-            state = final
-        if progress is not None:
-            progress(u + 1, updates, guard.history[-1])
+    objective = _SwitchingWindows(agent, opt, state, schedule, forces, target, window, fused)
+    try:
+        loop.run(objective, range(updates), decay_at=decay_at, after_update=None if progress is None else
+                 lambda u: progress(u + 1, updates, loop.losses[-1]))
+    except LoopStopped as stop:
+        for module in agent.modules().values():
+            module.requires_grad_(False)
+        raise SimulationDiverged(f"switching update {stop.update}: {stop.measured.failure or stop.decision.reason}; "
+                                 "nothing to undo") from None
     for module in agent.modules().values():
         module.requires_grad_(False)
-    return SwitchingTraining(guard.history, state, schedule, guard.summary(), lr_k)
+    return SwitchingTraining(loop.losses, objective.state, schedule, loop.guard.summary(), objective.lr_k)
+
+
+class _SwitchingWindows:
+    """The switching training's update (an :class:`~bptsb_ros.training.loop.Objective`): the next window under
+    the schedule's wind, its target switching curves with the wind; on the autograd path or fused."""
+
+    def __init__(self, agent: Agent, opt: torch.optim.Optimizer, state: BodyState, schedule: np.ndarray,
+                 forces: torch.Tensor, target: Callable, window: int, fused: Any) -> None:
+        self.agent, self.opt, self.schedule, self.forces = agent, opt, schedule, forces
+        self.target, self.window, self.fused = target, window, fused
+        self.k_start = state.step
+        self.state = state.detach()
+        self.final: BodyState | None = None
+        self.lr_k: list[float] = []  # the k group's rate at every update (after the scheduled divisions)
+        self.k_group = next((g for g in opt.param_groups if g.get("name") == "k"), opt.param_groups[0])
+
+    def measure(self, update: int) -> Measured:
+        del update
+        body, swg, window, state = self.agent.body, self.agent.brain, self.window, self.state
+        dtype = body.l.dtype
+        self.lr_k.append(float(self.k_group["lr"]))
+        first = state.step + 1
+        rel = first - self.k_start
+        ext = self.forces[rel:rel + window].unsqueeze(1)  # (W, 1, M, 2)
+        t = step_times(first, window, body.dt)  # float64: the target's phase stays exact at large t
+        wind = torch.as_tensor(self.schedule[rel:rel + window], dtype=dtype)
+        if self.fused is None:
+            rest = swg_rest_lengths(body, swg, first, window)
+            win = rollout_window(body, state, rest, ext)
+            loss = ((win.r[:, 0, body.cmp_local] - self.target(t, wind).to(dtype)) ** 2).mean()
+            self.final = win.final.detach()
+            failure = None
+            try:
+                body.check_finite(self.final)
+            except SimulationDiverged as err:
+                failure = str(err)
+            return Measured(loss, failure=failure)
+        # the window, loss and gradients in one compiled call
+        self.fused.set_inputs(self.target(t, wind), ext)
+        value, grads_ok, self.final, failure = self.fused.run(state)
+        self.opt.zero_grad(set_to_none=True)  # as backward_and_review: no stale gradients
+        return Measured(value=value, grads_finite=grads_ok, failure=failure, fused=True)
+
+    def step(self) -> None:
+        if self.fused is None:
+            self.opt.step()
+            self.agent.body.clamp_parameters_()
+        else:
+            self.fused.step()
+
+    def advance(self, finite: bool) -> None:
+        if finite:
+            self.state = self.final

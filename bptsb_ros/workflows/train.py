@@ -29,7 +29,8 @@ from bptsb_ros.training.checkpoint import CheckpointError, checkpoint_path, read
 from bptsb_ros.training.feedback_fit import fit_feedback
 from bptsb_ros.training.fused import fused_training
 from bptsb_ros.training.guard import RESET_AFTER, UpdateGuard, copy_state
-from bptsb_ros.training.optim import divide_rates_, make_optimizer, step_decay_updates
+from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
+from bptsb_ros.training.optim import make_optimizer, step_decay_updates
 from bptsb_ros.training.resume_checks import ResumeStateError, check_resume_checkpoint
 
 
@@ -184,8 +185,9 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
 
     total = task.num_updates()
     tc = cfg.training
-    guard = UpdateGuard(optimizer, factor=tc.reject_factor, patience=tc.reject_patience,
-                        log=lambda line: bar.write(line, file=sys.stderr))
+    loop = UpdateLoop(optimizer, GuardRules(factor=tc.reject_factor, patience=tc.reject_patience),
+                      log=lambda line: bar.write(line, file=sys.stderr))
+    guard = loop.guard
     if resume:
         extra = payload["extra"]
         if "guard" in extra:
@@ -260,47 +262,34 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         return TrainingDiverged(f"update {update}: {why} ({kept}; details in {run_dir / 'diverged.json'})")
 
     decay_at = set(step_decay_updates(total)) if tc.lr_decay else set()  # the published switching schedule
+    objective = _TaskUpdates(task, optimizer, fused, tc.projection)
+
+    def measured(i: int, m: Measured) -> None:
+        nonlocal sim_steps
+        sim_steps += getattr(task, "steps_per_update", tc.update_steps)
+        if m.value is not None and math.isfinite(m.value):
+            window_completed()
+
+    def after_update(i: int) -> None:
+        nonlocal pending, due
+        bar.update(1)
+        if i % tc.log_every == 0:
+            bar.set_postfix(loss=f"{losses[-1]:.4g}")
+        if callback is not None:
+            callback(i, float(losses[-1]))
+        pending = snapshot(i + 1)
+        due = due or bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
+
     try:
-        for i in range(start, total):
-            if i in decay_at:
-                divide_rates_(optimizer, 10.0)
-            loss: torch.Tensor | None = None
-            value: float | None = None
-            failure: str | None = None
-            grads_ok = True
-            try:
-                if fused is None:
-                    loss, _info = task.update_loss(i)
-                    value = float(loss.detach())
-                else:  # loss and gradients in one compiled call, no autograd
-                    value, grads_ok = fused.update_loss(i)
-            except SimulationDiverged as err:
-                failure = str(err)
-            sim_steps += getattr(task, "steps_per_update", tc.update_steps)
-            if value is not None and math.isfinite(value):
-                window_completed()
-            if fused is None:
-                decision = guard.backward_and_review(i, loss, diverged=failure)
-            else:
-                decision = guard.review(i, value, grads_finite=grads_ok, diverged=failure)
-            if decision.stop:
-                why = failure or (f"loss is {value}" if decision.reason == "non-finite loss" else decision.reason)
-                ranges = "" if failure else f"; {agent.body.parameter_ranges()}"
-                raise diverged(i, f"{why}{ranges}; the guard has nothing to undo (no update since the start or the "
-                                  "last restore)")
-            if decision.accepted:
-                if fused is None:
-                    optimizer.step()
-                    agent.body.clamp_parameters_(tc.projection)
-                else:  # SGD of every group and the projection of k, d, l, in place in one call
-                    fused.step()
-            bar.update(1)
-            if i % tc.log_every == 0:
-                bar.set_postfix(loss=f"{losses[-1]:.4g}")
-            if callback is not None:
-                callback(i, float(losses[-1]))
-            pending = snapshot(i + 1)
-            due = due or bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
+        try:
+            loop.run(objective, range(start, total), decay_at=decay_at, measured=measured, after_update=after_update)
+        except LoopStopped as stop:
+            m = stop.measured
+            why = m.failure or (f"loss is {m.value}" if stop.decision.reason == "non-finite loss"
+                                else stop.decision.reason)
+            ranges = "" if m.failure else f"; {agent.body.parameter_ranges()}"
+            raise diverged(stop.update, f"{why}{ranges}; the guard has nothing to undo (no update since the start "
+                                        "or the last restore)") from None
     finally:
         bar.close()
     elapsed = time.perf_counter() - t_start
@@ -323,6 +312,37 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     state = getattr(task, "state", None)
     return TrainResult(run_dir, losses, metrics, files, agent,
                        state.detach() if isinstance(state, BodyState) else None)
+
+
+class _TaskUpdates:
+    """A task's update for :class:`~bptsb_ros.training.loop.UpdateLoop`: ``task.update_loss(i)`` on the autograd
+    path (the loss value measured too, for the last-good bookkeeping), or the fused window's loss and gradients in
+    one compiled call; a diverged simulation is the measurement's ``failure``."""
+
+    def __init__(self, task: Any, optimizer: torch.optim.Optimizer, fused: Any, projection: str) -> None:
+        self.task, self.optimizer, self.fused, self.projection = task, optimizer, fused, projection
+
+    def measure(self, update: int) -> Measured:
+        m = Measured(fused=self.fused is not None)
+        try:
+            if self.fused is None:
+                m.loss, _info = self.task.update_loss(update)
+                m.value = float(m.loss.detach())
+            else:  # loss and gradients in one compiled call, no autograd
+                m.value, m.grads_finite = self.fused.update_loss(update)
+        except SimulationDiverged as err:
+            m.failure = str(err)
+        return m
+
+    def step(self) -> None:
+        if self.fused is None:
+            self.optimizer.step()
+            self.task.agent.body.clamp_parameters_(self.projection)
+        else:  # SGD of every group and the projection of k, d, l, in place in one call
+            self.fused.step()
+
+    def advance(self, finite: bool) -> None:
+        del finite  # the task carries its own state (only a finite window's)
 
 
 def training_metrics(cfg: ExperimentConfig, guard: UpdateGuard, seconds: float, sim_steps: int,
