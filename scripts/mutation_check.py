@@ -121,7 +121,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "SWG ω/2", (BRAINS,)),
     Mutant("locomotion-no-step", "bptsb_ros/workflows/train.py",
            "            self.optimizer.step()\n            self.task.agent",
-           "            self.optimizer.step() if self.task.name != \"locomotion\" else None\n            self.task.agent",
+           "            self.optimizer.step() if self.task.name != \"locomotion\" else None\n"
+           "            self.task.agent",
            "optimizer.step() skipped for locomotion",
            ("tests/test_training.py::test_locomotion_training_lowers_loss",)),
     Mutant("resume-fp16-velocity", "bptsb_ros/tasks/base.py",
