@@ -174,7 +174,7 @@ def test_site_builds_strictly(tmp_path):
 
     # every page of the nav was written, the repository files the hook serves included
     for page in ("index.html", "REPRODUCTION/index.html", "ros/topics/index.html", "experiments/mnist/index.html",
-                 "reproduction/runs/lissajous-closed-loop-paper/agent/lissajous.png", "digit_targets.png"):
+                 "reproduction/runs/lissajous-closed-loop-paper/seed-0/agent/lissajous.png", "digit_targets.png"):
         assert (site / page).is_file(), page
     # the API reference rendered the docstrings (read statically: rclpy is not imported for api/ros)
     api = {name: (site / "api" / name / "index.html").read_text(encoding="utf-8")

@@ -10,10 +10,13 @@ import pytest
 from bptsb_ros.experiments.durations import (
     Duration,
     DurationsError,
+    SeedsDuration,
     durations,
     format_seconds,
     parse_durations,
     reproduce_table,
+    seed_plan,
+    seeds_seconds,
 )
 
 
@@ -22,14 +25,22 @@ def _entry(seconds=5.0, measured="2026-12-06 on 2 cores"):
 
 
 def _valid():
-    return {"toy": {"smoke": _entry(3), "short": _entry(75), "paper": _entry(8399)}}
+    return {"toy": {"smoke": _entry(3), "short": _entry(75), "paper": _entry(8399), "seeds": {"n": 5}}}
 
 
 def test_a_valid_file_is_read_as_given():
-    table = parse_durations(_valid())
+    table, seeds = parse_durations(_valid())
     assert table == {"toy": {"smoke": Duration(3.0, "2026-12-06 on 2 cores"),
                              "short": Duration(75.0, "2026-12-06 on 2 cores"),
                              "paper": Duration(8399.0, "2026-12-06 on 2 cores")}}
+    assert seeds == {"toy": SeedsDuration(5)}
+
+
+def test_a_measured_seed_run_and_its_arguments_are_read_as_given():
+    data = _valid()
+    data["toy"]["seeds"] = {"n": 3, "seconds": 120, "measured": "2026-12-07", "args": " --set n_seeds=1 ",
+                            "share": 0.5}
+    assert parse_durations(data)[1]["toy"] == SeedsDuration(3, Duration(120.0, "2026-12-07"), "--set n_seeds=1", 0.5)
 
 
 @pytest.mark.parametrize("break_it", [
@@ -44,6 +55,18 @@ def test_a_valid_file_is_read_as_given():
     lambda d: d["toy"].update(smoke=_entry(5, "  ")),
     lambda d: d["toy"].update(smoke=5),
     lambda d: d.update(toy=["smoke"]),
+    lambda d: d["toy"].pop("seeds"),
+    lambda d: d["toy"].update(seeds={"n": 0}),
+    lambda d: d["toy"].update(seeds={"n": 1001}),
+    lambda d: d["toy"].update(seeds={"n": 2.5}),
+    lambda d: d["toy"].update(seeds={"n": True}),
+    lambda d: d["toy"].update(seeds={"n": 3, "seconds": 10}),  # a time says when it was measured
+    lambda d: d["toy"].update(seeds={"n": 3, "measured": "today"}),
+    lambda d: d["toy"].update(seeds={"n": 3, "share": 0}),
+    lambda d: d["toy"].update(seeds={"n": 3, "share": 1.5}),
+    lambda d: d["toy"].update(seeds={"n": 3, "args": 7}),
+    lambda d: d["toy"].update(seeds={"n": 3, "workers": 2}),
+    lambda d: d["toy"].update(seeds=3),
 ])
 def test_a_broken_entry_is_one_error_naming_it(break_it):
     data = _valid()
@@ -58,6 +81,21 @@ def test_the_packaged_file_times_every_experiment_at_every_scale():
     ours = {name for name, e in experiments().items() if e.run.__module__ in MODULES}
     assert len(ours) == 19
     assert set(durations()) == ours
+    plan = seed_plan()
+    assert set(plan) == ours
+    # the seed counts verdicts are drawn from at paper scale: at least 10, 5 or 3 by the experiment's cost
+    assert all(plan[name].n >= 10 for name in ours if name.startswith(("lissajous", "locomotion", "closed-loop")))
+    assert min(plan[name].n for name in ours) >= 3
+
+
+@pytest.mark.parametrize(("seeds", "parallel", "expected"), [
+    (SeedsDuration(10), False, (500.0, False)),  # seeds side by side on 2 workers: 10 / 2 × 100 s
+    (SeedsDuration(10), True, (1000.0, False)),  # each seed takes both workers: 10 × 100 s
+    (SeedsDuration(5, share=0.2), True, (100.0, False)),  # one of five trainings per seed
+    (SeedsDuration(10, Duration(42.0, "then")), False, (42.0, True)),  # a measurement wins
+])
+def test_the_seed_run_time_is_measured_or_estimated_from_one_seed(seeds, parallel, expected):
+    assert seeds_seconds(100.0, seeds, parallel) == expected
 
 
 @pytest.mark.parametrize(("seconds", "text"), [
@@ -68,15 +106,26 @@ def test_times_are_written_in_a_unit_that_fits(seconds, text):
 
 
 def test_the_table_aligns_its_columns_and_cuts_nothing():
-    times = parse_durations(_valid())
+    times, seeds = parse_durations(_valid())
     ref = "supplement 'Behavioral switching' (locomotion), Fig. S(a), (c), (e)"
-    lines = reproduce_table([("toy", ref), ("no-time", "Fig. 1")], times)
-    assert lines[0].split() == ["experiment", "smoke", "short", "paper", "paper", "figure"]
-    assert lines[2].split()[:4] == ["toy", "3", "s", "1.2"]
+    lines = reproduce_table([("toy", ref, False), ("no-time", "Fig. 1", False)], times, seeds)
+    assert lines[0].split() == ["experiment", "smoke", "short", "paper", "seeds", "paper", "×", "seeds", "paper",
+                                "figure"]
+    assert lines[2].split()[:10] == ["toy", "3", "s", "1.2", "min", "2.3", "h", "5", "≈", "5.8"]  # 5/2 × 8399 s
     assert lines[2].endswith(ref)  # the whole text, last
     assert lines[3].split()[:4] == ["no-time", "—", "—", "—"]
     # every row's paper figure starts in the same column
     assert len({line.index(cell) for line, cell in ((lines[2], ref), (lines[3], "Fig. 1"))}) == 1
+    assert lines[-1] == "all experiments at paper scale over their seeds: ≈ 5.8 h on 2 cores (≈: estimated from " \
+                        "the one-seed time)"
+
+
+def test_the_total_is_measured_only_when_every_seed_run_is():
+    times, seeds = parse_durations(_valid())
+    seeds["toy"] = SeedsDuration(5, Duration(3600.0, "then"))
+    lines = reproduce_table([("toy", "Fig. 1", True)], times, seeds)
+    assert lines[2].split()[7:10] == ["5", "1.0", "h"]
+    assert lines[-1] == "all experiments at paper scale over their seeds: 1.0 h on 2 cores"
 
 
 def test_reproduce_list_prints_the_table(capsys):

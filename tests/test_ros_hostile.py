@@ -1,4 +1,4 @@
-"""A hostile publisher on the body's domain (issue 6, finding 3), where only the live graph can tell: a node that is
+"""A hostile publisher on the body's domain, where only the live graph can tell: a node that is
 not an allowed publisher can neither take over the body with commands stamped ahead nor have any command
 integrated (body_sim asks the ROS graph who publishes); ``on_divergence: stop`` ends a launched run with a
 finalised bag; a forged ``/body/positions`` publisher is recorded as foreign. The rules themselves (bounds,
@@ -8,6 +8,7 @@ wrong size, NaN, stale, divergence recovery, perturbation and reset checks) are 
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 from ros_live import Probe, fresh_agent, start_node, stop
@@ -46,7 +47,7 @@ def test_an_untrusted_publisher_never_steers_the_body(tmp_path, ros_env, ros_dom
         if k == 5:  # a node that is not an allowed publisher joins and stamps commands ahead of the brain
             intruder.append(Probe(ros_domain_id, "intruder"))
             pub = intruder[0].node.create_publisher(JointState, "/brain/rest_length", cq)
-            assert Probe.wait_matched([pub], 8.0)
+            assert Probe.wait_matched([pub], 30.0)  # discovery of a new participant: seconds on loaded cores
             for ahead in range(5, STEPS + 3):
                 pub.publish(m.joint_state(ahead, DT_NS, names, position=evil))
         rest_pub.publish(m.joint_state(k, DT_NS, names, position=good[k]))
@@ -72,7 +73,9 @@ def test_an_untrusted_publisher_never_steers_the_body(tmp_path, ros_env, ros_dom
             probe.close()
     log = (tmp_path / "body.log").read_text()
     assert body.returncode == 0, log
-    assert "/brain/rest_length also has publisher(s) not in command_publishers (/intruder)" in log, log
+    # the intruder is named (a participant of an earlier test in this domain may still be listed until its lease ends)
+    named = re.findall(r"/brain/rest_length also has publisher\(s\) not in command_publishers \(([^)]*)\)", log)
+    assert any("/intruder" in found.split(", ") for found in named), log
     applied = np.array([np.asarray(msg.position) for msg in brain.messages["/body/rest_length"]])
     assert len(applied) == STEPS + 1
     np.testing.assert_array_equal(applied[:5], good[:5])  # before the intruder: the brain's commands

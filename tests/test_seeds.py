@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -401,6 +402,20 @@ def test_report_shows_k_of_n_strips_and_means_not_the_seeds_alone(toy_seeds, tmp
     assert "- **split** 1/4 `✗✗✗✓` value above 2" in text
     assert "- **split** 2/4 `✓✗✓✗` value even" in text
     assert "![seeds](runs/toy/seeds.png)" in text
+
+
+def test_a_run_copied_without_its_marker_is_still_one_section(toy_seeds, tmp_path):
+    """Results and figures copied elsewhere (a results repository) leave the run's marker behind: the aggregate's
+    seed_runs still say which folders are its seeds; a stray result beside them is its own section."""
+    from bptsb_ros.experiments.report import find_results
+    from bptsb_ros.experiments.seeds import SEEDS_MARKER
+
+    runs = tmp_path / "runs"
+    run_seeds(toy_seeds, [0, 1, 2], out_dir=runs / "toy", workers=0, log=lambda m: None)
+    (runs / "toy" / SEEDS_MARKER).unlink()
+    shutil.copytree(runs / "toy" / "seed-1", runs / "toy" / "seed-7")  # not one of the aggregate's seeds
+    assert [p.relative_to(runs).as_posix() for p, _ in find_results(runs)] == ["toy/result.json",
+                                                                               "toy/seed-7/result.json"]
 
 
 def test_python_api_runs_seeds(toy_seeds, tmp_path):

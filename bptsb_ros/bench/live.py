@@ -8,7 +8,7 @@ in them. A :class:`CpuSampler` reads the CPU time of every node process (all its
 the CPU of each inside the body's stepping window, divided by the steps, is its CPU per step. Between the loop runs
 runs the anchor (:mod:`bptsb_ros.ros.anchor`: two processes ping-pong a 50-float message with the loops' QoS,
 pre-serialized, on the EventsExecutor, and a recorder process takes both topics every 20 ms): what the middleware
-gives on this machine now. Each loop run's ``ratio_to_anchor`` is its steps/s over the mean round trips/s of the
+gives where it runs, now. Each loop run's ``ratio_to_anchor`` is its steps/s over the mean round trips/s of the
 anchor runs just before and after it (:func:`with_ratios`), so that a change in the machine's load hits both alike;
 runs of several loops are interleaved (anchor, loop A, anchor, loop B, anchor, ...). ``lissajous_closed`` needs a
 fitted feedback layer: the bench fits one on a fresh Lissajous agent (10 s of sim time) in its work folder first.

@@ -69,10 +69,13 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.jobs.sweep import SchedulerError, SweepError
 
     if args.list:
-        from bptsb_ros.experiments.durations import durations, reproduce_table
+        from bptsb_ros.experiments.durations import durations, reproduce_table, seed_plan
 
-        print("\n".join(reproduce_table(((e.name, e.paper_ref) for e in experiments().values()), durations())))
+        rows = ((e.name, e.paper_ref, e.parallel) for e in experiments().values())
+        print("\n".join(reproduce_table(rows, durations(), seed_plan())))
         print("Wall times measured on 2 CPU cores (bptsb_ros/experiments/durations.yaml says when and how); "
+              "paper × seeds: bptsb reproduce NAME --scale paper --seeds 0-(seeds-1) --workers 2 "
+              "(and the entry's args there). "
               "bptsb reproduce NAME --show-config --scale SCALE shows what a scale runs.")
         return 0
     if not args.name:

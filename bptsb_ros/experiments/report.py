@@ -56,12 +56,21 @@ def _fmt(value: Any) -> str:
     return plain
 
 
+#: a seed's folder as an aggregate names it (a name, never a path)
+_SEED_FOLDER = re.compile(r"seed-\d+")
+
+
 def find_results(runs_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
     """Every valid result.json under ``runs_dir`` (invalid ones raise ResultError naming the file)."""
     from bptsb_ros.experiments.seed_dirs import in_multi_seed_run
 
-    # a seed's own result of a multi-seed run is part of that run's aggregate, not a page section of its own
-    found = [(p, read_result(p)) for p in sorted(runs_dir.rglob(RESULT_FILE)) if not in_multi_seed_run(p.parent)]
+    # a seed's own result of a multi-seed run is part of that run's aggregate, not a page section of its own: known
+    # by the run's marker, or (a run copied without it: results and figures only) by the aggregate's seed_runs
+    read = [(p, read_result(p)) for p in sorted(runs_dir.rglob(RESULT_FILE)) if not in_multi_seed_run(p.parent)]
+    seed_runs = [(p.parent, result.get("seed_runs")) for p, result in read]
+    seed_dirs = {run / folder for run, folders in seed_runs if isinstance(folders, dict)
+                 for folder in folders.values() if isinstance(folder, str) and _SEED_FOLDER.fullmatch(folder)}
+    found = [(p, result) for p, result in read if p.parent not in seed_dirs]
     order = _paper_order()
     scales = {"paper": 0, "short": 1, "smoke": 2}
     found.sort(key=lambda pr: (order.get(pr[1]["experiment"], len(order)), pr[1]["experiment"],

@@ -68,7 +68,7 @@ def fresh_config(values: dict[str, Any]) -> dict[str, Any]:
 def load_source(values: dict[str, Any]) -> tuple[Agent, bool]:
     """Build the agent named by the source parameters, in the parameter ``dtype``, parameters frozen.
 
-    An MNIST system file (``tasks.mnist_drawing.save_system``) gives the agent of ``tasks.mnist_live.system_agent``:
+    An MNIST system file (``tasks.drawing.save_system``) gives the agent of ``tasks.mnist_live.system_agent``:
     the system's body, the whole system as brain.
 
     Returns:

@@ -1,6 +1,6 @@
 """The anchor of ``bptsb bench --live``: a bare rclpy ping-pong, measured in the same run as the loops.
 
-What the middleware alone gives on this machine, now: ``ping`` publishes a 50-float ``std_msgs/Float64MultiArray``,
+What the middleware alone gives where it runs, now: ``ping`` publishes a 50-float ``std_msgs/Float64MultiArray``,
 ``pong`` answers every ping with one, and ``ping`` sends the next ping when the pong is in — one round trip, as a
 lockstep step is one (``/clock`` out, the command back). A ``recorder`` process takes both topics in rounds of
 20 ms, as a bag recorder does. Each side publishes pre-serialized bytes (no message objects) and handles its messages

@@ -3,7 +3,7 @@
 (the function ``FeedbackLayer.rest_length`` applies offline to ``state_features`` of the body state).
 
 The state comes from ``body/positions`` (state type ``spring_length``, the default: the spring lengths computed from
-the mass positions as the body computes them, ``live.feedback.spring_lengths``) or ``body/mass_states``
+the mass positions as the body computes them, ``live.feedback_loop.spring_lengths``) or ``body/mass_states``
 (``position``, ``velocity``, ``acceleration`` = effort / mass, see ``messages.acceleration_from_effort``; the
 launchers have the body publish it every step). With
 ``open_loop_steps`` = W > 0 the SWG drives steps 0…W (answering ``/clock``) and the feedback layer

@@ -2,7 +2,7 @@
 
 A *population* is B trainings whose agents share a topology: an LIL brain and a body without ground, trained
 with ``training.backend: fused`` on episodes of the same length. Member b is the training :func:`~bptsb_ros.
-training.trainer.train` runs for its config — the same initial agent (its seed), the same input stream (its
+workflows.train.train` runs for its config — the same initial agent (its seed), the same input stream (its
 task's generator), the same loss, its own update guard and learning rates — but the population keeps every
 member's k, d, l (B, E), LIL weights (B, O, 1) and biases (B, O) stacked, so one update is one brain forward
 (a batched matrix product), one lane-kernel window of B lanes (``body/held_window.py``'s
