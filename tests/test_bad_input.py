@@ -156,8 +156,8 @@ def test_bag_schema_names_never_import_arbitrary_modules():
 
 
 def test_perturb_step_is_bounded_before_the_integer_conversion():
+    from bptsb_ros.interface.params import ParameterError
     from bptsb_ros.live.body_params import MAX_PERTURB_AHEAD, perturb_step
-    from bptsb_ros.ros.params import ParameterError
 
     assert perturb_step(1.0, 0.01, 100) == 100  # the last step of a 100-step run
     assert perturb_step(1.0049, 0.01, 100) == 100

@@ -48,20 +48,6 @@ BAGS_MAY_USE = ("rclpy.serialization",)
 
 #: edges that break the rules today (importer → imported), each with its reason; shrink only
 ALLOWED = {
-    # the ROS boundary: parameter specs and topic names still live in ros/ (they move to a ROS-free interface/
-    # room below live/, bags/ and analysis/, together with the launch builder into ros/)
-    ("bptsb_ros.analysis.bag_run", "bptsb_ros.ros.topics"): "topic names",
-    ("bptsb_ros.analysis.mnist_replay", "bptsb_ros.ros.topics"): "topic names",
-    ("bptsb_ros.bags.recording", "bptsb_ros.ros.params"): "parameter specs",
-    ("bptsb_ros.live.body_core", "bptsb_ros.ros.params"): "parameter specs",
-    ("bptsb_ros.live.body_core", "bptsb_ros.ros.topics"): "topic names",
-    ("bptsb_ros.live.body_params", "bptsb_ros.ros.agent_source"): "the fresh-agent parameters",
-    ("bptsb_ros.live.body_params", "bptsb_ros.ros.params"): "parameter specs",
-    ("bptsb_ros.live.body_params", "bptsb_ros.ros.topics"): "topic names",
-    ("bptsb_ros.live.loops", "bptsb_ros.ros.params"): "parameter specs",
-    ("bptsb_ros.live.loops", "bptsb_ros.ros.topics"): "topic names",
-    ("bptsb_ros.live.mnist_loop", "bptsb_ros.ros.params"): "parameter specs",
-    ("bptsb_ros.live.viewers", "bptsb_ros.ros.topics"): "topic names",
     ("bptsb_ros.live.loops", "launch"): "the launch builder (ros_launch_description) still lives in live/loops.py",
     ("bptsb_ros.live.loops", "launch.actions"): "the launch builder",
     ("bptsb_ros.live.loops", "launch.condition"): "the launch builder",

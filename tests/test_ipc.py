@@ -185,8 +185,8 @@ def test_ipc_of_a_bag_reads_inputs_and_block_end_states(tmp_path):
     block-end positions are planted functions of the held input: mass 1 x = u(t−1), mass 1 y = u(t)²,
     CMP y = u(t−2) (u mapped to [−1, 1]); positions inside a block are junk that must not be read."""
     from bptsb_ros.bags.writer import BagWriter
+    from bptsb_ros.interface.topics import dt_to_ns, input_names
     from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.topics import dt_to_ns, input_names
 
     tau, blocks = 4, 260
     u01 = np.random.default_rng(5).uniform(0, 1, blocks)

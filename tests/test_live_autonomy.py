@@ -85,7 +85,7 @@ def test_file_schedule_and_its_errors(tmp_path):
 
 
 def test_agent_wind_and_node_parameters():
-    from bptsb_ros.ros.params import ParameterError
+    from bptsb_ros.interface.params import ParameterError
     from bptsb_ros.ros.wind_source import PARAMS, schedule_from_parameters
     from bptsb_ros.sim.wind_schedule import for_agent
 
@@ -380,8 +380,8 @@ def test_wind_table_beyond_max_wind_is_refused_at_startup(tmp_path, capsys):
     checked against the body's max_wind by read_table, by wind_source and by `bptsb launch` before starting."""
     from bptsb_ros.cli import main
     from bptsb_ros.cli.launch_cmd import _wind_limit
+    from bptsb_ros.interface.params import ParameterError
     from bptsb_ros.live.safety import DEFAULT_MAX_WIND
-    from bptsb_ros.ros.params import ParameterError
     from bptsb_ros.ros.wind_source import PARAMS, schedule_from_parameters
     from bptsb_ros.sim.wind_schedule import WindScheduleError, read_table
 

@@ -17,12 +17,13 @@ import pytest
 import torch
 
 from bptsb_ros.body.msdn import SimulationDiverged
+from bptsb_ros.interface.params import ParameterError, validate_values
+from bptsb_ros.interface.source import SOURCE_PARAMS
+from bptsb_ros.live.agent_source import load_source
 from bptsb_ros.live.body_core import BodyCore
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import MAX_PENDING_PERTURBATIONS, PARAMS
 from bptsb_ros.live.summary import write_summary
-from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
-from bptsb_ros.ros.params import ParameterError, validate_values
 
 _AGENT = {}
 

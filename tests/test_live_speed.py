@@ -83,8 +83,8 @@ def _template(build, shapes):
 
 def _outputs():
     """The builders body_sim templates, for the lissajous body (25 masses, 48 springs, 13 movable)."""
+    from bptsb_ros.interface.topics import mass_dof_names, spring_names
     from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.topics import mass_dof_names, spring_names
 
     body = agent().body
     n, e = body.topology.n_masses, body.topology.n_springs

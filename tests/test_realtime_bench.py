@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from test_live_core import FakePort, core
 
+from bptsb_ros.interface.params import ParameterError
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.step_times import FIELDS, StepTimes, load_step_times, timing_statistics
-from bptsb_ros.ros.params import ParameterError
 
 PERIOD = 0.01
 

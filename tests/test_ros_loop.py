@@ -247,8 +247,8 @@ def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env
     own robot's topics (its ``/rN/clock`` and ``/rN/diagnostics`` too), and each equals its own offline simulation."""
     from bptsb_ros.analysis.bag_run import read_run
     from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.interface.topics import TOPICS
     from bptsb_ros.ros.messages import pose_array_positions
-    from bptsb_ros.ros.topics import TOPICS
     from bptsb_ros.sim.rollout import simulate_open_loop
 
     results: dict[str, subprocess.CompletedProcess] = {}

@@ -22,7 +22,7 @@ from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
 from bptsb_ros.files.safe_write import json_text, write_atomic
-from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
+from bptsb_ros.interface.topics import NS_PER_S, TOPICS, absolute
 
 
 def _topic(key: str) -> str:

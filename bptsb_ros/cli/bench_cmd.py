@@ -23,7 +23,7 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from bptsb_ros.ros.params import EXECUTOR, EXECUTORS  # ROS-free
+    from bptsb_ros.interface.params import EXECUTOR, EXECUTORS  # ROS-free
 
     parser.add_argument("--quick", action="store_true", help="1 s per measurement and fewer batch sizes")
     parser.add_argument("--out", required=True, help="JSON file to write; rewritten after each measurement, with "

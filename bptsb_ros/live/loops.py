@@ -23,9 +23,9 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from bptsb_ros.interface.params import ParamValue, yaml_value
+from bptsb_ros.interface.topics import BODY_OUTPUTS, COMMAND_SOURCES, RECORDER_ACK, TOPICS, absolute, feedback_state_key
 from bptsb_ros.live.body_params import SLOW_OUTPUTS
-from bptsb_ros.ros.params import ParamValue, yaml_value
-from bptsb_ros.ros.topics import BODY_OUTPUTS, COMMAND_SOURCES, RECORDER_ACK, TOPICS, absolute, feedback_state_key
 
 __all__ = ["LOOPS", "BrainSpec", "Loop", "ParamValue", "agent_loop", "feedback_state_key", "format_parameter",
            "log_dir_of_bag", "node_parameters", "recorder_parameters", "ros_launch_description", "topic_names"]

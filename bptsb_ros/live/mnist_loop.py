@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from bptsb_ros.ros.params import ParamValue
+from bptsb_ros.interface.params import ParamValue
 
 LOOP = "mnist_drawing"
 #: launch arguments of the loop besides the common ones: name -> (default, description)

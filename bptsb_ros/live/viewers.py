@@ -18,7 +18,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from bptsb_ros.ros.topics import TOPICS, absolute
+from bptsb_ros.interface.topics import TOPICS, absolute
 
 #: the body's frame at the root namespace (``body_sim``'s ``frame_id`` default)
 BODY_FRAME = "msdn"

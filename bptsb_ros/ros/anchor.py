@@ -48,8 +48,8 @@ def _payload() -> bytes:
 
 
 def _qos() -> Any:
+    from bptsb_ros.interface.topics import DEFAULT_QOS_DEPTH
     from bptsb_ros.ros.messages import state_qos
-    from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH
 
     return state_qos(DEFAULT_QOS_DEPTH)
 

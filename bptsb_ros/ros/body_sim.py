@@ -27,6 +27,8 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from bptsb_ros.interface.topics import RECORDER_ACK, absolute, stamp_to_step
+from bptsb_ros.live.agent_source import load_source
 from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import (
@@ -42,9 +44,8 @@ from bptsb_ros.live.body_params import (
 from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.agent_source import load_source
 from bptsb_ros.ros.cdr_in import JointStateReader
-from bptsb_ros.ros.params import declare_parameters
+from bptsb_ros.ros.declare_params import declare_parameters
 from bptsb_ros.ros.raw_out import RawTemplate, TemplateError
 from bptsb_ros.ros.runtime import (
     EXIT_FAILURE,
@@ -57,7 +58,6 @@ from bptsb_ros.ros.runtime import (
     run_node,
     wait_acked,
 )
-from bptsb_ros.ros.topics import RECORDER_ACK, absolute, stamp_to_step
 
 NODE = "body_sim"
 #: periods of ``diagnostics_period`` after which the loop status is published whatever the slack

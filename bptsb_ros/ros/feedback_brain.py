@@ -28,13 +28,13 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
+from bptsb_ros.interface.params import Param, ParameterError
+from bptsb_ros.interface.topics import feedback_state_key, mass_dof_names, spring_names, stamp_to_step
 from bptsb_ros.live.feedback_loop import FeedbackCommands
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.cdr_in import JointStateReader, PoseArrayReader
-from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import feedback_state_key, mass_dof_names, spring_names, stamp_to_step
 
 NODE = "feedback_brain"
 PARAMS = (

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from bptsb_ros.files.safe_write import write_atomic
-from bptsb_ros.ros.params import render_params_yaml
+from bptsb_ros.interface.params import render_params_yaml
 
 #: node name -> module holding its ``PARAMS`` (brains also get COMMON_PARAMS)
 NODES: dict[str, str] = {

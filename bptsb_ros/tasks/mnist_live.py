@@ -2,7 +2,7 @@
 
 * An MNIST system file (written by :func:`bptsb_ros.tasks.drawing.save_system`) is an *agent* of the live
   nodes: :func:`system_agent` wraps its body and the whole :class:`ImageToBody` (as the brain) so that every node
-  of the loop gets the same body in the same dtype (``agent_source.load_source`` calls it).
+  of the loop gets the same body in the same dtype (``live.agent_source.load_source`` calls it).
 * Episodes have a fixed length of ``episode_steps`` E steps (default :func:`default_episode_steps`: the longest
   digit target's steps + 1). Image i of the stream is shown at step k_i = i·E (:func:`shown_image`); the body is
   reset at k_i to the image's displacement and released, and draws for E steps (rows k_i..k_i + E − 1), which is
