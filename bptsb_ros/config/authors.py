@@ -29,7 +29,7 @@ from typing import Any, NamedTuple
 
 import yaml
 
-from bptsb_ros.config import MAX_CONFIG_BYTES, ConfigError, ExperimentConfig, echo, safe_yaml, validate
+from bptsb_ros.config import MAX_CONFIG_BYTES, ConfigError, ExperimentConfig, config_dir, echo, safe_yaml, validate
 from bptsb_ros.files.safe_write import UnsafeFileError, open_regular, read_regular, write_text_atomic
 
 MARKER = "# written by bptsb config import from the authors' config; `bptsb config import --force` may replace it"
@@ -533,8 +533,6 @@ def detect_task(source: Mapping[str, Any], requested: str | None = None) -> str:
 
 
 def _packaged(name: str) -> tuple[dict[str, Any], str]:
-    from bptsb_ros.experiments.common import config_dir
-
     path = config_dir() / f"{name}.yaml"
     try:
         text = path.read_text(encoding="utf-8")

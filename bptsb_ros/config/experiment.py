@@ -392,6 +392,18 @@ def validate(data: dict, source: str = "") -> ExperimentConfig:
         raise ConfigError(_format_errors(err, source)) from None
 
 
+def config_dir() -> Path:
+    """The directory of the packaged experiment configs (:func:`bptsb_ros.files.package_data.config_dir`: the
+    installed package's copy, a source checkout's ``config/``, or the ament share); ConfigError if none is there."""
+    from bptsb_ros.files.package_data import PackageDataError
+    from bptsb_ros.files.package_data import config_dir as packaged_dir
+
+    try:
+        return packaged_dir()
+    except PackageDataError as err:
+        raise ConfigError(str(err)) from None
+
+
 def load_config(path: str | Path, overrides: Overrides | None = None, seed: int | None = None) -> ExperimentConfig:
     """Read, override and validate an experiment YAML (``overrides``: see :data:`Overrides`)."""
     path = Path(path)
