@@ -27,6 +27,7 @@ and ``bptsb_ros.__version__`` from the installed distribution's metadata.
 from __future__ import annotations
 
 import os
+import runpy
 import shutil
 import stat
 import xml.etree.ElementTree as ET
@@ -48,18 +49,10 @@ SHARED_DATA = {
     "examples/lissajous_closed_example": ("bags/lissajous_closed_example", ("*",)),
 }
 
-# ROS node executables: name -> module whose ``main(args=None)`` runs the node.
-NODES = {
-    "body_sim": "bptsb_ros.ros.body_sim",
-    "swg_brain": "bptsb_ros.ros.swg_brain",
-    "mlp_brain": "bptsb_ros.ros.mlp_brain",
-    "feedback_brain": "bptsb_ros.ros.feedback_brain",
-    "task_input": "bptsb_ros.ros.task_input",
-    "recorder": "bptsb_ros.ros.recorder",
-    "wind_source": "bptsb_ros.ros.wind_source",
-    "image_streamer": "bptsb_ros.ros.image_streamer",
-    "mnist_brain": "bptsb_ros.ros.mnist_brain",
-}
+# ROS node executables: name -> module whose ``main(args=None)`` runs the node, from the package's node table
+# (bptsb_ros/interface/nodes.py: plain data, read without importing the package).
+_TABLE = runpy.run_path(os.path.join(HERE, "bptsb_ros", "interface", "nodes.py"))["NODES"]
+NODES = {node.name: node.module for node in _TABLE}
 
 # Template of the pip-route wrapper (@NODE@ = node name); it execs <prefix>/bin/<node>, which is where pip puts
 # the console script for every install scheme (venv, --prefix, --user, Debian's /usr/local).

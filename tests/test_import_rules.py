@@ -259,6 +259,10 @@ def test_at_most_eight_loose_root_modules_and_no_file_name_twice():
     assert repeated_basenames(PACKAGE) == {}
 
 
+def test_body_sim_stays_at_most_250_lines():
+    assert len((PACKAGE / "ros" / "body_sim.py").read_text(encoding="utf-8").splitlines()) <= 250
+
+
 def test_the_update_guard_is_built_in_at_most_two_places_outside_its_module():
     assert len(guard_sites(PACKAGE)) <= 2, guard_sites(PACKAGE)
 

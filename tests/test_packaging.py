@@ -150,8 +150,11 @@ def test_the_version_is_stated_once_in_package_xml() -> None:
 
     assert bptsb_ros.__version__ == version
     assert importlib.metadata.version(PACKAGE) == version, "the installed metadata is stale (make venv)"
+    assert '"interface", "nodes.py"' in setup_text  # its node entry points come from the node table
+    scripts = {e.name: e.value for e in importlib.metadata.distribution(PACKAGE).entry_points
+               if e.group == "console_scripts"}
     for node in NODES:
-        assert f'"{node}": "bptsb_ros.ros.{node}"' in setup_text, f"{node} is not an entry point in setup.py"
+        assert scripts.get(node) == f"bptsb_ros.ros.{node}:main", f"{node} is not an entry point of the package"
 
 
 #: rosdep keys (rosdistro rosdep/python.yaml) of the Python modules the package imports; None: rosdistro has no

@@ -23,6 +23,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from bptsb_ros.interface.nodes import BY_NAME
 from bptsb_ros.interface.params import ParamValue, yaml_value
 from bptsb_ros.interface.topics import BODY_OUTPUTS, COMMAND_SOURCES, RECORDER_ACK, TOPICS, absolute, feedback_state_key
 from bptsb_ros.live.body_params import SLOW_OUTPUTS
@@ -83,13 +84,21 @@ class Loop:
 #: per event or episode
 NOT_EVERY_STEP = frozenset({"markers", "diagnostics", "perturbation", "image", "label", "reset_cmd", *SLOW_OUTPUTS})
 
-SWG = BrainSpec("swg_brain", ("clock",), ("rest_length_cmd",))
-FEEDBACK = BrainSpec("feedback_brain", ("clock", "positions"), ("rest_length_cmd",))
-TASK_INPUT = BrainSpec("task_input", ("clock",), ("task_input",))
-MLP = BrainSpec("mlp_brain", ("task_input",), ("force_cmd",))
-WIND = BrainSpec("wind_source", ("clock",), ("wind",))
-IMAGES = BrainSpec("image_streamer", ("clock",), ("image", "label"))
-MNIST_BRAIN = BrainSpec("mnist_brain", ("image",), ("reset_cmd",))
+
+
+def brain_spec(name: str) -> BrainSpec:
+    """The brain-side node ``name`` of the node table (:data:`bptsb_ros.interface.nodes.NODES`) as a loop runs it."""
+    node = BY_NAME[name]
+    return BrainSpec(node.name, node.triggers, node.publishes)
+
+
+SWG = brain_spec("swg_brain")
+FEEDBACK = brain_spec("feedback_brain")
+TASK_INPUT = brain_spec("task_input")
+MLP = brain_spec("mlp_brain")
+WIND = brain_spec("wind_source")
+IMAGES = brain_spec("image_streamer")
+MNIST_BRAIN = brain_spec("mnist_brain")
 
 LOOPS: dict[str, Loop] = {
     loop.name: loop
