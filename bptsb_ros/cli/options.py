@@ -8,9 +8,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-DEFAULT_NODES = {"double_circle": 25, "multiple_circle": 17, "caterpillar": 10}
-"""Default number of masses (fixed ones included) per body shape for ``--nodes``."""
-
 
 def finite_float(text: str) -> float:
     """argparse ``type`` for a float argument: NaN and ±inf are rejected (``--perturb nan`` is an error, not 0)."""

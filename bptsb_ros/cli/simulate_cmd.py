@@ -12,7 +12,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
-from bptsb_ros.cli.options import DEFAULT_NODES, USAGE, UsageError, fail, finite_float
+from bptsb_ros.body.shapes import DEFAULT_NODES
+from bptsb_ros.cli.options import USAGE, UsageError, fail, finite_float
 
 if TYPE_CHECKING:
     from bptsb_ros.sim.trajectory import Trajectory

@@ -25,7 +25,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from bptsb_ros.body.shapes import MAX_MASSES, build_shape
+from bptsb_ros.body.shapes import MAX_MASSES, SHAPES, build_shape
 from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 TASKS = ("lissajous", "locomotion", "narma")
@@ -46,7 +46,7 @@ class _Strict(BaseModel):
 
 
 class BodyConfig(_Strict):
-    shape: Literal["double_circle", "multiple_circle", "caterpillar"] = "double_circle"
+    shape: Literal[SHAPES] = "double_circle"  # type: ignore[valid-type]  # the registry of body/shapes.py
     nodes: int = Field(25, ge=2, le=MAX_MASSES, description="number of masses, fixed ones included")
     size: float = Field(4.0, gt=0, le=1000.0, description="diameter of circular bodies [m]")
     neighbours: int = Field(3, ge=1, description="caterpillar: mass k links to k+1..k+neighbours")
