@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from bptsb_ros.body.shapes import SHAPES
 from bptsb_ros.interface.params import Param
 
 if TYPE_CHECKING:
@@ -30,7 +31,7 @@ SOURCE_PARAMS: tuple[Param, ...] = (
     Param("config", "", "experiment YAML of a fresh agent (used when 'agent' is empty)", "str"),
     Param("task", "lissajous", "task of a fresh agent (when 'agent' and 'config' are empty)", "str", choices=TASKS),
     Param("shape", "", "body shape of a fresh agent; empty: the task's default", "str",
-          choices=("", "double_circle", "multiple_circle", "caterpillar")),
+          choices=("", *SHAPES)),
     Param("nodes", 0, "number of masses of a fresh agent's body, fixed ones included; 0: the task's default",
           "int", minimum=0),
     Param("size", 4.0, "diameter of a fresh agent's circular body [m]", "float", positive=True),
