@@ -260,7 +260,8 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     import time
     from types import SimpleNamespace
 
-    from bptsb_ros.ros.body_sim import DIAGNOSTICS_OVERDUE, BodySim
+    from bptsb_ros.ros.body_outputs import DIAGNOSTICS_OVERDUE
+    from bptsb_ros.ros.body_sim import BodySim
 
     due = lambda: time.monotonic() - 0.01  # noqa: E731 - the status is due, not overdue
     published, summaries = [], []
