@@ -16,7 +16,7 @@ static ``data_files`` that colcon reads (its ``--symlink-install`` symlinks thos
 
 Package data: the configs, launch files, layouts and the example agent and bag have one source each in the
 repository (``config/``, ``launch/``, ``bags/``). :class:`BuildPyWithSharedData` copies them into the built
-package as ``bptsb_ros/share/...`` (``bptsb_ros.package_data.SHARED`` names them), where
+package as ``bptsb_ros/share/...`` (``bptsb_ros.files.package_data.SHARED`` names them), where
 ``importlib.resources`` finds them after any install; ``data_files`` also puts the configs and launch files
 into the ament share, ``<prefix>/share/bptsb_ros``, for ``ros2 launch``.
 
@@ -27,6 +27,7 @@ and ``bptsb_ros.__version__`` from the installed distribution's metadata.
 from __future__ import annotations
 
 import os
+import runpy
 import shutil
 import stat
 import xml.etree.ElementTree as ET
@@ -40,7 +41,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 VERSION = ET.parse(os.path.join(HERE, "package.xml")).getroot().findtext("version").strip()
 
 # Data copied into the package (bptsb_ros/share/<name>), each from one repository folder: a copy of
-# bptsb_ros.package_data.SHARED (setup.py cannot import the package it builds), with the files to take.
+# bptsb_ros.files.package_data.SHARED (setup.py cannot import the package it builds), with the files to take.
 SHARED_DATA = {
     "config": ("config", ("*.yaml", "*.json", "*.rviz")),
     "launch": ("launch", ("*.launch.py",)),
@@ -48,18 +49,10 @@ SHARED_DATA = {
     "examples/lissajous_closed_example": ("bags/lissajous_closed_example", ("*",)),
 }
 
-# ROS node executables: name -> module whose ``main(args=None)`` runs the node.
-NODES = {
-    "body_sim": "bptsb_ros.ros.body_sim",
-    "swg_brain": "bptsb_ros.ros.swg_brain",
-    "mlp_brain": "bptsb_ros.ros.mlp_brain",
-    "feedback_brain": "bptsb_ros.ros.feedback_brain",
-    "task_input": "bptsb_ros.ros.task_input",
-    "recorder": "bptsb_ros.ros.recorder",
-    "wind_source": "bptsb_ros.ros.wind_source",
-    "image_streamer": "bptsb_ros.ros.image_streamer",
-    "mnist_brain": "bptsb_ros.ros.mnist_brain",
-}
+# ROS node executables: name -> module whose ``main(args=None)`` runs the node, from the package's node table
+# (bptsb_ros/interface/nodes.py: plain data, read without importing the package).
+_TABLE = runpy.run_path(os.path.join(HERE, "bptsb_ros", "interface", "nodes.py"))["NODES"]
+NODES = {node.name: node.module for node in _TABLE}
 
 # Template of the pip-route wrapper (@NODE@ = node name); it execs <prefix>/bin/<node>, which is where pip puts
 # the console script for every install scheme (venv, --prefix, --user, Debian's /usr/local).
@@ -94,7 +87,7 @@ class InstallDataWithNodeWrappers(_InstallData):
 class BuildPyWithSharedData(_BuildPy):
     """``build_py`` that also copies :data:`SHARED_DATA` into the built package (``bptsb_ros/share/...``).
 
-    Not in an editable install: there the package is the checkout, whose folders ``bptsb_ros.package_data``
+    Not in an editable install: there the package is the checkout, whose folders ``bptsb_ros.files.package_data``
     reads directly."""
 
     def run(self) -> None:

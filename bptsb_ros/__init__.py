@@ -35,14 +35,14 @@ _LAZY: dict[str, str] = {
     "FeedbackConfig": "bptsb_ros.config",
     "Agent": "bptsb_ros.agent",
     "BodyState": "bptsb_ros.body.msdn",
-    "TrainResult": "bptsb_ros.training.trainer",
+    "TrainResult": "bptsb_ros.workflows.train",
     "Trajectory": "bptsb_ros.sim.trajectory",
     "IPCResult": "bptsb_ros.analysis.ipc",
     "ExperimentResult": "bptsb_ros.experiments.result",
     # what they raise
     "ConfigError": "bptsb_ros.config",
     "CheckpointError": "bptsb_ros.training.checkpoint",
-    "TrainingDiverged": "bptsb_ros.training.trainer",
+    "TrainingDiverged": "bptsb_ros.workflows.train",
     "SimulationDiverged": "bptsb_ros.body.msdn",
     "IPCError": "bptsb_ros.analysis.ipc",
     "ExperimentError": "bptsb_ros.experiments.registry",
@@ -79,13 +79,13 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from bptsb_ros.experiments.result import ExperimentResult
     from bptsb_ros.sim.trajectory import Trajectory
     from bptsb_ros.training.checkpoint import CheckpointError
-    from bptsb_ros.training.trainer import TrainingDiverged, TrainResult
+    from bptsb_ros.workflows.train import TrainingDiverged, TrainResult
 
 
 def _version() -> str:
     """The package's version: a source checkout's ``package.xml`` where the package is imported from one, else
     the installed distribution's metadata (written from that same ``package.xml`` by ``setup.py``)."""
-    from bptsb_ros.package_data import checkout_root
+    from bptsb_ros.files.package_data import checkout_root
 
     root = checkout_root()
     if root is not None:

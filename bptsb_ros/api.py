@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from bptsb_ros.config import ExperimentConfig, FeedbackConfig, Overrides
     from bptsb_ros.experiments.result import ExperimentResult
     from bptsb_ros.sim.trajectory import Trajectory
-    from bptsb_ros.training.trainer import TrainResult, UpdateCallback
+    from bptsb_ros.workflows.train import TrainResult, UpdateCallback
 
 def packaged_configs() -> list[str]:
     """Names of the packaged experiment configs, for :func:`load_config`.
@@ -132,7 +132,7 @@ def train(config: ExperimentConfig | str | os.PathLike[str], *, out: str | os.Pa
         ConfigError: ``out`` holds another run (neither ``resume`` nor ``overwrite``), or ``resume`` without one.
         TrainingDiverged: the simulation or the loss diverged and the update guard had nothing to undo.
     """
-    from bptsb_ros.training.trainer import train as run
+    from bptsb_ros.workflows.train import train as run
 
     return run(_config(config), out, resume=resume, overwrite=overwrite, progress=progress, init_from=init_from,
                callback=callback)

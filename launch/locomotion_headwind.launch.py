@@ -10,7 +10,7 @@ perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, rviz
 (``ros2 launch bptsb_ros locomotion_headwind.launch.py --show-args``).
 """
 
-from bptsb_ros.live.loops import ros_launch_description
+from bptsb_ros.ros.launch_description import ros_launch_description
 
 
 def generate_launch_description():

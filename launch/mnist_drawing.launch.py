@@ -14,7 +14,7 @@ open_loop_steps, perturb_at, perturb_sigma, perturb_seed, namespace, log_level, 
 --show-args``).
 """
 
-from bptsb_ros.live.loops import ros_launch_description
+from bptsb_ros.ros.launch_description import ros_launch_description
 
 
 def generate_launch_description():

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from bptsb_ros.config import load_config
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 DEFAULTS = ("sim_time=300", "dtype=float64", "feedback.enabled=false", "lissajous.eval_periods=1")
 

@@ -75,7 +75,7 @@ L="$work/light-venv/bin"
 pip_quiet "$L/pip" install "$wheel"
 "$L/pip" check
 cd "$elsewhere"
-bag=$("$L/python" -c 'from bptsb_ros.package_data import example_bag; print(example_bag())')
+bag=$("$L/python" -c 'from bptsb_ros.files.package_data import example_bag; print(example_bag())')
 "$L/bptsb" bag info "$bag" >light_bag_info.txt && head -4 light_bag_info.txt
 "$L/bptsb" replay "$bag" --out light_replay --no-gif >light_replay.txt && tail -3 light_replay.txt
 test -f light_replay/metrics.json

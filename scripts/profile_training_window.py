@@ -17,7 +17,7 @@ import time
 
 import torch
 
-from bptsb_ros.bench import WORKLOADS, _setup, fused_runner
+from bptsb_ros.bench.suite import WORKLOADS, _setup, fused_runner
 
 
 def fused_main(name: str, windows: int) -> None:

@@ -17,7 +17,7 @@ import os
 import sys
 from dataclasses import replace
 
-from bptsb_ros.bench import NARMA_TASK_OVERRIDES, WORKLOADS, _ratio, measure_isolated
+from bptsb_ros.bench.suite import NARMA_TASK_OVERRIDES, WORKLOADS, _ratio, measure_isolated
 
 
 def main() -> None:

@@ -347,7 +347,9 @@ def seed_summary(out: Path) -> Path:
         {"claim": "the first claim", "holds": h, "evidence": "planted"},
         {"claim": "a second claim with a longer text that the strip shortens", "holds": g, "evidence": "planted"}]}
         for h, g in ((True, None), (True, False), (False, True))]
-    return S.plot_seed_summary(out / "seeds.png", per_seed, [0, 1, 2])
+    from bptsb_ros.experiments.seeds import aggregate_claims
+
+    return S.plot_seed_summary(out / "seeds.png", aggregate_claims(per_seed), [0, 1, 2], "planted")
 
 
 def band(out: Path) -> Path:

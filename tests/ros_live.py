@@ -83,7 +83,8 @@ def bag_positions(bag: Path) -> tuple[np.ndarray, np.ndarray]:
 
 def fresh_agent(task: str, seed: int = 0):
     """The fresh float64 agent the nodes build from default parameters for ``task``."""
-    from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
+    from bptsb_ros.interface.source import SOURCE_PARAMS
+    from bptsb_ros.live.agent_source import load_source
 
     values = {p.name: p.default for p in SOURCE_PARAMS}
     values.update(task=task, seed=seed)

@@ -14,10 +14,11 @@ from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, period
 from bptsb_ros.cli import main
 from bptsb_ros.experiments import read_result
 from bptsb_ros.experiments.common import packaged_config
-from bptsb_ros.sim.population import run_population
+from bptsb_ros.sim.batched import run_population
+from bptsb_ros.sim.inputs import wind_schedule
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
 from bptsb_ros.tasks.lissajous import returned, windowed_shift_error, windowed_shift_error_batch
-from bptsb_ros.tasks.lissajous_switching import Curve, wind_schedule
+from bptsb_ros.tasks.switching import Curve
 
 
 # -- the paper's error and success criterion ---------------------------------------------------------------
@@ -270,7 +271,7 @@ def test_lissajous_bifurcation_smoke(tmp_path, monkeypatch):
     """The three variants at smoke scale, the preliminary training of the published integrator (the authors'
     protocol's) planted to diverge: that variant's claims are not testable, the other two are judged as usual."""
     import bptsb_ros.experiments.lissajous_switching as lsw
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     _diverge_when(monkeypatch, lsw, "train_single_curve", lambda *a, **k: "body.integrator=published" in k["extra"],
                   TrainingDiverged("update 2: planted"))
@@ -372,7 +373,7 @@ def test_scheme2_feedback_gradient_pairs_state_k_with_signal_k_plus_1(agent64, m
     import copy
 
     from bptsb_ros.config import LearningRates
-    from bptsb_ros.training import closed_loop_schemes as cls
+    from bptsb_ros.tasks import feedback_schemes as cls
 
     agent = copy.deepcopy(agent64)
     body, swg, fb = agent.body, agent.brain, agent.feedback
@@ -417,7 +418,7 @@ def test_closed_loop_schemes_report_a_diverged_preliminary_training(tmp_path, mo
     """A preliminary training that blows up (it happened at paper scale: (1,2,0), seed 4) is reported as such and
     the other schemes and systems still run; the experiment does not fail."""
     import bptsb_ros.experiments.closed_loop_schemes as exp
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     def diverge(*args, **kwargs):
         raise TrainingDiverged("update 7: simulation diverged at step 700; planted")
@@ -452,7 +453,7 @@ def test_lissajous_perturbation_without_a_trained_agent_is_a_result(tmp_path, mo
     reason), not a failed run; a run too short to compare two evaluation windows is refused in one line."""
     import bptsb_ros.experiments.lissajous_perturbation as lp
     from bptsb_ros.experiments import run_experiment
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     _diverge_when(monkeypatch, lp, "train_single_curve", lambda *a, **k: True,
                   TrainingDiverged("update 5: planted; the guard has nothing to undo"))

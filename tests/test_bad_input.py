@@ -156,8 +156,8 @@ def test_bag_schema_names_never_import_arbitrary_modules():
 
 
 def test_perturb_step_is_bounded_before_the_integer_conversion():
+    from bptsb_ros.interface.params import ParameterError
     from bptsb_ros.live.body_params import MAX_PERTURB_AHEAD, perturb_step
-    from bptsb_ros.ros.params import ParameterError
 
     assert perturb_step(1.0, 0.01, 100) == 100  # the last step of a 100-step run
     assert perturb_step(1.0049, 0.01, 100) == 100
@@ -216,7 +216,7 @@ RECURSIVE = ["&a [*a]", "&m {x: *m}", "&a [1, [2, *a]]"]
 def test_a_recursive_yaml_alias_is_refused_at_once(text):
     """A 7-byte self-referencing alias expands without end; the one safe loader refuses it (every YAML input of the
     package goes through it), and a shared alias that is no cycle still loads."""
-    from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
+    from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, load_untrusted_yaml
 
     with pytest.raises(UntrustedYamlError, match="recursive alias"):
         load_untrusted_yaml(text, "t")

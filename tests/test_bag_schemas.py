@@ -148,7 +148,7 @@ def test_control_bytes_of_a_bag_never_reach_the_terminal(tmp_path, capsys):
     with pytest.raises(BagError) as err:
         list(read_messages(tmp_path / "schema", decoder="rosbags"))
     assert "\x1b" in str(err.value)  # the parser quotes the schema's bytes...
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
 
     assert fail("replay", err.value) == 1  # ...and the one line printed escapes them
     shown = capsys.readouterr().err

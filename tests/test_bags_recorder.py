@@ -28,7 +28,7 @@ from bptsb_ros.bags.recording import (
     select_topics,
     subscription_policies,
 )
-from bptsb_ros.ros.params import ParameterError, validate_values
+from bptsb_ros.interface.params import ParameterError, validate_values
 
 REPO = Path(__file__).resolve().parent.parent
 

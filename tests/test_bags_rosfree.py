@@ -32,8 +32,8 @@ from bptsb_ros.bags.publishers import PublisherId
 from bptsb_ros.bags.reader import read_arrays, read_messages, read_published
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.cli import main
+from bptsb_ros.interface.topics import dt_to_ns, input_names, spring_names
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.topics import dt_to_ns, input_names, spring_names
 
 DT_NS = dt_to_ns(0.01)
 BODY = PublisherId("01.0f.aa.00.00.00.00.00.00.00.00.00.00.00.01.03", "body_sim", "/")

@@ -7,7 +7,9 @@ import json
 
 import pytest
 
-from bptsb_ros import bench, bench_gang, bench_mnist
+from bptsb_ros.bench import gang_speed as bench_gang
+from bptsb_ros.bench import mnist_speed as bench_mnist
+from bptsb_ros.bench import suite as bench
 from bptsb_ros.cli import main
 
 PLANTED = {"forward_steps_per_s": 11.0, "forward_body_steps_per_s": 11.0, "train_steps_per_s": 7.0,

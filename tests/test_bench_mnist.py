@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from bptsb_ros import bench_mnist
+from bptsb_ros.bench import mnist_speed as bench_mnist
 
 
 def planted_rates() -> dict[str, dict[str, float]]:

@@ -74,7 +74,7 @@ def test_swg_table_is_the_offline_function_at_every_step():
 
 
 def test_spring_lengths_from_positions_are_the_bodys_bit_for_bit():
-    from bptsb_ros.live.feedback import spring_lengths
+    from bptsb_ros.live.feedback_loop import spring_lengths
 
     agent = _agent("lissajous")
     body = agent.body

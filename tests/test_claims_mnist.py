@@ -542,7 +542,7 @@ def test_label_maps_start_at_each_digits_best_sample_within_0_8_m(tmp_path, monk
     from bptsb_ros.experiments import mnist_analysis as ma
     from bptsb_ros.experiments.registry import Context
     from bptsb_ros.experiments.result import ExperimentResult
-    from bptsb_ros.tasks import mnist_drawing as md
+    from bptsb_ros.tasks import drawing as md
 
     assert ma.label_map_half_width(4.0) == pytest.approx(0.8)  # the published deltaScale 5 on the size-4 bodies
     labels = np.array([d % 10 for d in range(30)])

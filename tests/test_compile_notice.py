@@ -133,7 +133,7 @@ def test_the_project_kernels_are_warm_once_cached_for_the_arguments_the_code_pas
     import torch
     from numba import njit
 
-    from bptsb_ros import bench
+    from bptsb_ros.bench import suite as bench
     from bptsb_ros.training import fused_kernel
 
     w = replace(bench.WORKLOADS["lissajous"], window=10)

@@ -32,7 +32,7 @@ def test_config_show_resolves_a_packaged_name_from_anywhere(capsys, tmp_path, mo
 
 
 def test_config_show_without_the_package_files_is_one_line(capsys, monkeypatch):
-    from bptsb_ros import package_data
+    from bptsb_ros.files import package_data
 
     monkeypatch.setattr(package_data, "checkout_root", lambda: None)
     monkeypatch.setattr(package_data, "_ament_share", lambda kind: None)

@@ -12,7 +12,7 @@ import yaml
 from bptsb_ros.body.shapes import build_shape
 from bptsb_ros.cli import main
 from bptsb_ros.config import load_config
-from bptsb_ros.config_import import MARKER, ImportFailure, import_config
+from bptsb_ros.config.authors import MARKER, ImportFailure, import_config
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 

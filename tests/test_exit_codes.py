@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from bptsb_ros.cli import main
-from bptsb_ros.cli.common import FAILURE, USAGE, config_error_code, fail
+from bptsb_ros.cli.options import FAILURE, USAGE, config_error_code, fail
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG = str(REPO / "config" / "lissajous_single.yaml")

@@ -10,7 +10,6 @@ import re
 import pytest
 import yaml
 
-from bptsb_ros.analysis.report import build_report
 from bptsb_ros.cli import main
 from bptsb_ros.experiments import run_experiment
 from bptsb_ros.experiments.experiment_settings import (
@@ -21,6 +20,7 @@ from bptsb_ros.experiments.experiment_settings import (
     resolve_settings,
 )
 from bptsb_ros.experiments.registry import _REGISTRY, Context, experiment, experiments
+from bptsb_ros.experiments.report import build_report
 from bptsb_ros.experiments.result import ResultError, validate_result
 
 _NARMA_SMOKE = ["narma.n_inputs=40", "narma.washout=10", "narma.train_end=30"]

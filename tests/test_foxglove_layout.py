@@ -11,8 +11,8 @@ import re
 import numpy as np
 import pytest
 
+from bptsb_ros.interface.topics import TOPICS, absolute
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.topics import TOPICS, absolute
 
 PATH = re.compile(r"^(?P<topic>/[\w/]+)\.(?P<field>.+)$")
 

@@ -18,7 +18,7 @@ from bptsb_ros.config import ConfigError, ExperimentConfig, validate
 from bptsb_ros.tasks import get_task
 from bptsb_ros.training.fused import PARAMETERS, FusedSwgWindow, LissajousLoss, fused_training, fused_unsupported
 from bptsb_ros.training.optim import make_optimizer
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 F64 = torch.float64
 #: a small double circle (13 masses, 24 springs), 40-step windows
@@ -254,7 +254,7 @@ def test_float32_window_agrees_with_the_numba_path_to_float32_rounding():
 
 
 def test_the_bench_runner_times_the_bench_workload():
-    from bptsb_ros.bench import WORKLOADS, _setup, fused_runner
+    from bptsb_ros.bench.suite import WORKLOADS, _setup, fused_runner
 
     w = WORKLOADS["lissajous"]
     _, _, state, run_window = _setup(w, True, F64, "numba")
@@ -266,7 +266,7 @@ def test_the_bench_runner_times_the_bench_workload():
 
 
 def test_the_bench_table_has_a_fused_row_with_its_ratios():
-    from bptsb_ros.bench import workload_table
+    from bptsb_ros.bench.suite import workload_table
 
     def m(train):
         return {"forward_steps_per_s": 10.0, "train_steps_per_s": train, "peak_rss_mib": 1.0}
@@ -310,7 +310,8 @@ def test_the_feedback_layer_is_fitted_after_fused_training_as_after_numba_traini
 
 
 def test_the_bench_report_holds_the_fused_ratios_and_target(monkeypatch):
-    from bptsb_ros import bench, bench_mnist
+    from bptsb_ros.bench import mnist_speed as bench_mnist
+    from bptsb_ros.bench import suite as bench
 
     planted = {"torch": 100.0, "numba": 1000.0, "fused": 4000.0}  # train steps/s: fused / numba 4 < 5
 
@@ -395,13 +396,8 @@ def test_only_the_trained_parameters_gradients_must_be_finite():
 
 @pytest.mark.parametrize("published", [False, True], ids=["wind", "published-wind"])
 def test_switching_training_gives_the_numba_paths_losses_and_parameters(published):
-    from bptsb_ros.tasks.lissajous_switching import (
-        CURVE_1,
-        CURVE_SWITCH,
-        switch_targets,
-        train_switching,
-        wind_schedule,
-    )
+    from bptsb_ros.sim.inputs import wind_schedule
+    from bptsb_ros.tasks.switching import CURVE_1, CURVE_SWITCH, switch_targets, train_switching
 
     schedule = wind_schedule(400, 100, np.random.default_rng(3), hold_periods=(1, 1))
     assert 0 < schedule.mean() < 1  # the wind blows part of the time

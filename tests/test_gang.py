@@ -1,4 +1,4 @@
-"""Independent trainings as one batched simulation (``bptsb_ros/gang.py``, ``body/held_window_kernel.py``): each
+"""Independent trainings as one batched simulation (``bptsb_ros/jobs/gang.py``, ``body/held_window_kernel.py``): each
 lane of a window run together with others equals that body's window run alone (``held_force_readout``'s solo
 path, itself checked against the per-step rollout in tests/test_held_window.py) bit for bit, in float64 and
 float32; whole trainings in a gang (memory and NARMA targets, the guard rejecting updates, two topologies in one
@@ -15,9 +15,9 @@ from bptsb_ros.body.held_window import as_lanes, held_force_readout
 from bptsb_ros.body.msdn import MSDN, SimulationDiverged
 from bptsb_ros.body.shapes import double_circle, multiple_circle
 from bptsb_ros.config import validate
-from bptsb_ros.gang import Gang, run_gang
-from bptsb_ros.sweep import SweepError, gangs_of, run_sweep, train_jobs
-from bptsb_ros.training.trainer import train
+from bptsb_ros.jobs.gang import Gang, run_gang
+from bptsb_ros.jobs.sweep import SweepError, gangs_of, run_sweep, train_jobs
+from bptsb_ros.workflows.train import train
 
 TAU, BLOCKS = 4, 6
 
@@ -260,7 +260,7 @@ def test_a_gang_reports_how_far_it_is(capsys):
 
 
 def test_the_gang_benchmark_and_its_paper_estimate():
-    from bptsb_ros import bench_gang
+    from bptsb_ros.bench import gang_speed as bench_gang
 
     # 170 trainings × 40,000 updates on 2 workers = 3.4e6 updates each; at 6 ms and 2 ms per update
     assert bench_gang.paper_estimate({"alone_ms_per_update": 6.0, "gang_ms_per_member_update": 2.0}) == {
@@ -348,7 +348,7 @@ def test_a_backward_after_the_gang_ended_is_refused_not_left_waiting():
 
 
 def test_a_failing_kernel_call_reaches_every_member_as_its_own_error(monkeypatch):
-    import bptsb_ros.gang as gang_module
+    import bptsb_ros.jobs.gang as gang_module
 
     def fails(lanes):
         raise ValueError("planted kernel failure")

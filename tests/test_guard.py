@@ -251,7 +251,7 @@ def test_trainer_undoes_a_planted_nan_and_spike_and_writes_the_events(tmp_path, 
     update 1 from θ1: update 3 must run θ1 again; update 4 evaluated the step of update 3 from θ1: update 5 runs
     θ1 once more. metrics.json lists both events."""
     from bptsb_ros.config import load_config
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     seen: list[list[torch.Tensor]] = []
     _plant_narma(monkeypatch, seen)
@@ -271,7 +271,7 @@ def test_a_resumed_run_continues_the_guard_bit_for_bit(tmp_path, monkeypatch):
     must restore θ1 from the checkpoint; the same losses, events and parameters as one run of 6 epochs."""
     from bptsb_ros.config import load_config
     from bptsb_ros.training.checkpoint import load_agent
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     _plant_narma(monkeypatch, [])
     full = train(load_config(CONFIG / "narma.yaml", ["epochs=6", *SHORT_NARMA]), tmp_path / "a", progress=False)
@@ -310,7 +310,7 @@ def _planted_target(agent, seen, bad: int, wind: bool = False):
 @pytest.mark.parametrize("scheme", [1, 2, 3])
 def test_closed_loop_schemes_undo_a_planted_nan(scheme, monkeypatch):
     from bptsb_ros.config import LearningRates
-    from bptsb_ros.training import closed_loop_schemes as cls
+    from bptsb_ros.tasks import feedback_schemes as cls
 
     # rates 1000x below the paper's: no update of its own is rejected (scheme 1 at the paper's rates diverges)
     monkeypatch.setattr(cls, "FL_LR", 1e-3)
@@ -329,7 +329,7 @@ def test_closed_loop_schemes_undo_a_planted_nan(scheme, monkeypatch):
 
 @pytest.mark.parametrize("backend", ["numba", "fused"])
 def test_switching_training_undoes_a_planted_nan(backend):
-    from bptsb_ros.tasks.lissajous_switching import train_switching
+    from bptsb_ros.tasks.switching import train_switching
 
     agent, state = _lissajous_agent()
     seen: list[list[torch.Tensor]] = []
@@ -350,7 +350,7 @@ def _images(n: int, bad: int, batch: int, seed: int) -> tuple[np.ndarray, np.nda
 
 
 def test_mnist_drawing_undoes_a_planted_bad_batch():
-    from bptsb_ros.tasks.mnist_drawing import ImageToBody, SystemSpec, train_drawing
+    from bptsb_ros.tasks.drawing import ImageToBody, SystemSpec, train_drawing
 
     system = ImageToBody(SystemSpec(brain="lil", nodes=17, dtype="float64"), 0)
     x, y = _images(8, bad=2, batch=2, seed=5)
@@ -360,7 +360,7 @@ def test_mnist_drawing_undoes_a_planted_bad_batch():
 
 
 def test_mnist_readout_undoes_a_planted_bad_batch():
-    from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem, train_readout
+    from bptsb_ros.tasks.readout import ReadoutSpec, ReadoutSystem, train_readout
 
     model = ReadoutSystem(ReadoutSpec(shape="double_circle", nodes=33), seed=0)
     x, y = _images(8, bad=1, batch=2, seed=4)

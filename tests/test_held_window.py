@@ -18,7 +18,7 @@ from bptsb_ros.body.msdn import MSDN, SimulationDiverged
 from bptsb_ros.body.shapes import double_circle
 from bptsb_ros.config import validate
 from bptsb_ros.tasks import get_task
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 F64 = torch.float64
 TAU, BLOCKS = 5, 7
@@ -190,7 +190,7 @@ def test_bad_arguments_are_refused_and_good_ones_pass():
 
 
 def test_the_bench_measures_the_narma_task_on_both_paths():
-    from bptsb_ros.bench import _measure_narma_task
+    from bptsb_ros.bench.suite import _measure_narma_task
 
     fused, numba = (_measure_narma_task(backend, 0.01) for backend in ("fused", "numba"))
     assert fused["fused_episodes"] is True and numba["fused_episodes"] is False
@@ -201,7 +201,7 @@ def test_the_bench_measures_the_narma_task_on_both_paths():
 
 
 def test_the_bench_table_shows_the_narma_task_rows():
-    from bptsb_ros.bench import workload_table
+    from bptsb_ros.bench.suite import workload_table
 
     def m(train):
         return {"forward_steps_per_s": 10.0, "train_steps_per_s": train, "peak_rss_mib": 1.0}

@@ -185,8 +185,8 @@ def test_ipc_of_a_bag_reads_inputs_and_block_end_states(tmp_path):
     block-end positions are planted functions of the held input: mass 1 x = u(t−1), mass 1 y = u(t)²,
     CMP y = u(t−2) (u mapped to [−1, 1]); positions inside a block are junk that must not be read."""
     from bptsb_ros.bags.writer import BagWriter
+    from bptsb_ros.interface.topics import dt_to_ns, input_names
     from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.topics import dt_to_ns, input_names
 
     tau, blocks = 4, 260
     u01 = np.random.default_rng(5).uniform(0, 1, blocks)
@@ -486,7 +486,7 @@ def test_ipc_npz_with_a_forged_shape_is_one_line(tmp_path, capsys):
 def test_ipc_npz_bomb_is_refused_by_its_declared_shape(tmp_path, capsys, monkeypatch):
     """64 MiB of zeros deflated to ~64 kB, against a bound of 8 MiB: refused before decompressing (the old
     np.load decompressed it all)."""
-    from bptsb_ros import safe_npz
+    from bptsb_ros.files import npz as safe_npz
 
     path = tmp_path / "bomb.npz"
     np.savez_compressed(path, u=np.zeros(2**23), states=np.zeros((10, 1)))
@@ -500,7 +500,7 @@ def test_ipc_npz_bomb_is_refused_by_its_declared_shape(tmp_path, capsys, monkeyp
 
 
 def test_npz_byte_bound_both_sides(tmp_path):
-    from bptsb_ros.safe_npz import NpzError, load_npz
+    from bptsb_ros.files.npz import NpzError, load_npz
 
     path = tmp_path / "a.npz"
     u, states = np.linspace(-1, 1, 10), np.arange(20.0).reshape(10, 2)

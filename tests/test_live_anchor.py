@@ -1,4 +1,4 @@
-"""The anchor of ``bptsb bench --live`` (:mod:`bptsb_ros.live_anchor`): a bare rclpy ping-pong with a recorder, in
+"""The anchor of ``bptsb bench --live`` (:mod:`bptsb_ros.ros.anchor`): a bare rclpy ping-pong with a recorder, in
 three processes (split) or with ping and pong in one process (composed), reports round trips per second measured
 after its warm-up, and a wrong shape is refused."""
 
@@ -12,7 +12,7 @@ pytest.importorskip("rclpy")
 
 @pytest.mark.parametrize("shape", ["split", "composed"])
 def test_the_anchor_measures_round_trips(shape, ros_env):
-    from bptsb_ros.live_anchor import WARM_UP, run_anchor
+    from bptsb_ros.ros.anchor import WARM_UP, run_anchor
 
     result = run_anchor(shape, 1.0, env=env_for(ros_env))
     assert "error" not in result, result
@@ -23,7 +23,7 @@ def test_the_anchor_measures_round_trips(shape, ros_env):
 
 
 def test_a_wrong_shape_is_refused():
-    from bptsb_ros.live_anchor import run_anchor
+    from bptsb_ros.ros.anchor import run_anchor
 
     with pytest.raises(ValueError, match="shape must be one of"):
         run_anchor("both", 1.0)

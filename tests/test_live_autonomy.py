@@ -85,7 +85,7 @@ def test_file_schedule_and_its_errors(tmp_path):
 
 
 def test_agent_wind_and_node_parameters():
-    from bptsb_ros.ros.params import ParameterError
+    from bptsb_ros.interface.params import ParameterError
     from bptsb_ros.ros.wind_source import PARAMS, schedule_from_parameters
     from bptsb_ros.sim.wind_schedule import for_agent
 
@@ -95,7 +95,8 @@ def test_agent_wind_and_node_parameters():
     assert (s.kind, s.force, s.calm, s.period, s.hold_periods, s.timing) == (
         "switching", (15.0, 1.0), (0.0, 1.0), 2.0, (4, 6), "fixed")
     # what the switching training fed the body: wind_vector(F_wind, published) = (15·F, 1), calm included
-    from bptsb_ros.tasks.lissajous_switching import wind_schedule, wind_vector
+    from bptsb_ros.sim.inputs import wind_schedule
+    from bptsb_ros.tasks.switching import wind_vector
 
     f_wind = wind_schedule(3000, 200, np.random.default_rng(0), hold_periods=(4, 6), timing="fixed")
     np.testing.assert_array_equal(s.forces(3000, DT), wind_vector(f_wind, published=True).numpy())
@@ -223,7 +224,7 @@ def test_return_metrics_on_planted_offsets():
 
 def test_switching_metrics_on_planted_drawings():
     from bptsb_ros.analysis.replay_lissajous import switching_metrics, wind_segments
-    from bptsb_ros.tasks.lissajous_switching import CURVE_1, Curve
+    from bptsb_ros.tasks.switching import CURVE_1, Curve
 
     config = {"task": "lissajous", "brain": {"omega": 2 * math.pi}, "body": {"size": 4.0, "dt": DT},
               "lissajous": {"amplitude_fraction": 0.05, "alpha": 1, "beta": 2, "delta": 0.0}}
@@ -379,8 +380,8 @@ def test_wind_table_beyond_max_wind_is_refused_at_startup(tmp_path, capsys):
     checked against the body's max_wind by read_table, by wind_source and by `bptsb launch` before starting."""
     from bptsb_ros.cli import main
     from bptsb_ros.cli.launch_cmd import _wind_limit
+    from bptsb_ros.interface.params import ParameterError
     from bptsb_ros.live.safety import DEFAULT_MAX_WIND
-    from bptsb_ros.ros.params import ParameterError
     from bptsb_ros.ros.wind_source import PARAMS, schedule_from_parameters
     from bptsb_ros.sim.wind_schedule import WindScheduleError, read_table
 

@@ -17,12 +17,13 @@ import pytest
 import torch
 
 from bptsb_ros.body.msdn import SimulationDiverged
+from bptsb_ros.interface.params import ParameterError, validate_values
+from bptsb_ros.interface.source import SOURCE_PARAMS
+from bptsb_ros.live.agent_source import load_source
 from bptsb_ros.live.body_core import BodyCore
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import MAX_PENDING_PERTURBATIONS, PARAMS
 from bptsb_ros.live.summary import write_summary
-from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
-from bptsb_ros.ros.params import ParameterError, validate_values
 
 _AGENT = {}
 
@@ -617,7 +618,7 @@ def fitted_agent(state: str):
 
 
 def test_feedback_commands_route_clock_and_state_and_compute_the_layer_by_hand():
-    from bptsb_ros.live.feedback import FeedbackCommands
+    from bptsb_ros.live.feedback_loop import FeedbackCommands
 
     a, w = fitted_agent("spring_length")
     base = a.body.l.numpy()
@@ -644,7 +645,7 @@ def test_feedback_commands_route_clock_and_state_and_compute_the_layer_by_hand()
 
 
 def test_feedback_acceleration_features_are_effort_over_mass():
-    from bptsb_ros.live.feedback import FeedbackCommands
+    from bptsb_ros.live.feedback_loop import FeedbackCommands
 
     a, w = fitted_agent("acceleration")
     with torch.no_grad():  # planted unequal masses (the paper's are all 1, where a = F / m = F · m)

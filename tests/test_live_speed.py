@@ -83,8 +83,8 @@ def _template(build, shapes):
 
 def _outputs():
     """The builders body_sim templates, for the lissajous body (25 masses, 48 springs, 13 movable)."""
+    from bptsb_ros.interface.topics import mass_dof_names, spring_names
     from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.topics import mass_dof_names, spring_names
 
     body = agent().body
     n, e = body.topology.n_masses, body.topology.n_springs
@@ -300,7 +300,7 @@ def test_no_sleep_after_an_empty_round_or_a_long_one():
 
 # -- the bench's plumbing ------------------------------------------------------------------------------------------
 def test_bench_params_go_to_the_loops_that_have_the_node_and_the_table():
-    from bptsb_ros.bench_live import launch_argv, live_table, loop_params
+    from bptsb_ros.bench.live import launch_argv, live_table, loop_params
 
     params = ("body_sim:executor:=single", "feedback_brain:gain:=0.5", "mlp_brain:executor:=single")
     assert loop_params("narma", params) == ("body_sim:executor:=single", "mlp_brain:executor:=single")
@@ -322,7 +322,7 @@ def test_bench_params_go_to_the_loops_that_have_the_node_and_the_table():
 
 
 def test_each_loop_run_is_compared_with_the_anchor_runs_of_its_shape_around_it():
-    from bptsb_ros.bench_live import with_ratios
+    from bptsb_ros.bench.live import with_ratios
 
     seq = [{"kind": "anchor", "shape": "split", "round_trips_per_s": 1000.0},
            {"kind": "loop", "loop": "a", "steps_per_s": 300.0},
@@ -341,7 +341,7 @@ def test_each_loop_run_is_compared_with_the_anchor_runs_of_its_shape_around_it()
 
 
 def test_the_cpu_sampler_reads_each_node_inside_the_window():
-    from bptsb_ros.bench_live import CpuSampler
+    from bptsb_ros.bench.live import CpuSampler
 
     sampler = CpuSampler.__new__(CpuSampler)  # no thread: planted samples (monotonic s, CPU s)
     sampler.samples = {"body_sim": [(10.0, 1.0), (11.0, 1.5), (12.0, 2.5)], "late": [(11.5, 0.0), (13.0, 1.0)]}

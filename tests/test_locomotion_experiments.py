@@ -17,9 +17,9 @@ from bptsb_ros.experiments.common import packaged_config
 from bptsb_ros.experiments.locomotion_closed_loop import _binomial_interval
 from bptsb_ros.experiments.locomotion_common import batched_centre_x, late_speed, perturbed
 from bptsb_ros.experiments.locomotion_headwind import phase_speeds
+from bptsb_ros.sim.inputs import wind_blowing
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
 from bptsb_ros.tasks import get_task
-from bptsb_ros.tasks.locomotion import wind_blowing
 
 
 def test_wind_blowing_hand_values():
@@ -143,7 +143,7 @@ def test_handover_blends_swg_into_fl(walker):
 
 def test_init_from_continues_a_run(tmp_path):
     from bptsb_ros.training.checkpoint import load_agent
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     base = ["sim_time=2", "locomotion.warmup_windows=0", "feedback.fit_time=2", "locomotion.eval_time=1"]
     train(packaged_config("locomotion_forward", base, seed=5), tmp_path / "a", progress=False)
@@ -233,8 +233,8 @@ def test_smoke_runs_match_their_records(tmp_path, monkeypatch):
     a_same = a_moves and not d["fallback_best_agent"] and min(am["open"].min(), am["closed"].min()) < 1
     assert pe["claims"][7]["holds"] == ((np.abs(am["open"] - am["closed"]).max() <= 0.2 + 1e-9) if a_same else None)
 
-    import bptsb_ros.training.trainer as trainer
-    from bptsb_ros.training.trainer import TrainingDiverged
+    import bptsb_ros.workflows.train as trainer
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     real_train, configs = trainer.train, {}
 

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from bptsb_ros import runner
 from bptsb_ros.cli import main
 from bptsb_ros.experiments import registry
-from bptsb_ros.sweep import Job, JobsLost, run_sweep
+from bptsb_ros.jobs import runner
+from bptsb_ros.jobs.sweep import Job, JobsLost, run_sweep
 
 distributed = pytest.importorskip("distributed")
 

@@ -8,7 +8,7 @@ import torch
 from test_gradients import fd_relative_error
 
 from bptsb_ros.tasks.digits import load_targets
-from bptsb_ros.tasks.mnist_drawing import (
+from bptsb_ros.tasks.drawing import (
     DigitTargets,
     ImageToBody,
     SystemSpec,
@@ -17,7 +17,7 @@ from bptsb_ros.tasks.mnist_drawing import (
     load_system,
     save_system,
 )
-from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem
+from bptsb_ros.tasks.readout import ReadoutSpec, ReadoutSystem
 
 F64 = torch.float64
 

@@ -82,8 +82,8 @@ def test_every_mnist_system_has_the_papers_movable_masses():
     """The systems each MNIST experiment trains: N_mov 17 / 65 movable masses, brain outputs 2(N_mov − 1), readout
     states 20·N_mov (supplement, "reading states out")."""
     from bptsb_ros.experiments import mnist_drawing, mnist_readout, mnist_specific100
-    from bptsb_ros.tasks.mnist_drawing import ImageToBody
-    from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem
+    from bptsb_ros.tasks.drawing import ImageToBody
+    from bptsb_ros.tasks.readout import ReadoutSpec, ReadoutSystem
 
     drawing = [(n, spec) for _, n, spec in mnist_drawing.systems()]
     drawing += [(n, spec) for _, _, n, spec in mnist_specific100.systems()]
@@ -150,7 +150,7 @@ def test_paper_scale_means_the_papers_split(tmp_path, capsys):
 
 def test_mnist_drawing_smoke(tiny_mnist, tmp_path):
     """Trains in the process pool; the saved systems redraw the test images with the reported errors."""
-    from bptsb_ros.tasks.mnist_drawing import load_system
+    from bptsb_ros.tasks.drawing import load_system
 
     data, images, labels = tiny_mnist
     out = tmp_path / "draw"
@@ -218,7 +218,7 @@ PROBE_N, PROBE_CHANCE = 15, 2 / 15
 def test_mnist_pca_smoke(tiny_mnist, tmp_path):
     """Silhouettes recomputed with numpy (SVD for PCA, the silhouette by its definition) from the saved system;
     the claims' verdicts recomputed from them and the rows."""
-    from bptsb_ros.tasks.mnist_drawing import load_system
+    from bptsb_ros.tasks.drawing import load_system
 
     data, images, labels = tiny_mnist
     out = tmp_path / "pca"
@@ -269,7 +269,7 @@ def best_draw_own_digit(errs: np.ndarray, labels: np.ndarray) -> bool:
 
 
 def test_mnist_labelmap_smoke(tiny_mnist, tmp_path):
-    from bptsb_ros.tasks.mnist_drawing import load_system
+    from bptsb_ros.tasks.drawing import load_system
 
     data, images, labels = tiny_mnist
     result = reproduce("mnist-labelmap", data, tmp_path / "lm")
@@ -302,7 +302,7 @@ def verdicts_of(result: dict) -> list[bool | None]:
 
 
 def test_mnist_specific100_smoke(tiny_mnist, tmp_path):
-    from bptsb_ros.tasks.mnist_drawing import load_system
+    from bptsb_ros.tasks.drawing import load_system
 
     data, images, labels = tiny_mnist
     result = reproduce("mnist-specific100", data, tmp_path / "sp")

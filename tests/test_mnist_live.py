@@ -17,7 +17,7 @@ from bptsb_ros.data.mnist import MnistError, encode_idx
 from bptsb_ros.live.channels import CommandChannel
 from bptsb_ros.live.safety import CommandLimits
 from bptsb_ros.tasks.digits import load_targets
-from bptsb_ros.tasks.mnist_drawing import ImageToBody, SystemSpec, save_system
+from bptsb_ros.tasks.drawing import ImageToBody, SystemSpec, save_system
 from bptsb_ros.tasks.mnist_live import pixels, read_stream, shown_image
 
 DT_NS = 10_000_000

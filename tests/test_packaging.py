@@ -150,8 +150,11 @@ def test_the_version_is_stated_once_in_package_xml() -> None:
 
     assert bptsb_ros.__version__ == version
     assert importlib.metadata.version(PACKAGE) == version, "the installed metadata is stale (make venv)"
+    assert '"interface", "nodes.py"' in setup_text  # its node entry points come from the node table
+    scripts = {e.name: e.value for e in importlib.metadata.distribution(PACKAGE).entry_points
+               if e.group == "console_scripts"}
     for node in NODES:
-        assert f'"{node}": "bptsb_ros.ros.{node}"' in setup_text, f"{node} is not an entry point in setup.py"
+        assert scripts.get(node) == f"bptsb_ros.ros.{node}:main", f"{node} is not an entry point of the package"
 
 
 #: rosdep keys (rosdistro rosdep/python.yaml) of the Python modules the package imports; None: rosdistro has no
@@ -387,7 +390,8 @@ def test_the_light_install_leaves_torch_numba_and_sklearn_to_extras() -> None:
 
 def test_the_built_wheel_carries_the_package_data_and_finds_it_anywhere(tmp_path: Path) -> None:
     """A wheel built from the checkout holds the configs, launch files, layouts, the example agent and bag, the
-    experiment settings and durations; unpacked away from the checkout, bptsb_ros.package_data finds them there."""
+    experiment settings and durations; unpacked away from the checkout, bptsb_ros.files.package_data finds them
+    there."""
     import zipfile
 
     out = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
@@ -407,8 +411,9 @@ def test_the_built_wheel_carries_the_package_data_and_finds_it_anywhere(tmp_path
     zipfile.ZipFile(wheel).extractall(site)
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    code = ("from bptsb_ros import package_data as d, __version__; from bptsb_ros.experiments.common import "
-            "packaged_configs; print(__version__); print(d.config_dir()); print(d.launch_dir()); "
+    code = ("from bptsb_ros import __version__; from bptsb_ros.files import package_data as d; "
+            "from bptsb_ros.experiments.common import packaged_configs; print(__version__); print(d.config_dir()); "
+            "print(d.launch_dir()); "
             "print(d.example_agent()); print(' '.join(packaged_configs()))")
     env = dict(os.environ, PYTHONPATH=str(site), AMENT_PREFIX_PATH="")
     run = subprocess.run([sys.executable, "-c", code], cwd=elsewhere, env=env, capture_output=True, text=True,
@@ -427,7 +432,7 @@ def test_the_built_wheel_carries_the_package_data_and_finds_it_anywhere(tmp_path
 def test_package_data_lists_what_setup_py_copies_and_finds_the_checkout() -> None:
     import ast
 
-    from bptsb_ros import package_data
+    from bptsb_ros.files import package_data
 
     tree = ast.parse((REPO_ROOT / "setup.py").read_text())
     copied = next(ast.literal_eval(node.value) for node in ast.walk(tree) if isinstance(node, ast.Assign)
@@ -441,9 +446,9 @@ def test_package_data_lists_what_setup_py_copies_and_finds_the_checkout() -> Non
 
 
 def test_missing_package_data_is_one_line_naming_where_it_looked(monkeypatch: pytest.MonkeyPatch) -> None:
-    from bptsb_ros import package_data
     from bptsb_ros.config import ConfigError
     from bptsb_ros.experiments.common import packaged_configs
+    from bptsb_ros.files import package_data
 
     monkeypatch.setattr(package_data, "checkout_root", lambda: None)
     monkeypatch.setattr(package_data, "_ament_share", lambda kind: None)

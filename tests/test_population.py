@@ -1,4 +1,4 @@
-"""Population training (bptsb_ros/training/population.py): every member is its solo training bit for bit —
+"""Population training (bptsb_ros/workflows/population.py): every member is its solo training bit for bit —
 losses, parameters, the guard's events, the evaluation — under SGD and Adam, float32 and float64, with rejections
 and rate divisions; a diverging member stops alone (or, with something to undo, is restored as alone); the
 checkpoints resume in the solo trainer; an interrupted population goes on from its state; the sweep's population
@@ -50,8 +50,8 @@ GUARDED = {"narma": (12, ("training.reject_factor=1.2",)),
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 @pytest.mark.parametrize("name", ["narma", "narma_adam"])
 def test_every_member_is_its_solo_training_with_rejections_and_divisions(name, dtype):
-    from bptsb_ros.training.population import train_population
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.population import train_population
+    from bptsb_ros.workflows.train import train
 
     epochs, extra = GUARDED[name]
     cfgs = configs(name, epochs, *extra, dtype=dtype)
@@ -71,7 +71,7 @@ def test_every_member_is_its_solo_training_with_rejections_and_divisions(name, d
 
 def test_members_differ_from_each_other():
     """Stacking keeps members apart: equal configs give equal members, another seed another training."""
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     cfgs = configs("narma_adam", 4, members=((0, 3), (0, 3), (5, 3)))
     results, _ = train_population(cfgs, [None] * 3, progress=False)
@@ -81,8 +81,8 @@ def test_members_differ_from_each_other():
 
 
 def test_a_diverging_member_stops_alone(monkeypatch, tmp_path):
-    import bptsb_ros.training.population as population
-    from bptsb_ros.training.trainer import TrainingDiverged, train
+    import bptsb_ros.workflows.population as population
+    from bptsb_ros.workflows.train import TrainingDiverged, train
 
     real = population.population_readout
 
@@ -109,9 +109,9 @@ def test_a_diverging_member_stops_alone(monkeypatch, tmp_path):
 def test_a_member_that_diverges_with_something_to_undo_is_restored_as_alone(monkeypatch):
     """Member 1's window of update 2 diverges (planted); its guard restores the parameters from before update 1's
     step, as the solo trainer's does when the same window diverges there; every member equals its solo run."""
-    import bptsb_ros.training.population as population
+    import bptsb_ros.workflows.population as population
     from bptsb_ros.body.msdn import MSDN, SimulationDiverged
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     real, calls = population.population_readout, []
 
@@ -150,7 +150,7 @@ def test_a_member_that_diverges_with_something_to_undo_is_restored_as_alone(monk
 def test_a_member_whose_evaluation_diverges_fails_alone(monkeypatch, tmp_path):
     from bptsb_ros.body.msdn import SimulationDiverged
     from bptsb_ros.tasks.narma import NarmaTask
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     evaluate = NarmaTask.evaluate
 
@@ -172,8 +172,8 @@ def test_a_member_whose_evaluation_diverges_fails_alone(monkeypatch, tmp_path):
 def test_member_checkpoints_resume_in_the_solo_trainer(tmp_path, extra):
     """Plain: every update accepted, so the resumed steps depend on Adam's moments and step count in the
     checkpoint; guarded: rejections before and after the resume restore the guard's saved state."""
-    from bptsb_ros.training.population import train_population
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.population import train_population
+    from bptsb_ros.workflows.train import train
 
     short = configs("narma_adam", 5, *extra, members=((1, 8),))
     train_population(short, [tmp_path / "run"], progress=False)
@@ -220,7 +220,7 @@ def test_population_readout_is_each_bodys_held_window():
 
 
 def test_what_can_train_as_one_population():
-    from bptsb_ros.training.population import population_unsupported
+    from bptsb_ros.workflows.population import population_unsupported
 
     cfgs = configs("narma", 2)
     assert population_unsupported(cfgs) is None  # seeds and delays differ: fine
@@ -238,7 +238,7 @@ def test_what_can_train_as_one_population():
 
 def test_population_jobs_give_the_solo_jobs_results(tmp_path):
     from bptsb_ros.experiments.timeseries import NarmaJob, job_dir, population_jobs
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     jobs = []
     for body in ("double-circle", "multiple-circle"):
@@ -269,7 +269,7 @@ def test_an_interrupted_population_goes_on_from_its_saved_state(monkeypatch, tmp
     from update 3 to the numbers of an uninterrupted run, bit for bit (plain: every step counts, Adam's moments
     included; guarded: with rejections; divided-and-stopped: rates divided and a member stopped before the
     interruption); the state file is removed at the end; a state of other trainings is refused, with one line."""
-    import bptsb_ros.training.population as population
+    import bptsb_ros.workflows.population as population
     from bptsb_ros.config import ConfigError
 
     stop = "STOP" in extra  # member 2 cannot go on from update 0 (planted divergence, nothing to undo)
@@ -324,7 +324,7 @@ def test_an_interrupted_population_goes_on_from_its_saved_state(monkeypatch, tmp
 
 def test_run_jobs_treats_a_diverged_population_member_as_a_failed_training(tmp_path):
     from bptsb_ros.experiments.timeseries import NarmaPopulationJob, run_jobs
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     class Done:  # what the sweep returns for one population job, one member diverged
         failed: list = []

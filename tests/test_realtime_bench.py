@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from test_live_core import FakePort, core
 
+from bptsb_ros.interface.params import ParameterError
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.step_times import FIELDS, StepTimes, load_step_times, timing_statistics
-from bptsb_ros.ros.params import ParameterError
 
 PERIOD = 0.01
 
@@ -103,7 +103,7 @@ def test_timing_records_are_realtime_only():
 
 
 def test_condition_result_counts_late_commands_and_targets():
-    from bptsb_ros.realtime_bench import condition_result, realtime_table
+    from bptsb_ros.bench.realtime import condition_result, realtime_table
 
     summary = {"deadline_misses": 2, "rest_length_rejected_stale": 3, "force_rejected_stale": 2,
                "rest_length_rejected_wrong_length": 7, "safe_command_steps": 1}
@@ -137,8 +137,8 @@ def parse(argv: list[str]) -> argparse.Namespace:
 @pytest.fixture
 def calls(monkeypatch):
     """The bench's runs replaced by a planted report; the arguments they were given."""
-    import bptsb_ros.realtime_bench as rb
-    import bptsb_ros.soak as soak
+    import bptsb_ros.bench.realtime as rb
+    import bptsb_ros.bench.soak as soak
 
     seen: list[tuple] = []
     seen_out: list[str] = []
@@ -235,7 +235,7 @@ def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Pat
     numbers."""
     import subprocess
 
-    import bptsb_ros.realtime_bench as rb
+    import bptsb_ros.bench.realtime as rb
 
     argvs = []
     monkeypatch.setattr(rb.subprocess, "run", lambda argv, **kw: argvs.append(argv) or subprocess.CompletedProcess(
@@ -261,7 +261,8 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     import time
     from types import SimpleNamespace
 
-    from bptsb_ros.ros.body_sim import DIAGNOSTICS_OVERDUE, BodySim
+    from bptsb_ros.ros.body_outputs import DIAGNOSTICS_OVERDUE
+    from bptsb_ros.ros.body_sim import BodySim
 
     due = lambda: time.monotonic() - 0.01  # noqa: E731 - the status is due, not overdue
     published, summaries = [], []

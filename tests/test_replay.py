@@ -11,12 +11,12 @@ from bptsb_ros.analysis.replay import replay
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.config import load_config
+from bptsb_ros.interface.topics import dt_to_ns, spring_names
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.topics import dt_to_ns, spring_names
 from bptsb_ros.sim.rollout import simulate_closed_loop
 from bptsb_ros.sim.trajectory import trajectory_from_rollout
 from bptsb_ros.training.checkpoint import load_agent
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 CONFIG = Path(__file__).resolve().parents[1] / "config" / "lissajous_single.yaml"
 

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from bptsb_ros.analysis.markdown import md_text
-from bptsb_ros.analysis.owned_folder import MANIFEST
-from bptsb_ros.analysis.report import ReportError, build_report
 from bptsb_ros.cli import main
 from bptsb_ros.experiments import ResultError, read_result, run_experiment, validate_result
 from bptsb_ros.experiments.registry import _REGISTRY, Context, experiment, experiments
+from bptsb_ros.experiments.report import ReportError, build_report
 from bptsb_ros.experiments.result import Claim, ExperimentResult, Row, write_result
+from bptsb_ros.files.owned_folder import MANIFEST
 
 FIG = b"\x89PNG planted figure bytes"
 
@@ -346,7 +346,7 @@ def test_report_error_for_the_api(tmp_path):
     ("bptsb reproduce x --set a=1/2", "bptsb reproduce x --set a=1/2"),
 ])
 def test_report_shows_commands_without_absolute_paths(command: str, shown: str) -> None:
-    from bptsb_ros.analysis.report import portable_command
+    from bptsb_ros.experiments.report import portable_command
 
     assert portable_command(command) == shown
 

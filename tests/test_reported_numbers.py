@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from bptsb_ros.analysis.report import _duration, _fmt, build_report, find_results
 from bptsb_ros.experiments.lissajous_switching import phase_locked_nmse, segment_errors
+from bptsb_ros.experiments.report import _duration, _fmt, build_report, find_results
 
 
 def _circle(n: int, radius: float, centre: tuple[float, float]) -> np.ndarray:

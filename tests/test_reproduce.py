@@ -9,10 +9,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import pytest
 
-from bptsb_ros.analysis.report import build_report
 from bptsb_ros.cli import main
 from bptsb_ros.experiments import ExperimentError, ResultError, read_result, run_experiment, validate_result
 from bptsb_ros.experiments.registry import _REGISTRY, Context, experiment
+from bptsb_ros.experiments.report import build_report
 from bptsb_ros.experiments.result import Claim
 
 
@@ -228,7 +228,7 @@ def test_a_fresh_run_and_force_forget_earlier_attempts(flaky_experiment, tmp_pat
 
 
 def test_report_lists_versions_and_attempts_in_words():
-    from bptsb_ros.analysis.report import _provenance_lines
+    from bptsb_ros.experiments.report import _provenance_lines
 
     lines = _provenance_lines({"command": "bptsb reproduce x --scale smoke", "versions": {"numpy": "2.0", "numba": None,
                                                                                         "torch": "2.13.0"},
@@ -252,8 +252,8 @@ def test_a_phase_is_one_line_naming_the_experiment(tmp_path):
 
 
 def test_report_names_the_experiments_it_has_no_run_of(tmp_path, toy_experiment):
-    from bptsb_ros.analysis.report import missing_experiments
     from bptsb_ros.experiments.registry import MODULES
+    from bptsb_ros.experiments.report import missing_experiments
 
     assert missing_experiments(["narma-ipc", "toy-planted"])[:3] == ["mnist-drawing", "mnist-pca", "mnist-labelmap"]
     assert "narma-ipc" not in missing_experiments(["narma-ipc"])

@@ -24,8 +24,8 @@ def test_an_untrusted_publisher_never_steers_the_body(tmp_path, ros_env, ros_dom
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
 
+    from bptsb_ros.interface.topics import mass_dof_names, spring_names
     from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.topics import mass_dof_names, spring_names
 
     agent = fresh_agent("lissajous")
     base = agent.body.l.numpy()
@@ -97,8 +97,8 @@ def test_divergence_with_on_divergence_stop_ends_the_run_with_a_finalised_bag(tm
     from sensor_msgs.msg import JointState
 
     from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.interface.topics import mass_dof_names
     from bptsb_ros.ros import messages as m
-    from bptsb_ros.ros.topics import mass_dof_names
 
     dofs = mass_dof_names(fresh_agent("lissajous").body.movable_index.tolist())
     probe = Probe(ros_domain_id, "mlp_brain")  # an allowed force publisher's name (a forged one, here)

@@ -29,12 +29,12 @@ from bptsb_ros.live.loops import (
     launch_arguments,
     loop_node_parameters,
     namespace_remaps,
-    node_exit_verdict,
     normalize_namespace,
     params_file_text,
     recorder_parameters,
     resolve_arguments,
 )
+from bptsb_ros.ros.launch_description import node_exit_verdict
 
 ROS_TOOLS = Path(os.environ.get("BPTSB_ROS_TOOLS", "/opt/ros-tools-jazzy"))
 VENV = REPO / ".venv"
@@ -187,7 +187,7 @@ def test_launch_description_declares_the_nodes_statically(ros_env):
 import json
 from launch.actions import DeclareLaunchArgument, RegisterEventHandler
 from launch_ros.actions import Node
-from bptsb_ros.live.loops import ros_launch_description
+from bptsb_ros.ros.launch_description import ros_launch_description
 out = {}
 for loop in ("lissajous_closed", "narma"):
     d = ros_launch_description(loop)

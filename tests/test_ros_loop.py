@@ -138,8 +138,8 @@ def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
 
 
 def test_narma_lockstep_equals_offline(tmp_path, ros_env):
+    from bptsb_ros.sim.inputs import narma_inputs
     from bptsb_ros.sim.rollout import held_inputs, simulate_open_loop
-    from bptsb_ros.tasks.narma import narma_inputs
 
     bag = tmp_path / "bag"
     launch_ok(["narma", "--duration", "1", "--bag", str(bag)], ros_env)
@@ -158,8 +158,8 @@ def test_narma_lockstep_equals_offline(tmp_path, ros_env):
 def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     """Also the body's per-step timing records (``timing_path``, what ``bptsb bench --realtime`` reads), written at
     a Ctrl-C stop too, with the executor the body was given (single here; the other runs use the default)."""
+    from bptsb_ros.bench.realtime import condition_result
     from bptsb_ros.live.step_times import load_step_times
-    from bptsb_ros.realtime_bench import condition_result
 
     bag, times = tmp_path / "bag", tmp_path / "times.npz"
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--mode", "realtime",
@@ -247,8 +247,8 @@ def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env
     own robot's topics (its ``/rN/clock`` and ``/rN/diagnostics`` too), and each equals its own offline simulation."""
     from bptsb_ros.analysis.bag_run import read_run
     from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.interface.topics import TOPICS
     from bptsb_ros.ros.messages import pose_array_positions
-    from bptsb_ros.ros.topics import TOPICS
     from bptsb_ros.sim.rollout import simulate_open_loop
 
     results: dict[str, subprocess.CompletedProcess] = {}

@@ -12,7 +12,8 @@ import time
 import pytest
 from ros_live import REPO, Probe, env_for, start_node
 
-from bptsb_ros.ros import params as P
+from bptsb_ros.interface import params as P
+from bptsb_ros.ros.declare_params import declare_parameters
 from bptsb_ros.ros.runtime import DUPLICATE_WINDOW, StopFlag
 
 FRESH_BODY = {"task": "lissajous", "mode": "realtime", "startup_timeout": 1.0, "final_ack_timeout": 0.0}
@@ -230,7 +231,7 @@ def _declare_in_own_context(specs, ros_args: list[str]):
     try:
         node = Node("list_types", context=ctx)
         try:
-            values = P.declare_parameters(node, specs)
+            values = declare_parameters(node, specs)
             names = [p.name for p in specs]
             types = {d.name: (d.type, node.get_parameter(d.name).type_.value)
                      for d in node.describe_parameters(names)}
@@ -404,7 +405,7 @@ def test_feedback_gain_and_noise_perturb_the_fitted_layer():
     import torch
 
     from bptsb_ros.brains.feedback import FeedbackLayer
-    from bptsb_ros.live.feedback import perturbed_rest_length
+    from bptsb_ros.live.feedback_loop import perturbed_rest_length
 
     layer = FeedbackLayer(3, 2, dtype=torch.float64)
     w = np.array([[0.1, -0.2, 0.3, 0.05], [0.0, 0.4, -0.1, -0.02]])

@@ -71,7 +71,7 @@ def _launch_with_frozen_recorder(args: list[str], ros_env: dict[str, str], freez
 def _body_steps(bag: Path) -> dict[str, list[int]]:
     """Steps of the messages in the bag, per body topic (only body_sim publishes them here)."""
     from bptsb_ros.bags.reader import read_messages
-    from bptsb_ros.ros.topics import stamp_to_step
+    from bptsb_ros.interface.topics import stamp_to_step
 
     out: dict[str, list[int]] = {t: [] for t in BODY_TOPICS}
     for topic, _, _, msg in read_messages(bag, list(BODY_TOPICS)):

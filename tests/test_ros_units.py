@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bptsb_ros.interface.params import Param, ParameterError, validate_values
+from bptsb_ros.interface.topics import TOPICS, dt_to_ns, stamp_to_step, step_to_stamp
 from bptsb_ros.live.channels import CommandChannel, TimingStats
 from bptsb_ros.live.loops import (
     LOOPS,
@@ -19,8 +21,6 @@ from bptsb_ros.live.loops import (
     topic_names,
     with_feedback_state,
 )
-from bptsb_ros.ros.params import Param, ParameterError, validate_values
-from bptsb_ros.ros.topics import TOPICS, dt_to_ns, stamp_to_step, step_to_stamp
 
 REPO = Path(__file__).resolve().parent.parent
 NAMES = [f"spring_{e}" for e in range(4)]
@@ -253,7 +253,7 @@ def test_executor_parameter_makes_the_executor_it_names():
     pytest.importorskip("rclpy.experimental")
     from rclpy.context import Context
 
-    from bptsb_ros.ros.params import EXECUTOR, EXECUTORS
+    from bptsb_ros.interface.params import EXECUTOR, EXECUTORS
     from bptsb_ros.ros.runtime import executor_kind, make_executor
 
     assert EXECUTORS == ("events", "single") and EXECUTOR.default == "events" and EXECUTOR.choices == EXECUTORS

@@ -21,7 +21,7 @@ import pytest
 from bptsb_ros.cli import main
 from bptsb_ros.experiments.registry import _REGISTRY, ATTEMPTS_FILE, RUN_MARKER, Context, experiment
 
-LOCK = ".bptsb.lock"  # bptsb_ros.rundir_lock.LOCK_NAME, spelled out
+LOCK = ".bptsb.lock"  # bptsb_ros.files.run_dir_lock.LOCK_NAME, spelled out
 TINY = ["--set", "sim_time=2", "--set", "locomotion.warmup_windows=0", "--set", "feedback.fit_time=2",
         "--set", "locomotion.eval_time=1"]
 
@@ -35,7 +35,7 @@ time.sleep(120)
 
 OUR_HOLDER = """
 import sys, time
-from bptsb_ros.rundir_lock import hold_run_dir
+from bptsb_ros.files.run_dir_lock import hold_run_dir
 with hold_run_dir(sys.argv[1]):
     print("held", flush=True)
     time.sleep(120)
@@ -161,7 +161,7 @@ def test_reproduce_force_keeps_the_lock_it_holds(tmp_path, toy_experiment):
 
 
 def test_our_lock_is_an_flock_and_a_killed_holder_blocks_nobody(tmp_path, holder):
-    from bptsb_ros.rundir_lock import RunDirLocked, dir_is_empty, hold_run_dir
+    from bptsb_ros.files.run_dir_lock import RunDirLocked, dir_is_empty, hold_run_dir
 
     out = tmp_path / "run"
     proc = holder(OUR_HOLDER, out)
@@ -185,7 +185,7 @@ def test_our_lock_is_an_flock_and_a_killed_holder_blocks_nobody(tmp_path, holder
 
 
 def test_a_refused_start_creates_no_directory(tmp_path, holder):
-    from bptsb_ros.rundir_lock import hold_run_dir
+    from bptsb_ros.files.run_dir_lock import hold_run_dir
 
     new = tmp_path / "new"
     with hold_run_dir(new):

@@ -1,4 +1,4 @@
-"""The one job runner (bptsb_ros.runner): results in order, failures named, thread limits inside each job (this
+"""The one job runner (bptsb_ros.jobs.runner): results in order, failures named, thread limits inside each job (this
 process, a spawned pool, a Dask LocalCluster), what a Context records; and, for an experiment of each family,
 that `--workers 1` and `--scheduler` of `bptsb reproduce` decide where its jobs run (planted marker jobs record
 the process and the Dask worker they ran in)."""
@@ -19,7 +19,7 @@ from bptsb_ros.cli import main
 from bptsb_ros.experiments import run_experiment
 from bptsb_ros.experiments.registry import Context
 from bptsb_ros.experiments.result import ExperimentResult
-from bptsb_ros.runner import JobFailed, Placement, cpus, run_jobs
+from bptsb_ros.jobs.runner import JobFailed, Placement, cpus, run_jobs
 
 distributed = pytest.importorskip("distributed")
 
@@ -127,7 +127,7 @@ def test_thread_limits_inside_every_job():
     import dask
     import torch
 
-    from bptsb_ros.runner import cpus
+    from bptsb_ros.jobs.runner import cpus
 
     if cpus() < 2:
         pytest.skip("OpenBLAS runs at most one thread per CPU: one CPU shows no limit")
@@ -249,7 +249,7 @@ def test_locomotion_agents_are_adopted_only_from_own_reproduce_runs(tmp_path):
 
     from bptsb_ros.experiments.locomotion_common import AGENTS_DIR, adopt_sibling_agents
     from bptsb_ros.experiments.registry import RUN_MARKER
-    from bptsb_ros.sweep import Job, run_sweep
+    from bptsb_ros.jobs.sweep import Job, run_sweep
 
     def jobs(*xs):
         return [Job(f"seed-{x}", functools.partial(_square, x)) for x in xs]
@@ -298,7 +298,7 @@ def test_pool_workers_end_when_the_process_that_started_them_is_killed(tmp_path)
         "    time.sleep(60)\n")
     pid_file = tmp_path / "worker.pid"
     script = ("import sys; sys.path.insert(0, sys.argv[1])\n"
-              "from bptsb_ros.runner import Placement, run_jobs\n"
+              "from bptsb_ros.jobs.runner import Placement, run_jobs\n"
               "import slow_job\n"
               "run_jobs(slow_job.job, [(sys.argv[2],)], Placement(1))\n")
     caller = subprocess.Popen([sys.executable, "-c", script, str(tmp_path), str(pid_file)])

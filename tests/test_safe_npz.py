@@ -8,7 +8,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from bptsb_ros.safe_npz import NpzError, load_npz
+from bptsb_ros.files.npz import NpzError, load_npz
 
 DEFLATE64 = 9  # a compression method of the zip format that Python's zipfile does not implement
 

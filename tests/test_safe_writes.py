@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from bptsb_ros.safe_files import UnsafeFileError, atomic_writer, open_for_writing, write_atomic
+from bptsb_ros.files.safe_write import UnsafeFileError, atomic_writer, open_for_writing, write_atomic
 
 VICTIM_TEXT = "somebody else's file\n"
 
@@ -97,8 +97,8 @@ def test_the_package_writers_never_follow_planted_links(tmp_path, victim):
     from bptsb_ros.bags.metadata import BagMetadata, write_metadata
     from bptsb_ros.config import load_config
     from bptsb_ros.experiments.result import ExperimentResult, write_result
-    from bptsb_ros.sweep import Job, execute_job, write_tables
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.jobs.sweep import Job, execute_job, write_tables
+    from bptsb_ros.workflows.train import train
 
     run = tmp_path / "run"
     run.mkdir()

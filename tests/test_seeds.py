@@ -17,16 +17,13 @@ from bptsb_ros.experiments import measured
 from bptsb_ros.experiments.claim_rules import verdict_over_seeds, wilson_interval
 from bptsb_ros.experiments.registry import _REGISTRY, Context, experiment, run_experiment
 from bptsb_ros.experiments.result import Claim, ResultError, validate_result
+from bptsb_ros.experiments.seed_dirs import SeedsError, format_seeds, parse_seeds, sibling_run_dirs
 from bptsb_ros.experiments.seeds import (
-    SeedsError,
     aggregate,
     aggregate_claims,
     aggregate_rows,
-    format_seeds,
-    parse_seeds,
     rejudge_run,
     run_seeds,
-    sibling_run_dirs,
 )
 
 # ------------------------------------------------------------------------------------------ the rule
@@ -377,7 +374,7 @@ def test_single_run_records_its_judge_and_numbers(toy_seeds, tmp_path):
 
 
 def test_sibling_runs_are_the_same_seed_of_the_runs_beside(tmp_path):
-    from bptsb_ros.experiments.seeds import SEEDS_MARKER
+    from bptsb_ros.experiments.seed_dirs import SEEDS_MARKER
 
     for exp in ("a", "b", "c"):
         for s in (0, 1):
@@ -393,7 +390,7 @@ def test_sibling_runs_are_the_same_seed_of_the_runs_beside(tmp_path):
 
 
 def test_report_shows_k_of_n_strips_and_means_not_the_seeds_alone(toy_seeds, tmp_path):
-    from bptsb_ros.analysis.report import build_report
+    from bptsb_ros.experiments.report import build_report
 
     runs = tmp_path / "runs"
     run_seeds(toy_seeds, [0, 1, 2, 3], out_dir=runs / "toy", workers=0, log=lambda m: None)
@@ -410,7 +407,7 @@ def test_report_shows_k_of_n_strips_and_means_not_the_seeds_alone(toy_seeds, tmp
 def test_a_run_copied_without_its_marker_is_still_one_section(toy_seeds, tmp_path):
     """Results and figures copied elsewhere (a results repository) leave the run's marker behind: the aggregate's
     seed_runs still say which folders are its seeds; a stray result beside them is its own section."""
-    from bptsb_ros.analysis.report import find_results
+    from bptsb_ros.experiments.report import find_results
     from bptsb_ros.experiments.seeds import SEEDS_MARKER
 
     runs = tmp_path / "runs"

@@ -227,8 +227,8 @@ def test_narma_agent_input_is_the_held_narma_series(tmp_path) -> None:
     """``--seed S`` feeds narma_inputs(S, ·) held for τ steps: step 0 and 1..τ carry u_0, jτ+1..(j+1)τ u_j."""
     import torch
 
+    from bptsb_ros.sim.inputs import narma_inputs
     from bptsb_ros.sim.rollout import held_inputs
-    from bptsb_ros.tasks.narma import narma_inputs
 
     u = np.array([0.1, 0.2, 0.3])
     np.testing.assert_array_equal(held_inputs(u, 2, 6), [0.1, 0.1, 0.1, 0.2, 0.2, 0.3, 0.3])

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from bptsb_ros.cli import main
-from bptsb_ros.sweep import JOB_FILE, Job, SweepError, parse_seeds, run_sweep
+from bptsb_ros.jobs.sweep import JOB_FILE, Job, SweepError, parse_seeds, run_sweep
 
 
 def _square_job(x: int, run_dir: Path) -> dict:

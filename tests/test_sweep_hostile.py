@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from bptsb_ros.cli import main
-from bptsb_ros.sweep import JOB_FILE, Job, SweepError, TrainJob, parse_seeds, run_sweep
+from bptsb_ros.jobs.sweep import JOB_FILE, Job, SweepError, TrainJob, parse_seeds, run_sweep
 
 CONFIG = Path(__file__).resolve().parents[1] / "config" / "locomotion_forward.yaml"
 
@@ -36,14 +36,14 @@ def test_bad_scheduler_addresses_are_one_usage_line(tmp_path, address, capsys):
     line = _one_line(capsys.readouterr().err)
     assert code == 2 and "--scheduler" in line
     assert not out.exists()  # refused before anything was created
-    from bptsb_ros.dask_connect import scheduler_address
+    from bptsb_ros.jobs.dask_cluster import scheduler_address
 
     with pytest.raises(SweepError):
         scheduler_address(address)
 
 
 def test_good_scheduler_addresses():
-    from bptsb_ros.dask_connect import scheduler_address
+    from bptsb_ros.jobs.dask_cluster import scheduler_address
 
     assert scheduler_address("tcp://127.0.0.1:8786") == "tcp://127.0.0.1:8786"
     assert scheduler_address("10.0.0.5:1") == "tcp://10.0.0.5:1"
@@ -238,7 +238,7 @@ def test_a_record_of_other_arguments_is_not_reused(tmp_path):
 
 
 def test_train_job_key_covers_config_content_overrides_and_seed(tmp_path):
-    from bptsb_ros.sweep import job_key
+    from bptsb_ros.jobs.sweep import job_key
 
     cfg = tmp_path / "c.yaml"
     cfg.write_text("task: locomotion\n")

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 import torch
 
+from bptsb_ros.body.clock import clock_phase, step_times, steps_per_period
 from bptsb_ros.brains import SineWaveGenerator
-from bptsb_ros.sim.clock import clock_phase, step_times, steps_per_period
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 CONFIG = REPO_ROOT / "config"
@@ -100,7 +100,7 @@ def test_clock_phase_is_exact_and_periodic_at_the_large_step() -> None:
     # bit-periodic: step K0 + j has the phase of step j (K0 is a multiple of the 100-step period)
     j = torch.arange(250)
     assert torch.equal(clock_phase(K0 + j, DT, 2 * math.pi), clock_phase(j, DT, 2 * math.pi))
-    # an incommensurate ω = 5 rad/s: float64-accurate (the bound in bptsb_ros.sim.clock)
+    # an incommensurate ω = 5 rad/s: float64-accurate (the bound in bptsb_ros.body.clock)
     steps = np.array([1, K0, K0 + 1, 10_000_000])
     got = clock_phase(torch.from_numpy(steps), DT, 5.0).numpy()
     np.testing.assert_allclose(got, exact_phase(steps, omega=Fraction(5)), rtol=0, atol=1e-9)
@@ -188,7 +188,7 @@ def test_offline_open_loop_and_training_windows_at_the_large_step(agent) -> None
 
 
 def test_population_run_at_the_large_step(agent, monkeypatch) -> None:
-    from bptsb_ros.sim.population import run_population
+    from bptsb_ros.sim.batched import run_population
 
     body = agent.body
     seen: list[torch.Tensor] = []

@@ -14,14 +14,9 @@ from bptsb_ros.agent import build_agent
 from bptsb_ros.experiments.common import packaged_config
 from bptsb_ros.experiments.experiment_settings import resolve_settings
 from bptsb_ros.experiments.lissajous_switching import variant_curve, variant_lr
+from bptsb_ros.sim.inputs import wind_schedule
 from bptsb_ros.tasks.lissajous import LissajousTask
-from bptsb_ros.tasks.lissajous_switching import (
-    CURVE_1,
-    switch_targets,
-    train_switching,
-    wind_schedule,
-    wind_vector,
-)
+from bptsb_ros.tasks.switching import CURVE_1, switch_targets, train_switching, wind_vector
 from bptsb_ros.training.optim import step_decay_updates
 
 AUTHORS = resolve_settings("lissajous-switching", "smoke").variants["authors"]

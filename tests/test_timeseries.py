@@ -286,7 +286,7 @@ def test_zero_bias_relu_mlp_is_linear_on_nonnegative_input_only():
     homogeneous, f(a·x) = a·f(x) for a ≥ 0, so on u ∈ [0, 1] it is a linear map; on (−1, 1) it is not."""
     from bptsb_ros.brains import MLPBrain
     from bptsb_ros.config import NarmaConfig
-    from bptsb_ros.tasks.narma import brain_input
+    from bptsb_ros.sim.inputs import brain_input
 
     mlp = MLPBrain(1, 8, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     u = torch.linspace(0, 1, 11, dtype=torch.float64).unsqueeze(-1)
@@ -305,7 +305,7 @@ def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
     """At paper scale the LIL + multiple circle blew up under the paper's SGD rates (update 11): such a system is a
     result (no emulation: named in the claims, which it makes not testable), not a failed experiment."""
     from bptsb_ros.experiments import timeseries
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     real = timeseries.NarmaJob.__call__
 

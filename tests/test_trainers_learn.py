@@ -26,7 +26,7 @@ from trainer_episodes import CONFIG, F64, check_sgd, fresh_agent, lissajous_star
 
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.config import load_config
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 
 def named(agent) -> dict[str, torch.nn.Parameter]:

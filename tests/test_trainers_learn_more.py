@@ -56,10 +56,10 @@ def test_narma_config_uses_the_authors_rates_and_its_profile_the_paper_table():
 
 
 def test_module_rate_tables_are_the_papers():
-    from bptsb_ros.tasks.lissajous_switching import SWITCHING_LR
-    from bptsb_ros.tasks.mnist_drawing import PAPER_LR
-    from bptsb_ros.tasks.mnist_readout import READOUT_LR
-    from bptsb_ros.training.closed_loop_schemes import ALPHA_FB, CLOSED_LOOP_LR
+    from bptsb_ros.tasks.drawing import PAPER_LR
+    from bptsb_ros.tasks.feedback_schemes import ALPHA_FB, CLOSED_LOOP_LR
+    from bptsb_ros.tasks.readout import READOUT_LR
+    from bptsb_ros.tasks.switching import SWITCHING_LR
 
     assert _rates(SWITCHING_LR, PAPER_TABLE["lissajous_switching"]) == PAPER_TABLE["lissajous_switching"]
     assert _rates(CLOSED_LOOP_LR, PAPER_TABLE["lissajous_closed_loop"]) == PAPER_TABLE["lissajous_closed_loop"]
@@ -106,7 +106,7 @@ def images(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 # -- MNIST drawing ---------------------------------------------------------------------------------------------
 def drawing_system():
-    from bptsb_ros.tasks.mnist_drawing import ImageToBody, SystemSpec
+    from bptsb_ros.tasks.drawing import ImageToBody, SystemSpec
 
     return ImageToBody(SystemSpec(brain="lil", nodes=17, dtype="float64"), seed=2)
 
@@ -130,7 +130,7 @@ def drawing_loss(system, x: np.ndarray, labels: np.ndarray) -> torch.Tensor:
 
 
 def test_drawing_loss_per_batch_and_the_epoch_loss_weighted_by_batch_size():
-    from bptsb_ros.tasks.mnist_drawing import train_drawing
+    from bptsb_ros.tasks.drawing import train_drawing
 
     x, y = images(5)
     system = drawing_system()
@@ -145,7 +145,7 @@ def test_drawing_loss_per_batch_and_the_epoch_loss_weighted_by_batch_size():
 
 
 def test_drawing_sgd_step_at_the_paper_rates_and_a_few_steps_lower_the_loss():
-    from bptsb_ros.tasks.mnist_drawing import train_drawing
+    from bptsb_ros.tasks.drawing import train_drawing
 
     x, y = images(2)
     system = drawing_system()
@@ -162,7 +162,7 @@ def test_drawing_sgd_step_at_the_paper_rates_and_a_few_steps_lower_the_loss():
 
 # -- MNIST readout ---------------------------------------------------------------------------------------------
 def readout_model():
-    from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem
+    from bptsb_ros.tasks.readout import ReadoutSpec, ReadoutSystem
 
     return ReadoutSystem(ReadoutSpec(shape="double_circle", nodes=9, transient_s=0.3), seed=1).double()
 
@@ -181,7 +181,7 @@ def readout_loss(model, x: np.ndarray, labels: np.ndarray) -> torch.Tensor:
 
 
 def test_readout_loss_is_the_cross_entropy_of_the_sampled_states_and_adam_steps_lower_it():
-    from bptsb_ros.tasks.mnist_readout import train_readout
+    from bptsb_ros.tasks.readout import train_readout
 
     x, y = images(4)
     model = readout_model()
@@ -242,7 +242,7 @@ def switching_loss(agent, state, wind: np.ndarray) -> torch.Tensor:
 
 
 def test_switching_loss_follows_the_wind_schedule_and_an_sgd_step_lowers_it():
-    from bptsb_ros.tasks.lissajous_switching import train_switching
+    from bptsb_ros.tasks.switching import train_switching
 
     agent = lissajous_agent()
     with torch.no_grad():
@@ -296,7 +296,7 @@ def fl_params(agent) -> dict[str, torch.Tensor]:
 
 
 def test_scheme1_loss_of_the_closed_loop_from_rest_and_its_sgd_step():
-    from bptsb_ros.training import closed_loop_schemes as cls
+    from bptsb_ros.tasks import feedback_schemes as cls
 
     agent = lissajous_agent()
     before = copy.deepcopy(agent)
@@ -312,7 +312,7 @@ def test_scheme1_loss_of_the_closed_loop_from_rest_and_its_sgd_step():
 
 
 def test_scheme1_a_few_updates_lower_the_closed_loop_loss(monkeypatch):
-    from bptsb_ros.training import closed_loop_schemes as cls
+    from bptsb_ros.tasks import feedback_schemes as cls
 
     monkeypatch.setattr(cls, "FL_LR", 1e-2)
     agent = lissajous_agent()
@@ -331,7 +331,7 @@ def test_scheme1_feedback_layer_drives_only_the_springs_the_swg_drives(monkeypat
     """An SWG that drives springs 0, 2, 3, 5, 6, … (not 1, 4, 7, …): scheme 1's FL starts from the seeded N(0, 0.1²)
     draw on those rows and zero on the others, whether the FL's own mask is the SWG's or (as ``build_agent`` makes
     it) every spring; after two updates the other rows are still zero and those springs keep their rest length."""
-    from bptsb_ros.training import closed_loop_schemes as cls
+    from bptsb_ros.tasks import feedback_schemes as cls
 
     monkeypatch.setattr(cls, "FL_LR", 1e-2)
     agent = lissajous_agent()
@@ -379,7 +379,7 @@ def scheme_agent():
 
 
 def test_scheme2_loss_is_trajectory_plus_a_tenth_of_the_fl_loss_and_its_sgd_step():
-    from bptsb_ros.training import closed_loop_schemes as cls
+    from bptsb_ros.tasks import feedback_schemes as cls
 
     agent, state = scheme_agent()
     before = copy.deepcopy(agent)
@@ -403,7 +403,7 @@ def test_scheme3_refits_the_fl_on_the_last_windows_with_noise_and_steps_the_swg(
     noise from a generator seeded with the scheme's seed, SWG signal k+1, each window under the parameters it ran
     with)."""
     from bptsb_ros.brains import fit_ridge
-    from bptsb_ros.training import closed_loop_schemes as cls
+    from bptsb_ros.tasks import feedback_schemes as cls
 
     agent, state = scheme_agent()
     before = copy.deepcopy(agent)

@@ -13,7 +13,7 @@ from bptsb_ros.config import ConfigError, load_config
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.tasks.locomotion import LocomotionTask
 from bptsb_ros.training.checkpoint import CheckpointError, load_agent, read_checkpoint
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 
@@ -175,8 +175,9 @@ def test_paper_locomotion_forces_give_no_traction():
 
 def test_narma_episode_equals_the_offline_rollout_of_the_same_inputs():
     """Training, offline simulation (and the live task_input node) share one input-hold rule."""
+    from bptsb_ros.sim.inputs import narma_inputs
     from bptsb_ros.sim.rollout import held_inputs
-    from bptsb_ros.tasks.narma import NarmaTask, narma_inputs
+    from bptsb_ros.tasks.narma import NarmaTask
 
     u = narma_inputs(3, 30)
     for backend in ("numba", "fused"):

@@ -19,7 +19,7 @@ import torch
 from bptsb_ros.config import load_config
 from bptsb_ros.tasks import get_task
 from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
-from bptsb_ros.training.trainer import TrainingDiverged, train
+from bptsb_ros.workflows.train import TrainingDiverged, train
 
 CONFIG = Path(__file__).resolve().parent.parent / "config" / "locomotion_forward.yaml"
 #: 6 windows of 200 steps; calm for the first 8.5 s of the 17 s wind period, then 1e12 N against the robot

@@ -18,7 +18,7 @@ from bptsb_ros.config import ConfigError, load_config
 from bptsb_ros.experiments.common import packaged_config
 from bptsb_ros.experiments.timeseries import narma_overrides
 from bptsb_ros.training.checkpoint import CheckpointError
-from bptsb_ros.training.trainer import train
+from bptsb_ros.workflows.train import train
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = ["narma.n_inputs=30", "narma.washout=5", "narma.train_end=20"]
@@ -115,7 +115,7 @@ def _members(epochs: int):
 @pytest.fixture(scope="module")
 def population_state(tmp_path_factory):
     """The state of a 2-member population killed after its third update, and the uninterrupted run's losses."""
-    import bptsb_ros.training.population as population
+    import bptsb_ros.workflows.population as population
 
     mp = pytest.MonkeyPatch()
     where = tmp_path_factory.mktemp("population")
@@ -174,7 +174,7 @@ POPULATION = {
 
 @pytest.mark.parametrize("case", list(POPULATION))
 def test_a_tampered_population_state_does_not_resume(population_state, tmp_path, case):
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     state, _ = population_state
     plant, why = POPULATION[case]
@@ -190,7 +190,7 @@ def test_a_tampered_population_state_does_not_resume(population_state, tmp_path,
 
 
 def test_the_sound_population_state_resumes_to_the_uninterrupted_numbers(population_state, tmp_path):
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     state, losses = population_state
     path = tmp_path / "population.pt"
@@ -212,7 +212,7 @@ def test_a_sweep_reuses_only_records_that_fit_the_job(tmp_path):
     to results, merged into one table by the experiments), lacks a member, gives another seed or a negative NMSE,
     is not trusted: the job runs again."""
     from bptsb_ros.experiments.timeseries import NarmaJob, NarmaPopulationJob
-    from bptsb_ros.sweep import Job, job_key, result_problem
+    from bptsb_ros.jobs.sweep import Job, job_key, result_problem
 
     members = tuple((f"lil_dt{d}_s{s}", NarmaJob("narma_adam", (), s, (1,), 50)) for d, s in ((1, 0), (8, 1)))
     job = Job("population0_0", NarmaPopulationJob(members))
@@ -228,7 +228,7 @@ def test_a_sweep_reuses_only_records_that_fit_the_job(tmp_path):
     solo = Job("lil_dt1_s0", members[0][1])
     assert "of seed 7, not 0" in result_problem(solo, {"seed": 7, "nmse": 0.2})
     # in a sweep directory: the record is not trusted, with one line, and the job would run again
-    from bptsb_ros.sweep import _manifest, finished_record
+    from bptsb_ros.jobs.sweep import _manifest, finished_record
 
     run_dir = tmp_path / "jobs" / job.name
     run_dir.mkdir(parents=True)
@@ -255,7 +255,7 @@ def _strict(text: str):
 def test_metrics_json_is_strict_json_whatever_the_numbers(tmp_path, monkeypatch):
     """A training time or an evaluation that is not finite is written as null (JSON has no NaN), not as the
     invalid NaN that json.dumps writes by default."""
-    import bptsb_ros.training.trainer as trainer
+    import bptsb_ros.workflows.train as trainer
 
     real = trainer.training_metrics
 
@@ -277,7 +277,7 @@ def test_metrics_json_is_strict_json_whatever_the_numbers(tmp_path, monkeypatch)
 def test_a_population_state_with_an_impossible_time_or_all_members_stopped(population_state, tmp_path):
     """seconds NaN is refused; every member stopped, each with its recorded failure, is a state a population can
     reach (all diverged): it resumes to no result and every failure, without a KeyError."""
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     state, _ = population_state
     path = tmp_path / "population.pt"
@@ -299,7 +299,7 @@ def test_a_population_state_with_an_impossible_time_or_all_members_stopped(popul
 def test_a_full_disk_during_a_periodic_checkpoint_is_one_line_and_keeps_the_last_one(tmp_path, monkeypatch, capsys):
     import errno
 
-    import bptsb_ros.safe_files as safe_files
+    import bptsb_ros.files.safe_write as safe_files
 
     real, written = safe_files.temp_file_beside, []
 

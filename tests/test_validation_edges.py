@@ -22,7 +22,7 @@ from bptsb_ros.analysis.ipc import IPCError, ipc_groups
 from bptsb_ros.body.msdn import MSDN
 from bptsb_ros.body.shapes import MAX_MASSES, double_circle
 from bptsb_ros.cli import main as cli_main
-from bptsb_ros.cli.common import finite_float
+from bptsb_ros.cli.options import finite_float
 from bptsb_ros.config import ConfigError, validate
 from bptsb_ros.data import mnist
 from bptsb_ros.data.mnist import MnistError, read_pair
@@ -680,7 +680,7 @@ def test_msdn_dt_edges(dt, accepted):
                                     (1.5e-9, None), (math.nan, None), (math.inf, None), (1e300, None)])
 def test_dt_to_ns_edges(dt, ns):
     """A ROS time step is a whole, positive, finite number of nanoseconds; anything else is one ValueError."""
-    from bptsb_ros.ros.topics import dt_to_ns
+    from bptsb_ros.interface.topics import dt_to_ns
 
     if ns is not None:
         assert dt_to_ns(dt) == ns
@@ -780,7 +780,7 @@ def test_ipc_cli_basis_bounds(monkeypatch, functions, max_bytes, accepted, match
     _verdict(accepted, IPCError, lambda: ipc_cmd._check_basis(2, 2, samples=10), match)
 
 
-# -- ros/params.py: the node parameters' bounds ----------------------------------------------------------------------
+# -- interface/params.py: the node parameters' bounds ------------------------------------------------------------------
 
 @pytest.mark.parametrize("spec, value, accepted, match", [
     ({"kind": "float", "positive": True}, 1e-9, True, ""),
@@ -800,7 +800,7 @@ def test_ipc_cli_basis_bounds(monkeypatch, functions, max_bytes, accepted, match
     ({"kind": "float_list", "size": 2}, [1.0, math.nan], False, "must be finite"),
 ])
 def test_node_parameter_bounds(spec, value, accepted, match):
-    from bptsb_ros.ros.params import Param, ParameterError
+    from bptsb_ros.interface.params import Param, ParameterError
 
     default = [0.0, 0.0] if spec["kind"] == "float_list" else (1 if spec["kind"] == "int" else 1.0)
     p = Param("x", default, "x [unit]", **spec)

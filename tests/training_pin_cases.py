@@ -179,7 +179,7 @@ def _joined(results: list[Trained]) -> Trained:
 
 def narma_population() -> Trained:
     """Three LIL members (memory at two delays, NARMA) as one population."""
-    from bptsb_ros.training.population import train_population
+    from bptsb_ros.workflows.population import train_population
 
     cfgs = [_narma_cfg(*m) for m in _LIL_MEMBERS]
     results, failures = train_population(cfgs, [None] * len(cfgs), progress=False)
@@ -189,7 +189,7 @@ def narma_population() -> Trained:
 
 def narma_gang() -> Trained:
     """The same three trainings and the MLP one, each in a thread of one gang (their windows run as lanes)."""
-    from bptsb_ros.gang import Gang
+    from bptsb_ros.jobs.gang import Gang
 
     cfgs = [_narma_cfg(*m) for m in _LIL_MEMBERS]
     cfgs.append(_narma_cfg("narma", 0, {"narma.target": "expanded", "training.reject_factor": 1.2}))
@@ -218,13 +218,8 @@ def _agent_trained(agent, losses, state, guard) -> Trained:
 
 
 def _switching(backend: str, lr_decay: bool, reject_factor: float) -> Trained:
-    from bptsb_ros.tasks.lissajous_switching import (
-        CURVE_1,
-        CURVE_SWITCH,
-        switch_targets,
-        train_switching,
-        wind_schedule,
-    )
+    from bptsb_ros.sim.inputs import wind_schedule
+    from bptsb_ros.tasks.switching import CURVE_1, CURVE_SWITCH, switch_targets, train_switching
 
     agent, state = _start()
     schedule = wind_schedule(100, 25, np.random.default_rng(5), hold_periods=(1, 2))
@@ -254,7 +249,7 @@ def _liss_target(t: torch.Tensor) -> torch.Tensor:
 def scheme1() -> Trained:
     """Closed loop from rest, FL from the seeded N(0, 0.1²) draw, the paper's closed-loop rates (the loss grows:
     a spike rule rejects and restores)."""
-    from bptsb_ros.training.closed_loop_schemes import train_scheme1
+    from bptsb_ros.tasks.feedback_schemes import train_scheme1
 
     agent, _ = _start()
     res = train_scheme1(agent, _liss_target, 4, window=25, seed=4, reject_factor=1.5)
@@ -264,7 +259,7 @@ def scheme1() -> Trained:
 
 
 def scheme2() -> Trained:
-    from bptsb_ros.training.closed_loop_schemes import train_scheme2
+    from bptsb_ros.tasks.feedback_schemes import train_scheme2
 
     agent, state = _start()
     res = train_scheme2(agent, state, _liss_target, 3, window=25)
@@ -274,7 +269,7 @@ def scheme2() -> Trained:
 
 
 def scheme3() -> Trained:
-    from bptsb_ros.training.closed_loop_schemes import train_scheme3
+    from bptsb_ros.tasks.feedback_schemes import train_scheme3
 
     agent, state = _start()
     res = train_scheme3(agent, state, _liss_target, 3, window=25, fit_windows=2, seed=6)
@@ -292,7 +287,7 @@ def _images(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _drawing(brain: str) -> Trained:
-    from bptsb_ros.tasks.mnist_drawing import ImageToBody, SystemSpec, train_drawing
+    from bptsb_ros.tasks.drawing import ImageToBody, SystemSpec, train_drawing
 
     torch.set_num_threads(1)
     x, y = _images(5)
@@ -312,7 +307,7 @@ def drawing_mlp() -> Trained:
 
 
 def _readout(shape: str | None) -> Trained:
-    from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem, train_readout
+    from bptsb_ros.tasks.readout import ReadoutSpec, ReadoutSystem, train_readout
 
     torch.set_num_threads(1)
     x, y = _images(4)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bptsb_ros.safe_files import atomic_writer
+from bptsb_ros.files.safe_write import atomic_writer
 from bptsb_ros.sim.trajectory import Trajectory
 
 STRAIN_LIMIT = 0.3  # colour scale saturates at ±30 % strain

@@ -20,8 +20,8 @@ from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.metadata import read_metadata
 from bptsb_ros.bags.msgdefs import normalize_type
 from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
-from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute, dt_to_ns
-from bptsb_ros.safe_yaml import printable
+from bptsb_ros.files.untrusted_yaml import printable
+from bptsb_ros.interface.topics import NS_PER_S, TOPICS, absolute, dt_to_ns
 
 #: closed loops: the feedback layer drives the body (the offline comparison runs the closed loop)
 LOOPS_CLOSED = ("lissajous_closed", "locomotion_closed")

@@ -254,7 +254,7 @@ class IPCResult:
         }
 
     def write_json(self, path: str | Path) -> Path:
-        from bptsb_ros.safe_files import write_atomic
+        from bptsb_ros.files.safe_write import write_atomic
 
         return write_atomic(path, json.dumps(self.to_json()))
 

@@ -21,8 +21,8 @@ import torch
 from bptsb_ros.analysis.provenance import OwnMessages, Provenance
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.reader import list_topics, read_published, topic_publishers
-from bptsb_ros.ros.topics import NS_PER_S, TOPICS, absolute
-from bptsb_ros.safe_files import json_text, write_atomic
+from bptsb_ros.files.safe_write import json_text, write_atomic
+from bptsb_ros.interface.topics import NS_PER_S, TOPICS, absolute
 
 
 def _topic(key: str) -> str:
@@ -74,7 +74,7 @@ def replay_mnist(bag: str | Path, out_dir: str | Path, system_path: str | Path |
     ``out_dir`` and returns the metrics. With ``system_path`` (the system file, never a path from the bag) the
     recorded images are drawn offline too and compared."""
     from bptsb_ros.analysis.bag_run import animate_run, read_run, recording_summary
-    from bptsb_ros.tasks.mnist_drawing import DigitTargets
+    from bptsb_ros.tasks.drawing import DigitTargets
     from bptsb_ros.tasks.mnist_live import load_system_as, pixels
 
     out_dir = Path(out_dir)

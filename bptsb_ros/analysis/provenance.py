@@ -31,7 +31,7 @@ import numpy as np
 
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.publishers import PublisherId
-from bptsb_ros.safe_yaml import printable
+from bptsb_ros.files.untrusted_yaml import printable
 
 V = TypeVar("V")
 

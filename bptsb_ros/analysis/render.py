@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from bptsb_ros.body.shapes import Topology
-from bptsb_ros.safe_files import atomic_writer
+from bptsb_ros.files.safe_write import atomic_writer
 
 FIXED_COLOR = "#5f5f5f"
 MOVABLE_COLOR = "#0072B2"  # the style's blue, vermillion and green (Okabe-Ito: colour-blind safe)

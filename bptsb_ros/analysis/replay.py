@@ -29,7 +29,7 @@ from bptsb_ros.analysis.bag_run import (
     recording_summary,
 )
 from bptsb_ros.bags.errors import BagError
-from bptsb_ros.safe_files import json_text, write_atomic
+from bptsb_ros.files.safe_write import json_text, write_atomic
 
 
 # -- metrics ---------------------------------------------------------------------------------------
@@ -108,7 +108,7 @@ def offline_positions(agent_dir: str | Path, loop: str, steps: int, inputs: dict
         raise BagError(f"the perturbation at step {wrong[0]} displaces {np.shape(perturbations[wrong[0]])[0]} masses; "
                        f"the agent's body has {agent.body.n_movable} movable masses")
     if loop == "narma":
-        from bptsb_ros.tasks.narma import brain_input
+        from bptsb_ros.sim.inputs import brain_input
 
         if perturbations:
             raise BagError("the offline comparison of a perturbed run supports the SWG and feedback loops, not narma")

@@ -14,6 +14,10 @@ from typing import Any
 
 import numpy as np
 
+#: phase-locked (or, for a closed loop, minimum-over-shifts) MSE / target mean square below which a curve counts as
+#: drawn: the error is a tenth of the figure's own size (a body at rest at the figure's centre scores 1)
+DRAWS_NMSE = 0.1
+
 #: periods at most over which the error after a perturbation is measured (the experiment's eval_periods)
 EVAL_PERIODS = 10
 #: periods skipped at the start of each constant-wind segment of a switching run (the switch transient)
@@ -90,8 +94,7 @@ def switching_metrics(cmp: dict[str, np.ndarray], wind: np.ndarray, dt: float, c
     against (1,2,0) without wind and the agent's second curve (``extra['curve_on']``, displaced by
     ``extra['wind_shift_x']``) with wind, after a transient of 2 periods; for each trajectory in ``cmp`` (T, 2).
     Segments shorter than transient + 1 period are left out."""
-    from bptsb_ros.experiments.lissajous_switching import DRAWS_NMSE
-    from bptsb_ros.tasks.lissajous_switching import CURVE_1, Curve, switch_targets
+    from bptsb_ros.tasks.switching import CURVE_1, Curve, switch_targets
 
     _, period, amp, omega = lissajous_target(config)
     curve_on = Curve(*extra.get("curve_on", (2, 1, math.pi / 2)))

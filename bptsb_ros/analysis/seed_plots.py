@@ -40,14 +40,13 @@ _CELL = {True: (GREEN, "✓"), False: (VERMILLION, "✗"), None: ("0.85", "∅")
 
 
 @styled
-def plot_seed_summary(path: Path, per_seed: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> Path:
+def plot_seed_summary(path: Path, claims: Sequence[Mapping[str, Any]], seeds: Sequence[int], experiment: str) -> Path:
     """The verdict of every claim (rows) in every seed (columns) of one experiment, with ``k/n`` (holding of
-    testable) at the right; ``per_seed`` are the seeds' result.json contents in the order of ``seeds``."""
+    testable) at the right; ``claims`` are the aggregated claims of the seeds' results
+    (:func:`bptsb_ros.experiments.seeds.aggregate_claims`: ``per_seed`` verdicts in the order of ``seeds`` and
+    ``holds_in``) of the experiment named ``experiment``."""
     import matplotlib.pyplot as plt
 
-    from bptsb_ros.experiments.seeds import aggregate_claims
-
-    claims = aggregate_claims(per_seed)
     n_claims, n_seeds = max(1, len(claims)), len(seeds)
     width = min(7.0, 3.6 + 0.22 * n_seeds)
     fig, ax = plt.subplots(figsize=(width, 0.3 + 0.34 * n_claims))
@@ -69,8 +68,7 @@ def plot_seed_summary(path: Path, per_seed: Sequence[Mapping[str, Any]], seeds: 
     ax.tick_params(length=0)
     for side in ("top", "right", "bottom", "left"):
         ax.spines[side].set_visible(False)
-    name = per_seed[0]["experiment"] if per_seed else ""
-    ax.set_title(f"{name}: the paper's claims, seed by seed", fontsize=7)
+    ax.set_title(f"{experiment}: the paper's claims, seed by seed", fontsize=7)
     return save(fig, path)
 
 

@@ -30,12 +30,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib import cycler  # noqa: E402
 
-from bptsb_ros.safe_files import atomic_writer  # noqa: E402
+from bptsb_ros.files.safe_write import atomic_writer  # noqa: E402
 
 #: PNG resolution [dots per inch]
 DPI = 200
 #: pyplot keeps global state and is not thread-safe: threads that make figures (the trainings of a gang,
-#: ``bptsb_ros/gang.py``) make them one at a time, under this lock
+#: ``bptsb_ros/jobs/gang.py``) make them one at a time, under this lock
 FIGURES = threading.RLock()
 #: figure widths [in]: one column and the full text width of a two-column paper
 SINGLE = 3.4

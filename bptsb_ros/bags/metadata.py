@@ -11,8 +11,8 @@ import yaml
 
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.qos import QosProfile, qos_profiles_from_value, qos_profiles_to_list
-from bptsb_ros.safe_files import write_atomic
-from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
+from bptsb_ros.files.safe_write import write_atomic
+from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 METADATA_FILENAME = "metadata.yaml"
 METADATA_VERSION = 9
@@ -157,7 +157,7 @@ class BagMetadata:
 
 
 def write_metadata(bag_dir: str | Path, metadata: BagMetadata) -> Path:
-    """Write ``<bag_dir>/metadata.yaml`` atomically (:func:`~bptsb_ros.safe_files.write_atomic`: a regular file
+    """Write ``<bag_dir>/metadata.yaml`` atomically (:func:`~bptsb_ros.files.safe_write.write_atomic`: a regular file
     only, a temporary file + rename) and return its path."""
     return write_atomic(Path(bag_dir) / METADATA_FILENAME, metadata.to_yaml())
 

@@ -8,7 +8,7 @@ from typing import Any
 import yaml
 
 from bptsb_ros.bags.errors import BagError
-from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
+from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 NS_PER_S = 1_000_000_000
 #: RMW_DURATION_INFINITE (ns); written as ``{sec: 9223372036, nsec: 854775807}``.

@@ -36,7 +36,7 @@ from bptsb_ros.bags.metadata import METADATA_FILENAME, BagMetadata, TopicInfo, b
 from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, names_from_record
 from bptsb_ros.bags.qos import qos_profiles_from_value
 from bptsb_ros.bags.recording import RECORDING_RECORD, recorded_loss
-from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml, printable
+from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, load_untrusted_yaml, printable
 
 
 class BagMessage(NamedTuple):

@@ -29,7 +29,7 @@ from typing import Any
 
 from bptsb_ros.bags.qos import QosProfile
 from bptsb_ros.bags.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_PERIOD_S
-from bptsb_ros.ros.params import LOG_LEVEL, Param, ParameterError
+from bptsb_ros.interface.params import LOG_LEVEL, Param, ParameterError
 
 #: default ``batch_wait`` [s]: at 1,000 steps/s about 200 messages (20 steps) per round instead of one wake-up each
 DEFAULT_BATCH_WAIT_S = 0.02

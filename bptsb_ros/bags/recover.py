@@ -50,8 +50,8 @@ from bptsb_ros.bags.metadata import (
 from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, names_from_record
 from bptsb_ros.bags.qos import qos_profiles_from_value
 from bptsb_ros.bags.writer import CUSTOM_DATA_RECORD, DEFAULT_CHUNK_SIZE, McapStream
-from bptsb_ros.safe_files import UnsafeFileError, open_regular, temp_file_beside
-from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
+from bptsb_ros.files.safe_write import UnsafeFileError, open_regular, temp_file_beside
+from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, load_untrusted_yaml
 
 MAGIC = b"\x89MCAP0\r\n"
 _STOP_OPCODES = {Opcode.DATA_END, Opcode.FOOTER}

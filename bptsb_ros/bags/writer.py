@@ -31,7 +31,7 @@ from bptsb_ros.bags.metadata import BagMetadata, FileInfo, TopicInfo, write_meta
 from bptsb_ros.bags.msgdefs import MessageDefinition, message_definition, normalize_type, type_description_hash
 from bptsb_ros.bags.publishers import PUBLISHERS_RECORD, PublisherId, base_channel_metadata
 from bptsb_ros.bags.qos import QosProfile, qos_profiles_to_yaml
-from bptsb_ros.safe_files import UnsafeFileError, open_for_writing
+from bptsb_ros.files.safe_write import UnsafeFileError, open_for_writing
 
 DEFAULT_CHUNK_SIZE = 768 * 1024  # bytes, the rosbag2_storage_mcap default
 DEFAULT_FLUSH_PERIOD_S = 1.0

@@ -10,7 +10,7 @@ brain's forces come per block, (K, M, 2); the window is one numba forward and on
 ends. The same equations in the same order: outputs and every gradient equal the ``rollout_window`` path to
 rounding (tests/test_held_window.py checks 1e-12 in float64).
 
-Lanes: independent trainings of one topology run as threads of a gang (``bptsb_ros/gang.py``) hand their windows
+Lanes: independent trainings of one topology run as threads of a gang (``bptsb_ros/jobs/gang.py``) hand their windows
 to a :class:`LaneRunner` (:func:`as_lanes`), which runs the windows of every waiting thread as one call of
 ``body/held_window_kernel.py``, one lane each. A lane's output, final state and gradients are the solo path's
 bit for bit (tests/test_gang.py).
@@ -51,7 +51,7 @@ class WindowLane:
 
 
 class LaneRunner(Protocol):
-    """Runs the held-force windows of many threads together (``bptsb_ros.gang.Gang`` is one)."""
+    """Runs the held-force windows of many threads together (``bptsb_ros.jobs.gang.Gang`` is one)."""
 
     def forward(self, lane: WindowLane) -> tuple[np.ndarray, tuple[np.ndarray, ...], Any]:
         """``(y (K,), end (r, v, a (M, 2), lengths (E,)), handle)`` once the lane has run."""

@@ -200,7 +200,7 @@ class MSDN(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """a = F/m for movable masses, and spring lengths. ``v`` is the velocity the damping sees; ``k``, ``d``:
         (B, E) spring constants and damping of B bodies of this topology instead of the body's own (a population,
-        ``training/population.py``)."""
+        ``workflows/population.py``)."""
         force, length = spring_forces(
             r, v, self.gather, self.scatter, self.fixed_offset, self.k if k is None else k, self.d if d is None else d,
             rest_length

@@ -11,7 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SHAPES = ("double_circle", "multiple_circle", "caterpillar")
+#: the body shapes (the registry: the config's ``body.shape``, ``bptsb simulate --shape`` and ``bptsb render --shape``
+#: read it), each with its default number of masses (fixed ones included)
+DEFAULT_NODES: dict[str, int] = {"double_circle": 25, "multiple_circle": 17, "caterpillar": 10}
+SHAPES = tuple(DEFAULT_NODES)
 #: Largest body accepted (masses, fixed ones included). The dense spring operators grow as N²: building a
 #: 2,001-mass double circle peaks at about 650 MB RSS (measured), 8,001 would need about 7 GB. The paper's
 #: largest body has 65 masses.

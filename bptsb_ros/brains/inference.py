@@ -31,7 +31,7 @@ def _np(t: torch.Tensor) -> np.ndarray:
 
 
 class ForceMap:
-    """Task input u (n_in,) (already scaled: :func:`bptsb_ros.tasks.narma.brain_input`) → forces (M, 2) [N] of
+    """Task input u (n_in,) (already scaled: :func:`bptsb_ros.sim.inputs.brain_input`) → forces (M, 2) [N] of
     ``agent``'s LIL or MLP brain, as :func:`bptsb_ros.agent.brain_forces` gives them."""
 
     def __init__(self, agent: Any) -> None:

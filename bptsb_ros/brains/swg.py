@@ -1,7 +1,7 @@
 """Sine-wave generator (SWG): rest-length modulation l·(1 + A·sin(ωt + φ)) per driven spring.
 
 The clock never passes through the model dtype: ω·t is formed in float64 (from the integer step in
-:meth:`SineWaveGenerator.signal_at_steps`, see :mod:`bptsb_ros.sim.clock`), and only sin(ωt) and cos(ωt)
+:meth:`SineWaveGenerator.signal_at_steps`, see :mod:`bptsb_ros.body.clock`), and only sin(ωt) and cos(ωt)
 are cast to the parameters' dtype, in sin(ωt + φ) = sin(ωt)·cos φ + cos(ωt)·sin φ. So the trainable A and φ
 get their gradients through the same (model-dtype) graph as before, and a float32 SWG is as accurate at
 step 10⁷ as at step 0.
@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from bptsb_ros.sim.clock import clock_phase
+from bptsb_ros.body.clock import clock_phase
 
 
 class SineWaveGenerator(nn.Module):
@@ -54,7 +54,7 @@ class SineWaveGenerator(nn.Module):
 
     def signal_at_steps(self, steps: torch.Tensor | Sequence[int], dt: float) -> torch.Tensor:
         """Control signal A·sin(ω k Δt + φ) at integer steps k (T,) of Δt = ``dt`` [s] → (T, E) dimensionless;
-        0 on undriven springs. The phase ω k Δt is exact (:func:`bptsb_ros.sim.clock.clock_phase`)."""
+        0 on undriven springs. The phase ω k Δt is exact (:func:`bptsb_ros.body.clock.clock_phase`)."""
         return self._signal_from_phase(clock_phase(steps, dt, self.omega))
 
     def rest_length_at_steps(self, base: torch.Tensor, steps: torch.Tensor | Sequence[int],

@@ -11,7 +11,7 @@ import sys
 from typing import NoReturn
 
 from bptsb_ros import __version__
-from bptsb_ros.cli.common import USAGE
+from bptsb_ros.cli.options import USAGE
 
 SUBCOMMANDS = (
     "train",

@@ -15,7 +15,7 @@ HELP = (
     "                damaged file is kept as <file>.damaged, .damaged.1, ...: never overwritten) and rebuilds\n"
     "                a missing, unreadable or inconsistent metadata.yaml\n"
     "Example: bptsb bag info bags/lissajous_closed_example (the example bag of a source checkout; installed, it is "
-    "bptsb_ros.package_data.example_bag())"
+    "bptsb_ros.files.package_data.example_bag())"
 )
 
 
@@ -78,7 +78,7 @@ def _recover(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.bags.errors import BagError
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
 
     try:
         return _recover(args) if args.bag_command == "recover" else _info(args)

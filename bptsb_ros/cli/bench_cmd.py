@@ -23,12 +23,12 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from bptsb_ros.ros.params import EXECUTOR, EXECUTORS  # ROS-free
+    from bptsb_ros.interface.params import EXECUTOR, EXECUTORS  # ROS-free
 
     parser.add_argument("--quick", action="store_true", help="1 s per measurement and fewer batch sizes")
     parser.add_argument("--out", required=True, help="JSON file to write; rewritten after each measurement, with "
                         '"complete": false until the last one (a killed bench keeps what it measured)')
-    soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.soak; runs bptsb launch "
+    soak = parser.add_argument_group("--soak: live recording under load (bptsb_ros.bench.soak; runs bptsb launch "
                                      "lissajous_open --bag on this ROS_DOMAIN_ID)")
     soak.add_argument("--soak", action="store_true", help="run the recording soak instead of the physics benchmarks")
     soak.add_argument("--realtime-seconds", type=float, default=None, metavar="S",
@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     soak.add_argument("--lockstep-busy", type=int, default=8, metavar="N",
                       help="spinning processes during the lockstep run (default 8)")
     live = parser.add_argument_group("--live: recorded lockstep loops beside a bare rclpy anchor "
-                                     "(bptsb_ros.bench_live; runs bptsb launch <loop> --bag and the anchor on this "
+                                     "(bptsb_ros.bench.live; runs bptsb launch <loop> --bag and the anchor on this "
                                      "ROS_DOMAIN_ID)")
     live.add_argument("--live", action="store_true", help="time recorded lockstep live loops instead")
     live.add_argument("--live-loops", default="lissajous_closed,narma", metavar="A,B",
@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     soak.add_argument("--workdir", default="", metavar="DIR", help="bags, launch logs and timing records of the "
                       "soak, --live or --realtime (default: a new temporary directory, kept)")
     rt = parser.add_argument_group("--realtime: the closed loop at 100 Hz realtime, idle and with --realtime-busy "
-                                   "spinning processes (bptsb_ros.realtime_bench; runs bptsb launch lissajous_closed "
+                                   "spinning processes (bptsb_ros.bench.realtime; runs bptsb launch lissajous_closed "
                                    "with the example agent on this ROS_DOMAIN_ID)")
     rt.add_argument("--realtime", action="store_true", help="run the realtime bench instead of the physics benchmarks")
     rt.add_argument("--executor", choices=EXECUTORS, default=EXECUTOR.default,
@@ -73,7 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _check_workdir(workdir: Path | None) -> int | None:
     """None, or the exit status after one line where ``--workdir`` exists and is not empty (what is on disk: a
     runtime failure, not a usage error; the bench never writes into another run's files)."""
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
 
     if workdir is not None and workdir.exists() and not workdir.is_dir():
         return fail(NAME, f"--workdir {workdir} exists and is not a directory")
@@ -84,11 +84,11 @@ def _check_workdir(workdir: Path | None) -> int | None:
 
 def _write(out: Path, report: dict, complete: bool = True) -> int | None:
     """Write ``report`` as JSON to ``out``, with ``"complete"`` first (false while measurements are still to come),
-    atomically and only as a regular file (:func:`bptsb_ros.safe_files.write_atomic`: a reader or a kill never sees
-    half a file, a device or a planted link is never written through); None, or the exit status of a write that
+    atomically and only as a regular file (:func:`bptsb_ros.files.safe_write.write_atomic`: a reader or a kill never
+    sees half a file, a device or a planted link is never written through); None, or the exit status of a write that
     failed (after one line)."""
-    from bptsb_ros.cli.common import fail
-    from bptsb_ros.safe_files import UnsafeFileError, write_atomic
+    from bptsb_ros.cli.options import fail
+    from bptsb_ros.files.safe_write import UnsafeFileError, write_atomic
 
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -122,8 +122,8 @@ def _updater(out: Path) -> Callable[[dict], None]:
 def _soak(args: argparse.Namespace) -> int:
     import math
 
-    from bptsb_ros.cli.common import USAGE, fail
-    from bptsb_ros.soak import run_soak
+    from bptsb_ros.bench.soak import run_soak
+    from bptsb_ros.cli.options import USAGE, fail
 
     if args.realtime_seconds is None:
         args.realtime_seconds = 60.0
@@ -149,8 +149,8 @@ def _soak(args: argparse.Namespace) -> int:
 def _live(args: argparse.Namespace) -> int:
     import math
 
-    from bptsb_ros.bench_live import live_table, run_live
-    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.bench.live import live_table, run_live
+    from bptsb_ros.cli.options import USAGE, fail
     from bptsb_ros.live.loops import LOOPS
 
     loops = tuple(name.strip() for name in args.live_loops.split(",") if name.strip())
@@ -179,8 +179,8 @@ def _live(args: argparse.Namespace) -> int:
 def _realtime(args: argparse.Namespace) -> int:
     import math
 
-    from bptsb_ros.cli.common import USAGE, fail
-    from bptsb_ros.realtime_bench import example_agent, realtime_table, run_realtime_bench
+    from bptsb_ros.bench.realtime import example_agent, realtime_table, run_realtime_bench
+    from bptsb_ros.cli.options import USAGE, fail
 
     seconds = 600.0 if args.realtime_seconds is None else args.realtime_seconds
     if not (math.isfinite(seconds) and seconds > 0):
@@ -215,7 +215,7 @@ def _realtime(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     if args.soak and args.realtime:
-        from bptsb_ros.cli.common import USAGE, fail
+        from bptsb_ros.cli.options import USAGE, fail
 
         return fail(NAME, "--soak and --realtime are two different benches: choose one", USAGE)
     if args.soak:
@@ -224,7 +224,7 @@ def run(args: argparse.Namespace) -> int:
         return _live(args)
     if args.realtime:
         return _realtime(args)
-    from bptsb_ros.bench import run_benchmarks, workload_table
+    from bptsb_ros.bench.suite import run_benchmarks, workload_table
 
     out = Path(args.out)
     if (problem := _write(out, {}, complete=False)) is not None:  # an unwritable --out fails now, not at the end
@@ -253,7 +253,7 @@ def run(args: argparse.Namespace) -> int:
           + ", ".join(f"{b} {h}" for b, h in sched["projected_hours"].items()))
     mnist = report.get("mnist", {})
     if "systems" in mnist:
-        from bptsb_ros.bench_mnist import mnist_table
+        from bptsb_ros.bench.mnist_speed import mnist_table
 
         print(mnist_table(mnist))
         sched = mnist["paper_schedule"]

@@ -18,7 +18,7 @@ HELP = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from bptsb_ros.config_import import TASKS
+    from bptsb_ros.config.authors import TASKS
 
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
     imp = sub.add_parser("import", help="translate the authors' YAML into our config",
@@ -42,8 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _import(args: argparse.Namespace) -> int:
-    from bptsb_ros.cli.common import fail
-    from bptsb_ros.config_import import ImportFailure, import_file, write_output
+    from bptsb_ros.cli.options import fail
+    from bptsb_ros.config.authors import ImportFailure, import_file, write_output
 
     try:
         result = import_file(args.file, args.task)
@@ -64,7 +64,7 @@ def _import(args: argparse.Namespace) -> int:
 def _show(args: argparse.Namespace) -> int:
     import yaml
 
-    from bptsb_ros.cli.common import config_error_code, fail
+    from bptsb_ros.cli.options import config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.experiments.common import config_source
 
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "show":
         return _show(args)
     if args.action == "list":
-        from bptsb_ros.cli.common import fail
+        from bptsb_ros.cli.options import fail
         from bptsb_ros.config import ConfigError
         from bptsb_ros.experiments.common import packaged_configs
 
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         except ConfigError as err:
             return fail("config list", err)
         return 0
-    from bptsb_ros.config_import import mapping_table
+    from bptsb_ros.config.authors import mapping_table
 
     print("\n".join(mapping_table()))
     return 0

@@ -111,7 +111,7 @@ def _from_npz(path: str, per_column: bool):
     import numpy as np
 
     from bptsb_ros.analysis.ipc import IPCError
-    from bptsb_ros.safe_npz import NpzError, load_npz
+    from bptsb_ros.files.npz import NpzError, load_npz
 
     try:
         arrays = load_npz(path, ("u", "states"))
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     from bptsb_ros.analysis.ipc import IPCError, bag_series, ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.plots import plot_ipc_bars
     from bptsb_ros.bags.errors import BagError
-    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.cli.options import USAGE, fail
 
     problem = _option_problem(args)
     try:
@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         data["source"]["tau"] = series.tau
     import json
 
-    from bptsb_ros.safe_files import UnsafeFileError, write_atomic
+    from bptsb_ros.files.safe_write import UnsafeFileError, write_atomic
 
     shown = [lab for lab in res.labels if not lab.startswith("all ")] if args.bag else res.labels
     try:

@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from bptsb_ros.cli.common import FAILURE, USAGE, fail, finite_float
+from bptsb_ros.cli.options import FAILURE, USAGE, fail, finite_float
+from bptsb_ros.files.safe_write import open_for_writing, write_atomic
 from bptsb_ros.live.loops import LOOPS, bag_target_problem, format_parameter, loops_help
-from bptsb_ros.safe_files import open_for_writing, write_atomic
 
 NAME = "launch"
 HELP = "start a live loop (body_sim + brains [+ recorder]) as separate ROS 2 processes"
@@ -298,7 +298,7 @@ class Launcher:
 
 def _extra_value(items: list[str], name: str) -> str | None:
     """The value of the last ``name:=VALUE`` of one node's ``--param`` items (a YAML scalar, quotes removed)."""
-    from bptsb_ros.safe_yaml import UntrustedYamlError, load_untrusted_yaml
+    from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, load_untrusted_yaml
 
     values = [item.split(":=", 1)[1] for item in items if item.split(":=", 1)[0] == name]
     if not values:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from bptsb_ros.cli.common import DEFAULT_NODES, USAGE, fail, finite_float
+from bptsb_ros.body.shapes import DEFAULT_NODES
+from bptsb_ros.cli.options import USAGE, fail, finite_float
 
 NAME = "render"
 HELP = (

@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from bptsb_ros.analysis.replay import replay
     from bptsb_ros.bags.errors import BagError
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
 
     errors: tuple[type[Exception], ...] = (BagError, ValueError)
     if args.agent:  # only the offline comparison with an agent needs torch (the light install has none)

@@ -28,10 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.analysis.report import ReportError, build_report
     from bptsb_ros.analysis.report_guard import ReplaceRefused, check_replace, check_scales
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
     from bptsb_ros.experiments import ResultError
+    from bptsb_ros.experiments.report import ReportError, build_report
 
     out = Path(args.out) if args.out is not None else Path(args.runs_dir) / PAGE_NAME
 

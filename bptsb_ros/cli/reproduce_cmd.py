@@ -55,17 +55,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.cli.common import USAGE, fail
+    from bptsb_ros.cli.options import USAGE, fail
     from bptsb_ros.config import ConfigError
-    from bptsb_ros.dask_connect import scheduler_address
     from bptsb_ros.data.mnist import MnistError
     from bptsb_ros.experiments import ExperimentError, experiments, get_experiment, run_experiment
     from bptsb_ros.experiments.experiment_settings import SettingsError, resolve_settings
     from bptsb_ros.experiments.result import ResultError, claim_mark
-    from bptsb_ros.experiments.seeds import SeedsError, parse_seeds, run_seeds
-    from bptsb_ros.rundir_lock import RunDirLocked
-    from bptsb_ros.runner import JobFailed
-    from bptsb_ros.sweep import SchedulerError, SweepError
+    from bptsb_ros.experiments.seed_dirs import SeedsError, parse_seeds
+    from bptsb_ros.experiments.seeds import run_seeds
+    from bptsb_ros.files.run_dir_lock import RunDirLocked
+    from bptsb_ros.jobs.dask_cluster import scheduler_address
+    from bptsb_ros.jobs.runner import JobFailed
+    from bptsb_ros.jobs.sweep import SchedulerError, SweepError
 
     if args.list:
         from bptsb_ros.experiments.durations import durations, reproduce_table, seed_plan
@@ -156,10 +157,10 @@ def _rejudge(args: argparse.Namespace) -> int:
     """``--rejudge``: the claims of the finished run in ``--out`` judged again from its stored numbers."""
     from pathlib import Path
 
-    from bptsb_ros.cli.common import fail
+    from bptsb_ros.cli.options import fail
     from bptsb_ros.experiments.result import ResultError
     from bptsb_ros.experiments.seeds import rejudge_run
-    from bptsb_ros.rundir_lock import RunDirLocked, hold_run_dir
+    from bptsb_ros.files.run_dir_lock import RunDirLocked, hold_run_dir
 
     out = Path(args.out) if args.out else Path("runs") / "reproduce" / args.name
     if not out.is_dir():

@@ -5,22 +5,13 @@ from __future__ import annotations
 import argparse
 import importlib
 
-from bptsb_ros.cli.common import USAGE, fail
+from bptsb_ros.cli.options import USAGE, fail
+from bptsb_ros.interface.nodes import NODES as ALL_NODES
 
 NAME = "run"
-HELP = ("run one ROS 2 node: body_sim, swg_brain, mlp_brain, feedback_brain, task_input, recorder, image_streamer or "
-        "mnist_brain")
-
-NODES: dict[str, str] = {
-    "body_sim": "soft-body simulator: publishes /clock and the body state, integrates brain commands",
-    "swg_brain": "sine-wave generator: rest-length commands on each /clock tick",
-    "mlp_brain": "MLP/LIL brain: task input → forces on the movable masses",
-    "feedback_brain": "feedback layer: body state → rest-length commands (closed loop)",
-    "task_input": "streams the task's input series (NARMA u) on each /clock tick",
-    "recorder": "records topics to a rosbag2 MCAP bag (parameters bag_path, topics)",
-    "image_streamer": "MNIST loop: one IDX image per episode on camera/image (parameters images, labels)",
-    "mnist_brain": "MNIST loop: camera/image → initial displacements on body/reset (agent: a system file)",
-}
+#: node name -> one line, from the node table (:data:`bptsb_ros.interface.nodes.NODES`)
+NODES: dict[str, str] = {node.name: node.help for node in ALL_NODES}
+HELP = "run one ROS 2 node: " + ", ".join(NODES)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

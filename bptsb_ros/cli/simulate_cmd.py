@@ -12,7 +12,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
-from bptsb_ros.cli.common import DEFAULT_NODES, USAGE, UsageError, fail, finite_float
+from bptsb_ros.body.shapes import DEFAULT_NODES
+from bptsb_ros.cli.options import USAGE, UsageError, fail, finite_float
 
 if TYPE_CHECKING:
     from bptsb_ros.sim.trajectory import Trajectory
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         return _usage("--nodes, --swg-amplitude, --ground-clamp and --environment apply to --shape only")
 
     from bptsb_ros.body.msdn import SimulationDiverged
-    from bptsb_ros.threads import configure_threads
+    from bptsb_ros.body.threads import configure_threads
     from bptsb_ros.training.checkpoint import CheckpointError
 
     configure_threads(1, args.backend or "torch")  # one body: one thread (the kernel runs a batch of 1 serially)

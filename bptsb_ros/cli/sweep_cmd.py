@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _timeout(text: str) -> float:
-    from bptsb_ros.cli.common import finite_float
+    from bptsb_ros.cli.options import finite_float
 
     value = finite_float(text)
     if not 0 < value <= 3600:
@@ -39,11 +39,18 @@ def _timeout(text: str) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.cli.common import USAGE, config_error_code, fail
+    from bptsb_ros.cli.options import USAGE, config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
-    from bptsb_ros.dask_connect import scheduler_address
-    from bptsb_ros.rundir_lock import RunDirLocked
-    from bptsb_ros.sweep import DEFAULT_CONNECT_TIMEOUT, SchedulerError, SweepError, parse_seeds, run_sweep, train_jobs
+    from bptsb_ros.files.run_dir_lock import RunDirLocked
+    from bptsb_ros.jobs.dask_cluster import scheduler_address
+    from bptsb_ros.jobs.sweep import (
+        DEFAULT_CONNECT_TIMEOUT,
+        SchedulerError,
+        SweepError,
+        parse_seeds,
+        run_sweep,
+        train_jobs,
+    )
 
     try:  # the arguments: --seeds, --workers, --scheduler, --connect-timeout
         seeds = parse_seeds(args.seeds)

@@ -24,12 +24,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.cli.common import USAGE, config_error_code, fail
+    from bptsb_ros.cli.options import USAGE, config_error_code, fail
     from bptsb_ros.config import ConfigError, load_config
     from bptsb_ros.experiments.common import config_source
-    from bptsb_ros.rundir_lock import RunDirLocked
+    from bptsb_ros.files.run_dir_lock import RunDirLocked
     from bptsb_ros.training.checkpoint import CheckpointError
-    from bptsb_ros.training.trainer import TrainingDiverged, train
+    from bptsb_ros.workflows.train import TrainingDiverged, train
 
     if args.resume and args.force:
         return fail(NAME, "--resume and --force exclude each other", USAGE)

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bptsb_ros.safe_files import atomic_writer, write_atomic
+from bptsb_ros.files.safe_write import atomic_writer, write_atomic
 
 TRAIN_IMAGES = "train-images-idx3-ubyte"
 TRAIN_LABELS = "train-labels-idx1-ubyte"

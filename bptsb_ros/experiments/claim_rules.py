@@ -9,16 +9,11 @@ is met at the bound itself even when the number was computed in floating point (
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from bptsb_ros.experiments.result import Claim
+from bptsb_ros.analysis.replay_lissajous import DRAWS_NMSE
 
-#: phase-locked (or, for a closed loop, minimum-over-shifts) MSE / target mean square below which a curve counts as
-#: drawn: the error is a tenth of the figure's own size (a body at rest at the figure's centre scores 1)
-DRAWS_NMSE = 0.1
 #: absolute slack of an inclusive comparison of O(1) numbers (rates, ratios, frequencies in Hz)
 EPS = 1e-9
 
@@ -52,14 +47,6 @@ def almost_same_rates(rate_a: np.ndarray, rate_b: np.ndarray) -> tuple[bool, flo
         return False, float("nan"), -1
     worst = int(np.argmax(diff))
     return at_most(float(diff[worst]), SAME_RATE), float(diff[worst]), worst
-
-
-def all_not_testable(claims: list[Claim], reason: str) -> list[Claim]:
-    """The same claims (same texts), every one not testable because ``reason``: the claims of a system whose training
-    diverged, so a seed where it did keeps its place among the seeds (∅ for it) instead of losing the run."""
-    from bptsb_ros.experiments.result import Claim  # result.py imports this module
-
-    return [Claim.not_testable(c.claim, reason) for c in claims]
 
 
 def longest_run(mask: np.ndarray) -> tuple[int, int, int]:

@@ -3,7 +3,7 @@ loop" and its table): 3 Lissajous curves × 5 seeds, each an independent job.
 
 Per (curve, seed): the preliminary SWG training (config/lissajous_single.yaml with the curve), the FL fitted by
 regression, its closed-loop error E_before; then from that agent scheme 2 and scheme 3
-(:mod:`bptsb_ros.training.closed_loop_schemes`), each closed afterwards (E_after); and scheme 1 from scratch.
+(:mod:`bptsb_ros.tasks.feedback_schemes`), each closed afterwards (E_after); and scheme 1 from scratch.
 The closed-loop error is the paper's: per-period minimum over time shifts of the MSE, mean over
 ``eval_periods`` periods after as many periods of settling in the closed loop.
 
@@ -28,10 +28,10 @@ from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded
 from bptsb_ros.experiments.measured import judge
 from bptsb_ros.experiments.registry import Context, experiment
 from bptsb_ros.experiments.result import Claim
-from bptsb_ros.safe_files import write_atomic
-from bptsb_ros.sim.population import run_population
+from bptsb_ros.files.safe_write import write_atomic
+from bptsb_ros.sim.batched import run_population
 from bptsb_ros.tasks.lissajous import windowed_shift_error_batch
-from bptsb_ros.tasks.lissajous_switching import CURVE_1, CURVE_SWITCH, CURVE_TIMING, Curve
+from bptsb_ros.tasks.switching import CURVE_1, CURVE_SWITCH, CURVE_TIMING, Curve
 
 __all__ = ["DRAWS_NMSE", "SchemeNumbers", "claims", "run", "scheme_job"]
 
@@ -154,8 +154,8 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
 
     from bptsb_ros.agent import build_agent
     from bptsb_ros.experiments.common import packaged_config
-    from bptsb_ros.training.closed_loop_schemes import train_scheme1, train_scheme2, train_scheme3
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.tasks.feedback_schemes import train_scheme1, train_scheme2, train_scheme3
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     c = Curve(*curve)
     cfg = packaged_config("lissajous_single", [f"lissajous.alpha={c.alpha}", f"lissajous.beta={c.beta}",

@@ -5,20 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from bptsb_ros.config import ConfigError, ExperimentConfig, Overrides, echo, load_config
-
-
-def config_dir() -> Path:
-    """The directory of the packaged experiment configs (:func:`bptsb_ros.package_data.config_dir`: the
-    installed package's copy, a source checkout's ``config/``, or the ament share); ConfigError if none is there."""
-    from bptsb_ros.package_data import PackageDataError
-    from bptsb_ros.package_data import config_dir as packaged_dir
-
-    try:
-        return packaged_dir()
-    except PackageDataError as err:
-        raise ConfigError(str(err)) from None
-
+from bptsb_ros.config import ConfigError, ExperimentConfig, Overrides, config_dir, echo, load_config
 
 #: what a packaged config's name looks like (a name, never a path)
 CONFIG_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")

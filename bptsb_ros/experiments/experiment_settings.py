@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bptsb_ros.safe_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
+from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 #: the packaged settings files, one per experiment (``<experiment name>.yaml``)
 SETTINGS_DIR = Path(__file__).resolve().with_name("settings")

@@ -16,7 +16,7 @@ import torch
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.experiments.common import packaged_config
-from bptsb_ros.tasks.lissajous_switching import CURVE_1, Curve
+from bptsb_ros.tasks.switching import CURVE_1, Curve
 
 
 @contextmanager
@@ -73,7 +73,7 @@ def train_single_curve(run_dir: Path, *, sim_time: float, seed: int, curve: Curv
                        extra: list[str] | None = None) -> TrainedAgent:
     """Preliminary training: SWG + double-circle (N_mov 13) drawing ``curve`` with the paper's single-curve
     learning rates (config/lissajous_single.yaml), the FL fitted; the agent and its final state."""
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     cfg = packaged_config("lissajous_single", [
         f"sim_time={sim_time}", f"feedback.fit_time={fit_time}", f"lissajous.eval_periods={eval_periods}",

@@ -76,7 +76,7 @@ def claims(n: ClosedLoopNumbers) -> list[Claim]:
 )
 @single_threaded
 def run(ctx: Context) -> None:
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     sim_time, fit_time, periods = ctx.settings["sim_time"], ctx.settings["fit_time"], ctx.settings["eval_periods"]
     cfg = packaged_config("lissajous_single", [f"sim_time={sim_time}", f"feedback.fit_time={fit_time}",

@@ -37,7 +37,6 @@ import numpy as np
 from bptsb_ros.experiments.claim_rules import (
     DRAWS_NMSE,
     SAME_RATE,
-    all_not_testable,
     almost_same_rates,
     draws,
     fmt,
@@ -45,12 +44,12 @@ from bptsb_ros.experiments.claim_rules import (
 from bptsb_ros.experiments.lissajous_agents import TrainedAgent, single_threaded, train_single_curve
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
-from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
+from bptsb_ros.sim.batched import run_population
 from bptsb_ros.sim.perturbation import perturbation_batch
-from bptsb_ros.sim.population import run_population
 from bptsb_ros.tasks.lissajous import RETURN_RATIO, returned, windowed_shift_error_batch
-from bptsb_ros.tasks.lissajous_switching import CURVE_1
+from bptsb_ros.tasks.switching import CURVE_1
 
 SIGMAS = np.round(np.arange(0.0, 1.0001, 0.1), 10)
 #: each trial in words (claims of a variant after the first are prefixed with it); key: a restart trial
@@ -300,7 +299,7 @@ def _errors(traj: np.ndarray, k0: int, period: int, eval_periods: int, dt: float
 )
 @single_threaded
 def run(ctx: Context) -> None:
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     sim_time = ctx.settings["sim_time"]
     variants = ctx.settings.variants or {"paper": {"restart": False, "eval_windows": 0}}

@@ -3,7 +3,7 @@ switching", Fig. (a), (b), (d); "Switching timing" and its figure).
 
 All three start from the single-curve agent (preliminary training, config/lissajous_single.yaml) and add
 BPTSB training with the paper's switching learning rates under a binary wind schedule
-(:mod:`bptsb_ros.tasks.lissajous_switching`): without wind the target is (1,2,0), with F_wind = 1 the second
+(:mod:`bptsb_ros.tasks.switching`): without wind the target is (1,2,0), with F_wind = 1 the second
 curve displaced in x by the CMP's own mean wind shift (the paper displaces it by an amount it does not give).
 
 Each experiment runs every named variant of its settings file (``ctx.settings.variants``: the paper's wind, the
@@ -36,7 +36,7 @@ import torch
 from bptsb_ros.analysis.dynamics import dominant_frequency, local_maxima, periodicity
 from bptsb_ros.body.msdn import SimulationDiverged
 from bptsb_ros.config import LearningRates
-from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, all_not_testable, at_most, draws, fmt, longest_run
+from bptsb_ros.experiments.claim_rules import DRAWS_NMSE, at_most, draws, fmt, longest_run
 from bptsb_ros.experiments.lissajous_agents import (
     TrainedAgent,
     load_trained,
@@ -46,13 +46,14 @@ from bptsb_ros.experiments.lissajous_agents import (
 )
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
-from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
-from bptsb_ros.safe_files import write_atomic
-from bptsb_ros.sim.population import run_population
+from bptsb_ros.files.safe_write import write_atomic
+from bptsb_ros.sim.batched import run_population
+from bptsb_ros.sim.inputs import wind_schedule
 from bptsb_ros.sim.rollout import simulate_open_loop
 from bptsb_ros.tasks.lissajous import windowed_shift_error_batch
-from bptsb_ros.tasks.lissajous_switching import (
+from bptsb_ros.tasks.switching import (
     CURVE_1,
     CURVE_SWITCH,
     CURVE_TIMING,
@@ -60,7 +61,6 @@ from bptsb_ros.tasks.lissajous_switching import (
     switch_targets,
     train_switching,
     wind_offset,
-    wind_schedule,
     wind_vector,
 )
 
@@ -473,7 +473,7 @@ def loss_by_condition(losses: np.ndarray, schedule: np.ndarray, window: int, sha
 def _pretrain(ctx: Context, integrator: str = "verlet") -> TrainedAgent | str:
     """The preliminary single-curve agent under ``integrator`` (run directory ``pretrained``, or
     ``pretrained_<integrator>`` for another than verlet); why there is none, in words, if its training diverged."""
-    from bptsb_ros.training.trainer import TrainingDiverged
+    from bptsb_ros.workflows.train import TrainingDiverged
 
     sim_time = ctx.settings["pretrain_time"]
     ctx.log(f"{ctx.result.experiment}: preliminary single-curve training ({sim_time} s, seed {ctx.seed}, "

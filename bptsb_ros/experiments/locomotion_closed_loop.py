@@ -4,7 +4,7 @@ given a feedback layer (spring lengths → SWG signal, ridge regression, input n
 closed by replacing the SWG with the FL. Success: closed-loop speed / open-loop speed ≥ 0.7. The paper:
 8 of 20 agents (40 %).
 
-Each agent is one sweep job (:mod:`bptsb_ros.sweep`, local processes or a Dask cluster). Beside the paper's
+Each agent is one sweep job (:mod:`bptsb_ros.jobs.sweep`, local processes or a Dask cluster). Beside the paper's
 method (the default row: FL on spring lengths, the SWG switched off at once) two variants the paper's
 discussion suggests are evaluated on the same agents: a transition period (the signal blended linearly from the
 SWG to the FL over a few seconds) and another FL state (the mass velocities).

@@ -24,9 +24,9 @@ from bptsb_ros.agent import Agent
 from bptsb_ros.body.msdn import PROJECTIONS, BodyState
 from bptsb_ros.brains import FeedbackLayer, SineWaveGenerator
 from bptsb_ros.config import FeedbackConfig
-from bptsb_ros.safe_files import atomic_writer
+from bptsb_ros.files.safe_write import atomic_writer
+from bptsb_ros.jobs.sweep import Job, SweepResult
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
-from bptsb_ros.sweep import Job, SweepResult
 
 #: closed-loop / open-loop speed at or above which a closed loop counts as autonomous locomotion (paper)
 SUCCESS_RATIO = 0.7
@@ -120,8 +120,8 @@ def adopt_sibling_agents(jobs: list[Job], where: Path, out_dir: Path, log) -> li
     siblings that are ``bptsb reproduce`` runs of this user are read (a shared parent such as ``/tmp`` may hold
     anyone's directories), and only regular files are copied (symbolic links are left behind)."""
     from bptsb_ros.experiments.registry import RUN_MARKER
-    from bptsb_ros.experiments.seeds import sibling_run_dirs
-    from bptsb_ros.sweep import finished_record, job_key
+    from bptsb_ros.experiments.seed_dirs import sibling_run_dirs
+    from bptsb_ros.jobs.sweep import finished_record, job_key
 
     siblings = [p / AGENTS_DIR for p in sibling_run_dirs(Path(out_dir))
                 if _own_run(p, RUN_MARKER) and (p / AGENTS_DIR / "jobs").is_dir()]
@@ -160,7 +160,7 @@ def forward_agent_job(settings: AgentSettings, seed: int, run_dir: Path) -> dict
     (the paper's method) and the two variants; store a short gait. Returns the numbers."""
     from bptsb_ros.experiments.common import packaged_config
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
-    from bptsb_ros.training.trainer import train
+    from bptsb_ros.workflows.train import train
 
     cfg = packaged_config("locomotion_forward", settings.overrides(), seed=seed)
     res = train(cfg, run_dir, overwrite=True, progress=False)  # a sweep job owns run_dir (a rerun replaces it)

@@ -21,15 +21,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from bptsb_ros.experiments.claim_rules import all_not_testable, at_most
+from bptsb_ros.experiments.claim_rules import at_most
 from bptsb_ros.experiments.common import derived_seeds, packaged_config
 from bptsb_ros.experiments.locomotion_closed_loop import agent_settings
 from bptsb_ros.experiments.locomotion_common import batched_centre_x, late_speed, task_state, train_agents
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
-from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
-from bptsb_ros.tasks.locomotion import wind_blowing
+from bptsb_ros.sim.inputs import wind_blowing
 
 #: relative distance to the target within which the speed "is maintained"
 NEAR = 0.25
@@ -210,7 +210,7 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     """One switching protocol (a settings variant): its additional training, rows, claims, figures and details
     (the first variant's at the top level and unprefixed, every one also under ``details["variants"]``)."""
     from bptsb_ros.training.checkpoint import load_agent, read_checkpoint
-    from bptsb_ros.training.trainer import TrainingDiverged, train
+    from bptsb_ros.workflows.train import TrainingDiverged, train
 
     tag, label, suffix = ("", "", "") if first else (f"{variant_name}: ", f"[{variant_name}] ", f"-{variant_name}")
     sim_time = ctx.settings["switching_time"]

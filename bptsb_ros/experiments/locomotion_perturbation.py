@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bptsb_ros.experiments.claim_rules import EPS, SAME_RATE, all_not_testable, almost_same_rates
+from bptsb_ros.experiments.claim_rules import EPS, SAME_RATE, almost_same_rates
 from bptsb_ros.experiments.common import derived_seeds
 from bptsb_ros.experiments.locomotion_closed_loop import settings_for
 from bptsb_ros.experiments.locomotion_common import (
@@ -37,7 +37,7 @@ from bptsb_ros.experiments.locomotion_common import (
 )
 from bptsb_ros.experiments.measured import judge, stored_calls
 from bptsb_ros.experiments.registry import Context, experiment
-from bptsb_ros.experiments.result import Claim
+from bptsb_ros.experiments.result import Claim, all_not_testable
 from bptsb_ros.experiments.seeds import seed_figure
 
 SIGMAS = tuple(round(0.1 * i, 1) for i in range(11))

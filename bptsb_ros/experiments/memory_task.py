@@ -2,7 +2,7 @@
 
 The CMP's y must reproduce the input Δt task steps ago, y(t) = u(t − Δt), with an LIL brain (no memory of its
 own) and a double-circle or multiple-circle body (N_mov 17 each). Every (body, Δt, seed) is an independent
-training; each body's trainings run as populations (``training/population.py``: stacked parameters, one batched
+training; each body's trainings run as populations (``workflows/population.py``: stacked parameters, one batched
 simulation; each member's numbers its training's alone), as many at once as the run has workers (setting
 ``population``; without it, one sweep job per training). The error is the NMSE on a long held-out input.
 
@@ -233,7 +233,7 @@ def run(ctx: Context) -> None:
         population_jobs,
         run_jobs,
     )
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     epochs, delays, eval_inputs = ctx.settings["epochs"], ctx.settings["delays"], ctx.settings["eval_inputs"]
     seeds = derived_seeds(ctx.seed, ctx.settings["n_seeds"])

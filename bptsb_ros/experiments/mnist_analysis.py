@@ -93,7 +93,7 @@ def labelmap_analysis(ctx: Context, system, evaluation: dict[str, np.ndarray], l
     ``joined_to_cmp``, ``masses``, ``centre_labels``: the label of each digit's Δ = 0 cell; ``boundary_per_mass``,
     ``regions_per_mass``: the maps' :func:`map_intricacy`, mean over the 10 labels) and the maps' sizes."""
     from bptsb_ros.analysis.mnist_plots import plot_label_map_sizes, plot_label_maps
-    from bptsb_ros.tasks.mnist_drawing import joined_to_cmp, label_maps
+    from bptsb_ros.tasks.drawing import joined_to_cmp, label_maps
 
     if grid < 1 or grid % 2 == 0:
         raise ValueError(f"label-map grid must be odd (a cell at Δ = 0), got {grid}")

@@ -146,7 +146,7 @@ def train_drawing_job(spec_json: dict[str, Any], seed: int, train_x: np.ndarray,
                       meta: dict[str, Any], progress: bool = False) -> dict[str, Any]:
     """Train one drawing system, save it, evaluate it on the test images; returns logs and test outputs.
     ``progress``: epoch lines (and the guard's) to stderr, see :class:`EpochLines`."""
-    from bptsb_ros.tasks.mnist_drawing import (
+    from bptsb_ros.tasks.drawing import (
         ImageToBody,
         SystemSpec,
         evaluate_drawing,
@@ -170,7 +170,7 @@ def reusable_checkpoint(path: Path, meta: dict[str, Any]) -> bool:
     """True when ``path`` holds a system trained with exactly ``meta`` (scale, seed, data, epochs...)."""
     if not path.is_file():
         return False
-    from bptsb_ros.tasks.mnist_drawing import load_system
+    from bptsb_ros.tasks.drawing import load_system
 
     try:
         _, extra = load_system(path)
@@ -202,7 +202,7 @@ def obtain_drawing_system(ctx: Context, spec, data: Data, *, epochs: int, batch:
     """A trained drawing system and its test evaluation: loaded from ``reuse`` (a checkpoint, or the first of
     several) when that checkpoint was trained with ``meta``, else trained here (written to ``out_dir/systems``).
     Returns (system, evaluation, source description)."""
-    from bptsb_ros.tasks.mnist_drawing import evaluate_drawing, load_system
+    from bptsb_ros.tasks.drawing import evaluate_drawing, load_system
 
     found = first_reusable([reuse] if isinstance(reuse, Path) else list(reuse or ()), meta)
     if found is not None:

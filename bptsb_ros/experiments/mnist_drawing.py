@@ -46,7 +46,7 @@ def scale_settings(ctx: Context) -> dict[str, int | None]:
 
 def systems() -> list[tuple[str, int, object]]:
     """(brain, N_mov, SystemSpec) of the four drawing systems."""
-    from bptsb_ros.tasks.mnist_drawing import SystemSpec
+    from bptsb_ros.tasks.drawing import SystemSpec
 
     return [(b, n, SystemSpec(brain=b, shape=SHAPE, nodes=body_nodes(SHAPE, n))) for n in N_MOV for b in BRAINS]
 
@@ -60,7 +60,7 @@ def nearest_target_accuracy(drawings: np.ndarray, labels: np.ndarray) -> float:
     """Share of drawings (n, T+1, 2) whose closest target (MSE over the target's steps) is their label's."""
     import torch
 
-    from bptsb_ros.tasks.mnist_drawing import DigitTargets
+    from bptsb_ros.tasks.drawing import DigitTargets
 
     errs = DigitTargets(dtype=torch.float64).all_errors(torch.as_tensor(drawings))
     return float((errs.argmin(1).numpy() == labels).mean())

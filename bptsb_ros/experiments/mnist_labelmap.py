@@ -182,7 +182,7 @@ def claims(n: LabelMapNumbers, label: str = system_label("mlp", N_MOV)) -> list[
     summary="MLP + multiple-circle N_mov 17: label maps per placed mass, label-map sizes, joined-to-CMP claim",
 )
 def run(ctx: Context) -> None:
-    from bptsb_ros.tasks.mnist_drawing import SystemSpec
+    from bptsb_ros.tasks.drawing import SystemSpec
 
     s = scale_settings(ctx)
     grid = ctx.settings["grid"]

@@ -125,7 +125,7 @@ def claims(n: PcaNumbers) -> list[Claim]:
     summary="MLP + multiple-circle N_mov 17: brain vs body output in 2-D PCA, label separation (silhouette, probe)",
 )
 def run(ctx: Context) -> None:
-    from bptsb_ros.tasks.mnist_drawing import SystemSpec
+    from bptsb_ros.tasks.drawing import SystemSpec
 
     s = scale_settings(ctx)
     data = load_data(ctx, s["n_train"], s["n_test"])

@@ -119,7 +119,7 @@ def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndar
                       guard_factor: float = 0.0, guard_window: int = WINDOW) -> dict[str, Any]:
     """Train one readout system; its test accuracy after every epoch. ``progress``: epoch lines to stderr;
     ``guard_factor``, ``guard_window``: the update guard's spike rule (``train_readout``)."""
-    from bptsb_ros.tasks.mnist_readout import ReadoutSpec, ReadoutSystem, accuracy, train_readout
+    from bptsb_ros.tasks.readout import ReadoutSpec, ReadoutSystem, accuracy, train_readout
 
     model = ReadoutSystem(ReadoutSpec(shape=shape, nodes=nodes), seed)
     log = train_readout(model, train_x, train_y, epochs=epochs, batch=BATCH, seed=seed, test=(test_x, test_y),

@@ -259,7 +259,7 @@ def _short(shape: str) -> str:
 
 def systems() -> list[tuple[str, str, int, object]]:
     """(brain, shape, N_mov, SystemSpec) of the eight systems."""
-    from bptsb_ros.tasks.mnist_drawing import SystemSpec
+    from bptsb_ros.tasks.drawing import SystemSpec
 
     return [(b, shape, n, SystemSpec(brain=b, shape=shape, nodes=body_nodes(shape, n)))
             for shape, n in BODIES for b in BRAINS]
@@ -276,7 +276,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.analysis.separation import label_spread
     from bptsb_ros.experiments.experiment_settings import resolve_settings
     from bptsb_ros.tasks.digits import load_targets
-    from bptsb_ros.tasks.mnist_drawing import SystemSpec, evaluate_drawing, load_system
+    from bptsb_ros.tasks.drawing import SystemSpec, evaluate_drawing, load_system
 
     per_digit, epochs, grid = ctx.settings["per_digit"], ctx.settings["epochs"], ctx.settings["grid"]
     data = load_data(ctx, None, 0)

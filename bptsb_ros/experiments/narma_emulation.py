@@ -3,7 +3,7 @@ Methods "Time-series emulation task").
 
 Four systems, {LIL, MLP} × {double-circle, multiple-circle} with N_mov = 17 each, are trained by BPTSB to make the
 CMP's y emulate the expanded NARMA2 target (u ~ U(0, 1), forces from 20·u, τ = 20 steps). Each training is an
-independent job (``bptsb_ros.sweep``). The error is the NMSE of the CMP's y on a long held-out input sequence
+independent job (``bptsb_ros.jobs.sweep``). The error is the NMSE of the CMP's y on a long held-out input sequence
 (after a washout). The paper lists the errors in a figure table that is not in our text, with two statements,
 computed here:
 
@@ -107,7 +107,7 @@ def run(ctx: Context) -> None:
         narma_overrides,
         run_jobs,
     )
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
     from bptsb_ros.tasks.narma import nmse
 
     epochs, eval_inputs, washout = ctx.settings["epochs"], ctx.settings["eval_inputs"], ctx.settings["washout"]

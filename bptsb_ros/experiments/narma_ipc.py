@@ -211,7 +211,7 @@ def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.timeseries_plots import IpcPanel, plot_ipc_panels
     from bptsb_ros.experiments.timeseries import NarmaJob, ablation_variants, load_states, narma_overrides, run_jobs
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     stages, eval_inputs = ctx.settings["stages"], ctx.settings["eval_inputs"]
     if not stages or stages[0] != 0 or list(stages) != sorted(set(stages)):

@@ -38,9 +38,9 @@ from bptsb_ros.experiments.result import (
     Row,
     write_result,
 )
-from bptsb_ros.rundir_lock import LOCK_NAME, dir_is_empty, hold_run_dir
-from bptsb_ros.runner import Placement
-from bptsb_ros.safe_files import UnsafeFileError, write_atomic
+from bptsb_ros.files.run_dir_lock import LOCK_NAME, dir_is_empty, hold_run_dir
+from bptsb_ros.files.safe_write import UnsafeFileError, write_atomic
+from bptsb_ros.jobs.runner import Placement
 
 #: modules holding experiments, in the order of the paper
 MODULES: tuple[str, ...] = (
@@ -85,7 +85,7 @@ class Context:
     out_dir: Path
     result: ExperimentResult
     progress: bool = True
-    #: where independent trainings run (:mod:`bptsb_ros.runner`): local worker processes (None: the CPUs
+    #: where independent trainings run (:mod:`bptsb_ros.jobs.runner`): local worker processes (None: the CPUs
     #: available, at smoke scale this process; 0: this process) or a Dask scheduler address
     workers: int | None = None
     scheduler: str | None = None
@@ -111,7 +111,7 @@ class Context:
         """``fn(*args)`` for every ``args`` of ``jobs`` where :meth:`placement` says (one BLAS and torch thread
         each); results in job order; a failure raises ``JobFailed`` naming the job. ``what`` names the batch in
         the provenance, which records where the jobs ran (default: the function's name)."""
-        from bptsb_ros.runner import run_jobs
+        from bptsb_ros.jobs.runner import run_jobs
 
         what = what or getattr(fn, "__name__", "jobs")
         placement = self.placement()
@@ -122,14 +122,14 @@ class Context:
         return results
 
     def sweep(self, jobs: Sequence[Any], out_dir: Path, *, what: str = "jobs", gangs: bool = False) -> Any:
-        """Run ``jobs`` (``bptsb_ros.sweep.Job``) as a resumable sweep in ``out_dir`` where :meth:`placement`
+        """Run ``jobs`` (``bptsb_ros.jobs.sweep.Job``) as a resumable sweep in ``out_dir`` where :meth:`placement`
         says; progress lines go to :attr:`log`; the provenance records where they ran. Returns the
         ``SweepResult`` (failed jobs are in its records, not raised).
 
-        ``gangs``: the jobs run as one gang per worker (:mod:`bptsb_ros.gang`, their held-force windows as one
+        ``gangs``: the jobs run as one gang per worker (:mod:`bptsb_ros.jobs.gang`, their held-force windows as one
         batched simulation): runs of ⌈jobs / workers⌉ consecutive jobs, so jobs of one body next to each other
         share a gang."""
-        from bptsb_ros.sweep import run_sweep
+        from bptsb_ros.jobs.sweep import run_sweep
 
         placement = self.placement()
         n_gangs = self.slots(len(jobs)) if gangs and jobs else None
@@ -150,7 +150,7 @@ class Context:
     def slots(self, jobs: int) -> int:
         """How many of ``jobs`` jobs run at once where :meth:`placement` says (≥ 1): the local pool's processes,
         or on a cluster (whose worker count is unknown before connecting) ``--workers``, else the local CPUs."""
-        from bptsb_ros.runner import cpus
+        from bptsb_ros.jobs.runner import cpus
 
         placement = self.placement()
         return max(1, (placement.workers or cpus()) if placement.scheduler else placement.pool_size(jobs))
@@ -188,7 +188,7 @@ class Context:
         """Where a run of ``experiment`` beside this one lies, for the same seed: ``OUT/../EXPERIMENT`` for a
         single run, ``OUT/../../EXPERIMENT/seed-N`` when this run is seed N of a multi-seed run
         (``bptsb reproduce --seeds``). The path may not exist; what lies there is checked by whoever reads it."""
-        from bptsb_ros.experiments.seeds import in_multi_seed_run
+        from bptsb_ros.experiments.seed_dirs import in_multi_seed_run
 
         here = self.out_dir
         if in_multi_seed_run(here):
@@ -317,7 +317,7 @@ def execute_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_di
                        split: str = "auto", settings: Overrides | None = None) -> tuple[Path, ExperimentResult]:
     """Run one experiment and write ``out_dir/result.json``; returns (its path, the result).
 
-    ``workers``/``scheduler`` say where experiments with independent trainings run them (``bptsb_ros.sweep``);
+    ``workers``/``scheduler`` say where experiments with independent trainings run them (``bptsb_ros.jobs.sweep``);
     ``data_dir`` and ``split`` are passed to experiments that read a data set (MNIST). A non-empty ``out_dir``
     (an earlier run) is kept unless ``force``, which removes it first, and only if it is an earlier run (it holds
     :data:`RUN_MARKER`); a failed run writes no result.json. ``resume`` continues such an unfinished run in place

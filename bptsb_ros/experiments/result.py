@@ -90,6 +90,12 @@ class Claim:
         return cls(claim, None, premise)
 
 
+def all_not_testable(claims: list[Claim], reason: str) -> list[Claim]:
+    """The same claims (same texts), every one not testable because ``reason``: the claims of a system whose training
+    diverged, so a seed where it did keeps its place among the seeds (∅ for it) instead of losing the run."""
+    return [Claim.not_testable(c.claim, reason) for c in claims]
+
+
 @dataclass
 class ExperimentResult:
     experiment: str
@@ -328,8 +334,8 @@ def write_result(out_dir: Path, result: ExperimentResult) -> Path:
 
 def write_json_result(out_dir: Path, data: dict[str, Any]) -> Path:
     """Validate ``data`` (a single-seed or aggregate result) and write it as ``out_dir/result.json`` atomically, as a
-    regular file only (:func:`~bptsb_ros.safe_files.write_atomic`)."""
-    from bptsb_ros.safe_files import write_atomic
+    regular file only (:func:`~bptsb_ros.files.safe_write.write_atomic`)."""
+    from bptsb_ros.files.safe_write import write_atomic
 
     validate_result(data, str(out_dir / RESULT_FILE))
     return write_atomic(out_dir / RESULT_FILE, json.dumps(data, indent=2, allow_nan=False) + "\n")

@@ -2,7 +2,7 @@
 
 One run is one draw: trainings at the paper's rates amplify rounding, so a verdict read off one seed is a coin
 flip. :func:`run_seeds` runs one experiment per seed as independent jobs of the one runner (a local process
-pool or a Dask cluster; :mod:`bptsb_ros.runner`), each seed in ``OUT/seed-N/`` with its own ``result.json``
+pool or a Dask cluster; :mod:`bptsb_ros.jobs.runner`), each seed in ``OUT/seed-N/`` with its own ``result.json``
 exactly as ``--seed N`` would write it, then writes the aggregate ``OUT/result.json``
 (:func:`~bptsb_ros.experiments.result.validate_aggregate` gives its schema):
 
@@ -22,7 +22,6 @@ does not stop the others, and the run then exits naming the failed seeds, with n
 from __future__ import annotations
 
 import json
-import re
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -39,78 +38,13 @@ from bptsb_ros.experiments.result import (
     read_result,
     validate_result,
 )
-
-#: written into a multi-seed run's directory: what the run is (experiment, scale, settings), for --resume
-SEEDS_MARKER = ".bptsb-seeds.json"
-#: the largest seed accepted (seeds derive further seeds, e.g. 1000 · seed + agent for the locomotion agents)
-MAX_SEED = 1_000_000
-_RANGE = re.compile(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?")
-
-
-class SeedsError(ValueError):
-    """A seeds list that cannot be read, or a multi-seed run that cannot go on; one line for the user."""
-
-
-def seed_dir_name(seed: int) -> str:
-    """The folder of seed ``seed`` inside a multi-seed run: ``seed-N``."""
-    return f"seed-{seed}"
-
-
-def in_multi_seed_run(out_dir: Path) -> bool:
-    """``out_dir`` is a seed's folder (``seed-N``) inside a multi-seed run."""
-    return bool(re.fullmatch(r"seed-\d+", out_dir.name)) and (out_dir.parent / SEEDS_MARKER).is_file()
-
-
-def sibling_run_dirs(out_dir: Path) -> list[Path]:
-    """The runs beside ``out_dir`` that may share trained systems with it: for a seed's folder of a multi-seed run,
-    the same seed's folder of every other run beside that run (``OUT/../*/seed-N``); else every directory beside
-    ``out_dir`` (``OUT/../*``). Whether one is a run, and whose, is for the reader to check."""
-    here = Path(out_dir)
-    try:
-        if in_multi_seed_run(here):
-            return [p / here.name for p in sorted(here.parent.parent.iterdir())
-                    if p != here.parent and p.is_dir() and (p / here.name).is_dir()]
-        return [p for p in sorted(here.parent.iterdir()) if p != here and p.is_dir()]
-    except OSError:
-        return []
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``"0-9"``, ``"0,3,5"`` or ``"0-4,7"`` → the seeds, in the order given, each once (SeedsError otherwise)."""
-    if not isinstance(text, str) or not text.strip():
-        raise SeedsError("--seeds needs seeds like 0-9 or 0,3,5")
-    seeds: list[int] = []
-    for part in text.split(","):
-        m = _RANGE.fullmatch(part)
-        if not m:
-            raise SeedsError(f"--seeds: {part.strip()[:40]!r} is not a seed or a range like 0-9")
-        lo = int(m.group(1))
-        hi = int(m.group(2)) if m.group(2) is not None else lo
-        if hi < lo:
-            raise SeedsError(f"--seeds: the range {lo}-{hi} runs backwards")
-        if hi > MAX_SEED:
-            raise SeedsError(f"--seeds: seeds go up to {MAX_SEED}, got {hi}")
-        if len(seeds) + hi - lo + 1 > MAX_SEEDS:
-            raise SeedsError(f"--seeds: at most {MAX_SEEDS} seeds")
-        seeds.extend(range(lo, hi + 1))
-    if len(set(seeds)) != len(seeds):
-        dup = next(s for s in seeds if seeds.count(s) > 1)
-        raise SeedsError(f"--seeds: seed {dup} is listed twice")
-    return seeds
-
-
-def format_seeds(seeds: Sequence[int]) -> str:
-    """The shortest ``--seeds`` text for ``seeds`` (``[0, 1, 2, 5]`` → ``"0-2,5"``)."""
-    parts, i = [], 0
-    seeds = list(seeds)
-    while i < len(seeds):
-        j = i
-        while j + 1 < len(seeds) and seeds[j + 1] == seeds[j] + 1:
-            j += 1
-        parts.append(str(seeds[i]) if i == j else f"{seeds[i]}-{seeds[j]}")
-        i = j + 1
-    return ",".join(parts)
-
+from bptsb_ros.experiments.seed_dirs import (
+    MAX_SEED,
+    SEEDS_MARKER,
+    SeedsError,
+    format_seeds,
+    seed_dir_name,
+)
 
 # ----------------------------------------------------------------------------------------------- aggregation
 
@@ -272,7 +206,7 @@ def seed_state(seed_dir: Path, *, experiment: str, scale: str, seed: int,
     """``"finished"`` (a valid result.json of this experiment, scale, seed and settings), ``"unfinished"`` (a
     reproduce run without one: resume it) or ``"new"``; SeedsError for a folder that is none of these."""
     from bptsb_ros.experiments.registry import RUN_MARKER
-    from bptsb_ros.rundir_lock import dir_is_empty
+    from bptsb_ros.files.run_dir_lock import dir_is_empty
 
     if seed_dir.is_symlink() or (seed_dir.exists() and not seed_dir.is_dir()):
         raise SeedsError(f"{seed_dir} is not a directory of this run")
@@ -300,7 +234,7 @@ def plan_placement(parallel: bool, workers: int | None, scheduler: str | None, s
     worker; locally an experiment whose run spreads several trainings over ``--workers`` (``parallel``) takes the
     seeds one after another, each with every worker, and any other runs its seeds side by side in the pool, each
     in one process — so the cores stay busy either way (at smoke scale everything runs in this process)."""
-    from bptsb_ros.runner import Placement
+    from bptsb_ros.jobs.runner import Placement
 
     if scheduler:
         return Placement(None, scheduler), 0
@@ -334,7 +268,7 @@ def run_seeds(name: str, seeds: Sequence[int], *, scale: str = "smoke", out_dir:
         base_provenance,
         get_experiment,
     )
-    from bptsb_ros.rundir_lock import dir_is_empty, hold_run_dir
+    from bptsb_ros.files.run_dir_lock import dir_is_empty, hold_run_dir
 
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     exp = get_experiment(name)
@@ -436,7 +370,7 @@ def _run_seed_jobs(name: str, todo: list[int], states: Mapping[int, str], out: P
                    inner: int | None, scheduler: str | None, progress: bool,
                    log: Callable[[str], None]) -> dict[int, str]:
     """Run the seeds ``todo``; returns seed → error text for those that failed (empty: all finished)."""
-    from bptsb_ros.runner import connect_placement, run_calls
+    from bptsb_ros.jobs.runner import connect_placement, run_calls
 
     if not todo:
         return {}
@@ -475,7 +409,8 @@ def _figures(out: Path, seeds: Sequence[int], per_seed: Sequence[Mapping[str, An
 
     figs: list[str] = []
     try:
-        figs.append(plot_seed_summary(out / "seeds.png", per_seed, seeds).name)
+        figs.append(plot_seed_summary(out / "seeds.png", aggregate_claims(per_seed), seeds,
+                                      per_seed[0]["experiment"] if per_seed else "").name)
         hook = _SEED_FIGURES.get(per_seed[0]["experiment"])
         for path in hook(out, per_seed, seeds) if hook else []:
             figs.append(Path(path).relative_to(out).as_posix())

@@ -74,7 +74,7 @@ class NarmaJob:
     def __call__(self, run_dir: Path) -> dict[str, Any]:
         from bptsb_ros.agent import build_agent
         from bptsb_ros.training.checkpoint import load_agent
-        from bptsb_ros.training.trainer import train
+        from bptsb_ros.workflows.train import train
 
         one_torch_thread()
         out: dict[str, Any] = {"seed": self.seed}
@@ -116,7 +116,8 @@ class NarmaJob:
     def record(self, agent: Any, cfg: Any, run_dir: Path, epochs: int, out: dict[str, Any]) -> None:
         """Run ``agent`` (trained ``epochs``) on the held-out input: ``out["nmse_<epochs>"]`` and
         ``run_dir/states_<epochs>.npz``."""
-        from bptsb_ros.tasks.narma import NarmaTask, narma_inputs, nmse
+        from bptsb_ros.sim.inputs import narma_inputs
+        from bptsb_ros.tasks.narma import NarmaTask, nmse
 
         u = narma_inputs(self.eval_seed, self.eval_inputs)
         task = NarmaTask(agent, cfg)
@@ -124,7 +125,7 @@ class NarmaJob:
         target = task.target(u)
         cmp_y = pos[:, agent.body.cmp_local, 1]
         out[f"nmse_{epochs}"] = nmse(cmp_y[self.washout:], target[self.washout:])
-        from bptsb_ros.safe_files import atomic_writer
+        from bptsb_ros.files.safe_write import atomic_writer
 
         with atomic_writer(run_dir / f"states_{epochs}.npz") as f:
             np.savez(f, u=u, positions=pos, target=target, movable=agent.body.topology.movable,
@@ -134,7 +135,7 @@ class NarmaJob:
 @dataclass(frozen=True)
 class NarmaPopulationJob:
     """Train :class:`NarmaJob` s of one topology (one training stage each) as one population
-    (:mod:`bptsb_ros.training.population`: their episodes one batched simulation, each member's numbers its solo
+    (:mod:`bptsb_ros.workflows.population`: their episodes one batched simulation, each member's numbers its solo
     training's to rounding). Member ``name`` gets the directory ``run_dir/name`` a :class:`NarmaJob` writes;
     returns ``{name: that job's result}``, for a member that diverged ``{"diverged": "TrainingDiverged: …"}``
     (:func:`run_jobs` treats it as a failed training)."""
@@ -143,7 +144,7 @@ class NarmaPopulationJob:
 
     def __call__(self, run_dir: Path) -> dict[str, Any]:
         from bptsb_ros.training.checkpoint import load_agent
-        from bptsb_ros.training.population import train_population
+        from bptsb_ros.workflows.population import train_population
 
         one_torch_thread()
         for name, job in self.members:
@@ -173,7 +174,7 @@ def population_jobs(jobs: list[Any], chunks: int) -> tuple[list[Any], dict[str, 
     """Group ``NarmaJob`` sweep jobs of equal body (config, overrides other than the delay and target) into
     ``chunks`` :class:`NarmaPopulationJob` s per body, of consecutive jobs. Returns the new jobs and each
     member's job name (member → population), for :func:`job_dir`."""
-    from bptsb_ros.sweep import Job
+    from bptsb_ros.jobs.sweep import Job
 
     by_body: dict[tuple, list[Any]] = {}
     for job in jobs:
@@ -200,7 +201,7 @@ def job_dir(sweep_dir: Path, name: str, populations: dict[str, str] | None = Non
 
 def run_jobs(ctx: Any, jobs: list[Any], out_dir: Path, diverged_ok: bool = False,
              gangs: bool = False) -> dict[str, dict[str, Any]]:
-    """Run independent jobs (``bptsb_ros.sweep.Job``) as a resumable sweep in ``out_dir``, where the run's
+    """Run independent jobs (``bptsb_ros.jobs.sweep.Job``) as a resumable sweep in ``out_dir``, where the run's
     ``--workers`` / ``--scheduler`` say (``ctx``: the experiment's ``Context``, :meth:`Context.sweep`; ``gangs``:
     one gang of trainings per worker, their episodes one batched simulation). Every failure is an error, except,
     with ``diverged_ok``, a training that diverged: its result is ``{"diverged": message}`` (SGD can blow a system

@@ -35,6 +35,8 @@ import torch
 
 from bptsb_ros.body.live_step import SOUND, LiveStep, state_arrays
 from bptsb_ros.body.msdn import BodyState, SimulationDiverged
+from bptsb_ros.interface.params import ParameterError, ParamValue
+from bptsb_ros.interface.topics import dt_to_ns, mass_dof_names, spring_names
 from bptsb_ros.live.body_params import (
     LISTED_PERTURBATIONS,
     MAX_PENDING_PERTURBATIONS,
@@ -54,8 +56,6 @@ from bptsb_ros.live.safety import (
 from bptsb_ros.live.sim_control import ControlCall, SimControl
 from bptsb_ros.live.step_times import StepTimes
 from bptsb_ros.live.summary import summary_text
-from bptsb_ros.ros.params import ParameterError, ParamValue
-from bptsb_ros.ros.topics import dt_to_ns, mass_dof_names, spring_names
 from bptsb_ros.sim.perturbation import perturbation
 
 #: the sources whose commands are stamped with the step they are in force at (``wait_for`` may name them)

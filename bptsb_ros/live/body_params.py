@@ -1,7 +1,7 @@
 """Parameters of the live body (``body_sim``), ROS-free: their specs (:data:`PARAMS`, declared by the node and
 read by :class:`~bptsb_ros.live.body_core.BodyCore`) and the checks that turn some of them into steps.
 
-The specs are plain :class:`~bptsb_ros.ros.params.Param` records (no rclpy); ``docs/ros`` and the node's
+The specs are plain :class:`~bptsb_ros.interface.params.Param` records (no rclpy); ``docs/ros`` and the node's
 ``--help`` list them.
 """
 
@@ -9,6 +9,16 @@ from __future__ import annotations
 
 import math
 
+from bptsb_ros.interface.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, Param, ParameterError
+from bptsb_ros.interface.source import SOURCE_PARAMS
+from bptsb_ros.interface.topics import (
+    BODY_INPUTS,
+    BODY_OUTPUTS,
+    COMMAND_SOURCES,
+    DEFAULT_QOS_DEPTH,
+    RECORDER_ACK,
+    TOPICS,
+)
 from bptsb_ros.live.channels import MODES
 from bptsb_ros.live.safety import (
     DEFAULT_CONTROL_CALLERS,
@@ -17,9 +27,6 @@ from bptsb_ros.live.safety import (
     DEFAULT_PERTURB_PUBLISHERS,
     DIVERGENCE_POLICIES,
 )
-from bptsb_ros.ros.agent_source import SOURCE_PARAMS
-from bptsb_ros.ros.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, Param, ParameterError
-from bptsb_ros.ros.topics import BODY_INPUTS, BODY_OUTPUTS, COMMAND_SOURCES, DEFAULT_QOS_DEPTH, RECORDER_ACK, TOPICS
 
 NODE = "body_sim"
 #: furthest ahead [steps] a perturbation may be stamped, and the most that may wait at once

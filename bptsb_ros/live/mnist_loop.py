@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from bptsb_ros.ros.params import ParamValue
+from bptsb_ros.interface.params import ParamValue
 
 LOOP = "mnist_drawing"
 #: launch arguments of the loop besides the common ones: name -> (default, description)
@@ -58,7 +58,7 @@ def plan_stream(agent: str, images: str, labels: str, first: int = 0, count: int
     starts) and resolve ``count`` (0: all from ``first``) and ``episode_steps`` (0: the default of the system's
     time step). Raises StreamError naming the argument."""
     from bptsb_ros.data.mnist import MnistError
-    from bptsb_ros.tasks.mnist_drawing import DigitTargets
+    from bptsb_ros.tasks.drawing import DigitTargets
     from bptsb_ros.tasks.mnist_live import SystemFileError, load_system_as, read_stream
 
     if not agent:

@@ -27,13 +27,11 @@ from typing import Generic, Literal, TypeVar
 
 import numpy as np
 
-#: Brains of this package that publish each command source (the default ``command_publishers``).
-DEFAULT_PUBLISHERS: dict[str, tuple[str, ...]] = {
-    "rest_length": ("swg_brain", "feedback_brain"),
-    "force": ("mlp_brain",),
-    "wind": ("wind_source",),  # only when body_sim awaits a synchronised (stamped) wind: wait_for contains wind
-    "reset": ("mnist_brain",),  # body/reset: initial displacements of a released body (loop mnist_drawing)
-}
+from bptsb_ros.interface.nodes import command_publishers
+
+#: Brains of this package that publish each command source (the default ``command_publishers``), from the node
+#: table (:data:`bptsb_ros.interface.nodes.NODES`, each node's ``commands``).
+DEFAULT_PUBLISHERS: dict[str, tuple[str, ...]] = command_publishers()
 #: Default publishers allowed to perturb the body (``perturb_publishers``): any node. A perturbation is a test the
 #: user runs (``ros2 topic pub``, a script), bounded by ``max_displacement``; list node names to restrict it.
 DEFAULT_PERTURB_PUBLISHERS: tuple[str, ...] = ("*",)

@@ -63,7 +63,7 @@ class StepTimes:
         arrays["period"] = np.array(period, dtype=np.float64)
         for key, value in (meta or {}).items():
             arrays[f"meta_{key}"] = np.array(str(value))
-        from bptsb_ros.safe_files import atomic_writer
+        from bptsb_ros.files.safe_write import atomic_writer
 
         with atomic_writer(path) as out:
             np.savez(out, **arrays)
@@ -71,10 +71,10 @@ class StepTimes:
 
 def load_step_times(path: str | Path, meta: tuple[str, ...] = ("executor",)) -> dict[str, Any]:
     """The records of a timing file (:meth:`StepTimes.save`): one float64 array per field of :data:`FIELDS`,
-    ``period`` (float) and the ``meta`` strings present. Read with :func:`bptsb_ros.safe_npz.load_npz` (bounded,
+    ``period`` (float) and the ``meta`` strings present. Read with :func:`bptsb_ros.files.npz.load_npz` (bounded,
     no pickles); raises ``NpzError`` or ValueError (columns of unequal length, a non-positive period) naming the
     file."""
-    from bptsb_ros.safe_npz import load_npz
+    from bptsb_ros.files.npz import load_npz
 
     limit = MAX_RECORDS * 8 * (len(FIELDS) + 1)
     arrays = load_npz(path, (*FIELDS, "period"), max_bytes=limit)

@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from bptsb_ros.safe_files import write_atomic
+from bptsb_ros.files.safe_write import write_atomic
 
 
 def write_summary(path: str | Path, summary: Mapping[str, Any]) -> None:

@@ -18,7 +18,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from bptsb_ros.ros.topics import TOPICS, absolute
+from bptsb_ros.interface.topics import TOPICS, absolute
 
 #: the body's frame at the root namespace (``body_sim``'s ``frame_id`` default)
 BODY_FRAME = "msdn"
@@ -69,7 +69,7 @@ def write_viewer_configs(out_dir: str | Path, namespace: str) -> list[Path]:
     only: one that exists is left as it is); returns the paths written."""
     import json
 
-    from bptsb_ros.package_data import config_dir
+    from bptsb_ros.files.package_data import config_dir
 
     out, src = Path(out_dir), config_dir()
     texts = {}

@@ -12,13 +12,12 @@ semantics in :mod:`bptsb_ros.live.sim_control`), each call reported on ``/diagno
 from __future__ import annotations
 
 import gc
-import math
 import sys
 import time
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, Vector3Stamped
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -27,15 +26,14 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from bptsb_ros.body.msdn import BodyState
-from bptsb_ros.live.body_core import BodyCore, Event, StepOutput
+from bptsb_ros.interface.topics import RECORDER_ACK, absolute, stamp_to_step
+from bptsb_ros.live.agent_source import load_source
+from bptsb_ros.live.body_core import BodyCore, Event
 from bptsb_ros.live.body_loop import BodyLoop
 from bptsb_ros.live.body_params import (
     PARAMS,
     PUBLISHED,
-    SLOW_OUTPUTS,
     SUBSCRIBED,
-    UNKNOWN_NODE,
     parse_wait_for_subscribers,
     set_fifo_priority,
     set_fifo_priority_of_other_threads,
@@ -43,10 +41,10 @@ from bptsb_ros.live.body_params import (
 from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.agent_source import load_source
+from bptsb_ros.ros.body_graph import BodyGraph
+from bptsb_ros.ros.body_outputs import WARM_UP_TOPIC, BodyOutputs
 from bptsb_ros.ros.cdr_in import JointStateReader
-from bptsb_ros.ros.params import declare_parameters
-from bptsb_ros.ros.raw_out import RawTemplate, TemplateError
+from bptsb_ros.ros.declare_params import declare_parameters
 from bptsb_ros.ros.runtime import (
     EXIT_FAILURE,
     EXIT_OK,
@@ -58,15 +56,8 @@ from bptsb_ros.ros.runtime import (
     run_node,
     wait_acked,
 )
-from bptsb_ros.ros.topics import RECORDER_ACK, absolute, stamp_to_step
 
 NODE = "body_sim"
-#: periods of ``diagnostics_period`` after which the loop status is published whatever the slack
-DIAGNOSTICS_OVERDUE = 5
-#: seconds after which the publishers of an input topic are looked up in the graph again (same publisher count)
-GRAPH_PERIOD = 0.5
-#: the hidden topic (nothing subscribes to it, recorders skip it) on which a realtime body rehearses publishing
-WARM_UP_TOPIC = "~/_warm_up"
 #: (key, message type) of every topic the body publishes
 OUTPUTS = (("clock", Clock), ("positions", PoseArray), ("mass_states", JointState), ("spring_lengths", JointState),
            ("rest_length", JointState), ("external_force", JointState), ("markers", MarkerArray),
@@ -77,7 +68,7 @@ INPUTS = (("rest_length", JointState, "rest_length_cmd"), ("force", JointState, 
           ("reset", JointState, "reset_cmd"))
 
 
-class BodySim(Node):
+class BodySim(BodyOutputs, BodyGraph, Node):
     """The body simulator node; :meth:`run` integrates until done or stopped and returns the exit code."""
 
     def __init__(self, stop: StopFlag) -> None:
@@ -145,20 +136,6 @@ class BodySim(Node):
                                                           tuple(untrusted))
         return res
 
-    def _service_clients(self, name: str, wait: float = 1.0) -> list[tuple[str, str]]:
-        """(namespace, node name) of every client of ``~/<name>``: the writers of its request topic (DDS name
-        ``rq<service>Request``), waiting up to ``wait`` seconds while the graph has not named one yet (a client that
-        stays unnamed is reported as such, and so not allowed)."""
-        service = next(s for s in self.control_services if s.service_name.endswith(f"/{name}"))
-        topic = f"rq{service.service_name}Request"
-        deadline = time.monotonic() + wait
-        while True:
-            clients = [(i.node_namespace, i.node_name)
-                       for i in self.get_publishers_info_by_topic(topic, no_mangle=True)]
-            if all(n != UNKNOWN_NODE for _, n in clients) or time.monotonic() > deadline:
-                return clients
-            time.sleep(0.02)
-
     # -- intake: messages -> core ------------------------------------------------------------------------------
     def _on_input(self, source: str, msg: bytes | Vector3Stamped) -> None:
         """A message on ``source``'s topic, as values stamped with a step, to the core (with the graph's verdict on
@@ -191,44 +168,6 @@ class BodySim(Node):
         self.core.recorder_ack(m.step_of(msg.clock, self.dt_ns),
                                self.core.recorder.rule.untrusted(self._publisher_names(self.ack_sub.topic_name)))
 
-    def _untrusted(self, source: str, now: float) -> list[str]:
-        """Publishers on ``source``'s topic that its publisher rule does not allow; the graph is queried again when
-        the publisher count changes, and at least every ``GRAPH_PERIOD`` s (at once while a node name is still
-        unknown). A realtime body leaves the periodic query to the slack after a step (:meth:`_refresh_graph`; a
-        query takes 0.3 ms, at times over a millisecond), unless it is ``DIAGNOSTICS_OVERDUE`` periods late."""
-        count = self.subs[source].get_publisher_count()
-        cached = self._intruders.get(source)
-        if cached is None or cached[0] != count:
-            return self._query_untrusted(source, count, now)
-        age = now - cached[1]
-        if age > GRAPH_PERIOD:
-            if self.p["mode"] != "realtime" or age > DIAGNOSTICS_OVERDUE * GRAPH_PERIOD:
-                return self._query_untrusted(source, count, now)
-            self._graph_due.add(source)
-        return cached[2]
-
-    def _query_untrusted(self, source: str, count: int, now: float) -> list[str]:
-        names = self._publisher_names(self.subs[source].topic_name)
-        cached = (count, now if UNKNOWN_NODE not in {n for _, n in names} else -math.inf,
-                  self.core.publisher_rules[source].untrusted(names))
-        self._intruders[source] = cached
-        self._graph_due.discard(source)
-        return cached[2]
-
-    def _refresh_graph(self, slack: float) -> None:
-        """Query the graph for one source whose periodic query :meth:`_untrusted` left for later, when ``slack``
-        (seconds until the next step is due) exceeds twice what a query took lately (a slowly decaying maximum)."""
-        if not self._graph_due or slack < self._graph_cost:
-            return
-        source = self._graph_due.pop()
-        began = time.monotonic()
-        self._query_untrusted(source, self.subs[source].get_publisher_count(), began)
-        self._graph_cost = max(0.9 * self._graph_cost, 2 * (time.monotonic() - began))
-
-    def _publisher_names(self, topic: str) -> list[tuple[str, str]]:
-        """(namespace, node name) of every publisher on ``topic`` (``UNKNOWN_NODE`` while DDS has not named it)."""
-        return [(i.node_namespace, i.node_name) for i in self.get_publishers_info_by_topic(topic)]
-
     # -- BodyPort: what the loop needs ------------------------------------------------------------------------
     def stopped(self) -> bool:
         return bool(self.stop)
@@ -254,178 +193,7 @@ class BodySim(Node):
     def log(self, level: str, text: str) -> None:
         log_line(self.get_logger(), level, text)
 
-    def _templates(self) -> dict[str, RawTemplate]:
-        """Pre-serialized messages of the per-step outputs (:mod:`bptsb_ros.ros.raw_out`): the builders' layouts
-        with stamps and values rewritten each step; an output that cannot be templated keeps message objects."""
-        from rclpy.serialization import deserialize_message
-
-        ns, frame, core, n = self.dt_ns, self.p["frame_id"], self.core, self.body.topology.n_masses
-        e, dof = len(core.spring_names), len(core.dof_names)
-        colors = m.mass_colors(self.fixed, self.body.topology.cmp_index)
-        builders = {
-            "clock": (lambda k: m.clock_msg(k, ns), []),
-            "positions": (lambda k, r: m.pose_array(k, ns, r, frame), [(n, 2)]),
-            "mass_states": (lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r, velocity=v,
-                                                             effort=f, frame_id=frame), [(dof,)] * 3),
-            "spring_lengths": (lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), [(e,)]),
-            "rest_length": (lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), [(e,)]),
-            "external_force": (lambda k, f: m.joint_state(k, ns, core.dof_names, effort=f, frame_id=frame), [(dof,)]),
-            "markers": (lambda k, r, ends, rgba: m.markers_of(k, ns, r, ends, rgba, colors, frame, self.mass_diameter),
-                        [(n, 2), (2 * e, 2), ((2 * e, 4), "float32")]),
-        }
-        out = {}
-        for key, (build, shapes) in builders.items():
-            try:
-                out[key] = RawTemplate(build, shapes, deserialize_message, ns)
-            except TemplateError as err:
-                self.get_logger().warning(f"{key}: publishing message objects ({err})")
-        return out
-
-    def _publish(self, key: str, msg: Any) -> None:
-        self.pubs[key].publish(msg)
-        self.core.count_published(self.topic_names[key])
-
-    def _out(self, key: str, step: int, build: Any, *arrays: np.ndarray) -> None:
-        """Publish output ``key`` of ``step``: its template's bytes, else ``build(step, *arrays)``."""
-        raw = self.raw.get(key)
-        self._publish(key, raw.render(step, *arrays) if raw is not None else build(step, *arrays))
-
-    def rehearse(self, state: BodyState | None) -> None:
-        """The step after ``state`` computed and thrown away, ``body/positions`` and ``/clock`` rendered and the
-        positions sent on a hidden topic of this node that nothing subscribes to (rclpy's and the middleware's
-        publishing code, without a subscriber to deliver to), so that the next real step finds them in the caches."""
-        self.core.rehearse(state)
-        if self._warm is None:
-            self._warm = self.create_publisher(PoseArray, WARM_UP_TOPIC, 1)
-        positions, clock = self.raw.get("positions"), self.raw.get("clock")
-        step = state.step if state is not None else 0
-        if clock is not None:
-            clock.render(step)
-        self._warm.publish(positions.render(step, self.layout) if positions is not None else
-                           m.pose_array(step, self.dt_ns, self.layout, self.p["frame_id"]))
-
-    def announce(self, step: int) -> None:
-        self._out("clock", step, lambda k: m.clock_msg(k, self.dt_ns))
-
-    def publish(self, out: StepOutput, views: bool = True) -> None:
-        """The state of one step on the body's topics (and its perturbation, if any, first): ``body/positions``
-        every step, the topics that say it again (:data:`~bptsb_ros.live.body_params.SLOW_OUTPUTS`) every
-        ``state_every`` steps (:meth:`_slow_due`) or, those in ``every_step``, every step; markers every
-        ``marker_every`` steps. ``views`` False: only what the loop's nodes read (the perturbation, the positions,
-        the ``every_step`` topics); :meth:`publish_views` sends the rest."""
-        k, ns, frame, core = out.state.step, self.dt_ns, self.p["frame_id"], self.core
-        if out.perturbation is not None:
-            self._publish("perturbation", m.joint_state(k, ns, core.dof_names, position=out.perturbation,
-                                                        frame_id=frame))
-        r = out.arrays()[0]
-        full = self.layout.copy()
-        full[self.movable] = r
-        self._out("positions", k, lambda k, r: m.pose_array(k, ns, r, frame), full)
-        self._state_topics(out, full, read=True, views=views)
-
-    def publish_views(self, out: StepOutput) -> None:
-        """What :meth:`publish` with ``views`` False left out of ``out``'s step: the thinned state topics that no
-        node of the loop reads, and the markers (for viewers and the bag)."""
-        full = self.layout.copy()
-        full[self.movable] = out.arrays()[0]
-        self._state_topics(out, full, read=False, views=True)
-
-    def _state_topics(self, out: StepOutput, full: np.ndarray, read: bool, views: bool) -> None:
-        """The slower state topics due at ``out``'s step (``read``: those of ``every_step``, which nodes of the loop
-        read; ``views``: the others) and, with ``views``, the markers; ``full``: the positions of all masses (N, 2)."""
-        k, ns, frame, core, p = out.state.step, self.dt_ns, self.p["frame_id"], self.core, self.p
-        r, v, a, length, rest, force = out.arrays()
-        every = p["every_step"]
-        due = {key: on and (views if key not in every else read) for key, on in self._slow_due(k).items()}
-        markers = views and k % p["marker_every"] == 0
-        if due["mass_states"]:
-            self._out("mass_states", k, lambda k, r, v, f: m.joint_state(k, ns, core.dof_names, position=r,
-                                                                         velocity=v, effort=f, frame_id=frame),
-                      r.reshape(-1), v.reshape(-1), m.effort_from_acceleration(a, core.mass))
-        if due["spring_lengths"]:
-            self._out("spring_lengths", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), length)
-        if due["rest_length"]:
-            self._out("rest_length", k, lambda k, x: m.joint_state(k, ns, core.spring_names, position=x), rest)
-        if due["external_force"]:
-            f = np.zeros(2 * self.body.n_movable) if force is None else force.reshape(-1)
-            self._out("external_force", k, lambda k, f: m.joint_state(k, ns, core.dof_names, effort=f,
-                                                                      frame_id=frame), f)
-        if markers:
-            strain = length / np.maximum(rest, 1e-12) - 1.0
-            if "markers" in self.raw:
-                rgba = np.repeat(m.strain_colors(strain), 2, axis=0)
-                self._out("markers", k, None, full, full[self.springs.reshape(-1)], rgba)
-            else:
-                self._publish("markers", m.body_markers(k, ns, full, self.springs, self.fixed,
-                                                        self.body.topology.cmp_index, strain, frame,
-                                                        self.mass_diameter))
-
-    def _slow_due(self, step: int) -> dict[str, bool]:
-        """Which of the slower state topics go out at ``step``: those in ``every_step``, and each of the others once
-        every ``state_every`` steps, at steps 2, 4, 6, 8 (mod ``state_every``) in the order of
-        :data:`~bptsb_ros.live.body_params.SLOW_OUTPUTS` — spread out, and beside the markers (steps 0 and 5 mod
-        ``marker_every`` = 5), so that no step sends more than one message beyond its state and ``/clock``."""
-        n, every = self.p["state_every"], self.p["every_step"]
-        return {key: key in every or step % n == (2 * i + 2) % n for i, key in enumerate(SLOW_OUTPUTS)}
-
-    def diagnostics(self, force: bool = False, error: str = "", slack: float = math.inf) -> None:
-        """Publish the loop status every ``diagnostics_period`` (or now when ``force`` or ``error``).
-
-        The work (the summary with its percentiles, then the message) takes a good fraction of a millisecond, more
-        than a 1 kHz realtime body has to spare after a step: with ``slack`` (seconds until the next step is due)
-        it is done in two parts, each in a turn whose slack exceeds twice what that part took lately (a slowly
-        decaying maximum), and in any case once it is ``DIAGNOSTICS_OVERDUE`` periods late."""
-        self._refresh_graph(slack)
-        now = time.monotonic()
-        if not force and not error:
-            if now < self.next_diagnostics:
-                return
-            overdue = now - self.next_diagnostics > DIAGNOSTICS_OVERDUE * self.p["diagnostics_period"]
-            if self._pending_status is None:
-                if slack < self._diagnostics_cost[0] and not overdue:
-                    return
-                began = time.monotonic()
-                self._pending_status = self.core.status(self.core.summary())
-                self._diagnostics_cost[0] = max(0.9 * self._diagnostics_cost[0], 2 * (time.monotonic() - began))
-                now = time.monotonic()
-                slack -= now - began
-            if slack < self._diagnostics_cost[1] and not overdue:
-                return
-            began = now
-            self._status(*self._pending_status)
-            self._diagnostics_cost[1] = max(0.9 * self._diagnostics_cost[1], 2 * (time.monotonic() - began))
-        else:
-            self._status(*self.core.status(self.core.summary(), error))
-        self._pending_status = None
-        self.next_diagnostics = now + self.p["diagnostics_period"]
-
-    def _status(self, level: str, message: str, values: list[tuple[str, str]], name: str = "loop") -> None:
-        """Publish one DiagnosticStatus ``<node>: <name>`` stamped with the sim time of the last step."""
-        status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), name=f"{self.get_name()}: {name}",
-                                  hardware_id=self.body.topology.name, message=message,
-                                  values=[KeyValue(key=k, value=v) for k, v in values])
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = m.stamp(self.core.stats.steps, self.dt_ns)
-        self._publish("diagnostics", msg)
-
     # -- run ---------------------------------------------------------------------------------------------------
-    def _startup_missing(self) -> list[str]:
-        """What the first step still waits for: a publisher (with its node name known) on every awaited source's
-        topic, the listed subscribers, the recorder's acknowledgements."""
-        waited = [self.subs[s] for s in self.core.wait_sources]
-        missing = [f"a publisher on {s.topic_name}" for s in waited if s.get_publisher_count() < 1]
-        missing += [f"the node names of the publishers on {s.topic_name}" for s in waited
-                    if any(name == UNKNOWN_NODE for _, name in self._publisher_names(s.topic_name))]
-        missing += [f"{n} subscriber(s) on {t} (have {have})" for t, n in self.wait_subscribers
-                    if (have := self._subscriber_count(t)) < n]
-        if self.ack_sub is not None and self.ack_sub.get_publisher_count() < 1:
-            missing.append(f"the recorder's acknowledgements on {self.ack_sub.topic_name}")
-        return missing
-
-    def _subscriber_count(self, topic: str) -> int:
-        pub = self._own.get(absolute(topic, self.get_namespace()))  # our own publisher's count, if it is ours
-        return pub.get_subscription_count() if pub else self.count_subscribers(topic)
-
     def run(self) -> int:
         self.loop.wait_startup(self._startup_missing)
         for source in self.subs:  # the first command of each source then finds its publishers looked up

@@ -26,15 +26,17 @@ from rclpy.subscription import Subscription
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
+from bptsb_ros.interface.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, OnChange, Param, ParameterError
+from bptsb_ros.interface.source import SOURCE_PARAMS
+from bptsb_ros.interface.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns, stamp_to_step
+from bptsb_ros.live.agent_source import load_source
 from bptsb_ros.live.channels import RunningStats
 from bptsb_ros.live.newest import IDLE_SPINS, Newest, pump
 from bptsb_ros.ros import messages as m
-from bptsb_ros.ros.agent_source import SOURCE_PARAMS, load_source
 from bptsb_ros.ros.cdr_in import stamp_ns
-from bptsb_ros.ros.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, OnChange, Param, ParameterError, declare_parameters
+from bptsb_ros.ros.declare_params import declare_parameters
 from bptsb_ros.ros.raw_out import RawTemplate, TemplateError
 from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle, executor_kind, make_executor
-from bptsb_ros.ros.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns, stamp_to_step
 
 COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),

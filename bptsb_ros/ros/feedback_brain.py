@@ -3,7 +3,7 @@
 (the function ``FeedbackLayer.rest_length`` applies offline to ``state_features`` of the body state).
 
 The state comes from ``body/positions`` (state type ``spring_length``, the default: the spring lengths computed from
-the mass positions as the body computes them, ``live.feedback.spring_lengths``) or ``body/mass_states``
+the mass positions as the body computes them, ``live.feedback_loop.spring_lengths``) or ``body/mass_states``
 (``position``, ``velocity``, ``acceleration`` = effort / mass, see ``messages.acceleration_from_effort``; the
 launchers have the body publish it every step). With
 ``open_loop_steps`` = W > 0 the SWG drives steps 0…W (answering ``/clock``) and the feedback layer
@@ -28,13 +28,13 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
-from bptsb_ros.live.feedback import FeedbackCommands
+from bptsb_ros.interface.params import Param, ParameterError
+from bptsb_ros.interface.topics import feedback_state_key, mass_dof_names, spring_names, stamp_to_step
+from bptsb_ros.live.feedback_loop import FeedbackCommands
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.cdr_in import JointStateReader, PoseArrayReader
-from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import feedback_state_key, mass_dof_names, spring_names, stamp_to_step
 
 NODE = "feedback_brain"
 PARAMS = (

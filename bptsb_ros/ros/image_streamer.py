@@ -17,9 +17,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image, JointState
 
 from bptsb_ros.data.mnist import MnistError
+from bptsb_ros.interface.params import Param, ParameterError
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
-from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.tasks.mnist_live import IMAGE_SIDE, default_episode_steps, read_stream, shown_image
 

@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from bptsb_ros.ros.topics import stamp_to_step, step_to_stamp
+from bptsb_ros.interface.topics import stamp_to_step, step_to_stamp
 
 
 def state_qos(depth: int) -> QoSProfile:

@@ -17,13 +17,13 @@ from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import LinearInputLayer, MLPBrain
 from bptsb_ros.brains.inference import ForceMap
+from bptsb_ros.interface.params import Param, ParameterError
+from bptsb_ros.interface.topics import input_names, mass_dof_names, stamp_to_step
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.cdr_in import JointStateReader
-from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import input_names, mass_dof_names, stamp_to_step
-from bptsb_ros.tasks.narma import brain_input
+from bptsb_ros.sim.inputs import brain_input
 
 NODE = "mlp_brain"
 PARAMS = (

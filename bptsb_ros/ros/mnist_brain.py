@@ -17,12 +17,12 @@ import numpy as np
 import torch
 from sensor_msgs.msg import Image, JointState
 
+from bptsb_ros.interface.params import ParameterError
+from bptsb_ros.interface.topics import mass_dof_names
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
-from bptsb_ros.ros.params import ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import mass_dof_names
-from bptsb_ros.tasks.mnist_drawing import ImageToBody
+from bptsb_ros.tasks.drawing import ImageToBody
 from bptsb_ros.tasks.mnist_live import IMAGE_SIDE, pixels
 
 NODE = "mnist_brain"

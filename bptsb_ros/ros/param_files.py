@@ -11,20 +11,13 @@ import importlib
 import sys
 from pathlib import Path
 
-from bptsb_ros.ros.params import render_params_yaml
-from bptsb_ros.safe_files import write_atomic
+from bptsb_ros.files.safe_write import write_atomic
+from bptsb_ros.interface.nodes import NODES as ALL_NODES
+from bptsb_ros.interface.params import render_params_yaml
 
-#: node name -> module holding its ``PARAMS`` (brains also get COMMON_PARAMS)
-NODES: dict[str, str] = {
-    "body_sim": "bptsb_ros.ros.body_sim",
-    "swg_brain": "bptsb_ros.ros.swg_brain",
-    "feedback_brain": "bptsb_ros.ros.feedback_brain",
-    "mlp_brain": "bptsb_ros.ros.mlp_brain",
-    "task_input": "bptsb_ros.ros.task_input",
-    "wind_source": "bptsb_ros.ros.wind_source",
-    "image_streamer": "bptsb_ros.ros.image_streamer",
-    "mnist_brain": "bptsb_ros.ros.mnist_brain",
-}
+#: node name -> module holding its ``PARAMS`` (brains also get COMMON_PARAMS): the node table's nodes with a params
+#: file (:data:`bptsb_ros.interface.nodes.NODES`)
+NODES: dict[str, str] = {node.name: node.module for node in ALL_NODES if node.params_file}
 SIM_TIME = ("use_sim_time", True, "brains run on the body's /clock (sim time)")
 
 

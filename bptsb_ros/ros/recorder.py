@@ -71,7 +71,8 @@ from bptsb_ros.bags.recording import (
     take_round,
 )
 from bptsb_ros.bags.writer import BagWriter
-from bptsb_ros.ros.params import ParameterError, declare_parameters
+from bptsb_ros.interface.params import ParameterError
+from bptsb_ros.ros.declare_params import declare_parameters
 from bptsb_ros.ros.runtime import exit_process, ignore_stop_signals, unblock_interrupt
 from bptsb_ros.ros.take import GidTaker, TakenInfo, batch_executor_class, gid_take_problem, rclpy_take
 

@@ -29,7 +29,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
-    from bptsb_ros.ros.params import Param
+    from bptsb_ros.interface.params import Param
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -105,7 +105,7 @@ def install_stop_handlers(stop: StopFlag) -> None:
 def node_help(name: str, params: Sequence[Param], summary: str = "") -> str:
     """``<node> --help``: usage, what the node does and every parameter with its default, whether it can be
     changed live (``ros2 param set``) and its constraints."""
-    from bptsb_ros.ros.params import describe, yaml_value
+    from bptsb_ros.interface.params import describe, yaml_value
 
     lines = [f"usage: ros2 run bptsb_ros {name} [--help] [--ros-args -p NAME:=VALUE ... "
              f"[--params-file config/{name}_params.yaml]]", ""]
@@ -165,7 +165,7 @@ def run_node(name: str, factory: Callable[[StopFlag], LiveNode], args: list[str]
     """Init rclpy with ``args`` (``--ros-args ...``; default ``sys.argv``), build the node, run it, clean up.
 
     ``--help`` prints ``params`` and exits 0; other non-ROS arguments exit 2 (:func:`check_cli`).
-    ``factory`` raises :class:`~bptsb_ros.ros.params.ParameterError` for bad parameters (exit 2).
+    ``factory`` raises :class:`~bptsb_ros.interface.params.ParameterError` for bad parameters (exit 2).
     """
     argv = sys.argv[1:] if args is None else list(args)
     code = check_cli(name, argv, params, summary)
@@ -176,7 +176,7 @@ def run_node(name: str, factory: Callable[[StopFlag], LiveNode], args: list[str]
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    from bptsb_ros.ros.params import ParameterError
+    from bptsb_ros.interface.params import ParameterError
 
     stop = StopFlag()
     install_stop_handlers(stop)

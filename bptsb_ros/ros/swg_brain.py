@@ -15,11 +15,11 @@ from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
 from bptsb_ros.brains.inference import SwgTable
+from bptsb_ros.interface.params import ParameterError
+from bptsb_ros.interface.topics import spring_names
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
-from bptsb_ros.ros.params import ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import spring_names
 
 NODE = "swg_brain"
 PARAMS = topic_params(("clock", "rest_length_cmd"))

@@ -16,13 +16,13 @@ import time
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
+from bptsb_ros.interface.params import Param, ParameterError
+from bptsb_ros.interface.topics import input_names
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
-from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
-from bptsb_ros.ros.topics import input_names
+from bptsb_ros.sim.inputs import narma_inputs
 from bptsb_ros.sim.rollout import held_inputs
-from bptsb_ros.tasks.narma import narma_inputs
 
 NODE = "task_input"
 PARAMS = (

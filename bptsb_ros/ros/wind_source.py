@@ -19,10 +19,10 @@ from dataclasses import fields
 from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 
+from bptsb_ros.interface.params import Param, ParameterError
 from bptsb_ros.live.safety import DEFAULT_MAX_WIND
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
-from bptsb_ros.ros.params import Param, ParameterError
 from bptsb_ros.ros.runtime import StopFlag, run_node
 from bptsb_ros.sim.wind_schedule import KINDS, WindSchedule, WindScheduleError, for_agent, read_table
 

@@ -18,9 +18,9 @@ import torch
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.brains import SineWaveGenerator
+from bptsb_ros.sim.inputs import brain_input, narma_inputs
 from bptsb_ros.sim.rollout import held_inputs, simulate_closed_loop, simulate_open_loop
 from bptsb_ros.sim.trajectory import Trajectory, trajectory_from_rollout
-from bptsb_ros.tasks.narma import brain_input, narma_inputs
 
 Loop = Literal["open", "closed"]
 

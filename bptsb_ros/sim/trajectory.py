@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bptsb_ros.safe_files import atomic_writer
+from bptsb_ros.files.safe_write import atomic_writer
 
 if TYPE_CHECKING:
     from bptsb_ros.body.msdn import MSDN

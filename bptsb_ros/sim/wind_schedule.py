@@ -6,12 +6,12 @@ the body; so a live run under a schedule equals the offline one. Kinds:
 
 * ``constant``: ``force`` at every step.
 * ``periodic``: calm for the first half of every ``period`` [s], ``force`` for the second half (the locomotion
-  headwind, :func:`bptsb_ros.tasks.locomotion.wind_blowing`); ``period`` 0: always blowing.
+  headwind, :func:`bptsb_ros.sim.inputs.wind_blowing`); ``period`` 0: always blowing.
 * ``switching``: the paper's behavioural-switching wind (supplement "Behavioral switching", "Switching timing"):
   calm and blowing segments in turn; a segment ends h SWG periods (``period`` [s]; h uniform in ``hold_periods``)
   after the start of the period it began in, plus n/100 of a period, n random (``timing`` "random"), 0 ("fixed")
   or a given n — so every switch is at phase n/100 of the SWG period (t_wind = t0 + (2π/ω)·n/100); seeded by
-  ``seed`` (:func:`bptsb_ros.tasks.lissajous_switching.wind_schedule`, which the switching training uses).
+  ``seed`` (:func:`bptsb_ros.sim.inputs.wind_schedule`, which the switching training uses).
 * ``file``: a piecewise-constant table from a CSV file with the header ``t,fx,fy`` (t [s] ascending, forces
   [N]): the row with the largest t ≤ k·dt is in force at step k (up to 10⁻⁶ of a step of rounding); calm before
   the first row.
@@ -113,7 +113,7 @@ class WindSchedule:
         if self.kind == "constant":
             return np.ones(steps + 1)
         if self.kind == "periodic":
-            from bptsb_ros.tasks.locomotion import wind_blowing
+            from bptsb_ros.sim.inputs import wind_blowing
 
             return wind_blowing(k, dt, self.period).astype(np.float64)
         if self.kind == "switching":
@@ -152,7 +152,7 @@ class WindSchedule:
         if self.kind == "constant":
             return 1.0
         if self.kind == "periodic":
-            from bptsb_ros.tasks.locomotion import wind_blowing
+            from bptsb_ros.sim.inputs import wind_blowing
 
             return float(wind_blowing(np.array([step]), dt, self.period)[0])
         if self.kind == "switching":
@@ -162,7 +162,7 @@ class WindSchedule:
     def _switching(self, steps: int, dt: float) -> np.ndarray:
         """The switching pattern (at least steps + 1 long, not to be modified) for steps 0, 1, ...; drawn for a
         doubling horizon and cached (the draw is sequential, so a longer horizon has the same prefix)."""
-        from bptsb_ros.tasks.lissajous_switching import wind_schedule
+        from bptsb_ros.sim.inputs import wind_schedule
 
         cached = self._cache.get("switching")
         if cached is None or cached[0] != dt or len(cached[1]) <= steps:
@@ -190,7 +190,7 @@ def read_table(path: str | Path, max_force: float | None = None) -> tuple[tuple[
     the file and the problem (missing, not a regular file, over :data:`MAX_TABLE_BYTES`, unreadable, wrong header,
     bad number, t not ascending, too many rows, or a force component beyond ±``max_force`` [N] when given: the
     body's ``max_wind``, which would reject every wind of the run)."""
-    from bptsb_ros.safe_files import UnsafeFileError, read_regular
+    from bptsb_ros.files.safe_write import UnsafeFileError, read_regular
 
     path = Path(path)
     try:

@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from pathlib import Path
 from typing import Any
 
 import torch
 
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.adjoint import Window, rollout_window
+from bptsb_ros.body.clock import step_times
 from bptsb_ros.body.msdn import BodyState
 from bptsb_ros.config import ExperimentConfig
-from bptsb_ros.sim.clock import step_times
 from bptsb_ros.sim.rollout import swg_rest_lengths
 
 
@@ -32,6 +31,9 @@ class Task(ABC):
     #: True when the task runs each of its episodes as one compiled autograd node itself (``training.backend:
     #: fused``, e.g. the NARMA task's held-force window); the trainer then keeps its autograd update
     fused_episodes: bool = False
+    #: what the trainer's fused path (:mod:`bptsb_ros.training.fused`) offers this task: ``"lissajous"`` or
+    #: ``"locomotion"`` (its window fused with its loss), ``"episodes"`` (the task fuses its own episodes), or None
+    fused_window: str | None = None
 
     def __init__(self, agent: Agent, cfg: ExperimentConfig) -> None:
         self.agent = agent
@@ -56,11 +58,6 @@ class Task(ABC):
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         del state
-
-    def plots(self, out_dir: Path) -> list[Path]:
-        """Task figures written after training; returns the paths."""
-        del out_dir
-        return []
 
 
 class SwgWindowTask(Task):

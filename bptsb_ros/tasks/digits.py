@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bptsb_ros.safe_files import write_atomic
+from bptsb_ros.files.safe_write import write_atomic
 
 DATA_FILE = Path(__file__).with_name("digit_targets.json")
 #: digit height [m]: size/8 for the paper's size-4 bodies (the published scaling)

@@ -8,7 +8,6 @@ and the target over the window, state carried over detached. The SWG clock runs 
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -63,6 +62,7 @@ def windowed_shift_error(traj: np.ndarray, target_fn, t0: float, dt: float, peri
 
 class LissajousTask(SwgWindowTask):
     name = "lissajous"
+    fused_window = "lissajous"
     loss_label = "trajectory MSE [m²]"
     paper_reference = (
         "paper: double-circle N_mov=13, SWG, (α,β,δ)=(1,2,0), X=Y=size/20, update every 100 steps; "
@@ -114,19 +114,6 @@ class LissajousTask(SwgWindowTask):
 
     def _windowed_shift_error(self, traj: np.ndarray, t0: float, period: int) -> float:
         return windowed_shift_error(traj, self.target, t0, self.agent.body.dt, period)
-
-    def plots(self, out_dir: Path) -> list[Path]:
-        from bptsb_ros.analysis.plots import plot_lissajous
-
-        if not hasattr(self, "_eval"):
-            self.evaluate()
-        e = self._eval
-        path = out_dir / "lissajous.png"
-        curves = {"open loop (SWG)": e["open"]}
-        if "closed" in e:
-            curves["closed loop (FL), next run"] = e["closed"]
-        plot_lissajous(path, e["t"], curves, self.target(e["t"]))
-        return [path]
 
 
 def windowed_shift_error_batch(traj: np.ndarray, target: np.ndarray, period: int) -> np.ndarray:

@@ -13,24 +13,14 @@ target ramp was 0.002·t (``locomotion.target_slope: 0.002``; the paper: 0.004).
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from bptsb_ros.sim.inputs import wind_blowing
 from bptsb_ros.sim.rollout import Rollout, simulate_closed_loop, simulate_open_loop
 from bptsb_ros.tasks.base import SwgWindowTask
-
-
-def wind_blowing(steps: np.ndarray | torch.Tensor, dt: float, period: float) -> np.ndarray:
-    """Whether the periodic wind blows at the given steps: calm for the first half of every ``period`` [s],
-    blowing for the second half (t = step·dt); ``period`` 0: always blowing."""
-    t = np.asarray(steps, dtype=np.float64) * dt
-    if period <= 0:
-        return np.ones(t.shape, dtype=bool)
-    # a half-step margin keeps the switch on the intended step despite rounding of t / period
-    return np.mod(t + 0.5 * dt, period) >= 0.5 * period
 
 
 def forward_speed(v: torch.Tensor) -> torch.Tensor:
@@ -51,6 +41,7 @@ def rollout_speed(rollout: Rollout, dt: float) -> float:
 
 class LocomotionTask(SwgWindowTask):
     name = "locomotion"
+    fused_window = "locomotion"
     loss_label = "speed MSE [m²/s²]"
     paper_reference = (
         "paper: caterpillar 10 masses / 24 springs, SWG, target speed 0.004·t, update every 200 steps; "
@@ -136,15 +127,3 @@ class LocomotionTask(SwgWindowTask):
             out["closed_loop_success"] = bool(open_speed > 0 and closed_speed >= 0.7 * open_speed)
             self._eval["closed"] = forward_speed(closed.v[:, 0]).double().numpy()
         return out
-
-    def plots(self, out_dir: Path) -> list[Path]:
-        from bptsb_ros.analysis.plots import plot_speed
-
-        if not hasattr(self, "_eval"):
-            self.evaluate()
-        e = self._eval
-        labels = {"open": "open loop (SWG)", "closed": "closed loop (FL), next run"}
-        path = out_dir / "speed.png"
-        plot_speed(path, e["t"], {labels[k]: v for k, v in e.items() if k != "t"}, self.target_speed_now(),
-                   window=self.block)
-        return [path]

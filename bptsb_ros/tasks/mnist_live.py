@@ -1,8 +1,8 @@
 """The live "see a digit, draw it" loop (``bptsb launch mnist_drawing``), ROS-free: what its nodes compute.
 
-* An MNIST system file (written by :func:`bptsb_ros.tasks.mnist_drawing.save_system`) is an *agent* of the live
+* An MNIST system file (written by :func:`bptsb_ros.tasks.drawing.save_system`) is an *agent* of the live
   nodes: :func:`system_agent` wraps its body and the whole :class:`ImageToBody` (as the brain) so that every node
-  of the loop gets the same body in the same dtype (``agent_source.load_source`` calls it).
+  of the loop gets the same body in the same dtype (``live.agent_source.load_source`` calls it).
 * Episodes have a fixed length of ``episode_steps`` E steps (default :func:`default_episode_steps`: the longest
   digit target's steps + 1). Image i of the stream is shown at step k_i = i·E (:func:`shown_image`); the body is
   reset at k_i to the image's displacement and released, and draws for E steps (rows k_i..k_i + E − 1), which is
@@ -24,7 +24,7 @@ from bptsb_ros.data.mnist import MnistError, read_idx
 
 if TYPE_CHECKING:
     from bptsb_ros.agent import Agent
-    from bptsb_ros.tasks.mnist_drawing import ImageToBody
+    from bptsb_ros.tasks.drawing import ImageToBody
 
 #: ``task`` of the agent :func:`system_agent` builds
 TASK = "mnist_drawing"
@@ -94,7 +94,7 @@ def is_system_file(path: str | Path) -> bool:
 def load_system_as(path: str | Path, dtype: torch.dtype = torch.float64) -> ImageToBody:
     """The system of ``path`` (a system file, or a run directory holding one: :func:`system_file`) in ``dtype``,
     parameters frozen. Raises :class:`SystemFileError` naming the file."""
-    from bptsb_ros.tasks.mnist_drawing import ImageToBody, SystemSpec
+    from bptsb_ros.tasks.drawing import ImageToBody, SystemSpec
 
     path = system_file(path) or Path(path)
     payload, why = _read_payload(path)
@@ -125,7 +125,7 @@ def system_agent(path: str | Path, dtype: torch.dtype = torch.float64) -> Agent:
 
 def default_episode_steps(dt: float) -> int:
     """E: the longest digit target's steps + 1, so that every digit's drawing fits in one episode."""
-    from bptsb_ros.tasks.mnist_drawing import DigitTargets
+    from bptsb_ros.tasks.drawing import DigitTargets
 
     return DigitTargets(dt).t_max + 1
 

@@ -11,7 +11,6 @@ whole episode (no truncation). The first ``washout`` samples are discarded, samp
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,6 +19,7 @@ import torch
 from bptsb_ros.agent import brain_forces
 from bptsb_ros.body.adjoint import rollout_window
 from bptsb_ros.body.held_window import held_force_readout, held_window_unsupported
+from bptsb_ros.sim.inputs import brain_input, narma_inputs
 from bptsb_ros.sim.rollout import held_inputs
 from bptsb_ros.tasks.base import Task
 
@@ -71,25 +71,6 @@ def delay_target(u: np.ndarray, delay: int) -> np.ndarray:
     return out
 
 
-def brain_input(u, narma_cfg: Any):
-    """The brain's input for task inputs u in [0, 1] (array or tensor): ``input_scale × u`` (``brain_input:
-    unit``, the paper's text) or ``input_scale × (2u − 1)`` (``symmetric``, the published code). A zero-bias ReLU
-    MLP is positively homogeneous, hence exactly linear on a non-negative input: only the symmetric input lets
-    an untrained MLP brain be nonlinear. ``narma_cfg``: the config's ``narma`` section (object or dict)."""
-    get = narma_cfg.get if isinstance(narma_cfg, dict) else lambda k, d=None: getattr(narma_cfg, k, d)
-    scale = float(get("input_scale", 20.0))
-    return scale * (2 * u - 1) if get("brain_input", "unit") == "symmetric" else scale * u
-
-
-def narma_inputs(seed: int, count: int) -> np.ndarray:
-    """(count,) inputs u ~ U(0, 1) from ``seed``; a longer series from the same seed extends a shorter one.
-
-    The held-out evaluation sequence is ``narma_inputs(narma.eval_seed, narma.n_inputs)``; the live
-    ``task_input`` node streams the same series.
-    """
-    return np.random.default_rng(seed).uniform(0.0, 1.0, count)
-
-
 def nmse(pred: np.ndarray, target: np.ndarray) -> float:
     """Normalised mean squared error: mean((pred − target)²) / var(target)."""
     return float(np.mean((pred - target) ** 2) / np.var(target))
@@ -97,6 +78,7 @@ def nmse(pred: np.ndarray, target: np.ndarray) -> float:
 
 class NarmaTask(Task):
     name = "narma"
+    fused_window = "episodes"
     loss_label = "output MSE [m²]"
     paper_reference = (
         "paper: double-circle N_mov=17, LIL or MLP brain, u~U(0,1) scaled to (0,20), τ=20 steps, output = y of "
@@ -182,17 +164,3 @@ class NarmaTask(Task):
             "nmse_of_constant_mean": 1.0,
             "paper_reference": self.paper_reference,
         }
-
-    def plots(self, out_dir: Path) -> list[Path]:
-        from bptsb_ros.analysis.plots import plot_series
-
-        if not hasattr(self, "_eval"):
-            self.evaluate()
-        e = self._eval
-        n = self.cfg.narma
-        path = out_dir / "narma.png"
-        title = (f"memory task Δt = {n.delay}" if n.target == "memory" else f"expanded NARMA{n.order}")
-        plot_series(path, {"input u": e["u"], "target y": e["y"], "output (CMP y)": e["out"]},
-                    "sample [τ steps]", "u [-]; target y, output (CMP y) [m]", title=f"{title}, held-out sequence",
-                    shade=(n.train_end, n.n_inputs))
-        return [path]

@@ -18,7 +18,7 @@ import torch
 
 from bptsb_ros.agent import Agent, build_agent
 from bptsb_ros.config import validate
-from bptsb_ros.safe_files import atomic_writer
+from bptsb_ros.files.safe_write import atomic_writer
 
 CHECKPOINT = "checkpoint.pt"
 

@@ -12,7 +12,7 @@ What it covers: the Lissajous single-curve task (``LissajousTask``: CMP position
 (``LocomotionTask``: the speed-block loss, its ramp or constant target, velocity after or before each step's
 update, the periodic headwind, the warm-up), with SGD (no momentum, weight decay, dampening or Nesterov) and the
 hand-derived adjoint, on CPU. The feedback layer of an SWG agent is fitted after training, outside every training
-window, so it does not stand in the way. Lissajous switching (``tasks.lissajous_switching.train_switching``, its
+window, so it does not stand in the way. Lissajous switching (``tasks.switching.train_switching``, its
 own loop) uses :class:`GivenTargetLoss`: its wind-dependent target and wind forces are written in before each
 window. The NARMA and memory tasks fuse their own episodes (``NarmaTask.fused_episodes``: the brain's forces once
 per input block, the body as one autograd node, :mod:`bptsb_ros.body.held_window`) and keep the optimiser's own
@@ -29,9 +29,9 @@ import numpy as np
 import torch
 
 from bptsb_ros.body import compile_notice
+from bptsb_ros.body.clock import steps_per_period
 from bptsb_ros.body.msdn import _NUMPY, MSDN, BodyState, SimulationDiverged
 from bptsb_ros.brains import SineWaveGenerator
-from bptsb_ros.sim.clock import steps_per_period
 from bptsb_ros.training import fused_kernel
 from bptsb_ros.training.fused_kernel import OUT_GRADS_OK, OUT_LOSS, OUT_STATE_OK, PARAMETERS
 
@@ -42,13 +42,11 @@ _SGD_DEFAULTS = {"momentum": 0, "dampening": 0, "weight_decay": 0, "nesterov": F
 def fused_unsupported(task, optimizer: torch.optim.Optimizer, *, adjoint: bool = True) -> str | None:
     """Why the fused path cannot train ``task`` with ``optimizer`` (one phrase), or None when it can."""
     from bptsb_ros.body.held_window import held_window_unsupported
-    from bptsb_ros.tasks.lissajous import LissajousTask
-    from bptsb_ros.tasks.locomotion import LocomotionTask
-    from bptsb_ros.tasks.narma import NarmaTask
 
-    if isinstance(task, NarmaTask):  # its episodes are fused by the task itself (``fused_episodes``) where they can be
+    kind = getattr(task, "fused_window", None)  # the task's capability (``Task.fused_window``), not its class
+    if kind == "episodes":  # its episodes are fused by the task itself (``fused_episodes``) where they can be
         return held_window_unsupported(task.agent.body, adjoint=adjoint) or "the NARMA task fuses its own episodes"
-    if type(task) not in (LissajousTask, LocomotionTask):
+    if kind not in ("lissajous", "locomotion"):
         return (f"it covers the Lissajous single-curve, locomotion and NARMA / memory tasks, not "
                 f"{getattr(task, 'name', type(task).__name__)!r}")
     if not adjoint:
@@ -287,11 +285,9 @@ class FusedSwgTraining:
     ``task.prepare``) and returns (loss, gradients finite); :meth:`step` updates."""
 
     def __init__(self, task, optimizer: torch.optim.Optimizer) -> None:
-        from bptsb_ros.tasks.lissajous import LissajousTask
-
         agent = task.agent
         loss: LissajousLoss | LocomotionLoss
-        if isinstance(task, LissajousTask):
+        if task.fused_window == "lissajous":
             lc, brain, body = agent.config["lissajous"], agent.config["brain"], agent.config["body"]
             amp = float(lc["amplitude_fraction"]) * float(body["size"])  # as tasks.lissajous.target_from_config
             loss = LissajousLoss(amp, amp, float(lc["alpha"]), float(lc["beta"]), float(lc["delta"]),

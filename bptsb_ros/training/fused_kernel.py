@@ -3,7 +3,7 @@
 The fused path of ``training.backend: fused`` (:mod:`bptsb_ros.training.fused`). Per window it does, without
 torch or autograd, what the numba path does through ~40 torch calls and the autograd engine:
 
-1. the SWG clock θ_t = ω·k_t·Δt from the integer step k_t (exactly :func:`bptsb_ros.sim.clock.clock_phase`:
+1. the SWG clock θ_t = ω·k_t·Δt from the integer step k_t (exactly :func:`bptsb_ros.body.clock.clock_phase`:
    k mod N times 2π/N in float64 when the period is N whole steps, else 2π·frac(k·c) in float64), sin θ and
    cos θ cast to the model dtype;
 2. the rest lengths l_te = l_e·(1 + m_e·A_e·(sin θ_t cos φ_e + cos θ_t sin φ_e)) (``SineWaveGenerator``,
@@ -85,7 +85,7 @@ def _swg_window_impl(r0, v0, a0, k, d, l, amp, phase, driven, first_step, kind, 
         for e in range(n_springs):
             s = amp[e] * (sin_t[t] * cph[e] + cos_t[t] * sph[e])
             row[e] = l[e] * (one + s * (one if driven[e] else zero))
-    if kind == LOCOMOTION and ext.shape[1] > 0:  # tasks.locomotion.wind_blowing: calm, then blowing, per period
+    if kind == LOCOMOTION and ext.shape[1] > 0:  # sim.inputs.wind_blowing: calm, then blowing, per period
         dt, wind, wind_period = target[3], target[6], target[7]
         for t in range(n_steps):
             tt = np.float64(first_step + 1 + t) * dt

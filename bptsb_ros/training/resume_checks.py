@@ -249,7 +249,7 @@ def check_resume_checkpoint(payload: Mapping[str, Any], agent: Any, task: Any, o
 
 
 def _shown(value: Any) -> str:
-    from bptsb_ros.safe_yaml import bounded_repr
+    from bptsb_ros.files.untrusted_yaml import bounded_repr
 
     return bounded_repr(value, 60)
 
