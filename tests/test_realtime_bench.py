@@ -297,7 +297,9 @@ def test_the_periodic_graph_query_of_a_realtime_body_waits_for_slack_and_not_for
     pytest.importorskip("rclpy")
     from types import SimpleNamespace
 
-    from bptsb_ros.ros.body_sim import DIAGNOSTICS_OVERDUE, GRAPH_PERIOD, BodySim
+    from bptsb_ros.ros.body_graph import GRAPH_PERIOD
+    from bptsb_ros.ros.body_outputs import DIAGNOSTICS_OVERDUE
+    from bptsb_ros.ros.body_sim import BodySim
 
     count, names, lookups = [1], [[("/", "feedback_brain")]], []
     rule = SimpleNamespace(untrusted=lambda found: [n for _, n in found if n != "feedback_brain"])
