@@ -24,7 +24,8 @@ def test_every_message_of_a_launched_bag_reads_with_rosbags_and_mcap_ros2(tmp_pa
 
     bag = tmp_path / "bag"
     out = bptsb(["launch", "lissajous_open", "--duration", "0.5", "--perturb-at", "0.2", "--perturb-sigma", "0.01",
-                 "--bag", str(bag)], ros_env)
+                 "--bag", str(bag), "--param", "body_sim:command_timeout:=30.0"],  # a slow brain start is no fault here
+                ros_env)
     assert out.returncode == 0, out.stdout[-4000:]
     expected = {t.name: t.message_count for t in bag_info(bag).topics if t.message_count}
     assert {"/clock", "/body/positions", "/body/mass_states", "/body/spring_lengths", "/body/rest_length",

@@ -131,7 +131,7 @@ def test_a_paused_launch_says_so_and_ends_after_pause_timeout(tmp_path, ros_env,
 
     bag = tmp_path / "bag"
     launch = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--duration", "60",
-                               "--bag", str(bag), "--param", "body_sim:pause_timeout:=3",
+                               "--bag", str(bag), "--param", "body_sim:pause_timeout:=8",  # notices at 1 s, 2 s, ...
                                "--param", "body_sim:pause_notice_period:=1"], env=env_for(ros_env), cwd=REPO,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     probe = Probe(ros_domain_id, CLI_CALLER)
@@ -144,9 +144,9 @@ def test_a_paused_launch_says_so_and_ends_after_pause_timeout(tmp_path, ros_env,
             launch.kill()
             launch.communicate()
     assert launch.returncode == 1, out[-3000:]
-    assert "no step is taken until ~/resume or ~/step is called; the run ends if it stays paused for 3 s" in out
+    assert "no step is taken until ~/resume or ~/step is called; the run ends if it stays paused for 8 s" in out
     assert "still paused after step" in out  # the notice repeats while paused
-    assert "for 3 s without ~/resume or ~/step (pause_timeout): ending the run" in out
+    assert "for 8 s without ~/resume or ~/step (pause_timeout): ending the run" in out
     summary = json.loads((tmp_path / "bag.launch" / "body_summary.json").read_text())
     assert summary["pause_expired"] is True and summary["steps"] < 6000  # the 60 s run did not finish
     calls = control_calls(bag)
