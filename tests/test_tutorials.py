@@ -16,7 +16,7 @@ TUTORIALS = REPO / "docs" / "tutorials"
 #: notebook → (its parameter, the value the test runs it with)
 SMALL = {"train_lissajous.ipynb": ("SIM_TIME", 100), "live_loop_bag_analysis.ipynb": ("DURATION", 40),
          "paper_result_figure.ipynb": ("RESULT", str(REPO / "reproduction" / "runs" / "lissajous-perturbation-paper"
-                                                      / "result.json"))}
+                                                      / "seed-0" / "result.json"))}
 
 
 def test_every_tutorial_is_run_here_and_is_in_the_site_navigation():
