@@ -17,10 +17,11 @@ DT_NS = 10_000_000
 STEPS = 8
 
 
-def test_an_untrusted_publisher_never_steers_the_body(tmp_path, ros_env, ros_domain_id):
+def test_an_untrusted_publisher_never_steers_the_body(tmp_path, fresh_ros):
     """The brain ``test_brain`` is the allowed publisher; from step 5 a node ``intruder`` stamps its own rest
     lengths for steps 5..10: none is integrated (the body runs on the brain's commands or the safe command). A
     perturbation sent on body/perturb at step 0 for step 3 is applied there (the topic's wiring)."""
+    ros_domain_id, ros_env = fresh_ros  # a domain no earlier test used: the graph shows only this run
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
 
@@ -136,11 +137,12 @@ def test_divergence_with_on_divergence_stop_ends_the_run_with_a_finalised_bag(tm
     assert any(s.level == DiagnosticStatus.ERROR and "step 20 diverged" in s.message for s in statuses)
 
 
-def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp_path, ros_env, ros_domain_id):
+def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp_path, fresh_ros):
     """A node named ``forger`` publishes /body/positions (all masses at (7, 7)) for every step of a lockstep run,
-    from the moment it sees the recorder (3 s of simulated time, so discovery under load leaves it many steps):
+    from the moment it sees the recorder (30 s of simulated time, so discovery under load leaves it many steps):
     the bag keeps its messages on a channel marked with its node and GID, next to the body's; replay uses only
     body_sim's, reports the forger's by name and count, and the replayed run equals the offline one."""
+    ros_domain_id, ros_env = fresh_ros  # a domain no earlier test used: the graph shows only this run
     import subprocess
     import sys
 
@@ -183,7 +185,7 @@ def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp
     # forged messages (144 of 301 once in CI) and the recording counts them as lost; that every message of the
     # body itself is in the bag is asserted below
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--agent", str(run),
-                             "--duration", "3", "--bag", str(bag), "--timeout", "120", "--allow-loss",
+                             "--duration", "30", "--bag", str(bag), "--timeout", "120", "--allow-loss",
                              "--param", f"body_sim:wait_for_subscribers:=[{', '.join(repr(w) for w in waits)}]"],
                             env=env_for(ros_env), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
@@ -197,15 +199,16 @@ def test_forged_body_positions_are_recorded_as_foreign_and_ignored_by_replay(tmp
     assert proc.returncode == 0, out[-4000:]
     metrics = replay(bag, tmp_path / "replay", run, gif=False)
     assert metrics["offline_comparison"]["max_abs_position_difference_m"] <= 1e-9  # the forged states are not used
-    assert metrics["recorded_steps"] == 301 and metrics["missing_steps"] == 0
+    assert metrics["recorded_steps"] == 3001 and metrics["missing_steps"] == 0
     from bptsb_ros.bags.reader import read_published
 
     by_node: dict[str, list[int]] = {}
     for (_, _, _, msg), publisher in read_published(bag, ["/body/positions"]):
         by_node.setdefault(publisher.name, []).append(m.step_of(msg.header.stamp, DT_NS))
-    assert sorted(by_node["/body_sim"]) == list(range(301))
+    assert sorted(by_node["/body_sim"]) == list(range(3001))
     # how many forged steps land depends on how soon the forger and the recorder match (24 of 301 once on a
-    # loaded CI machine): enough that a forged message was recorded among the body's, on several steps
+    # loaded CI machine; a lockstep loop now runs 301 steps in well under a second, so the run is 3,001 steps long
+    # to leave the recorder time to discover the forger): a forged message recorded among the body's, on several steps
     assert set(by_node) == {"/body_sim", "/forger"} and len(by_node["/forger"]) >= 10, {k: len(v) for k, v in
                                                                                        by_node.items()}
     with open(bag / "bag_0.mcap", "rb") as f:  # the forger's channel, read without our reader
