@@ -138,7 +138,8 @@ def test_mnist_drawing_live_equals_offline_and_replays(tmp_path, ros_env):
     system = write_system(tmp_path / "sys.pt")
     bag, e = tmp_path / "bag", 130
     out = bptsb(["launch", "mnist_drawing", "--agent", str(tmp_path / "sys.pt"), "--images", images, "--labels",
-                 labels, "--first", "1", "--count", "3", "--episode-steps", str(e), "--bag", str(bag)], ros_env)
+                 labels, "--first", "1", "--count", "3", "--episode-steps", str(e), "--bag", str(bag),
+                 "--param", "body_sim:command_timeout:=30.0"], ros_env)  # a slow start of the two nodes is no fault
     assert out.returncode == 0, out.stdout[-4000:]
     stamps, pos = bag_positions(bag)
     assert stamps.tolist() == [k * DT_NS for k in range(3 * e)], "steps missing, repeated or out of order"
