@@ -90,14 +90,19 @@ def ros_domain_id() -> int:
     return SESSION_DOMAIN_ID
 
 
+def _ros_subprocess_env(domain: int) -> dict[str, str]:
+    """A copy of the environment for ROS subprocesses on ``domain``, with localhost discovery."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(domain)
+    env.pop("ROS_STATIC_PEERS", None)
+    return env
+
+
 @pytest.fixture
 def ros_env() -> dict[str, str]:
     """A copy of the environment for ROS subprocesses: localhost discovery, this session's domain."""
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["ROS_DOMAIN_ID"] = str(SESSION_DOMAIN_ID)
-    env.pop("ROS_STATIC_PEERS", None)
-    return env
+    return _ros_subprocess_env(SESSION_DOMAIN_ID)
 
 
 #: A second private domain for tests that leave stale DDS participants behind (a SIGKILLed node stays
@@ -108,11 +113,7 @@ QUARANTINE_DOMAIN_ID = DOMAIN_ID_MIN + (SESSION_DOMAIN_ID - DOMAIN_ID_MIN + 50) 
 @pytest.fixture
 def quarantine_ros() -> tuple[int, dict[str, str]]:
     """(domain id, subprocess environment) of the quarantine domain."""
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["ROS_DOMAIN_ID"] = str(QUARANTINE_DOMAIN_ID)
-    env.pop("ROS_STATIC_PEERS", None)
-    return QUARANTINE_DOMAIN_ID, env
+    return QUARANTINE_DOMAIN_ID, _ros_subprocess_env(QUARANTINE_DOMAIN_ID)
 
 
 #: A third private domain that nothing else in the session uses: for tests that judge which publishers the graph
@@ -123,11 +124,7 @@ FRESH_DOMAIN_ID = DOMAIN_ID_MIN + (SESSION_DOMAIN_ID - DOMAIN_ID_MIN + 25) % (DO
 @pytest.fixture
 def fresh_ros() -> tuple[int, dict[str, str]]:
     """(domain id, subprocess environment) of the fresh domain."""
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["ROS_DOMAIN_ID"] = str(FRESH_DOMAIN_ID)
-    env.pop("ROS_STATIC_PEERS", None)
-    return FRESH_DOMAIN_ID, env
+    return FRESH_DOMAIN_ID, _ros_subprocess_env(FRESH_DOMAIN_ID)
 
 
 @pytest.fixture(autouse=True)
