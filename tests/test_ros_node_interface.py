@@ -352,6 +352,37 @@ def test_live_parameters_on_running_nodes(tmp_path, ros_env, ros_domain_id):
     assert body.returncode == 0 and brain.returncode == 0, body_log.read_text()[-2000:]
 
 
+def test_a_brain_publishes_only_once_it_hears_its_inputs(tmp_path, fresh_ros):
+    """swg_brain alone has no publisher on its command topic while nothing publishes ``/clock`` (and says why after
+    2 s); once a ``/clock`` publisher appears, its own does: the body's startup wait for a publisher on each command
+    topic then means the brain's ``/clock`` subscription has matched the body's publisher (a first tick sent before
+    that match is lost)."""
+    from rosgraph_msgs.msg import Clock
+
+    from bptsb_ros.ros import messages as m
+
+    domain, env = fresh_ros
+    log = tmp_path / "brain.log"
+    brain = start_node("swg_brain", {"task": "lissajous"}, env, log)
+    probe = Probe(domain, "clock_probe")
+    try:
+        _wait_for(log, "waiting for a publisher on /clock before publishing", brain, 90)
+        node = probe.node
+        assert probe.spin_until(lambda: node.count_subscribers("/clock") >= 1, 30)  # the probe sees the brain
+        assert not probe.spin_until(lambda: node.count_publishers("/brain/rest_length") > 0, 1.0)
+        node.create_publisher(Clock, "/clock", m.state_qos(10))
+        assert probe.spin_until(lambda: node.count_publishers("/brain/rest_length") == 1, 30)
+    finally:
+        probe.close()
+        brain.send_signal(signal.SIGINT)
+        try:
+            brain.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            brain.kill()
+            brain.wait()
+    assert brain.returncode == 0, log.read_text()[-2000:]
+
+
 # -- QoS of command topics ----------------------------------------------------------------------------------
 def test_late_joiner_of_a_command_topic_gets_no_backlog(ros_domain_id):
     """A subscriber that joins late with the QoS ``ros2 topic echo`` picks (the durability every publisher offers)

@@ -89,9 +89,10 @@ def _domain_env(domain: int) -> dict[str, str]:
     return env
 
 
-#: sim seconds of the lockstep launch: long enough (≥ 4 s of wall time at the ≤ 260 steps/s lockstep runs at) that
-#: the freeze, 0.5 s after the body runs, falls inside the run (at 3 s the body was once nearly done by then)
-LOCKSTEP_S = 10
+#: sim seconds of the lockstep launch: long enough that the freeze, 0.5 s after the body runs, falls inside the run
+#: on a fast machine too (lockstep ran 760 steps/s once, so a 10 s run was over before the freeze began), and short
+#: enough for a slow one (≈ 25 s of wall time at 260 steps/s)
+LOCKSTEP_S = 60
 LOCKSTEP_STEPS = LOCKSTEP_S * 100 + 1  # dt 0.01 s, the initial state included
 
 #: name → (domain, launch arguments after the bag, seconds the recorder is frozen)

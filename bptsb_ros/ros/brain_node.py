@@ -101,8 +101,34 @@ class BrainNode(Node):
         if emit:
             self.get_logger().warning(text + (f" ({held} similar suppressed)" if held else ""))
 
+    def await_inputs(self) -> None:
+        """Wait until every subscription of this node has a matched publisher, matched from this node's side.
+
+        Call it after creating the subscriptions and before the outputs. A publisher counts a subscriber as matched
+        (what ``body_sim``'s startup and ``min_subscribers`` wait for) once *its* side has discovered the reader;
+        the reader may match the publisher later, and a reliable volatile reader drops what was sent before that:
+        the body's first ``/clock`` tick, whose answer a lockstep body then waits for in vain. Outputs made only
+        after this wait tell the nodes downstream that this node hears its inputs (the body waits for a publisher
+        on every command topic it awaits, so the whole chain of a loop is connected before its first step). Ends
+        on stop, or after ``startup_timeout`` seconds (logged; the outputs are made anyway)."""
+        began = time.monotonic()
+        deadline, said = began + self.p["startup_timeout"], False
+        while not self.stop:
+            unheard = [s.topic_name for s in self.subscriptions if s.get_publisher_count() < 1]
+            if not unheard:
+                return
+            if not said and time.monotonic() > began + 2.0:
+                said = True
+                self.get_logger().info(f"waiting for a publisher on {', '.join(unheard)} before publishing")
+            if time.monotonic() > deadline:
+                self.get_logger().warning(f"no publisher on {', '.join(unheard)} after "
+                                          f"{self.p['startup_timeout']:g} s; publishing my outputs anyway")
+                return
+            time.sleep(0.005)
+
     def output(self, msg_type: type, topic: str, qos: Any) -> Publisher:
-        """Create a publisher whose messages are waited for (acknowledged) at shutdown."""
+        """Create a publisher whose messages are waited for (acknowledged) at shutdown (after
+        :meth:`await_inputs`)."""
         pub = self.create_publisher(msg_type, topic, qos)
         self.outputs.append(pub)
         return pub

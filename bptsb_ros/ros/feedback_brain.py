@@ -67,7 +67,6 @@ class FeedbackBrain(BrainNode):
         self.commands = FeedbackCommands(agent, self.open_loop, p["noise_seed"])
         self.names = spring_names(agent.body.topology.n_springs)
         self.state_type = agent.feedback.state_type
-        self.pub = self.output(JointState, p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.command = self.joint_state_out(self.names, "position")
         self.clock_sub = self.subscribe_newest(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth),
                                                raw=True)
@@ -80,6 +79,8 @@ class FeedbackBrain(BrainNode):
         else:
             self.reader = JointStateReader(mass_dof_names(agent.body.movable_index.tolist()))
             self.subscribe_newest(JointState, state_topic, self._on_state, m.state_qos(self.depth), raw=True)
+        self.await_inputs()  # then the outputs: their publishers tell the body this node hears its inputs
+        self.pub = self.output(JointState, p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.get_logger().info(f"feedback layer of {self.source_text()}: state {self.state_type} from {state_topic}, "
                                f"{len(self.names)} springs, open loop for steps 0..{self.open_loop}, gain "
                                f"{p['gain']:g}, noise σ {p['noise']:g}")

@@ -61,10 +61,11 @@ class ImageStreamer(BrainNode):
         self.episode_steps = p["episode_steps"] or default_episode_steps(self.agent.dt)
         self.frame = p["frame_id"]
         self.names = ["label"]
-        self.image_pub = self.output(Image, p["topics.image"], m.command_qos(self.depth))
-        self.label_pub = self.output(JointState, p["topics.label"], m.command_qos(self.depth))
         self.create_subscription(Clock, p["topics.clock"], self._on_clock, m.state_qos(self.depth), raw=True)
         self.feed_sim_time()
+        self.await_inputs()  # then the outputs: their publishers tell the body this node hears its inputs
+        self.image_pub = self.output(Image, p["topics.image"], m.command_qos(self.depth))
+        self.label_pub = self.output(JointState, p["topics.label"], m.command_qos(self.depth))
         self.get_logger().info(f"streaming {len(self.labels)} images from {p['images']} (first {p['first']}), one "
                                f"every {self.episode_steps} steps")
 

@@ -45,13 +45,14 @@ class MlpBrain(BrainNode):
                         else agent.brain.weight.shape[1])
         body = agent.body
         self.names = mass_dof_names(body.movable_index.tolist())
-        self.pub = self.output(JointState, self.p["topics.force_cmd"], m.command_qos(self.depth))
         self.command = self.joint_state_out(self.names, "effort")
         self.forces = ForceMap(agent)
         self.reader = JointStateReader(input_names(self.n_in))
         self.subscribe_newest(JointState, self.p["topics.task_input"], self._on_input, m.state_qos(self.depth),
                               raw=True)
         self.feed_sim_time()  # from the inputs' stamps
+        self.await_inputs()  # then the outputs: their publishers tell the body this node hears its inputs
+        self.pub = self.output(JointState, self.p["topics.force_cmd"], m.command_qos(self.depth))
         self.get_logger().info(f"{type(agent.brain).__name__} of {self.source_text()}: {self.n_in} input(s) × "
                                f"{self.scale:g} → forces on {body.n_movable} movable masses")
 

@@ -48,9 +48,10 @@ class MnistBrain(BrainNode):
                                  f"{self.source_text()} is a {self.agent.task} agent")
         self.system: ImageToBody = self.agent.brain
         self.names = mass_dof_names(self.system.body.movable_index.tolist())
-        self.pub = self.output(JointState, self.p["topics.reset_cmd"], m.command_qos(self.depth))
         self.create_subscription(Image, self.p["topics.image"], self._on_image, m.state_qos(self.depth))
         self.feed_sim_time()  # from the images' stamps
+        self.await_inputs()  # then the outputs: their publishers tell the body this node hears its inputs
+        self.pub = self.output(JointState, self.p["topics.reset_cmd"], m.command_qos(self.depth))
         self.get_logger().info(f"{self.system.spec.name}: images -> displacements of {self.system.n_driven} masses")
 
     def _on_image(self, msg: Image) -> None:

@@ -32,11 +32,12 @@ class SwgBrain(BrainNode):
             raise ParameterError(f"parameter 'agent': {self.source_text()} has a {type(self.agent.brain).__name__} "
                                  "brain; swg_brain needs an SWG agent (lissajous or locomotion)")
         self.names = spring_names(self.agent.body.topology.n_springs)
-        self.pub = self.output(JointState, self.p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.command = self.joint_state_out(self.names, "position")
         self.table = SwgTable(self.agent.body, self.agent.brain)
         self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth), raw=True)
         self.feed_sim_time()
+        self.await_inputs()  # then the outputs: their publishers tell the body this node hears its inputs
+        self.pub = self.output(JointState, self.p["topics.rest_length_cmd"], m.command_qos(self.depth))
         self.get_logger().info(f"SWG of {self.source_text()}: {len(self.names)} springs, "
                                f"ω = {self.agent.brain.omega:.6g} rad/s")
 

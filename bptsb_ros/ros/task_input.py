@@ -43,10 +43,11 @@ class TaskInput(BrainNode):
         self.tau = self.p["tau"] or int(cfg["narma"]["tau"])
         self._hold(int(cfg["narma"]["n_inputs"]))
         self.names = input_names(1)
-        self.pub = self.output(JointState, self.p["topics.task_input"], m.command_qos(self.depth))
         self.command = self.joint_state_out(self.names, "position")
         self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth), raw=True)
         self.feed_sim_time()
+        self.await_inputs()  # then the outputs: their publishers tell the body this node hears its inputs
+        self.pub = self.output(JointState, self.p["topics.task_input"], m.command_qos(self.depth))
         self.get_logger().info(f"NARMA input u ~ U(0, 1), seed {self.seed}, held {self.tau} steps")
 
     def _hold(self, n_inputs: int) -> None:

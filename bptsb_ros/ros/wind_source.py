@@ -111,9 +111,10 @@ class WindSource(BrainNode):
 
             extra = read_checkpoint(self.p["agent"])["extra"]
         self.schedule = schedule_from_parameters(self.agent.config, extra, self.p, self.agent.dt)
-        self.pub = self.output(Vector3Stamped, self.p["topics.wind"], m.command_qos(self.depth))
         self.subscribe_newest(Clock, self.p["topics.clock"], self._on_clock, m.state_qos(self.depth), raw=True)
         self.feed_sim_time()
+        self.await_inputs()  # then the outputs: their publishers tell the body this node hears its inputs
+        self.pub = self.output(Vector3Stamped, self.p["topics.wind"], m.command_qos(self.depth))
         self.get_logger().info(f"wind: {self.schedule.describe()}")
 
     def wind_at(self, step: int) -> tuple[float, float]:
