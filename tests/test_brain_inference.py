@@ -1,4 +1,4 @@
-"""The live brains' numpy inference (:mod:`bptsb_ros.brains.inference`) and the live body's compiled one-body step
+"""The live brains' numpy inference (:mod:`bptsb_ros.live.inference`) and the live body's compiled one-body step
 (:mod:`bptsb_ros.body.live_step`) against the torch code the offline simulation and training run: the same values
 (float64 brains to 1e-12, the SWG table and the body step bit for bit), and the spring lengths a feedback brain
 computes from published positions equal to the body's own."""
@@ -23,7 +23,7 @@ def _agent(task: str, **extra):
 
 @pytest.mark.parametrize("brain_type", ["mlp", "lil"])
 def test_force_map_equals_brain_forces(brain_type):
-    from bptsb_ros.brains.inference import ForceMap
+    from bptsb_ros.live.inference import ForceMap
 
     agent = _agent("narma", brain={"type": brain_type})
     if brain_type == "mlp":  # non-zero biases, so that a missing bias term would show
@@ -42,7 +42,7 @@ def test_force_map_equals_brain_forces(brain_type):
 
 
 def test_feedback_map_equals_the_layer_and_its_gain():
-    from bptsb_ros.brains.inference import FeedbackMap
+    from bptsb_ros.live.inference import FeedbackMap
 
     agent = _agent("lissajous")
     layer, base = agent.feedback, agent.body.l
@@ -61,7 +61,7 @@ def test_feedback_map_equals_the_layer_and_its_gain():
 
 
 def test_swg_table_is_the_offline_function_at_every_step():
-    from bptsb_ros.brains.inference import SWG_BLOCK, SwgTable
+    from bptsb_ros.live.inference import SWG_BLOCK, SwgTable
     from bptsb_ros.sim.rollout import swg_rest_lengths
 
     agent = _agent("lissajous")

@@ -47,11 +47,7 @@ ROS_LIBRARIES = ("rclpy", "launch", "launch_ros", "rosidl_runtime_py", "rosbag2_
 BAGS_MAY_USE = ("rclpy.serialization",)
 
 #: edges that break the rules today (importer → imported), each with its reason; shrink only
-ALLOWED = {
-    # the live brains' numpy inference builds its tables from the agent's and the SWG's torch code (in functions)
-    ("bptsb_ros.brains.inference", "bptsb_ros.agent"): "force_inputs of an agent",
-    ("bptsb_ros.brains.inference", "bptsb_ros.sim.rollout"): "swg_rest_lengths",
-}
+ALLOWED: dict[tuple[str, str], str] = {}
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """What ``feedback_brain`` commands, ROS-free: the closed loop body state at step k → rest lengths in force at step
 k+1, l·(1 + g·W·[s_k + ε, 1]) with the agent's fitted feedback layer (``FeedbackLayer.rest_length_from_features``
 at gain g = 1 and noise ε = 0, the function ``FeedbackLayer.rest_length`` applies offline to ``state_features``),
-evaluated in numpy (:class:`~bptsb_ros.brains.inference.FeedbackMap`).
+evaluated in numpy (:class:`~bptsb_ros.live.inference.FeedbackMap`).
 
 The state of step k arrives as the body publishes it: the positions (N, 2) [m] of every mass for the state type
 ``spring_length`` (the spring lengths are computed from them exactly as the body's step computes them,
@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from bptsb_ros.brains.feedback import FeedbackLayer
-from bptsb_ros.brains.inference import FeedbackMap, SwgTable
+from bptsb_ros.live.inference import FeedbackMap, SwgTable
 
 
 def perturbed_rest_length(layer: FeedbackLayer, base: torch.Tensor, features: torch.Tensor, gain: float,

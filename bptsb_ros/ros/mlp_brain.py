@@ -3,7 +3,7 @@
 Each ``task/input`` message u stamped t_k becomes the force command in force at step k,
 ``bptsb_ros.agent.brain_forces(agent, input_scale·u)`` — the function the offline simulation and
 NARMA training use (the CMP gets no force), evaluated in numpy from the trained weights
-(:class:`~bptsb_ros.brains.inference.ForceMap`). Published as ``brain/force`` (JointState effort, newtons).
+(:class:`~bptsb_ros.live.inference.ForceMap`). Published as ``brain/force`` (JointState effort, newtons).
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import LinearInputLayer, MLPBrain
-from bptsb_ros.brains.inference import ForceMap
 from bptsb_ros.interface.params import Param, ParameterError
 from bptsb_ros.interface.topics import input_names, mass_dof_names, stamp_to_step
+from bptsb_ros.live.inference import ForceMap
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.cdr_in import JointStateReader

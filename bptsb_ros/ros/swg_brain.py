@@ -2,7 +2,7 @@
 
 On each ``/clock`` tick t_k it publishes the rest lengths in force at step k, computed by
 ``bptsb_ros.sim.rollout.swg_rest_lengths`` — the function the offline open-loop simulation uses — for blocks of
-steps at a time (:class:`~bptsb_ros.brains.inference.SwgTable`).
+steps at a time (:class:`~bptsb_ros.live.inference.SwgTable`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from bptsb_ros.brains import SineWaveGenerator
-from bptsb_ros.brains.inference import SwgTable
 from bptsb_ros.interface.params import ParameterError
 from bptsb_ros.interface.topics import spring_names
+from bptsb_ros.live.inference import SwgTable
 from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.brain_node import COMMON_PARAMS, BrainNode, topic_params
 from bptsb_ros.ros.runtime import StopFlag, run_node

@@ -22,6 +22,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from bptsb_ros.agent import force_inputs
+from bptsb_ros.brains.fnn import LinearInputLayer, MLPBrain
+from bptsb_ros.sim.rollout import swg_rest_lengths
+
 #: steps of SWG rest lengths computed per call of the offline function
 SWG_BLOCK = 1024
 
@@ -35,9 +39,6 @@ class ForceMap:
     ``agent``'s LIL or MLP brain, as :func:`bptsb_ros.agent.brain_forces` gives them."""
 
     def __init__(self, agent: Any) -> None:
-        from bptsb_ros.agent import force_inputs
-        from bptsb_ros.brains.fnn import LinearInputLayer, MLPBrain
-
         brain, body = agent.brain, agent.body
         if isinstance(brain, MLPBrain):
             self.layers = [(_np(layer.weight).T.copy(), _np(layer.bias)) for layer in brain.layers]
@@ -71,8 +72,6 @@ class SwgTable:
         self.blocks: dict[int, np.ndarray] = {}
 
     def __call__(self, step: int) -> np.ndarray:
-        from bptsb_ros.sim.rollout import swg_rest_lengths
-
         block, row = divmod(int(step), SWG_BLOCK)
         table = self.blocks.get(block)
         if table is None:
