@@ -152,3 +152,39 @@ def test_a_yaml_tag_is_refused_naming_it(tmp_path):
     with pytest.raises(ConfigError, match=r"uses the YAML tag 'tag:yaml\.org,2002:python/object/apply:os\.system', "
                                           r"which is not plain data"):
         load_config(p)
+
+
+def test_override_mapping_parses_texts_keeps_values_and_lets_the_last_key_win():
+    from bptsb_ros.config import ConfigError, override_mapping
+
+    assert override_mapping(["sim_time=20", "training.lr_decay=false", "body.shape=multiple_circle",
+                             "sim_time=30"]) == {"sim_time": 30, "training.lr_decay": False,
+                                                 "body.shape": "multiple_circle"}
+    value = [1.5, 2.5]
+    got = override_mapping({"training.lr.k": 1e-05, "wind": value})
+    assert got == {"training.lr.k": 1e-05, "wind": [1.5, 2.5]} and got["wind"] is not value  # a copy
+    assert override_mapping(None) == {} and override_mapping(()) == {}
+    with pytest.raises(ConfigError, match="must look like key=value"):
+        override_mapping(["sim_time"])
+
+
+def test_a_live_nodes_fresh_body_parameters_follow_the_config_schema():
+    """The nodes' shape parameters are made from BodyConfig/BrainConfig/ExperimentConfig: the same choices and bounds
+    (hand values of the schema), the node's own defaults where it differs (0 masses: the task's default)."""
+    from bptsb_ros.interface.params import ParameterError
+    from bptsb_ros.interface.source import SOURCE_PARAMS
+
+    p = {s.name: s for s in SOURCE_PARAMS}
+    assert p["shape"].choices == ("", "double_circle", "multiple_circle", "caterpillar") and p["shape"].default == ""
+    assert p["integrator"].choices == ("verlet", "published") and p["integrator"].default == "verlet"
+    assert p["brain_type"].choices == ("", "swg", "mlp", "lil")
+    assert p["dtype"].choices == ("float32", "float64") and p["dtype"].default == "float64"
+    assert p["task"].choices == ("lissajous", "locomotion", "narma")
+    assert (p["size"].default, p["size"].positive, p["size"].maximum) == (4.0, True, 1000.0)
+    assert (p["dt"].default, p["dt"].positive, p["dt"].maximum) == (0.01, True, 1.0)
+    assert (p["nodes"].default, p["nodes"].minimum, p["nodes"].maximum) == (0, 0, 2001)
+    assert "diameter of circular bodies [m]" in p["size"].description
+    assert p["size"].validate(1000.0) == 1000.0 and p["dt"].validate(1.0) == 1.0
+    for name, bad in (("size", 1000.5), ("size", 0.0), ("dt", 1.5), ("nodes", 2002), ("integrator", "euler")):
+        with pytest.raises(ParameterError):
+            p[name].validate(bad)

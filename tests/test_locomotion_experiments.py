@@ -314,7 +314,7 @@ def test_agent_settings_pass_the_projection_to_the_training_and_keep_the_clamp_k
            "gait_time": 2.0}  # the fields before the option existed: their agents keep their key
     assert clamp.key() == hashlib.sha1(json.dumps(old, sort_keys=True).encode()).hexdigest()[:8]
     assert reset.key() != clamp.key()
-    assert "training.projection=reset" in reset.overrides()
+    assert reset.overrides()["training.projection"] == "reset"
     cfg = packaged_config("locomotion_forward", reset.overrides(), seed=0)
     assert cfg.training.projection == "reset"
     with pytest.raises(ValueError, match="projection must be one of clamp, reset, got 'zero'"):

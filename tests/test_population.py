@@ -244,7 +244,7 @@ def test_population_jobs_give_the_solo_jobs_results(tmp_path):
     for body in ("double-circle", "multiple-circle"):
         for seed, dt in ((0, 1), (1, 4), (2, 2)):
             over = narma_overrides("smoke", 3, body, "lil", ("narma.target=memory", f"narma.delay={dt}", *SMALL[:3]))
-            jobs.append(Job(f"{body}_{dt}_{seed}", NarmaJob("narma_adam", tuple(over), seed, (3,), 60, washout=10)))
+            jobs.append(Job(f"{body}_{dt}_{seed}", NarmaJob("narma_adam", over, seed, (3,), 60, washout=10)))
     grouped, where = population_jobs(jobs, 2)
     assert [len(j.fn.members) for j in grouped] == [2, 1, 2, 1]  # two per body, of consecutive jobs
     assert [m for j in grouped for m, _ in j.fn.members] == [j.name for j in jobs]

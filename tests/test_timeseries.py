@@ -310,7 +310,7 @@ def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
     real = timeseries.NarmaJob.__call__
 
     def call(self, run_dir):
-        if "brain.type=lil" in self.overrides and any("multiple_circle" in o for o in self.overrides):
+        if self.overrides["brain.type"] == "lil" and self.overrides["body.shape"] == "multiple_circle":
             raise TrainingDiverged("update 11: simulation diverged at step 3000; planted")
         return real(self, run_dir)
 

@@ -214,7 +214,7 @@ def test_a_sweep_reuses_only_records_that_fit_the_job(tmp_path):
     from bptsb_ros.experiments.timeseries import NarmaJob, NarmaPopulationJob
     from bptsb_ros.jobs.sweep import Job, job_key, result_problem
 
-    members = tuple((f"lil_dt{d}_s{s}", NarmaJob("narma_adam", (), s, (1,), 50)) for d, s in ((1, 0), (8, 1)))
+    members = tuple((f"lil_dt{d}_s{s}", NarmaJob("narma_adam", {}, s, (1,), 50)) for d, s in ((1, 0), (8, 1)))
     job = Job("population0_0", NarmaPopulationJob(members))
     names = [m[0] for m in members]
     good = _population_result(names, (0, 1))

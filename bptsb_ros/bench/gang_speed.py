@@ -20,8 +20,9 @@ from typing import Any
 
 #: the memory task at the paper's schedule: trainings (17 Δt × 2 bodies × 5 seeds) and updates each
 PAPER_TRAININGS, PAPER_UPDATES = 170, 40_000
-MEMORY_OVERRIDES = ("brain.type=lil", "body.shape=multiple_circle", "body.nodes=37", "narma.target=memory",
-                    "narma.brain_input=symmetric", "training.backend=fused")
+MEMORY_OVERRIDES: dict[str, Any] = {"brain.type": "lil", "body.shape": "multiple_circle", "body.nodes": 37,
+                                    "narma.target": "memory", "narma.brain_input": "symmetric",
+                                    "training.backend": "fused"}
 
 
 def _member(seed: int, delay: int, updates: int, out: dict[int, tuple[float, float]]) -> None:
@@ -29,7 +30,7 @@ def _member(seed: int, delay: int, updates: int, out: dict[int, tuple[float, flo
     first update, the time at the end) [s, ``time.perf_counter``]."""
     from bptsb_ros.bench.workloads import narma_task_update
 
-    _, update = narma_task_update((*MEMORY_OVERRIDES, f"narma.delay={delay}"), seed)
+    _, update = narma_task_update({**MEMORY_OVERRIDES, "narma.delay": delay}, seed)
     update()
     t0 = time.perf_counter()
     for _ in range(updates):
@@ -73,7 +74,7 @@ def measure_population(members: int, updates: int) -> dict[str, Any]:
     from bptsb_ros.workflows.population import train_population
 
     def cfgs(epochs: int) -> list[Any]:
-        return [packaged_config("narma", [*MEMORY_OVERRIDES, f"narma.delay={1 + s % 17}", f"epochs={epochs}"],
+        return [packaged_config("narma", {**MEMORY_OVERRIDES, "narma.delay": 1 + s % 17, "epochs": epochs},
                                 seed=s) for s in range(members)]
 
     train_population(cfgs(1), [None] * members, progress=False)

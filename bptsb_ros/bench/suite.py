@@ -18,7 +18,8 @@ import platform
 import resource
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import torch
@@ -39,7 +40,7 @@ FUSED_TARGET_RATIO = 5.0
 #: the NARMA task's fused episodes' target: training steps/s ≥ this × its numba path's, in the same run
 NARMA_FUSED_TARGET_RATIO = 2.0
 #: the NARMA task rows' system: ``config/narma.yaml`` with the MLP brain
-NARMA_TASK_OVERRIDES = ("brain.type=mlp",)
+NARMA_TASK_OVERRIDES: dict[str, Any] = {"brain.type": "mlp"}
 #: the memory task at the paper's schedule as populations on 2 processes: at most this many hours
 MEMORY_TASK_TARGET_H = 3.0
 #: the paper's expanded-NARMA schedule: epochs × steps per epoch
@@ -59,8 +60,8 @@ class Workload:
     forward_only: bool = False
     #: time the task's own update (``NarmaTask``, ``config/narma.yaml``) instead of the bare body window
     task: bool = False
-    #: ``task`` only: ``--set`` overrides of ``config/narma.yaml``
-    overrides: tuple[str, ...] = NARMA_TASK_OVERRIDES
+    #: ``task`` only: overrides of ``config/narma.yaml`` (``{"a.b": value}``)
+    overrides: Mapping[str, Any] = field(default_factory=lambda: dict(NARMA_TASK_OVERRIDES))
 
 
 WORKLOADS = {
@@ -182,7 +183,7 @@ def _measure_fused(w: Workload, dtype: torch.dtype, min_seconds: float) -> dict[
             "train_steps_per_s": round(train, 1), "train_body_steps_per_s": round(train * w.batch, 1)}
 
 
-def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, ...] = NARMA_TASK_OVERRIDES
+def _measure_narma_task(backend: str, min_seconds: float, overrides: Mapping[str, Any] = NARMA_TASK_OVERRIDES
                         ) -> dict[str, Any]:
     """Training steps/s of the NARMA task itself (``config/narma.yaml``: double circle of 33 masses, MLP brain,
     3,000-step episodes, SGD; ``overrides``: ``--set`` items of that config) on the numba path or with its fused
@@ -192,7 +193,7 @@ def _measure_narma_task(backend: str, min_seconds: float, overrides: tuple[str, 
     threads = configure_threads(1, "numba")
     from bptsb_ros.bench.workloads import narma_task_update
 
-    task, update = narma_task_update((*overrides, f"training.backend={backend}"))
+    task, update = narma_task_update({**overrides, "training.backend": backend})
 
     first_call, train, ms = _timed(update, task.steps_per_update, min_seconds)
     return {"backend": backend, "fused_episodes": task.fused_episodes, "threads": threads,

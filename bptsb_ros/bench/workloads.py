@@ -5,13 +5,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import torch
 
 
-def narma_task_update(overrides: tuple[str, ...], seed: int = 0) -> tuple[Any, Callable[[], None]]:
+def narma_task_update(overrides: Mapping[str, Any], seed: int = 0) -> tuple[Any, Callable[[], None]]:
     """``config/narma.yaml`` with ``overrides`` built as its trainer builds it (seeded): ``(task, update)``, where
     ``update()`` is one training update of the task (loss, backward, SGD step, k/d/l projection)."""
     from bptsb_ros.agent import build_agent
@@ -19,7 +19,7 @@ def narma_task_update(overrides: tuple[str, ...], seed: int = 0) -> tuple[Any, C
     from bptsb_ros.tasks.narma import NarmaTask
     from bptsb_ros.training.optim import make_optimizer
 
-    cfg = packaged_config("narma", list(overrides), seed=seed)
+    cfg = packaged_config("narma", dict(overrides), seed=seed)
     torch.manual_seed(cfg.seed)
     agent = build_agent(cfg)
     task = NarmaTask(agent, cfg)

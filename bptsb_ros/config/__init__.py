@@ -30,6 +30,7 @@ from bptsb_ros.config.experiment import (
     echo,
     load_config,
     override_items,
+    override_mapping,
     parse_override,
     safe_yaml,
     validate,
@@ -38,5 +39,5 @@ from bptsb_ros.config.experiment import (
 __all__ = ["ECHO_CHARS", "MAX_CONFIG_BYTES", "MAX_YAML_NODES", "TASKS", "BodyConfig", "BrainConfig", "ConfigError",
            "ExperimentConfig", "FeedbackConfig", "LearningRates", "LissajousConfig", "LocomotionConfig", "NarmaConfig",
            "Overrides", "TrainingConfig", "apply_overrides", "apply_profile", "check_override_key", "config_dir",
-           "config_keys", "did_you_mean", "echo", "load_config", "override_items", "parse_override", "safe_yaml",
-           "validate"]
+           "config_keys", "did_you_mean", "echo", "load_config", "override_items", "override_mapping", "parse_override",
+           "safe_yaml", "validate"]

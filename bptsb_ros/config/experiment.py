@@ -337,6 +337,12 @@ def override_items(overrides: Overrides | None) -> list[tuple[list[str], Any, st
     return [(*parse_override(text), text) for text in overrides]
 
 
+def override_mapping(overrides: Overrides | None) -> dict[str, Any]:
+    """Overrides (``--set`` texts, values parsed as YAML, or a mapping) as one mapping ``{"a.b": value}``, in their
+    order; a key given twice keeps its last value. How code composes overrides: ``{**base, "epochs": 3}``."""
+    return {".".join(path): value for path, value, _ in override_items(overrides)}
+
+
 def apply_overrides(data: dict, overrides: Overrides) -> dict:
     """Apply ``--set`` overrides (or a mapping of them) to a raw config mapping (validation happens afterwards)."""
     return _apply_items(data, override_items(overrides))

@@ -158,8 +158,8 @@ def scheme_job(run_dir: str, curve: tuple[float, float, float], seed: int, pre_t
     from bptsb_ros.workflows.train import TrainingDiverged
 
     c = Curve(*curve)
-    cfg = packaged_config("lissajous_single", [f"lissajous.alpha={c.alpha}", f"lissajous.beta={c.beta}",
-                                               f"lissajous.delta={c.delta}"], seed=seed)
+    cfg = packaged_config("lissajous_single", {"lissajous.alpha": c.alpha, "lissajous.beta": c.beta,
+                                               "lissajous.delta": c.delta}, seed=seed)
     fresh = build_agent(cfg)
     shape = TrainedAgent(fresh, fresh.body.initial_state(1), {}, Path(run_dir))
     amp, omega, period = shape.amplitude, shape.omega, shape.period

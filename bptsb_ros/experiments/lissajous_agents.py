@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,15 +70,15 @@ class TrainedAgent:
 
 def train_single_curve(run_dir: Path, *, sim_time: float, seed: int, curve: Curve = CURVE_1,
                        fit_time: float = 100.0, eval_periods: int = 10, progress: bool = False,
-                       extra: list[str] | None = None) -> TrainedAgent:
+                       extra: Mapping[str, Any] | None = None) -> TrainedAgent:
     """Preliminary training: SWG + double-circle (N_mov 13) drawing ``curve`` with the paper's single-curve
     learning rates (config/lissajous_single.yaml), the FL fitted; the agent and its final state."""
     from bptsb_ros.workflows.train import train
 
-    cfg = packaged_config("lissajous_single", [
-        f"sim_time={sim_time}", f"feedback.fit_time={fit_time}", f"lissajous.eval_periods={eval_periods}",
-        f"lissajous.alpha={curve.alpha}", f"lissajous.beta={curve.beta}", f"lissajous.delta={curve.delta}",
-        *(extra or [])], seed=seed)
+    cfg = packaged_config("lissajous_single", {
+        "sim_time": sim_time, "feedback.fit_time": fit_time, "lissajous.eval_periods": eval_periods,
+        "lissajous.alpha": curve.alpha, "lissajous.beta": curve.beta, "lissajous.delta": curve.delta,
+        **(extra or {})}, seed=seed)
     res = train(cfg, run_dir, overwrite=True, progress=progress)  # the experiment (or its job) owns run_dir
     return load_trained(run_dir, res.metrics)
 

@@ -79,8 +79,8 @@ def run(ctx: Context) -> None:
     from bptsb_ros.workflows.train import train
 
     sim_time, fit_time, periods = ctx.settings["sim_time"], ctx.settings["fit_time"], ctx.settings["eval_periods"]
-    cfg = packaged_config("lissajous_single", [f"sim_time={sim_time}", f"feedback.fit_time={fit_time}",
-                                               f"lissajous.eval_periods={periods}"], seed=ctx.seed)
+    cfg = packaged_config("lissajous_single", {"sim_time": sim_time, "feedback.fit_time": fit_time,
+                                               "lissajous.eval_periods": periods}, seed=ctx.seed)
     ctx.log(f"lissajous-closed-loop: training {sim_time} s of simulated time, seed {ctx.seed}")
     res = train(cfg, ctx.out_dir / "agent", overwrite=True, progress=ctx.progress)  # the runner owns out_dir
     ev = res.metrics["evaluation"]

@@ -481,7 +481,7 @@ def _pretrain(ctx: Context, integrator: str = "verlet") -> TrainedAgent | str:
     name = "pretrained" if integrator == "verlet" else f"pretrained_{integrator}"
     try:
         return train_single_curve(ctx.out_dir / name, sim_time=sim_time, seed=ctx.seed, progress=ctx.progress,
-                                  fit_time=10, eval_periods=2, extra=[f"body.integrator={integrator}"])
+                                  fit_time=10, eval_periods=2, extra={"body.integrator": integrator})
     except TrainingDiverged as err:
         return f"the preliminary single-curve training ({integrator} integrator) diverged ({err})"
 

@@ -23,7 +23,7 @@ import torch
 from bptsb_ros.agent import Agent
 from bptsb_ros.body.msdn import PROJECTIONS, BodyState
 from bptsb_ros.brains import FeedbackLayer, SineWaveGenerator
-from bptsb_ros.config import FeedbackConfig
+from bptsb_ros.config import FeedbackConfig, override_mapping
 from bptsb_ros.files.safe_write import atomic_writer
 from bptsb_ros.jobs.sweep import Job, SweepResult
 from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
@@ -61,7 +61,7 @@ class AgentSettings:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "config_overrides", tuple(self.config_overrides))
-        owned = {key.split("=", 1)[0] for key in self.overrides()[:5]}  # set by the fields themselves
+        owned = set(self.own_overrides())  # set by the fields themselves
         for item in self.config_overrides:
             if item.split("=", 1)[0].strip() in owned | {"seed"}:
                 raise ValueError(f"locomotion agents: config_overrides may not set {item.split('=', 1)[0].strip()} "
@@ -70,10 +70,15 @@ class AgentSettings:
             raise ValueError(f"locomotion agents: projection must be one of {', '.join(PROJECTIONS)}, got "
                              f"{self.projection!r}")
 
-    def overrides(self) -> list[str]:
-        return [f"sim_time={self.sim_time}", f"locomotion.warmup_windows={self.warmup_windows}",
-                f"feedback.fit_time={self.fit_time}", f"locomotion.eval_time={self.eval_time}",
-                f"training.projection={self.projection}", *self.config_overrides]
+    def own_overrides(self) -> dict[str, Any]:
+        """The training config's keys these settings set themselves."""
+        return {"sim_time": self.sim_time, "locomotion.warmup_windows": self.warmup_windows,
+                "feedback.fit_time": self.fit_time, "locomotion.eval_time": self.eval_time,
+                "training.projection": self.projection}
+
+    def overrides(self) -> dict[str, Any]:
+        """Overrides of ``config/locomotion_forward.yaml``: :meth:`own_overrides`, then ``config_overrides``."""
+        return {**self.own_overrides(), **override_mapping(self.config_overrides)}
 
     def key(self) -> str:
         """Short stable name of these settings (agents of equal settings are shared between experiments); the

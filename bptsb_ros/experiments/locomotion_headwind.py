@@ -218,12 +218,10 @@ def _switching_variant(ctx: Context, variant_name: str, variant, first: bool, fo
     eval_periods, sweep_time = ctx.settings["eval_periods"], ctx.settings["sweep_time"]
     force = float(variant["wind_force"])
     lr = dict(zip(("k", "d", "l", "amplitude", "phase"), variant["lr"], strict=True))
-    cfg = packaged_config("locomotion_headwind", [f"sim_time={sim_time}", f"locomotion.target_speed={target}",
-                                                  f"locomotion.wind_period={period}",
-                                                  f"locomotion.wind_force={force}",
-                                                  *(f"training.lr.{k}={v}" for k, v in lr.items()),
-                                                  f"training.lr_decay={str(variant['lr_decay']).lower()}"],
-                          seed=ctx.seed)
+    cfg = packaged_config("locomotion_headwind", {"sim_time": sim_time, "locomotion.target_speed": target,
+                                                  "locomotion.wind_period": period, "locomotion.wind_force": force,
+                                                  **{f"training.lr.{k}": v for k, v in lr.items()},
+                                                  "training.lr_decay": variant["lr_decay"]}, seed=ctx.seed)
     ctx.log(f"locomotion-headwind ({variant_name}): v_max {v_max:.3f} m/s → target {target:.3f} m/s; {sim_time} s "
             f"switching training, F = {force:g} N, period {period:g} s")
     run_dir = ctx.out_dir / f"switching{suffix}"

@@ -223,6 +223,7 @@ def id_list(ids: Sequence[int]) -> str:
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.timeseries_plots import IpcPanel, plot_ipc_panels, plot_memory_error
+    from bptsb_ros.config import override_mapping
     from bptsb_ros.experiments.timeseries import (
         BODIES,
         N_MOV,
@@ -247,11 +248,11 @@ def run(ctx: Context) -> None:
     for body in BODIES:
         for dt in delays:
             for seed in seeds:
-                over = narma_overrides(ctx.scale, epochs, body, "lil", ("narma.target=memory", f"narma.delay={dt}",
-                                                                       *extra))
+                over = narma_overrides(ctx.scale, epochs, body, "lil",
+                                       {"narma.target": "memory", "narma.delay": dt, **override_mapping(extra)})
                 # the first seed's Δt = focus system is measured at every stage of ipc_stages (a training of its
                 # own; a population member equals its solo training)
-                job = Job(f"{body}_dt{dt}_s{seed}", NarmaJob(config, tuple(over), seed,
+                job = Job(f"{body}_dt{dt}_s{seed}", NarmaJob(config, over, seed,
                                                              stages if (dt, seed) == (focus, seeds[0]) else (epochs,),
                                                              eval_inputs, washout=washout))
                 (staged if (dt, seed) == (focus, seeds[0]) else jobs).append(job)

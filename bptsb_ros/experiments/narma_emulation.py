@@ -99,6 +99,7 @@ def run(ctx: Context) -> None:
     import numpy as np
 
     from bptsb_ros.analysis.timeseries_plots import plot_narma_emulation
+    from bptsb_ros.config import override_mapping
     from bptsb_ros.experiments.timeseries import (
         NarmaJob,
         ablation_variants,
@@ -118,9 +119,10 @@ def run(ctx: Context) -> None:
     for name, v in variants.items():
         systems_of[name] = [(body, brain) for body, brain in SYSTEMS if brain in v["brains"]]
         for body, brain in systems_of[name]:
-            overrides = (*narma_overrides(ctx.scale, epochs, body, brain, extra), *v["variant_overrides"])
+            overrides = {**narma_overrides(ctx.scale, epochs, body, brain, extra),
+                         **override_mapping(v["variant_overrides"])}
             jobs.append(Job(job_name(name, main, body, brain),
-                            NarmaJob(config, tuple(overrides), ctx.seed, (epochs,), eval_inputs, washout=washout)))
+                            NarmaJob(config, overrides, ctx.seed, (epochs,), eval_inputs, washout=washout)))
     ctx.log(f"narma-emulation: {len(jobs)} trainings ({config}, {epochs} epochs; variants "
             f"{', '.join(variants)}) as parallel jobs")
     results = run_jobs(ctx, jobs, ctx.out_dir / "sweep", diverged_ok=True)

@@ -210,6 +210,7 @@ def claims(n: NarmaIpcNumbers) -> list[Claim]:
 def run(ctx: Context) -> None:
     from bptsb_ros.analysis.ipc import ipc_groups, mass_groups, to_unit_interval
     from bptsb_ros.analysis.timeseries_plots import IpcPanel, plot_ipc_panels
+    from bptsb_ros.config import override_mapping
     from bptsb_ros.experiments.timeseries import NarmaJob, ablation_variants, load_states, narma_overrides, run_jobs
     from bptsb_ros.jobs.sweep import Job
 
@@ -229,9 +230,9 @@ def run(ctx: Context) -> None:
         return "" if name == main else f"{name}-"
 
     jobs = [Job(f"{prefix(name)}{brain}",
-                NarmaJob(config, (*narma_overrides(ctx.scale, last, "double-circle", brain, extra),
-                                  *variants[name]["variant_overrides"]), ctx.seed, tuple(stages), eval_inputs,
-                         washout=washout)) for name, brain in trained]
+                NarmaJob(config, {**narma_overrides(ctx.scale, last, "double-circle", brain, extra),
+                                  **override_mapping(variants[name]["variant_overrides"])}, ctx.seed, tuple(stages),
+                         eval_inputs, washout=washout)) for name, brain in trained]
     ctx.log(f"narma-ipc: {len(jobs)} trainings ({config}, states at epochs {stages}; variants {', '.join(variants)}) "
             "as parallel jobs")
     results = run_jobs(ctx, jobs, ctx.out_dir / "sweep")

@@ -4,6 +4,7 @@ counter-example, thread settings, parallel jobs."""
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ import numpy as np
 import torch
 
 from bptsb_ros.body.shapes import Topology, nodes_for_movable
+from bptsb_ros.config import Overrides, override_mapping
 
 
 def chain_topology(n_movable: int = 8, spacing: float = 0.5) -> Topology:
@@ -46,11 +48,12 @@ BODIES = {"double-circle": ("double_circle", nodes_for_movable("double_circle", 
 BRAIN_INPUT = "symmetric"
 
 
-def narma_overrides(scale: str, epochs: int, body: str, brain: str, extra: tuple[str, ...] = ()) -> list[str]:
-    """``--set`` overrides of the packaged NARMA config for one system of the time-series experiments."""
+def narma_overrides(scale: str, epochs: int, body: str, brain: str, extra: Overrides = ()) -> dict[str, Any]:
+    """Overrides of the packaged NARMA config for one system of the time-series experiments, ``extra`` (``--set``
+    texts of the settings or a mapping) last."""
     shape, nodes = BODIES[body]
-    return [f"epochs={epochs}", f"body.shape={shape}", f"body.nodes={nodes}", f"brain.type={brain}",
-            f"narma.brain_input={BRAIN_INPUT}", *extra]
+    return {"epochs": epochs, "body.shape": shape, "body.nodes": nodes, "brain.type": brain,
+            "narma.brain_input": BRAIN_INPUT, **override_mapping(extra)}
 
 
 @dataclass(frozen=True)
@@ -64,7 +67,7 @@ class NarmaJob:
     """
 
     config: str
-    overrides: tuple[str, ...]
+    overrides: Mapping[str, Any]
     seed: int
     stages: tuple[int, ...]
     eval_inputs: int
@@ -110,8 +113,8 @@ class NarmaJob:
         from bptsb_ros.experiments.common import packaged_config
 
         if epochs == 0:
-            return packaged_config(self.config, [*self.overrides, "dtype=float64"], seed=self.seed)
-        return packaged_config(self.config, [*self.overrides, f"epochs={epochs}"], seed=self.seed)
+            return packaged_config(self.config, {**self.overrides, "dtype": "float64"}, seed=self.seed)
+        return packaged_config(self.config, {**self.overrides, "epochs": epochs}, seed=self.seed)
 
     def record(self, agent: Any, cfg: Any, run_dir: Path, epochs: int, out: dict[str, Any]) -> None:
         """Run ``agent`` (trained ``epochs``) on the held-out input: ``out["nmse_<epochs>"]`` and
@@ -178,7 +181,8 @@ def population_jobs(jobs: list[Any], chunks: int) -> tuple[list[Any], dict[str, 
 
     by_body: dict[tuple, list[Any]] = {}
     for job in jobs:
-        key = (job.fn.config, tuple(o for o in job.fn.overrides if not o.startswith(("narma.delay=", "narma.target="))))
+        key = (job.fn.config, tuple((k, repr(v)) for k, v in job.fn.overrides.items()
+                                    if k not in ("narma.delay", "narma.target")))
         by_body.setdefault(key, []).append(job)
     out, where = [], {}
     for i, members in enumerate(by_body.values()):

@@ -8,15 +8,13 @@ starts, so two processes with the same parameters hold the same random parameter
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Literal, get_args, get_origin
 
-from bptsb_ros.body.shapes import SHAPES
-from bptsb_ros.interface.params import Param
+from pydantic import BaseModel
 
-if TYPE_CHECKING:
-    pass
+from bptsb_ros.config.experiment import TASKS, BodyConfig, BrainConfig, ExperimentConfig
+from bptsb_ros.interface.params import Param, ParamValue
 
-TASKS = ("lissajous", "locomotion", "narma")
 #: default body of a fresh agent per task: (shape, masses)
 TASK_BODIES: dict[str, tuple[str, int]] = {
     "lissajous": ("double_circle", 25),
@@ -24,24 +22,47 @@ TASK_BODIES: dict[str, tuple[str, int]] = {
     "narma": ("double_circle", 33),
 }
 
+
+def _choices(model: type[BaseModel], field: str) -> tuple[str, ...]:
+    """The values a ``Literal`` field of ``model`` allows."""
+    annotation = model.model_fields[field].annotation
+    assert get_origin(annotation) is Literal, f"{model.__name__}.{field} is not a Literal"
+    return get_args(annotation)
+
+
+def config_param(name: str, model: type[BaseModel], field: str, what: str, *, default: ParamValue | None = None,
+                 choices: tuple[str, ...] | None = None, minimum: float | None = None) -> Param:
+    """The node parameter ``name`` of a fresh agent's config field ``model.field``: its type, default, allowed values
+    and bounds from the config schema (``default``, ``choices``, ``minimum``: where the node's differ); its
+    description is the field's own, then ``what`` (the field's name, without one)."""
+    info = model.model_fields[field]
+    value = info.default if default is None else default
+    kind = "str" if isinstance(value, str) else "int" if isinstance(value, int) else "float"
+    if choices is None and get_origin(info.annotation) is Literal:
+        choices = _choices(model, field)
+    positive = any(getattr(m, "gt", None) == 0 for m in info.metadata)  # pydantic's Field(gt=0)
+    maximum = next((float(m.le) for m in info.metadata if getattr(m, "le", None) is not None), None)
+    text = f"{info.description}, {what}" if info.description else what
+    return Param(name, value, text, kind, choices=choices, minimum=minimum, maximum=maximum, positive=positive)
+
+
 SOURCE_PARAMS: tuple[Param, ...] = (
     Param("agent", "", "run directory (or checkpoint.pt) of a trained agent, or an MNIST system file (systems/"
           "<name>.pt, or a run directory holding just one); empty: a fresh, untrained agent from 'config' or from "
           "'task' and the shape parameters", "str"),
     Param("config", "", "experiment YAML of a fresh agent (used when 'agent' is empty)", "str"),
-    Param("task", "lissajous", "task of a fresh agent (when 'agent' and 'config' are empty)", "str", choices=TASKS),
-    Param("shape", "", "body shape of a fresh agent; empty: the task's default", "str",
-          choices=("", *SHAPES)),
-    Param("nodes", 0, "number of masses of a fresh agent's body, fixed ones included; 0: the task's default",
-          "int", minimum=0),
-    Param("size", 4.0, "diameter of a fresh agent's circular body [m]", "float", positive=True),
-    Param("dt", 0.01, "time step of a fresh agent's body [s] (a trained agent brings its own)", "float",
-          positive=True),
-    Param("integrator", "verlet", "integrator of a fresh agent's body", "str", choices=("verlet", "published")),
-    Param("brain_type", "", "brain of a fresh agent; empty: swg, or mlp for narma", "str",
-          choices=("", "swg", "mlp", "lil")),
+    config_param("task", ExperimentConfig, "task", "task of a fresh agent (when 'agent' and 'config' are empty)",
+                 default="lissajous", choices=TASKS),
+    config_param("shape", BodyConfig, "shape", "body shape of a fresh agent; empty: the task's default", default="",
+                 choices=("", *_choices(BodyConfig, "shape"))),
+    config_param("nodes", BodyConfig, "nodes", "of a fresh agent's body; 0: the task's default", default=0, minimum=0),
+    config_param("size", BodyConfig, "size", "of a fresh agent's body"),
+    config_param("dt", BodyConfig, "dt", "of a fresh agent's body (a trained agent brings its own)"),
+    config_param("integrator", BodyConfig, "integrator", "integrator of a fresh agent's body"),
+    config_param("brain_type", BrainConfig, "type", "brain of a fresh agent; empty: swg, or mlp for narma",
+                 default="", choices=("", *_choices(BrainConfig, "type"))),
     Param("seed", 0, "seed of a fresh agent's random parameters (k, d, SWG phases, brain weights)", "int"),
-    Param("dtype", "float64", "floating-point type of the live computation", "str", choices=("float32", "float64")),
+    config_param("dtype", ExperimentConfig, "dtype", "floating-point type of the live computation", default="float64"),
 )
 
 
