@@ -394,3 +394,51 @@ def test_copy_state_is_a_deep_copy_that_keeps_types_and_metadata():
     assert [s["momentum_buffer"].tolist() for s in copied["optimizer"]["state"].values()] == \
         [s["momentum_buffer"].tolist() for s in reference["optimizer"]["state"].values()]
     nn.Linear(3, 2).load_state_dict(copied["module"])  # loadable as the module's own
+
+
+def test_the_update_loop_calls_its_callbacks_in_order_around_the_verdict():
+    """Planted losses 1, 1, 50 (a spike: rejected), 1: each callback hears on_measured before the guard's verdict
+    (the loss curve has no entry for the update yet) and on_update after it, in the order given; the SimSteps and
+    LossCallback objects count and report what the loop did."""
+    import torch
+
+    from bptsb_ros.training.callbacks import LossCallback, SimSteps
+    from bptsb_ros.training.loop import Callback, GuardRules, Measured, UpdateLoop
+
+    w = torch.nn.Parameter(torch.tensor([1.0]))
+    opt = torch.optim.SGD([w], lr=0.1)
+    planted = [1.0, 1.0, 50.0, 1.0]
+
+    class Planted:
+        def measure(self, update: int) -> Measured:
+            return Measured(loss=(w * 0 + planted[update]).sum())
+
+        def step(self) -> None:
+            opt.step()
+
+        def advance(self, finite: bool) -> None:
+            pass
+
+    loop = UpdateLoop(opt, GuardRules(factor=10.0, window=2))
+    events: list[tuple] = []
+
+    class Recorder(Callback):
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def on_measured(self, update: int, measured: Measured) -> None:
+            events.append((self.name, "measured", update, len(loop.losses)))
+
+        def on_update(self, update: int) -> None:
+            events.append((self.name, "update", update, len(loop.losses)))
+
+    steps, seen = SimSteps(7), []
+    loop.run(Planted(), range(4), callbacks=[Recorder("a"), Recorder("b"), steps,
+                                             LossCallback(lambda i, loss: seen.append((i, loss)), loop.losses)])
+    expected = []
+    for i in range(4):
+        expected += [("a", "measured", i, i), ("b", "measured", i, i), ("a", "update", i, i + 1),
+                     ("b", "update", i, i + 1)]
+    assert events == expected
+    assert steps.steps == 28
+    assert seen == [(0, 1.0), (1, 1.0), (2, 1.0), (3, 1.0)]  # the rejected spike repeats the previous entry

@@ -26,6 +26,7 @@ from bptsb_ros.body.msdn import MSDN
 from bptsb_ros.body.shapes import build_shape
 from bptsb_ros.brains.fnn import LinearInputLayer, MLPBrain
 from bptsb_ros.tasks.digits import load_targets, padded_targets
+from bptsb_ros.training.callbacks import EveryUpdate
 from bptsb_ros.training.guard import FACTOR
 from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
 
@@ -243,7 +244,7 @@ def train_drawing(system: ImageToBody, x: np.ndarray, y: np.ndarray, *, epochs: 
 
         objective.first = updates
         try:
-            loop.run(objective, range(updates, updates + len(objective.batches)), after_update=tally)
+            loop.run(objective, range(updates, updates + len(objective.batches)), callbacks=(EveryUpdate(tally),))
         except LoopStopped as stop:
             raise FloatingPointError(f"{stop.decision.reason} of the drawing loss at update {stop.update} with "
                                      f"nothing to undo; body {system.body.parameter_ranges()}") from None

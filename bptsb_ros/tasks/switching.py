@@ -31,6 +31,7 @@ from bptsb_ros.body.msdn import BodyState, SimulationDiverged
 from bptsb_ros.config import LearningRates, TrainingConfig
 from bptsb_ros.sim.batched import wind_force
 from bptsb_ros.sim.rollout import swg_rest_lengths
+from bptsb_ros.training.callbacks import EveryUpdate
 from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
 from bptsb_ros.training.optim import make_optimizer, step_decay_updates
 
@@ -162,8 +163,8 @@ def train_switching(agent: Agent, state: BodyState, schedule: np.ndarray,
     decay_at = step_decay_updates(updates, min_updates=lr_decay_min_updates) if lr_decay else []
     objective = _SwitchingWindows(agent, opt, state, schedule, forces, target, window, fused)
     try:
-        loop.run(objective, range(updates), decay_at=decay_at, after_update=None if progress is None else
-                 lambda u: progress(u + 1, updates, loop.losses[-1]))
+        loop.run(objective, range(updates), decay_at=decay_at, callbacks=() if progress is None else
+                 (EveryUpdate(lambda u: progress(u + 1, updates, loop.losses[-1])),))
     except LoopStopped as stop:
         for module in agent.modules().values():
             module.requires_grad_(False)

@@ -8,16 +8,16 @@ describes one update as an :class:`Objective`; :class:`UpdateLoop` owns the
 1. the scheduled rate divisions of update ``i`` (``decay_at``: the published step-decay schedule);
 2. ``objective.measure(i)`` → :class:`Measured`: a loss tensor to back-propagate (autograd), or a loss value
    measured together with its gradients (the fused path), and the simulation's divergence message if any;
-3. ``measured(i, m)`` (optional: what a caller does between measuring and judging, e.g. marking the parameters
-   as having completed a window);
+3. every callback's ``on_measured(i, m)`` (:mod:`bptsb_ros.training.callbacks`: what happens between measuring
+   and judging, e.g. marking the parameters as having completed a window);
 4. the guard's verdict (:meth:`UpdateGuard.backward_and_review` for a tensor — it zeroes the gradients and
    back-propagates a finite loss —, :meth:`UpdateGuard.review` for a measured value); a failure with nothing to
    undo raises :class:`LoopStopped`;
 5. accepted: ``objective.step()`` (the optimiser's step and the projection onto θ ≥ 0, or the fused update);
 6. ``objective.advance(finite)``: carry the window's final state on only if it stayed finite;
-7. ``after_update(i)`` (optional: progress, checkpoints, epoch bookkeeping).
+7. every callback's ``on_update(i)`` (progress, checkpoints, epoch bookkeeping).
 
-The loop imports no task, figure or file code: those stay with the callers.
+The loop imports no task, figure or file code: what a training does around its updates are callback objects.
 """
 
 from __future__ import annotations
@@ -72,6 +72,17 @@ class Objective(Protocol):
         """After the verdict: carry the measured window's final state on if it stayed ``finite``."""
 
 
+class Callback:
+    """A callback of :meth:`UpdateLoop.run` (ready-made ones: :mod:`bptsb_ros.training.callbacks`): both hooks do
+    nothing unless overridden."""
+
+    def on_measured(self, update: int, measured: Measured) -> None:
+        """Update ``update`` was measured (``measured``); the guard has not judged it yet."""
+
+    def on_update(self, update: int) -> None:
+        """Update ``update`` is over (accepted or rejected: the loss curve has its entry)."""
+
+
 class LoopStopped(RuntimeError):
     """A numerical failure the guard cannot undo (no update since the start or the last restore) stopped the loop
     at ``update``; ``measured`` is that update's measurement and ``decision`` the guard's verdict."""
@@ -105,16 +116,16 @@ class UpdateLoop:
         return self.guard.history
 
     def run(self, objective: Objective, updates: Iterable[int], *, decay_at: Sequence[int] | set[int] = (),
-            measured: Callable[[int, Measured], None] | None = None,
-            after_update: Callable[[int], None] | None = None) -> None:
-        """Run ``updates`` (their indices, e.g. ``range(start, total)``); raises :class:`LoopStopped`."""
+            callbacks: Sequence[Callback] = ()) -> None:
+        """Run ``updates`` (their indices, e.g. ``range(start, total)``) with ``callbacks`` called in their order;
+        raises :class:`LoopStopped`."""
         decays = list(decay_at)
         for i in updates:
             for _ in range(decays.count(i)):
                 divide_rates_(self.optimizer, 10.0)
             m = objective.measure(i)
-            if measured is not None:
-                measured(i, m)
+            for callback in callbacks:
+                callback.on_measured(i, m)
             if m.fused:
                 decision = self.guard.review(i, m.value, grads_finite=m.grads_finite, diverged=m.failure)
             else:
@@ -124,5 +135,5 @@ class UpdateLoop:
             if decision.accepted:
                 objective.step()
             objective.advance(m.failure is None)
-            if after_update is not None:
-                after_update(i)
+            for callback in callbacks:
+                callback.on_update(i)

@@ -6,7 +6,6 @@ one it trains in memory and writes nothing (the Python API, :func:`bptsb_ros.tra
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -25,10 +24,17 @@ from bptsb_ros.config import ConfigError, ExperimentConfig
 from bptsb_ros.files.run_dir_lock import dir_is_empty, hold_run_dir
 from bptsb_ros.files.safe_write import json_text, write_atomic
 from bptsb_ros.tasks import get_task
+from bptsb_ros.training.callbacks import (
+    LastGoodCheckpoints,
+    LossCallback,
+    ProgressBar,
+    SimSteps,
+    optimizer_and_task_state,
+)
 from bptsb_ros.training.checkpoint import CheckpointError, checkpoint_path, read_checkpoint, save_checkpoint
 from bptsb_ros.training.feedback_fit import fit_feedback
 from bptsb_ros.training.fused import fused_training
-from bptsb_ros.training.guard import RESET_AFTER, UpdateGuard, copy_state
+from bptsb_ros.training.guard import RESET_AFTER, UpdateGuard
 from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
 from bptsb_ros.training.optim import make_optimizer, step_decay_updates
 from bptsb_ros.training.resume_checks import ResumeStateError, check_resume_checkpoint
@@ -61,14 +67,6 @@ class TrainResult:
 
 #: ``callback(update, loss)`` of :func:`train`: the update's index and its entry of the loss curve
 UpdateCallback = Callable[[int, float], None]
-
-
-def _progress(total: int, desc: str, enabled: bool):
-    from tqdm import tqdm
-
-    interactive = sys.stderr.isatty()  # in a log file, a line every 10 s instead of a live bar
-    return tqdm(total=total, desc=desc, unit="upd", dynamic_ncols=interactive, disable=not enabled, file=sys.stderr,
-                mininterval=0.1 if interactive else 10.0)
 
 
 def train(
@@ -186,7 +184,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     total = task.num_updates()
     tc = cfg.training
     loop = UpdateLoop(optimizer, GuardRules(factor=tc.reject_factor, patience=tc.reject_patience),
-                      log=lambda line: bar.write(line, file=sys.stderr))
+                      log=lambda line: bar.write(line))
     guard = loop.guard
     if resume:
         extra = payload["extra"]
@@ -206,9 +204,11 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
     fallback = {"backend_fallback": why} if backend != tc.backend else {}
     task.prepare()
     t_start = time.perf_counter()
-    sim_steps = 0
-    bar = _progress(total, title, progress)
-    bar.update(start)
+    bar = ProgressBar(total, title, losses, enabled=progress, start=start, log_every=tc.log_every)
+    steps = SimSteps(getattr(task, "steps_per_update", tc.update_steps))
+    # checkpoints hold parameters that completed a window without divergence (written when due and good)
+    kept = LastGoodCheckpoints(run_dir, agent, agent.modules, optimizer_and_task_state(optimizer, task), guard,
+                               start=start, every=tc.checkpoint_every)
 
     def checkpoint(update: int, **more: Any) -> None:
         if run_dir is None:
@@ -216,73 +216,29 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         save_checkpoint(run_dir, agent, {"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
                                          "losses": losses, "update": update, "guard": guard.state_dict(), **more})
 
-    def snapshot(update: int) -> dict[str, Any] | None:
-        """What a checkpoint at ``update`` holds: the tensors copied (later updates change them in place), the
-        loss history and the guard by :meth:`UpdateGuard.mark` (they only grow: copying them every update made
-        training quadratic in its length); None in memory (no checkpoint is ever written)."""
-        if run_dir is None:
-            return None
-        return {"modules": copy_state({name: m.state_dict() for name, m in agent.modules().items()}),
-                "extra": copy_state({"optimizer": optimizer.state_dict(), "task_state": task.state_dict(),
-                                        "update": update}),
-                "guard": guard.mark()}
-
-    def save_snapshot(snap: dict[str, Any]) -> None:
-        assert run_dir is not None
-        state = guard.state_at(snap["guard"])
-        save_checkpoint(run_dir, agent, {**snap["extra"], "losses": list(state["history"]), "guard": state},
-                        modules=snap["modules"])
-
-    # ``pending``: the parameters about to be simulated (not yet known to be good); ``good``: the last ones
-    # that completed a window without divergence; ``due``: ``pending`` is a scheduled checkpoint.
-    pending, good, due = snapshot(start), None, False
-
-    def window_completed() -> None:
-        nonlocal good, due
-        good = pending
-        if due and run_dir is not None and good is not None:
-            save_snapshot(good)
-            due = False
-
     def diverged(update: int, why: str) -> TrainingDiverged:
         """Write the last good state (parameters that completed a window), record the failure, build the error."""
         if run_dir is None:
             return TrainingDiverged(f"update {update}: {why} (trained in memory: nothing was written)")
-        if good is not None:
-            save_snapshot(good)
-            kept = (f"the last good checkpoint, update {good['extra']['update']}, is kept: parameters that "
-                    "completed a window without diverging")
+        if kept.save_good():
+            note = (f"the last good checkpoint, update {kept.good_update}, is kept: parameters that completed a "
+                    "window without diverging")
         elif (run_dir / "checkpoint.pt").is_file():
-            kept = "the earlier checkpoint is kept"
+            note = "the earlier checkpoint is kept"
         else:
-            kept = "no checkpoint was saved: no window completed"
+            note = "no checkpoint was saved: no window completed"
         report = {"update": update, "error": why, "losses": losses, "parameters": agent.body.parameter_ranges(),
-                  "last_good_update": None if good is None else good["extra"]["update"], "guard": guard.summary()}
+                  "last_good_update": kept.good_update, "guard": guard.summary()}
         write_atomic(run_dir / "diverged.json", json.dumps(report, indent=2))
-        return TrainingDiverged(f"update {update}: {why} ({kept}; details in {run_dir / 'diverged.json'})")
+        return TrainingDiverged(f"update {update}: {why} ({note}; details in {run_dir / 'diverged.json'})")
 
     decay_at = set(step_decay_updates(total)) if tc.lr_decay else set()  # the published switching schedule
     objective = _TaskUpdates(task, optimizer, fused, tc.projection)
-
-    def measured(i: int, m: Measured) -> None:
-        nonlocal sim_steps
-        sim_steps += getattr(task, "steps_per_update", tc.update_steps)
-        if m.value is not None and math.isfinite(m.value):
-            window_completed()
-
-    def after_update(i: int) -> None:
-        nonlocal pending, due
-        bar.update(1)
-        if i % tc.log_every == 0:
-            bar.set_postfix(loss=f"{losses[-1]:.4g}")
-        if callback is not None:
-            callback(i, float(losses[-1]))
-        pending = snapshot(i + 1)
-        due = due or bool(tc.checkpoint_every and (i + 1) % tc.checkpoint_every == 0)
+    callbacks = [steps, bar, *([LossCallback(callback, losses)] if callback is not None else []), kept]
 
     try:
         try:
-            loop.run(objective, range(start, total), decay_at=decay_at, measured=measured, after_update=after_update)
+            loop.run(objective, range(start, total), decay_at=decay_at, callbacks=callbacks)
         except LoopStopped as stop:
             m = stop.measured
             why = m.failure or (f"loss is {m.value}" if stop.decision.reason == "non-finite loss"
@@ -294,7 +250,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         bar.close()
     elapsed = time.perf_counter() - t_start
 
-    metrics = training_metrics(cfg, guard, elapsed, sim_steps, threads, backend, **fallback)
+    metrics = training_metrics(cfg, guard, elapsed, steps.steps, threads, backend, **fallback)
     try:
         with torch.no_grad():
             if isinstance(agent.brain, SineWaveGenerator) and agent.feedback is not None:
