@@ -308,6 +308,7 @@ def test_bench_params_go_to_the_loops_that_have_the_node_and_the_table():
     argv = launch_argv("narma", "b", 2.0, params=params)
     assert argv[argv.index("launch") + 1] == "narma" and "feedback_brain:gain:=0.5" not in argv
     assert argv.count("--param") == 2 and "--agent" not in argv and argv[argv.index("--duration") + 1] == "2"
+    assert "--composed" not in argv and "--composed" in launch_argv("narma", "b", 2.0, composed=True)
     run = {"loop": "narma", "steps": 1001, "steps_per_s": 250.4, "recorder_ms": 0.0, "publish_ms": 1.25,
            "commands_ms": 2.5, "compute_ms": 0.25, "other_ms": 0.0, "dropped_messages": 0, "launch_exit_code": 0,
            "ratio_to_anchor": 0.5, "cpu_us_per_step": {"body_sim": 120.4, "recorder": 80.0}}
@@ -338,6 +339,22 @@ def test_each_loop_run_is_compared_with_the_anchor_runs_of_its_shape_around_it()
     assert seq[5]["ratio_to_anchor"] == 0.05  # the split one before it; the failed one after it does not count
     assert "ratio_to_anchor" not in seq[7]
     assert report["ratios"] == {"a (split)": [0.2], "a (composed)": [0.25], "b (split)": [0.05]}
+
+
+def test_composed_runs_sit_between_composed_anchors(tmp_path, monkeypatch):
+    from bptsb_ros.bench import live
+
+    monkeypatch.setattr(live, "anchor_run", lambda shape, seconds, progress: {"shape": shape,
+                                                                             "round_trips_per_s": 1000.0})
+    monkeypatch.setattr(live, "live_run", lambda loop, *a, composed=False, **k: {"loop": loop, "composed": composed,
+                                                                                 "steps_per_s": 100.0})
+    report = live.run_live(("narma",), 1.0, 1, tmp_path, progress=lambda m: None, composed=True)
+    order = [(i["kind"], i.get("shape") or ("composed" if i["composed"] else "split")) for i in report["sequence"]]
+    assert order == [("anchor", "split"), ("loop", "split"), ("anchor", "split"), ("anchor", "composed"),
+                     ("loop", "composed"), ("anchor", "composed")]
+    assert report["ratios"] == {"narma (split)": [0.1], "narma (composed)": [0.1]}
+    plain = live.run_live(("narma",), 1.0, 1, tmp_path, progress=lambda m: None)
+    assert [i["kind"] for i in plain["sequence"]] == ["anchor", "loop", "anchor"]
 
 
 def test_the_cpu_sampler_reads_each_node_inside_the_window():

@@ -60,11 +60,12 @@ def loop_params(loop: str, params: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(p for p in params if p.split(":", 1)[0] in nodes)
 
 
-def launch_argv(loop: str, bag: Path, seconds: float, agent: str = "", params: tuple[str, ...] = ()) -> list[str]:
+def launch_argv(loop: str, bag: Path, seconds: float, agent: str = "", params: tuple[str, ...] = (),
+                composed: bool = False) -> list[str]:
     """The ``bptsb launch`` command line of one recorded lockstep run of ``loop`` for ``seconds`` sim seconds
-    (``params``: those of :func:`loop_params`)."""
+    (``params``: those of :func:`loop_params`; ``composed``: ``--composed``)."""
     argv = [sys.executable, "-m", "bptsb_ros.cli", "launch", loop, "--duration", f"{seconds:g}", "--bag", str(bag),
-            "--timeout", f"{max(600.0, 60 * seconds):g}"]
+            "--timeout", f"{max(600.0, 60 * seconds):g}", *(["--composed"] if composed else [])]
     if agent:
         argv += ["--agent", agent, "--open-loop-steps", str(OPEN_LOOP_STEPS)]
     for param in loop_params(loop, params):
@@ -138,7 +139,7 @@ class CpuSampler:
 
 
 def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = "", params: tuple[str, ...] = (),
-             progress=print) -> dict[str, Any]:
+             progress=print, composed: bool = False) -> dict[str, Any]:
     """One recorded lockstep run of ``loop``: its row (:func:`~bptsb_ros.live.phases.row_from_summary`) with the
     launch's exit code, its wall time with start-up, the messages the recorder counted as lost, and the CPU per step
     of each node process inside the stepping window (``cpu_us_per_step``: CPU microseconds per step, every thread of
@@ -148,9 +149,9 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
 
     bag = workdir / f"{tag}_bag"
     log = workdir / f"{tag}_launch.log"
-    progress(f"bench --live: {loop} for {seconds:g} s sim time, recorded; log {log}")
+    progress(f"bench --live: {loop}{' composed' if composed else ''} for {seconds:g} s sim time, recorded; log {log}")
     started = time.monotonic()
-    argv = launch_argv(loop, bag, seconds, agent, params)
+    argv = launch_argv(loop, bag, seconds, agent, params, composed)
     with open_for_writing(log, "w") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         sampler = CpuSampler(proc.pid)
@@ -158,7 +159,7 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
             code = proc.wait()
         finally:
             sampler.stop()
-    result: dict[str, Any] = {"loop": loop, "sim_seconds": seconds, "launch_exit_code": code,
+    result: dict[str, Any] = {"loop": loop, "composed": composed, "sim_seconds": seconds, "launch_exit_code": code,
                               "wall_with_startup_s": round(time.monotonic() - started, 2), "log": str(log)}
     summary_path = Path(str(bag) + ".launch") / "body_summary.json"
     if not summary_path.is_file() or not (bag / "metadata.yaml").is_file():
@@ -219,11 +220,13 @@ def _neighbour(seq: list[dict[str, Any]], i: int, direction: int, shape: str) ->
 
 def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats: int = 1,
              workdir: str | Path | None = None, params: tuple[str, ...] = (), progress=print,
-             anchor_seconds: float = 5.0) -> dict[str, Any]:
+             anchor_seconds: float = 5.0, composed: bool = False) -> dict[str, Any]:
     """``repeats`` interleaved rounds of one recorded lockstep run of each of ``loops`` (``seconds`` sim seconds
     each; ``params``: ``NODE:NAME:=VALUE`` passed to every launch of a loop with that node), each loop run between two
     runs of the bare rclpy anchor (:mod:`bptsb_ros.ros.anchor`, split shape, ``anchor_seconds`` each): anchor, loop
-    A, anchor, loop B, anchor, ... Bags and logs go to ``workdir`` (default: a new temporary folder, kept)."""
+    A, anchor, loop B, anchor, ... With ``composed``, each loop also runs composed (``bptsb launch --composed``)
+    between two runs of the composed anchor (ping and pong in one process). Bags and logs go to ``workdir``
+    (default: a new temporary folder, kept)."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="bptsb-bench-live-"))
     work.mkdir(parents=True, exist_ok=True)
     report: dict[str, Any] = {"cpu_count": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
@@ -235,11 +238,16 @@ def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats
         agent = str(fitted_agent(work / "agent"))
     seq = report["sequence"]
     seq.append({"kind": "anchor", **anchor_run("split", anchor_seconds, progress)})
+    shapes = ("split", "composed") if composed else ("split",)
     for round_ in range(repeats):
         for loop in loops:
-            seq.append({"kind": "loop", **live_run(loop, seconds, work, f"{loop}_{round_}",
-                                                   agent if loop.endswith("_closed") else "", params, progress)})
-            seq.append({"kind": "anchor", **anchor_run("split", anchor_seconds, progress)})
+            for shape in shapes:
+                if shape == "composed":
+                    seq.append({"kind": "anchor", **anchor_run(shape, anchor_seconds, progress)})
+                seq.append({"kind": "loop", **live_run(loop, seconds, work, f"{loop}_{shape}_{round_}",
+                                                       agent if loop.endswith("_closed") else "", params, progress,
+                                                       composed=shape == "composed")})
+                seq.append({"kind": "anchor", **anchor_run(shape, anchor_seconds, progress)})
     report["runs"] = [item for item in seq if item["kind"] == "loop"]
     report["anchors"] = [item for item in seq if item["kind"] == "anchor"]
     report["load_average_at_end"] = list(os.getloadavg())

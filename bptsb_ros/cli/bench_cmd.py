@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="sim seconds of each run (default 10)")
     live.add_argument("--live-repeats", type=int, default=1, metavar="N",
                       help="interleaved rounds of one run per loop (default 1)")
+    live.add_argument("--live-composed", action="store_true",
+                      help="also run each loop composed (bptsb launch --composed: body and brains in one process), "
+                           "beside the one-process anchor")
     live.add_argument("--live-param", action="append", default=[], metavar="NODE:NAME:=VALUE",
                       help="a node parameter for every run (bptsb launch --param; repeatable)")
     soak.add_argument("--workdir", default="", metavar="DIR", help="bags, launch logs and timing records of the "
@@ -168,7 +171,7 @@ def _live(args: argparse.Namespace) -> int:
     if (problem := _check_workdir(workdir)) is not None:
         return problem
     report = run_live(loops, args.live_seconds, args.live_repeats, workdir, tuple(args.live_param),
-                      progress=lambda m: print(m, file=sys.stderr, flush=True))
+                      progress=lambda m: print(m, file=sys.stderr, flush=True), composed=args.live_composed)
     if (problem := _write(Path(args.out), report)) is not None:
         return problem
     print(live_table(report))

@@ -45,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --bag: a recording that lost messages (realtime under load) does not fail the run; "
                              "the losses are counted in the bag and reported either way")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="timing mode")
+    parser.add_argument("--composed", action="store_true",
+                        help="body_sim and the brains in one process on the body's executor (node composition; the "
+                             "recorder stays a process of its own): the same messages, fewer process hand-offs")
     parser.add_argument("--namespace", default="", metavar="NS",
                         help="ROS namespace of the loop (one robot of several in a domain): every node runs in it, "
                              "every topic resolves in it, /clock and /diagnostics included (remapped to NS/clock and "
@@ -172,6 +175,24 @@ def node_argv(executable: str, params: dict, extra: list[str], namespace: str = 
     for item in extra:
         argv += ["-p", item]
     return argv
+
+
+def composed_child(planned: dict[str, dict], extra: dict[str, list[str]], namespace: str, log_dir: Path) -> Child:
+    """The one process of ``--composed``: body_sim and the brains of ``planned`` (:mod:`bptsb_ros.ros.composed`),
+    their parameters in ``log_dir/composed_params.yaml``, a section per node."""
+    from bptsb_ros.live.loops import namespace_remaps
+    from bptsb_ros.ros.composed import params_file_text
+
+    nodes = {name: params for name, params in planned.items() if name != "recorder"}
+    params_file = log_dir / "composed_params.yaml"
+    write_atomic(params_file, params_file_text(nodes, extra))
+    argv = [sys.executable, "-m", "bptsb_ros.ros.composed", "--nodes", ",".join(nodes), "--ros-args",
+            "--params-file", str(params_file)]
+    if namespace:
+        argv += ["-r", f"__ns:={namespace}"]
+    for source, target in namespace_remaps(namespace):
+        argv += ["-r", f"{source}:={target}"]
+    return Child("composed", argv, log_dir / "composed.log")
 
 
 def parse_extra(items: list[str], nodes: list[str]) -> dict[str, list[str]]:
@@ -497,9 +518,13 @@ def run(args: argparse.Namespace) -> int:
     viewers = write_viewer_configs(log_dir, namespace)
 
     children: list[Child] = []
-    for executable, params in node_plan(loop, args, namespace, summary_path, plan, max_wind).items():
-        children.append(Child(executable, node_argv(executable, params, extra[executable], namespace),
-                              log_dir / f"{executable}.log"))
+    planned = node_plan(loop, args, namespace, summary_path, plan, max_wind)
+    if args.composed:
+        children.append(composed_child(planned, extra, namespace, log_dir))
+    for executable, params in planned.items():
+        if not args.composed or executable == "recorder":
+            children.append(Child(executable, node_argv(executable, params, extra[executable], namespace),
+                                  log_dir / f"{executable}.log"))
     body = children[0]
     recorder = children[-1] if args.bag else None
 

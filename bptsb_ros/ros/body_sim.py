@@ -177,12 +177,17 @@ class BodySim(BodyOutputs, BodyGraph, Node):
 
     def spin_once(self, timeout: float) -> None:
         self.executor_.spin_once(timeout_sec=timeout)
+        self.after_spin()
 
     def drain(self) -> None:
         before = -1
         while self.callbacks != before:  # until a spin handled nothing
             before = self.callbacks
             self.executor_.spin_once(timeout_sec=0.0)
+            self.after_spin()
+
+    def after_spin(self) -> None:
+        """What runs after each spin: nothing, or the brains' answers where they share this executor (composed)."""
 
     def publisher_gone(self, source: str) -> bool:
         return self.subs[source].get_publisher_count() == 0

@@ -256,6 +256,16 @@ class BrainNode(Node):
             self.realtime_priority(self.p["rt_priority"])
         while not self.stop:
             pump(lambda timeout: self.executor_.spin_once(timeout_sec=timeout), self.latches, 0.1, self.idle_spins())
+        return self.finish()
+
+    def answer_newest(self) -> None:
+        """Answer the newest pending message of each latch: what :meth:`run`'s loop does after handling what is
+        ready, called by the host's loop when this node's callbacks run on another node's executor (composed)."""
+        for latch in self.latches:
+            latch.answer()
+
+    def finish(self) -> int:
+        """Log the run's summary and let subscribers acknowledge the last messages; the exit code."""
         mean = 1e3 * self.compute.mean
         worst = 1e3 * self.compute.max if self.compute.count else 0.0
         dropped = sum(latch.dropped for latch in self.latches)
