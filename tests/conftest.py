@@ -8,9 +8,9 @@ gives the session a private ROS domain, so parallel sessions and other machines 
   pytest-xdist each worker adds its number to that, so workers never share a domain.
 * ``OMP_NUM_THREADS=1`` and ``MPLBACKEND=Agg`` unless already set (2 shared cores, no display).
 * ``BPTSB_FIGURE_FORMATS=png`` unless already set: the experiments' figures skip their PDF copy (half of a
-  figure's time); tests/test_figures.py unsets it and checks the PNG + PDF of every figure.
+  figure's time); tests/analysis/test_figures.py unsets it and checks the PNG + PDF of every figure.
 * ``BPTSB_COMPILE_NOTICE=0`` unless already set: no "compiling the numba kernels" line, which only a test that
-  happens to meet a cold cache would print (tests/test_compile_notice.py turns it on for its own checks).
+  happens to meet a cold cache would print (tests/body/test_compile_notice.py turns it on for its own checks).
 * ``FASTRTPS_DEFAULT_PROFILES_FILE=tests/fastdds_test_profile.xml`` unless a Fast DDS profile file is already set:
   reliable writers send a heartbeat every 0.1 s instead of every 3 s, so a wait for acknowledgements (every live
   run ends with one) takes milliseconds instead of up to 3 s. Nothing else about DDS changes (see the file).

@@ -254,7 +254,7 @@ from bptsb_ros.ros.swg_brain import SwgBrain
 
 results = {}
 for dtype in ("float32", "float64"):
-    # message objects, not the pre-serialized bytes (whose equality with these is tests/test_live_speed.py's)
+    # message objects, not the pre-serialized bytes (whose equality with these is tests/live/test_live_speed.py's)
     rclpy.init(args=["--ros-args", "-p", "task:=lissajous", "-p", "min_subscribers:=0", "-p", f"dtype:={dtype}",
                      "-p", "raw_outputs:=false"])
     node = SwgBrain(StopFlag())

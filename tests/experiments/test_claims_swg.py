@@ -452,7 +452,7 @@ def loco(successes: int, n: int = 20, not_forward: int = 0) -> list[Claim]:
 
 
 def test_locomotion_closed_loop_claims():
-    # Binomial(20, 0.4): central 95 % is 4…12 (tests/test_locomotion_experiments.py has the hand values)
+    # Binomial(20, 0.4): central 95 % is 4…12 (tests/experiments/test_locomotion_experiments.py has the hand values)
     assert verdicts(loco(8)) == [True, True]
     assert verdicts(loco(4)) == [True, True]
     assert verdicts(loco(3)) == [True, False]

@@ -118,7 +118,8 @@ def test_target_ipc_smoke(tmp_path):
     for name, p in prof.items():
         assert rows[(name, "IPC degree 2")] == pytest.approx(p["by_degree"][1])
         assert sum(p["by_degree"]) == pytest.approx(p["total"])
-    # the claims read the run's own profiles (their verdicts on planted numbers: tests/test_claims_timeseries.py)
+    # the claims read the run's own profiles (their verdicts on planted numbers:
+    # tests/experiments/test_claims_timeseries.py)
     claims = data["claims"]
     assert len(claims) == 4 and claims[0]["holds"] is True  # the memory target is u(t − 8) itself
     share1 = prof["NARMA2"]["by_degree"][0] / prof["NARMA2"]["total"]

@@ -1,6 +1,6 @@
 """Independent trainings as one batched simulation (``bptsb_ros/jobs/gang.py``, ``body/held_window_kernel.py``): each
 lane of a window run together with others equals that body's window run alone (``held_force_readout``'s solo
-path, itself checked against the per-step rollout in tests/test_held_window.py) bit for bit, in float64 and
+path, itself checked against the per-step rollout in tests/body/test_held_window.py) bit for bit, in float64 and
 float32; whole trainings in a gang (memory and NARMA targets, the guard rejecting updates, two topologies in one
 gang) equal the same trainings run one by one, bit for bit; a failing training is returned in its place while
 the others finish; sweeps in gangs; the gang's arguments."""

@@ -161,7 +161,7 @@ def test_train_in_memory_writes_nothing_and_calls_back_every_update(isolated) ->
 
 
 def test_train_in_memory_divergence_writes_nothing(isolated) -> None:
-    # tests/test_training_last_good.py's storm: a 1e12 N headwind from t = 8.5 s that no parameters survive
+    # tests/training/test_training_last_good.py's storm: a 1e12 N headwind from t = 8.5 s that no parameters survive
     storm = {"sim_time": 12, "locomotion.warmup_windows": 0, "locomotion.wind_force": -1.0e12,
              "locomotion.wind_period": 17, "feedback.enabled": False, "dtype": "float64"}
     with pytest.raises(bp.TrainingDiverged, match=r"update 5: .*trained in memory: nothing was written"):

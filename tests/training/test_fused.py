@@ -225,7 +225,7 @@ def test_unsupported_configs_fall_back_with_one_line(capsys, monkeypatch):
     _, task, opt = _build(loco)
     assert fused_unsupported(task, opt) is None  # locomotion is covered
     _, task, opt = _build(validate({"task": "narma", "brain": {"type": "lil"}, "training": {"backend": "fused"}}))
-    assert task.fused_episodes  # NARMA fuses its own episodes (tests/test_held_window.py), never this path
+    assert task.fused_episodes  # NARMA fuses its own episodes (tests/body/test_held_window.py), never this path
     assert fused_unsupported(task, opt) == "the NARMA task fuses its own episodes"
     assert "adjoint" in fused_unsupported(task, opt, adjoint=False)
 

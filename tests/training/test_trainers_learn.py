@@ -12,7 +12,7 @@ For each trainer, on a tiny planted episode in float64:
     θ ≥ 0 for the body, and lowers that same loss.
 
 Locomotion includes the headwind variant. The other trainers (MNIST, switching, closed-loop schemes, feedback-layer
-refits) and the learning-rate tables are in ``tests/test_trainers_learn_more.py``.
+refits) and the learning-rate tables are in ``tests/training/test_trainers_learn_more.py``.
 """
 
 from __future__ import annotations

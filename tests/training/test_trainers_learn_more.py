@@ -1,8 +1,8 @@
 """Every training loop is shown to train what it says: MNIST drawing and readout, Lissajous switching, the
 closed-loop schemes 1–3, the feedback layer's ridge fit, and the learning-rate tables.
 
-As in ``tests/test_trainers_learn.py``: (a) the reported loss equals one computed here in a few independent lines
-(the body stepped with plain autograd, targets, times, slices and weights written out) on a tiny planted episode
+As in ``tests/training/test_trainers_learn.py``: (a) the reported loss equals one computed here in a few independent
+lines (the body stepped with plain autograd, targets, times, slices and weights written out) on a tiny planted episode
 in float64; (b) one update moves the parameters by exactly what the documented optimiser does with the paper's
 (or the documented) rates, written here as numbers, and a few updates lower that loss.
 """

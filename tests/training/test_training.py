@@ -136,7 +136,7 @@ def test_resume_continues_where_it_stopped(tmp_path):
 def test_a_diverging_update_is_undone_and_training_goes_on(tmp_path):
     """k's rate 1e12: every update from the initial parameters diverges the next window. The guard undoes each,
     divides every rate by 10 after five, and the run ends with finite losses and a finite carried state (the
-    reporting of a training that cannot go on: tests/test_training_last_good.py)."""
+    reporting of a training that cannot go on: tests/training/test_training_last_good.py)."""
     cfg = load_config(CONFIG / "lissajous_single.yaml", ["sim_time=20", "training.lr.k=1.0e+12",
                                                            "training.checkpoint_every=1", "feedback.fit_time=5",
                                                            "lissajous.eval_periods=1"])
