@@ -87,7 +87,7 @@ L_RATES = (LEARN_MORE + "test_shipped_swg_configs_use_the_paper_table",
            LEARN_MORE + "test_module_rate_tables_are_the_papers")
 
 MUTANTS: tuple[Mutant, ...] = (
-    # -- issue 13: everything above the body ------------------------------------------------------------
+    # -- everything above the body ----------------------------------------------------------------------
     Mutant("feedback-sign", "bptsb_ros/brains/feedback.py",
            "return base * (1 + self.signal_from_features(features))",
            "return base * (1 - self.signal_from_features(features))",
@@ -152,7 +152,7 @@ MUTANTS: tuple[Mutant, ...] = (
            'out["trajectory_mse_shift_min"] = 2 * windowed_shift_error(',
            "replay's trajectory_mse_shift_min ×2",
            ("tests/analysis/test_replay.py::test_replay_lissajous_metric_of_a_planted_run",)),
-    # -- issue 8 §5: the live MNIST loop ----------------------------------------------------------------
+    # -- the live MNIST loop ----------------------------------------------------------------------------
     Mutant("mnist-live-no-reset", "bptsb_ros/live/body_core.py",
            "return None if cmd is None else cmd.values",
            "return None",
@@ -181,7 +181,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "torch.sin(beta * omega * t + delta)",
            "torch.sin(omega * t + delta)",
            "Lissajous target without β", (TASKS,)),
-    # -- the body (already caught before issue 13; kept so that it stays so) --------------------------------
+    # -- the body (caught before the mutants above were added; kept so that it stays so) --------------------
     Mutant("body-damping-sign", "bptsb_ros/body/forces.py",
            "torch.addcmul(coef.unsqueeze(-1) * diff, d.unsqueeze(-1), dv)",
            "torch.addcmul(coef.unsqueeze(-1) * diff, -d.unsqueeze(-1), dv)",
@@ -227,7 +227,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "v = v.masked_fill(r[..., 1:] < 0, 0.0)",
            "v = v.masked_fill(r[..., 1:] < -0.01, 0.0)",
            "ground clamp threshold changed (y < 0 → y < −0.01)", BODY),
-    # -- issue 10 §2: wind schedules and perturbations, live --------------------------------------------
+    # -- wind schedules and perturbations, live ---------------------------------------------------------
     Mutant("displaced-velocity", "bptsb_ros/body/msdn.py",
            "v = state.v.expand_as(r).clone()",
            "v = torch.zeros_like(r)",
@@ -995,7 +995,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "for lo in range(0, len(db.terms), rows):",
            "for lo in range(0, len(db.terms), rows + 1):",
            "a basis function skipped between chunks", ("tests/analysis/test_ipc.py",)),
-    # -- tests that can fail, round 3 (run them alone: -k r3-): the switching replay metrics, scheme 1's initial
+    # -- tests that can fail, the r3- mutants (run them alone: -k r3-): the switching replay metrics, scheme 1's initial
     # feedback layer, the literal perturbation rows, unequal masses; and their siblings (segment and window
     # boundaries, normalisations, "both conditions" rules, initial masks, every path that divides by a mass)
     Mutant("r3-switch-both-one-condition", "bptsb_ros/analysis/replay_lissajous.py",
@@ -1123,7 +1123,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "mask = one  # SineWaveGenerator",
            "the fused window's gradients of l, A, φ ignore the SWG's mask",
            ("tests/training/test_fused.py::test_an_swg_driving_only_some_springs_gives_the_autograd_paths_window",)),
-    # -- tests that can fail §3/§4: both sides of every validation at its edge, reported numbers -----------------
+    # -- tests that can fail: both sides of every validation at its edge, reported numbers -----------------------
     # (run them alone: -k edge). EDGES pins each check's accepted limit and the value just past it on each side.
     Mutant("edge-ipc-input-lower", "bptsb_ros/analysis/ipc.py",
            "u.min() < -1 - 1e-12 or",
@@ -1431,7 +1431,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "an ablation's retrained systems judged as the first variant's", (
                "tests/experiments/test_timeseries.py::test_narma_emulation_ablations_retrain_what_they_name_and_compare_with_the_first"
                "_variant",)),
-    # untrusted inputs, round 3: resumed states, lost jobs, bag schemas and publishers, settings, writers
+    # untrusted inputs: resumed states, lost jobs, bag schemas and publishers, settings, writers
     Mutant("trust-owner-without-namespace", "bptsb_ros/analysis/provenance.py",
            "        if owner is not None and publisher.name != owner:",
            "        if owner is not None and publisher.node != owner.rpartition(\"/\")[2]:",

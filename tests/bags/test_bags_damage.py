@@ -1,4 +1,4 @@
-"""Damaged bags (issue 6, finding 4): chunk CRCs are verified on read, recovery keeps every intact chunk and
+"""Damaged bags: chunk CRCs are verified on read, recovery keeps every intact chunk and
 rebuilds a damaged summary or metadata.yaml, and an earlier ``.damaged`` backup is never overwritten."""
 
 from __future__ import annotations

@@ -202,7 +202,7 @@ def _assert_raw_offered_qos(bag: Path) -> None:
 def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], sig: int) -> None:
     n = 4000  # one burst: a keep-last-1000 subscription loses part of it before the executor takes it
     bag = tmp_path / "rec"
-    # per-topic lines are DEBUG (issue 12): shown with log_level debug, for one of the two signals
+    # per-topic lines are DEBUG: shown with log_level debug, for one of the two signals
     recorder = _recorder(bag, env, *(["-p", "log_level:=debug"] if sig == signal.SIGINT else []))
     publisher = None
     try:

@@ -167,7 +167,7 @@ def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
     out = tmp_path / "rt.json"
     seen_out.append(str(out))
     assert bench_cmd.run(parse(["--realtime", "--out", str(out)])) == 0
-    assert seen[-2] == ("realtime", 600.0, 1, "events", 0)  # the 10 minutes, one core busy
+    assert seen[-2] == ("realtime", 600.0, 1, "events", 0)  # the default: 10 minutes, one core busy
     assert seen[-1] == ("on disk", {"complete": False, "conditions": {"idle": {"steps": 7, "busy_processes": 0}}})
     assert json.loads(out.read_text()) == {"complete": True, "conditions": {"idle": {"steps": 7,
                                                                                      "busy_processes": 0}}}

@@ -1,4 +1,4 @@
-"""Bad input to configs and command-line arguments (issue 6, finding 2): one clear error naming the
+"""Bad input to configs and command-line arguments: one clear error naming the
 problem, bounded in size, a non-zero exit, and nothing lost or left behind."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Autonomy experiments (issue 10): batched populations, the error and success criteria, FFT frequency
+"""Autonomy experiments: batched populations, the error and success criteria, FFT frequency
 detection, bifurcation maxima, periodicity, wind schedules, and the smoke runs of the experiments."""
 
 from __future__ import annotations

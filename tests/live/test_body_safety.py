@@ -1,4 +1,4 @@
-"""The live body's safety rules, ROS-free (issue 6, finding 3): physical bounds on commands and wind,
+"""The live body's safety rules, ROS-free: physical bounds on commands and wind,
 commands stamped beyond the next step, the publisher rule, and divergence recovery."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``config/foxglove_layout.json`` (issue 12): a Foxglove layout that opens a bag of a loop with the body in a 3D
+"""``config/foxglove_layout.json``: a Foxglove layout that opens a bag of a loop with the body in a 3D
 panel, spring-length and CMP plots and the diagnostics. Checked against the package's own topic table and message
 types: every panel in the layout tree is configured, every plotted message path resolves to a number in a message
 as body_sim publishes it, and the 3D panel follows the frame body_sim stamps."""

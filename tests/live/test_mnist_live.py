@@ -1,4 +1,4 @@
-"""The live "see a digit, draw it" loop (issue 8 §5): the image stream's schedule, the reset channel's rules (the
+"""The live "see a digit, draw it" loop: the image stream's schedule, the reset channel's rules (the
 body's use of them is tested without DDS in ``test_live_core.py``), a whole ``bptsb launch mnist_drawing`` run equal
 to the offline drawing of the same system and images, and its replay's per-digit errors. Planted data
 (``mnist_planted.py``): a tiny IDX set and a small seeded, untrained float64 system."""

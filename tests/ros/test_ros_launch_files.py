@@ -1,4 +1,4 @@
-"""The ROS launch files as a ROS 2 user runs them (issue 12).
+"""The ROS launch files as a ROS 2 user runs them.
 
 The ROS-free parts (argument checks, node parameters, what a node's exit does to the launch) run everywhere.
 The rest needs the upstream ``launch``/``launch_ros``/``ros2cli`` (not on PyPI: a ROS install, or

@@ -1,4 +1,4 @@
-"""What a ROS 2 user meets at a node (issue 12): ``--help`` and unknown arguments, live parameters with a
+"""What a ROS 2 user meets at a node: ``--help`` and unknown arguments, live parameters with a
 validating callback and read-only reasons, ``use_sim_time`` defaults, a stop signal delivered twice, readable
 summaries, and command topics that hand late joiners no backlog."""
 

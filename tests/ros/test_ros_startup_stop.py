@@ -1,4 +1,4 @@
-"""Ctrl-C while the nodes of a loop are still starting (issue 6, finding 3): a clean stop, every node
+"""Ctrl-C while the nodes of a loop are still starting: a clean stop, every node
 exits 0, no KeyboardInterrupt traceback, the launcher exits 0."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Wind schedules and perturbations, offline and live (issue: Lissajous autonomy in ROS 2): the schedules'
+"""Wind schedules and perturbations, offline and live (Lissajous autonomy in ROS 2): the schedules'
 definitions, the perturbation draw and ``MSDN.displaced``, the offline perturbed simulation against an independent
 step-by-step loop, the replay metrics on planted trajectories, and live ``lissajous_switching`` / perturbed runs
 equal to their offline counterparts (1e-9, float64)."""

@@ -1,5 +1,5 @@
 """``bptsb simulate`` and the trajectory file: re-integration by an independent implementation to 1e-8
-(issue 2's acceptance criterion), validation, the GIF, divergence reporting, and the ``--agent`` wiring."""
+(the acceptance bound), validation, the GIF, divergence reporting, and the ``--agent`` wiring."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """The "last good" checkpoint of a diverged run holds parameters that completed a training window
-without diverging (issue 6, finding 5), with periodic checkpoints and with ``checkpoint_every: 0``.
+without diverging, with periodic checkpoints and with ``checkpoint_every: 0``.
 
 Since the update guard undoes a diverging update, a training only stops as diverged when the parameters it
 would restore diverge too. Planted here with a physical cause no parameters survive: a headwind of 1e12 N

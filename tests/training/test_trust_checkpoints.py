@@ -1,4 +1,4 @@
-"""Untrusted checkpoints are data, never code (issue 6, finding 1).
+"""Untrusted checkpoints are data, never code.
 
 A crafted ``checkpoint.pt`` whose pickled ``__reduce__`` calls ``exec`` must be refused by every entry
 point that loads an agent, with a clear error naming the file, and its payload must never run. A path
