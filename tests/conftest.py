@@ -71,6 +71,22 @@ if not (os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") or os.environ.get("FAST
     os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILE)
 
 
+#: The fixtures that give a test a ROS domain: a test that asks for one (itself or through another fixture) runs ROS.
+ROS_FIXTURES = frozenset({"ros_env", "ros_domain_id", "quarantine_ros", "fresh_ros"})
+ROS_TESTS = REPO_ROOT / "tests" / "ros"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark ``ros`` every test under ``tests/ros/`` and every test that uses a ROS domain fixture (before ``-m``
+    selects). Tests elsewhere that need ROS 2 without such a fixture (rclpy's serializer, the message packages)
+    carry the mark themselves."""
+    del config
+    for item in items:
+        if item.path.is_relative_to(ROS_TESTS) or ROS_FIXTURES.intersection(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.ros)
+
+
 def pytest_report_header(config: pytest.Config) -> str:
     return (
         f"bptsb_ros: python {sys.executable}, ROS_DOMAIN_ID={SESSION_DOMAIN_ID}, "

@@ -180,6 +180,7 @@ def test_ipc_command_writes_json_and_figure(tmp_path, u):
     assert not (tmp_path / "b" / "ipc.json").exists()
 
 
+@pytest.mark.ros
 def test_ipc_of_a_bag_reads_inputs_and_block_end_states(tmp_path):
     """A bag written with the live nodes' message builders: three masses (0 fixed, 1 movable, 2 the CMP) whose
     block-end positions are planted functions of the held input: mass 1 x = u(t−1), mass 1 y = u(t)²,

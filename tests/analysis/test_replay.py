@@ -19,6 +19,8 @@ from bptsb_ros.sim.trajectory import trajectory_from_rollout
 from bptsb_ros.training.checkpoint import load_agent
 from bptsb_ros.workflows.train import train
 
+pytestmark = pytest.mark.ros  # every test here builds ROS 2 messages (rclpy and the message packages)
+
 CONFIG = REPO_ROOT / "config" / "lissajous_single.yaml"
 
 

@@ -39,6 +39,7 @@ def _custom(text: str, name: str = "lab_msgs/msg/Big") -> MessageDefinition:
     return MessageDefinition(name, "ros2msg", text)
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("text, why", [
     ("string[200000000] s\n", r"declares a fixed array of 200,000,000 elements; the most read is 1,000,000"),
     ("string[4096] s\n", r"expands to more than 1,000 fields"),
@@ -80,6 +81,7 @@ def _swapped_point() -> MessageDefinition:
     return MessageDefinition(POSES, "ros2msg", head + point + body + "=" * 80 + rest)
 
 
+@pytest.mark.ros
 def test_a_known_type_defined_otherwise_than_installed_is_refused(tmp_path, capsys):
     """x and y of Point swapped in the bag's schema: rclpy would read the bytes as the installed Point, rosbags as
     the bag's; instead both refuse, naming the difference (comments alone would not count)."""
@@ -100,6 +102,7 @@ def test_a_known_type_defined_otherwise_than_installed_is_refused(tmp_path, caps
         list(read_messages(flat))
 
 
+@pytest.mark.ros
 def test_a_message_without_its_fields_is_one_line_without_ros(tmp_path, capsys, monkeypatch):
     """Where the type is not installed (no ROS), the bag's schema is all there is: a PoseArray without header is
     one line from replay and ipc, as is a body topic of another type."""
@@ -131,6 +134,7 @@ def test_a_message_without_its_fields_is_one_line_without_ros(tmp_path, capsys, 
     assert "/body/positions is of type lab_msgs/msg/Fake, not geometry_msgs/msg/PoseArray" in err
 
 
+@pytest.mark.ros
 def test_control_bytes_of_a_bag_never_reach_the_terminal(tmp_path, capsys):
     """A topic named with a terminal's escape sequences (set the title, colour, reverse the text) and a schema whose
     parse error quotes such bytes: every line printed has them escaped."""

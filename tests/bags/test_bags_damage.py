@@ -18,6 +18,8 @@ from bptsb_ros.bags.recover import recover_bag
 from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.cli import bag_cmd
 
+pytestmark = pytest.mark.ros  # every test here builds ROS 2 messages (rclpy and the message packages)
+
 T0 = 1_800_000_000_000_000_000
 PER_CHUNK, CHUNKS = 5, 4
 

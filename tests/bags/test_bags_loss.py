@@ -52,6 +52,7 @@ def test_sequence_gaps_and_middleware_reports() -> None:
     assert recorded_loss({"dropped_messages": "x"}) == (None, {}, True)
 
 
+@pytest.mark.ros
 def test_stamps_of_serialized_messages_and_the_acknowledgement() -> None:
     clock = serialize_message(m.clock_msg(1234, DT_NS))
     state = serialize_message(m.joint_state(1230, DT_NS, ["a"], position=np.zeros(1)))
@@ -81,6 +82,7 @@ def _bag(path: Path, steps: int, custom: dict[str, str]) -> Path:
     return path
 
 
+@pytest.mark.ros
 def test_recording_loss_takes_the_larger_count_per_topic(tmp_path: Path) -> None:
     # the recorder counted 3 on /clock and 1 on /x; the body published 100 /clock (the bag has 90 of them from
     # body_sim; the forger's message does not count) and 2 diagnostics (the bag has none)
@@ -94,6 +96,7 @@ def test_recording_loss_takes_the_larger_count_per_topic(tmp_path: Path) -> None
     assert recording_loss(clean, {"/clock": 91}).by_topic == {"/clock": 1}  # the last one never arrived
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("allow", [False, True])
 def test_launcher_verdict_says_ok_only_without_loss(tmp_path: Path, allow: bool) -> None:
     bag = _bag(tmp_path / "b", 90, LossCount().custom_data())
@@ -115,6 +118,7 @@ def test_launcher_verdict_says_ok_only_without_loss(tmp_path: Path, allow: bool)
     assert read_metadata(bag).custom_data["dropped_messages"] == "0"  # the bag is left as the recorder wrote it
 
 
+@pytest.mark.ros
 def test_bag_info_shows_the_losses(tmp_path: Path) -> None:
     from bptsb_ros.bags.reader import bag_info, format_info
 

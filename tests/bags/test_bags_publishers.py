@@ -21,6 +21,8 @@ from bptsb_ros.bags.writer import BagWriter
 from bptsb_ros.cli import replay_cmd
 from bptsb_ros.ros import messages as m
 
+pytestmark = pytest.mark.ros  # every test here builds ROS 2 messages (rclpy and the message packages)
+
 DT_NS = 10_000_000
 STEPS = 20
 BODY = PublisherId("01.0f.aa.00.00.00.00.00.00.00.00.00.00.00.01.03", "body_sim", "/")

@@ -56,6 +56,7 @@ def _copy_truncated(src: Path, dst: Path, size: int, torn: bytes = b"") -> Path:
     return dst
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("cut", [0, 1, 2, 4])
 @pytest.mark.parametrize("torn", [b"", b"\x06", struct.pack("<BQ", 0x06, 5000) + b"\x00" * 28])
 def test_recovers_exactly_the_complete_chunks(unfinished, tmp_path: Path, cut: int, torn: bytes) -> None:
@@ -91,6 +92,7 @@ def test_recovers_exactly_the_complete_chunks(unfinished, tmp_path: Path, cut: i
         assert len(list(reader.messages())) == n
 
 
+@pytest.mark.ros
 def test_corrupt_chunk_is_dropped_and_every_later_chunk_kept(unfinished, tmp_path: Path) -> None:
     src, sizes, counts = unfinished
     bag = _copy_truncated(src, tmp_path / "bag", sizes[-1])
@@ -109,6 +111,7 @@ def test_corrupt_chunk_is_dropped_and_every_later_chunk_kept(unfinished, tmp_pat
     assert [m.timestamp_ns for m in read_messages(bag)] == [T0 + i * 1000 for i in kept]
 
 
+@pytest.mark.ros
 def test_complete_bag_is_left_alone_and_bad_input(unfinished, tmp_path: Path) -> None:
     good = tmp_path / "good"
     with BagWriter(good) as writer:
@@ -137,6 +140,7 @@ def test_complete_bag_is_left_alone_and_bad_input(unfinished, tmp_path: Path) ->
     assert not list(header_only.glob("*.recovering"))
 
 
+@pytest.mark.ros
 def test_cli_recover_and_info(unfinished, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     src, sizes, counts = unfinished
     bag = tmp_path / "bag"

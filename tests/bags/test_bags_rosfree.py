@@ -139,6 +139,7 @@ def _typed(value: object) -> object:
     return (type(value).__name__, value)
 
 
+@pytest.mark.ros
 def test_rosbags_decodes_every_recorded_type_as_rclpy_does(bag: Path) -> None:
     by_rclpy = list(read_published(bag, decoder="rclpy"))
     by_rosbags = list(read_published(bag, decoder="rosbags"))
@@ -156,6 +157,7 @@ def test_rosbags_decodes_every_recorded_type_as_rclpy_does(bag: Path) -> None:
     assert [_plain(p.message.message) for p in by_rosbags[:-1]] == planted
 
 
+@pytest.mark.ros
 def test_a_bag_recorded_through_dds_decodes_alike() -> None:
     """The example bag was recorded live (the bytes as DDS delivered them, not as rclpy serializes them here)."""
     bag = REPO / "bags" / "lissajous_closed_example"
@@ -168,6 +170,7 @@ def test_a_bag_recorded_through_dds_decodes_alike() -> None:
         assert _typed(_plain(rb_msg.message)) == _typed(_plain(ros_msg.message)), ros_msg.topic
 
 
+@pytest.mark.ros
 def test_the_comparison_sees_a_one_value_difference(bag: Path) -> None:
     """The field-by-field comparison above is not vacuous: one changed float in one marker colour shows."""
     msg = next(p.message.message for p in read_published(bag, ["/body/markers"], decoder="rosbags"))
@@ -177,6 +180,7 @@ def test_the_comparison_sees_a_one_value_difference(bag: Path) -> None:
     assert _typed({"a": [1]}) != _typed({"a": [1.0]})  # an int read as a float would show
 
 
+@pytest.mark.ros
 def test_arrays_and_auto_decoder_agree_with_planted_values(bag: Path) -> None:
     topics = ["/body/positions", "/body/mass_states", "/task/input", "/debug/grid", "/clock", "/env/wind"]
     ros = read_arrays(bag, topics, decoder="rclpy")
@@ -193,6 +197,7 @@ def test_arrays_and_auto_decoder_agree_with_planted_values(bag: Path) -> None:
     assert np.array_equal(rb["/task/input"].values[:, 0], np.arange(STEPS) / 10)
 
 
+@pytest.mark.ros
 def test_a_custom_type_decodes_from_the_schema_text_alone(tmp_path: Path) -> None:
     """A type no package installs: its definition is only in the bag. auto falls back to rosbags (rclpy has no
     class for it); the CDR bytes are packed here by hand (little-endian, encapsulation 00 01 00 00)."""
@@ -332,6 +337,7 @@ def _cut_copies(bag: Path, *dirs: Path) -> None:
         (d / "bag_0.mcap").write_bytes(data[: len(data) * 3 // 5])
 
 
+@pytest.mark.ros
 def test_replay_and_ipc_run_without_rclpy_and_match_the_ros_path(tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     _narma_bag(bag)

@@ -59,6 +59,7 @@ def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.ros
 def test_layout_and_metadata_yaml(bag: Path) -> None:
     assert sorted(p.name for p in bag.iterdir()) == ["demo_0.mcap", "metadata.yaml"]
     raw = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
@@ -84,6 +85,7 @@ def test_layout_and_metadata_yaml(bag: Path) -> None:
     assert meta.topics[3].offered_qos_profiles == [BEST_EFFORT]
 
 
+@pytest.mark.ros
 def test_mcap_reader_sees_ros2_profile_schemas_indexes(bag: Path) -> None:
     with open(bag / "demo_0.mcap", "rb") as f:
         reader = make_reader(f)
@@ -117,6 +119,7 @@ def test_mcap_reader_sees_ros2_profile_schemas_indexes(bag: Path) -> None:
     assert rosbag2["message_count"] == 4 * N and rosbag2["version"] == 9
 
 
+@pytest.mark.ros
 def test_rosbags_reads_and_deserializes(bag: Path) -> None:
     from rosbags.highlevel import AnyReader
 
@@ -139,6 +142,7 @@ def test_rosbags_reads_and_deserializes(bag: Path) -> None:
     assert [m.id for m in seen["/body/markers"][0][1].markers] == [0, 1]
 
 
+@pytest.mark.ros
 def test_our_reader_messages_arrays_and_info(bag: Path) -> None:
     msgs = list(read_messages(bag, ["/body/markers"]))
     assert len(msgs) == N and msgs[4].msgtype == "visualization_msgs/msg/MarkerArray"
@@ -200,6 +204,7 @@ def test_qos_yaml_roundtrip_and_old_versions() -> None:
         qos_profiles_from_value([{"history": "keep_last"}])
 
 
+@pytest.mark.ros
 def test_writer_and_reader_reject_bad_input(bag: Path, tmp_path: Path) -> None:
     with pytest.raises(BagError, match="already exists"):
         BagWriter(bag)
@@ -244,6 +249,7 @@ def test_bad_writer_options_create_nothing(tmp_path: Path) -> None:
         assert not (tmp_path / "bad" / "bag").exists()
 
 
+@pytest.mark.ros
 def test_joint_state_arrays_take_the_filled_field(tmp_path: Path) -> None:
     from sensor_msgs.msg import JointState
 
@@ -278,6 +284,7 @@ KEEP_LAST_7_RAW = {
 }
 
 
+@pytest.mark.ros
 def test_whole_qos_profiles_in_raw_metadata_and_mcap_channels(tmp_path: Path) -> None:
     """Every field of two offered profiles, read from metadata.yaml and the MCAP channel metadata directly."""
     bag = tmp_path / "qos"
@@ -294,6 +301,7 @@ def test_whole_qos_profiles_in_raw_metadata_and_mcap_channels(tmp_path: Path) ->
     assert isinstance(text, str) and yaml.safe_load(text) == [LATCHED_KEEP_ALL_RAW, KEEP_LAST_7_RAW]
 
 
+@pytest.mark.ros
 def test_qos_from_rclpy_keeps_every_policy() -> None:
     """A recorder stores what rclpy reports for a publisher: every policy, lower-case, depth as given."""
     from rclpy.duration import Duration

@@ -255,6 +255,7 @@ def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Pat
     assert argvs[1][argvs[1].index("--rate-scale") + 1] == "10" and fast["rate_scale"] == 10.0
 
 
+@pytest.mark.ros
 def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     """``body_sim.diagnostics`` with the time left before the next step (``slack``): the summary and the message are
     two parts, each done only in a turn with more slack than twice what it took; overdue by 5 periods, both at once."""
@@ -289,6 +290,7 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     assert len(published) == 3 and len(summaries) == 3
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("mode", ["realtime", "lockstep"])
 def test_the_periodic_graph_query_of_a_realtime_body_waits_for_slack_and_not_forever(mode):
     """``body_sim._untrusted``: the publishers of a command topic are looked up again when their count changes (at

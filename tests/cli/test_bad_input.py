@@ -99,6 +99,7 @@ def _one_line_error(capsys) -> str:
     return err
 
 
+@pytest.mark.ros
 @pytest.mark.skipif(not os.path.isdir("/sys/kernel"), reason="needs a read-only /sys")
 def test_unwritable_outputs_give_one_line(tmp_path, capsys):
     a_file = tmp_path / "file"
@@ -141,6 +142,7 @@ def test_bag_qos_alias_bomb_gives_a_short_error():
     assert len(str(err.value)) < 500
 
 
+@pytest.mark.ros
 def test_bag_schema_names_never_import_arbitrary_modules():
     """A schema name read from a bag picks the module to import: only installed ROS messages are imported."""
     import sys

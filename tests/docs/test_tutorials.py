@@ -16,6 +16,8 @@ TUTORIALS = REPO / "docs" / "tutorials"
 SMALL = {"train_lissajous.ipynb": ("SIM_TIME", 100), "live_loop_bag_analysis.ipynb": ("DURATION", 40),
          "paper_result_figure.ipynb": ("RESULT", str(REPO / "reproduction" / "runs" / "lissajous-perturbation-paper"
                                                       / "seed-0" / "result.json"))}
+#: the tutorial that runs a live loop (ROS 2 nodes on the session's domain)
+LIVE = "live_loop_bag_analysis.ipynb"
 
 
 def test_every_tutorial_is_run_here_and_is_in_the_site_navigation():
@@ -38,11 +40,11 @@ def test_a_stored_tutorial_shows_the_outputs_of_a_full_run(name):
     assert any(o.get("data", {}).get("image/png") for c in cells for o in c.get("outputs", []))
 
 
-@pytest.mark.parametrize("name", sorted(SMALL))
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.ros) if n == LIVE else n for n in sorted(SMALL)])
 def test_a_tutorial_runs(name, tmp_path):
     nbformat = pytest.importorskip("nbformat", reason="the docs tools (pip install -e '.[dev]') are not installed")
     nbclient = pytest.importorskip("nbclient", reason="the docs tools (pip install -e '.[dev]') are not installed")
-    if name == "live_loop_bag_analysis.ipynb":
+    if name == LIVE:
         pytest.importorskip("rclpy", reason="the live loop needs the ROS 2 wheels (the ros extra)")
     nb = nbformat.read(TUTORIALS / name, as_version=4)
     parameter, small = SMALL[name]

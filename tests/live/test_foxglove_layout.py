@@ -57,6 +57,7 @@ def test_every_panel_in_the_tree_is_configured(layout):
     assert {"3D", "Plot", "DiagnosticSummary", "DiagnosticStatusPanel"} <= kinds
 
 
+@pytest.mark.ros
 def test_3d_panel_shows_the_body_in_its_frame(layout):
     from bptsb_ros.ros.body_sim import PARAMS
 
@@ -67,6 +68,7 @@ def test_3d_panel_shows_the_body_in_its_frame(layout):
     assert panel["topics"][markers]["visible"] is True
 
 
+@pytest.mark.ros
 def test_plotted_paths_resolve_to_numbers(layout):
     known = {absolute(t.name) for t in TOPICS.values()}
     paths = []

@@ -104,6 +104,7 @@ def _outputs():
     }
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("key", ["clock", "positions", "mass_states", "spring_lengths", "external_force", "force_cmd",
                                  "task_input", "markers"])
 def test_template_bytes_are_the_message_objects(key):
@@ -135,6 +136,7 @@ def test_template_bytes_are_the_message_objects(key):
             np.testing.assert_array_equal(xy, arrays[0])
 
 
+@pytest.mark.ros
 def test_a_builder_that_changes_its_values_cannot_be_templated():
     from bptsb_ros.ros import messages as m
     from bptsb_ros.ros.raw_out import TemplateError
@@ -145,6 +147,7 @@ def test_a_builder_that_changes_its_values_cannot_be_templated():
         _template(lambda k, x: m.joint_state(0, DT_NS, ["a", "b"], position=x), [(2,)])
 
 
+@pytest.mark.ros
 def test_template_bytes_are_exact_cdr_that_a_strict_reader_accepts():
     """Every render is the whole message and nothing more: ``rosbags``' strict deserializer (which refuses more than
     3 bytes after the content) reads it with the values, and it has the length of rosbags' own serialization. rclpy's
@@ -173,6 +176,7 @@ def test_template_bytes_are_exact_cdr_that_a_strict_reader_accepts():
             assert len(got.velocity) == 0 and (got.header.stamp.sec, got.header.stamp.nanosec) == (4, 170_000_000)
 
 
+@pytest.mark.ros
 def test_command_messages_of_every_size_are_templated():
     """Every ``JointState`` of 1–120 values templates, one after another in one process (while a sentinel had to
     occur once, a stale copy in the buffer's unfilled tail refused 17 of these sizes in one run, which ones varying
@@ -188,6 +192,7 @@ def test_command_messages_of_every_size_are_templated():
         np.testing.assert_array_equal(np.asarray(got.position), values)
 
 
+@pytest.mark.ros
 def test_markers_by_hand():
     """``body_markers`` (now from arrays): mass points at the positions, line points at both ends of every spring,
     line colours the scalar strain colour of their spring, twice."""

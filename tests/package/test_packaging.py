@@ -75,6 +75,7 @@ def _package_prefix_from_index(ament_prefix_path: Path) -> str:
     return out.stdout.strip()
 
 
+@pytest.mark.ros
 @pytest.mark.skipif(importlib.util.find_spec("colcon_core") is None,
                     reason="colcon-core is not installed (it comes with: pip install -e '.[dev]')")
 def test_colcon_build_produces_the_ament_install_tree(tmp_path: Path) -> None:
@@ -114,6 +115,7 @@ def test_colcon_build_produces_the_ament_install_tree(tmp_path: Path) -> None:
     assert "usage: bptsb" in help_run.stdout
 
 
+@pytest.mark.ros
 def test_pip_install_registers_the_package_under_the_venv_prefix() -> None:
     if sys.prefix == sys.base_prefix:
         pytest.skip("not running from a virtual environment (make venv creates .venv)")

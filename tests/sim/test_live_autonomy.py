@@ -84,6 +84,7 @@ def test_file_schedule_and_its_errors(tmp_path):
         read_table(tmp_path / "missing.csv")
 
 
+@pytest.mark.ros
 def test_agent_wind_and_node_parameters():
     from bptsb_ros.interface.params import ParameterError
     from bptsb_ros.ros.wind_source import PARAMS, schedule_from_parameters
@@ -375,6 +376,7 @@ def test_wind_file_size_bound_both_sides(tmp_path, monkeypatch):
         read_table(f)
 
 
+@pytest.mark.ros
 def test_wind_table_beyond_max_wind_is_refused_at_startup(tmp_path, capsys):
     """A 1e30 N row made the body reject every wind (the run ended 'ok' with no wind at all): the table is
     checked against the body's max_wind by read_table, by wind_source and by `bptsb launch` before starting."""

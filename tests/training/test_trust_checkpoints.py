@@ -19,6 +19,8 @@ from ros_live import env_for
 from bptsb_ros.cli import main
 from bptsb_ros.ros import messages as m
 
+pytestmark = pytest.mark.ros  # every test here builds ROS 2 messages (rclpy and the message packages)
+
 CONFIG = REPO / "config" / "lissajous_single.yaml"
 DT_NS = 10_000_000
 
