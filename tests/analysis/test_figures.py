@@ -266,7 +266,7 @@ def test_figure(name, tmp_path, caught, recorded):
         f"{name}: changed the caller's rcParams"
 
 
-@pytest.mark.parametrize("name", WRITTEN)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "gaits" else n for n in WRITTEN])
 def test_figure_files(name, tmp_path, caught):
     png = figure_cases.CASES[name](tmp_path)
     problems = file_problems(png) + _check_figure(name, caught[0], png)

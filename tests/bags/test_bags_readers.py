@@ -9,6 +9,8 @@ from collections import Counter
 import pytest
 from ros_live import bptsb
 
+pytestmark = pytest.mark.slow  # each test here runs a launched loop of several seconds
+
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags.highlevel")
 pytest.importorskip("mcap_ros2.decoder")

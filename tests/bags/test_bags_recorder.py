@@ -228,6 +228,7 @@ def test_stop_signal_keeps_every_message(tmp_path: Path, env: dict[str, str], si
     assert [p.poses[0].position.x for p in poses] == [float(i) for i in range(n)]
 
 
+@pytest.mark.slow
 def test_stop_signal_keeps_every_message_under_load(tmp_path: Path, env: dict[str, str]) -> None:
     """The recorder shares one CPU with 3 busy processes: a burst of 2 × 4000 messages (all acknowledged by the
     recorder's DDS reader, so all waiting in its queue when SIGINT comes) is still recorded whole and the bag
@@ -251,6 +252,7 @@ def test_stop_signal_keeps_every_message_under_load(tmp_path: Path, env: dict[st
     assert [m.message.data[0] for m in read_messages(bag, ["/bagtest/data"])] == [float(i) for i in range(n)]
 
 
+@pytest.mark.slow
 def test_lost_messages_are_counted_and_fail_the_recorder(tmp_path: Path, env: dict[str, str]) -> None:
     """Two recorders with a 1-message queue (one with allow_loss) are stopped (SIGSTOP) while 2 × 499 messages are
     published, then resumed: each queue keeps only the newest of each topic. The gaps in the publishers' sequence
@@ -290,6 +292,7 @@ def test_lost_messages_are_counted_and_fail_the_recorder(tmp_path: Path, env: di
         assert rc == (0 if allow_loss else 1), out
 
 
+@pytest.mark.slow
 def test_messages_published_after_the_stop_are_not_waited_for(tmp_path: Path, env: dict[str, str]) -> None:
     """A publisher that never stops: the recorder stops within a second of SIGINT (it used to keep taking the new
     messages until its 8 s stop_timeout and then report "later ones are lost"), records every message up to the

@@ -337,6 +337,7 @@ def _cut_copies(bag: Path, *dirs: Path) -> None:
         (d / "bag_0.mcap").write_bytes(data[: len(data) * 3 // 5])
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 def test_replay_and_ipc_run_without_rclpy_and_match_the_ros_path(tmp_path: Path) -> None:
     bag = tmp_path / "bag"

@@ -168,6 +168,7 @@ def test_threads_over_the_batch_equal_one_thread_bit_for_bit(monkeypatch) -> Non
         assert torch.equal(a, b)
 
 
+@pytest.mark.slow
 def test_a_parallel_kernel_leaves_torch_on_its_thread_count() -> None:
     """numba's OpenMP layer shares torch's libgomp: the first parallel region of a process used to leave torch on
     numba's thread count (a one-thread pool worker then ran torch on every core). A fresh process, forward and

@@ -274,6 +274,7 @@ print(json.dumps(results))
 """
 
 
+@pytest.mark.slow
 def test_live_swg_brain_clock_callback_at_the_large_step(ros_env) -> None:
     """The live node answers /clock at step k with l·(1 + A sin(ω k Δt + φ)), in float32 and in float64 (its
     default); run in a process of its own (its own rclpy context and arguments)."""

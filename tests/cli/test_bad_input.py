@@ -200,6 +200,7 @@ def test_launch_checks_perturb_at_against_the_run_before_starting(args, why, cap
         assert "--perturb-at" in err and why in err
 
 
+@pytest.mark.slow
 def test_body_sim_refuses_a_perturbation_beyond_any_step_in_one_line(tmp_path, ros_env):
     """--duration 0 (no end): the launcher cannot know the step, body_sim refuses it at start-up (it crashed
     with an OverflowError traceback)."""

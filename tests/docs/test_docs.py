@@ -162,6 +162,7 @@ class _Text(HTMLParser):
             self.parts.append(data)
 
 
+@pytest.mark.slow
 def test_site_builds_strictly(tmp_path):
     pytest.importorskip("mkdocs", reason="the docs tools (pip install -e '.[dev]') are not installed")
     site = tmp_path / "site"

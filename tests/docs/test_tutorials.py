@@ -18,6 +18,8 @@ SMALL = {"train_lissajous.ipynb": ("SIM_TIME", 100), "live_loop_bag_analysis.ipy
                                                       / "seed-0" / "result.json"))}
 #: the tutorial that runs a live loop (ROS 2 nodes on the session's domain)
 LIVE = "live_loop_bag_analysis.ipynb"
+#: the marks of a tutorial's run: the live loop needs ROS 2; it and the training take 10 s or more
+RUN_MARKS = {LIVE: [pytest.mark.ros, pytest.mark.slow], "train_lissajous.ipynb": [pytest.mark.slow]}
 
 
 def test_every_tutorial_is_run_here_and_is_in_the_site_navigation():
@@ -40,7 +42,7 @@ def test_a_stored_tutorial_shows_the_outputs_of_a_full_run(name):
     assert any(o.get("data", {}).get("image/png") for c in cells for o in c.get("outputs", []))
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.ros) if n == LIVE else n for n in sorted(SMALL)])
+@pytest.mark.parametrize("name", [pytest.param(n, marks=RUN_MARKS.get(n, ())) for n in sorted(SMALL)])
 def test_a_tutorial_runs(name, tmp_path):
     nbformat = pytest.importorskip("nbformat", reason="the docs tools (pip install -e '.[dev]') are not installed")
     nbclient = pytest.importorskip("nbclient", reason="the docs tools (pip install -e '.[dev]') are not installed")

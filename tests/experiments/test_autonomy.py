@@ -219,6 +219,7 @@ def _diverge_when(monkeypatch, module, name: str, when, error) -> list:
     return calls
 
 
+@pytest.mark.slow
 def test_lissajous_switching_smoke(tmp_path, monkeypatch):
     """The three variants at smoke scale, the published-wind one's switching training planted to diverge: its
     claims are not testable, saying why, and the other two are judged as usual."""
@@ -267,6 +268,7 @@ def test_lissajous_switching_smoke(tmp_path, monkeypatch):
     assert not (out / "published_wind" / "checkpoint.pt").exists()
 
 
+@pytest.mark.slow
 def test_lissajous_bifurcation_smoke(tmp_path, monkeypatch):
     """The three variants at smoke scale, the preliminary training of the published integrator (the authors'
     protocol's) planted to diverge: that variant's claims are not testable, the other two are judged as usual."""
@@ -309,6 +311,7 @@ def test_lissajous_bifurcation_smoke(tmp_path, monkeypatch):
     assert len(data["figures"]) == 2 and not (out / auth).exists()
 
 
+@pytest.mark.slow
 def test_lissajous_timing_smoke(tmp_path, monkeypatch):
     """Six switching trainings at smoke scale, the random-timing one of the published wind planted to diverge: its
     claim is not testable, the fixed-timing claim of the same variant still judged."""

@@ -538,6 +538,7 @@ def test_separation_probe_size_and_chance():
 
 
 # -- label maps: start point (each digit's best sample) and width (±size/5) ------------------------------------------
+@pytest.mark.slow
 def test_label_maps_start_at_each_digits_best_sample_within_0_8_m(tmp_path, monkeypatch):
     from bptsb_ros.experiments import mnist_analysis as ma
     from bptsb_ros.experiments.registry import Context

@@ -159,6 +159,7 @@ def test_init_from_continues_a_run(tmp_path):
         train(packaged_config("narma", ["epochs=1"]), tmp_path / "c", progress=False, init_from=tmp_path / "a")
 
 
+@pytest.mark.slow
 def test_smoke_runs_match_their_records(tmp_path, monkeypatch):
     """The three experiments at smoke scale, sharing their agents; every row and claim recomputed. The headwind's
     authors' variant is planted to diverge (as at paper scale, seed 1): it is a row and a reason, its claims not

@@ -148,6 +148,7 @@ def test_paper_scale_means_the_papers_split(tmp_path, capsys):
     assert not (out / "result.json").exists()
 
 
+@pytest.mark.slow
 def test_mnist_drawing_smoke(tiny_mnist, tmp_path):
     """Trains in the process pool; the saved systems redraw the test images with the reported errors."""
     from bptsb_ros.tasks.drawing import load_system
@@ -268,6 +269,7 @@ def best_draw_own_digit(errs: np.ndarray, labels: np.ndarray) -> bool:
     return all(int(errs[i].argmin()) == d for d, i in enumerate(best))
 
 
+@pytest.mark.slow
 def test_mnist_labelmap_smoke(tiny_mnist, tmp_path):
     from bptsb_ros.tasks.drawing import load_system
 
@@ -301,6 +303,7 @@ def verdicts_of(result: dict) -> list[bool | None]:
     return [c["holds"] for c in result["claims"]]
 
 
+@pytest.mark.slow
 def test_mnist_specific100_smoke(tiny_mnist, tmp_path):
     from bptsb_ros.tasks.drawing import load_system
 
@@ -492,6 +495,7 @@ def test_a_readout_job_runs_the_guard_it_is_given():
         assert (res["guard"]["factor"], res["guard"]["window"]) == (factor, window)
 
 
+@pytest.mark.slow
 def test_mnist_analyses_share_one_seeds_all_data_system_in_a_multi_seed_layout(tiny_mnist, tmp_path):
     """mnist-pca of seed 1 trains the all-data system (no mnist-drawing run beside it); mnist-labelmap and
     mnist-specific100 of seed 1 reuse it, and seed 0 of mnist-labelmap (another seed) does not."""

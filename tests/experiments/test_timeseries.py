@@ -140,6 +140,7 @@ def _cmp_y(st):
     return st["positions"][:, list(st["movable"]).index(int(st["cmp_index"])), 1]
 
 
+@pytest.mark.slow
 def test_narma_emulation_smoke(tmp_path):
     _, data = run_experiment("narma-emulation", scale="smoke", out_dir=tmp_path, progress=False)
     rows = {r["system"]: r["ours"] for r in data["rows"]}
@@ -198,6 +199,7 @@ def test_the_guard_record_of_a_job_names_the_tenth_division(tmp_path):
     assert guard_record(tmp_path / "missing") is None
 
 
+@pytest.mark.slow
 def test_narma_ipc_smoke(tmp_path):
     from bptsb_ros.analysis.ipc import ipc
 
@@ -244,6 +246,7 @@ def test_narma_ipc_smoke(tmp_path):
     assert (tmp_path / "narma_ipc.png").is_file()
 
 
+@pytest.mark.slow
 def test_memory_task_smoke(tmp_path):
     _, data = run_experiment("memory-task", scale="smoke", out_dir=tmp_path, progress=False)
     d = data["details"]
@@ -302,6 +305,7 @@ def test_zero_bias_relu_mlp_is_linear_on_nonnegative_input_only():
         assert second_diff > 1e-3
 
 
+@pytest.mark.slow
 def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
     """At paper scale the LIL + multiple circle blew up under the paper's SGD rates (update 11): such a system is a
     result (no emulation: named in the claims, which it makes not testable), not a failed experiment."""
@@ -329,6 +333,7 @@ def test_narma_emulation_reports_a_diverged_training(tmp_path, monkeypatch):
                for c in claims)
 
 
+@pytest.mark.slow
 def test_narma_emulation_ablations_retrain_what_they_name_and_compare_with_the_first_variant(tmp_path):
     import yaml
 

@@ -103,6 +103,7 @@ def _summary(res):
             res.metrics["guard"]["rejections"])
 
 
+@pytest.mark.slow
 def test_trainings_in_a_gang_equal_the_same_trainings_one_by_one(tmp_path):
     alone = [_summary(train(_narma_cfg(s, **o), tmp_path / f"alone{s}", progress=False)) for s, o in TRAININGS]
     gang = Gang()

@@ -162,6 +162,7 @@ def test_no_worker_is_waited_for_with_a_line_then_given_up(scheduler, monkeypatc
     assert not (out / "result.json").exists() and not any((out / "sweep" / "jobs").iterdir())
 
 
+@pytest.mark.slow
 def test_jobs_left_without_a_worker_are_lost(scheduler, worker, tmp_path):
     address, _ = scheduler
     worker_proc = worker()

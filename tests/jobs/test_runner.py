@@ -121,6 +121,7 @@ def test_results_in_order_and_a_failure_names_its_job():
         Placement(-1)
 
 
+@pytest.mark.slow
 def test_thread_limits_inside_every_job():
     """One BLAS thread (threadpoolctl's view in the job) and one torch thread inside each job, in this process, in
     a spawned pool and on a Dask worker process, while this process runs two BLAS threads; restored here after."""
@@ -204,7 +205,8 @@ def _run_family(family: str, out: Path, monkeypatch, mnist_dir, **where) -> None
         run_experiment(name, scale="smoke", out_dir=out, progress=False, log=lambda m: None, **data, **where)
 
 
-@pytest.mark.parametrize("family", list(FAMILIES))
+@pytest.mark.parametrize("family", [pytest.param(f, marks=pytest.mark.slow) if f == "locomotion" else f
+                                    for f in FAMILIES])
 def test_workers_1_is_honoured(family, tmp_path, marks, monkeypatch, mnist_dir):
     """--workers 1: every job in one spawned worker process (not this one, whatever the scale's default)."""
     _run_family(family, tmp_path / "run", monkeypatch, mnist_dir, workers=1)

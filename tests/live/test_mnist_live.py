@@ -100,6 +100,7 @@ def test_plan_stream_checks_the_launch_arguments(tmp_path):
 
 
 # -- live ----------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_mnist_drawing_live_equals_offline_and_replays(tmp_path, ros_env):
     """Images 1..3 (labels 1, 7, 0), episodes of E = 130 steps: the bag holds every step, resets at 0, 130, 260, and
     equals the offline release of the same displacements; replay's per-digit errors equal a hand computation."""

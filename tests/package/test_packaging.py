@@ -75,6 +75,7 @@ def _package_prefix_from_index(ament_prefix_path: Path) -> str:
     return out.stdout.strip()
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 @pytest.mark.skipif(importlib.util.find_spec("colcon_core") is None,
                     reason="colcon-core is not installed (it comes with: pip install -e '.[dev]')")
@@ -232,6 +233,7 @@ def _manifest_dependencies() -> tuple[set[str], str]:
     return depends, comments
 
 
+@pytest.mark.slow
 def test_every_third_party_import_is_a_declared_dependency() -> None:
     """What the code imports (not what package.xml already lists) decides: each Python module's distribution
     (from its installed metadata) is in install_requires and, by its rosdep key, an exec_depend of package.xml
@@ -390,6 +392,7 @@ def test_the_light_install_leaves_torch_numba_and_sklearn_to_extras() -> None:
     assert sorted(filter(None, lines)) == sorted(lists["install_requires"] + lists["TRAIN"])
 
 
+@pytest.mark.slow
 def test_the_built_wheel_carries_the_package_data_and_finds_it_anywhere(tmp_path: Path) -> None:
     """A wheel built from the checkout holds the configs, launch files, layouts, the example agent and bag, the
     experiment settings and durations; unpacked away from the checkout, bptsb_ros.files.package_data finds them

@@ -11,8 +11,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 import torch
 from ros_live import Probe, fresh_agent, stamp_ns, start_node, stop
+
+pytestmark = pytest.mark.slow  # each test here runs a launched loop of several seconds
 
 DT_NS = 10_000_000
 

@@ -11,7 +11,10 @@ import json
 import re
 
 import numpy as np
+import pytest
 from ros_live import Probe, fresh_agent, start_node, stop
+
+pytestmark = pytest.mark.slow  # each test here runs a launched loop of several seconds
 
 DT_NS = 10_000_000
 STEPS = 8

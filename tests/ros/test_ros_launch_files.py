@@ -220,6 +220,7 @@ def test_ros2_launch_print_lists_the_nodes(ros_env):
         assert f"lib/bptsb_ros/{node}" in out.stdout or f"'{node}'" in out.stdout, out.stdout
 
 
+@pytest.mark.slow
 def test_ros2_run_help_prints_parameters_and_exits(ros_env):
     env = _tools_env(ros_env)
     out = _run(["ros2", "run", "bptsb_ros", "body_sim", "--help"], env, timeout=60)
@@ -243,6 +244,7 @@ def test_closed_loop_without_agent_fails_at_launch_time(tmp_path, ros_env):
     assert time.monotonic() - started < 30
 
 
+@pytest.mark.slow
 def test_a_dying_node_shuts_the_whole_launch_down_nonzero(tmp_path, ros_env):
     """narma with a Lissajous agent: task_input and mlp_brain refuse it (exit 2); the launch must stop body_sim
     at once and exit non-zero (it used to run the body uncontrolled and exit 0)."""
@@ -271,6 +273,7 @@ def generate_launch_description():
 """
 
 
+@pytest.mark.slow
 def test_two_robots_in_one_domain_through_ros2_launch(tmp_path, ros_env):
     """``namespace:=robot1`` and a launch file of one's own that includes the package's under
     ``PushRosNamespace('robot2')``, at once in one domain: each launch ends cleanly, each bag holds exactly its own
@@ -330,6 +333,7 @@ def _read_bag(bag: Path):
     return [(m.topic, m.timestamp_ns, m.message) for m in read_messages(bag, ["/body/positions"])]
 
 
+@pytest.mark.slow
 def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
     """``kill -INT -PGID`` of a non-interactive ``ros2 launch`` (a script, systemd): every node gets SIGINT from
     the group and again from launch. Every node must stop cleanly: exit 0, the body's summary, a closed bag.
@@ -385,6 +389,7 @@ def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
     assert abs(meta["duration"]["nanoseconds"] - stamps[-1]) <= lag_bound  # the bag lasts the simulated time
 
 
+@pytest.mark.slow
 def test_mnist_drawing_launch_file_runs_one_episode(tmp_path, ros_env):
     """``ros2 launch bptsb_ros mnist_drawing.launch.py`` with a system file and a planted stream: one image (label 1,
     a 64-step target) in an episode of 80 steps; the launch ends by itself after the episode, the bag holds every

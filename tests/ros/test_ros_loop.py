@@ -30,6 +30,7 @@ def launch_ok(args: list[str], ros_env: dict[str, str]) -> str:
     return out.stdout
 
 
+@pytest.mark.slow
 def test_lissajous_open_lockstep_equals_offline(tmp_path, ros_env):
     from bptsb_ros.bags.reader import bag_info, read_messages
     from bptsb_ros.sim.rollout import simulate_open_loop
@@ -59,6 +60,7 @@ def test_lissajous_open_lockstep_equals_offline(tmp_path, ros_env):
     assert summary["steps"] == 100 and summary["safe_command_steps"] == 0 and summary["rejected_total"] == 0
 
 
+@pytest.mark.slow
 def test_lissajous_closed_loop_equals_offline(tmp_path, ros_env):
     """SWG for steps 0..30, then the fitted feedback layer: offline open loop followed by closed loop."""
     from bptsb_ros.sim.rollout import simulate_closed_loop, simulate_open_loop
@@ -93,6 +95,7 @@ def test_lissajous_closed_loop_equals_offline(tmp_path, ros_env):
     assert metrics["live"]["trajectory_mse_shift_min"] == pytest.approx(metrics["offline"]["trajectory_mse_shift_min"])
 
 
+@pytest.mark.slow
 def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
     """SWG + wind_source in lockstep: the wind switches on at the stated steps and the run equals the offline
     simulation under the same schedule; replay compares and shades the wind periods."""
@@ -137,6 +140,7 @@ def test_locomotion_headwind_lockstep_equals_offline(tmp_path, ros_env):
     assert (tmp_path / "replay" / "speed.png").is_file()
 
 
+@pytest.mark.slow
 def test_narma_lockstep_equals_offline(tmp_path, ros_env):
     from bptsb_ros.sim.inputs import narma_inputs
     from bptsb_ros.sim.rollout import held_inputs, simulate_open_loop
@@ -155,6 +159,7 @@ def test_narma_lockstep_equals_offline(tmp_path, ros_env):
     assert np.abs(pos - ref).max() <= 1e-9
 
 
+@pytest.mark.slow
 def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     """Also the body's per-step timing records (``timing_path``, what ``bptsb bench --realtime`` reads), written at
     a Ctrl-C stop too, with the executor the body was given (single here; the other runs use the default)."""
@@ -206,6 +211,7 @@ def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     assert 0 < r["compute_p50_ms"] <= r["compute_p99_ms"] <= r["compute_max_ms"]
 
 
+@pytest.mark.slow
 def test_failing_node_fails_the_launch(tmp_path, ros_env):
     out = bptsb(["launch", "lissajous_open", "--duration", "0.3", "--log-dir", str(tmp_path),
                  "--param", "swg_brain:dtype:=float16", "--param", "body_sim:startup_timeout:=5.0"], ros_env)
@@ -232,6 +238,7 @@ def test_launch_help_lists_the_loops(ros_env):
         assert loop in out.stdout
 
 
+@pytest.mark.slow
 def test_run_starts_one_node_and_validates_its_parameters(tmp_path, ros_env):
     summary = tmp_path / "summary.json"
     ok = bptsb(["run", "body_sim", "--ros-args", "--params-file", "config/body_sim_params.yaml", "-p", "max_steps:=2",
@@ -242,6 +249,7 @@ def test_run_starts_one_node_and_validates_its_parameters(tmp_path, ros_env):
     assert bad.returncode == 2 and "parameter 'mode': 'fast' not allowed; choose from lockstep, realtime" in bad.stdout
 
 
+@pytest.mark.slow
 def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env):
     """Two robots at once in one domain (``--namespace r1`` and ``r2``, different seeds): each bag holds exactly its
     own robot's topics (its ``/rN/clock`` and ``/rN/diagnostics`` too), and each equals its own offline simulation."""
@@ -287,6 +295,7 @@ def test_two_namespaced_loops_in_one_domain_each_equal_offline(tmp_path, ros_env
     assert np.abs(first.body.full_positions(simulate_open_loop(first, 100).r[:, 0]).numpy() - pos).max() > 1e-6
 
 
+@pytest.mark.slow
 def test_a_loop_without_its_brain_fails_the_launch(tmp_path, ros_env):
     """swg_brain publishes where body_sim does not listen: the body starts without it (startup_timeout), runs every
     step on the safe command and exits 0 itself, but the launch fails with one line naming the silent brain."""

@@ -41,6 +41,7 @@ def _wait_for(path, text: str, proc: subprocess.Popen, timeout: float) -> str:
     raise AssertionError(f"{text!r} not logged within {timeout} s:\n{path.read_text()[-3000:]}")
 
 
+@pytest.mark.slow
 def test_group_sigint_delivered_twice_stops_the_body_cleanly(tmp_path, ros_env):
     """What a supervisor's group SIGINT does under non-interactive ``ros2 launch``: the node gets SIGINT from the
     group and again from the launcher. It must stop cleanly and log its run summary, not exit 1."""
@@ -69,6 +70,7 @@ def _node(args: list[str], ros_env) -> subprocess.CompletedProcess:
                           text=True, timeout=120)
 
 
+@pytest.mark.slow
 def test_node_help_lists_parameters_and_exits(ros_env):
     from bptsb_ros.ros.body_sim import PARAMS
 
@@ -108,6 +110,7 @@ def test_every_node_help_lists_all_its_parameters(capsys):
         assert not missing, (node, missing)
 
 
+@pytest.mark.slow
 def test_unknown_node_argument_is_an_error(ros_env):
     for module in ("bptsb_ros.ros.body_sim", "bptsb_ros.ros.recorder"):
         out = _node([module, "--agent", "x", "--ros-args", "-p", "task:=lissajous"], ros_env)
@@ -303,6 +306,7 @@ def _get(probe: Probe, node: str, names: list[str]):
             {d.name: d for d in f2.result().descriptors})
 
 
+@pytest.mark.slow
 def test_live_parameters_on_running_nodes(tmp_path, ros_env, ros_domain_id):
     body_log, brain_log = tmp_path / "body.log", tmp_path / "brain.log"
     body = start_node("body_sim", {**FRESH_BODY, "wait_for": ["rest_length"], "command_timeout": 30.0},
@@ -352,6 +356,7 @@ def test_live_parameters_on_running_nodes(tmp_path, ros_env, ros_domain_id):
     assert body.returncode == 0 and brain.returncode == 0, body_log.read_text()[-2000:]
 
 
+@pytest.mark.slow
 def test_a_brain_publishes_only_once_it_hears_its_inputs(tmp_path, fresh_ros):
     """swg_brain alone has no publisher on its command topic while nothing publishes ``/clock`` (and says why after
     2 s); once a ``/clock`` publisher appears, its own does: the body's startup wait for a publisher on each command

@@ -136,6 +136,7 @@ def frozen_runs(tmp_path_factory) -> dict[str, tuple[int, str, Path]]:
     return runs
 
 
+@pytest.mark.slow
 def test_lockstep_recording_loses_nothing_with_a_frozen_recorder(frozen_runs):
     code, out, bag = frozen_runs["lockstep"]
     assert code == 0, out[-4000:]

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 from ros_live import REPO, Probe, env_for, start_node, stop
 
 #: the node name ``ros2 service call`` uses for a Trigger call: the default control_callers
@@ -37,6 +38,7 @@ def _control_statuses(probe: Probe) -> list[dict[str, str]]:
             for s in d.status if s.name == "body_sim: control"]
 
 
+@pytest.mark.slow
 def test_step_reset_resume_services_on_a_running_body(tmp_path, ros_env, ros_domain_id):
     from diagnostic_msgs.msg import DiagnosticArray
     from rosgraph_msgs.msg import Clock
@@ -74,6 +76,7 @@ def test_step_reset_resume_services_on_a_running_body(tmp_path, ros_env, ros_dom
     assert s["steps"] == 30 and s["control_calls"] == 3 and s["paused"] is False
 
 
+@pytest.mark.slow
 def test_a_call_is_refused_while_a_foreign_node_has_a_client_and_the_record_names_it(tmp_path, ros_env,
                                                                                    ros_domain_id):
     """The reset rule of the body's topics holds for its services: a node in another namespace calling ``~/reset``
@@ -125,6 +128,7 @@ def test_a_call_is_refused_while_a_foreign_node_has_a_client_and_the_record_name
     assert s["steps"] == 5 and s["control_calls_refused"] >= 3
 
 
+@pytest.mark.slow
 def test_a_paused_launch_says_so_and_ends_after_pause_timeout(tmp_path, ros_env, ros_domain_id):
     """``bptsb launch`` without --timeout, paused by a call: the body says it is paused, then ends the run after
     ``pause_timeout`` (exit 1, named); the bag records the call with its caller, and replay lists it."""
@@ -176,6 +180,7 @@ def test_replay_flags_calls_from_foreign_callers_and_forged_statuses():
                      "it"]
 
 
+@pytest.mark.slow
 def test_a_real_brain_behind_by_176_ticks_answers_only_the_newest(ros_domain_id):
     """``swg_brain`` in this process (own context): 177 ``/clock`` ticks delivered before it spins; its loop
     answers tick 276 only (the SWG value of step 276) and counts 176 dropped."""

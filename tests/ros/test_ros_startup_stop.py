@@ -8,9 +8,11 @@ import subprocess
 import sys
 import time
 
+import pytest
 from ros_live import REPO, env_for
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_startup_is_a_clean_stop(tmp_path, ros_env):
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--duration", "5",
                              "--bag", str(tmp_path / "bag"), "--grace", "20"],
@@ -79,6 +81,7 @@ def test_ctrl_c_while_the_launcher_imports_is_one_line_and_130(tmp_path, ros_env
     assert not (tmp_path / "logs").exists()  # nothing was started
 
 
+@pytest.mark.slow
 def test_ctrl_c_two_seconds_after_start_stops_every_node(tmp_path, ros_env):
     """A plain SIGINT 2 s after `bptsb launch` (the hostile tester's case): no traceback, every node stopped
     and gone; the nodes ran, so the stop is the run's clean end (exit 0, as --duration 0 runs end)."""

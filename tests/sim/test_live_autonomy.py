@@ -250,6 +250,7 @@ def _save(run, agent, extra=None) -> None:
     save_checkpoint(run, agent, extra or {})
 
 
+@pytest.mark.slow
 def test_live_lissajous_switching_equals_offline(tmp_path, ros_env):
     """SWG + wind_source (the agent's switching wind: on and off at random phases) in lockstep: the live run
     equals the offline run under the schedule, and replay compares per wind segment."""
@@ -294,6 +295,7 @@ def test_live_lissajous_switching_equals_offline(tmp_path, ros_env):
     assert (tmp_path / "replay" / "switching_curves.png").is_file()
 
 
+@pytest.mark.slow
 def test_live_perturbation_equals_offline_and_replay_reports_the_return(tmp_path, ros_env):
     """``bptsb launch --perturb-at T --perturb-sigma S``: the state of step T is displaced by S·z(seed); the run
     equals the independent offline loop; replay's return verdict is the offline one."""

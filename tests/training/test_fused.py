@@ -309,6 +309,7 @@ def test_the_feedback_layer_is_fitted_after_fused_training_as_after_numba_traini
     assert closed[1] == pytest.approx(closed[0], rel=1e-9)
 
 
+@pytest.mark.slow
 def test_the_bench_report_holds_the_fused_ratios_and_target(monkeypatch):
     from bptsb_ros.bench import mnist_speed as bench_mnist
     from bptsb_ros.bench import suite as bench
