@@ -11,8 +11,8 @@ seen at the end of the run:
 
 Usage::
 
-    PYTHONPATH=scripts .venv/bin/python -m pytest -q -p margins_plugin tests/test_gradients.py \\
-        tests/test_physics.py -k "gradients or adjoint or momentum"
+    PYTHONPATH=scripts .venv/bin/python -m pytest -q -p margins_plugin tests/body/test_gradients.py \\
+        tests/body/test_physics.py -k "gradients or adjoint or momentum"
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 """Write tests/data/training_pins.json: the training pins, recorded from the code as it is now.
 
 The pins are the losses and every trained tensor, bit for bit, of a tiny fixed-seed training of every training
-family (the cases in ``tests/training_pin_cases.py``); ``tests/test_training_pins.py`` fails when any of them moves.
+family (the cases in ``tests/training_pin_cases.py``); ``tests/training/test_training_pins.py`` fails when any of
+them moves.
 They hold a refactoring to "behaviour unchanged".
 
 Run this ONLY when a change is MEANT to change trainings (a fixed bug in a loss, a new default, a changed

@@ -8,9 +8,9 @@ gives the session a private ROS domain, so parallel sessions and other machines 
   pytest-xdist each worker adds its number to that, so workers never share a domain.
 * ``OMP_NUM_THREADS=1`` and ``MPLBACKEND=Agg`` unless already set (2 shared cores, no display).
 * ``BPTSB_FIGURE_FORMATS=png`` unless already set: the experiments' figures skip their PDF copy (half of a
-  figure's time); tests/test_figures.py unsets it and checks the PNG + PDF of every figure.
+  figure's time); tests/analysis/test_figures.py unsets it and checks the PNG + PDF of every figure.
 * ``BPTSB_COMPILE_NOTICE=0`` unless already set: no "compiling the numba kernels" line, which only a test that
-  happens to meet a cold cache would print (tests/test_compile_notice.py turns it on for its own checks).
+  happens to meet a cold cache would print (tests/body/test_compile_notice.py turns it on for its own checks).
 * ``FASTRTPS_DEFAULT_PROFILES_FILE=tests/fastdds_test_profile.xml`` unless a Fast DDS profile file is already set:
   reliable writers send a heartbeat every 0.1 s instead of every 3 s, so a wait for acknowledgements (every live
   run ends with one) takes milliseconds instead of up to 3 s. Nothing else about DDS changes (see the file).
@@ -69,6 +69,22 @@ os.environ.setdefault("BPTSB_COMPILE_NOTICE", "0")
 FASTDDS_PROFILE = REPO_ROOT / "tests" / "fastdds_test_profile.xml"
 if not (os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE") or os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")):
     os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILE)
+
+
+#: The fixtures that give a test a ROS domain: a test that asks for one (itself or through another fixture) runs ROS.
+ROS_FIXTURES = frozenset({"ros_env", "ros_domain_id", "quarantine_ros", "fresh_ros"})
+ROS_TESTS = REPO_ROOT / "tests" / "ros"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark ``ros`` every test under ``tests/ros/`` and every test that uses a ROS domain fixture (before ``-m``
+    selects). Tests elsewhere that need ROS 2 without such a fixture (rclpy's serializer, the message packages)
+    carry the mark themselves."""
+    del config
+    for item in items:
+        if item.path.is_relative_to(ROS_TESTS) or ROS_FIXTURES.intersection(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.ros)
 
 
 def pytest_report_header(config: pytest.Config) -> str:

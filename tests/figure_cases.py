@@ -1,6 +1,6 @@
 """Every figure function of the package called on small planted data (no training, no simulation).
 
-``CASES``: name → function(out_dir) returning the PNG it wrote. Used by tests/test_figures.py; run as a script
+``CASES``: name → function(out_dir) returning the PNG it wrote. Used by tests/analysis/test_figures.py; run as a script
 (``python tests/figure_cases.py DIR``) to write every figure into DIR for a look.
 """
 

@@ -1,6 +1,6 @@
-"""Shared pieces of the trainer tests (tests/test_trainers_learn*.py): a trainer's starting agent, the SWG-driven
-body stepped with plain autograd (``MSDN.step``, not the trainers' window kernel), written out independently, and
-the check that one update is the documented optimiser step."""
+"""Shared pieces of the trainer tests (tests/training/test_trainers_learn*.py): a trainer's starting agent, the
+SWG-driven body stepped with plain autograd (``MSDN.step``, not the trainers' window kernel), written out
+independently, and the check that one update is the documented optimiser step."""
 
 from __future__ import annotations
 

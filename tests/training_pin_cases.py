@@ -6,7 +6,7 @@ in seconds, through the code path the experiments use (the packaged configs' bac
 
 :func:`fingerprint` turns a :class:`Trained` into plain JSON: the losses and reported numbers as exact floats
 (JSON floats written by Python read back to the same bits), every tensor's dtype, shape and SHA-256 of its raw
-bytes plus its first values and its sum, so that a difference says what moved. ``tests/test_training_pins.py``
+bytes plus its first values and its sum, so that a difference says what moved. ``tests/training/test_training_pins.py``
 compares them with ``tests/data/training_pins.json``; ``scripts/record_training_pins.py`` writes that file from the
 code as it is.
 

@@ -64,7 +64,7 @@ def rollout_window(
 
     With ``body.backend == "numba"`` (CPU) the window is one compiled call forward and one backward
     (``body/kernel.py``); with ``torch`` the forward is ``MSDN.step`` and the backward the torch adjoint
-    below. Both are the same equations; tests/test_kernel.py holds them equal.
+    below. Both are the same equations; tests/body/test_kernel.py holds them equal.
     """
     n_steps = rest_lengths.shape[0]
     if external_forces is not None and external_forces.shape[0] != n_steps:

@@ -8,12 +8,12 @@ W = 3,000 steps most of an update went to torch's work on those tensors rather t
 brain's forces come per block, (K, M, 2); the window is one numba forward and one adjoint on numpy arrays
 (``body/kernel.py``, the numba path's own kernels); the only tensor out is the read coordinate at the K block
 ends. The same equations in the same order: outputs and every gradient equal the ``rollout_window`` path to
-rounding (tests/test_held_window.py checks 1e-12 in float64).
+rounding (tests/body/test_held_window.py checks 1e-12 in float64).
 
 Lanes: independent trainings of one topology run as threads of a gang (``bptsb_ros/jobs/gang.py``) hand their windows
 to a :class:`LaneRunner` (:func:`as_lanes`), which runs the windows of every waiting thread as one call of
 ``body/held_window_kernel.py``, one lane each. A lane's output, final state and gradients are the solo path's
-bit for bit (tests/test_gang.py).
+bit for bit (tests/jobs/test_gang.py).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ per-op overhead, not arithmetic. Here a window of W steps of B bodies is one cal
 bodies (``prange``: the parallel build spreads them over threads) around a loop over steps around
 loops over springs and masses, with no allocation inside the step. The arithmetic is the torch
 path's, term by term, so trajectories and gradients agree with it to rounding (float64: ~1e-15
-relative per step; tests/test_kernel.py checks 1e-12 over whole windows).
+relative per step; tests/body/test_kernel.py checks 1e-12 over whole windows).
 
 Conventions (numpy arrays, float32 or float64, one dtype throughout, the scalars included: ``coef``
 from ``coefficients``, so a float32 window computes in float32; C-contiguous, which the compiled

@@ -5,7 +5,7 @@ generators are its own). Its held-force windows (``body/held_window.py``, the NA
 episodes) do not run in the thread: it hands them to the gang and waits. Once every thread of the gang is
 waiting (or done), the gang runs all the waiting windows of one topology as one call of
 ``body/held_window_kernel.py``, one lane each, so the per-spring loops run over all the trainings at once;
-then every thread goes on. A training's numbers equal those it has alone (tests/test_gang.py).
+then every thread goes on. A training's numbers equal those it has alone (tests/jobs/test_gang.py).
 
 Threads start one at a time, each once the previous one waits or ends, so code that seeds torch's global
 generator and then draws from it (the trainer builds the agent that way) runs for one training at a time.

@@ -12,7 +12,7 @@ hold the trained weights as numpy arrays in the agent's dtype and compute the sa
   l·(1 + W·[s, 1]) on driven springs.
 
 A float64 brain gives the torch module's values to rounding (a matrix product summed in another order:
-``tests/test_brain_inference.py`` checks 1e-12 relative); a float32 one to float32 rounding.
+``tests/live/test_brain_inference.py`` checks 1e-12 relative); a float32 one to float32 rounding.
 """
 
 from __future__ import annotations

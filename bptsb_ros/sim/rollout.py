@@ -165,7 +165,7 @@ def _run_windows(
     """:func:`_run` for commands known in advance, a window of steps per kernel call (numba backend).
 
     The kernel computes each step exactly as a one-step call does (``MSDN.step``), so the rows are the
-    same bits as the step-by-step loop's (tests/test_kernel.py); windows end at every progress and
+    same bits as the step-by-step loop's (tests/body/test_kernel.py); windows end at every progress and
     divergence-check boundary.
     """
     if steps < 0:

@@ -6,7 +6,7 @@ No autograd: the parameters are only the body's (k, d, l) and the SWG's (A, φ),
 views of the same tensors the optimiser holds, so the :class:`~bptsb_ros.training.guard.UpdateGuard` saves,
 restores and divides the rates exactly as on the other paths (the rates are read from the optimiser's groups at
 every update). The equations and their order are the numba path's; results agree with it to rounding
-(tests/test_fused.py: gradients to 1e-12 in float64, parameters after many updates to 1e-10).
+(tests/training/test_fused.py: gradients to 1e-12 in float64, parameters after many updates to 1e-10).
 
 What it covers: the Lissajous single-curve task (``LissajousTask``: CMP position loss) and locomotion
 (``LocomotionTask``: the speed-block loss, its ramp or constant target, velocity after or before each step's

@@ -17,7 +17,7 @@ training alone. A member that diverges beyond what its guard can undo stops (its
 Written per member, as :func:`train` writes them: ``checkpoint.pt`` (resumable by ``train(resume=True)``),
 ``config.yaml``, ``metrics.json`` and the plots. The optimiser step is torch's SGD / Adam arithmetic, element
 for element, and a lane of the kernel is the solo window: members equal their solo trainings bit for bit
-(tests/test_population.py: float32 and float64, SGD and Adam, with rejections and rate divisions).
+(tests/workflows/test_population.py: float32 and float64, SGD and Adam, with rejections and rate divisions).
 """
 
 from __future__ import annotations

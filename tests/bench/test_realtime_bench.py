@@ -1,0 +1,332 @@
+"""``bptsb bench --realtime`` without DDS: the statistics from planted per-step records (hand values), the body's
+records in a realtime loop driven by a fake clock, the timing file, the report and table, and the CLI's options on
+both sides (the runs themselves replaced by a planted report, the --out file rewritten after each condition). A real
+body's records are checked in ``test_ros_loop`` (its realtime Ctrl-C run writes them)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import REPO_ROOT
+from live_fakes import FakePort, core
+
+from bptsb_ros.interface.params import ParameterError
+from bptsb_ros.live.body_loop import BodyLoop
+from bptsb_ros.live.step_times import FIELDS, StepTimes, load_step_times, timing_statistics
+
+PERIOD = 0.01
+
+
+def planted() -> dict[str, np.ndarray]:
+    """101 steps at 100 Hz: compute k·0.05 ms (half integrating, half publishing), on time except steps 10 (9 ms
+    late: 9.5 ms in all, no miss), 30 (8.6 ms late + 1.5 ms = 10.1 ms: a miss) and 90 (7 ms + 4.5 ms: a miss)."""
+    k = np.arange(101)
+    due = k * PERIOD
+    late = np.zeros(101)
+    late[[10, 30, 90]] = [9e-3, 8.6e-3, 7e-3]
+    began = due + late
+    compute = k * 5e-5
+    return {"due": due, "began": began, "integrated": began + compute / 2, "done": began + compute}
+
+
+def test_statistics_of_planted_records_are_the_hand_values():
+    s = timing_statistics(**planted(), period=PERIOD)
+    assert s["steps"] == 101 and s["deadline_misses"] == 2
+    assert s["deadline_miss_pct"] == pytest.approx(100 * 2 / 101)
+    # compute 0, 0.05, ..., 5 ms: linear p50 of 0..100 is 50, p99 is 99 (x 0.05 ms)
+    assert (s["compute_p50_ms"], s["compute_p99_ms"], s["compute_max_ms"]) == pytest.approx((2.5, 4.95, 5.0))
+    assert (s["integrate_p99_ms"], s["publish_max_ms"]) == pytest.approx((2.475, 2.5))
+    # period jitter: |late_k - late_(k-1)| = 9, 9, 8.6, 8.6, 7, 7 ms and 94 zeros (100 periods): p99 at rank 98.01
+    assert (s["period_jitter_p50_ms"], s["period_jitter_p99_ms"], s["period_jitter_max_ms"]) == pytest.approx(
+        (0.0, 9.0, 9.0))
+    assert (s["lateness_p50_ms"], s["lateness_max_ms"]) == pytest.approx((0.0, 9.0))
+
+
+def test_a_deadline_is_the_next_steps_due_time():
+    r = planted()
+    assert timing_statistics(**r, period=0.0106)["deadline_misses"] == 1  # 10.1 ms is inside a 10.6 ms period
+    assert timing_statistics(**r, period=0.0094)["deadline_misses"] == 3  # 9.5 ms is not inside 9.4 ms
+
+
+def test_step_times_grow_save_and_load(tmp_path: Path):
+    times = StepTimes(rows=2)
+    rows = [(k, 0.01 * k, 0.01 * k + 1e-4, 0.01 * k + 3e-4, 0.01 * k + 7e-4) for k in range(5)]
+    for row in rows:
+        times.append(*row)
+    assert len(times) == 5
+    times.save(tmp_path / "t" / "times.npz", PERIOD, {"executor": "events"})
+    back = load_step_times(tmp_path / "t" / "times.npz")
+    for i, name in enumerate(FIELDS):
+        np.testing.assert_array_equal(back[name], [row[i] for row in rows])
+    assert back["period"] == PERIOD and back["executor"] == "events"
+    assert [p.name for p in (tmp_path / "t").iterdir()] == ["times.npz"]  # no temporary file left
+    long = StepTimes()  # ten minutes at 100 Hz: the executor is still read (a 4 KiB bound on the file lost it)
+    for k in range(60_001):
+        long.append(k, 0.01 * k, 0.01 * k, 0.01 * k, 0.01 * k)
+    long.save(tmp_path / "long.npz", PERIOD, {"executor": "events"})
+    assert load_step_times(tmp_path / "long.npz")["executor"] == "events"
+
+
+def test_a_bad_timing_file_is_one_line(tmp_path: Path):
+    np.savez(tmp_path / "bad.npz", step=np.zeros(3), due=np.zeros(3), began=np.zeros(2), integrated=np.zeros(3),
+             done=np.zeros(3), period=np.array(0.01))
+    with pytest.raises(ValueError, match="equal length"):
+        load_step_times(tmp_path / "bad.npz")
+    np.savez(tmp_path / "p.npz", **{n: np.zeros(3) for n in FIELDS}, period=np.array(-1.0))
+    with pytest.raises(ValueError, match="period must be a positive"):
+        load_step_times(tmp_path / "p.npz")
+
+
+@pytest.mark.parametrize("cost, misses", [(0.004, 0), (0.012, 11)])
+def test_the_realtime_loop_records_every_step(cost: float, misses: int):
+    """A fake clock: each step's publishing costs ``cost``; the records hold the schedule, the planted cost, and
+    misses that agree with the body's own counter (0 below the 10 ms period, every step above it)."""
+    c = core(mode="realtime", max_steps=10, timing_path="unused.npz")
+    port = FakePort(c, cost=cost)
+    BodyLoop(c, port).run()
+    r = c.step_times.columns()
+    assert r["step"].tolist() == list(range(11))
+    np.testing.assert_allclose(r["due"] - r["due"][0], np.arange(11) * PERIOD, atol=1e-12)
+    np.testing.assert_allclose(r["done"] - r["integrated"], cost, atol=1e-12)  # the fake port's publishing
+    np.testing.assert_array_equal(r["integrated"], r["began"])  # the fake clock does not move while integrating
+    s = timing_statistics(r["due"], r["began"], r["integrated"], r["done"], PERIOD)
+    assert s["deadline_misses"] == misses == c.stats.deadline_misses
+
+
+def test_timing_records_are_realtime_only():
+    with pytest.raises(ParameterError, match="timing_path.*realtime only"):
+        core(mode="lockstep", timing_path="t.npz")
+    assert core(mode="realtime").step_times is None
+
+
+def test_condition_result_counts_late_commands_and_targets():
+    from bptsb_ros.bench.realtime import condition_result, realtime_table
+
+    summary = {"deadline_misses": 2, "rest_length_rejected_stale": 3, "force_rejected_stale": 2,
+               "rest_length_rejected_wrong_length": 7, "safe_command_steps": 1}
+    r = condition_result(summary, {**planted(), "period": PERIOD, "executor": "single"})
+    assert r["late_commands"] == 5 and r["deadline_misses_counted_by_body"] == 2 and r["executor"] == "single"
+    assert r["targets_met"] == {"deadline_misses": False, "compute_p99_ms": False, "period_jitter_p99_ms": False}
+    calm = {"due": np.arange(5) * PERIOD, "began": np.arange(5) * PERIOD + 1e-4}
+    calm.update(integrated=calm["began"] + 1e-4, done=calm["began"] + 2.9e-4)  # compute 0.29 ms: within 0.3
+    ok = condition_result({}, {**calm, "period": PERIOD})
+    assert ok["targets_met"] == {"deadline_misses": True, "compute_p99_ms": True, "period_jitter_p99_ms": True}
+    calm["done"] = calm["began"] + 3.1e-4
+    assert condition_result({}, {**calm, "period": PERIOD})["targets_met"]["compute_p99_ms"] is False
+    table = realtime_table({"conditions": {
+        "idle": {**r, "busy_processes": 0, "launch_exit_code": 1, "launch_problem": "brain silent"},
+        "busy": {"error": "planted", "busy_processes": 1}}})
+    lines = table.splitlines()
+    assert lines[1].split()[:6] == ["idle", "(0", "busy)", "101", "2", "1.98"]
+    assert "4.950" in lines[1] and lines[2:4] == ["idle: the launch exited 1: brain silent", "busy: error: planted"]
+    assert "idle: no deadline miss: NOT met" in table
+
+
+# -- the CLI ------------------------------------------------------------------------------------------------------
+def parse(argv: list[str]) -> argparse.Namespace:
+    from bptsb_ros.cli import bench_cmd
+
+    parser = argparse.ArgumentParser()
+    bench_cmd.add_arguments(parser)
+    return parser.parse_args(argv)
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """The bench's runs replaced by a planted report; the arguments they were given."""
+    import bptsb_ros.bench.realtime as rb
+    import bptsb_ros.bench.soak as soak
+
+    seen: list[tuple] = []
+    seen_out: list[str] = []
+
+    def fake_bench(seconds, busy, *, executor, rt_priority, workdir, update, progress, factor):
+        seen.append(("realtime", seconds, busy, executor, rt_priority) + ((factor,) if factor else ()))
+        report = {"conditions": {"idle": {"steps": 7, "busy_processes": 0}}}
+        update(report)  # the first condition done: on disk, marked incomplete, before the second one runs
+        seen.append(("on disk", json.loads(Path(seen_out[0]).read_text())))
+        return report
+
+    def fake_soak(realtime_seconds, lockstep_seconds, realtime_busy, lockstep_busy, workdir, progress):
+        seen.append(("soak", realtime_seconds, realtime_busy))
+        return {}
+
+    monkeypatch.setattr(rb, "run_realtime_bench", fake_bench)
+    monkeypatch.setattr(soak, "run_soak", fake_soak)
+    return seen, seen_out
+
+
+def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
+    from bptsb_ros.cli import bench_cmd
+
+    seen, seen_out = calls
+    out = tmp_path / "rt.json"
+    seen_out.append(str(out))
+    assert bench_cmd.run(parse(["--realtime", "--out", str(out)])) == 0
+    assert seen[-2] == ("realtime", 600.0, 1, "events", 0)  # the default: 10 minutes, one core busy
+    assert seen[-1] == ("on disk", {"complete": False, "conditions": {"idle": {"steps": 7, "busy_processes": 0}}})
+    assert json.loads(out.read_text()) == {"complete": True, "conditions": {"idle": {"steps": 7,
+                                                                                     "busy_processes": 0}}}
+    assert bench_cmd.run(parse(["--realtime", "--realtime-seconds", "30", "--realtime-busy", "2", "--executor",
+                                "single", "--rt-priority", "99", "--out", str(out)])) == 0
+    assert seen[-2] == ("realtime", 30.0, 2, "single", 99)
+    factor = ["--realtime", "--realtime-factor", "10", "--rt-priority", "10", "--out", str(out)]
+    assert bench_cmd.run(parse(factor)) == 0
+    assert seen[-2] == ("realtime", 600.0, 1, "events", 10, 10.0)  # the 10x real-time condition too
+    assert bench_cmd.run(parse(["--soak", "--out", str(out)])) == 0
+    assert seen[-1] == ("soak", 60.0, 1)  # the soak keeps its own default
+    assert "idle (0 busy)  7" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--realtime-seconds", "0"], "--realtime-seconds must be > 0"),
+    (["--realtime-seconds", "nan"], "--realtime-seconds must be > 0"),
+    (["--realtime-busy", "0"], "--realtime-busy must be >= 1"),
+    (["--rt-priority", "100"], "--rt-priority must be in 0..99"),
+    (["--rt-priority", "-1"], "--rt-priority must be in 0..99"),
+    (["--realtime-factor", "-2"], "--realtime-factor must be in 0..1000"),
+    (["--realtime-factor", "inf"], "--realtime-factor must be in 0..1000"),
+    (["--soak"], "--soak and --realtime are two different benches"),
+])
+def test_bad_realtime_options_are_one_line(tmp_path: Path, calls, capsys, argv, message):
+    from bptsb_ros.cli import bench_cmd
+
+    assert bench_cmd.run(parse(["--realtime", *argv, "--out", str(tmp_path / "x.json")])) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1 and not calls[0]
+
+
+@pytest.mark.parametrize("bad", ["multi", "auto"])
+def test_executor_choices_are_the_nodes(capsys, bad):
+    """--executor takes the values of the nodes' executor parameter (events, single) and nothing else."""
+    assert parse(["--realtime", "--executor", "single", "--out", "x"]).executor == "single"
+    with pytest.raises(SystemExit) as exit_:
+        parse(["--realtime", "--executor", bad, "--out", "x"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and f"invalid choice: '{bad}'" in err
+    assert err.split("(choose from ")[1].replace("'", "").startswith("events, single)")
+
+
+def test_fifo_priority_is_set_or_refused_in_one_line():
+    """In a child process (the policy sticks to the thread): priority 0 is not a SCHED_FIFO priority, so it is
+    refused with the reason; priority 1 is taken where the process may (root), else refused the same way."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os; from bptsb_ros.live.body_params import set_fifo_priority as s; "
+            "print(repr(s(0))); print(repr(s(1))); print(os.sched_getscheduler(0) == os.SCHED_FIFO)")
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT)}
+    lines = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                           env=env).stdout.split("\n")
+    assert "SCHED_FIFO priority 0 refused (Invalid argument" in lines[0]
+    privileged = os.geteuid() == 0
+    assert (lines[1] == "''") == privileged and lines[2] == str(privileged)
+    if not privileged:
+        assert "SCHED_FIFO priority 1 refused" in lines[1]
+
+
+def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Path, monkeypatch):
+    """The launch a condition runs (subprocess replaced): the body's timing path and rt_priority (the brain's one
+    below), and the same executor for body_sim and the loop's brain; a run that leaves no records is an error, not
+    numbers."""
+    import subprocess
+
+    import bptsb_ros.bench.realtime as rb
+
+    argvs = []
+    monkeypatch.setattr(rb.subprocess, "run", lambda argv, **kw: argvs.append(argv) or subprocess.CompletedProcess(
+        argv, 0))
+    r = rb.realtime_run("idle", 3.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="single",
+                        rt_priority=5, progress=lambda _: None)
+    params = [argvs[0][i + 1] for i, arg in enumerate(argvs[0]) if arg == "--param"]
+    assert sorted(params) == sorted([f"body_sim:timing_path:={tmp_path / 'idle' / 'step_times.npz'}",
+                                     "body_sim:rt_priority:=5", "body_sim:executor:=single",
+                                     "feedback_brain:executor:=single", "feedback_brain:rt_priority:=4"])
+    assert argvs[0][argvs[0].index("--duration") + 1] == "3" and argvs[0][argvs[0].index("--agent") + 1] == "a"
+    assert r["launch_exit_code"] == 0 and "no body summary or no timing records" in r["error"]
+    assert argvs[0][argvs[0].index("--rate-scale") + 1] == "1"
+    fast = rb.realtime_run("factor", 3.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="events",
+                           rate_scale=10.0, progress=lambda _: None)
+    assert argvs[1][argvs[1].index("--rate-scale") + 1] == "10" and fast["rate_scale"] == 10.0
+
+
+@pytest.mark.ros
+def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
+    """``body_sim.diagnostics`` with the time left before the next step (``slack``): the summary and the message are
+    two parts, each done only in a turn with more slack than twice what it took; overdue by 5 periods, both at once."""
+    pytest.importorskip("rclpy")
+    import time
+    from types import SimpleNamespace
+
+    from bptsb_ros.ros.body_outputs import DIAGNOSTICS_OVERDUE
+    from bptsb_ros.ros.body_sim import BodySim
+
+    due = lambda: time.monotonic() - 0.01  # noqa: E731 - the status is due, not overdue
+    published, summaries = [], []
+    core = SimpleNamespace(summary=lambda: summaries.append(1) or {}, status=lambda s, e="": ("OK", "m", []))
+    node = SimpleNamespace(p={"diagnostics_period": 1.0}, next_diagnostics=due(), _pending_status=None,
+                           _diagnostics_cost=[0.001, 0.001], core=core,
+                           _status=lambda *args: published.append(args), _refresh_graph=lambda slack: None)
+    BodySim.diagnostics(node, slack=0.0005)  # 0.5 ms left, the summary took up to 1 ms: wait
+    assert summaries == [] and published == []
+    BodySim.diagnostics(node, slack=1.0)  # plenty: both parts in one turn
+    assert len(summaries) == 1 and len(published) == 1 and node._pending_status is None
+    assert node.next_diagnostics > time.monotonic()  # the next one a period on
+    node.next_diagnostics, node._diagnostics_cost = due(), [0.0, 0.001]  # the summary fits, the message does not
+    BodySim.diagnostics(node, slack=0.0005)
+    assert len(summaries) == 2 and len(published) == 1 and node._pending_status is not None
+    node._diagnostics_cost = [1.0, 1.0]
+    BodySim.diagnostics(node, slack=0.0005)  # still no time: nothing more
+    assert len(published) == 1
+    node.next_diagnostics = time.monotonic() - (DIAGNOSTICS_OVERDUE + 1) * 1.0  # overdue: whatever the slack
+    BodySim.diagnostics(node, slack=0.0)
+    assert len(published) == 2 and len(summaries) == 2 and node._pending_status is None
+    BodySim.diagnostics(node, force=True)  # the final status: at once
+    assert len(published) == 3 and len(summaries) == 3
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("mode", ["realtime", "lockstep"])
+def test_the_periodic_graph_query_of_a_realtime_body_waits_for_slack_and_not_forever(mode):
+    """``body_sim._untrusted``: the publishers of a command topic are looked up again when their count changes (at
+    once) and every GRAPH_PERIOD; a realtime body does the periodic lookup in the slack after a step
+    (``_refresh_graph``, when the slack exceeds what a lookup took), at once when it is DIAGNOSTICS_OVERDUE periods
+    late; a lockstep body at once."""
+    pytest.importorskip("rclpy")
+    from types import SimpleNamespace
+
+    from bptsb_ros.ros.body_graph import GRAPH_PERIOD
+    from bptsb_ros.ros.body_outputs import DIAGNOSTICS_OVERDUE
+    from bptsb_ros.ros.body_sim import BodySim
+
+    count, names, lookups = [1], [[("/", "feedback_brain")]], []
+    rule = SimpleNamespace(untrusted=lambda found: [n for _, n in found if n != "feedback_brain"])
+    node = SimpleNamespace(p={"mode": mode}, _intruders={}, _graph_due=set(), _graph_cost=0.001,
+                           subs={"rest_length": SimpleNamespace(get_publisher_count=lambda: count[0], topic_name="/t")},
+                           core=SimpleNamespace(publisher_rules={"rest_length": rule}),
+                           _publisher_names=lambda topic: lookups.append(topic) or names[0])
+    node._query_untrusted = lambda *a: BodySim._query_untrusted(node, *a)
+    untrusted = lambda now: BodySim._untrusted(node, "rest_length", now)  # noqa: E731
+    assert untrusted(0.0) == [] and len(lookups) == 1
+    names[0] = [("/", "intruder")]  # the trusted publisher replaced, the count the same
+    assert untrusted(0.9 * GRAPH_PERIOD) == [] and len(lookups) == 1
+    late = 1.1 * GRAPH_PERIOD
+    if mode == "lockstep":
+        assert untrusted(late) == ["intruder"] and len(lookups) == 2
+        return
+    assert untrusted(late) == [] and len(lookups) == 1 and node._graph_due == {"rest_length"}
+    BodySim._refresh_graph(node, slack=0.0005)  # less slack than a lookup took: later
+    assert len(lookups) == 1 and node._graph_due == {"rest_length"}
+    BodySim._refresh_graph(node, slack=0.01)
+    assert len(lookups) == 2 and node._graph_due == set() and untrusted(late) == ["intruder"]
+    names[0] = [("/", "feedback_brain")]
+    seen = node._intruders["rest_length"][1]
+    assert untrusted(seen + (DIAGNOSTICS_OVERDUE + 0.1) * GRAPH_PERIOD) == [] and len(lookups) == 3  # overdue
+    count[0] = 2  # a publisher more: at once
+    names[0] = [("/", "feedback_brain"), ("/", "intruder")]
+    assert untrusted(seen + (DIAGNOSTICS_OVERDUE + 0.2) * GRAPH_PERIOD) == ["intruder"] and len(lookups) == 4
