@@ -461,7 +461,8 @@ def test_locomotion_closed_loop_claims():
     assert verdicts(loco(0)) == [False, False]
     # only agents that learned forward behaviour count ("20 agents that learned forward behavior")
     c = loco(8, 20, not_forward=1)
-    assert verdicts(c) == [True, True] and "Binomial(20, 0.4): 4–12" in c[1].evidence and "21 evaluated" in c[1].evidence
+    assert verdicts(c) == [True, True]
+    assert "Binomial(20, 0.4): 4–12" in c[1].evidence and "21 evaluated" in c[1].evidence
     # the statement is the same whatever the seed's count (an aggregate over seeds matches claims by it)
     assert [x.claim for x in loco(8, 19)] == [x.claim for x in c] == [x.claim for x in loco(0, 0, not_forward=3)]
     odd = locl.claims(locl.ClosedLoopCounts(np.array([0.0, 0.5, 0.5]), np.array([True, False, False])))
