@@ -275,7 +275,8 @@ def test_lissajous_bifurcation_smoke(tmp_path, monkeypatch):
     import bptsb_ros.experiments.lissajous_switching as lsw
     from bptsb_ros.workflows.train import TrainingDiverged
 
-    _diverge_when(monkeypatch, lsw, "train_single_curve", lambda *a, **k: "body.integrator=published" in k["extra"],
+    published = {"body.integrator": "published"}
+    _diverge_when(monkeypatch, lsw, "train_single_curve", lambda *a, **k: k["extra"] == published,
                   TrainingDiverged("update 2: planted"))
     out = tmp_path / "bif"
     assert main(["reproduce", "lissajous-bifurcation", "--scale", "smoke", "--out", str(out), "--no-progress"]) == 0
