@@ -106,7 +106,7 @@ def ros_domain_id() -> int:
     return SESSION_DOMAIN_ID
 
 
-def _ros_subprocess_env(domain: int) -> dict[str, str]:
+def ros_subprocess_env(domain: int) -> dict[str, str]:
     """A copy of the environment for ROS subprocesses on ``domain``, with localhost discovery."""
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -118,7 +118,7 @@ def _ros_subprocess_env(domain: int) -> dict[str, str]:
 @pytest.fixture
 def ros_env() -> dict[str, str]:
     """A copy of the environment for ROS subprocesses: localhost discovery, this session's domain."""
-    return _ros_subprocess_env(SESSION_DOMAIN_ID)
+    return ros_subprocess_env(SESSION_DOMAIN_ID)
 
 
 #: A second private domain for tests that leave stale DDS participants behind (a SIGKILLed node stays
@@ -129,7 +129,7 @@ QUARANTINE_DOMAIN_ID = DOMAIN_ID_MIN + (SESSION_DOMAIN_ID - DOMAIN_ID_MIN + 50) 
 @pytest.fixture
 def quarantine_ros() -> tuple[int, dict[str, str]]:
     """(domain id, subprocess environment) of the quarantine domain."""
-    return QUARANTINE_DOMAIN_ID, _ros_subprocess_env(QUARANTINE_DOMAIN_ID)
+    return QUARANTINE_DOMAIN_ID, ros_subprocess_env(QUARANTINE_DOMAIN_ID)
 
 
 #: A third private domain that nothing else in the session uses: for tests that judge which publishers the graph
@@ -140,7 +140,7 @@ FRESH_DOMAIN_ID = DOMAIN_ID_MIN + (SESSION_DOMAIN_ID - DOMAIN_ID_MIN + 25) % (DO
 @pytest.fixture
 def fresh_ros() -> tuple[int, dict[str, str]]:
     """(domain id, subprocess environment) of the fresh domain."""
-    return FRESH_DOMAIN_ID, _ros_subprocess_env(FRESH_DOMAIN_ID)
+    return FRESH_DOMAIN_ID, ros_subprocess_env(FRESH_DOMAIN_ID)
 
 
 @pytest.fixture(autouse=True)

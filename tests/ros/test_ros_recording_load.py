@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import QUARANTINE_DOMAIN_ID, SESSION_DOMAIN_ID
+from conftest import QUARANTINE_DOMAIN_ID, SESSION_DOMAIN_ID, ros_subprocess_env
 from ros_live import REPO, env_for, stop
 
 DT_NS = 10_000_000
@@ -83,15 +83,6 @@ def _body_steps(bag: Path) -> dict[str, list[int]]:
     return out
 
 
-def _domain_env(domain: int) -> dict[str, str]:
-    """The session's environment (conftest.py) on ``domain``, discovery on this host only."""
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["ROS_DOMAIN_ID"] = str(domain)
-    env.pop("ROS_STATIC_PEERS", None)
-    return env
-
-
 #: sim seconds of the lockstep launch: long enough that the freeze, 0.5 s after the body runs, falls inside the run
 #: on a fast machine too (lockstep ran 760 steps/s once, so a 10 s run was over before the freeze began), and short
 #: enough for a slow one (≈ 25 s of wall time at 260 steps/s)
@@ -123,7 +114,7 @@ def frozen_runs(tmp_path_factory) -> dict[str, tuple[int, str, Path, tuple[float
             # state_every:=1: every state topic every step (by default four of them every 10th), for the full load
             code, out, freeze = _launch_with_frozen_recorder(
                 [*args, "--bag", str(bag), "--param", "body_sim:qos_depth:=40", "--param", "body_sim:state_every:=1"],
-                _domain_env(domain), freeze_s=freeze_s)
+                ros_subprocess_env(domain), freeze_s=freeze_s)
         except BaseException as exc:  # re-raised in the test thread below
             errors.append(exc)
         else:
