@@ -453,8 +453,9 @@ def rejudge_run(run_dir: str | Path, log: Callable[[str], None] | None = None) -
         return data
     claims = rejudge(data["measured"])
     data["claims"] = [{"claim": c.claim, "holds": c.holds, "evidence": c.evidence} for c in claims]
-    data["judged"] = {**judged_by(complete=True, rejudged=True), "at_run": {k: v for k, v in old.items()
-                                                                             if k != "at_run"}}
+    # at_run: the judgement made when the run was made, kept through any number of later judgements
+    at_run = old.get("at_run") or {k: v for k, v in old.items() if k != "at_run"}
+    data["judged"] = {**judged_by(complete=True, rejudged=True), "at_run": at_run}
     write_json_result(run_dir, data)
     return data
 

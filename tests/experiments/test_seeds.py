@@ -350,7 +350,11 @@ def test_rejudge_recomputes_every_seed_and_the_aggregate(toy_seeds, tmp_path):
     assert json.loads(seed2.read_text())["claims"][0] == {"claim": "value above 2", "holds": True,
                                                          "evidence": "value 5.0"}
     assert new["claims"][0]["per_seed"] == [False, False, True]
-    assert json.loads(seed2.read_text())["judged"]["rejudged"] is True
+    judged = json.loads(seed2.read_text())["judged"]
+    assert judged["rejudged"] is True and judged["at_run"]["rejudged"] is False
+    first = judged["at_run"]
+    rejudge_run(out, log=lambda m: None)  # judged a second time: the run's own judgement stays in at_run
+    assert json.loads(seed2.read_text())["judged"]["at_run"] == first
 
 
 def test_cli_seeds_and_rejudge(toy_seeds, tmp_path, capsys):
