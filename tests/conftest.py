@@ -143,6 +143,11 @@ def fresh_ros() -> tuple[int, dict[str, str]]:
     return FRESH_DOMAIN_ID, ros_subprocess_env(FRESH_DOMAIN_ID)
 
 
+#: A fourth private domain, for one launch whose startup must meet no participant but its own: a brain's publisher
+#: left in the session domain by an earlier test (a SIGKILLed node, ~20 s) would stand in for the launch's brain.
+ISOLATED_DOMAIN_ID = DOMAIN_ID_MIN + (SESSION_DOMAIN_ID - DOMAIN_ID_MIN + 75) % (DOMAIN_ID_MAX - DOMAIN_ID_MIN + 1)
+
+
 @pytest.fixture(autouse=True)
 def _restore_stop_signals():
     """Put SIGINT/SIGTERM back as they were after each test: their handlers and the thread's signal mask. A node

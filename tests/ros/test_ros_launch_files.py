@@ -379,14 +379,21 @@ def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
     rows = _read_bag(bag)
     stamps = [msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec for _, _, msg in rows]
     assert stamps == [10_000_000 * k for k in range(len(stamps))] and len(stamps) > 50
-    # The recorder's clock follows /clock: a state is logged near its step's sim time. Its /clock subscription runs
-    # ahead of a backlog of state messages when the machine is loaded (an unpaced lockstep body outruns the
-    # recorder; 440 ms was seen with 2 busy cores, 2.44 s with the suite on 2 processes), so the bound is 5 s of sim
-    # time; wall time would be ~1.8e18 ns.
-    lag_bound = 5_000_000_000
-    for (_, log_time, _), stamp in zip(rows, stamps, strict=True):
-        assert abs(log_time - stamp) <= lag_bound
-    assert abs(meta["duration"]["nanoseconds"] - stamps[-1]) <= lag_bound  # the bag lasts the simulated time
+    # The recorder's clock follows /clock: a state is logged at the sim time the recorder has heard of when it takes
+    # the state. Under load its /clock subscription runs ahead of a backlog of states (an unpaced lockstep body
+    # outruns the recorder: 0.44 s was seen with 2 busy cores, 5.01 s with the suite on 2 processes), so the lead has
+    # no fixed bound; what holds is: never past the last tick the body sent, never backwards, and not far behind the
+    # state's step (a state may be taken before the executor has handled the newest ticks: a few steps, bounded here
+    # by 1 s). Wall time would be ~1.8e18 ns.
+    from bptsb_ros.bags.reader import read_messages
+
+    ticks = [m.message.clock.sec * 1_000_000_000 + m.message.clock.nanosec for m in read_messages(bag, ["/clock"])]
+    assert ticks and ticks[-1] >= stamps[-1]
+    log_times = [log_time for _, log_time, _ in rows]
+    assert log_times == sorted(log_times)
+    for log_time, stamp in zip(log_times, stamps, strict=True):
+        assert stamp - 1_000_000_000 <= log_time <= ticks[-1], (log_time, stamp, ticks[-1])
+    assert log_times[-1] - log_times[0] <= meta["duration"]["nanoseconds"] <= ticks[-1]  # the bag lasts the sim time
 
 
 @pytest.mark.slow

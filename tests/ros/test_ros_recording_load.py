@@ -5,8 +5,8 @@ recorder's acknowledgements; a realtime run cannot wait, so its losses are count
 retransmission here, so a frozen recorder falls out of that window within a second.
 
 The two launches run at the same time (most of each is waiting: the freeze, the realtime run, DDS), the lockstep one
-on the session's domain and the realtime one on the quarantine domain (conftest.py), so neither sees the other;
-each test asserts on its own launch."""
+on the isolated domain and the realtime one on the quarantine domain (conftest.py), so neither sees the other nor a
+participant an earlier test left in the session domain; each test asserts on its own launch."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import QUARANTINE_DOMAIN_ID, SESSION_DOMAIN_ID, ros_subprocess_env
+from conftest import ISOLATED_DOMAIN_ID, QUARANTINE_DOMAIN_ID, ros_subprocess_env
 from ros_live import REPO, env_for, stop
 
 DT_NS = 10_000_000
@@ -91,7 +91,7 @@ LOCKSTEP_STEPS = LOCKSTEP_S * 100 + 1  # dt 0.01 s, the initial state included
 
 #: name → (domain, launch arguments after the bag, seconds the recorder is frozen)
 LAUNCHES = {
-    "lockstep": (SESSION_DOMAIN_ID, ["lissajous_open", "--duration", str(LOCKSTEP_S)], 4.0),
+    "lockstep": (ISOLATED_DOMAIN_ID, ["lissajous_open", "--duration", str(LOCKSTEP_S)], 4.0),
     # 3.5 s of the 5 s run: 350 messages a topic must be lost somewhere (2.5 s lost none once: the transport's
     # buffers held all 250)
     "realtime": (QUARANTINE_DOMAIN_ID, ["lissajous_open", "--mode", "realtime", "--duration", "5"], 3.5),
