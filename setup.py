@@ -50,9 +50,10 @@ SHARED_DATA = {
 }
 
 # ROS node executables: name -> module whose ``main(args=None)`` runs the node, from the package's node table
-# (bptsb_ros/interface/nodes.py: plain data, read without importing the package).
-_TABLE = runpy.run_path(os.path.join(HERE, "bptsb_ros", "interface", "nodes.py"))["NODES"]
-NODES = {node.name: node.module for node in _TABLE}
+# (bptsb_ros/interface/nodes.py: plain data, read without importing the package), and the executables that run
+# several nodes in one process (its PROCESSES: bptsb_composed).
+_TABLE = runpy.run_path(os.path.join(HERE, "bptsb_ros", "interface", "nodes.py"))
+NODES = {node.name: node.module for node in _TABLE["NODES"]} | _TABLE["PROCESSES"]
 
 # Template of the pip-route wrapper (@NODE@ = node name); it execs <prefix>/bin/<node>, which is where pip puts
 # the console script for every install scheme (venv, --prefix, --user, Debian's /usr/local).

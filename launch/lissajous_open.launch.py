@@ -7,7 +7,7 @@ shuts every node down and exits non-zero when any other node exits.
     ros2 launch bptsb_ros lissajous_open.launch.py duration:=10 mode:=lockstep bag:=bags/run
 
 Arguments: agent, mode (lockstep|realtime), duration, bag, seed, rate_scale, open_loop_steps,
-perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, rviz
+perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, composed, rviz
 (``ros2 launch bptsb_ros lissajous_open.launch.py --show-args``).
 """
 

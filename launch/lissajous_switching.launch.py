@@ -6,7 +6,7 @@ Nodes: body_sim, swg_brain, wind_source (+ recorder with bag:=DIR). Same process
     ros2 launch bptsb_ros lissajous_switching.launch.py duration:=10 mode:=lockstep bag:=bags/run
 
 Arguments: agent, mode (lockstep|realtime), duration, bag, seed, rate_scale, open_loop_steps,
-perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, rviz
+perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, composed, rviz
 (``ros2 launch bptsb_ros lissajous_switching.launch.py --show-args``).
 """
 

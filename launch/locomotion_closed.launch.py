@@ -8,7 +8,7 @@ shuts every node down and exits non-zero when any other node exits.
 
 Arguments: agent (required: a trained agent with a fitted feedback layer), mode (lockstep|realtime), duration,
 bag, seed, rate_scale, open_loop_steps,
-perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, rviz
+perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, composed, rviz
 (``ros2 launch bptsb_ros locomotion_closed.launch.py --show-args``).
 """
 

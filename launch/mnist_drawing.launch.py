@@ -9,7 +9,7 @@ or duration:=SECONDS).
         bag:=bags/mnist
 
 Arguments: agent, images, labels, first, count, episode_steps, mode (lockstep only), duration, bag, seed, rate_scale,
-open_loop_steps, perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, rviz
+open_loop_steps, perturb_at, perturb_sigma, perturb_seed, namespace, log_level, params_file, composed, rviz
 (``ros2 launch bptsb_ros mnist_drawing.launch.py
 --show-args``).
 """

@@ -1,7 +1,8 @@
 """The package's ROS nodes, in one table: every list of nodes is made from it — the executables ``setup.py``
-installs, the params files (:mod:`bptsb_ros.ros.param_files`), ``bptsb run``'s nodes and help, the brains whose
-commands ``body_sim`` accepts by default (:data:`bptsb_ros.live.safety.DEFAULT_PUBLISHERS`) and the brain nodes of
-the loops (:mod:`bptsb_ros.live.loops`).
+installs (with the :data:`PROCESSES` that run several of them), the params files
+(:mod:`bptsb_ros.ros.param_files`), ``bptsb run``'s nodes and help, the brains whose commands ``body_sim``
+accepts by default (:data:`bptsb_ros.live.safety.DEFAULT_PUBLISHERS`) and the brain nodes of the loops
+(:mod:`bptsb_ros.live.loops`).
 
 Plain data and the standard library only: ``setup.py`` reads this file without importing the package.
 """
@@ -60,6 +61,11 @@ NODES: tuple[Node, ...] = (
     Node("recorder", "bptsb_ros.ros.recorder", "records topics to a rosbag2 MCAP bag (parameters bag_path, topics)",
          params_file=False),
 )
+
+#: Executables that run several nodes in one process (not nodes themselves; installed beside them):
+#: ``bptsb_composed --nodes body_sim,BRAIN,...`` runs body_sim and a loop's brains on one executor
+#: (``composed:=true`` of the launch files, ``bptsb launch --composed``).
+PROCESSES: dict[str, str] = {"bptsb_composed": "bptsb_ros.ros.composed"}
 
 #: node name → its row
 BY_NAME: dict[str, Node] = {node.name: node for node in NODES}

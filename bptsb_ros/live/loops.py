@@ -344,6 +344,9 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
     "log_level": ("info", "log level of every node (--ros-args --log-level): debug, info, warn, error or fatal"),
     "params_file": ("", "a ROS 2 params file given to every node after the loop's own parameters (its values win; "
                     "keys /** or the node names); empty: none"),
+    "composed": ("false", "true: body_sim and the loop's brains in one process on one executor (bptsb_composed; the "
+                 "same nodes, parameters and messages, fewer hand-offs between processes); the recorder stays a "
+                 "process of its own"),
     "rviz": ("false", "true: also start rviz2 with the package's config/bptsb.rviz (fixed frame msdn) in the loop's "
              "namespace, where rviz2 is installed (otherwise a log line and the loop runs without it)"),
 }
@@ -398,7 +401,7 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                                   "(bptsb train fits it)")
     if values.get("mode", "lockstep") not in ("lockstep", "realtime"):
         raise LaunchArgumentError(f"mode:={values['mode']}: choose lockstep or realtime")
-    for flag in ("allow_loss", "rviz"):
+    for flag in ("allow_loss", "rviz", "composed"):
         if values.get(flag, "false").lower() not in ("true", "false"):
             raise LaunchArgumentError(f"{flag}:={values[flag]}: choose true or false")
     if values.get("log_level", "info").lower() not in LOG_LEVELS:

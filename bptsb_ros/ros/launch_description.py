@@ -23,14 +23,18 @@ from bptsb_ros.live.loops import (
     resolve_arguments,
 )
 
+#: the executable of ``composed:=true`` (body_sim and the brains in one process; its exit code is the body's)
+COMPOSED = "bptsb_composed"
+
 
 def node_exit_verdict(executable: str, returncode: int, shutting_down: bool, body_finished: bool = False) -> str:
-    """What the launch does when a node of the loop exits: ``finished`` (body_sim's clean end of the run: shut the
-    launch down, exit 0), ``stopped`` (a clean exit while the launch shuts down or after body_sim finished),
-    ``interrupted`` (another clean exit: the node was stopped from outside the launch, e.g. SIGINT sent to the
-    nodes and not to ``ros2 launch``; the launch shuts down, logs it as info and exits 0 — the body's summary still
-    decides whether the run counts) or a failure message (the launch shuts down and exits non-zero)."""
-    if returncode == 0 and executable == "body_sim":
+    """What the launch does when a node of the loop exits: ``finished`` (body_sim's clean end of the run, alone
+    or composed with the brains: shut the launch down, exit 0), ``stopped`` (a clean exit while the launch shuts
+    down or after body_sim finished), ``interrupted`` (another clean exit: the node was stopped from outside the
+    launch, e.g. SIGINT sent to the nodes and not to ``ros2 launch``; the launch shuts down, logs it as info and
+    exits 0 — the body's summary still decides whether the run counts) or a failure message (the launch shuts
+    down and exits non-zero)."""
+    if returncode == 0 and executable in ("body_sim", COMPOSED):
         return "finished"
     if returncode == 0 and (shutting_down or body_finished):
         return "stopped"
@@ -76,6 +80,7 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         RegisterEventHandler,
     )
     from launch.condition import Condition
+    from launch.conditions import IfCondition, UnlessCondition
     from launch.event_handlers import OnProcessExit
     from launch.events import Shutdown
     from launch.substitution import Substitution
@@ -114,16 +119,26 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
             return f"<params of {self.executable} in {loop_name}, from the launch arguments>"
 
         def perform(self, context) -> str:
-            params = loop_node_parameters(loop_name, self.executable, values_of(context))
-            if self.executable == "body_sim":  # the summary tells on_exit whether the brain was there
+            if self.executable == COMPOSED:  # one section per node of the process
+                from bptsb_ros.ros.composed import params_file_text as sections_text
+
+                text = sections_text({name: self.node_params(name, context) for name in composed}, {})
+            else:
+                text = params_file_text(self.executable, self.node_params(self.executable, context))
+            handle, path = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_{self.executable}_", suffix=".yaml")
+            with open(handle, "w") as out:
+                out.write(text)
+            return path
+
+        @staticmethod
+        def node_params(executable: str, context) -> dict:
+            params = loop_node_parameters(loop_name, executable, values_of(context))
+            if executable == "body_sim":  # the summary tells on_exit whether the brain was there
                 if not params.get("summary_path"):
                     params["summary_path"] = str(Path(tempfile.mkdtemp(prefix=f"bptsb_{loop_name}_")) /
                                                  "body_summary.json")
                 state["summary"] = params["summary_path"]
-            handle, path = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_{self.executable}_", suffix=".yaml")
-            with open(handle, "w") as out:
-                out.write(params_file_text(self.executable, params))
-            return path
+            return params
 
     def check(context, *args, **kwargs):
         del args, kwargs
@@ -200,13 +215,18 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
                                     f"__ns:={namespace or '/'}", *remaps], name="rviz2", output="screen")]
 
     recording = Condition(predicate=lambda context: bool(LaunchConfiguration("bag").perform(context)))
-    executables = ["body_sim"] + [b.executable for b in loop.brains] + ["recorder"]
+    split, composing = UnlessCondition(LaunchConfiguration("composed")), IfCondition(LaunchConfiguration("composed"))
+    composed = ["body_sim"] + [b.executable for b in loop.brains]
+    executables = [*composed, "recorder", COMPOSED]
     remappings = [(TOPICS[k].name, Remapped(k)) for k in TOPICS if TOPICS[k].name.startswith("/")]
-    nodes = [Node(package="bptsb_ros", executable=name, name=name, output="screen",
+    # the composed process is not named (a name would rename every node in it); --nodes says which it builds
+    nodes = [Node(package="bptsb_ros", executable=name, output="screen",
+                  **({"arguments": ["--nodes", ",".join(composed)]} if name == COMPOSED else {"name": name}),
                   namespace=LaunchConfiguration("namespace"), remappings=remappings,
                   parameters=[NodeParamsFile(name), UserParamsFile(name)],
                   ros_arguments=["--log-level", LaunchConfiguration("log_level")],
-                  condition=recording if name == "recorder" else None, sigterm_timeout=str(STOP_GRACE_S))
+                  condition={"recorder": recording, COMPOSED: composing}.get(name, split),
+                  sigterm_timeout=str(STOP_GRACE_S))
              for name in executables]
     return LaunchDescription([
         *(DeclareLaunchArgument(name, description=text, **({} if default is None else {"default_value": default}))

@@ -38,13 +38,15 @@ def test_every_list_of_nodes_is_the_table():
     from importlib.metadata import distribution
 
     from bptsb_ros.cli.run_cmd import NODES as run_nodes
-    from bptsb_ros.interface.nodes import NODES
+    from bptsb_ros.interface.nodes import NODES, PROCESSES
     from bptsb_ros.live import loops
     from bptsb_ros.live.safety import DEFAULT_PUBLISHERS
     from bptsb_ros.ros.param_files import NODES as param_nodes
 
     scripts = {e.name: e.value for e in distribution("bptsb_ros").entry_points if e.group == "console_scripts"}
-    assert scripts == {"bptsb": "bptsb_ros.cli:main", **{n.name: f"{n.module}:main" for n in NODES}}  # setup.py
+    assert scripts == {"bptsb": "bptsb_ros.cli:main", **{n.name: f"{n.module}:main" for n in NODES},  # setup.py
+                       "bptsb_composed": "bptsb_ros.ros.composed:main"}
+    assert PROCESSES == {"bptsb_composed": "bptsb_ros.ros.composed"}
     assert set(run_nodes) == {n.name for n in NODES}
     assert set(param_nodes) == {p.stem.removesuffix("_params") for p in (REPO / "config").glob("*_params.yaml")}
     # the command sources body_sim accepts, by hand: the brains that command each body input

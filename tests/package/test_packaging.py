@@ -23,6 +23,8 @@ from conftest import REPO_ROOT
 PACKAGE = "bptsb_ros"
 NODES = ("body_sim", "swg_brain", "mlp_brain", "feedback_brain", "task_input", "recorder", "wind_source",
          "image_streamer", "mnist_brain")
+#: what lib/bptsb_ros holds: the nodes and the process that runs a loop's nodes together (composed:=true)
+EXECUTABLES = (*NODES, "bptsb_composed")
 # Top-level entries of the checkout that are not part of the package source.
 NOT_SOURCE = {".git", ".venv", ".ci", "build", "install", "log", "runs", "tests", "dist", "site", "reproduction",
               ".pytest_cache", ".ruff_cache", "bench.json"}
@@ -96,8 +98,8 @@ def test_colcon_build_produces_the_ament_install_tree(tmp_path: Path) -> None:
     assert result.returncode == 0, f"colcon build failed:\n{result.stdout}\n{result.stderr}"
 
     prefix = ws / "install" / PACKAGE
-    _assert_ament_tree(prefix, executables=(*NODES, "bptsb"))
-    for name in (*NODES, "bptsb"):
+    _assert_ament_tree(prefix, executables=(*EXECUTABLES, "bptsb"))
+    for name in (*EXECUTABLES, "bptsb"):
         first_line = (prefix / "lib" / PACKAGE / name).read_text().splitlines()[0]
         assert first_line.startswith("#!") and "python" in first_line, (
             f"colcon should install the setuptools console script for {name}, found {first_line!r}"
@@ -124,8 +126,8 @@ def test_pip_install_registers_the_package_under_the_venv_prefix() -> None:
     if not any(d.metadata["Name"] == PACKAGE for d in importlib.metadata.distributions(path=[site_packages])):
         pytest.skip(f"{PACKAGE} is not pip-installed in {sys.prefix} (make venv installs it)")
     prefix = Path(sys.prefix)
-    _assert_ament_tree(prefix, executables=NODES)
-    for name in NODES:
+    _assert_ament_tree(prefix, executables=EXECUTABLES)
+    for name in EXECUTABLES:
         assert (prefix / "lib" / PACKAGE / name).read_text() == _wrapper_text(name)
         console_script = prefix / "bin" / name
         assert console_script.is_file() and os.access(console_script, os.X_OK), f"missing {console_script}"
@@ -158,6 +160,7 @@ def test_the_version_is_stated_once_in_package_xml() -> None:
                if e.group == "console_scripts"}
     for node in NODES:
         assert scripts.get(node) == f"bptsb_ros.ros.{node}:main", f"{node} is not an entry point of the package"
+    assert scripts.get("bptsb_composed") == "bptsb_ros.ros.composed:main"
 
 
 #: rosdep keys (rosdistro rosdep/python.yaml) of the Python modules the package imports; None: rosdistro has no

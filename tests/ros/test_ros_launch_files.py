@@ -101,6 +101,9 @@ def test_a_node_exit_decides_the_launch():
     assert node_exit_verdict("feedback_brain", 2, False).startswith("feedback_brain exited with code 2 before")
     assert node_exit_verdict("body_sim", 1, False).startswith("body_sim exited with code 1")
     assert node_exit_verdict("swg_brain", -9, True) == "swg_brain exited with code -9 while the loop was stopping"
+    # composed:=true: the process's exit code is the body's
+    assert node_exit_verdict("bptsb_composed", 0, False) == "finished"
+    assert node_exit_verdict("bptsb_composed", 2, False).startswith("bptsb_composed exited with code 2 before")
 
 
 def test_namespaced_launch_parameters_resolve_every_name_in_the_namespace(tmp_path):
@@ -195,21 +198,28 @@ for loop in ("lissajous_closed", "narma"):
     args = {e.name: e.default_value is not None for e in d.entities if isinstance(e, DeclareLaunchArgument)}
     defaults = {e.name: "".join(t.perform(None) for t in e.default_value or []) for e in d.entities
                 if isinstance(e, DeclareLaunchArgument)}
-    out[loop + "_defaults"] = {k: defaults[k] for k in ("namespace", "log_level", "params_file", "rviz")}
-    out[loop] = {"nodes": [n.node_executable for n in nodes], "conditional": [n.condition is not None for n in nodes],
+    out[loop + "_defaults"] = {k: defaults[k] for k in ("namespace", "log_level", "params_file", "rviz", "composed")}
+    out[loop] = {"nodes": [n.node_executable for n in nodes],
+                 "conditions": [type(n.condition).__name__ for n in nodes],
+                 "arguments": [a if isinstance(a, str) else "".join(t.perform(None) for t in a)
+                               for a in nodes[-1]._Node__arguments or []],
                  "handlers": sum(isinstance(e, RegisterEventHandler) for e in d.entities), "has_default": args}
 print(json.dumps(out))
 """
     out = _run([str(ROS_TOOLS / "bin" / "python"), "-c", code], env)
     assert out.returncode == 0, out.stderr
     got = json.loads(out.stdout)
-    assert got["lissajous_closed"]["nodes"] == ["body_sim", "feedback_brain", "recorder"]
-    assert got["narma"]["nodes"] == ["body_sim", "task_input", "mlp_brain", "recorder"]
-    assert got["narma"]["conditional"] == [False, False, False, True]  # the recorder only with bag:=
-    assert got["narma"]["handlers"] == 4  # one OnProcessExit per node
+    assert got["lissajous_closed"]["nodes"] == ["body_sim", "feedback_brain", "recorder", "bptsb_composed"]
+    assert got["narma"]["nodes"] == ["body_sim", "task_input", "mlp_brain", "recorder", "bptsb_composed"]
+    # body and brains apart unless composed:=true, the recorder only with bag:=, the composed process only with
+    # composed:=true, building the loop's nodes in order
+    assert got["narma"]["conditions"] == ["UnlessCondition"] * 3 + ["Condition", "IfCondition"]
+    assert got["narma"]["arguments"] == ["--nodes", "body_sim,task_input,mlp_brain"]
+    assert got["narma"]["handlers"] == 5  # one OnProcessExit per node
     assert got["lissajous_closed"]["has_default"]["agent"] is False and got["narma"]["has_default"]["agent"] is True
     for loop in ("lissajous_closed", "narma"):  # the arguments every launch file takes, with their defaults
-        assert got[loop + "_defaults"] == {"namespace": "", "log_level": "info", "params_file": "", "rviz": "false"}
+        assert got[loop + "_defaults"] == {"namespace": "", "log_level": "info", "params_file": "", "rviz": "false",
+                                           "composed": "false"}
 
 
 def test_ros2_launch_print_lists_the_nodes(ros_env):
@@ -325,6 +335,38 @@ def test_two_robots_in_one_domain_through_ros2_launch(tmp_path, ros_env):
     if shutil.which("rviz2", path=env["PATH"]) is None:  # rviz:=true without rviz2: a line, and the loop runs
         assert "rviz:=true: rviz2 is not installed here; the loop runs without it" in texts["robot1"]
     assert "startup complete" in texts["robot2"]
+
+
+@pytest.mark.slow
+def test_composed_true_runs_the_body_and_its_brain_in_one_process(tmp_path, ros_env):
+    """``composed:=true``: body_sim and swg_brain in one ``bptsb_composed`` process (the recorder beside it), in a
+    namespace; the launch ends cleanly when the body finishes and the run equals its offline simulation."""
+    import numpy as np
+    from ros_live import fresh_agent
+
+    from bptsb_ros.bags.reader import bag_info, read_messages
+    from bptsb_ros.ros.messages import pose_array_positions
+    from bptsb_ros.sim.rollout import simulate_open_loop
+
+    env = _tools_env(ros_env)
+    bag = tmp_path / "bag"
+    out = subprocess.run(["ros2", "launch", "bptsb_ros", "lissajous_open.launch.py", "composed:=true",
+                          "namespace:=robot3", "duration:=1", "seed:=3", f"bag:={bag}"], env=env, cwd=REPO,
+                         capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL)
+    text = out.stdout + out.stderr
+    assert out.returncode == 0, text[-4000:]
+    started = [line for line in text.splitlines() if "[INFO] [launch]: process started with pid" not in line
+               and "process started with pid" in line]
+    assert sorted(line.split("]: process started")[0].split("[")[-1].rsplit("-", 1)[0] for line in started) == \
+        ["bptsb_composed", "recorder"], started
+    composed = "\n".join(line for line in text.splitlines() if line.startswith("[bptsb_composed-"))
+    assert "[robot3.body_sim]: finished after 100 steps" in composed and "[robot3.swg_brain]: stopped" in composed
+    names = {t.name for t in bag_info(bag).topics}
+    assert "/robot3/body/positions" in names and all(n.startswith("/robot3/") for n in names), names
+    pos = np.array([pose_array_positions(m) for *_, m in read_messages(bag, ["/robot3/body/positions"])])
+    agent = fresh_agent("lissajous", seed=3)
+    ref = agent.body.full_positions(simulate_open_loop(agent, 100).r[:, 0]).numpy()
+    assert pos.shape == ref.shape and np.abs(pos - ref).max() <= 1e-9
 
 
 def _read_bag(bag: Path):
