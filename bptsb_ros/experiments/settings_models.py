@@ -120,6 +120,7 @@ def _shown(value: Any) -> str:
     return text if isinstance(value, str) and text.isprintable() and len(text) <= 80 else bounded_repr(value)
 
 
+# -- MNIST (Fig. 2 and the MNIST supplement) -----------------------------------------------------------------------
 
 class MnistDrawingSettings(ExperimentSettings):
     """What ``mnist-drawing`` reads from ``ctx.settings``."""
@@ -197,6 +198,8 @@ class MnistReadoutSettings(ExperimentSettings):
         ge=1, le=10_000_000,
         description="the guard's reference: the mean of this many last batch losses (one epoch: 1200 at batch 50)")
 
+
+# -- time series and IPC (Fig. 3 and the time-series supplement) ---------------------------------------------------
 
 class AblationVariant(VariantSettings):
     """An ablation of ``narma-emulation`` and ``narma-ipc``: a choice the paper leaves open, made otherwise."""
@@ -324,6 +327,8 @@ class MsdnNonlinearitySettings(ExperimentSettings):
             raise rule_broken(self, "max_delay < blocks", "the IPC basis reaches max_delay blocks back")
         return self
 
+
+# -- Lissajous and SWG (Fig. 4 and the SWG supplement) -------------------------------------------------------------
 
 class LissajousClosedLoopSettings(ExperimentSettings):
     """What ``lissajous-closed-loop`` reads from ``ctx.settings``."""
@@ -484,6 +489,8 @@ class ClosedLoopSchemesSettings(ExperimentSettings):
         return self
 
 
+# -- locomotion: the agent settings sim_time … gait_time alike in all three, so they share agents ------------------
+
 class LocomotionClosedLoop20Settings(ExperimentSettings):
     """What ``locomotion-closed-loop-20`` reads from ``ctx.settings``."""
 
@@ -601,6 +608,8 @@ class LocomotionHeadwindSettings(ExperimentSettings):
                               "the stored gait is cut from the open-loop evaluation run")
         return self
 
+
+# -- every experiment's model --------------------------------------------------------------------------------------
 
 #: each experiment's settings model (experiment name → model), in the paper's order
 SETTINGS_MODELS: dict[str, type[ExperimentSettings]] = {
