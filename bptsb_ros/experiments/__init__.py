@@ -1,8 +1,9 @@
 """The paper's experiments, each runnable by name (``bptsb reproduce NAME --scale smoke|short|paper``).
 
 ``registry.py`` holds the registry and the runner, ``result.py`` the result.json schema,
-``experiment_settings.py`` the reader of ``settings/<experiment>.yaml`` (what each scale means), and each other
-module one experiment (or a family of experiments sharing their training).
+``settings_models.py`` each experiment's settings as a pydantic model, ``experiment_settings.py`` the reader of
+``settings/<experiment>.yaml`` (each scale's values of that model) and of ``--set``, and each other module one
+experiment (or a family of experiments sharing their training).
 """
 
 from bptsb_ros.experiments.experiment_settings import Settings, SettingsError, resolve_settings

@@ -403,9 +403,9 @@ def switching_job(run_dir: str, pre_dir: str, seed: int, variant: dict[str, Any]
     """Load the pretrained agent in ``pre_dir``, train it to switch to the variant's ``curve_on`` with wind, save it
     in ``run_dir`` (checkpoint.pt with the final state); returns a summary. A top-level function: a pool job.
 
-    ``variant`` (a settings variant, :mod:`~bptsb_ros.experiments.experiment_settings`): ``published_wind``,
-    ``curve_on``, ``hold`` (null: ``hold``), ``shift_of_size`` (null: the CMP's own mean wind shift,
-    :func:`wind_offset`), ``lr``, ``lr_decay``; its ``integrator`` is the pretrained agent's (``pre_dir``).
+    ``variant`` (a settings variant, :class:`~bptsb_ros.experiments.settings_models.SwitchingVariant`):
+    ``published_wind``, ``curve_on``, ``hold`` (null: ``hold``), ``shift_of_size`` (null: the CMP's own mean wind
+    shift, :func:`wind_offset`), ``lr``, ``lr_decay``; its ``integrator`` is the pretrained agent's (``pre_dir``).
 
     A training that diverges with nothing for the guard to undo is a result, not a failure: the summary's
     ``diverged`` says why (None when it finished), and no checkpoint is written."""
