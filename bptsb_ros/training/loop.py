@@ -94,7 +94,7 @@ class BatchedObjective(Protocol):
         parameters)."""
 
     def advance(self, finite: Sequence[bool]) -> None:
-        """After the verdicts: ``finite[b]``: member b's window was measured and stayed finite."""
+        """After the verdicts: ``finite[b]``: member b still trains and its window stayed finite."""
 
 
 class LoopStopped(RuntimeError):
@@ -109,6 +109,14 @@ class LoopStopped(RuntimeError):
         self.measured = measured
         self.decision = decision
         self.member = member
+
+    def report(self, ranges: str) -> str:
+        """The failure as a trainer reports it: the simulation's message, or the loss (or the verdict's reason) with
+        the parameter ranges ``ranges``; then that the guard had nothing to undo."""
+        m = self.measured
+        why = m.failure or (f"loss is {m.value}" if self.decision.reason == "non-finite loss" else self.decision.reason)
+        where = "" if m.failure else f"; {ranges}"
+        return f"{why}{where}; the guard has nothing to undo (no update since the start or the last restore)"
 
 
 class Callback:
@@ -195,9 +203,8 @@ class UpdateLoop:
                 members = (measured,)
             for callback in callbacks:
                 callback.on_measured(i, measured)
-            measuring = list(self.active)
             accepted = [False] * len(self.guards)
-            for b in [b for b, live in enumerate(measuring) if live]:
+            for b in [b for b, live in enumerate(self.active) if live]:
                 m = members[b]
                 guard = self.guards[b]
                 if m.fused:
@@ -215,7 +222,7 @@ class UpdateLoop:
             if batched:
                 objective.step(accepted)  # type: ignore[call-arg]
                 objective.advance([live and m.failure is None  # type: ignore[arg-type]
-                                   for live, m in zip(measuring, members)])
+                                   for live, m in zip(self.active, members)])
             else:
                 if accepted[0]:
                     objective.step()  # type: ignore[call-arg]

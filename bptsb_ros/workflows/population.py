@@ -9,10 +9,12 @@ member's k, d, l (B, E), LIL weights (B, O, 1) and biases (B, O) stacked, so one
 :func:`~bptsb_ros.body.held_window.population_readout`), one autograd backward and one optimiser step for all of
 them. A training alone spends most of an update in torch's per-call overhead; here that overhead is shared.
 
-Each member's :class:`~bptsb_ros.training.guard.UpdateGuard` is the trainer's own class, given a view of the
-member's slices (:class:`_MemberOptimizer`): the rules, the events and the rate divisions are those of a
-training alone. A member that diverges beyond what its guard can undo stops (its run directory gets
-``diverged.json``); the others go on.
+The population runs on the trainer's update loop (:meth:`~bptsb_ros.training.loop.UpdateLoop.batched` over
+:class:`_PopulationUpdates`), which gives each member its own :class:`~bptsb_ros.training.guard.UpdateGuard` over
+a view of the member's slices (:class:`_MemberOptimizer`): the rules, the events and the rate divisions are those
+of a training alone. A member that diverges beyond what its guard can undo stops (its run directory gets
+``diverged.json``, written by a callback); the others go on. Progress and the periodic save of the population's
+state are callbacks too.
 
 Written per member, as :func:`train` writes them: ``checkpoint.pt`` (resumable by ``train(resume=True)``),
 ``config.yaml``, ``metrics.json`` and the plots. The optimiser step is torch's SGD / Adam arithmetic, element
@@ -408,14 +410,10 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
         """A member the guard cannot undo: its ``diverged.json`` and error, as ``train`` words them."""
 
         def on_stopped(self, stop: LoopStopped) -> None:
-            b, m = stop.member, stop.measured
+            b = stop.member
             assert b is not None
-            why = m.failure or (f"loss is {m.value}" if stop.decision.reason == "non-finite loss"
-                                else stop.decision.reason)
-            ranges = "" if m.failure else f"; {_ranges(pop, b)}"
-            failures.append(MemberFailure(b, _member_diverged(
-                dirs[b], stop.update, f"{why}{ranges}; the guard has nothing to undo (no update since the start or "
-                                      "the last restore)", guards[b], _ranges(pop, b))))
+            failures.append(MemberFailure(b, _member_diverged(dirs[b], stop.update, stop.report(_ranges(pop, b)),
+                                                              guards[b], _ranges(pop, b))))
 
     t_start = time.perf_counter()
     callbacks: list[Callback] = [Stopped(), bar]
