@@ -1,16 +1,18 @@
 """What a training does around its updates, as objects :class:`~bptsb_ros.training.loop.UpdateLoop` calls: progress,
-the caller's per-update function, the last-good checkpoints. Training code never imports a task's or a figure's
-module to do these; a family passes the callbacks it wants to :meth:`UpdateLoop.run`.
+the caller's per-update function, the last-good checkpoints, a state saved every so many seconds. Training code
+never imports a task's or a figure's module to do these; a family (or a population) passes the callbacks it wants
+to :meth:`UpdateLoop.run`.
 
 Each callback may implement :meth:`Callback.on_measured` (after an update's measurement, before the guard's
-verdict) and :meth:`Callback.on_update` (after the update, accepted or rejected); the loop calls them in the order
-given.
+verdict), :meth:`Callback.on_stopped` (a population's member stopped) and :meth:`Callback.on_update` (after the
+update, accepted or rejected); the loop calls them in the order given.
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -22,8 +24,8 @@ from bptsb_ros.training.checkpoint import save_checkpoint
 from bptsb_ros.training.guard import UpdateGuard, copy_state
 from bptsb_ros.training.loop import Callback, Measured
 
-__all__ = ["Callback", "EveryUpdate", "LastGoodCheckpoints", "LossCallback", "ProgressBar", "SimSteps",
-           "optimizer_and_task_state"]
+__all__ = ["Callback", "EveryUpdate", "LastGoodCheckpoints", "LossCallback", "Periodically", "ProgressBar",
+           "SimSteps", "optimizer_and_task_state"]
 
 
 class EveryUpdate(Callback):
@@ -58,17 +60,20 @@ class LossCallback(Callback):
 
 class ProgressBar(Callback):
     """A tqdm bar on stderr over ``total`` updates, starting at ``start``, the loss every ``log_every`` updates; a
-    line every 10 s instead of a live bar when stderr is not a terminal; nothing when not ``enabled``."""
+    line every ``quiet_every_s`` (10 s) instead of a live bar when stderr is not a terminal; nothing when not
+    ``enabled``. ``losses``: the loss curve (its last entry is shown), or a function giving the loss to show (None:
+    none, e.g. a population's median over the members still training); ``refresh``: show it at once (False: at
+    the bar's next timed refresh)."""
 
-    def __init__(self, total: int, title: str, losses: list[float], *, enabled: bool, start: int = 0,
-                 log_every: int = 1) -> None:
+    def __init__(self, total: int, title: str, losses: list[float] | Callable[[], float | None], *, enabled: bool,
+                 start: int = 0, log_every: int = 1, quiet_every_s: float = 10.0, refresh: bool = True) -> None:
         from tqdm import tqdm
 
         interactive = sys.stderr.isatty()
         self.bar = tqdm(total=total, desc=title, unit="upd", dynamic_ncols=interactive, disable=not enabled,
-                        file=sys.stderr, mininterval=0.1 if interactive else 10.0)
+                        file=sys.stderr, mininterval=0.1 if interactive else quiet_every_s)
         self.bar.update(start)
-        self.losses, self.log_every = losses, max(1, log_every)
+        self.losses, self.log_every, self.refresh = losses, max(1, log_every), refresh
 
     def write(self, line: str) -> None:
         """A line above the bar (the guard's rejections)."""
@@ -77,10 +82,27 @@ class ProgressBar(Callback):
     def on_update(self, update: int) -> None:
         self.bar.update(1)
         if update % self.log_every == 0:
-            self.bar.set_postfix(loss=f"{self.losses[-1]:.4g}")
+            loss = self.losses() if callable(self.losses) else self.losses[-1]
+            if loss is not None:
+                self.bar.set_postfix(loss=f"{loss:.4g}", refresh=self.refresh)
 
     def close(self) -> None:
         self.bar.close()
+
+
+class Periodically(Callback):
+    """``fn(update)`` after an update once ``every_s`` wall seconds have passed since the start (the callback's
+    creation, or ``since``, a :func:`time.perf_counter` reading) or since the last call (e.g. saving a long
+    training's state)."""
+
+    def __init__(self, every_s: float, fn: Callable[[int], None], *, since: float | None = None) -> None:
+        self.every_s, self.fn = every_s, fn
+        self.last = time.perf_counter() if since is None else since
+
+    def on_update(self, update: int) -> None:
+        if time.perf_counter() - self.last >= self.every_s:
+            self.fn(update)
+            self.last = time.perf_counter()
 
 
 class LastGoodCheckpoints(Callback):

@@ -9,10 +9,12 @@ member's k, d, l (B, E), LIL weights (B, O, 1) and biases (B, O) stacked, so one
 :func:`~bptsb_ros.body.held_window.population_readout`), one autograd backward and one optimiser step for all of
 them. A training alone spends most of an update in torch's per-call overhead; here that overhead is shared.
 
-Each member's :class:`~bptsb_ros.training.guard.UpdateGuard` is the trainer's own class, given a view of the
-member's slices (:class:`_MemberOptimizer`): the rules, the events and the rate divisions are those of a
-training alone. A member that diverges beyond what its guard can undo stops (its run directory gets
-``diverged.json``); the others go on.
+The population runs on the trainer's update loop (:meth:`~bptsb_ros.training.loop.UpdateLoop.batched` over
+:class:`_PopulationUpdates`), which gives each member its own :class:`~bptsb_ros.training.guard.UpdateGuard` over
+a view of the member's slices (:class:`_MemberOptimizer`): the rules, the events and the rate divisions are those
+of a training alone. A member that diverges beyond what its guard can undo stops (its run directory gets
+``diverged.json``, written by a callback); the others go on. Progress and the periodic save of the population's
+state are callbacks too.
 
 Written per member, as :func:`train` writes them: ``checkpoint.pt`` (resumable by ``train(resume=True)``),
 ``config.yaml``, ``metrics.json`` and the plots. The optimiser step is torch's SGD / Adam arithmetic, element
@@ -23,7 +25,6 @@ for element, and a lane of the kernel is the solo window: members equal their so
 from __future__ import annotations
 
 import json
-import sys
 import time
 from collections.abc import Sequence
 from contextlib import ExitStack
@@ -46,8 +47,10 @@ from bptsb_ros.files.safe_write import atomic_writer, write_atomic
 from bptsb_ros.sim.inputs import brain_input
 from bptsb_ros.tasks.base import Task
 from bptsb_ros.tasks.narma import NarmaTask
+from bptsb_ros.training.callbacks import Periodically, ProgressBar
 from bptsb_ros.training.checkpoint import save_checkpoint
 from bptsb_ros.training.guard import RESET_AFTER, UpdateGuard
+from bptsb_ros.training.loop import Callback, GuardRules, LoopStopped, Measured, UpdateLoop
 from bptsb_ros.training.optim import make_optimizer
 from bptsb_ros.training.resume_checks import (
     ResumeStateError,
@@ -266,6 +269,41 @@ class _Population:
         return opt.state_dict()
 
 
+class _PopulationUpdates:
+    """One update of every member for :meth:`UpdateLoop.batched`: each member's inputs from its own stream, one
+    batched episode, one backward of the members still training whose loss is finite (their gradients), and the
+    step of the accepted members."""
+
+    def __init__(self, pop: _Population, tasks: Sequence[NarmaTask], steps_per_update: int) -> None:
+        self.pop, self.tasks, self.steps_per_update = pop, tasks, steps_per_update
+
+    def measure(self, update: int, active: Sequence[bool]) -> list[Measured]:
+        pop, n = self.pop, self.pop.cfg.narma
+        u = np.stack([t.rng.uniform(0.0, 1.0, n.n_inputs) for t in self.tasks])  # each member's own stream
+        y = np.stack([t.target(x) for t, x in zip(self.tasks, u)])
+        for p in pop.params():
+            p.grad = None
+        loss, win = pop.forward(u, y, n.washout, n.train_end)
+        values = loss.detach().double().numpy()
+        finite = np.isfinite(values) & win.sound & np.asarray(active, dtype=bool)
+        torch.where(torch.as_tensor(finite), loss, torch.zeros((), dtype=loss.dtype)).sum().backward()
+        grads_ok = pop.gradients_finite()
+        out = []
+        for b, live in enumerate(active):
+            failure = None
+            if live and not win.sound[b]:
+                failure = diverged_message(self.steps_per_update, pop.body.dt, _ranges(pop, b))
+            out.append(Measured(value=float(values[b]) if failure is None else None,
+                                grads_finite=bool(grads_ok[b]), failure=failure, fused=True))
+        return out
+
+    def step(self, accepted: Sequence[bool]) -> None:
+        self.pop.step(np.asarray(accepted, dtype=bool))
+
+    def advance(self, finite: Sequence[bool]) -> None:
+        del finite  # each member's task draws its own inputs; no state is carried between updates
+
+
 def _ranges(pop: _Population, b: int) -> str:
     """Member b's ``k in [lo, hi], d in [..], l in [..]`` (:meth:`MSDN.parameter_ranges`)."""
     return parameter_ranges(pop.k[b], pop.d[b], pop.l[b])
@@ -327,8 +365,6 @@ def train_population(cfgs: Sequence[ExperimentConfig], run_dirs: Sequence[str | 
 
 def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: bool, desc: str,
            state_path: Path | None, save_every_s: float) -> tuple[list[TrainResult | None], list[MemberFailure]]:
-    from tqdm import tqdm
-
     from bptsb_ros.agent import body_backend
 
     cfg0 = cfgs[0]
@@ -351,56 +387,45 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
             write_atomic(d / "config.yaml", yaml.safe_dump(agent.config, sort_keys=False))
     pop = _Population(agents, cfg0)
     tc, n = cfg0.training, cfg0.narma
-    interactive = sys.stderr.isatty()
-    bar = tqdm(total=cfg0.epochs, desc=f"{desc} ({len(cfgs)} trainings)", unit="upd", disable=not progress,
-               file=sys.stderr, dynamic_ncols=interactive, mininterval=0.1 if interactive else 60.0)
-    guards = [UpdateGuard(pop.members[b], factor=tc.reject_factor, patience=tc.reject_patience,  # type: ignore[arg-type]
-                          log=lambda line, b=b: bar.write(f"training {b}: {line}", file=sys.stderr))
-              for b in range(len(cfgs))]
-    active = np.ones(len(cfgs), dtype=bool)
+    # the trainer's update loop, one guard per member (its rules, events and rate divisions a training's alone)
+    loop = UpdateLoop.batched(pop.members, GuardRules(factor=tc.reject_factor, patience=tc.reject_patience),
+                              log=lambda b, line: bar.write(f"training {b}: {line}"))
+    guards, active = loop.guards, loop.active
     failures: list[MemberFailure] = []
     steps_per_update = n.n_inputs * n.tau
     start, before = 0, 0.0  # the update to start at, training seconds of earlier attempts
     if state_path is not None and state_path.is_file():
         start, before = _load_state(state_path, cfgs, pop, guards, tasks, active, failures)
-        bar.update(start)
-        bar.write(f"{desc}: resuming the population at update {start} of {cfg0.epochs} ({state_path})",
-                  file=sys.stderr)
+
+    def median_loss() -> float | None:
+        live = [g.history[-1] for g, a in zip(guards, active) if a]
+        return float(np.median(live)) if live else None
+
+    bar = ProgressBar(cfg0.epochs, f"{desc} ({len(cfgs)} trainings)", median_loss, enabled=progress, start=start,
+                      log_every=tc.log_every, quiet_every_s=60.0, refresh=False)  # refresh: at the next timed one
+    if start:
+        bar.write(f"{desc}: resuming the population at update {start} of {cfg0.epochs} ({state_path})")
+
+    class Stopped(Callback):
+        """A member the guard cannot undo: its ``diverged.json`` and error, as ``train`` words them."""
+
+        def on_stopped(self, stop: LoopStopped) -> None:
+            b = stop.member
+            assert b is not None
+            failures.append(MemberFailure(b, _member_diverged(dirs[b], stop.update, stop.report(_ranges(pop, b)),
+                                                              guards[b], _ranges(pop, b))))
+
     t_start = time.perf_counter()
-    last_save = t_start
-    try:
-        for i in range(start, cfg0.epochs):
-            u = np.stack([t.rng.uniform(0.0, 1.0, n.n_inputs) for t in tasks])  # each member's own stream
-            y = np.stack([t.target(x) for t, x in zip(tasks, u)])
-            for p in pop.params():
-                p.grad = None
-            loss, win = pop.forward(u, y, n.washout, n.train_end)
-            values = loss.detach().double().numpy()
-            finite = np.isfinite(values) & win.sound & active
-            torch.where(torch.as_tensor(finite), loss, torch.zeros((), dtype=loss.dtype)).sum().backward()
-            grads_ok = pop.gradients_finite()
-            accepted = np.zeros(len(cfgs), dtype=bool)
-            for b in np.flatnonzero(active):
-                failure = None if win.sound[b] else diverged_message(steps_per_update, body.dt, _ranges(pop, b))
-                value = float(values[b]) if failure is None else None
-                decision = guards[b].review(i, value, grads_finite=bool(grads_ok[b]), diverged=failure)
-                if decision.stop:
-                    why = failure or (f"loss is {value}" if decision.reason == "non-finite loss" else decision.reason)
-                    ranges = "" if failure else f"; {_ranges(pop, b)}"
-                    failures.append(MemberFailure(int(b), _member_diverged(
-                        dirs[b], i, f"{why}{ranges}; the guard has nothing to undo (no update since the start or the "
-                                    "last restore)", guards[b], _ranges(pop, b))))
-                    active[b] = False
-                accepted[b] = decision.accepted
-            pop.step(accepted)
-            bar.update(1)
-            if state_path is not None and time.perf_counter() - last_save >= save_every_s and i + 1 < cfg0.epochs:
-                _save_state(state_path, cfgs, pop, guards, tasks, active, failures, i + 1,
+    callbacks: list[Callback] = [Stopped(), bar]
+    if state_path is not None:
+        def save(update: int) -> None:
+            if update + 1 < cfg0.epochs:
+                _save_state(state_path, cfgs, pop, guards, tasks, active, failures, update + 1,
                             before + time.perf_counter() - t_start)
-                last_save = time.perf_counter()
-            if i % tc.log_every == 0 and active.any():
-                median = float(np.median([g.history[-1] for g, a in zip(guards, active) if a]))
-                bar.set_postfix(loss=f"{median:.4g}", refresh=False)  # shown at the bar's next timed refresh
+
+        callbacks.append(Periodically(save_every_s, save, since=t_start))
+    try:
+        loop.run(_PopulationUpdates(pop, tasks, steps_per_update), range(start, cfg0.epochs), callbacks=callbacks)
     finally:
         bar.close()
     elapsed = before + time.perf_counter() - t_start
@@ -437,7 +462,7 @@ STATE_FORMAT = 1
 
 
 def _save_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, guards: Sequence[UpdateGuard],
-                tasks: Sequence[Task], active: np.ndarray, failures: list[MemberFailure], update: int,
+                tasks: Sequence[Task], active: list[bool], failures: list[MemberFailure], update: int,
                 seconds: float) -> None:
     """Everything the population needs to go on from ``update`` (plain data and tensors: ``weights_only``)."""
     state = {"format": STATE_FORMAT, "configs": [c.model_dump(mode="json") for c in cfgs], "update": update,
@@ -445,7 +470,7 @@ def _save_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, 
              "steps": pop.steps.clone(), "moments": [[*g.exp_avg, *g.exp_avg_sq] for g in pop.groups],
              "rates": [[g["lr"] for g in m.param_groups] for m in pop.members],
              "guards": [g.state_dict() for g in guards], "rngs": [t.rng.bit_generator.state for t in tasks],
-             "active": active.tolist(), "failures": [[f.index, str(f.error)] for f in failures]}
+             "active": list(active), "failures": [[f.index, str(f.error)] for f in failures]}
     with atomic_writer(path) as f:
         torch.save(state, f)
 
@@ -469,7 +494,7 @@ def _state_matches(path: Path, cfgs: Sequence[ExperimentConfig]) -> bool:
 
 
 def _load_state(path: Path, cfgs: Sequence[ExperimentConfig], pop: _Population, guards: Sequence[UpdateGuard],
-                tasks: Sequence[Task], active: np.ndarray, failures: list[MemberFailure]) -> tuple[int, float]:
+                tasks: Sequence[Task], active: list[bool], failures: list[MemberFailure]) -> tuple[int, float]:
     """Restore a state :func:`_save_state` wrote; returns (the update to go on from, seconds trained so far)."""
     state = _read_state(path)
     if not isinstance(state, dict) or state.get("format") != STATE_FORMAT or \

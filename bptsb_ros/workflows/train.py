@@ -240,12 +240,7 @@ def _train_locked(cfg: ExperimentConfig, run_dir: Path | None, *, resume: bool, 
         try:
             loop.run(objective, range(start, total), decay_at=decay_at, callbacks=callbacks)
         except LoopStopped as stop:
-            m = stop.measured
-            why = m.failure or (f"loss is {m.value}" if stop.decision.reason == "non-finite loss"
-                                else stop.decision.reason)
-            ranges = "" if m.failure else f"; {agent.body.parameter_ranges()}"
-            raise diverged(stop.update, f"{why}{ranges}; the guard has nothing to undo (no update since the start "
-                                        "or the last restore)") from None
+            raise diverged(stop.update, stop.report(agent.body.parameter_ranges())) from None
     finally:
         bar.close()
     elapsed = time.perf_counter() - t_start
