@@ -34,7 +34,6 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
-from pydantic_core import ErrorDetails
 
 from bptsb_ros.experiments.settings_models import SETTINGS_MODELS, ExperimentSettings, VariantSettings
 from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
@@ -66,7 +65,7 @@ def _close(name: Any, names: Sequence[str]) -> str:
     return f"; did you mean {match[0]}?" if match else ""
 
 
-def _reason(error: ErrorDetails) -> str:
+def _reason(error: Mapping[str, Any]) -> str:
     """What pydantic's ``error`` says is wrong, in the words of the settings (a list, not a tuple)."""
     if error["type"] in ("value_error", "assertion_error"):
         return str(error.get("ctx", {}).get("error", error["msg"]))
