@@ -1525,7 +1525,7 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("trust-settings-float-keeps-int", "bptsb_ros/experiments/settings_models.py",
            "            return float(value)",
            "            return value",
-           "a float setting refuses an integer (--set wind_period=5)",
+           "an integer beyond any float is not reported as non-finite (a float setting given 10**400)",
            ("tests/experiments/test_experiment_settings.py",)),
     Mutant("trust-settings-number-takes-bool", "bptsb_ros/experiments/settings_models.py",
            "    if isinstance(value, bool) or not isinstance(value, (int, float)):",

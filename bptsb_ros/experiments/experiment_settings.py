@@ -35,7 +35,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from bptsb_ros.experiments.settings_models import SETTINGS_MODELS, ExperimentSettings, VariantSettings
+from bptsb_ros.experiments.settings_models import SETTINGS_MODELS, ExperimentSettings, VariantSettings, shown
 from bptsb_ros.files.untrusted_yaml import UntrustedYamlError, bounded_repr, load_untrusted_yaml
 
 #: the packaged settings files, one per experiment (``<experiment name>.yaml``)
@@ -52,11 +52,6 @@ Overrides = Sequence[str] | Mapping[str, Any]
 
 class SettingsError(ValueError):
     """A settings file or a ``--set`` override is not valid; one line naming the file or the override."""
-
-
-def _shown(value: Any) -> str:
-    text = str(value)
-    return text if isinstance(value, str) and text.isprintable() and len(text) <= 80 else bounded_repr(value)
 
 
 def _close(name: Any, names: Sequence[str]) -> str:
@@ -85,7 +80,7 @@ def _one_line(err: ValidationError, model: type[BaseModel], setting: Callable[[s
     if error["type"] == "missing":
         return f"{rules} lacks the {what} {key}"
     if error["type"] == "extra_forbidden":
-        return f"{setting(_shown(loc[0]))}: unknown {what}{_close(loc[0], list(model.model_fields))}"
+        return f"{setting(shown(loc[0]))}: unknown {what}{_close(loc[0], list(model.model_fields))}"
     return f"{setting(key)}: {_reason(error)}, got {bounded_repr(error['input'])}"
 
 
@@ -132,7 +127,7 @@ def parse_settings(doc: Any, source: str, model: type[ExperimentSettings]) -> Pa
         raise SettingsError(f"{source}: must be a mapping with the sections {', '.join(SECTIONS)}")
     for key in doc:
         if key not in SECTIONS:
-            raise SettingsError(f"{source}: {_shown(key)}: unknown section{_close(key, SECTIONS)} "
+            raise SettingsError(f"{source}: {shown(key)}: unknown section{_close(key, SECTIONS)} "
                                 f"(sections: {', '.join(SECTIONS)}; the settings themselves are declared in "
                                 f"{model.__name__}, settings_models.py)")
     values: dict[str, ExperimentSettings] = {}
@@ -303,11 +298,11 @@ def _override_items(overrides: Overrides | None) -> list[tuple[str, Any]]:
     items = []
     for text in overrides:
         if not isinstance(text, str) or "=" not in text:
-            raise SettingsError(f"--set {_shown(text)} must look like key=value (e.g. epochs=3)")
+            raise SettingsError(f"--set {shown(text)} must look like key=value (e.g. epochs=3)")
         key, raw = text.split("=", 1)
         key = key.strip()
         try:
-            value = load_untrusted_yaml(raw, f"--set {_shown(key)}", max_bytes=10_000, max_nodes=1_000)
+            value = load_untrusted_yaml(raw, f"--set {shown(key)}", max_bytes=10_000, max_nodes=1_000)
         except UntrustedYamlError as err:
             raise SettingsError(str(err)) from None
         items.append((key, value))
@@ -326,7 +321,7 @@ def resolve_settings(experiment: str, scale: str, overrides: Overrides | None = 
     for key, value in _override_items(overrides):
         if key not in names:
             known = f"{_close(key, names)}" if names else " (it has no settings)"
-            raise SettingsError(f"--set {_shown(key)}: unknown setting of {experiment}{known}")
+            raise SettingsError(f"--set {shown(key)}: unknown setting of {experiment}{known}")
         values[key] = value
         if key not in overridden:
             overridden.append(key)

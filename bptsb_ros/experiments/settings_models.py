@@ -29,7 +29,8 @@ refused, not run until killed; a test checks every field of every model), and no
 
 A rule is an ``@model_validator(mode="after")`` that raises :func:`rule_broken` with the rule as text and the
 reason it must hold; a rule that reads a nullable setting holds while that setting is null, as one that reads an
-item of an empty list does (``stages[0] == 0``).
+item of an empty list does (``stages[0] == 0``): each validator checks for ``None`` (or the empty list) itself
+before it compares.
 """
 
 from __future__ import annotations
@@ -111,11 +112,12 @@ def rule_broken(settings: BaseModel, check: str, why: str) -> ValueError:
     """The error a rule raises when it does not hold: ``check`` (the rule as text), the values of the settings it
     names, and ``why`` it must hold."""
     names = sorted(set(re.findall(r"[a-z_][a-z0-9_]*", check)) & set(type(settings).model_fields))
-    given = ", ".join(f"{name} = {_shown(getattr(settings, name))}" for name in names)
+    given = ", ".join(f"{name} = {shown(getattr(settings, name))}" for name in names)
     return ValueError(f"{check} does not hold ({given}): {why}")
 
 
-def _shown(value: Any) -> str:
+def shown(value: Any) -> str:
+    """``value`` for a message: a short printable text as it is, anything else bounded and escaped."""
     text = str(value)
     return text if isinstance(value, str) and text.isprintable() and len(text) <= 80 else bounded_repr(value)
 

@@ -1,7 +1,8 @@
-"""The loops as ``ros2 launch`` descriptions (``launch/<loop>.launch.py`` call :func:`ros_launch_description`):
-the nodes, their parameters (written from the launch arguments by :mod:`bptsb_ros.live.loops`), the recorder with
-``bag:=DIR``, and what the launch does when a node exits (:func:`node_exit_verdict`). The loops themselves, their
-arguments and their checks are ROS-free, in :mod:`bptsb_ros.live.loops`.
+"""The loops as ``ros2 launch`` descriptions (``launch/<loop>.launch.py`` call :func:`ros_launch_description`): the
+nodes (a process each, or body and brains in one with ``composed:=true``), their parameters (written from the launch
+arguments by :mod:`bptsb_ros.live.loops`), the recorder with ``bag:=DIR``, and what the launch does when a node
+exits (:func:`node_exit_verdict`). The loops themselves, their arguments and their checks are ROS-free, in
+:mod:`bptsb_ros.live.loops`.
 """
 
 from __future__ import annotations
@@ -61,7 +62,10 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
 
     The nodes are declared statically (``ros2 launch -p`` and launch introspection list them); their parameters
     are params files written at launch time from the arguments (:func:`loop_node_parameters`: the same
-    processes and parameters as ``bptsb launch``), and the recorder runs only with ``bag:=DIR``. The arguments are
+    processes and parameters as ``bptsb launch``), and the recorder runs only with ``bag:=DIR``. ``body_sim`` and
+    the brains run as a process each, or with ``composed:=true`` as one ``bptsb_composed`` process that builds
+    them all (``--nodes``; a params file with a section per node; its exit code is the body's): both shapes are
+    declared, under ``UnlessCondition`` and ``IfCondition`` of ``composed``. The arguments are
     checked first (:func:`resolve_arguments`; closed loops require ``agent``): a bad one stops the launch before
     any node starts, with the reason and a non-zero exit. When ``body_sim`` ends the run the launch shuts down and
     exits 0; when any node exits otherwise (a brain that cannot start, a crash, a failed stop) the whole loop is
@@ -109,36 +113,38 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         return {**values, "namespace": namespace_of(context)}
 
     class NodeParamsFile(Substitution):
-        """Path of a params file with one node's parameters, written when the launch performs it."""
+        """Path of a params file with the parameters of one node, or of the ``nodes`` one process runs (a section
+        each), written when the launch performs it."""
 
-        def __init__(self, executable: str) -> None:
+        def __init__(self, executable: str, nodes: list[str] | None = None) -> None:
             super().__init__()
-            self.executable = executable
+            self.executable, self.nodes = executable, nodes
 
         def describe(self) -> str:
             return f"<params of {self.executable} in {loop_name}, from the launch arguments>"
 
         def perform(self, context) -> str:
-            if self.executable == COMPOSED:  # one section per node of the process
+            if self.nodes:  # the composed process: one section per node it builds
                 from bptsb_ros.ros.composed import params_file_text as sections_text
 
-                text = sections_text({name: self.node_params(name, context) for name in composed}, {})
+                text = sections_text({name: node_params(name, context) for name in self.nodes}, {})
             else:
-                text = params_file_text(self.executable, self.node_params(self.executable, context))
+                text = params_file_text(self.executable, node_params(self.executable, context))
             handle, path = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_{self.executable}_", suffix=".yaml")
             with open(handle, "w") as out:
                 out.write(text)
             return path
 
-        @staticmethod
-        def node_params(executable: str, context) -> dict:
-            params = loop_node_parameters(loop_name, executable, values_of(context))
-            if executable == "body_sim":  # the summary tells on_exit whether the brain was there
-                if not params.get("summary_path"):
-                    params["summary_path"] = str(Path(tempfile.mkdtemp(prefix=f"bptsb_{loop_name}_")) /
-                                                 "body_summary.json")
-                state["summary"] = params["summary_path"]
-            return params
+    def node_params(executable: str, context) -> dict:
+        """One node's parameters from the launch arguments; body_sim's summary path is kept in ``state`` (on_exit
+        reads the summary to tell whether the brain was there)."""
+        params = loop_node_parameters(loop_name, executable, values_of(context))
+        if executable == "body_sim":
+            if not params.get("summary_path"):
+                params["summary_path"] = str(Path(tempfile.mkdtemp(prefix=f"bptsb_{loop_name}_")) /
+                                             "body_summary.json")
+            state["summary"] = params["summary_path"]
+        return params
 
     def check(context, *args, **kwargs):
         del args, kwargs
@@ -150,9 +156,9 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
     class UserParamsFile(Substitution):
         """``params_file:=`` for one node, or (none given) a second copy of the node's own parameters."""
 
-        def __init__(self, executable: str) -> None:
+        def __init__(self, own: NodeParamsFile) -> None:
             super().__init__()
-            self.own = NodeParamsFile(executable)
+            self.own = own
 
         def describe(self) -> str:
             return "<params_file:= of the launch, if any>"
@@ -218,12 +224,16 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
     split, composing = UnlessCondition(LaunchConfiguration("composed")), IfCondition(LaunchConfiguration("composed"))
     composed = ["body_sim"] + [b.executable for b in loop.brains]
     executables = [*composed, "recorder", COMPOSED]
+
+    def own_params(name: str) -> NodeParamsFile:
+        return NodeParamsFile(name, composed if name == COMPOSED else None)
+
     remappings = [(TOPICS[k].name, Remapped(k)) for k in TOPICS if TOPICS[k].name.startswith("/")]
     # the composed process is not named (a name would rename every node in it); --nodes says which it builds
     nodes = [Node(package="bptsb_ros", executable=name, output="screen",
                   **({"arguments": ["--nodes", ",".join(composed)]} if name == COMPOSED else {"name": name}),
                   namespace=LaunchConfiguration("namespace"), remappings=remappings,
-                  parameters=[NodeParamsFile(name), UserParamsFile(name)],
+                  parameters=[own_params(name), UserParamsFile(own_params(name))],
                   ros_arguments=["--log-level", LaunchConfiguration("log_level")],
                   condition={"recorder": recording, COMPOSED: composing}.get(name, split),
                   sigterm_timeout=str(STOP_GRACE_S))

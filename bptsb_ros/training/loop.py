@@ -158,6 +158,8 @@ class UpdateLoop:
         handles as one: ``param_groups`` — views of the member's parameters, its rates — and ``state_dict`` /
         ``load_state_dict`` of its optimiser state), every member with the same ``rules``; ``log(b, line)``: one
         line per rejection of member b. Run it on a :class:`BatchedObjective`."""
+        if not optimizers:
+            raise ValueError("UpdateLoop.batched: a population needs at least one member (no optimisers given)")
         loop = cls.__new__(cls)
         logs = [None if log is None else (lambda line, b=b: log(b, line)) for b in range(len(optimizers))]
         loop._setup(list(optimizers), rules, None, logs, batched=True)
@@ -166,7 +168,6 @@ class UpdateLoop:
     def _setup(self, optimizers: list[Any], rules: GuardRules, modules: Mapping[str, nn.Module] | None,
                logs: Sequence[Callable[[str], None] | None], *, batched: bool) -> None:
         self.optimizers = optimizers
-        self.optimizer = optimizers[0]
         self.is_batched = batched
         #: the guard of each member (a training alone: one)
         self.guards = [UpdateGuard(opt, factor=rules.factor, patience=rules.patience, window=rules.window,
@@ -176,14 +177,21 @@ class UpdateLoop:
 
     @property
     def guard(self) -> UpdateGuard:
-        """The guard of a training alone (a population's first member's)."""
+        """The guard of a training alone (a population's loop has one per member: :attr:`guards`)."""
+        self._alone("guard")
         return self.guards[0]
 
     @property
     def losses(self) -> list[float]:
         """The loss curve of a training alone: the guard's history (a rejected update repeats the previous
         entry)."""
+        self._alone("losses")
         return self.guards[0].history
+
+    def _alone(self, what: str) -> None:
+        if self.is_batched:
+            raise AttributeError(f"UpdateLoop.{what} is a training alone's; a population's loop has one per member "
+                                 "(guards[b], guards[b].history)")
 
     def run(self, objective: Objective | BatchedObjective, updates: Iterable[int], *,
             decay_at: Sequence[int] | set[int] = (), callbacks: Sequence[Callback] = ()) -> None:
@@ -191,6 +199,7 @@ class UpdateLoop:
         a training alone raises :class:`LoopStopped`."""
         decays = list(decay_at)
         batched = self.is_batched
+        _check_objective(objective, batched)
         for i in updates:
             for _ in range(decays.count(i)):
                 for optimizer in self.optimizers:
@@ -229,3 +238,18 @@ class UpdateLoop:
                 objective.advance(measured.failure is None)  # type: ignore[arg-type]
             for callback in callbacks:
                 callback.on_update(i)
+
+
+def _check_objective(objective: Any, batched: bool) -> None:
+    """One line when ``objective`` does not fit the loop: a population's loop measures ``measure(i, active)``, a
+    training alone's ``measure(i)``."""
+    import inspect
+
+    try:
+        arity = len(inspect.signature(objective.measure).parameters)
+    except (AttributeError, TypeError, ValueError):
+        raise TypeError(f"UpdateLoop.run: {type(objective).__name__} has no measure() method") from None
+    if arity != (2 if batched else 1):
+        want = "a BatchedObjective, measure(update, active)" if batched else "an Objective, measure(update)"
+        raise TypeError(f"UpdateLoop.run: this loop runs {want}; {type(objective).__name__}.measure takes {arity} "
+                        "arguments")

@@ -387,7 +387,9 @@ def _train(cfgs: list[ExperimentConfig], dirs: list[Path | None], *, progress: b
             write_atomic(d / "config.yaml", yaml.safe_dump(agent.config, sort_keys=False))
     pop = _Population(agents, cfg0)
     tc, n = cfg0.training, cfg0.narma
-    # the trainer's update loop, one guard per member (its rules, events and rate divisions a training's alone)
+    # the trainer's update loop, one guard per member (its rules, events and rate divisions a training's alone);
+    # its log lines go to the progress bar made below, once the resumed update is known: a guard logs only when it
+    # reviews an update, never while the state is loaded
     loop = UpdateLoop.batched(pop.members, GuardRules(factor=tc.reject_factor, patience=tc.reject_patience),
                               log=lambda b, line: bar.write(f"training {b}: {line}"))
     guards, active = loop.guards, loop.active

@@ -207,3 +207,26 @@ def test_a_stop_reports_the_simulations_message_or_the_loss_with_the_ranges():
     assert nan.report("k in [1, 2]") == "loss is nan; k in [1, 2]" + tail
     assert grad.report("k in [1, 2]") == "non-finite gradient; k in [1, 2]" + tail
     assert str(nan) == "member 1, update 3: non-finite loss; nothing to undo"
+
+
+def test_a_loop_and_an_objective_that_do_not_fit_are_one_line_each():
+    planted = Planted([[1.0], [1.0]])
+
+    class Alone:
+        def measure(self, update):
+            raise AssertionError("never measured")
+
+    with pytest.raises(TypeError, match=r"^UpdateLoop.run: this loop runs a BatchedObjective, measure\(update, "
+                                        r"active\); Alone.measure takes 1 arguments$"):
+        UpdateLoop.batched(planted.opts).run(Alone(), range(1))
+    with pytest.raises(TypeError, match=r"^UpdateLoop.run: this loop runs an Objective, measure\(update\); "
+                                        r"Planted.measure takes 2 arguments$"):
+        UpdateLoop(planted.opts[0]).run(planted, range(1))
+    assert planted.active_seen == []  # refused before any update
+    with pytest.raises(ValueError, match="a population needs at least one member"):
+        UpdateLoop.batched([])
+    loop = UpdateLoop.batched(planted.opts)
+    for name in ("guard", "losses"):  # a training alone's: a population has one per member
+        with pytest.raises(AttributeError, match=rf"^UpdateLoop.{name} is a training alone's"):
+            getattr(loop, name)
+    assert len(loop.guards) == 2 and UpdateLoop(planted.opts[0]).losses == []
