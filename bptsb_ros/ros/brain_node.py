@@ -43,8 +43,8 @@ COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("min_subscribers", 1, "before its first message, wait until the output topic has this many matched "
           "subscribers (the body, the next brain, the recorder) so that nothing is sent into the void", "int",
           minimum=0),
-    Param("startup_timeout", 30.0, "wall seconds to wait for min_subscribers before sending anyway", "float",
-          positive=True),
+    Param("startup_timeout", 30.0, "wall seconds to wait for a publisher on each input (before making the outputs) "
+          "and for min_subscribers (before sending), each, before going on anyway", "float", positive=True),
     EXECUTOR,
     RAW_OUTPUTS,
     LOG_LEVEL,

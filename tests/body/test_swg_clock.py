@@ -255,8 +255,9 @@ from bptsb_ros.ros.swg_brain import SwgBrain
 results = {}
 for dtype in ("float32", "float64"):
     # message objects, not the pre-serialized bytes (whose equality with these is tests/live/test_live_speed.py's)
+    # nothing publishes /clock here: the node waits startup_timeout for one before it makes its output
     rclpy.init(args=["--ros-args", "-p", "task:=lissajous", "-p", "min_subscribers:=0", "-p", f"dtype:={dtype}",
-                     "-p", "raw_outputs:=false"])
+                     "-p", "raw_outputs:=false", "-p", "startup_timeout:=0.2"])
     node = SwgBrain(StopFlag())
     sent = []
     node.publish_timed = lambda pub, msg, started: sent.append(msg)
