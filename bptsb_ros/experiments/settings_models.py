@@ -9,8 +9,9 @@ models. A new experiment adds its model here and names it in :data:`SETTINGS_MOD
 
 All the models are in this one file, not beside each experiment: several experiments share a module
 (``lissajous_switching.py`` runs three) or a variant model (:class:`SwitchingVariant`, :class:`AblationVariant`),
-the settings of all of them are read here side by side (the agent settings of the three locomotion experiments
-must stay alike for them to share agents), and checking a ``--set`` or printing ``--show-config`` needs no
+the settings of a family are declared once in a base model its experiments extend (:class:`MnistSplitSettings`,
+:class:`SwitchingTrainingSettings`, :class:`LocomotionAgentSettings`: the three locomotion experiments share
+agents only while their agent settings are alike), and checking a ``--set`` or printing ``--show-config`` needs no
 experiment code (nor torch) imported.
 
 The types, exactly as the experiments read them:
@@ -124,33 +125,37 @@ def shown(value: Any) -> str:
 
 # -- MNIST (Fig. 2 and the MNIST supplement) -----------------------------------------------------------------------
 
-class MnistDrawingSettings(ExperimentSettings):
-    """What ``mnist-drawing`` reads from ``ctx.settings``."""
+def odd_grid(settings: Any) -> Any:
+    """The rule of a label map's ``grid``: odd, so that it has a cell at Δ = 0."""
+    if not settings.grid % 2 == 1:
+        raise rule_broken(settings, "grid % 2 == 1", "the label map has a cell at Δ = 0 (an odd grid)")
+    return settings
+
+
+class MnistSplitSettings(ExperimentSettings):
+    """The images of an MNIST experiment that trains on a split (its own settings follow these)."""
 
     n_train: Annotated[Int, Field(ge=1, le=1_000_000)] | None = Field(
         description="training images (null: every image of the split)")
     n_test: Annotated[Int, Field(ge=1, le=1_000_000)] | None = Field(
         description="test images (null: every image of the split)")
+
+
+class MnistDrawingSettings(MnistSplitSettings):
+    """What ``mnist-drawing`` reads from ``ctx.settings``."""
+
     epochs: Int = Field(ge=1, le=1_000_000, description="training epochs of each of the four systems (batch 50)")
 
 
-class MnistPcaSettings(ExperimentSettings):
+class MnistPcaSettings(MnistSplitSettings):
     """What ``mnist-pca`` reads from ``ctx.settings``."""
 
-    n_train: Annotated[Int, Field(ge=1, le=1_000_000)] | None = Field(
-        description="training images (null: every image of the split)")
-    n_test: Annotated[Int, Field(ge=1, le=1_000_000)] | None = Field(
-        description="test images (null: every image of the split)")
     epochs: Int = Field(ge=1, le=1_000_000, description="training epochs of the system (batch 50)")
 
 
-class MnistLabelmapSettings(ExperimentSettings):
+class MnistLabelmapSettings(MnistSplitSettings):
     """What ``mnist-labelmap`` reads from ``ctx.settings``."""
 
-    n_train: Annotated[Int, Field(ge=1, le=1_000_000)] | None = Field(
-        description="training images (null: every image of the split)")
-    n_test: Annotated[Int, Field(ge=1, le=1_000_000)] | None = Field(
-        description="test images (null: every image of the split)")
     epochs: Int = Field(ge=1, le=1_000_000, description="training epochs of the system (batch 50)")
     grid: Int = Field(
         ge=2, le=1001,
@@ -159,9 +164,7 @@ class MnistLabelmapSettings(ExperimentSettings):
 
     @model_validator(mode="after")
     def _odd_grid(self) -> Self:
-        if not self.grid % 2 == 1:
-            raise rule_broken(self, "grid % 2 == 1", "the label map has a cell at Δ = 0 (an odd grid)")
-        return self
+        return odd_grid(self)
 
 
 class MnistSpecific100Settings(ExperimentSettings):
@@ -176,18 +179,12 @@ class MnistSpecific100Settings(ExperimentSettings):
 
     @model_validator(mode="after")
     def _odd_grid(self) -> Self:
-        if not self.grid % 2 == 1:
-            raise rule_broken(self, "grid % 2 == 1", "the label map has a cell at Δ = 0 (an odd grid)")
-        return self
+        return odd_grid(self)
 
 
-class MnistReadoutSettings(ExperimentSettings):
+class MnistReadoutSettings(MnistSplitSettings):
     """What ``mnist-readout`` reads from ``ctx.settings``."""
 
-    n_train: Annotated[Int, Field(ge=1, le=1_000_000)] | None = Field(
-        description="training images (null: every image of the split)")
-    n_test: Annotated[Int, Field(ge=1, le=1_000_000)] | None = Field(
-        description="test images (null: every image of the split)")
     epochs: Int = Field(
         ge=1, le=1_000_000,
         description="training epochs (the supplement: \"These systems were optimized for 100 epochs\")")
@@ -395,27 +392,35 @@ class SwitchingVariant(VariantSettings):
         description="body.integrator of the preliminary and the switching training (verlet, published)")
 
 
-class LissajousSwitchingSettings(ExperimentSettings):
-    """What ``lissajous-switching`` reads from ``ctx.settings``."""
+class SwitchingTrainingSettings(ExperimentSettings):
+    """How a wind-switching experiment trains its agents (the preliminary single-curve training, then the switching
+    training with the wind held for a random number of periods), first in each; its variants are
+    :class:`SwitchingVariant`."""
 
     variant_model: ClassVar[type[VariantSettings] | None] = SwitchingVariant
 
     pretrain_time: Number = Field(ge=0, le=100_000, description="preliminary single-curve training [s]")
-    switching_time: Number = Field(ge=0, le=300_000, description="switching training [s] (the paper: 30,000 s)")
+    switching_time: Number = Field(ge=0, le=300_000,
+                                   description="switching training [s] of each agent (the paper: 30,000 s)")
     hold: tuple[Annotated[Int, Field(ge=1, le=10_000)], ...] = Field(
         min_length=2, max_length=2,
         description="the wind holds each state this many periods, min and max")
-    pretrain_eval_periods: Int = Field(
-        ge=1, le=10_000,
-        description="periods the preliminary agent's error is measured over")
-    segment_periods: Int = Field(ge=1, le=10_000, description="periods of each test segment (no wind, wind, no wind)")
-    transient_periods: Int = Field(ge=0, le=10_000, description="first periods of each segment left out")
 
     @model_validator(mode="after")
     def _hold_ordered(self) -> Self:
         if not self.hold[0] <= self.hold[1]:
             raise rule_broken(self, "hold[0] <= hold[1]", "the shortest hold comes first")
         return self
+
+
+class LissajousSwitchingSettings(SwitchingTrainingSettings):
+    """What ``lissajous-switching`` reads from ``ctx.settings``."""
+
+    pretrain_eval_periods: Int = Field(
+        ge=1, le=10_000,
+        description="periods the preliminary agent's error is measured over")
+    segment_periods: Int = Field(ge=1, le=10_000, description="periods of each test segment (no wind, wind, no wind)")
+    transient_periods: Int = Field(ge=0, le=10_000, description="first periods of each segment left out")
 
     @model_validator(mode="after")
     def _segment_after_transient(self) -> Self:
@@ -425,47 +430,21 @@ class LissajousSwitchingSettings(ExperimentSettings):
         return self
 
 
-class LissajousBifurcationSettings(ExperimentSettings):
+class LissajousBifurcationSettings(SwitchingTrainingSettings):
     """What ``lissajous-bifurcation`` reads from ``ctx.settings``."""
 
-    variant_model: ClassVar[type[VariantSettings] | None] = SwitchingVariant
-
-    pretrain_time: Number = Field(ge=0, le=100_000, description="preliminary single-curve training [s]")
-    switching_time: Number = Field(ge=0, le=300_000, description="switching training [s] (the paper: 30,000 s)")
-    hold: tuple[Annotated[Int, Field(ge=1, le=10_000)], ...] = Field(
-        min_length=2, max_length=2,
-        description="the wind holds each state this many periods, min and max")
     transient_periods: Int = Field(ge=0, le=10_000, description="periods run under each wind before recording")
     record_periods: Int = Field(ge=2, le=10_000, description="periods recorded under each wind")
 
-    @model_validator(mode="after")
-    def _hold_ordered(self) -> Self:
-        if not self.hold[0] <= self.hold[1]:
-            raise rule_broken(self, "hold[0] <= hold[1]", "the shortest hold comes first")
-        return self
 
-
-class LissajousTimingSettings(ExperimentSettings):
+class LissajousTimingSettings(SwitchingTrainingSettings):
     """What ``lissajous-timing`` reads from ``ctx.settings``."""
 
-    variant_model: ClassVar[type[VariantSettings] | None] = SwitchingVariant
-
-    pretrain_time: Number = Field(ge=0, le=100_000, description="preliminary single-curve training [s]")
-    switching_time: Number = Field(ge=0, le=300_000, description="switching training [s] of each agent")
-    hold: tuple[Annotated[Int, Field(ge=1, le=10_000)], ...] = Field(
-        min_length=2, max_length=2,
-        description="the wind holds each state this many periods, min and max")
     settle_periods: Int = Field(ge=1, le=10_000, description="periods on the first curve before the switch")
     run_periods: Int = Field(ge=1, le=100_000, description="periods run after the switch")
     last_periods: Int = Field(
         ge=1, le=10_000,
         description="last periods compared (to the reference row and the target)")
-
-    @model_validator(mode="after")
-    def _hold_ordered(self) -> Self:
-        if not self.hold[0] <= self.hold[1]:
-            raise rule_broken(self, "hold[0] <= hold[1]", "the shortest hold comes first")
-        return self
 
     @model_validator(mode="after")
     def _last_within_run(self) -> Self:
@@ -491,10 +470,11 @@ class ClosedLoopSchemesSettings(ExperimentSettings):
         return self
 
 
-# -- locomotion: the agent settings sim_time … gait_time alike in all three, so they share agents ------------------
+# -- locomotion: the agent settings alike in all three (one base model), so they share agents -----------------------
 
-class LocomotionClosedLoop20Settings(ExperimentSettings):
-    """What ``locomotion-closed-loop-20`` reads from ``ctx.settings``."""
+class LocomotionAgentSettings(ExperimentSettings):
+    """How a locomotion experiment trains and evaluates its agents: the settings all three share, first in each, so
+    that equal values give the same agents (their own settings follow these)."""
 
     sim_time: Number = Field(ge=0, le=100_000, description="forward training of each agent [s] (the paper: 1000 s)")
     warmup_windows: Int = Field(
@@ -512,7 +492,6 @@ class LocomotionClosedLoop20Settings(ExperimentSettings):
     config_overrides: tuple[Str, ...] = Field(
         description="further key=value overrides of the agents' training config (config/locomotion_forward.yaml), "
         "e.g. body.integrator=published")
-    n_agents: Int = Field(ge=1, le=1000, description="agents (seeds 1000·SEED, 1000·SEED + 1, …; the paper: 20)")
 
     @model_validator(mode="after")
     def _gait_within_eval(self) -> Self:
@@ -520,6 +499,13 @@ class LocomotionClosedLoop20Settings(ExperimentSettings):
             raise rule_broken(self, "gait_time <= eval_time",
                               "the stored gait is cut from the open-loop evaluation run")
         return self
+
+
+class LocomotionClosedLoop20Settings(LocomotionAgentSettings):
+    """What ``locomotion-closed-loop-20`` reads from ``ctx.settings``."""
+
+    n_agents: Int = Field(ge=1, le=1000, description="agents (seeds 1000·SEED, 1000·SEED + 1, …; the paper: 20)")
+
 
 
 class LocomotionPerturbationVariant(VariantSettings):
@@ -530,27 +516,11 @@ class LocomotionPerturbationVariant(VariantSettings):
         "the range of its x-velocities (false: the paper's positions N(0, σ²) [m])")
 
 
-class LocomotionPerturbationSettings(ExperimentSettings):
+class LocomotionPerturbationSettings(LocomotionAgentSettings):
     """What ``locomotion-perturbation`` reads from ``ctx.settings``."""
 
     variant_model: ClassVar[type[VariantSettings] | None] = LocomotionPerturbationVariant
 
-    sim_time: Number = Field(ge=0, le=100_000, description="forward training of each agent [s] (the paper: 1000 s)")
-    warmup_windows: Int = Field(
-        ge=0, le=100_000,
-        description="untrained 200-step windows before the training (the paper: 100)")
-    fit_time: Number = Field(
-        ge=0, le=10_000,
-        description="open-loop run the FL is fitted on [s] (its middle 60 % used)")
-    eval_time: Number = Field(ge=0, le=10_000, description="open- and closed-loop runs whose speeds are compared [s]")
-    handover_time: Number = Field(ge=0, le=1000, description="the transition variant's blend from SWG to FL [s]")
-    gait_time: Number = Field(ge=0, le=1000, description="stored gait for the figure [s]")
-    projection: Str = Field(
-        description="training.projection of the agents: clamp (a negative k, d or l set to 0, the paper) or reset "
-        "(set to 0.1, the authors' code)")
-    config_overrides: tuple[Str, ...] = Field(
-        description="further key=value overrides of the agents' training config (config/locomotion_forward.yaml), "
-        "e.g. body.integrator=published")
     n_agents: Int = Field(ge=1, le=1000, description="agents trained (seeds 1000·SEED, 1000·SEED + 1, …)")
     n_noise: Int = Field(ge=1, le=10_000, description="random perturbation patterns per σ (the paper: 100)")
     before_time: Float = Field(
@@ -561,12 +531,6 @@ class LocomotionPerturbationSettings(ExperimentSettings):
         description="run after the perturbation, whose late speed is compared [s]")
     max_agents: Int = Field(ge=1, le=1000, description="most agents (whose closed loop succeeded) perturbed")
 
-    @model_validator(mode="after")
-    def _gait_within_eval(self) -> Self:
-        if not self.gait_time <= self.eval_time:
-            raise rule_broken(self, "gait_time <= eval_time",
-                              "the stored gait is cut from the open-loop evaluation run")
-        return self
 
 
 class LocomotionHeadwindVariant(VariantSettings):
@@ -581,34 +545,16 @@ class LocomotionHeadwindVariant(VariantSettings):
     lr_decay: Bool = Field(description="every rate ÷10 at 80 % and 90 % of the windows when there are more than 1,000")
 
 
-class LocomotionHeadwindSettings(ExperimentSettings):
+class LocomotionHeadwindSettings(LocomotionAgentSettings):
     """What ``locomotion-headwind`` reads from ``ctx.settings``."""
 
     variant_model: ClassVar[type[VariantSettings] | None] = LocomotionHeadwindVariant
 
-    sim_time: Number = Field(ge=0, le=100_000, description="forward training of the agent [s]")
-    warmup_windows: Int = Field(ge=0, le=100_000, description="untrained 200-step windows before the training")
-    fit_time: Number = Field(ge=0, le=10_000, description="open-loop run the FL is fitted on [s]")
-    eval_time: Number = Field(ge=0, le=10_000, description="open- and closed-loop runs whose speeds are compared [s]")
-    handover_time: Number = Field(ge=0, le=1000, description="the transition variant's blend from SWG to FL [s]")
-    gait_time: Number = Field(ge=0, le=1000, description="stored gait [s]")
-    projection: Str = Field(
-        description="training.projection of the agents: clamp (a negative k, d or l set to 0, the paper) or reset "
-        "(set to 0.1, the authors' code)")
-    config_overrides: tuple[Str, ...] = Field(
-        description="further key=value overrides of the agents' training config (config/locomotion_forward.yaml), "
-        "e.g. body.integrator=published")
     switching_time: Number = Field(ge=0, le=300_000, description="additional training under the periodic headwind [s]")
     wind_period: Float = Field(ge=0, le=10_000, description="period of the headwind's on/off cycle [s]")
     eval_periods: Int = Field(ge=1, le=10_000, description="wind periods of the evaluation run")
     sweep_time: Float = Field(ge=0, le=10_000, description="run per wind value of the speed-vs-F_wind sweep [s]")
 
-    @model_validator(mode="after")
-    def _gait_within_eval(self) -> Self:
-        if not self.gait_time <= self.eval_time:
-            raise rule_broken(self, "gait_time <= eval_time",
-                              "the stored gait is cut from the open-loop evaluation run")
-        return self
 
 
 # -- every experiment's model --------------------------------------------------------------------------------------
