@@ -34,7 +34,13 @@ def bptsb(args: list[str], ros_env: dict[str, str], timeout: float = 180) -> sub
 
     Past ``timeout`` the CLI gets SIGINT (``bptsb launch`` then stops its nodes in order) and, if it is still
     running a minute later, SIGKILL; then ``subprocess.TimeoutExpired`` is raised with the output.
+
+    A lockstep ``launch`` gets ``body_sim:command_timeout:=30`` unless the arguments set one: on busy cores a brain's
+    first answers can take longer than the default 2 s, and the body would count it silent (a failed launch) for
+    being slow, not broken; a dead brain still fails the run (its steps stand on the safe command).
     """
+    if args[:1] == ["launch"] and "realtime" not in args and not any("command_timeout" in a for a in args):
+        args = [*args, "--param", "body_sim:command_timeout:=30.0"]
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", *args], env=env_for(ros_env), cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:

@@ -297,7 +297,7 @@ def test_two_robots_in_one_domain_through_ros2_launch(tmp_path, ros_env):
 
     env = _tools_env(ros_env)
     params = tmp_path / "robot1.yaml"  # params_file:= reaches body_sim in its namespace; its value wins
-    params.write_text("/**/body_sim:\n  ros__parameters:\n    marker_every: 20\n")
+    params.write_text("/**/body_sim:\n  ros__parameters:\n    marker_every: 20\n    command_timeout: 30.0\n")
     wrapper = tmp_path / "two.launch.py"
     wrapper.write_text(WRAPPER.replace("BAG_PATH", repr(str(tmp_path / "robot2"))).replace("BAG", '"bag"'))
     procs = {
@@ -351,7 +351,8 @@ def test_composed_true_runs_the_body_and_its_brain_in_one_process(tmp_path, ros_
     env = _tools_env(ros_env)
     bag = tmp_path / "bag"
     out = subprocess.run(["ros2", "launch", "bptsb_ros", "lissajous_open.launch.py", "composed:=true",
-                          "namespace:=robot3", "duration:=1", "seed:=3", f"bag:={bag}"], env=env, cwd=REPO,
+                          "namespace:=robot3", "duration:=1", "seed:=3", f"bag:={bag}", _patient_body(tmp_path)],
+                         env=env, cwd=REPO,
                          capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL)
     text = out.stdout + out.stderr
     assert out.returncode == 0, text[-4000:]
@@ -369,6 +370,14 @@ def test_composed_true_runs_the_body_and_its_brain_in_one_process(tmp_path, ros_
     assert pos.shape == ref.shape and np.abs(pos - ref).max() <= 1e-9
 
 
+def _patient_body(tmp_path: Path) -> str:
+    """``params_file:=`` text for a launch that must succeed: body_sim waits 30 s for a command (not the default
+    2 s), so that a brain slow on busy cores is not counted silent; a dead brain still fails the run."""
+    path = tmp_path / "patient_body.yaml"
+    path.write_text("/**/body_sim:\n  ros__parameters:\n    command_timeout: 30.0\n")
+    return f"params_file:={path}"
+
+
 def _read_bag(bag: Path):
     from bptsb_ros.bags.reader import read_messages
 
@@ -383,7 +392,8 @@ def test_group_sigint_without_terminal_stops_cleanly(tmp_path, ros_env):
     env = _tools_env(ros_env)
     bag = tmp_path / "bag"
     log = (tmp_path / "launch.log").open("w")
-    proc = subprocess.Popen(["ros2", "launch", "bptsb_ros", "lissajous_open.launch.py", f"bag:={bag}"], env=env,
+    proc = subprocess.Popen(["ros2", "launch", "bptsb_ros", "lissajous_open.launch.py", f"bag:={bag}",
+                             _patient_body(tmp_path)], env=env,
                             cwd=REPO, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                             start_new_session=True)
     text = ""
@@ -454,7 +464,7 @@ def test_mnist_drawing_launch_file_runs_one_episode(tmp_path, ros_env):
     with pytest.raises(LaunchArgumentError, match="needs lockstep"):
         resolve_arguments(LOOPS["mnist_drawing"], {**values, "mode": "realtime"})
     env = _tools_env(ros_env)
-    out = _run(["ros2", "launch", "bptsb_ros", "mnist_drawing.launch.py",
+    out = _run(["ros2", "launch", "bptsb_ros", "mnist_drawing.launch.py", _patient_body(tmp_path),
                 *(f"{name}:={value}" for name, value in values.items())], env, timeout=180)
     text = out.stdout + out.stderr
     assert out.returncode == 0, text[-4000:]

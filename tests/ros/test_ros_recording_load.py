@@ -92,9 +92,9 @@ LOCKSTEP_STEPS = LOCKSTEP_S * 100 + 1  # dt 0.01 s, the initial state included
 #: name → (domain, launch arguments after the bag, seconds the recorder is frozen)
 LAUNCHES = {
     "lockstep": (ISOLATED_DOMAIN_ID, ["lissajous_open", "--duration", str(LOCKSTEP_S)], 4.0),
-    # 3.5 s of the 5 s run: 350 messages a topic must be lost somewhere (2.5 s lost none once: the transport's
-    # buffers held all 250)
-    "realtime": (QUARANTINE_DOMAIN_ID, ["lissajous_open", "--mode", "realtime", "--duration", "5"], 3.5),
+    # 7 s of the 10 s run: 700 messages a topic, far more than the transport's buffers hold (2.5 s of a 5 s run lost
+    # none once: they held all 250; a body slowed by busy cores publishes fewer in the freeze)
+    "realtime": (QUARANTINE_DOMAIN_ID, ["lissajous_open", "--mode", "realtime", "--duration", "10"], 7.0),
 }
 
 
@@ -163,8 +163,8 @@ def test_realtime_losses_are_counted_and_fail_the_launch(frozen_runs):
     steps = _body_steps(bag)
     # what the body published and the bag lacks, counted here from the body's summary and the bag's messages
     missing = {t: summary["published_messages"][t] - len(steps[t]) for t in BODY_TOPICS}
-    # 3.5 s frozen at 100 steps/s: 350 published, of which the 40 kept for retransmission and what the transport's
-    # buffers hold arrive late; how much that is varies (at 2.5 s: none, 53–59 or over 100 per topic)
+    # 7 s frozen at 100 steps/s: 700 published, of which the 40 kept for retransmission and what the transport's
+    # buffers hold arrive late; how much that is varies (a 2.5 s freeze lost none, 53–59 or over 100 per topic)
     assert all(n > 0 for n in missing.values()), missing
     recorded = json.loads(read_metadata(bag).custom_data["dropped_by_topic"])
     assert {t: recorded[t] for t in BODY_TOPICS} == missing  # the recorder's own count, from sequence gaps
