@@ -113,7 +113,7 @@ def test_hostile_scheduler_is_one_runtime_line_within_the_timeout(tmp_path, payl
     line = _one_line(capfd.readouterr().err)  # fd level: distributed's own log lines would show here
     assert code == 1, line
     assert f"tcp://127.0.0.1:{server.port}" in line and expect in line
-    assert took < 4.0
+    assert took < 10.0  # --connect-timeout 1 (+ the probe's 2 s), far below distributed's own 30 s
     assert not out.exists()  # the lock's directory, created for this sweep, is gone again
 
 
@@ -161,7 +161,7 @@ def test_cli_refuses_a_huge_seed_range_at_once(tmp_path, capsys):
     t0 = time.monotonic()
     assert main(["sweep", str(CONFIG), "--seeds", "0-9999999999", "--out", str(tmp_path / "s")]) == 2
     assert "100,000" in _one_line(capsys.readouterr().err)
-    assert time.monotonic() - t0 < 2.0 and not (tmp_path / "s").exists()
+    assert time.monotonic() - t0 < 10.0 and not (tmp_path / "s").exists()  # 10^10 seeds would never end
 
 
 # ------------------------------------------------------------------------------------------ job records
