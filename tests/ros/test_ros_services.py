@@ -64,6 +64,8 @@ def test_step_reset_resume_services_on_a_running_body(tmp_path, ros_env, ros_dom
         reset, resume = _call(probe, "reset"), _call(probe, "resume")
         assert reset.success and resume.success and resume.message == "resumed after step 2"
         assert body.wait(timeout=60) == 0, (tmp_path / "body.log").read_text()[-2000:]
+        # what is still on its way (busy cores), then a little more: an extra message would show
+        probe.spin_until(lambda: len(clocks) >= 31 and len(_control_statuses(probe)) >= 3, 10)
         probe.spin_until(lambda: False, 0.3)
         control = _control_statuses(probe)
         assert [(c["call"], c["step"]) for c in control] == [("step", "-1"), ("reset", "2"), ("resume", "2")]
@@ -112,6 +114,8 @@ def test_a_call_is_refused_while_a_foreign_node_has_a_client_and_the_record_name
             time.sleep(0.2)
         assert answer.success, answer.message
         assert body.wait(timeout=60) == 0, (tmp_path / "body.log").read_text()[-2000:]
+        probe.spin_until(lambda: any(c["call"] == "resume" and c["accepted"] == "True"
+                                     for c in _control_statuses(probe)), 10)  # still on its way, on busy cores
         probe.spin_until(lambda: False, 0.3)
         control = _control_statuses(probe)
         foreign = [c for c in control if c["untrusted_callers"]]
