@@ -16,7 +16,10 @@ Each message is stamped with its receive time: the middleware's receive
 timestamp (system clock, ns since the epoch), or, when ``use_sim_time`` is true (``ros2 bag record
 --use-sim-time``; the launchers set it for lockstep runs), the node clock, which follows ``/clock``: the bag's
 timeline is then sim time, so a 10 s lockstep run lasts 10 s in ``ros2 bag info``, ``ros2 bag play`` and
-Foxglove however long it took. ``custom_data`` key ``log_time`` says which: ``sim`` or ``system``.
+Foxglove however long it took. ``custom_data`` key ``log_time`` says which: ``sim`` or ``system``. A recorder on sim
+time that records ``/clock`` itself sets its clock from the ticks it takes for the bag and drops rclpy's own ``/clock``
+subscription (the clock publisher has one reader fewer, and no callback runs per tick): each tick is logged at its own
+time, every other message at the newest tick that had arrived when it was taken (waiting ticks are taken first).
 
 Losses are counted (:class:`bptsb_ros.bags.recording.LossCount`): a jump in a publisher's sequence numbers, and
 the middleware's ``message_lost`` reports. With ``ack_topic`` set (lockstep runs of ``bptsb launch``) the recorder
@@ -52,6 +55,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
+from rclpy.time import Time
 
 from bptsb_ros.bags.errors import BagError
 from bptsb_ros.bags.msgdefs import get_message_class
@@ -65,6 +69,7 @@ from bptsb_ros.bags.recording import (
     LossCount,
     RecorderConfig,
     StepAck,
+    cdr_stamp_ns,
     incompatible_offers,
     select_topics,
     subscription_policies,
@@ -76,6 +81,8 @@ from bptsb_ros.ros.declare_params import declare_parameters
 from bptsb_ros.ros.runtime import exit_process, ignore_stop_signals, unblock_interrupt
 from bptsb_ros.ros.take import GidTaker, TakenInfo, batch_executor_class, gid_take_problem, rclpy_take
 
+#: the type of the ticks a recorder on sim time can follow itself (:meth:`RecorderNode._follow_recorded_clock`)
+CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 #: most messages taken from one subscription in one executor call (then the other subscriptions and timers)
 BATCH = 200
 EXIT_LOST = 1
@@ -106,6 +113,8 @@ class RecorderNode(Node):
         self.loss = LossCount()
         self._loss_logs: Counter = Counter()
         self._stop_ns: int | None = None
+        self._clock_topic: str | None = None  # the recorded /clock this node's sim time follows (else rclpy's)
+        self._said_bad_tick = False
         self.ack = StepAck(self.config.ack_topics)
         self._ack_pub = None
         try:
@@ -220,10 +229,36 @@ class RecorderNode(Node):
                                        event_callbacks=events)
         sub.bptsb_take_batch = self._batch_taker(sub)  # served by batch_executor_class()
         self._recorded[topic] = sub
+        if self._use_sim_time and msgtype == CLOCK_TYPE:
+            self._follow_recorded_clock(topic)
         self._learn_publishers(topic)
         self.get_logger().debug(f"Subscribed to {topic} [{msgtype}] ({reliability}, {durability})")
         if self.config.topics and all(t in self._recorded for t in self.config.topics):
             self.get_logger().info(f"All {len(self.config.topics)} requested topics subscribed")
+
+    def _follow_recorded_clock(self, topic: str) -> None:
+        """Sim time from the ticks of ``topic`` that this node records, instead of rclpy's time source: when its
+        ``/clock`` subscription is on ``topic``, it is destroyed (as ``BrainNode.feed_sim_time`` does), and the ticks
+        waiting on ``topic`` are taken before every batch of another topic (:meth:`_on_batch`), which is then logged
+        at the newest tick. Where rclpy's time source is not as expected (or listens elsewhere), nothing changes."""
+        source = getattr(self, "_time_source", None)
+        sub = getattr(source, "_clock_sub", None)
+        if sub is None or sub.topic_name != topic:
+            return
+        self.destroy_subscription(sub)
+        source._clock_sub = None
+        self._clock_topic = topic
+
+    def _tick(self, data: bytes) -> int | None:
+        """The tick in ``data`` (a ``/clock`` message) [ns]; None for bytes that hold no tick (logged once)."""
+        try:
+            ns = cdr_stamp_ns(data)
+        except ValueError as exc:
+            if not self._said_bad_tick:
+                self._said_bad_tick = True
+                self.get_logger().warning(f"{self._clock_topic}: {exc}; the sim time stays where it was")
+            return None
+        return ns
 
     def _batch_taker(self, sub: Subscription) -> Any:
         """The function that takes up to :data:`BATCH` waiting messages of ``sub`` (with their GIDs if it can)."""
@@ -246,26 +281,39 @@ class RecorderNode(Node):
     def take_ready(self) -> None:
         """Take every message waiting on the recorded topics, topic by topic, outside the executor (one executor
         call per topic costs far more than the takes: rclpy rebuilds its wait set for each)."""
-        for topic, sub in list(self._recorded.items()):
-            while True:
-                try:
-                    with sub.handle:
-                        batch = sub.bptsb_take_batch()
-                except InvalidHandle:  # destroyed meanwhile
-                    break
-                if not batch:
-                    break
-                self._on_batch(topic, batch)
-                if len(batch) < BATCH:
-                    break
+        for topic in list(self._recorded):
+            self._take_waiting(topic)
+
+    def _take_waiting(self, topic: str) -> None:
+        """Take and record every message waiting on ``topic``'s subscription, in batches of :data:`BATCH`."""
+        sub = self._recorded.get(topic)
+        while sub is not None:
+            try:
+                with sub.handle:
+                    batch = sub.bptsb_take_batch()
+            except InvalidHandle:  # destroyed meanwhile
+                break
+            if not batch:
+                break
+            self._on_batch(topic, batch)
+            if len(batch) < BATCH:
+                break
 
     def _on_batch(self, topic: str, batch: list[tuple[bytes, TakenInfo]]) -> None:
+        if self._clock_topic is not None and topic != self._clock_topic:
+            self._take_waiting(self._clock_topic)  # the ticks first, whatever order the executor serves topics in
         sim_now = self.get_clock().now().nanoseconds if self._use_sim_time else 0  # sim time stands still here
+        ticks = topic == self._clock_topic  # the ticks this node's sim time follows: each logged at its own time
+        clock_moved = False
         for data, info in batch:
             if self._stop_ns is not None and info.source_timestamp > self._stop_ns:
                 self.after_stop += 1  # published after the stop signal: not part of the recording
                 continue
-            if self._use_sim_time:
+            if ticks:
+                tick = self._tick(data)
+                stamp = sim_now = tick if tick is not None else sim_now
+                clock_moved = True
+            elif self._use_sim_time:
                 stamp = sim_now
             else:
                 stamp = info.received_timestamp or time.time_ns()
@@ -285,6 +333,8 @@ class RecorderNode(Node):
                 except ValueError as exc:
                     self.get_logger().error(f"ack_topics: {topic}: {exc}; not acknowledged any more")
                     self.ack.refuse(topic)
+        if clock_moved:  # the node clock (log lines, the next batches) reads the newest tick taken
+            self.get_clock().set_ros_time_override(Time(nanoseconds=sim_now, clock_type=ClockType.ROS_TIME))
         self._publish_ack()
 
     def _publish_ack(self) -> None:

@@ -1,0 +1,123 @@
+"""A recorder on sim time: log times from ``/clock``, and, where it records ``/clock`` itself, no second reader of it.
+
+The recorder runs as a process beside a test publisher of ``/clock`` ticks and stamped ``PoseArray`` messages, on
+localhost-only DDS in the test session's private domain (``ros_env`` fixture of conftest.py).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import REPO_ROOT as REPO
+
+from bptsb_ros.bags.reader import read_messages
+
+#: sim time step of the test ticks [ns]
+DT_NS = 10_000_000
+
+# Waits for a line on stdin (the recorder has subscribed), then for k = 1..N publishes the /clock tick k·DT, then a
+# PoseArray stamped k·DT on bagtest/poses, in one burst (one participant: the recorder's process receives them in this
+# order). Prints one JSON line with the number of /clock readers it sees once all are acknowledged, idles.
+TICKS = r"""
+import json, sys, time
+import rclpy
+from rclpy.duration import Duration
+from rclpy.qos import QoSProfile, QoSHistoryPolicy, QoSReliabilityPolicy
+from geometry_msgs.msg import PoseArray
+from rosgraph_msgs.msg import Clock
+n, dt = int(sys.argv[1]), int(sys.argv[2])
+rclpy.init()
+node = rclpy.create_node("tick_publisher")
+qos = QoSProfile(history=QoSHistoryPolicy.KEEP_ALL, depth=1, reliability=QoSReliabilityPolicy.RELIABLE)
+clock = node.create_publisher(Clock, "/clock", qos)
+poses = node.create_publisher(PoseArray, "bagtest/poses", qos)
+print("ready", flush=True)
+sys.stdin.readline()
+time.sleep(1.0)  # the recorder's graph changes reach this node
+for k in range(1, n + 1):
+    tick = Clock()
+    tick.clock.sec, tick.clock.nanosec = divmod(k * dt, 1_000_000_000)
+    clock.publish(tick)
+    msg = PoseArray()
+    msg.header.stamp = tick.clock
+    poses.publish(msg)
+ok = clock.wait_for_all_acked(Duration(seconds=20)) and poses.wait_for_all_acked(Duration(seconds=20))
+print(json.dumps({"acked": ok, "clock_readers": clock.get_subscription_count()}), flush=True)
+time.sleep(60)
+"""
+
+
+@pytest.fixture
+def env(ros_env: dict[str, str]) -> dict[str, str]:
+    env = dict(ros_env)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def _record_ticks(bag: Path, topics: str, n: int, env: dict[str, str], *extra: str) -> tuple[dict, str]:
+    """Record ``topics`` on sim time while the tick publisher runs (``extra``: more recorder arguments); the
+    publisher's JSON line and the recorder's log."""
+    publisher = subprocess.Popen([sys.executable, "-c", TICKS, str(n), str(DT_NS)], env=env, text=True,
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    recorder = None
+    try:
+        assert publisher.stdout.readline().strip() == "ready"
+        recorder = subprocess.Popen(
+            [sys.executable, "-m", "bptsb_ros.ros.recorder", "--ros-args", "-p", f"bag_path:={bag}",
+             "-p", f"topics:={topics}", "-p", "use_sim_time:=true", *extra],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        log = []
+        for line in recorder.stdout:
+            log.append(line)
+            if "requested topics subscribed" in line:
+                break
+        publisher.stdin.write("go\n")
+        publisher.stdin.flush()
+        result = json.loads(publisher.stdout.readline())
+        recorder.send_signal(signal.SIGINT)
+        out, _ = recorder.communicate(timeout=30)
+        assert recorder.returncode == 0, "".join(log) + out
+        return result, "".join(log) + out
+    finally:
+        for proc in (publisher, recorder):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
+def test_a_recorder_that_records_the_clock_follows_its_own_ticks(tmp_path: Path, env: dict[str, str]) -> None:
+    """Recording ``/clock``: the recorder is its only reader (rclpy's own sim-time subscription is gone), each tick
+    is logged at its own time, and each pose, which arrives after its tick, is logged at a tick no earlier than its
+    stamp and no later than the last. The burst and rounds 0.1 s apart let ticks and poses pile up, so that a round
+    can begin with the poses (subscribed first: the graph lists topics alphabetically)."""
+    n = 150
+    bag = tmp_path / "ticks"
+    result, log = _record_ticks(bag, "[/clock, bagtest/poses]", n, env, "-p", "batch_wait:=0.1")
+    assert result == {"acked": True, "clock_readers": 1}, log
+    ticks = [(m.timestamp_ns, m.message.clock) for m in read_messages(bag, ["/clock"])]
+    assert [t for t, _ in ticks] == [k * DT_NS for k in range(1, n + 1)]
+    assert all(t == c.sec * 1_000_000_000 + c.nanosec for t, c in ticks)
+    poses = [(m.timestamp_ns, m.message.header.stamp) for m in read_messages(bag, ["/bagtest/poses"])]
+    assert len(poses) == n
+    for logged, stamp in poses:
+        assert logged % DT_NS == 0 and stamp.sec * 1_000_000_000 + stamp.nanosec <= logged <= n * DT_NS
+
+
+def test_a_recorder_that_does_not_record_the_clock_keeps_rclpys_subscription(tmp_path: Path,
+                                                                               env: dict[str, str]) -> None:
+    """Not recording ``/clock``: rclpy's sim-time subscription stays (one reader), and the poses are logged at
+    ticks the publisher sent."""
+    n = 60
+    bag = tmp_path / "poses_only"
+    result, log = _record_ticks(bag, "[bagtest/poses]", n, env)
+    assert result == {"acked": True, "clock_readers": 1}, log
+    logged = [m.timestamp_ns for m in read_messages(bag, ["/bagtest/poses"])]
+    assert len(logged) == n and all(t % DT_NS == 0 and 0 <= t <= n * DT_NS for t in logged)
+    assert logged[-1] > 0  # the clock moved: log times are the ticks, not the wall clock nor zero throughout
