@@ -4,7 +4,7 @@ Each condition is one ``bptsb launch <loop> --mode realtime --duration S`` (defa
 package's example agent, ``bags/lissajous_agent``: dt 0.01 s, so 100 steps a wall second), the live loop exactly as
 ``bptsb launch`` runs it, with the body's ``timing_path`` set so that it writes every step's wall times
 (:mod:`bptsb_ros.live.step_times`), with the ``executor`` parameter of the body and the brains, and with the body's
-``rt_priority``. Two conditions, in this order:
+``rt_priority``, and the body's and brains' ``cpus``. Two conditions, in this order:
 
 * ``idle``: no extra load (the machine as it is: say in the report what else ran on it);
 * ``busy``: ``busy`` child processes that spin (:func:`bptsb_ros.bench.soak.start_busy`; default 1, one core kept busy),
@@ -51,6 +51,7 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("compute_p50_ms", "compute p50", ".3f"), ("compute_p99_ms", "p99", ".3f"), ("compute_max_ms", "max", ".2f"),
     ("period_jitter_p99_ms", "jitter p99", ".3f"), ("period_jitter_max_ms", "max", ".2f"),
     ("late_commands", "late cmds", "d"), ("executor", "executor", "s"), ("rt_priority", "FIFO", "d"),
+    ("cpus", "CPUs", "s"),
 )
 #: stale rejections of these sources are the late commands
 SOURCES = ("rest_length", "force", "wind", "reset")
@@ -95,9 +96,10 @@ def condition_result(summary: dict[str, Any], timing: dict[str, Any]) -> dict[st
 
 def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: str, agent: str, executor: str,
                  rt_priority: int = 0, progress: Callable[[str], None] = print,
-                 env: Mapping[str, str] | None = None, rate_scale: float = 1.0) -> dict[str, Any]:
+                 env: Mapping[str, str] | None = None, rate_scale: float = 1.0, cpus: str = "") -> dict[str, Any]:
     """One condition: ``bptsb launch loop --mode realtime --duration seconds --rate-scale rate_scale`` with ``busy``
-    spinning processes, ``executor`` for the body and every brain, logs in ``workdir/name``; returns
+    spinning processes, ``executor`` for the body and every brain (and ``cpus``, when given: their CPUs, taskset -c
+    form), logs in ``workdir/name``; returns
     :func:`condition_result` plus the run's facts (or ``error``). ``env``: the launch's environment (default this
     process's)."""
     from bptsb_ros.bench.soak import start_busy, stop_busy
@@ -112,6 +114,8 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
             "--param", f"body_sim:timing_path:={timing_path}", "--param", f"body_sim:rt_priority:={rt_priority}"]
     for node in ("body_sim", *(b.executable for b in LOOPS[loop].brains)):
         argv += ["--param", f"{node}:executor:={executor}"]
+        if cpus:
+            argv += ["--param", f"{node}:cpus:={cpus}"]
         if rt_priority and node != "body_sim":  # the brains one below the body, which preempts them
             argv += ["--param", f"{node}:rt_priority:={max(1, rt_priority - 1)}"]
     if agent:
@@ -128,7 +132,8 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
         wall = time.monotonic() - started
         stop_busy(procs)
     result: dict[str, Any] = {"condition": name, "loop": loop, "agent": agent or "fresh", "seconds": seconds,
-                              "rate_scale": rate_scale, "busy_processes": busy, "launch_exit_code": code,
+                              "rate_scale": rate_scale, "busy_processes": busy, "cpus": cpus or "any",
+                              "launch_exit_code": code,
                               "wall_s": round(wall, 1),
                               "log": str(log), "load_average_after": list(os.getloadavg())}
     summary_path = logs / "body_summary.json"
@@ -149,14 +154,15 @@ def _last_line(log: Path) -> str:
 
 
 def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str = "events", rt_priority: int = 0,
-                       loop: str = "lissajous_closed",
+                       cpus: str = "", loop: str = "lissajous_closed",
                        agent: str | None = None, workdir: str | Path | None = None,
                        update: Callable[[dict[str, Any]], None] | None = None,
                        progress: Callable[[str], None] = print, factor: float = 0.0) -> dict[str, Any]:
     """Both conditions (:data:`CONDITIONS`) for ``seconds`` each, and with ``factor`` > 0 the ``factor`` condition
     (the loop at ``factor`` × real time, idle); logs and records in ``workdir`` (default: a new temporary
     directory, kept); ``update(report)``, when given, gets the report after each condition. ``agent``: None for the
-    example agent, '' for a fresh one (open loops only)."""
+    example agent, '' for a fresh one (open loops only). ``cpus``: the CPUs of the body and its brains (taskset -c
+    form; empty: wherever they start)."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="bptsb-realtime-"))
     work.mkdir(parents=True, exist_ok=True)
     agent_dir = str(example_agent()) if agent is None else agent
@@ -169,7 +175,7 @@ def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str =
     for name, n_busy, rate in runs:
         report["conditions"][name] = realtime_run(name, seconds, n_busy, work, loop=loop, agent=agent_dir,
                                                   executor=executor, rt_priority=rt_priority, progress=progress,
-                                                  rate_scale=rate)
+                                                  rate_scale=rate, cpus=cpus)
         if update is not None:
             update(report)
     return report

@@ -71,6 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     rt.add_argument("--rt-priority", type=int, default=0, metavar="P",
                     help="run the body's stepping thread under SCHED_FIFO at priority P, 1-99 (its rt_priority "
                     "parameter; needs CAP_SYS_NICE or root); default 0: the normal scheduler")
+    rt.add_argument("--cpus", default="", metavar="LIST",
+                    help="run the body and its brains on these CPUs (their cpus parameter, taskset -c form: '1', "
+                    "'0-1'); default: wherever they start")
 
 
 def _check_workdir(workdir: Path | None) -> int | None:
@@ -190,6 +193,13 @@ def _realtime(args: argparse.Namespace) -> int:
         return fail(NAME, f"--realtime-seconds must be > 0, got {seconds:g}", USAGE)
     if not 0 <= args.rt_priority <= 99:
         return fail(NAME, f"--rt-priority must be in 0..99, got {args.rt_priority}", USAGE)
+    from bptsb_ros.interface.params import ParameterError
+    from bptsb_ros.live.body_params import parse_cpus
+
+    try:
+        parse_cpus(args.cpus)
+    except ParameterError as err:
+        return fail(NAME, f"--cpus: {str(err).removeprefix('parameter ' + repr('cpus') + ': ')}", USAGE)
     if args.realtime_busy < 1:
         return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
     if not (math.isfinite(args.realtime_factor) and 0 <= args.realtime_factor <= 1000):
@@ -204,7 +214,7 @@ def _realtime(args: argparse.Namespace) -> int:
         return problem
     try:
         report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, rt_priority=args.rt_priority,
-                                    workdir=workdir, update=_updater(out),
+                                    cpus=args.cpus, workdir=workdir, update=_updater(out),
                                     progress=lambda m: print(m, file=sys.stderr, flush=True),
                                     factor=args.realtime_factor)
     except _WriteFailed as err:

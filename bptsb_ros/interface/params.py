@@ -24,7 +24,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-Kind = Literal["bool", "int", "float", "optional_float", "str", "str_list", "float_list"]
+Kind = Literal["bool", "int", "float", "optional_float", "str", "str_list", "float_list", "cpus"]
 ParamValue = bool | int | float | str | list[str] | list[float]
 
 
@@ -137,9 +137,18 @@ def _coerce(spec: Param, value: Any) -> ParamValue:
         if isinstance(value, (array.array, Sequence)) and not isinstance(value, (str, bytes)) and all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
             return [float(x) for x in value]
+    elif kind == "cpus":  # taskset -c text; ROS reads a bare number (-p cpus:=1) as an int, [0, 2] as an int array
+        if isinstance(value, str):
+            return value
+        if isinstance(value, int) and not isinstance(value, bool):
+            return str(value)
+        if isinstance(value, (array.array, Sequence)) and not isinstance(value, bytes) and all(
+                isinstance(x, int) and not isinstance(x, bool) for x in value):
+            return ",".join(map(str, value))
     expected = {"bool": "a bool", "int": "an integer", "float": "a number", "optional_float": "a number or ''",
                 "str": "a string",
-                "str_list": "a list of strings", "float_list": "a list of numbers"}[kind]
+                "str_list": "a list of strings", "float_list": "a list of numbers",
+                "cpus": "CPU numbers ('1', '0,2', '0-3', 1 or [0, 2])"}[kind]
     raise ParameterError(f"parameter '{name}' must be {expected}, got {value!r} ({type(value).__name__})")
 
 
@@ -205,6 +214,10 @@ RAW_OUTPUTS = Param("raw_outputs", True, "publish the per-step outputs as pre-se
 LOG_LEVEL = Param("log_level", "", "logger level of this node: debug, info, warn or error (debug shows per-message "
                   "and per-topic lines); empty: as set by --ros-args --log-level (default info)", "str",
                   choices=("", "debug", "info", "warn", "error"), dynamic=True)
+#: The CPUs a live node runs on (``bptsb_ros.live.body_params.pin_threads``).
+CPUS = Param("cpus", "", "CPUs to run every thread of this node on, as taskset -c lists them ('1', '0,2', '0-3'), set "
+             "when it starts stepping or answering (the body and its brains on one core: a message wakes no other "
+             "core); empty: wherever it was started", "cpus")
 
 
 def read_only_reason(p: Param) -> str:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from bptsb_ros.interface.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, Param, ParameterError
+from bptsb_ros.interface.params import CPUS, EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, Param, ParameterError
 from bptsb_ros.interface.source import SOURCE_PARAMS
 from bptsb_ros.interface.topics import (
     BODY_INPUTS,
@@ -96,6 +96,7 @@ PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("rt_priority", 0, "realtime: run the stepping thread under SCHED_FIFO at this priority (1-99; needs "
           "CAP_SYS_NICE or root, else a warning and the normal scheduler), so that other processes cannot preempt "
           "a step; 0: the normal scheduler", "int", minimum=0, maximum=99),
+    CPUS,
     Param("busy_wait", 0.002, "realtime under rt_priority: the last this many wall seconds before each step is due "
           "(at most half a period) are spent polling for messages instead of sleeping, so that the step starts on a "
           "core that is not asleep and that nothing else ran on just before; 0: sleep until the step is due",
@@ -191,6 +192,55 @@ def set_fifo_priority_of_other_threads(priority: int) -> int:
         except OSError:  # gone meanwhile, or not allowed
             continue
     return done
+
+
+#: the largest CPU number a ``cpus`` parameter may name (glibc's CPU_SETSIZE − 1)
+MAX_CPU = 1023
+
+
+def parse_cpus(text: str) -> frozenset[int]:
+    """The CPUs of a ``cpus`` parameter, written as ``taskset -c`` lists them: numbers and ranges separated by
+    commas (``'1'``, ``'0,2'``, ``'0-3'``); empty (or blank): none. Raises ParameterError naming the bad part."""
+    cpus: set[int] = set()
+    for part in (p.strip() for p in text.split(",")):
+        if not part and not text.strip():
+            continue
+        first, dash, last = part.partition("-")
+        if not first.strip().isdecimal() or (dash and not last.strip().isdecimal()):
+            raise ParameterError(f"parameter 'cpus': {part!r} is not a CPU number or a range of them (taskset -c "
+                                 "form: '1', '0,2', '0-3')")
+        lo, hi = int(first), int(last) if dash else int(first)
+        if hi < lo:
+            raise ParameterError(f"parameter 'cpus': the range {part!r} runs backwards")
+        if hi > MAX_CPU:
+            raise ParameterError(f"parameter 'cpus': CPU {hi} is beyond {MAX_CPU}, the largest a CPU set holds")
+        cpus.update(range(lo, hi + 1))
+    return frozenset(cpus)
+
+
+def pin_threads(cpus: frozenset[int]) -> str:
+    """Run every thread of this process on ``cpus`` (Linux: each thread in ``/proc/self/task``; threads made later
+    inherit it from the thread that makes them); '' when done, else why not (one line). A body and the brains it
+    waits for on one core hand each message over without waking another core (measured: docs/ros/timing.md)."""
+    import os
+
+    if not hasattr(os, "sched_setaffinity"):
+        return "this platform has no sched_setaffinity"
+    allowed = os.sched_getaffinity(0)
+    outside = sorted(cpus - allowed)
+    if outside:
+        return f"CPU(s) {', '.join(map(str, outside))} not available to this process (it may use " \
+               f"{', '.join(map(str, sorted(allowed)))})"
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except OSError:  # gone meanwhile
+            continue
+    return ""
 
 
 def set_fifo_priority(priority: int) -> str:

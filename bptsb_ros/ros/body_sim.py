@@ -34,7 +34,9 @@ from bptsb_ros.live.body_params import (
     PARAMS,
     PUBLISHED,
     SUBSCRIBED,
+    parse_cpus,
     parse_wait_for_subscribers,
+    pin_threads,
     set_fifo_priority,
     set_fifo_priority_of_other_threads,
 )
@@ -76,6 +78,7 @@ class BodySim(BodyOutputs, BodyGraph, Node):
         self.stop = stop
         self.p = p = declare_parameters(self, PARAMS, on_change=lambda name, value: self.core.on_parameter(name, value))
         self.wait_subscribers = parse_wait_for_subscribers(p["wait_for_subscribers"])
+        self.cpus = parse_cpus(p["cpus"])
         agent, trained = load_source(p)
         self.throttle = Throttle(1.0)
         self.core = core = BodyCore(agent, p, sink=self._on_event)
@@ -207,6 +210,10 @@ class BodySim(BodyOutputs, BodyGraph, Node):
         # garbage collector's sight, a full collection during the run does not walk it (several ms a time)
         gc.collect()
         gc.freeze()
+        if self.cpus:
+            problem = pin_threads(self.cpus)
+            self.log("warning" if problem else "info", f"{problem}; running on the CPUs it was started on" if problem
+                     else f"running on CPU(s) {self.p['cpus']}")
         if self.p["rt_priority"] and self.p["mode"] == "realtime":
             problem = set_fifo_priority(self.p["rt_priority"])
             below = max(1, self.p["rt_priority"] - 1)

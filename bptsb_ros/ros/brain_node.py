@@ -26,7 +26,7 @@ from rclpy.subscription import Subscription
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
-from bptsb_ros.interface.params import EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, OnChange, Param, ParameterError
+from bptsb_ros.interface.params import CPUS, EXECUTOR, LOG_LEVEL, RAW_OUTPUTS, OnChange, Param, ParameterError
 from bptsb_ros.interface.source import SOURCE_PARAMS
 from bptsb_ros.interface.topics import DEFAULT_QOS_DEPTH, TOPICS, dt_to_ns, stamp_to_step
 from bptsb_ros.live.agent_source import load_source
@@ -52,6 +52,7 @@ COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
           "one below (needs CAP_SYS_NICE or root, else a warning and the normal scheduler): a realtime body at a "
           "higher rate_scale than the other processes leave it CPU for gets its commands in time; 0: the normal "
           "scheduler", "int", minimum=0, maximum=99),
+    CPUS,
 )
 #: ``use_sim_time`` of a brain unless given (rclpy's own default, false, is wrong for a node driven by /clock)
 USE_SIM_TIME_DEFAULT = True
@@ -78,6 +79,9 @@ class BrainNode(Node):
         except ValueError as err:
             raise ParameterError(f"parameter 'dt' (or the agent's time step): {err}") from None
         self.depth: int = self.p["qos_depth"]
+        from bptsb_ros.live.body_params import parse_cpus
+
+        self.cpus = parse_cpus(self.p["cpus"])
         self.sent = 0
         self.outputs: list[Publisher] = []
         self.ready: set[Publisher] = set()
@@ -250,8 +254,21 @@ class BrainNode(Node):
         self.get_logger().info(f"running under SCHED_FIFO priority {priority} ({others} middleware thread(s) at "
                                f"{below})")
 
+    def pin(self) -> None:
+        """With ``cpus``: every thread of this process on those CPUs (a refusal is logged)."""
+        if not self.cpus:
+            return
+        from bptsb_ros.live.body_params import pin_threads
+
+        problem = pin_threads(self.cpus)
+        if problem:
+            self.get_logger().warning(f"{problem}; running on the CPUs it was started on")
+        else:
+            self.get_logger().info(f"running on CPU(s) {self.p['cpus']}")
+
     def run(self) -> int:
         """Spin until SIGINT/SIGTERM, then log a summary and let subscribers acknowledge the last messages."""
+        self.pin()
         if self.p["rt_priority"]:
             self.realtime_priority(self.p["rt_priority"])
         while not self.stop:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -144,8 +145,9 @@ def calls(monkeypatch):
     seen: list[tuple] = []
     seen_out: list[str] = []
 
-    def fake_bench(seconds, busy, *, executor, rt_priority, workdir, update, progress, factor):
-        seen.append(("realtime", seconds, busy, executor, rt_priority) + ((factor,) if factor else ()))
+    def fake_bench(seconds, busy, *, executor, rt_priority, cpus, workdir, update, progress, factor):
+        seen.append(("realtime", seconds, busy, executor, rt_priority) + ((factor,) if factor else ())
+                    + ((cpus,) if cpus else ()))
         report = {"conditions": {"idle": {"steps": 7, "busy_processes": 0}}}
         update(report)  # the first condition done: on disk, marked incomplete, before the second one runs
         seen.append(("on disk", json.loads(Path(seen_out[0]).read_text())))
@@ -177,6 +179,8 @@ def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
     factor = ["--realtime", "--realtime-factor", "10", "--rt-priority", "10", "--out", str(out)]
     assert bench_cmd.run(parse(factor)) == 0
     assert seen[-2] == ("realtime", 600.0, 1, "events", 10, 10.0)  # the 10x real-time condition too
+    assert bench_cmd.run(parse(["--realtime", "--cpus", "1", "--out", str(out)])) == 0
+    assert seen[-2] == ("realtime", 600.0, 1, "events", 0, "1")  # the body and its brains on CPU 1
     assert bench_cmd.run(parse(["--soak", "--out", str(out)])) == 0
     assert seen[-1] == ("soak", 60.0, 1)  # the soak keeps its own default
     assert "idle (0 busy)  7" in capsys.readouterr().out
@@ -191,6 +195,8 @@ def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
     (["--realtime-factor", "-2"], "--realtime-factor must be in 0..1000"),
     (["--realtime-factor", "inf"], "--realtime-factor must be in 0..1000"),
     (["--soak"], "--soak and --realtime are two different benches"),
+    (["--cpus", "1-0"], "--cpus: the range '1-0' runs backwards"),
+    (["--cpus", "one"], "--cpus: 'one' is not a CPU number"),
 ])
 def test_bad_realtime_options_are_one_line(tmp_path: Path, calls, capsys, argv, message):
     from bptsb_ros.cli import bench_cmd
@@ -230,6 +236,67 @@ def test_fifo_priority_is_set_or_refused_in_one_line():
         assert "SCHED_FIFO priority 1 refused" in lines[1]
 
 
+@pytest.mark.parametrize("text, cpus", [("", set()), ("  ", set()), ("1", {1}), ("0,2", {0, 2}), ("0-3", {0, 1, 2, 3}),
+                                        (" 1 , 3-4 ", {1, 3, 4}), ("2-2", {2}), ("1023", {1023})])
+def test_cpus_are_read_as_taskset_writes_them(text, cpus):
+    from bptsb_ros.live.body_params import parse_cpus
+
+    assert parse_cpus(text) == cpus
+
+
+@pytest.mark.parametrize("text, message", [("x", "'x' is not a CPU number"), ("1-", "'1-' is not a CPU number"),
+                                           ("-1", "'-1' is not a CPU number"), ("1,,2", "'' is not a CPU number"),
+                                           ("3-1", "the range '3-1' runs backwards"), ("1.5", "'1.5' is not"),
+                                           ("1024", "CPU 1024 is beyond 1023"), ("0-5000", "CPU 5000 is beyond")])
+def test_bad_cpus_are_one_line(text, message):
+    from bptsb_ros.interface.params import ParameterError
+    from bptsb_ros.live.body_params import parse_cpus
+
+    with pytest.raises(ParameterError, match="^parameter 'cpus': " + re.escape(message)):
+        parse_cpus(text)
+
+
+@pytest.mark.parametrize("value, text", [("0-1", "0-1"), (1, "1"), ([0, 2], "0,2"), ((3,), "3")])
+def test_the_cpus_parameter_takes_what_ros_makes_of_a_list(value, text):
+    """-p cpus:=1 arrives as an int and -p cpus:=[0,2] as an int array: both read as taskset text; a bool or a
+    float does not."""
+    from bptsb_ros.interface.params import CPUS, ParameterError, validate_values
+
+    assert validate_values([CPUS], {"cpus": value}) == {"cpus": text}
+    for bad in (True, 1.0, [1.5], [True]):
+        with pytest.raises(ParameterError, match="parameter 'cpus' must be CPU numbers"):
+            validate_values([CPUS], {"cpus": bad})
+
+
+def test_threads_are_pinned_or_refused_in_one_line():
+    """In a child process (affinity sticks to its threads): every thread, one started before and one started after,
+    runs on the one CPU asked for; a CPU the process may not use is refused with the reason, nothing changed."""
+    import os
+    import subprocess
+    import sys
+
+    cpu = max(os.sched_getaffinity(0))
+    code = f"""
+import os, threading
+from bptsb_ros.live.body_params import pin_threads
+stop = threading.Event()
+before = threading.Thread(target=stop.wait)
+before.start()
+print(repr(pin_threads(frozenset({{4095}}))), os.sched_getaffinity(0) == os.sched_getaffinity(before.native_id))
+print(repr(pin_threads(frozenset({{{cpu}}}))))
+after = threading.Thread(target=stop.wait)
+after.start()
+print(sorted(set().union(*(os.sched_getaffinity(int(t)) for t in os.listdir("/proc/self/task")))))
+stop.set()
+"""
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT)}
+    lines = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                           env=env).stdout.splitlines()
+    assert lines[0].startswith("'CPU(s) 4095 not available to this process (it may use ") and lines[0].endswith(
+        "True"), lines
+    assert lines[1] == "''" and lines[2] == f"[{cpu}]", lines
+
+
 def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Path, monkeypatch):
     """The launch a condition runs (subprocess replaced): the body's timing path and rt_priority (the brain's one
     below), and the same executor for body_sim and the loop's brain; a run that leaves no records is an error, not
@@ -242,17 +309,20 @@ def test_a_condition_sets_the_executor_of_the_body_and_every_brain(tmp_path: Pat
     monkeypatch.setattr(rb.subprocess, "run", lambda argv, **kw: argvs.append(argv) or subprocess.CompletedProcess(
         argv, 0))
     r = rb.realtime_run("idle", 3.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="single",
-                        rt_priority=5, progress=lambda _: None)
+                        rt_priority=5, progress=lambda _: None, cpus="1")
     params = [argvs[0][i + 1] for i, arg in enumerate(argvs[0]) if arg == "--param"]
     assert sorted(params) == sorted([f"body_sim:timing_path:={tmp_path / 'idle' / 'step_times.npz'}",
                                      "body_sim:rt_priority:=5", "body_sim:executor:=single",
-                                     "feedback_brain:executor:=single", "feedback_brain:rt_priority:=4"])
+                                     "feedback_brain:executor:=single", "feedback_brain:rt_priority:=4",
+                                     "body_sim:cpus:=1", "feedback_brain:cpus:=1"])
+    assert r["cpus"] == "1"
     assert argvs[0][argvs[0].index("--duration") + 1] == "3" and argvs[0][argvs[0].index("--agent") + 1] == "a"
     assert r["launch_exit_code"] == 0 and "no body summary or no timing records" in r["error"]
     assert argvs[0][argvs[0].index("--rate-scale") + 1] == "1"
     fast = rb.realtime_run("factor", 3.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="events",
                            rate_scale=10.0, progress=lambda _: None)
     assert argvs[1][argvs[1].index("--rate-scale") + 1] == "10" and fast["rate_scale"] == 10.0
+    assert fast["cpus"] == "any" and not any(":cpus:=" in arg for arg in argvs[1])  # none given: none set
 
 
 @pytest.mark.ros

@@ -6,11 +6,13 @@ stop cleanly on Ctrl-C, and a failing node makes the launch fail. On the session
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -159,17 +161,52 @@ def test_narma_lockstep_equals_offline(tmp_path, ros_env):
     assert np.abs(pos - ref).max() <= 1e-9
 
 
+def _node_pids(launcher: int, nodes: tuple[str, ...]) -> dict[str, int]:
+    """The process ids of ``nodes`` among the launcher's children (from /proc)."""
+    out = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes().decode(errors="replace")
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) != launcher:  # the parent's pid, after the command's name
+            continue
+        for node in nodes:
+            if f"bptsb_ros.ros.{node}" in cmdline:
+                out[node] = int(entry.name)
+    return out
+
+
+def _threads_cpus(pid: int) -> list[str]:
+    """Each thread's ``Cpus_allowed_list`` (from /proc/PID/task/*/status)."""
+    lists = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            status = (task / "status").read_text()
+        except OSError:  # the thread ended meanwhile
+            continue
+        lists += [line.split(":", 1)[1].strip() for line in status.splitlines()
+                  if line.startswith("Cpus_allowed_list:")]
+    return lists
+
+
 @pytest.mark.slow
 def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     """Also the body's per-step timing records (``timing_path``, what ``bptsb bench --realtime`` reads), written at
-    a Ctrl-C stop too, with the executor the body was given (single here; the other runs use the default)."""
+    a Ctrl-C stop too, with the executor the body was given (single here; the other runs use the default); and the
+    body and its brain on one CPU (their ``cpus``): every thread of both processes allowed on that CPU only."""
     from bptsb_ros.bench.realtime import condition_result
     from bptsb_ros.live.step_times import load_step_times
 
     bag, times = tmp_path / "bag", tmp_path / "times.npz"
+    cpu = max(os.sched_getaffinity(0))
     proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--mode", "realtime",
                              "--duration", "60", "--bag", str(bag), "--param", f"body_sim:timing_path:={times}",
-                             "--param", "body_sim:executor:=single"], env=env_for(ros_env), cwd=REPO,
+                             "--param", "body_sim:executor:=single", "--param", f"body_sim:cpus:={cpu}",
+                             "--param", f"swg_brain:cpus:={cpu}"], env=env_for(ros_env), cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
 
@@ -186,6 +223,7 @@ def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
             assert time.monotonic() < deadline, "body_sim never started:\n" + "".join(lines)[-4000:]
             time.sleep(0.05)
         time.sleep(1.5)  # ~150 steps at 100 Hz
+        allowed = {node: _threads_cpus(pid) for node, pid in _node_pids(proc.pid, ("body_sim", "swg_brain")).items()}
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=60)
         reader.join(timeout=10)
@@ -202,6 +240,10 @@ def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     for key in ("jitter_ms_p99", "command_latency_ms_p99", "command_age_steps_max", "deadline_misses"):
         assert key in summary
     assert summary["jitter_ms_p50"] < 20.0
+    for node in ("body_sim", "swg_brain"):
+        assert any(line.startswith(f"[{node}]") and f"running on CPU(s) {cpu}" in line for line in lines), text[-4000:]
+    assert set(allowed) == {"body_sim", "swg_brain"} and all(len(cpus) > 3 for cpus in allowed.values()), allowed
+    assert all(set(cpus) == {str(cpu)} for cpus in allowed.values()), allowed  # every thread, the middleware's too
     records = load_step_times(times)
     # one record per integrated step, 0..steps (the summary's steps, like the bag's stamps, count from step 0)
     assert records["step"].tolist() == list(range(summary["steps"] + 1)) and records["period"] == pytest.approx(0.01)
