@@ -89,6 +89,7 @@ def condition_result(summary: dict[str, Any], timing: dict[str, Any]) -> dict[st
         "safe_command_steps": summary.get("safe_command_steps"),
         "command_latency_p99_ms": summary.get("command_latency_ms_p99"),
         "rt_priority": summary.get("rt_priority", 0),
+        "cpus": summary.get("cpus", "any"),
     })
     stats["targets_met"] = targets_met(stats)
     return stats
@@ -132,7 +133,7 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
         wall = time.monotonic() - started
         stop_busy(procs)
     result: dict[str, Any] = {"condition": name, "loop": loop, "agent": agent or "fresh", "seconds": seconds,
-                              "rate_scale": rate_scale, "busy_processes": busy, "cpus": cpus or "any",
+                              "rate_scale": rate_scale, "busy_processes": busy, "cpus_asked": cpus or "any",
                               "launch_exit_code": code,
                               "wall_s": round(wall, 1),
                               "log": str(log), "load_average_after": list(os.getloadavg())}

@@ -194,12 +194,12 @@ def _realtime(args: argparse.Namespace) -> int:
     if not 0 <= args.rt_priority <= 99:
         return fail(NAME, f"--rt-priority must be in 0..99, got {args.rt_priority}", USAGE)
     from bptsb_ros.interface.params import ParameterError
-    from bptsb_ros.live.body_params import parse_cpus
+    from bptsb_ros.live.body_params import cpus_text, parse_cpus
 
     try:
-        parse_cpus(args.cpus)
+        cpus = cpus_text(parse_cpus(args.cpus, "--cpus"))
     except ParameterError as err:
-        return fail(NAME, f"--cpus: {str(err).removeprefix('parameter ' + repr('cpus') + ': ')}", USAGE)
+        return fail(NAME, str(err), USAGE)
     if args.realtime_busy < 1:
         return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
     if not (math.isfinite(args.realtime_factor) and 0 <= args.realtime_factor <= 1000):
@@ -214,7 +214,7 @@ def _realtime(args: argparse.Namespace) -> int:
         return problem
     try:
         report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, rt_priority=args.rt_priority,
-                                    cpus=args.cpus, workdir=workdir, update=_updater(out),
+                                    cpus=cpus, workdir=workdir, update=_updater(out),
                                     progress=lambda m: print(m, file=sys.stderr, flush=True),
                                     factor=args.realtime_factor)
     except _WriteFailed as err:

@@ -216,8 +216,9 @@ LOG_LEVEL = Param("log_level", "", "logger level of this node: debug, info, warn
                   choices=("", "debug", "info", "warn", "error"), dynamic=True)
 #: The CPUs a live node runs on (``bptsb_ros.live.body_params.pin_threads``).
 CPUS = Param("cpus", "", "CPUs to run every thread of this node on, as taskset -c lists them ('1', '0,2', '0-3'), set "
-             "when it starts stepping or answering (the body and its brains on one core at 100 Hz: a message wakes "
-             "no other core; at 1 kHz one core is too little); empty: wherever it was started", "cpus")
+             "when it starts stepping or answering (in a composed process, the body's apply to every node); "
+             "docs/ros/timing.md has what one core for the body and its brains measured at 100 Hz and 1 kHz; empty: "
+             "wherever it was started", "cpus")
 
 
 def read_only_reason(p: Param) -> str:

@@ -223,6 +223,7 @@ class BodyCore:
             raise ParameterError("parameter 'timing_path': per-step wall times are recorded in mode realtime only")
         self.step_times: StepTimes | None = StepTimes() if p["timing_path"] else None
         self.rt_priority = 0  # the SCHED_FIFO priority the node's stepping thread got (0: the normal scheduler)
+        self.cpus = "any"  # the CPUs the node's threads were pinned to (its cpus parameter, once applied)
         self.clock_sent: dict[int, float] = {}
         self.published: dict[str, int] = {}  # topic name -> messages published since stepping began
         self.counting = False  # stepping began (startup complete or given up on): publications are counted
@@ -542,6 +543,7 @@ class BodyCore:
         out.update(self.phases.summary())
         out["published_messages"] = dict(self.published)
         out["rt_priority"] = self.rt_priority
+        out["cpus"] = self.cpus
         return out
 
     def status(self, summary: Mapping[str, Any], error: str = "") -> tuple[str, str, list[tuple[str, str]]]:

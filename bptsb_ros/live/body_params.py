@@ -198,30 +198,37 @@ def set_fifo_priority_of_other_threads(priority: int) -> int:
 MAX_CPU = 1023
 
 
-def parse_cpus(text: str) -> frozenset[int]:
+def parse_cpus(text: str, name: str = "parameter 'cpus'") -> frozenset[int]:
     """The CPUs of a ``cpus`` parameter, written as ``taskset -c`` lists them: numbers and ranges separated by
-    commas (``'1'``, ``'0,2'``, ``'0-3'``); empty (or blank): none. Raises ParameterError naming the bad part."""
+    commas (``'1'``, ``'0,2'``, ``'0-3'``); empty (or blank): none. Raises ParameterError naming the bad part
+    (after ``name``, what the text is)."""
     cpus: set[int] = set()
     for part in (p.strip() for p in text.split(",")):
         if not part and not text.strip():
             continue
         first, dash, last = part.partition("-")
         if not first.strip().isdecimal() or (dash and not last.strip().isdecimal()):
-            raise ParameterError(f"parameter 'cpus': {part!r} is not a CPU number or a range of them (taskset -c "
+            raise ParameterError(f"{name}: {part!r} is not a CPU number or a range of them (taskset -c "
                                  "form: '1', '0,2', '0-3')")
         lo, hi = int(first), int(last) if dash else int(first)
         if hi < lo:
-            raise ParameterError(f"parameter 'cpus': the range {part!r} runs backwards")
+            raise ParameterError(f"{name}: the range {part!r} runs backwards")
         if hi > MAX_CPU:
-            raise ParameterError(f"parameter 'cpus': CPU {hi} is beyond {MAX_CPU}, the largest a CPU set holds")
+            raise ParameterError(f"{name}: CPU {hi} is beyond {MAX_CPU}, the largest a CPU set holds")
         cpus.update(range(lo, hi + 1))
     return frozenset(cpus)
 
 
+def cpus_text(cpus: frozenset[int]) -> str:
+    """``cpus`` as plain comma-separated numbers, ascending (what ROS reads back as written: no leading zeros)."""
+    return ",".join(map(str, sorted(cpus)))
+
+
 def pin_threads(cpus: frozenset[int]) -> str:
     """Run every thread of this process on ``cpus`` (Linux: each thread in ``/proc/self/task``; threads made later
-    inherit it from the thread that makes them); '' when done, else why not (one line). A body and the brains it
-    waits for on one core hand each message over without waking another core (measured: docs/ros/timing.md)."""
+    inherit it from the thread that makes them); '' when done, else why not (one line): a CPU this process may not
+    use, or threads that refused (the calling thread, or the list of threads unreadable, counts as not done). The
+    body and the brains it waits for on one core: docs/ros/timing.md has what that measured."""
     import os
 
     if not hasattr(os, "sched_setaffinity"):
@@ -233,14 +240,17 @@ def pin_threads(cpus: frozenset[int]) -> str:
                f"{', '.join(map(str, sorted(allowed)))})"
     try:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError:
-        tids = [0]
+    except OSError as err:
+        return f"the threads of this process cannot be listed ({err.strerror or err})"
+    refused = 0
     for tid in tids:
         try:
             os.sched_setaffinity(tid, cpus)
-        except OSError:  # gone meanwhile
+        except ProcessLookupError:  # ended meanwhile
             continue
-    return ""
+        except OSError:
+            refused += 1
+    return f"{refused} of {len(tids)} threads refused the CPU set" if refused else ""
 
 
 def set_fifo_priority(priority: int) -> str:

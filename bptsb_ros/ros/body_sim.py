@@ -34,6 +34,7 @@ from bptsb_ros.live.body_params import (
     PARAMS,
     PUBLISHED,
     SUBSCRIBED,
+    cpus_text,
     parse_cpus,
     parse_wait_for_subscribers,
     pin_threads,
@@ -213,7 +214,8 @@ class BodySim(BodyOutputs, BodyGraph, Node):
         if self.cpus:
             problem = pin_threads(self.cpus)
             self.log("warning" if problem else "info", f"{problem}; running on the CPUs it was started on" if problem
-                     else f"running on CPU(s) {self.p['cpus']}")
+                     else f"running on CPU(s) {cpus_text(self.cpus)}")
+            self.core.cpus = "any" if problem else cpus_text(self.cpus)
         if self.p["rt_priority"] and self.p["mode"] == "realtime":
             problem = set_fifo_priority(self.p["rt_priority"])
             below = max(1, self.p["rt_priority"] - 1)

@@ -258,13 +258,13 @@ class BrainNode(Node):
         """With ``cpus``: every thread of this process on those CPUs (a refusal is logged)."""
         if not self.cpus:
             return
-        from bptsb_ros.live.body_params import pin_threads
+        from bptsb_ros.live.body_params import cpus_text, pin_threads
 
         problem = pin_threads(self.cpus)
         if problem:
             self.get_logger().warning(f"{problem}; running on the CPUs it was started on")
         else:
-            self.get_logger().info(f"running on CPU(s) {self.p['cpus']}")
+            self.get_logger().info(f"running on CPU(s) {cpus_text(self.cpus)}")
 
     def run(self) -> int:
         """Spin until SIGINT/SIGTERM, then log a summary and let subscribers acknowledge the last messages."""

@@ -88,6 +88,9 @@ def run_composed(executables: Sequence[str], ros_args: list[str]) -> int:
             for brain in brains:
                 brain.executor_.remove_node(brain)
                 body.executor_.add_node(brain)
+                if brain.cpus and brain.cpus != body.cpus:  # one process: its threads run where the body's cpus say
+                    brain.get_logger().warning("cpus: in a composed process the body's cpus apply to every node; "
+                                               "this node's are not used")
 
             def answer() -> None:
                 for brain in brains:

@@ -19,7 +19,9 @@ timeline is then sim time, so a 10 s lockstep run lasts 10 s in ``ros2 bag info`
 Foxglove however long it took. ``custom_data`` key ``log_time`` says which: ``sim`` or ``system``. A recorder on sim
 time that records ``/clock`` itself sets its clock from the ticks it takes for the bag and drops rclpy's own ``/clock``
 subscription (the clock publisher has one reader fewer, and no callback runs per tick): each tick is logged at its own
-time, every other message at the newest tick that had arrived when it was taken (waiting ticks are taken first).
+time, every other message at the newest tick taken by the time it is written, which is never older than the newest
+tick that had arrived when the message was taken (the ticks waiting are taken before each batch of another topic is
+written).
 
 Losses are counted (:class:`bptsb_ros.bags.recording.LossCount`): a jump in a publisher's sequence numbers, and
 the middleware's ``message_lost`` reports. With ``ack_topic`` set (lockstep runs of ``bptsb launch``) the recorder
@@ -95,6 +97,7 @@ class RecorderNode(Node):
         super().__init__("recorder", **kwargs)
         self.config = RecorderConfig.from_values(declare_parameters(self, RECORDER_PARAMS), self.get_namespace())
         self._use_sim_time = bool(self.get_parameter("use_sim_time").value)
+        self.add_on_set_parameters_callback(self._keep_time_base)
         custom_data = {**self.config.custom_data, "log_time": "sim" if self._use_sim_time else "system"}
         self.writer = BagWriter(
             self.config.bag_path, chunk_size=self.config.chunk_size, compression=self.config.compression,
@@ -236,11 +239,23 @@ class RecorderNode(Node):
         if self.config.topics and all(t in self._recorded for t in self.config.topics):
             self.get_logger().info(f"All {len(self.config.topics)} requested topics subscribed")
 
+    def _keep_time_base(self, params: list[Any]) -> Any:
+        """Refuse a change of ``use_sim_time`` while recording: a bag's log times are sim time or system time
+        throughout (``custom_data`` ``log_time``), and the clock this node follows is chosen once."""
+        from rcl_interfaces.msg import SetParametersResult
+
+        for param in params:
+            if param.name == "use_sim_time" and bool(param.value) != self._use_sim_time:
+                return SetParametersResult(successful=False, reason="use_sim_time is chosen once, at startup: the "
+                                           "bag's log times are sim time or system time throughout")
+        return SetParametersResult(successful=True)
+
     def _follow_recorded_clock(self, topic: str) -> None:
         """Sim time from the ticks of ``topic`` that this node records, instead of rclpy's time source: when its
         ``/clock`` subscription is on ``topic``, it is destroyed (as ``BrainNode.feed_sim_time`` does), and the ticks
-        waiting on ``topic`` are taken before every batch of another topic (:meth:`_on_batch`), which is then logged
-        at the newest tick. Where rclpy's time source is not as expected (or listens elsewhere), nothing changes."""
+        waiting on ``topic`` are taken before every batch of another topic is written (:meth:`_on_batch`), which is
+        then logged at the newest tick. Where rclpy's time source is not as expected (or listens elsewhere), nothing
+        changes."""
         source = getattr(self, "_time_source", None)
         sub = getattr(source, "_clock_sub", None)
         if sub is None or sub.topic_name != topic:
@@ -250,9 +265,12 @@ class RecorderNode(Node):
         self._clock_topic = topic
 
     def _tick(self, data: bytes) -> int | None:
-        """The tick in ``data`` (a ``/clock`` message) [ns]; None for bytes that hold no tick (logged once)."""
+        """The tick in ``data`` (a ``/clock`` message) [ns]; None for bytes that hold no tick or a time before 0
+        (logged once; the message is still recorded, at the sim time so far)."""
         try:
             ns = cdr_stamp_ns(data)
+            if ns < 0:
+                raise ValueError(f"a tick before time 0 ({ns} ns)")
         except ValueError as exc:
             if not self._said_bad_tick:
                 self._said_bad_tick = True

@@ -21,9 +21,11 @@ from bptsb_ros.bags.reader import read_messages
 #: sim time step of the test ticks [ns]
 DT_NS = 10_000_000
 
-# Waits for a line on stdin (the recorder has subscribed), then for k = 1..N publishes the /clock tick k·DT, then a
+# Waits for a line on stdin (the recorder has subscribed), then (with a third argument 1: a tick at -0.5 s first) for
+# k = 1..N publishes the /clock tick k·DT, then a
 # PoseArray stamped k·DT on bagtest/poses, in one burst (one participant: the recorder's process receives them in this
-# order). Prints one JSON line with the number of /clock readers it sees once all are acknowledged, idles.
+# order). Once all are acknowledged, asks the recorder to turn use_sim_time off, then prints one JSON line with the
+# number of /clock readers it sees and whether the recorder took the change; idles.
 TICKS = r"""
 import json, sys, time
 import rclpy
@@ -31,7 +33,7 @@ from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, QoSHistoryPolicy, QoSReliabilityPolicy
 from geometry_msgs.msg import PoseArray
 from rosgraph_msgs.msg import Clock
-n, dt = int(sys.argv[1]), int(sys.argv[2])
+n, dt, before_zero = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3] == "1"
 rclpy.init()
 node = rclpy.create_node("tick_publisher")
 qos = QoSProfile(history=QoSHistoryPolicy.KEEP_ALL, depth=1, reliability=QoSReliabilityPolicy.RELIABLE)
@@ -40,6 +42,10 @@ poses = node.create_publisher(PoseArray, "bagtest/poses", qos)
 print("ready", flush=True)
 sys.stdin.readline()
 time.sleep(1.0)  # the recorder's graph changes reach this node
+if before_zero:  # a tick at -0.5 s first
+    bad = Clock()
+    bad.clock.sec, bad.clock.nanosec = -1, 500_000_000
+    clock.publish(bad)
 for k in range(1, n + 1):
     tick = Clock()
     tick.clock.sec, tick.clock.nanosec = divmod(k * dt, 1_000_000_000)
@@ -48,7 +54,14 @@ for k in range(1, n + 1):
     msg.header.stamp = tick.clock
     poses.publish(msg)
 ok = clock.wait_for_all_acked(Duration(seconds=20)) and poses.wait_for_all_acked(Duration(seconds=20))
-print(json.dumps({"acked": ok, "clock_readers": clock.get_subscription_count()}), flush=True)
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+client = AsyncParameterClient(node, "recorder")
+client.wait_for_services(20.0)
+future = client.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, False)])
+rclpy.spin_until_future_complete(node, future, timeout_sec=20.0)
+change = future.result().results[0].successful if future.done() else None
+print(json.dumps({"acked": ok, "clock_readers": clock.get_subscription_count(), "sim_time_off": change}), flush=True)
 time.sleep(60)
 """
 
@@ -61,10 +74,12 @@ def env(ros_env: dict[str, str]) -> dict[str, str]:
     return env
 
 
-def _record_ticks(bag: Path, topics: str, n: int, env: dict[str, str], *extra: str) -> tuple[dict, str]:
-    """Record ``topics`` on sim time while the tick publisher runs (``extra``: more recorder arguments); the
-    publisher's JSON line and the recorder's log."""
-    publisher = subprocess.Popen([sys.executable, "-c", TICKS, str(n), str(DT_NS)], env=env, text=True,
+def _record_ticks(bag: Path, topics: str, n: int, env: dict[str, str], *extra: str,
+                  before_zero: bool = False) -> tuple[dict, str]:
+    """Record ``topics`` on sim time while the tick publisher runs (``extra``: more recorder arguments;
+    ``before_zero``: a tick at -0.5 s first); the publisher's JSON line and the recorder's log."""
+    publisher = subprocess.Popen([sys.executable, "-c", TICKS, str(n), str(DT_NS), str(int(before_zero))], env=env,
+                                 text=True,
                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     recorder = None
     try:
@@ -100,7 +115,7 @@ def test_a_recorder_that_records_the_clock_follows_its_own_ticks(tmp_path: Path,
     n = 150
     bag = tmp_path / "ticks"
     result, log = _record_ticks(bag, "[/clock, bagtest/poses]", n, env, "-p", "batch_wait:=0.1")
-    assert result == {"acked": True, "clock_readers": 1}, log
+    assert result == {"acked": True, "clock_readers": 1, "sim_time_off": False}, log
     ticks = [(m.timestamp_ns, m.message.clock) for m in read_messages(bag, ["/clock"])]
     assert [t for t, _ in ticks] == [k * DT_NS for k in range(1, n + 1)]
     assert all(t == c.sec * 1_000_000_000 + c.nanosec for t, c in ticks)
@@ -117,7 +132,20 @@ def test_a_recorder_that_does_not_record_the_clock_keeps_rclpys_subscription(tmp
     n = 60
     bag = tmp_path / "poses_only"
     result, log = _record_ticks(bag, "[bagtest/poses]", n, env)
-    assert result == {"acked": True, "clock_readers": 1}, log
+    assert result == {"acked": True, "clock_readers": 1, "sim_time_off": False}, log
     logged = [m.timestamp_ns for m in read_messages(bag, ["/bagtest/poses"])]
     assert len(logged) == n and all(t % DT_NS == 0 and 0 <= t <= n * DT_NS for t in logged)
     assert logged[-1] > 0  # the clock moved: log times are the ticks, not the wall clock nor zero throughout
+
+
+def test_a_tick_before_time_zero_is_recorded_not_followed(tmp_path: Path, env: dict[str, str]) -> None:
+    """A ``/clock`` tick at -0.5 s: the recorder says so once, records it at the sim time so far (0), does not set
+    its clock to it, and records the rest as usual."""
+    n = 20
+    bag = tmp_path / "before_zero"
+    result, log = _record_ticks(bag, "[/clock, bagtest/poses]", n, env, before_zero=True)
+    assert result == {"acked": True, "clock_readers": 1, "sim_time_off": False}, log
+    assert log.count("a tick before time 0 (-500000000 ns); the sim time stays where it was") == 1, log
+    ticks = [(m.timestamp_ns, m.message.clock.sec) for m in read_messages(bag, ["/clock"])]
+    assert ticks == [(0, -1)] + [(k * DT_NS, 0) for k in range(1, n + 1)]
+    assert len(list(read_messages(bag, ["/bagtest/poses"]))) == n

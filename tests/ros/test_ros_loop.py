@@ -239,11 +239,12 @@ def test_realtime_loop_stops_cleanly_on_ctrl_c(tmp_path, ros_env):
     assert summary["mode"] == "realtime" and summary["steps"] == len(stamps) - 1
     for key in ("jitter_ms_p99", "command_latency_ms_p99", "command_age_steps_max", "deadline_misses"):
         assert key in summary
-    assert summary["jitter_ms_p50"] < 20.0
+    assert summary["jitter_ms_p50"] < 20.0 and summary["cpus"] == str(cpu)
     for node in ("body_sim", "swg_brain"):
         assert any(line.startswith(f"[{node}]") and f"running on CPU(s) {cpu}" in line for line in lines), text[-4000:]
     assert set(allowed) == {"body_sim", "swg_brain"} and all(len(cpus) > 3 for cpus in allowed.values()), allowed
-    assert all(set(cpus) == {str(cpu)} for cpus in allowed.values()), allowed  # every thread, the middleware's too
+    if len(os.sched_getaffinity(0)) > 1:  # with one CPU allowed, pinned and not pinned look the same
+        assert all(set(cpus) == {str(cpu)} for cpus in allowed.values()), allowed  # every thread, the middleware's
     records = load_step_times(times)
     # one record per integrated step, 0..steps (the summary's steps, like the bag's stamps, count from step 0)
     assert records["step"].tolist() == list(range(summary["steps"] + 1)) and records["period"] == pytest.approx(0.01)
