@@ -157,6 +157,7 @@ READ_ONLY_REASONS: dict[str, str] = {
     "executor": "the node's subscriptions, timers and services are added to its executor once, at startup",
     "raw_outputs": "the per-step messages are laid out once, at startup",
     "batch_wait": "the recorder's loop is set up once, at startup",
+    "cpus": "the node's threads are placed once, when it starts stepping or answering (threads made later inherit it)",
     **dict.fromkeys(("agent", "config", "task", "shape", "nodes", "size", "dt", "integrator", "brain_type", "seed",
                      "dtype"), "the agent (body and brain) is built from it once, at startup, and every node of "
                     "the loop must hold the same one"),
