@@ -22,8 +22,8 @@ from bptsb_ros.bags.reader import read_messages
 DT_NS = 10_000_000
 
 # Waits for a line on stdin (the recorder has subscribed), then (with a third argument 1: a tick at -0.5 s first) for
-# k = 1..N publishes the /clock tick k·DT, then a
-# PoseArray stamped k·DT on bagtest/poses, in one burst (one participant: the recorder's process receives them in this
+# k = 1..N publishes the /clock tick k·DT (on NS/clock: the recorder's /clock is remapped there), then a
+# PoseArray stamped k·DT on NS/a_poses, in one burst (one participant: the recorder's process receives them in this
 # order). Once all are acknowledged, asks the recorder to turn use_sim_time off, then prints one JSON line with the
 # number of /clock readers it sees and whether the recorder took the change; idles.
 TICKS = r"""
@@ -33,12 +33,12 @@ from rclpy.duration import Duration
 from rclpy.qos import QoSProfile, QoSHistoryPolicy, QoSReliabilityPolicy
 from geometry_msgs.msg import PoseArray
 from rosgraph_msgs.msg import Clock
-n, dt, before_zero = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3] == "1"
+n, dt, before_zero, ns = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3] == "1", sys.argv[4]
 rclpy.init()
 node = rclpy.create_node("tick_publisher")
 qos = QoSProfile(history=QoSHistoryPolicy.KEEP_ALL, depth=1, reliability=QoSReliabilityPolicy.RELIABLE)
-clock = node.create_publisher(Clock, "/clock", qos)
-poses = node.create_publisher(PoseArray, "bagtest/poses", qos)
+clock = node.create_publisher(Clock, f"/{ns}/clock", qos)
+poses = node.create_publisher(PoseArray, f"/{ns}/a_poses", qos)
 print("ready", flush=True)
 sys.stdin.readline()
 time.sleep(1.0)  # the recorder's graph changes reach this node
@@ -56,7 +56,7 @@ for k in range(1, n + 1):
 ok = clock.wait_for_all_acked(Duration(seconds=20)) and poses.wait_for_all_acked(Duration(seconds=20))
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-client = AsyncParameterClient(node, "recorder")
+client = AsyncParameterClient(node, f"recorder_{ns}")
 client.wait_for_services(20.0)
 future = client.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, False)])
 rclpy.spin_until_future_complete(node, future, timeout_sec=20.0)
@@ -78,7 +78,9 @@ def _record_ticks(bag: Path, topics: str, n: int, env: dict[str, str], *extra: s
                   before_zero: bool = False) -> tuple[dict, str]:
     """Record ``topics`` on sim time while the tick publisher runs (``extra``: more recorder arguments;
     ``before_zero``: a tick at -0.5 s first); the publisher's JSON line and the recorder's log."""
-    publisher = subprocess.Popen([sys.executable, "-c", TICKS, str(n), str(DT_NS), str(int(before_zero))], env=env,
+    ns = f"ticks_{os.getpid()}_{bag.name}"  # topics and a recorder name of this test alone: other tests' nodes
+    # in the domain (a killed one stays visible for a while) neither read its /clock nor answer its parameter call
+    publisher = subprocess.Popen([sys.executable, "-c", TICKS, str(n), str(DT_NS), str(int(before_zero)), ns], env=env,
                                  text=True,
                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     recorder = None
@@ -86,7 +88,8 @@ def _record_ticks(bag: Path, topics: str, n: int, env: dict[str, str], *extra: s
         assert publisher.stdout.readline().strip() == "ready"
         recorder = subprocess.Popen(
             [sys.executable, "-m", "bptsb_ros.ros.recorder", "--ros-args", "-p", f"bag_path:={bag}",
-             "-p", f"topics:={topics}", "-p", "use_sim_time:=true", *extra],
+             "-p", f"topics:={topics.format(ns=ns)}", "-p", "use_sim_time:=true", "-r", f"/clock:=/{ns}/clock",
+             "-r", f"__node:=recorder_{ns}", *extra],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         log = []
         for line in recorder.stdout:
@@ -107,19 +110,24 @@ def _record_ticks(bag: Path, topics: str, n: int, env: dict[str, str], *extra: s
                 proc.wait()
 
 
+def _topic(bag: Path, name: str) -> str:
+    """The test's topic ``name`` (``clock`` or ``a_poses``) as recorded in ``bag``."""
+    return f"/ticks_{os.getpid()}_{bag.name}/{name}"
+
+
 def test_a_recorder_that_records_the_clock_follows_its_own_ticks(tmp_path: Path, env: dict[str, str]) -> None:
     """Recording ``/clock``: the recorder is its only reader (rclpy's own sim-time subscription is gone), each tick
     is logged at its own time, and each pose, which arrives after its tick, is logged at a tick no earlier than its
     stamp and no later than the last. The burst and rounds 0.1 s apart let ticks and poses pile up, so that a round
-    can begin with the poses (subscribed first: the graph lists topics alphabetically)."""
+    can begin with the poses (``a_poses``, subscribed first: the graph lists topics alphabetically)."""
     n = 150
     bag = tmp_path / "ticks"
-    result, log = _record_ticks(bag, "[/clock, bagtest/poses]", n, env, "-p", "batch_wait:=0.1")
+    result, log = _record_ticks(bag, "[/{ns}/clock, /{ns}/a_poses]", n, env, "-p", "batch_wait:=0.1")
     assert result == {"acked": True, "clock_readers": 1, "sim_time_off": False}, log
-    ticks = [(m.timestamp_ns, m.message.clock) for m in read_messages(bag, ["/clock"])]
+    ticks = [(m.timestamp_ns, m.message.clock) for m in read_messages(bag, [_topic(bag, "clock")])]
     assert [t for t, _ in ticks] == [k * DT_NS for k in range(1, n + 1)]
     assert all(t == c.sec * 1_000_000_000 + c.nanosec for t, c in ticks)
-    poses = [(m.timestamp_ns, m.message.header.stamp) for m in read_messages(bag, ["/bagtest/poses"])]
+    poses = [(m.timestamp_ns, m.message.header.stamp) for m in read_messages(bag, [_topic(bag, "a_poses")])]
     assert len(poses) == n
     for logged, stamp in poses:
         assert logged % DT_NS == 0 and stamp.sec * 1_000_000_000 + stamp.nanosec <= logged <= n * DT_NS
@@ -131,9 +139,9 @@ def test_a_recorder_that_does_not_record_the_clock_keeps_rclpys_subscription(tmp
     ticks the publisher sent."""
     n = 60
     bag = tmp_path / "poses_only"
-    result, log = _record_ticks(bag, "[bagtest/poses]", n, env)
+    result, log = _record_ticks(bag, "[/{ns}/a_poses]", n, env)
     assert result == {"acked": True, "clock_readers": 1, "sim_time_off": False}, log
-    logged = [m.timestamp_ns for m in read_messages(bag, ["/bagtest/poses"])]
+    logged = [m.timestamp_ns for m in read_messages(bag, [_topic(bag, "a_poses")])]
     assert len(logged) == n and all(t % DT_NS == 0 and 0 <= t <= n * DT_NS for t in logged)
     assert logged[-1] > 0  # the clock moved: log times are the ticks, not the wall clock nor zero throughout
 
@@ -143,9 +151,9 @@ def test_a_tick_before_time_zero_is_recorded_not_followed(tmp_path: Path, env: d
     its clock to it, and records the rest as usual."""
     n = 20
     bag = tmp_path / "before_zero"
-    result, log = _record_ticks(bag, "[/clock, bagtest/poses]", n, env, before_zero=True)
+    result, log = _record_ticks(bag, "[/{ns}/clock, /{ns}/a_poses]", n, env, before_zero=True)
     assert result == {"acked": True, "clock_readers": 1, "sim_time_off": False}, log
     assert log.count("a tick before time 0 (-500000000 ns); the sim time stays where it was") == 1, log
-    ticks = [(m.timestamp_ns, m.message.clock.sec) for m in read_messages(bag, ["/clock"])]
+    ticks = [(m.timestamp_ns, m.message.clock.sec) for m in read_messages(bag, [_topic(bag, "clock")])]
     assert ticks == [(0, -1)] + [(k * DT_NS, 0) for k in range(1, n + 1)]
-    assert len(list(read_messages(bag, ["/bagtest/poses"]))) == n
+    assert len(list(read_messages(bag, [_topic(bag, "a_poses")]))) == n
