@@ -28,7 +28,7 @@ def main(executor: str = "events", steps: int = 3000, gap: float = 0.0, rehearse
     node = BodySim(StopFlag())
     times: list[tuple[float, float, float]] = []
 
-    from bptsb_ros.live.body_params import set_fifo_priority
+    from bptsb_ros.live.scheduling import set_fifo_priority
 
     set_fifo_priority(10)
 

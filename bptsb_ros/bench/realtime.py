@@ -16,7 +16,15 @@ misses (count and %), step compute time, its integrate and publish parts, start 
 commands (commands the body rejected as stale, every source) and safe-command steps; the executor; the launch's
 exit code (a launch that failed after the body wrote its records, e.g. a brain silent on a loaded machine, is
 reported with its reason, ``launch_problem``, and its numbers) and wall time; and whether the targets hold
-(:data:`TARGETS`). The report is handed to ``update`` after each condition (``bptsb bench`` rewrites its ``--out``
+(:data:`TARGETS`).
+
+Beside each condition's loop, under the same busy processes, right after it: the ``paced`` anchor
+(:func:`bptsb_ros.ros.anchor.run_paced_anchor`: two bare rclpy processes, one publishing a ping at each due time on
+the body's schedule and priority, the other answering; no physics, no brain, no recorder) for ``anchor_seconds``,
+judged by the same rule: its misses are what the machine's scheduler and middleware give any loop at that rate
+(``anchor`` in the condition; ``anchor_deadline_misses`` and ``anchor_compute_p99_ms``, its publish time, in the
+table). The report also says the kernel's preemption model (:func:`kernel_facts`). The report is handed to
+``update`` after each condition (``bptsb bench`` rewrites its ``--out``
 file then, marked incomplete: a long bench leaves the finished condition on disk).
 """
 
@@ -51,8 +59,12 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("compute_p50_ms", "compute p50", ".3f"), ("compute_p99_ms", "p99", ".3f"), ("compute_max_ms", "max", ".2f"),
     ("period_jitter_p99_ms", "jitter p99", ".3f"), ("period_jitter_max_ms", "max", ".2f"),
     ("late_commands", "late cmds", "d"), ("executor", "executor", "s"), ("rt_priority", "FIFO", "d"),
-    ("cpus", "CPUs", "s"),
+    ("cpus", "CPUs", "s"), ("anchor_deadline_misses", "anchor misses", "d"),
+    ("anchor_compute_p99_ms", "anchor p99", ".3f"),
 )
+#: the anchor's statistics kept in a condition's ``anchor``
+ANCHOR_KEYS = ("ticks", "seconds", "period_ms", "deadline_misses", "deadline_miss_pct", "compute_p50_ms",
+               "compute_p99_ms", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms", "error")
 #: stale rejections of these sources are the late commands
 SOURCES = ("rest_length", "force", "wind", "reset")
 
@@ -95,14 +107,54 @@ def condition_result(summary: dict[str, Any], timing: dict[str, Any]) -> dict[st
     return stats
 
 
+def kernel_facts(preempt_file: Path = Path("/sys/kernel/debug/sched/preempt"),
+                 config_file: Path = Path("/proc/config.gz"),
+                 cmdline_file: Path = Path("/proc/cmdline")) -> dict[str, str]:
+    """The kernel's release and version (``uname``) and its preemption model: from ``/sys/kernel/debug/sched/preempt``
+    (the bracketed mode) where readable, else from ``/proc/config.gz`` (``CONFIG_PREEMPT_RT``, ``CONFIG_PREEMPT``,
+    ``CONFIG_PREEMPT_VOLUNTARY``, ``CONFIG_PREEMPT_NONE``) with a ``preempt=`` boot option over it; 'unknown'
+    where neither says. The paths are the files read (planted ones in the tests)."""
+    import gzip
+    import re
+
+    uname = os.uname()
+    facts = {"kernel": f"{uname.release} {uname.version}", "preemption": "unknown"}
+    try:
+        mode = re.search(r"\((\w+)\)", preempt_file.read_text())
+        if mode:
+            facts["preemption"] = f"{mode.group(1)} (/sys/kernel/debug/sched/preempt)"
+            return facts
+    except OSError:
+        pass
+    try:
+        config = gzip.decompress(config_file.read_bytes()).decode(errors="replace")
+        cmdline = cmdline_file.read_text()
+    except (OSError, EOFError, gzip.BadGzipFile):
+        return facts
+    boot = re.search(r"(?:^|\s)preempt=(\w+)", cmdline)
+    for option, model in (("CONFIG_PREEMPT_RT", "full (realtime)"), ("CONFIG_PREEMPT", "full"),
+                          ("CONFIG_PREEMPT_VOLUNTARY", "voluntary"), ("CONFIG_PREEMPT_NONE", "none")):
+        if re.search(rf"^{option}=y$", config, re.MULTILINE):
+            facts["preemption"] = (f"{boot.group(1)} (preempt= boot option; built {model})" if boot
+                                   else f"{model} ({option}=y)")
+            break
+    return facts
+
+
+def anchor_result(anchor: dict[str, Any], seconds: float) -> dict[str, Any]:
+    """What a condition keeps of a paced anchor's result (:data:`ANCHOR_KEYS`), with its ``seconds``."""
+    return {k: v for k, v in {**anchor, "seconds": seconds}.items() if k in ANCHOR_KEYS}
+
+
 def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: str, agent: str, executor: str,
                  rt_priority: int = 0, progress: Callable[[str], None] = print,
-                 env: Mapping[str, str] | None = None, rate_scale: float = 1.0, cpus: str = "") -> dict[str, Any]:
+                 env: Mapping[str, str] | None = None, rate_scale: float = 1.0, cpus: str = "",
+                 anchor_seconds: float = 0.0) -> dict[str, Any]:
     """One condition: ``bptsb launch loop --mode realtime --duration seconds --rate-scale rate_scale`` with ``busy``
     spinning processes, ``executor`` for the body and every brain (and ``cpus``, when given: their CPUs, taskset -c
-    form), logs in ``workdir/name``; returns
-    :func:`condition_result` plus the run's facts (or ``error``). ``env``: the launch's environment (default this
-    process's)."""
+    form), logs in ``workdir/name``; then, with ``anchor_seconds`` > 0 and the same busy processes, the paced anchor
+    at the loop's period, priority and CPUs. Returns :func:`condition_result` plus the run's facts and ``anchor``
+    (or ``error``). ``env``: the launch's and the anchor's environment (default this process's)."""
     from bptsb_ros.bench.soak import start_busy, stop_busy
     from bptsb_ros.live.loops import LOOPS
     from bptsb_ros.live.step_times import load_step_times
@@ -125,12 +177,18 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
              f"process(es), executor {executor}; log {log}")
     procs = start_busy(busy)
     started = time.monotonic()
+    anchor: dict[str, Any] | None = None
+    wall: float | None = None  # the launch's wall time, without the anchor's
     try:
         with open_for_writing(log, "w") as out:
             code = subprocess.run(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                   env=None if env is None else dict(env)).returncode
-    finally:
         wall = time.monotonic() - started
+        if anchor_seconds > 0 and timing_path.is_file():
+            anchor = _paced_anchor(anchor_seconds, load_step_times(timing_path)["period"], rt_priority, cpus, env,
+                                   progress)
+    finally:
+        wall = time.monotonic() - started if wall is None else wall
         stop_busy(procs)
     result: dict[str, Any] = {"condition": name, "loop": loop, "agent": agent or "fresh", "seconds": seconds,
                               "rate_scale": rate_scale, "busy_processes": busy, "cpus_asked": cpus or "any",
@@ -144,7 +202,25 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
     if code != 0:  # e.g. the brain fell silent on a loaded machine: the body's records still hold
         result["launch_problem"] = _last_line(log)
     result.update(condition_result(json.loads(summary_path.read_text()), load_step_times(timing_path)))
+    if anchor is not None:
+        result["anchor"] = anchor
+        if "error" not in anchor:
+            result["anchor_deadline_misses"] = anchor["deadline_misses"]
+            result["anchor_compute_p99_ms"] = anchor["compute_p99_ms"]
     return result
+
+
+def _paced_anchor(seconds: float, period: float, rt_priority: int, cpus: str, env: Mapping[str, str] | None,
+                  progress: Callable[[str], None]) -> dict[str, Any]:
+    """The paced anchor at the loop's ``period``, priority and CPUs, polling as long before each tick as the body's
+    default ``busy_wait``."""
+    from bptsb_ros.live.body_params import PARAMS
+    from bptsb_ros.ros.anchor import run_paced_anchor
+
+    busy_wait = next(p.default for p in PARAMS if p.name == "busy_wait")
+    progress(f"realtime bench: the paced anchor (bare rclpy tick and pong) for {seconds:g} s at {1 / period:g} Hz")
+    return anchor_result(run_paced_anchor(seconds, period, priority=rt_priority, busy=busy_wait, cpus=cpus,
+                                          env=None if env is None else dict(env)), seconds)
 
 
 def _last_line(log: Path) -> str:
@@ -158,16 +234,19 @@ def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str =
                        cpus: str = "", loop: str = "lissajous_closed",
                        agent: str | None = None, workdir: str | Path | None = None,
                        update: Callable[[dict[str, Any]], None] | None = None,
-                       progress: Callable[[str], None] = print, factor: float = 0.0) -> dict[str, Any]:
+                       progress: Callable[[str], None] = print, factor: float = 0.0,
+                       anchor_seconds: float | None = None) -> dict[str, Any]:
     """Both conditions (:data:`CONDITIONS`) for ``seconds`` each, and with ``factor`` > 0 the ``factor`` condition
     (the loop at ``factor`` × real time, idle); logs and records in ``workdir`` (default: a new temporary
     directory, kept); ``update(report)``, when given, gets the report after each condition. ``agent``: None for the
     example agent, '' for a fresh one (open loops only). ``cpus``: the CPUs of the body and its brains (taskset -c
-    form; empty: wherever they start)."""
+    form; empty: wherever they start). ``anchor_seconds``: the paced anchor's run after each condition (None: as
+    long as the condition; 0: none)."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="bptsb-realtime-"))
     work.mkdir(parents=True, exist_ok=True)
     agent_dir = str(example_agent()) if agent is None else agent
     report: dict[str, Any] = {"cpu_count": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
+                              **kernel_facts(),
                               "ros_domain_id": os.environ.get("ROS_DOMAIN_ID", "0"), "workdir": str(work),
                               "targets": {key: text for key, _, text in TARGETS}, "conditions": {}}
     runs = [(name, busy if loaded else 0, 1.0) for name, loaded in CONDITIONS]
@@ -176,7 +255,8 @@ def run_realtime_bench(seconds: float = 600.0, busy: int = 1, *, executor: str =
     for name, n_busy, rate in runs:
         report["conditions"][name] = realtime_run(name, seconds, n_busy, work, loop=loop, agent=agent_dir,
                                                   executor=executor, rt_priority=rt_priority, progress=progress,
-                                                  rate_scale=rate, cpus=cpus)
+                                                  rate_scale=rate, cpus=cpus,
+                                                  anchor_seconds=seconds if anchor_seconds is None else anchor_seconds)
         if update is not None:
             update(report)
     return report
@@ -195,6 +275,8 @@ def realtime_table(report: dict[str, Any]) -> str:
         rows.append([label] + [format(r[k], f) if k in r and r[k] is not None else "-" for k, _, f in COLUMNS])
         if r.get("launch_problem"):
             notes.append(f"{name}: the launch exited {r.get('launch_exit_code')}: {r['launch_problem']}")
+        if "error" in r.get("anchor", {}):
+            notes.append(f"{name}: the paced anchor failed: {r['anchor']['error']}")
     widths = [max(len(row[i]) for row in [heads, *rows]) for i in range(len(heads))]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip() for row in [heads, *rows]]
     lines += notes
@@ -202,4 +284,6 @@ def realtime_table(report: dict[str, Any]) -> str:
         if "targets_met" in r:
             lines.append(f"{name}: " + "; ".join(f"{text}: {'met' if r['targets_met'][key] else 'NOT met'}"
                                                  for key, _, text in TARGETS))
+    if "preemption" in report:
+        lines.append(f"kernel {report.get('kernel', '?')}: preemption {report['preemption']}")
     return "\n".join(lines)

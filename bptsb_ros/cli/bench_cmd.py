@@ -19,7 +19,9 @@ HELP = ("Benchmark steps/s (forward; forward+backward+update) and peak memory of
         "is recorded, as a ratio to a bare rclpy ping-pong anchor run between them, each step split into recorder "
         "wait, publish, wait for commands and compute, and each node process's CPU per step. With --realtime: "
         "the closed loop at 100 Hz in realtime, idle and with one core kept busy (steps, deadline misses, step "
-        "compute time and period jitter from the body's own per-step records, late commands).")
+        "compute time and period jitter from the body's own per-step records, late commands), each condition "
+        "followed by a bare rclpy loop on the same schedule and priority (the paced anchor: its misses are the "
+        "machine's floor).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,6 +70,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     rt.add_argument("--realtime-factor", type=float, default=0.0, metavar="F",
                     help="also run the loop at F times real time (rate_scale F; 10: 1 kHz wall at dt 0.01 s), idle, "
                     "for --realtime-seconds (the condition 'factor'); default 0: not")
+    rt.add_argument("--realtime-anchor-seconds", type=float, default=None, metavar="S",
+                    help="after each condition, under the same load, the paced anchor (a bare rclpy tick and pong on "
+                    "the loop's schedule, priority and CPUs) for S seconds; default: as long as the condition; "
+                    "0: none")
     rt.add_argument("--rt-priority", type=int, default=0, metavar="P",
                     help="run the body's stepping thread under SCHED_FIFO at priority P, 1-99 (its rt_priority "
                     "parameter; needs CAP_SYS_NICE or root); default 0: the normal scheduler")
@@ -194,7 +200,7 @@ def _realtime(args: argparse.Namespace) -> int:
     if not 0 <= args.rt_priority <= 99:
         return fail(NAME, f"--rt-priority must be in 0..99, got {args.rt_priority}", USAGE)
     from bptsb_ros.interface.params import ParameterError
-    from bptsb_ros.live.body_params import cpus_text, parse_cpus
+    from bptsb_ros.live.scheduling import cpus_text, parse_cpus
 
     try:
         cpus = cpus_text(parse_cpus(args.cpus, "--cpus"))
@@ -204,6 +210,9 @@ def _realtime(args: argparse.Namespace) -> int:
         return fail(NAME, f"--realtime-busy must be >= 1 (the busy condition), got {args.realtime_busy}", USAGE)
     if not (math.isfinite(args.realtime_factor) and 0 <= args.realtime_factor <= 1000):
         return fail(NAME, f"--realtime-factor must be in 0..1000, got {args.realtime_factor:g}", USAGE)
+    anchor_seconds = seconds if args.realtime_anchor_seconds is None else args.realtime_anchor_seconds
+    if not (math.isfinite(anchor_seconds) and anchor_seconds >= 0):
+        return fail(NAME, f"--realtime-anchor-seconds must be >= 0, got {anchor_seconds:g}", USAGE)
     workdir = Path(args.workdir) if args.workdir else None
     if (problem := _check_workdir(workdir)) is not None:
         return problem
@@ -216,7 +225,7 @@ def _realtime(args: argparse.Namespace) -> int:
         report = run_realtime_bench(seconds, args.realtime_busy, executor=args.executor, rt_priority=args.rt_priority,
                                     cpus=cpus, workdir=workdir, update=_updater(out),
                                     progress=lambda m: print(m, file=sys.stderr, flush=True),
-                                    factor=args.realtime_factor)
+                                    factor=args.realtime_factor, anchor_seconds=anchor_seconds)
     except _WriteFailed as err:
         return err.code
     if (problem := _write(out, report)) is not None:

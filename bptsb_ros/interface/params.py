@@ -215,7 +215,7 @@ RAW_OUTPUTS = Param("raw_outputs", True, "publish the per-step outputs as pre-se
 LOG_LEVEL = Param("log_level", "", "logger level of this node: debug, info, warn or error (debug shows per-message "
                   "and per-topic lines); empty: as set by --ros-args --log-level (default info)", "str",
                   choices=("", "debug", "info", "warn", "error"), dynamic=True)
-#: The CPUs a live node runs on (``bptsb_ros.live.body_params.pin_threads``).
+#: The CPUs a live node runs on (``bptsb_ros.live.scheduling.pin_threads``).
 CPUS = Param("cpus", "", "CPUs to run every thread of this node on, as taskset -c lists them ('1', '0,2', '0-3'), set "
              "when it starts stepping or answering (in a composed process, the body's apply to every node); "
              "docs/ros/timing.md has what one core for the body and its brains measured at 100 Hz and 1 kHz; empty: "

@@ -13,8 +13,15 @@ Two shapes: ``split`` (ping, pong and the recorder in three processes, as a loop
 composed loop, ``composed:=true``). :func:`run_anchor` starts them and returns the round trips per second
 over ``seconds`` of wall time after a warm-up.
 
-Run one side alone: ``python -m bptsb_ros.ros.anchor ping|pong|both|recorder --seconds S`` (the ROS_DOMAIN_ID of
-the environment). ``ping`` and ``both`` print one JSON line with the result.
+A third shape, ``paced``, is the anchor of ``bptsb bench --realtime``: ``tick`` publishes a ping at each due time
+start + k·period on the body's realtime schedule (it sleeps, and under ``rt_priority`` polls the last ``busy`` seconds
+before each due time, as ``body_sim`` does with ``busy_wait``), ``pong`` answers each, and nothing else runs: no
+physics, no recorder. ``tick`` keeps each tick's due, start and end times and judges them with the body's rule
+(:func:`bptsb_ros.live.step_times.timing_statistics`: a miss is a tick that ended after the next one was due), so its
+misses are what the machine's scheduler gives a bare rclpy loop at that rate and priority (:func:`run_paced_anchor`).
+
+Run one side alone: ``python -m bptsb_ros.ros.anchor ping|pong|both|recorder|tick --seconds S`` (the ROS_DOMAIN_ID
+of the environment). ``ping``, ``both`` and ``tick`` print one JSON line with the result.
 """
 
 from __future__ import annotations
@@ -28,6 +35,9 @@ import sys
 import time
 from collections.abc import Callable
 from typing import Any
+
+from bptsb_ros.interface.params import ParameterError
+from bptsb_ros.live.scheduling import parse_cpus
 
 #: values in each message (the size of a loop's command: 48 rest lengths and a few more)
 VALUES = 50
@@ -99,6 +109,62 @@ def _pong(node: Any, payload: bytes) -> None:
     node.create_subscription(Float64MultiArray, PING, lambda _data: pub.publish(payload), _qos(), raw=True)
 
 
+class _Tick:
+    """Publishes a ping at each due time start + k·``period`` and handles the pongs in between (:func:`serve`,
+    role ``tick``): sleeps until ``busy`` seconds before the due time, then polls the executor until it; keeps each
+    tick's due, start and end times (monotonic seconds)."""
+
+    def __init__(self, node: Any, payload: bytes, period: float, busy: float, ticks: int) -> None:
+        import numpy as np
+        from std_msgs.msg import Float64MultiArray
+
+        self.payload, self.period, self.busy = payload, period, min(busy, period / 2)
+        self.pub = node.create_publisher(Float64MultiArray, PING, _qos())
+        node.create_subscription(Float64MultiArray, PONG, lambda _data: None, _qos(), raw=True)
+        self.times = np.zeros((3, ticks))  # due, began, done
+
+    def run(self, executor: Any, stop: list[int]) -> int:
+        """Tick until every tick is done or a stop signal; returns the number of ticks done."""
+        start = time.monotonic() + self.period
+        for k in range(self.times.shape[1]):
+            due = start + k * self.period
+            while not stop and (left := due - self.busy - time.monotonic()) > 0:
+                executor.spin_once(timeout_sec=min(left, 0.05))
+            while not stop and time.monotonic() < due:
+                executor.spin_once(timeout_sec=0.0)
+            if stop:
+                return k
+            began = time.monotonic()
+            self.pub.publish(self.payload)
+            self.times[:, k] = due, began, time.monotonic()
+        return self.times.shape[1]
+
+    def result(self, done: int) -> dict[str, Any]:
+        from bptsb_ros.live.step_times import timing_statistics
+
+        due, began, ended = self.times[:, :done]
+        stats = timing_statistics(due, began, began, ended, self.period) if done else {"steps": 0}
+        return {"ticks": done, "period_ms": self.period * 1e3, **stats}
+
+
+def _realtime(priority: int, cpus: str) -> str:
+    """Pin this process to ``cpus`` (taskset -c form; '' leaves it) and put its main thread under SCHED_FIFO at
+    ``priority`` and its other threads one below (0 leaves them), as ``body_sim`` does; '' or what was refused."""
+    from bptsb_ros.live.scheduling import (
+        pin_threads,
+        set_fifo_priority,
+        set_fifo_priority_of_other_threads,
+    )
+
+    problems = [pin_threads(parse_cpus(cpus, "--cpus"))] if cpus else []
+    if priority:
+        problem = set_fifo_priority(priority)
+        problems.append(problem)
+        if not problem:
+            set_fifo_priority_of_other_threads(max(1, priority - 1))
+    return "; ".join(p for p in problems if p)
+
+
 def _wait_matched(node: Any, topic: str, count: int, executor: Any, timeout: float = 60.0) -> bool:
     deadline = time.monotonic() + timeout
     while node.count_subscribers(topic) < count:
@@ -108,10 +174,13 @@ def _wait_matched(node: Any, topic: str, count: int, executor: Any, timeout: flo
     return True
 
 
-def serve(role: str, seconds: float, subscribers: int = 2) -> int:
-    """Run one side (``ping``, ``pong``, ``both``: ping and pong in this process, or ``recorder``) until done
-    (``ping``, ``both``: ``seconds`` after the warm-up, then one JSON line) or SIGINT/SIGTERM (``pong``,
-    ``recorder``). ``subscribers``: how many subscribers ``ping`` waits for on each topic before it starts."""
+def serve(role: str, seconds: float, subscribers: int = 2, *, period: float = 0.01, busy: float = 0.0,
+          priority: int = 0, cpus: str = "") -> int:
+    """Run one side (``ping``, ``pong``, ``both``: ping and pong in this process, ``recorder``, or ``tick``) until
+    done (``ping``, ``both``: ``seconds`` after the warm-up, ``tick``: ``seconds`` of ticks every ``period``; then
+    one JSON line) or SIGINT/SIGTERM (``pong``, ``recorder``). ``subscribers``: how many subscribers ``ping`` and
+    ``tick`` wait for on each topic before they start. ``priority``, ``cpus``: SCHED_FIFO priority and CPUs
+    (:func:`_realtime`), ``busy``: ``tick``'s polling before each due time (under a priority only)."""
     import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -136,9 +205,21 @@ def serve(role: str, seconds: float, subscribers: int = 2) -> int:
                 nodes.append(peer)
                 executor.add_node(peer)
             _pong(peer, payload)
+        problem = _realtime(priority, cpus) if priority or cpus else ""
+        if problem:
+            print(json.dumps({"error": f"{role}: {problem}"}), flush=True)
+            return 1
         if role == "pong":
             while not stop:
                 executor.spin_once(timeout_sec=0.1)
+            return 0
+        if role == "tick":
+            tick = _Tick(node, payload, period, busy if priority else 0.0, max(1, round(seconds / period)))
+            if not (_wait_matched(node, PING, 1, executor) and _wait_matched(node, PONG, 1, executor)):
+                print(json.dumps({"error": "the paced anchor's pong did not match within 60 s"}), flush=True)
+                return 1
+            time.sleep(0.5)
+            print(json.dumps(tick.result(tick.run(executor, stop))), flush=True)
             return 0
         ping = _Ping(node, payload)
         if not (_wait_matched(node, PING, subscribers, executor) and _wait_matched(node, PONG, subscribers, executor)):
@@ -216,6 +297,38 @@ def run_anchor(shape: str = "split", seconds: float = 5.0, env: dict[str, str] |
     return {"shape": shape, **json.loads(lines[-1])}
 
 
+def run_paced_anchor(seconds: float, period: float, *, priority: int = 0, busy: float = 0.002, cpus: str = "",
+                     env: dict[str, str] | None = None, timeout: float | None = None) -> dict[str, Any]:
+    """Start the ``paced`` anchor (module docstring): ``tick`` every ``period`` for ``seconds`` under SCHED_FIFO
+    ``priority`` (0: the normal scheduler) polling the last ``busy`` seconds before each tick (at most half a
+    period), ``pong`` at ``priority`` − 1, both on ``cpus`` ('' : anywhere); returns the tick's
+    :func:`~bptsb_ros.live.step_times.timing_statistics` (``deadline_misses``, ``lateness_*_ms``, ...) and
+    ``ticks`` (or ``error``)."""
+    base = [sys.executable, "-m", "bptsb_ros.ros.anchor"]
+    env = dict(os.environ if env is None else env)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    common = ["--seconds", f"{seconds:g}", "--period", f"{period!r}", "--cpus", cpus]
+    pong = subprocess.Popen(base + ["pong", *common, "--rt-priority", str(max(1, priority - 1) if priority else 0)],
+                            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        tick = subprocess.run(base + ["tick", *common, "--rt-priority", str(priority), "--busy", f"{busy!r}"],
+                              env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                              timeout=timeout if timeout is not None else seconds + 120.0)
+    except subprocess.TimeoutExpired:
+        return {"error": f"the paced anchor did not finish within {timeout or seconds + 120.0:g} s"}
+    finally:
+        _stop_all([pong])
+    said = (pong.stdout.read() if pong.stdout else "").strip()
+    if pong.returncode not in (0, -signal.SIGINT):
+        return {"error": f"the paced anchor's pong exited {pong.returncode}: {said.splitlines()[-1:] or ''}"}
+    lines = [line for line in tick.stdout.splitlines() if line.startswith("{")]
+    if tick.returncode or not lines:
+        tail = (tick.stderr or tick.stdout).strip().splitlines()[-1:] or ["no output"]
+        return {"error": f"the paced anchor exited {tick.returncode}: {tail[0][:200]}"}
+    return json.loads(lines[-1])
+
+
 def _stop_all(procs: list[subprocess.Popen], grace: float = 10.0) -> None:
     for proc in procs:
         if proc.poll() is None:
@@ -230,13 +343,26 @@ def _stop_all(procs: list[subprocess.Popen], grace: float = 10.0) -> None:
 
 def main(argv: list[str] | None = None, out: Callable[[str], None] = print) -> int:
     parser = argparse.ArgumentParser(prog="python -m bptsb_ros.ros.anchor", description=__doc__.splitlines()[0])
-    parser.add_argument("role", choices=("ping", "pong", "both", "recorder"))
+    parser.add_argument("role", choices=("ping", "pong", "both", "recorder", "tick"))
     parser.add_argument("--seconds", type=float, default=5.0, help="timed wall seconds after the warm-up")
+    parser.add_argument("--period", type=float, default=0.01, help="tick: seconds between ticks")
+    parser.add_argument("--busy", type=float, default=0.0, help="tick, under --rt-priority: seconds polled before each")
+    parser.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO priority (1-99; 0: normal scheduler)")
+    parser.add_argument("--cpus", default="", help="the CPUs to run on (taskset -c form; empty: anywhere)")
     args = parser.parse_args(argv)
-    if not args.seconds > 0:
-        out("live_anchor: --seconds must be > 0")
+    for name, value, ok in (("--seconds", args.seconds, args.seconds > 0), ("--period", args.period, args.period > 0),
+                            ("--busy", args.busy, args.busy >= 0),
+                            ("--rt-priority", args.rt_priority, 0 <= args.rt_priority <= 99)):
+        if not ok:
+            out(f"live_anchor: {name} {value:g} is out of range")
+            return 2
+    try:
+        parse_cpus(args.cpus, "--cpus")
+    except ParameterError as err:
+        out(f"live_anchor: {err}")
         return 2
-    return serve(args.role, args.seconds, subscribers=2)
+    return serve(args.role, args.seconds, subscribers=1 if args.role == "tick" else 2, period=args.period,
+                 busy=args.busy, priority=args.rt_priority, cpus=args.cpus)
 
 
 if __name__ == "__main__":

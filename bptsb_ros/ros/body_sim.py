@@ -30,13 +30,10 @@ from bptsb_ros.interface.topics import RECORDER_ACK, absolute, stamp_to_step
 from bptsb_ros.live.agent_source import load_source
 from bptsb_ros.live.body_core import BodyCore, Event
 from bptsb_ros.live.body_loop import BodyLoop
-from bptsb_ros.live.body_params import (
-    PARAMS,
-    PUBLISHED,
-    SUBSCRIBED,
+from bptsb_ros.live.body_params import PARAMS, PUBLISHED, SUBSCRIBED, parse_wait_for_subscribers
+from bptsb_ros.live.scheduling import (
     cpus_text,
     parse_cpus,
-    parse_wait_for_subscribers,
     pin_threads,
     set_fifo_priority,
     set_fifo_priority_of_other_threads,

@@ -79,7 +79,7 @@ class BrainNode(Node):
         except ValueError as err:
             raise ParameterError(f"parameter 'dt' (or the agent's time step): {err}") from None
         self.depth: int = self.p["qos_depth"]
-        from bptsb_ros.live.body_params import parse_cpus
+        from bptsb_ros.live.scheduling import parse_cpus
 
         self.cpus = parse_cpus(self.p["cpus"])
         self.sent = 0
@@ -241,7 +241,7 @@ class BrainNode(Node):
         far out of the garbage collector's sight (a full collection does not walk it); a refusal is logged."""
         import gc
 
-        from bptsb_ros.live.body_params import set_fifo_priority, set_fifo_priority_of_other_threads
+        from bptsb_ros.live.scheduling import set_fifo_priority, set_fifo_priority_of_other_threads
 
         gc.collect()
         gc.freeze()
@@ -258,7 +258,7 @@ class BrainNode(Node):
         """With ``cpus``: every thread of this process on those CPUs (a refusal is logged)."""
         if not self.cpus:
             return
-        from bptsb_ros.live.body_params import cpus_text, pin_threads
+        from bptsb_ros.live.scheduling import cpus_text, pin_threads
 
         problem = pin_threads(self.cpus)
         if problem:

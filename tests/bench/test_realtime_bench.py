@@ -148,9 +148,9 @@ def calls(monkeypatch):
     seen: list[tuple] = []
     seen_out: list[str] = []
 
-    def fake_bench(seconds, busy, *, executor, rt_priority, cpus, workdir, update, progress, factor):
+    def fake_bench(seconds, busy, *, executor, rt_priority, cpus, workdir, update, progress, factor, anchor_seconds):
         seen.append(("realtime", seconds, busy, executor, rt_priority) + ((factor,) if factor else ())
-                    + ((cpus,) if cpus else ()))
+                    + ((cpus,) if cpus else ()) + ((("anchor", anchor_seconds),) if anchor_seconds != seconds else ()))
         report = {"conditions": {"idle": {"steps": 7, "busy_processes": 0}}}
         update(report)  # the first condition done: on disk, marked incomplete, before the second one runs
         seen.append(("on disk", json.loads(Path(seen_out[0]).read_text())))
@@ -186,6 +186,11 @@ def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
     assert seen[-2] == ("realtime", 600.0, 1, "events", 0, "1")  # the body and its brains on CPU 1
     assert bench_cmd.run(parse(["--realtime", "--cpus", "010,3-4", "--out", str(out)])) == 0
     assert seen[-2] == ("realtime", 600.0, 1, "events", 0, "3,4,10")  # plain numbers: ROS reads 010 as octal 8
+    assert bench_cmd.run(parse(["--realtime", "--realtime-anchor-seconds", "0", "--out", str(out)])) == 0
+    assert seen[-2] == ("realtime", 600.0, 1, "events", 0, ("anchor", 0.0))  # no paced anchor
+    assert bench_cmd.run(parse(["--realtime", "--realtime-seconds", "60", "--realtime-anchor-seconds", "30",
+                                "--out", str(out)])) == 0
+    assert seen[-2] == ("realtime", 60.0, 1, "events", 0, ("anchor", 30.0))  # (by default as long as a condition)
     assert bench_cmd.run(parse(["--soak", "--out", str(out)])) == 0
     assert seen[-1] == ("soak", 60.0, 1)  # the soak keeps its own default
     assert "idle (0 busy)  7" in capsys.readouterr().out
@@ -200,6 +205,8 @@ def test_realtime_options_and_their_defaults(tmp_path: Path, calls, capsys):
     (["--realtime-factor", "-2"], "--realtime-factor must be in 0..1000"),
     (["--realtime-factor", "inf"], "--realtime-factor must be in 0..1000"),
     (["--soak"], "--soak and --realtime are two different benches"),
+    (["--realtime-anchor-seconds", "-1"], "--realtime-anchor-seconds must be >= 0"),
+    (["--realtime-anchor-seconds", "nan"], "--realtime-anchor-seconds must be >= 0"),
     (["--cpus", "1-0"], "--cpus: the range '1-0' runs backwards"),
     (["--cpus", "one"], "--cpus: 'one' is not a CPU number"),
 ])
@@ -229,7 +236,7 @@ def test_fifo_priority_is_set_or_refused_in_one_line():
     import subprocess
     import sys
 
-    code = ("import os; from bptsb_ros.live.body_params import set_fifo_priority as s; "
+    code = ("import os; from bptsb_ros.live.scheduling import set_fifo_priority as s; "
             "print(repr(s(0))); print(repr(s(1))); print(os.sched_getscheduler(0) == os.SCHED_FIFO)")
     env = {**os.environ, "PYTHONPATH": str(REPO_ROOT)}
     lines = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
@@ -244,7 +251,7 @@ def test_fifo_priority_is_set_or_refused_in_one_line():
 @pytest.mark.parametrize("text, cpus", [("", set()), ("  ", set()), ("1", {1}), ("0,2", {0, 2}), ("0-3", {0, 1, 2, 3}),
                                         (" 1 , 3-4 ", {1, 3, 4}), ("2-2", {2}), ("1023", {1023})])
 def test_cpus_are_read_as_taskset_writes_them(text, cpus):
-    from bptsb_ros.live.body_params import parse_cpus
+    from bptsb_ros.live.scheduling import parse_cpus
 
     assert parse_cpus(text) == cpus
 
@@ -255,7 +262,7 @@ def test_cpus_are_read_as_taskset_writes_them(text, cpus):
                                            ("1024", "CPU 1024 is beyond 1023"), ("0-5000", "CPU 5000 is beyond")])
 def test_bad_cpus_are_one_line(text, message):
     from bptsb_ros.interface.params import ParameterError
-    from bptsb_ros.live.body_params import parse_cpus
+    from bptsb_ros.live.scheduling import parse_cpus
 
     with pytest.raises(ParameterError, match="^parameter 'cpus': " + re.escape(message)):
         parse_cpus(text)
@@ -288,7 +295,7 @@ def test_threads_are_pinned_or_refused_in_one_line():
     cpu = max(os.sched_getaffinity(0))
     code = f"""
 import os, threading
-from bptsb_ros.live.body_params import pin_threads
+from bptsb_ros.live.scheduling import pin_threads
 stop = threading.Event()
 before = threading.Thread(target=stop.wait)
 before.start()
@@ -410,3 +417,84 @@ def test_the_periodic_graph_query_of_a_realtime_body_waits_for_slack_and_not_for
     count[0] = 2  # a publisher more: at once
     names[0] = [("/", "feedback_brain"), ("/", "intruder")]
     assert untrusted(seen + (DIAGNOSTICS_OVERDUE + 0.2) * GRAPH_PERIOD) == ["intruder"] and len(lookups) == 4
+
+
+def test_a_condition_runs_the_paced_anchor_at_the_loops_period_priority_and_cpus(tmp_path: Path, monkeypatch):
+    """After the launch (replaced: it leaves a planted summary and timing records at 1 kHz), the paced anchor runs
+    at the records' period, the body's priority and default busy_wait, the CPUs asked for, and only then are the
+    busy processes stopped; its misses and publish p99 go into the condition and the table, its failure into a note;
+    ``anchor_seconds`` 0 runs none."""
+    import subprocess
+
+    import bptsb_ros.bench.realtime as rb
+    import bptsb_ros.bench.soak as soak
+    import bptsb_ros.ros.anchor as anchor
+
+    events: list = []
+
+    def launch(argv, **kw):
+        work = tmp_path / argv[argv.index("--log-dir") + 1].rsplit("/", 1)[-1]
+        times = StepTimes()
+        for k in range(3):
+            times.append(k, 1e-3 * k, 1e-3 * k, 1e-3 * k + 1e-4, 1e-3 * k + 2e-4)
+        times.save(work / "step_times.npz", 1e-3, {"executor": "events"})
+        (work / "body_summary.json").write_text(json.dumps({"deadline_misses": 0}))
+        events.append("launch")
+        return subprocess.CompletedProcess(argv, 0)
+
+    def paced(seconds, period, **kw):
+        events.append(("anchor", seconds, period, kw["priority"], kw["busy"], kw["cpus"]))
+        return planted_anchor
+
+    planted_anchor = {"ticks": 5000, "deadline_misses": 3, "compute_p99_ms": 0.07, "lateness_max_ms": 1.5,
+                      "steps": 5000, "integrate_p99_ms": 0.0}
+    monkeypatch.setattr(rb.subprocess, "run", launch)
+    monkeypatch.setattr(anchor, "run_paced_anchor", paced)
+    monkeypatch.setattr(soak, "start_busy", lambda n: events.append(("busy", n)) or [])
+    monkeypatch.setattr(soak, "stop_busy", lambda procs: events.append("stop busy"))
+    r = rb.realtime_run("factor", 5.0, 1, tmp_path, loop="lissajous_closed", agent="a", executor="events",
+                        rt_priority=10, rate_scale=10.0, cpus="1", anchor_seconds=5.0, progress=lambda _: None)
+    assert events == [("busy", 1), "launch", ("anchor", 5.0, 1e-3, 10, 0.002, "1"), "stop busy"]
+    assert r["anchor"] == {"ticks": 5000, "deadline_misses": 3, "compute_p99_ms": 0.07, "lateness_max_ms": 1.5,
+                           "seconds": 5.0}  # what ANCHOR_KEYS keep
+    assert (r["anchor_deadline_misses"], r["anchor_compute_p99_ms"]) == (3, 0.07)
+    heads = rb.realtime_table({"conditions": {"factor": r}}).splitlines()[:2]
+    assert heads[0].split()[-4:] == ["anchor", "misses", "anchor", "p99"] and heads[1].split()[-2:] == ["3", "0.070"]
+    planted_anchor = {"error": "the paced anchor exited 1: refused"}
+    failed = rb.realtime_run("idle", 5.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="events",
+                             anchor_seconds=5.0, progress=lambda _: None)
+    assert failed["anchor"] == {"error": "the paced anchor exited 1: refused", "seconds": 5.0}
+    assert "anchor_deadline_misses" not in failed and failed["deadline_misses"] == 0
+    assert "idle: the paced anchor failed: the paced anchor exited 1: refused" in rb.realtime_table(
+        {"conditions": {"idle": failed}})
+    events.clear()
+    none = rb.realtime_run("idle", 5.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="events",
+                           progress=lambda _: None)
+    assert "anchor" not in none and not [e for e in events if e[0] == "anchor"]
+
+
+@pytest.mark.parametrize("preempt, config, cmdline, expected", [
+    ("none voluntary (full) lazy\n", None, None, "full (/sys/kernel/debug/sched/preempt)"),
+    (None, "CONFIG_PREEMPT_BUILD=y\nCONFIG_PREEMPT_NONE=y\n# CONFIG_PREEMPT is not set\n", "quiet\n",
+     "none (CONFIG_PREEMPT_NONE=y)"),
+    (None, "CONFIG_PREEMPT_NONE=y\n", "quiet preempt=full\n", "full (preempt= boot option; built none)"),
+    (None, "CONFIG_PREEMPT_RT=y\nCONFIG_PREEMPT_NONE_BUILD=y\n", "", "full (realtime) (CONFIG_PREEMPT_RT=y)"),
+    (None, "CONFIG_PREEMPT=y\nCONFIG_PREEMPT_COUNT=y\n", "", "full (CONFIG_PREEMPT=y)"),
+    (None, "CONFIG_PREEMPT_VOLUNTARY=y\n", "", "voluntary (CONFIG_PREEMPT_VOLUNTARY=y)"),
+    (None, "CONFIG_HZ=250\n", "", "unknown"),
+    (None, None, None, "unknown"),
+])
+def test_the_kernels_preemption_model_is_read_from_what_it_says(tmp_path: Path, preempt, config, cmdline, expected):
+    import gzip
+
+    from bptsb_ros.bench.realtime import kernel_facts
+
+    files = {"preempt": tmp_path / "preempt", "config": tmp_path / "config.gz", "cmdline": tmp_path / "cmdline"}
+    if preempt is not None:
+        files["preempt"].write_text(preempt)
+    if config is not None:
+        files["config"].write_bytes(gzip.compress(config.encode()))
+    if cmdline is not None:
+        files["cmdline"].write_text(cmdline)
+    facts = kernel_facts(files["preempt"], files["config"], files["cmdline"])
+    assert facts["preemption"] == expected and facts["kernel"].split()[0] == __import__("os").uname().release
