@@ -63,8 +63,9 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("anchor_compute_p99_ms", "anchor p99", ".3f"),
 )
 #: the anchor's statistics kept in a condition's ``anchor``
-ANCHOR_KEYS = ("ticks", "seconds", "period_ms", "deadline_misses", "deadline_miss_pct", "compute_p50_ms",
-               "compute_p99_ms", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms", "error")
+ANCHOR_KEYS = ("ticks", "pongs", "seconds", "period_ms", "rt_priority", "deadline_misses", "deadline_miss_pct",
+               "compute_p50_ms", "compute_p99_ms", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms",
+               "scheduling_problem", "pong_problem", "error")
 #: stale rejections of these sources are the late commands
 SOURCES = ("rest_length", "force", "wind", "reset")
 
@@ -107,35 +108,57 @@ def condition_result(summary: dict[str, Any], timing: dict[str, Any]) -> dict[st
     return stats
 
 
-def kernel_facts(preempt_file: Path = Path("/sys/kernel/debug/sched/preempt"),
-                 config_file: Path = Path("/proc/config.gz"),
+def kernel_facts(realtime_file: Path = Path("/sys/kernel/realtime"),
+                 preempt_file: Path = Path("/sys/kernel/debug/sched/preempt"),
+                 config_files: tuple[Path, ...] | None = None,
                  cmdline_file: Path = Path("/proc/cmdline")) -> dict[str, str]:
-    """The kernel's release and version (``uname``) and its preemption model: from ``/sys/kernel/debug/sched/preempt``
-    (the bracketed mode) where readable, else from ``/proc/config.gz`` (``CONFIG_PREEMPT_RT``, ``CONFIG_PREEMPT``,
-    ``CONFIG_PREEMPT_VOLUNTARY``, ``CONFIG_PREEMPT_NONE``) with a ``preempt=`` boot option over it; 'unknown'
-    where neither says. The paths are the files read (planted ones in the tests)."""
+    """The kernel's release and version (``uname``) and its preemption model, from the first of these that says:
+    ``/sys/kernel/realtime`` (1 on a PREEMPT_RT kernel); ``/sys/kernel/debug/sched/preempt`` (the bracketed mode of a
+    dynamic-preemption kernel; root only); the build configuration (``/proc/config.gz``, else
+    ``/boot/config-<release>``: ``CONFIG_PREEMPT_RT``, ``CONFIG_PREEMPT``, ``CONFIG_PREEMPT_VOLUNTARY``,
+    ``CONFIG_PREEMPT_NONE``), with a ``preempt=`` boot option over it where the kernel honours one
+    (``CONFIG_PREEMPT_DYNAMIC``). 'unknown' where none says. The paths are the files read (planted ones in the
+    tests)."""
     import gzip
     import re
 
     uname = os.uname()
     facts = {"kernel": f"{uname.release} {uname.version}", "preemption": "unknown"}
     try:
-        mode = re.search(r"\((\w+)\)", preempt_file.read_text())
-        if mode:
-            facts["preemption"] = f"{mode.group(1)} (/sys/kernel/debug/sched/preempt)"
+        if realtime_file.read_text().strip() == "1":
+            facts["preemption"] = f"full (realtime) ({realtime_file})"
             return facts
     except OSError:
         pass
     try:
-        config = gzip.decompress(config_file.read_bytes()).decode(errors="replace")
+        mode = re.search(r"\((\w+)\)", preempt_file.read_text())
+        if mode:
+            facts["preemption"] = f"{mode.group(1)} ({preempt_file})"
+            return facts
+    except OSError:
+        pass
+    config = ""
+    for path in config_files or (Path("/proc/config.gz"), Path(f"/boot/config-{uname.release}")):
+        try:
+            data = path.read_bytes()
+            config = (gzip.decompress(data) if path.suffix == ".gz" else data).decode(errors="replace")
+            break
+        except (OSError, EOFError, gzip.BadGzipFile):
+            continue
+    try:
         cmdline = cmdline_file.read_text()
-    except (OSError, EOFError, gzip.BadGzipFile):
-        return facts
+    except OSError:
+        cmdline = ""
+
+    def built(option: str) -> bool:
+        return re.search(rf"^{option}=y$", config, re.MULTILINE) is not None
+
     boot = re.search(r"(?:^|\s)preempt=(\w+)", cmdline)
     for option, model in (("CONFIG_PREEMPT_RT", "full (realtime)"), ("CONFIG_PREEMPT", "full"),
                           ("CONFIG_PREEMPT_VOLUNTARY", "voluntary"), ("CONFIG_PREEMPT_NONE", "none")):
-        if re.search(rf"^{option}=y$", config, re.MULTILINE):
-            facts["preemption"] = (f"{boot.group(1)} (preempt= boot option; built {model})" if boot
+        if built(option):
+            dynamic = boot and option != "CONFIG_PREEMPT_RT" and built("CONFIG_PREEMPT_DYNAMIC")
+            facts["preemption"] = (f"{boot.group(1)} (preempt= boot option; built {model})" if dynamic
                                    else f"{model} ({option}=y)")
             break
     return facts
@@ -177,16 +200,17 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
              f"process(es), executor {executor}; log {log}")
     procs = start_busy(busy)
     started = time.monotonic()
+    summary_path = logs / "body_summary.json"
     anchor: dict[str, Any] | None = None
     wall: float | None = None  # the launch's wall time, without the anchor's
+    load_after: list[float] = []
     try:
         with open_for_writing(log, "w") as out:
             code = subprocess.run(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                   env=None if env is None else dict(env)).returncode
-        wall = time.monotonic() - started
-        if anchor_seconds > 0 and timing_path.is_file():
-            anchor = _paced_anchor(anchor_seconds, load_step_times(timing_path)["period"], rt_priority, cpus, env,
-                                   progress)
+        wall, load_after = time.monotonic() - started, list(os.getloadavg())
+        if anchor_seconds > 0 and summary_path.is_file() and timing_path.is_file():
+            anchor = _paced_anchor(anchor_seconds, timing_path, rt_priority, cpus, env, progress)
     finally:
         wall = time.monotonic() - started if wall is None else wall
         stop_busy(procs)
@@ -194,8 +218,7 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
                               "rate_scale": rate_scale, "busy_processes": busy, "cpus_asked": cpus or "any",
                               "launch_exit_code": code,
                               "wall_s": round(wall, 1),
-                              "log": str(log), "load_average_after": list(os.getloadavg())}
-    summary_path = logs / "body_summary.json"
+                              "log": str(log), "load_average_after": load_after or list(os.getloadavg())}
     if not summary_path.is_file() or not timing_path.is_file():
         result["error"] = "the run left no body summary or no timing records; see the log"
         return result
@@ -210,17 +233,24 @@ def realtime_run(name: str, seconds: float, busy: int, workdir: Path, *, loop: s
     return result
 
 
-def _paced_anchor(seconds: float, period: float, rt_priority: int, cpus: str, env: Mapping[str, str] | None,
+def _paced_anchor(seconds: float, timing_path: Path, rt_priority: int, cpus: str, env: Mapping[str, str] | None,
                   progress: Callable[[str], None]) -> dict[str, Any]:
-    """The paced anchor at the loop's ``period``, priority and CPUs, polling as long before each tick as the body's
-    default ``busy_wait``."""
+    """The paced anchor at the period of the loop's records (``timing_path``), its priority and CPUs, polling as
+    long before each tick as the body's default ``busy_wait``; a failure to run it is its ``error``, not the
+    condition's."""
     from bptsb_ros.live.body_params import PARAMS
+    from bptsb_ros.live.step_times import load_step_times
     from bptsb_ros.ros.anchor import run_paced_anchor
 
     busy_wait = next(p.default for p in PARAMS if p.name == "busy_wait")
-    progress(f"realtime bench: the paced anchor (bare rclpy tick and pong) for {seconds:g} s at {1 / period:g} Hz")
-    return anchor_result(run_paced_anchor(seconds, period, priority=rt_priority, busy=busy_wait, cpus=cpus,
-                                          env=None if env is None else dict(env)), seconds)
+    try:
+        period = load_step_times(timing_path)["period"]
+        progress(f"realtime bench: the paced anchor (bare rclpy tick and pong) for {seconds:g} s at {1 / period:g} Hz")
+        found = run_paced_anchor(seconds, period, priority=rt_priority, busy=busy_wait, cpus=cpus,
+                                 env=None if env is None else dict(env))
+    except (OSError, ValueError, subprocess.SubprocessError) as err:  # ValueError: a bad record or JSON line
+        found = {"error": f"the paced anchor could not run: {err}"}
+    return anchor_result(found, seconds)
 
 
 def _last_line(log: Path) -> str:

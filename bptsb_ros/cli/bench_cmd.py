@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     soak.add_argument("--soak", action="store_true", help="run the recording soak instead of the physics benchmarks")
     soak.add_argument("--realtime-seconds", type=float, default=None, metavar="S",
                       help="wall seconds of the realtime run (--soak: 0 skips it, default 60; --realtime: of each "
-                      "condition, default 600)")
+                      "condition, default 600, and as long again for the paced anchor after it unless "
+                      "--realtime-anchor-seconds)")
     soak.add_argument("--realtime-busy", type=int, default=1, metavar="N",
                       help="spinning processes during the realtime run (--realtime: of the busy condition; default "
                       "1: one core kept busy)")
@@ -232,7 +233,8 @@ def _realtime(args: argparse.Namespace) -> int:
         return problem
     print(realtime_table(report))
     print(f"wrote {out}")
-    return 1 if any("error" in r or r.get("launch_exit_code") for r in report["conditions"].values()) else 0
+    return 1 if any("error" in r or r.get("launch_exit_code") or "error" in r.get("anchor", {})
+                    for r in report["conditions"].values()) else 0
 
 
 def run(args: argparse.Namespace) -> int:

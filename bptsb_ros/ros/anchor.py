@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -48,6 +49,8 @@ RECORDER_ROUND_S = 0.02
 #: topics of the anchor (relative: a namespace keeps two anchors apart)
 PING, PONG = "bptsb_anchor/ping", "bptsb_anchor/pong"
 SHAPES = ("split", "composed")
+#: most ticks of one paced run (its records: 24 bytes a tick)
+MAX_TICKS = 10_000_000
 
 
 def _payload() -> bytes:
@@ -110,9 +113,10 @@ def _pong(node: Any, payload: bytes) -> None:
 
 
 class _Tick:
-    """Publishes a ping at each due time start + k·``period`` and handles the pongs in between (:func:`serve`,
-    role ``tick``): sleeps until ``busy`` seconds before the due time, then polls the executor until it; keeps each
-    tick's due, start and end times (monotonic seconds)."""
+    """Publishes a ping at each due time start + k·``period`` (start: one period after :meth:`run` is called) and
+    handles the pongs in between, counting them (:func:`serve`, role ``tick``): sleeps until ``busy`` seconds (at most
+    half a period) before the due time, then polls the executor until it; keeps each tick's due, start and end times
+    (monotonic seconds)."""
 
     def __init__(self, node: Any, payload: bytes, period: float, busy: float, ticks: int) -> None:
         import numpy as np
@@ -120,8 +124,12 @@ class _Tick:
 
         self.payload, self.period, self.busy = payload, period, min(busy, period / 2)
         self.pub = node.create_publisher(Float64MultiArray, PING, _qos())
-        node.create_subscription(Float64MultiArray, PONG, lambda _data: None, _qos(), raw=True)
+        node.create_subscription(Float64MultiArray, PONG, self._on_pong, _qos(), raw=True)
         self.times = np.zeros((3, ticks))  # due, began, done
+        self.pongs = 0
+
+    def _on_pong(self, _data: bytes) -> None:
+        self.pongs += 1
 
     def run(self, executor: Any, stop: list[int]) -> int:
         """Tick until every tick is done or a stop signal; returns the number of ticks done."""
@@ -144,12 +152,13 @@ class _Tick:
 
         due, began, ended = self.times[:, :done]
         stats = timing_statistics(due, began, began, ended, self.period) if done else {"steps": 0}
-        return {"ticks": done, "period_ms": self.period * 1e3, **stats}
+        return {"ticks": done, "pongs": self.pongs, "period_ms": self.period * 1e3, **stats}
 
 
-def _realtime(priority: int, cpus: str) -> str:
+def _realtime(priority: int, cpus: str) -> tuple[int, str]:
     """Pin this process to ``cpus`` (taskset -c form; '' leaves it) and put its main thread under SCHED_FIFO at
-    ``priority`` and its other threads one below (0 leaves them), as ``body_sim`` does; '' or what was refused."""
+    ``priority`` and its other threads one below (0 leaves them), as ``body_sim`` does; returns the priority got
+    (0 where refused: the normal scheduler, as the body goes on) and what was refused ('' when nothing)."""
     from bptsb_ros.live.scheduling import (
         pin_threads,
         set_fifo_priority,
@@ -157,17 +166,22 @@ def _realtime(priority: int, cpus: str) -> str:
     )
 
     problems = [pin_threads(parse_cpus(cpus, "--cpus"))] if cpus else []
+    got = 0
     if priority:
         problem = set_fifo_priority(priority)
         problems.append(problem)
         if not problem:
+            got = priority
             set_fifo_priority_of_other_threads(max(1, priority - 1))
-    return "; ".join(p for p in problems if p)
+    return got, "; ".join(p for p in problems if p)
 
 
-def _wait_matched(node: Any, topic: str, count: int, executor: Any, timeout: float = 60.0) -> bool:
+def _wait_matched(node: Any, topic: str, count: int, executor: Any, timeout: float = 60.0, *,
+                  publishers: bool = False) -> bool:
+    """Spin until ``topic`` has ``count`` subscribers (``publishers``: publishers) or ``timeout`` passed."""
     deadline = time.monotonic() + timeout
-    while node.count_subscribers(topic) < count:
+    counter = node.count_publishers if publishers else node.count_subscribers
+    while counter(topic) < count:
         if time.monotonic() > deadline:
             return False
         executor.spin_once(timeout_sec=0.05)
@@ -178,9 +192,11 @@ def serve(role: str, seconds: float, subscribers: int = 2, *, period: float = 0.
           priority: int = 0, cpus: str = "") -> int:
     """Run one side (``ping``, ``pong``, ``both``: ping and pong in this process, ``recorder``, or ``tick``) until
     done (``ping``, ``both``: ``seconds`` after the warm-up, ``tick``: ``seconds`` of ticks every ``period``; then
-    one JSON line) or SIGINT/SIGTERM (``pong``, ``recorder``). ``subscribers``: how many subscribers ``ping`` and
-    ``tick`` wait for on each topic before they start. ``priority``, ``cpus``: SCHED_FIFO priority and CPUs
-    (:func:`_realtime`), ``busy``: ``tick``'s polling before each due time (under a priority only)."""
+    one JSON line) or SIGINT/SIGTERM (``pong``, ``recorder``). ``subscribers``: how many subscribers ``ping`` waits
+    for on each topic before it starts (``tick`` waits for the pong's subscription and publisher). ``priority``,
+    ``cpus`` (``tick``, ``pong``): SCHED_FIFO priority and CPUs (:func:`_realtime`; a refusal is reported and the
+    node goes on under the normal scheduler, as ``body_sim`` does), ``busy``: ``tick``'s polling before each due time
+    (under a priority only)."""
     import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -205,21 +221,26 @@ def serve(role: str, seconds: float, subscribers: int = 2, *, period: float = 0.
                 nodes.append(peer)
                 executor.add_node(peer)
             _pong(peer, payload)
-        problem = _realtime(priority, cpus) if priority or cpus else ""
-        if problem:
-            print(json.dumps({"error": f"{role}: {problem}"}), flush=True)
-            return 1
         if role == "pong":
+            _, problem = _realtime(priority, cpus)
+            if problem:
+                print(json.dumps({"warning": problem}), flush=True)
             while not stop:
                 executor.spin_once(timeout_sec=0.1)
             return 0
         if role == "tick":
-            tick = _Tick(node, payload, period, busy if priority else 0.0, max(1, round(seconds / period)))
-            if not (_wait_matched(node, PING, 1, executor) and _wait_matched(node, PONG, 1, executor)):
+            tick = _Tick(node, payload, period, busy, max(1, round(seconds / period)))
+            if not (_wait_matched(node, PING, 1, executor)
+                    and _wait_matched(node, PONG, 1, executor, publishers=True)):
                 print(json.dumps({"error": "the paced anchor's pong did not match within 60 s"}), flush=True)
                 return 1
-            time.sleep(0.5)
-            print(json.dumps(tick.result(tick.run(executor, stop))), flush=True)
+            time.sleep(0.5)  # the pong's side has matched too
+            got, problem = _realtime(priority, cpus)  # as the body: once its peers are there, before stepping
+            if not got:
+                tick.busy = 0.0  # polling only under a priority, as the body's busy_wait
+            result = tick.result(tick.run(executor, stop))
+            result.update(rt_priority=got, **({"scheduling_problem": problem} if problem else {}))
+            print(json.dumps(result), flush=True)
             return 0
         ping = _Ping(node, payload)
         if not (_wait_matched(node, PING, subscribers, executor) and _wait_matched(node, PONG, subscribers, executor)):
@@ -301,32 +322,44 @@ def run_paced_anchor(seconds: float, period: float, *, priority: int = 0, busy: 
                      env: dict[str, str] | None = None, timeout: float | None = None) -> dict[str, Any]:
     """Start the ``paced`` anchor (module docstring): ``tick`` every ``period`` for ``seconds`` under SCHED_FIFO
     ``priority`` (0: the normal scheduler) polling the last ``busy`` seconds before each tick (at most half a
-    period), ``pong`` at ``priority`` − 1, both on ``cpus`` ('' : anywhere); returns the tick's
-    :func:`~bptsb_ros.live.step_times.timing_statistics` (``deadline_misses``, ``lateness_*_ms``, ...) and
-    ``ticks`` (or ``error``)."""
+    period), ``pong`` at ``priority`` − 1, both on ``cpus`` ('': anywhere); returns the tick's
+    :func:`~bptsb_ros.live.step_times.timing_statistics` (``deadline_misses``, ``lateness_*_ms``, ...), ``ticks``,
+    ``pongs`` (answers the tick took), the ``rt_priority`` it got and, where refused, ``scheduling_problem`` (the
+    tick's) and ``pong_problem``; or ``error`` (also when the pong answered no tick)."""
+    import tempfile
+
     base = [sys.executable, "-m", "bptsb_ros.ros.anchor"]
     env = dict(os.environ if env is None else env)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    common = ["--seconds", f"{seconds:g}", "--period", f"{period!r}", "--cpus", cpus]
-    pong = subprocess.Popen(base + ["pong", *common, "--rt-priority", str(max(1, priority - 1) if priority else 0)],
-                            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
-    try:
-        tick = subprocess.run(base + ["tick", *common, "--rt-priority", str(priority), "--busy", f"{busy!r}"],
-                              env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True,
-                              timeout=timeout if timeout is not None else seconds + 120.0)
-    except subprocess.TimeoutExpired:
-        return {"error": f"the paced anchor did not finish within {timeout or seconds + 120.0:g} s"}
-    finally:
-        _stop_all([pong])
-    said = (pong.stdout.read() if pong.stdout else "").strip()
+    common = ["--seconds", f"{seconds!r}", "--period", f"{period!r}", "--cpus", cpus]
+    limit = timeout if timeout is not None else seconds + 120.0
+    with tempfile.TemporaryFile("w+") as pong_out:
+        pong = subprocess.Popen(base + ["pong", *common, "--rt-priority", str(max(1, priority - 1) if priority else 0)],
+                                env=env, stdin=subprocess.DEVNULL, stdout=pong_out, stderr=subprocess.STDOUT, text=True)
+        try:
+            tick = subprocess.run(base + ["tick", *common, "--rt-priority", str(priority), "--busy", f"{busy!r}"],
+                                  env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=limit)
+        except subprocess.TimeoutExpired:
+            return {"error": f"the paced anchor did not finish within {limit:g} s"}
+        finally:
+            _stop_all([pong])
+        pong_out.seek(0)
+        said = pong_out.read().strip().splitlines()
     if pong.returncode not in (0, -signal.SIGINT):
-        return {"error": f"the paced anchor's pong exited {pong.returncode}: {said.splitlines()[-1:] or ''}"}
-    lines = [line for line in tick.stdout.splitlines() if line.startswith("{")]
+        return {"error": f"the paced anchor's pong exited {pong.returncode}: {(said or ['no output'])[-1][:200]}"}
+    lines = [json.loads(line) for line in tick.stdout.splitlines() if line.startswith("{")]
+    if lines and "error" in lines[-1]:
+        return {"error": f"the paced anchor: {lines[-1]['error']}"}
     if tick.returncode or not lines:
         tail = (tick.stderr or tick.stdout).strip().splitlines()[-1:] or ["no output"]
         return {"error": f"the paced anchor exited {tick.returncode}: {tail[0][:200]}"}
-    return json.loads(lines[-1])
+    result = lines[-1]
+    warnings = [json.loads(line)["warning"] for line in said if line.startswith('{"warning"')]
+    if warnings:
+        result["pong_problem"] = warnings[-1]
+    if result["ticks"] and not result["pongs"]:
+        result["error"] = f"the paced anchor's pong answered none of its {result['ticks']} ticks"
+    return result
 
 
 def _stop_all(procs: list[subprocess.Popen], grace: float = 10.0) -> None:
@@ -350,19 +383,23 @@ def main(argv: list[str] | None = None, out: Callable[[str], None] = print) -> i
     parser.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO priority (1-99; 0: normal scheduler)")
     parser.add_argument("--cpus", default="", help="the CPUs to run on (taskset -c form; empty: anywhere)")
     args = parser.parse_args(argv)
-    for name, value, ok in (("--seconds", args.seconds, args.seconds > 0), ("--period", args.period, args.period > 0),
-                            ("--busy", args.busy, args.busy >= 0),
+    for name, value, ok in (("--seconds", args.seconds, 0 < args.seconds < math.inf),
+                            ("--period", args.period, 0 < args.period < math.inf),
+                            ("--busy", args.busy, 0 <= args.busy < math.inf),
                             ("--rt-priority", args.rt_priority, 0 <= args.rt_priority <= 99)):
         if not ok:
             out(f"live_anchor: {name} {value:g} is out of range")
             return 2
+    if args.role == "tick" and args.seconds / args.period > MAX_TICKS:
+        out(f"live_anchor: --seconds / --period is {args.seconds / args.period:.3g} ticks, more than {MAX_TICKS:,}")
+        return 2
     try:
         parse_cpus(args.cpus, "--cpus")
     except ParameterError as err:
         out(f"live_anchor: {err}")
         return 2
-    return serve(args.role, args.seconds, subscribers=1 if args.role == "tick" else 2, period=args.period,
-                 busy=args.busy, priority=args.rt_priority, cpus=args.cpus)
+    return serve(args.role, args.seconds, subscribers=2, period=args.period, busy=args.busy,
+                 priority=args.rt_priority, cpus=args.cpus)
 
 
 if __name__ == "__main__":

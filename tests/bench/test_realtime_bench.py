@@ -420,10 +420,11 @@ def test_the_periodic_graph_query_of_a_realtime_body_waits_for_slack_and_not_for
 
 
 def test_a_condition_runs_the_paced_anchor_at_the_loops_period_priority_and_cpus(tmp_path: Path, monkeypatch):
-    """After the launch (replaced: it leaves a planted summary and timing records at 1 kHz), the paced anchor runs
-    at the records' period, the body's priority and default busy_wait, the CPUs asked for, and only then are the
-    busy processes stopped; its misses and publish p99 go into the condition and the table, its failure into a note;
-    ``anchor_seconds`` 0 runs none."""
+    """After the launch (replaced: it leaves a planted summary and timing records at 1 kHz, and takes 60 s of a
+    fake clock), the paced anchor runs at the records' period, the body's priority and default busy_wait, the CPUs
+    asked for (another 60 s), and only then are the busy processes stopped; the condition's wall time is the
+    launch's; the anchor's numbers go into the condition and the table, its failure (returned or raised) into a
+    note; ``anchor_seconds`` 0 runs none."""
     import subprocess
 
     import bptsb_ros.bench.realtime as rb
@@ -431,6 +432,7 @@ def test_a_condition_runs_the_paced_anchor_at_the_loops_period_priority_and_cpus
     import bptsb_ros.ros.anchor as anchor
 
     events: list = []
+    clock = [1000.0]
 
     def launch(argv, **kw):
         work = tmp_path / argv[argv.index("--log-dir") + 1].rsplit("/", 1)[-1]
@@ -440,14 +442,21 @@ def test_a_condition_runs_the_paced_anchor_at_the_loops_period_priority_and_cpus
         times.save(work / "step_times.npz", 1e-3, {"executor": "events"})
         (work / "body_summary.json").write_text(json.dumps({"deadline_misses": 0}))
         events.append("launch")
+        clock[0] += 60.0
         return subprocess.CompletedProcess(argv, 0)
 
     def paced(seconds, period, **kw):
         events.append(("anchor", seconds, period, kw["priority"], kw["busy"], kw["cpus"]))
-        return planted_anchor
+        clock[0] += 60.0
+        if isinstance(planted[0], Exception):
+            raise planted[0]
+        return planted[0]
 
-    planted_anchor = {"ticks": 5000, "deadline_misses": 3, "compute_p99_ms": 0.07, "lateness_max_ms": 1.5,
-                      "steps": 5000, "integrate_p99_ms": 0.0}
+    kept = {"ticks": 5000, "pongs": 4999, "rt_priority": 10, "deadline_misses": 3, "deadline_miss_pct": 0.06,
+            "compute_p50_ms": 0.05, "compute_p99_ms": 0.07, "lateness_p50_ms": 0.01, "lateness_p99_ms": 0.03,
+            "lateness_max_ms": 1.5, "period_ms": 1.0, "pong_problem": "refused"}
+    planted: list[dict | Exception] = [{**kept, "steps": 5000, "integrate_p99_ms": 0.0}]
+    monkeypatch.setattr(rb.time, "monotonic", lambda: clock[0])
     monkeypatch.setattr(rb.subprocess, "run", launch)
     monkeypatch.setattr(anchor, "run_paced_anchor", paced)
     monkeypatch.setattr(soak, "start_busy", lambda n: events.append(("busy", n)) or [])
@@ -455,46 +464,84 @@ def test_a_condition_runs_the_paced_anchor_at_the_loops_period_priority_and_cpus
     r = rb.realtime_run("factor", 5.0, 1, tmp_path, loop="lissajous_closed", agent="a", executor="events",
                         rt_priority=10, rate_scale=10.0, cpus="1", anchor_seconds=5.0, progress=lambda _: None)
     assert events == [("busy", 1), "launch", ("anchor", 5.0, 1e-3, 10, 0.002, "1"), "stop busy"]
-    assert r["anchor"] == {"ticks": 5000, "deadline_misses": 3, "compute_p99_ms": 0.07, "lateness_max_ms": 1.5,
-                           "seconds": 5.0}  # what ANCHOR_KEYS keep
+    assert r["wall_s"] == 60.0  # the launch alone, not the anchor after it
+    assert r["anchor"] == {**kept, "seconds": 5.0}  # what ANCHOR_KEYS keep: not the step-loop-only statistics
     assert (r["anchor_deadline_misses"], r["anchor_compute_p99_ms"]) == (3, 0.07)
     heads = rb.realtime_table({"conditions": {"factor": r}}).splitlines()[:2]
     assert heads[0].split()[-4:] == ["anchor", "misses", "anchor", "p99"] and heads[1].split()[-2:] == ["3", "0.070"]
-    planted_anchor = {"error": "the paced anchor exited 1: refused"}
-    failed = rb.realtime_run("idle", 5.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="events",
-                             anchor_seconds=5.0, progress=lambda _: None)
-    assert failed["anchor"] == {"error": "the paced anchor exited 1: refused", "seconds": 5.0}
-    assert "anchor_deadline_misses" not in failed and failed["deadline_misses"] == 0
-    assert "idle: the paced anchor failed: the paced anchor exited 1: refused" in rb.realtime_table(
-        {"conditions": {"idle": failed}})
+    for planted[0], said in (({"error": "the paced anchor exited 1: refused"}, "the paced anchor exited 1: refused"),
+                             (ValueError("bad JSON"), "the paced anchor could not run: bad JSON")):
+        failed = rb.realtime_run("idle", 5.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="events",
+                                 anchor_seconds=5.0, progress=lambda _: None)
+        assert failed["anchor"] == {"error": said, "seconds": 5.0}
+        assert "anchor_deadline_misses" not in failed and failed["deadline_misses"] == 0
+        assert f"idle: the paced anchor failed: {said}" in rb.realtime_table({"conditions": {"idle": failed}})
     events.clear()
     none = rb.realtime_run("idle", 5.0, 0, tmp_path, loop="lissajous_closed", agent="a", executor="events",
                            progress=lambda _: None)
     assert "anchor" not in none and not [e for e in events if e[0] == "anchor"]
 
 
-@pytest.mark.parametrize("preempt, config, cmdline, expected", [
-    ("none voluntary (full) lazy\n", None, None, "full (/sys/kernel/debug/sched/preempt)"),
-    (None, "CONFIG_PREEMPT_BUILD=y\nCONFIG_PREEMPT_NONE=y\n# CONFIG_PREEMPT is not set\n", "quiet\n",
+def test_the_bench_runs_the_anchor_as_long_as_a_condition_unless_told(tmp_path: Path, monkeypatch):
+    """``run_realtime_bench``: anchor_seconds None is each condition's length, 0 none, S that long."""
+    import bptsb_ros.bench.realtime as rb
+
+    seen: list[float] = []
+    monkeypatch.setattr(rb, "realtime_run", lambda name, seconds, busy, work, **kw: seen.append(kw["anchor_seconds"])
+                        or {})
+    for asked in (None, 0.0, 7.0):
+        rb.run_realtime_bench(30.0, agent="a", workdir=tmp_path, anchor_seconds=asked, progress=lambda _: None)
+    assert seen == [30.0, 30.0, 0.0, 0.0, 7.0, 7.0]  # two conditions each
+
+
+def test_a_failed_anchor_fails_the_bench(tmp_path: Path, monkeypatch, capsys):
+    """The CLI's exit status: 1 when a condition's anchor failed, as when its launch did."""
+    import bptsb_ros.bench.realtime as rb
+    from bptsb_ros.cli import bench_cmd
+
+    report = {"conditions": {"idle": {"steps": 7, "busy_processes": 0, "anchor": {"error": "planted"}}}}
+    monkeypatch.setattr(rb, "run_realtime_bench", lambda *a, **kw: report)
+    assert bench_cmd.run(parse(["--realtime", "--out", str(tmp_path / "rt.json")])) == 1
+    assert "idle: the paced anchor failed: planted" in capsys.readouterr().out
+    report["conditions"]["idle"]["anchor"] = {"deadline_misses": 0}
+    assert bench_cmd.run(parse(["--realtime", "--out", str(tmp_path / "rt.json")])) == 0
+
+
+@pytest.mark.parametrize("realtime, preempt, config, cmdline, expected", [
+    ("1\n", "none voluntary (full) lazy\n", "CONFIG_PREEMPT_NONE=y\n", "", "full (realtime) ({realtime})"),
+    ("0\n", "none voluntary (full) lazy\n", None, None, "full ({preempt})"),
+    (None, None, "CONFIG_PREEMPT_BUILD=y\nCONFIG_PREEMPT_NONE=y\n# CONFIG_PREEMPT is not set\n", "quiet\n",
      "none (CONFIG_PREEMPT_NONE=y)"),
-    (None, "CONFIG_PREEMPT_NONE=y\n", "quiet preempt=full\n", "full (preempt= boot option; built none)"),
-    (None, "CONFIG_PREEMPT_RT=y\nCONFIG_PREEMPT_NONE_BUILD=y\n", "", "full (realtime) (CONFIG_PREEMPT_RT=y)"),
-    (None, "CONFIG_PREEMPT=y\nCONFIG_PREEMPT_COUNT=y\n", "", "full (CONFIG_PREEMPT=y)"),
-    (None, "CONFIG_PREEMPT_VOLUNTARY=y\n", "", "voluntary (CONFIG_PREEMPT_VOLUNTARY=y)"),
-    (None, "CONFIG_HZ=250\n", "", "unknown"),
-    (None, None, None, "unknown"),
+    (None, None, "CONFIG_PREEMPT_NONE=y\nCONFIG_PREEMPT_DYNAMIC=y\n", "quiet preempt=full\n",
+     "full (preempt= boot option; built none)"),
+    (None, None, "CONFIG_PREEMPT_NONE=y\n", "quiet preempt=full\n", "none (CONFIG_PREEMPT_NONE=y)"),  # not honoured
+    (None, None, "CONFIG_PREEMPT_RT=y\nCONFIG_PREEMPT_DYNAMIC=y\n", "preempt=none\n",
+     "full (realtime) (CONFIG_PREEMPT_RT=y)"),
+    (None, None, "CONFIG_PREEMPT=y\nCONFIG_PREEMPT_COUNT=y\n", None, "full (CONFIG_PREEMPT=y)"),  # no cmdline
+    (None, None, "CONFIG_PREEMPT_VOLUNTARY=y\n", "", "voluntary (CONFIG_PREEMPT_VOLUNTARY=y)"),
+    (None, None, "CONFIG_HZ=250\n", "", "unknown"),
+    (None, None, None, None, "unknown"),
 ])
-def test_the_kernels_preemption_model_is_read_from_what_it_says(tmp_path: Path, preempt, config, cmdline, expected):
+def test_the_kernels_preemption_model_is_read_from_what_it_says(tmp_path: Path, realtime, preempt, config, cmdline,
+                                                               expected):
     import gzip
+    import os
 
     from bptsb_ros.bench.realtime import kernel_facts
 
-    files = {"preempt": tmp_path / "preempt", "config": tmp_path / "config.gz", "cmdline": tmp_path / "cmdline"}
-    if preempt is not None:
-        files["preempt"].write_text(preempt)
+    files = {name: tmp_path / name for name in ("realtime", "preempt", "config.gz", "config-plain", "cmdline")}
+    for name, text in (("realtime", realtime), ("preempt", preempt), ("cmdline", cmdline)):
+        if text is not None:
+            files[name].write_text(text)
     if config is not None:
-        files["config"].write_bytes(gzip.compress(config.encode()))
-    if cmdline is not None:
-        files["cmdline"].write_text(cmdline)
-    facts = kernel_facts(files["preempt"], files["config"], files["cmdline"])
-    assert facts["preemption"] == expected and facts["kernel"].split()[0] == __import__("os").uname().release
+        files["config.gz"].write_bytes(gzip.compress(config.encode()))
+    facts = kernel_facts(files["realtime"], files["preempt"], (files["config.gz"], files["config-plain"]),
+                         files["cmdline"])
+    assert facts["preemption"] == expected.format(realtime=files["realtime"], preempt=files["preempt"])
+    assert facts["kernel"].split()[0] == os.uname().release
+    if config is not None:  # the same configuration as a plain file (/boot/config-<release>) reads the same
+        files["config.gz"].unlink()
+        files["config-plain"].write_text(config)
+        again = kernel_facts(files["realtime"], files["preempt"], (files["config.gz"], files["config-plain"]),
+                             files["cmdline"])
+        assert again["preemption"] == facts["preemption"]
