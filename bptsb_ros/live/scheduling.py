@@ -102,3 +102,12 @@ def set_fifo_priority(priority: int) -> str:
     except OSError as err:
         return f"SCHED_FIFO priority {priority} refused ({err.strerror or err}; needs CAP_SYS_NICE or root)"
     return ""
+
+
+def set_fifo_priority_of_process(priority: int) -> tuple[str, int]:
+    """The calling thread (the one that steps or answers) under SCHED_FIFO at ``priority`` and every other thread of
+    this process one below (:func:`set_fifo_priority_of_other_threads`), as ``body_sim``, the brains and the bench's
+    paced anchor run; returns ('' or why the priority was refused, how many other threads took ``priority`` − 1).
+    Nothing changes where it is refused."""
+    problem = set_fifo_priority(priority)
+    return problem, 0 if problem else set_fifo_priority_of_other_threads(max(1, priority - 1))

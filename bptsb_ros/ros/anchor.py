@@ -159,21 +159,12 @@ def _realtime(priority: int, cpus: str) -> tuple[int, str]:
     """Pin this process to ``cpus`` (taskset -c form; '' leaves it) and put its main thread under SCHED_FIFO at
     ``priority`` and its other threads one below (0 leaves them), as ``body_sim`` does; returns the priority got
     (0 where refused: the normal scheduler, as the body goes on) and what was refused ('' when nothing)."""
-    from bptsb_ros.live.scheduling import (
-        pin_threads,
-        set_fifo_priority,
-        set_fifo_priority_of_other_threads,
-    )
+    from bptsb_ros.live.scheduling import pin_threads, set_fifo_priority_of_process
 
     problems = [pin_threads(parse_cpus(cpus, "--cpus"))] if cpus else []
-    got = 0
-    if priority:
-        problem = set_fifo_priority(priority)
-        problems.append(problem)
-        if not problem:
-            got = priority
-            set_fifo_priority_of_other_threads(max(1, priority - 1))
-    return got, "; ".join(p for p in problems if p)
+    refused = set_fifo_priority_of_process(priority)[0] if priority else ""
+    problems.append(refused)
+    return (0 if refused else priority), "; ".join(p for p in problems if p)
 
 
 def _wait_matched(node: Any, topic: str, count: int, executor: Any, timeout: float = 60.0, *,

@@ -35,8 +35,7 @@ from bptsb_ros.live.scheduling import (
     cpus_text,
     parse_cpus,
     pin_threads,
-    set_fifo_priority,
-    set_fifo_priority_of_other_threads,
+    set_fifo_priority_of_process,
 )
 from bptsb_ros.live.sim_control import CALLS
 from bptsb_ros.live.summary import write_summary
@@ -214,12 +213,10 @@ class BodySim(BodyOutputs, BodyGraph, Node):
                      else f"running on CPU(s) {cpus_text(self.cpus)}")
             self.core.cpus = "any" if problem else cpus_text(self.cpus)
         if self.p["rt_priority"] and self.p["mode"] == "realtime":
-            problem = set_fifo_priority(self.p["rt_priority"])
-            below = max(1, self.p["rt_priority"] - 1)
-            others = 0 if problem else set_fifo_priority_of_other_threads(below)
+            problem, others = set_fifo_priority_of_process(self.p["rt_priority"])
             self.log("warning" if problem else "info", problem + "; stepping under the normal scheduler" if problem
                      else f"stepping under SCHED_FIFO priority {self.p['rt_priority']} ({others} middleware "
-                     f"thread(s) of this process at {below})")
+                     f"thread(s) of this process at {max(1, self.p['rt_priority'] - 1)})")
             self.core.rt_priority = 0 if problem else self.p["rt_priority"]
             if self.core.rt_priority and self.p["busy_wait"] > 0:
                 self._warm = self.create_publisher(PoseArray, WARM_UP_TOPIC, 1)  # made now, not in the first wait

@@ -241,18 +241,16 @@ class BrainNode(Node):
         far out of the garbage collector's sight (a full collection does not walk it); a refusal is logged."""
         import gc
 
-        from bptsb_ros.live.scheduling import set_fifo_priority, set_fifo_priority_of_other_threads
+        from bptsb_ros.live.scheduling import set_fifo_priority_of_process
 
         gc.collect()
         gc.freeze()
-        problem = set_fifo_priority(priority)
+        problem, others = set_fifo_priority_of_process(priority)
         if problem:
             self.get_logger().warning(f"{problem}; running under the normal scheduler")
             return
-        below = max(1, priority - 1)
-        others = set_fifo_priority_of_other_threads(below)
         self.get_logger().info(f"running under SCHED_FIFO priority {priority} ({others} middleware thread(s) at "
-                               f"{below})")
+                               f"{max(1, priority - 1)})")
 
     def pin(self) -> None:
         """With ``cpus``: every thread of this process on those CPUs (a refusal is logged)."""

@@ -248,6 +248,31 @@ def test_fifo_priority_is_set_or_refused_in_one_line():
         assert "SCHED_FIFO priority 1 refused" in lines[1]
 
 
+def test_a_process_goes_realtime_with_its_other_threads_one_below():
+    """``set_fifo_priority_of_process`` in a child process with a second thread: refused at priority 0 (nothing
+    changed, no thread counted); at priority 2, where allowed (root), the calling thread at 2 and the other at 1."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os, threading; from bptsb_ros.live.scheduling import set_fifo_priority_of_process as go\n"
+            "hold = threading.Event(); ids = []\n"
+            "t = threading.Thread(target=lambda: (ids.append(threading.get_native_id()), hold.wait())); t.start()\n"
+            "while not ids: pass\n"
+            "print(repr(go(0)))\n"
+            "print(repr(go(2)))\n"
+            "print([os.sched_getparam(i).sched_priority for i in (0, ids[0])])\n"
+            "hold.set(); t.join()")
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT)}
+    lines = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                           env=env).stdout.split("\n")
+    assert lines[0].startswith("('SCHED_FIFO priority 0 refused") and lines[0].endswith(", 0)")
+    if os.geteuid() == 0:
+        assert lines[1].startswith("('', ") and int(lines[1][5:-1]) >= 1 and lines[2] == "[2, 1]"
+    else:
+        assert "SCHED_FIFO priority 2 refused" in lines[1] and lines[2] == "[0, 0]"
+
+
 @pytest.mark.parametrize("text, cpus", [("", set()), ("  ", set()), ("1", {1}), ("0,2", {0, 2}), ("0-3", {0, 1, 2, 3}),
                                         (" 1 , 3-4 ", {1, 3, 4}), ("2-2", {2}), ("1023", {1023})])
 def test_cpus_are_read_as_taskset_writes_them(text, cpus):
