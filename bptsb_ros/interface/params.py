@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import array
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -306,6 +306,22 @@ def yaml_value(value: ParamValue) -> str:
     if isinstance(value, list):
         return "[" + ", ".join(yaml_value(v) for v in value) + "]"
     return "''" if value == "" else "'" + value.replace("'", "''") + "'"
+
+
+def params_sections_text(sections: Mapping[str, Mapping[str, ParamValue]],
+                         extra: Mapping[str, Sequence[str]] | None = None) -> str:
+    """A ROS 2 params file of given values: one ``ros__parameters`` section per key of ``sections`` (a node pattern:
+    ``/**`` for any node, ``/**/body_sim`` for that node in any namespace), its parameters in order, then
+    ``extra[key]``'s ``NAME:=VALUE`` texts (the value already YAML, as ``-p`` reads it). Empty lists are left out:
+    rcl cannot type an empty YAML list, and every list parameter's default is what an empty one would set."""
+    lines = []
+    for key, params in sections.items():
+        lines += [f"{key}:", "  ros__parameters:"]
+        lines += [f"    {name}: {yaml_value(value)}" for name, value in params.items() if value != []]
+        for item in (extra or {}).get(key, ()):
+            name, _, value = item.partition(":=")
+            lines.append(f"    {name}: {value}")
+    return "\n".join(lines) + "\n"
 
 
 def render_params_yaml(node_name: str, specs: Sequence[Param],

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bptsb_ros.interface.nodes import BY_NAME
-from bptsb_ros.interface.params import ParamValue, yaml_value
+from bptsb_ros.interface.params import ParamValue, params_sections_text, yaml_value
 from bptsb_ros.interface.topics import BODY_OUTPUTS, COMMAND_SOURCES, RECORDER_ACK, TOPICS, absolute, feedback_state_key
 from bptsb_ros.live.body_params import SLOW_OUTPUTS
 
@@ -514,8 +514,5 @@ def mnist_stream_plan(values: dict[str, str]):  # -> mnist_loop.StreamPlan
 def params_file_text(executable: str, params: dict[str, ParamValue]) -> str:
     """A ROS 2 params file of one node (``/**: ros__parameters:``); empty lists are left out (the nodes' defaults
     are empty, and rcl cannot type an empty YAML list)."""
-    lines = ["/**:", "  ros__parameters:"]
-    for name, value in params.items():
-        if value != []:
-            lines.append(f"    {name}: {yaml_value(value)}")
-    return f"# {executable}: written by bptsb_ros.live.loops from the launch arguments\n" + "\n".join(lines) + "\n"
+    return (f"# {executable}: written by bptsb_ros.live.loops from the launch arguments\n"
+            + params_sections_text({"/**": params}))

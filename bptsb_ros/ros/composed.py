@@ -21,7 +21,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from bptsb_ros.interface.nodes import NODES
-from bptsb_ros.interface.params import ParamValue, yaml_value
+from bptsb_ros.interface.params import ParamValue, params_sections_text
 from bptsb_ros.ros.runtime import (
     EXIT_BAD_PARAMETERS,
     EXIT_FAILURE,
@@ -37,18 +37,10 @@ MODULES = {node.name: node.module for node in NODES}
 
 def params_file_text(nodes: Mapping[str, Mapping[str, ParamValue]], extra: Mapping[str, Sequence[str]]) -> str:
     """A ROS params file with one section per node (any namespace): ``nodes`` maps a node to its parameters,
-    ``extra`` to ``NAME:=VALUE`` texts (the value YAML, as ``-p`` reads it). Empty lists are left out (a params
-    file cannot type them; every list parameter's default is what an empty one would set)."""
-    lines = []
-    for node, params in nodes.items():
-        lines += [f"/**/{node}:", "  ros__parameters:"]
-        for name, value in params.items():
-            if value != []:
-                lines.append(f"    {name}: {yaml_value(value)}")
-        for item in extra.get(node, ()):
-            name, _, value = item.partition(":=")
-            lines.append(f"    {name}: {value}")
-    return "\n".join(lines) + "\n"
+    ``extra`` to ``NAME:=VALUE`` texts (the value YAML, as ``-p`` reads it); empty lists are left out
+    (:func:`~bptsb_ros.interface.params.params_sections_text`)."""
+    return params_sections_text({f"/**/{node}": params for node, params in nodes.items()},
+                                {f"/**/{node}": items for node, items in extra.items()})
 
 
 def node_class(executable: str) -> type:

@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from conftest import REPO_ROOT as REPO
 
-from bptsb_ros.interface.params import Param, ParameterError, validate_values
+from bptsb_ros.interface.params import Param, ParameterError, params_sections_text, validate_values
 from bptsb_ros.interface.topics import TOPICS, dt_to_ns, stamp_to_step, step_to_stamp
 from bptsb_ros.live.channels import CommandChannel, TimingStats
 from bptsb_ros.live.loops import (
@@ -95,6 +96,24 @@ def test_parameter_validation_names_the_parameter():
                             ({"rate": float("nan")}, "'rate' must be finite"), ({"bogus": 1}, "unknown parameter")):
         with pytest.raises(ParameterError, match=pattern):
             validate_values(specs, values)
+
+
+def test_params_sections_text_types_every_value_and_leaves_out_empty_lists():
+    text = params_sections_text({"/**": {"agent": "runs/it's", "rate": 1.0, "n": 3, "enabled": True, "none": [],
+                                         "names": ["a", "b"], "empty": ""}},
+                                {"/**": ["qos_depth:=40"], "/**/other": ["ignored:=1"]})
+    assert text == ("/**:\n"
+                    "  ros__parameters:\n"
+                    "    agent: 'runs/it''s'\n"
+                    "    rate: 1.0\n"
+                    "    n: 3\n"
+                    "    enabled: true\n"
+                    "    names: ['a', 'b']\n"
+                    "    empty: ''\n"
+                    "    qos_depth: 40\n")
+    read = yaml.safe_load(text)["/**"]["ros__parameters"]
+    assert read == {"agent": "runs/it's", "rate": 1.0, "n": 3, "enabled": True, "names": ["a", "b"], "empty": "",
+                    "qos_depth": 40}
 
 
 def test_params_files_match_the_declared_parameters():
