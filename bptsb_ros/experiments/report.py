@@ -137,6 +137,7 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
         seeds = f"{len(r['seeds'])} ({_seed_range(r['seeds'])})" if "seeds" in r else f"1 ({r['seed']})"
         lines.append(f"| [{r['experiment']}](#{_anchor(r)}) | {md_text(r['paper_ref'])} | {r['scale']} | "
                      f"{seeds} | {held} | {failed} | {split} | {untestable} | {_duration(r['wall_s'])} |")
+    lines += code_versions_lines([r for _, r in results])
     missing = missing_experiments(r["experiment"] for _, r in results)
     if missing:
         lines += ["", f"Not on this page (no run under the runs directory): {', '.join(missing)}. "
@@ -158,6 +159,36 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
         raise ReportError(str(err)) from None
     _write_page(out, "\n".join(lines) + "\n")
     return out
+
+
+def code_versions_lines(results: list[dict[str, Any]]) -> list[str]:
+    """The code versions the page's runs come from, where they are not all one clean commit: each commit (as the
+    run recorded it) with its experiments, in the page's order, the most used first; a ``-dirty`` commit (a working
+    tree with uncommitted changes) and a run without a commit are said to be what they are. Nothing when every run
+    names the same clean commit."""
+    by_commit: dict[str, list[str]] = {}
+    for r in results:
+        commit = str((r.get("provenance") or {}).get("git_commit") or "")
+        names = by_commit.setdefault(commit, [])
+        if r["experiment"] not in names:
+            names.append(r["experiment"])
+    if len(by_commit) == 1 and next(iter(by_commit)) and not next(iter(by_commit)).endswith("-dirty"):
+        return []
+    parts = []
+    for commit, names in sorted(by_commit.items(), key=lambda item: -len(item[1])):
+        clean = _GIT_SHA.fullmatch(commit.removesuffix("-dirty"))
+        label = f"`{commit}`" if clean else (md_text(commit) if commit else "no commit recorded")
+        parts.append(f"{label}: {', '.join(names)}")
+    text = (f"Code versions: the runs on this page come from {len(by_commit)} "
+            f"{'versions' if len(by_commit) > 1 else 'version'} of the code (the commit each run recorded; its "
+            f"section names it): {'; '.join(parts)}. Runs of different commits differ wherever the code changed "
+            "between them; rerunning them from one commit puts them on one version.")
+    if any(commit.endswith("-dirty") for commit in by_commit):
+        text += (" A commit ending in `-dirty` means the run was made from a working tree with uncommitted "
+                 "changes: that commit alone does not reproduce it.")
+    if "" in by_commit:
+        text += " A run without a commit was made outside a git checkout (an installed package)."
+    return ["", text]
 
 
 _SEEDS_METHOD = (

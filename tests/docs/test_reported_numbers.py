@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bptsb_ros.experiments.lissajous_switching import phase_locked_nmse, segment_errors
-from bptsb_ros.experiments.report import _duration, _fmt, build_report, find_results
+from bptsb_ros.experiments.report import _duration, _fmt, build_report, code_versions_lines, find_results
 
 
 def _circle(n: int, radius: float, centre: tuple[float, float]) -> np.ndarray:
@@ -137,6 +137,40 @@ def test_report_page_in_that_order_with_its_numbers(tmp_path):
              "i": ("1.001e+04", "9.0 min")}
     for d, (ours, wall) in shown.items():
         assert f"| s | m | {ours} | — | u |" in sections[d] and f"Wall time {wall}." in sections[d], d
+
+
+def _run(experiment: str, commit: str | None) -> dict:
+    return {"experiment": experiment, **({"provenance": {"git_commit": commit}} if commit is not None else {})}
+
+
+def test_code_versions_name_each_commit_with_its_experiments_and_what_dirty_means():
+    runs = [_run("narma-ipc", "def5678-dirty"), _run("mnist-pca", "abc1234"), _run("target-ipc", "abc1234"),
+            _run("memory-task", None), _run("mnist-pca", "abc1234")]  # the most used commit is named first
+    assert code_versions_lines(runs) == ["", (
+        "Code versions: the runs on this page come from 3 versions of the code (the commit each run recorded; its "
+        "section names it): `abc1234`: mnist-pca, target-ipc; `def5678-dirty`: narma-ipc; no commit recorded: "
+        "memory-task. Runs of different commits differ wherever the code changed between them; rerunning them "
+        "from one commit puts them on one version. A commit ending in `-dirty` means the run was made from a "
+        "working tree with uncommitted changes: that commit alone does not reproduce it. A run without a commit "
+        "was made outside a git checkout (an installed package).")]
+
+
+def test_code_versions_say_nothing_when_every_run_is_one_clean_commit_and_speak_of_one_dirty_one():
+    assert code_versions_lines([_run("mnist-pca", "abc1234"), _run("target-ipc", "abc1234")]) == []
+    dirty = code_versions_lines([_run("mnist-pca", "abc1234-dirty")])
+    assert dirty[1].startswith("Code versions: the runs on this page come from 1 version of the code")
+    assert "`abc1234-dirty`: mnist-pca" in dirty[1] and "uncommitted changes" in dirty[1]
+
+
+def test_the_page_shows_its_code_versions_under_the_summary(tmp_path):
+    for directory, commit in (("a", "abc1234"), ("b", "def5678")):
+        _plant(tmp_path / "runs", directory, "target-ipc" if directory == "a" else "mnist-pca", "paper")
+        path = tmp_path / "runs" / directory / "result.json"
+        data = json.loads(path.read_text())
+        path.write_text(json.dumps({**data, "provenance": {"git_commit": commit, "command": "bptsb reproduce x"}}))
+    text = build_report(tmp_path / "runs", tmp_path / "R.md").read_text()
+    summary_end = text.index("\n\n", text.index("| [target-ipc]"))
+    assert text[summary_end:].lstrip().startswith("Code versions: the runs on this page come from 2 versions")
 
 
 def test_paper_order_does_not_depend_on_which_experiment_module_was_imported_first():
