@@ -187,7 +187,7 @@ def code_versions_lines(results: list[dict[str, Any]]) -> list[str]:
         text += (" A commit ending in `-dirty` means the run was made from a working tree with uncommitted "
                  "changes: that commit alone does not reproduce it.")
     if "" in by_commit:
-        text += " A run without a commit was made outside a git checkout (an installed package)."
+        text += " A run without a commit recorded none (it ran outside a git checkout, or an older version wrote it)."
     return ["", text]
 
 

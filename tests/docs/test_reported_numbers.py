@@ -152,7 +152,7 @@ def test_code_versions_name_each_commit_with_its_experiments_and_what_dirty_mean
         "memory-task. Runs of different commits differ wherever the code changed between them; rerunning them "
         "from one commit puts them on one version. A commit ending in `-dirty` means the run was made from a "
         "working tree with uncommitted changes: that commit alone does not reproduce it. A run without a commit "
-        "was made outside a git checkout (an installed package).")]
+        "recorded none (it ran outside a git checkout, or an older version wrote it).")]
 
 
 def test_code_versions_say_nothing_when_every_run_is_one_clean_commit_and_speak_of_one_dirty_one():
