@@ -61,11 +61,13 @@ def loop_params(loop: str, params: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def launch_argv(loop: str, bag: Path, seconds: float, agent: str = "", params: tuple[str, ...] = (),
-                composed: bool = False) -> list[str]:
+                composed: bool = False, recorder_in_body: bool = False) -> list[str]:
     """The ``bptsb launch`` command line of one recorded lockstep run of ``loop`` for ``seconds`` sim seconds
-    (``params``: those of :func:`loop_params`; ``composed``: ``--composed``)."""
+    (``params``: those of :func:`loop_params`; ``composed``: ``--composed``; ``recorder_in_body``:
+    ``--recorder-in-body``)."""
     argv = [sys.executable, "-m", "bptsb_ros.cli", "launch", loop, "--duration", f"{seconds:g}", "--bag", str(bag),
-            "--timeout", f"{max(600.0, 60 * seconds):g}", *(["--composed"] if composed else [])]
+            "--timeout", f"{max(600.0, 60 * seconds):g}", *(["--composed"] if composed else []),
+            *(["--recorder-in-body"] if recorder_in_body else [])]
     if agent:
         argv += ["--agent", agent, "--open-loop-steps", str(OPEN_LOOP_STEPS)]
     for param in loop_params(loop, params):
@@ -139,7 +141,7 @@ class CpuSampler:
 
 
 def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = "", params: tuple[str, ...] = (),
-             progress=print, composed: bool = False) -> dict[str, Any]:
+             progress=print, composed: bool = False, recorder_in_body: bool = False) -> dict[str, Any]:
     """One recorded lockstep run of ``loop``: its row (:func:`~bptsb_ros.live.phases.row_from_summary`) with the
     launch's exit code, its wall time with start-up, the messages the recorder counted as lost, and the CPU per step
     of each node process inside the stepping window (``cpu_us_per_step``: CPU microseconds per step, every thread of
@@ -149,9 +151,10 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
 
     bag = workdir / f"{tag}_bag"
     log = workdir / f"{tag}_launch.log"
-    progress(f"bench --live: {loop}{' composed' if composed else ''} for {seconds:g} s sim time, recorded; log {log}")
+    label = shape_label(composed, recorder_in_body)
+    progress(f"bench --live: {loop} ({label}) for {seconds:g} s sim time, recorded; log {log}")
     started = time.monotonic()
-    argv = launch_argv(loop, bag, seconds, agent, params, composed)
+    argv = launch_argv(loop, bag, seconds, agent, params, composed, recorder_in_body)
     with open_for_writing(log, "w") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         sampler = CpuSampler(proc.pid)
@@ -159,7 +162,8 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
             code = proc.wait()
         finally:
             sampler.stop()
-    result: dict[str, Any] = {"loop": loop, "composed": composed, "sim_seconds": seconds, "launch_exit_code": code,
+    result: dict[str, Any] = {"loop": loop, "composed": composed, "recorder_in_body": recorder_in_body,
+                              "sim_seconds": seconds, "launch_exit_code": code,
                               "wall_with_startup_s": round(time.monotonic() - started, 2), "log": str(log)}
     summary_path = Path(str(bag) + ".launch") / "body_summary.json"
     if not summary_path.is_file() or not (bag / "metadata.yaml").is_file():
@@ -177,6 +181,12 @@ def live_run(loop: str, seconds: float, workdir: Path, tag: str, agent: str = ""
         result["cpu_us_per_step"] = {name: round(1e6 * cpu / result["steps"], 1)
                                      for name, cpu in sampler.cpu_in(*window).items()}
     return result
+
+
+def shape_label(composed: bool, recorder_in_body: bool) -> str:
+    """How a run's processes are laid out: ``split`` (a process per node and the recorder), ``composed`` (body and
+    brains in one), each with ``, recorder in body`` when the recorder runs in the body's process."""
+    return ("composed" if composed else "split") + (", recorder in body" if recorder_in_body else "")
 
 
 def anchor_run(shape: str, seconds: float, progress=print) -> dict[str, Any]:
@@ -203,7 +213,8 @@ def with_ratios(report: dict[str, Any]) -> dict[str, Any]:
             anchor = sum(near) / len(near)
             item["anchor_round_trips_per_s"] = round(anchor, 1)
             item["ratio_to_anchor"] = round(item["steps_per_s"] / anchor, 3)
-            ratios.setdefault(f"{item['loop']} ({shape})", []).append(item["ratio_to_anchor"])
+            label = shape_label(bool(item.get("composed")), bool(item.get("recorder_in_body")))
+            ratios.setdefault(f"{item['loop']} ({label})", []).append(item["ratio_to_anchor"])
     report["ratios"] = ratios
     return report
 
@@ -220,13 +231,14 @@ def _neighbour(seq: list[dict[str, Any]], i: int, direction: int, shape: str) ->
 
 def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats: int = 1,
              workdir: str | Path | None = None, params: tuple[str, ...] = (), progress=print,
-             anchor_seconds: float = 5.0, composed: bool = False) -> dict[str, Any]:
+             anchor_seconds: float = 5.0, composed: bool = False, recorder_in_body: bool = False) -> dict[str, Any]:
     """``repeats`` interleaved rounds of one recorded lockstep run of each of ``loops`` (``seconds`` sim seconds
     each; ``params``: ``NODE:NAME:=VALUE`` passed to every launch of a loop with that node), each loop run between two
     runs of the bare rclpy anchor (:mod:`bptsb_ros.ros.anchor`, split shape, ``anchor_seconds`` each): anchor, loop
     A, anchor, loop B, anchor, ... With ``composed``, each loop also runs composed (``bptsb launch --composed``)
-    between two runs of the composed anchor (ping and pong in one process). Bags and logs go to ``workdir``
-    (default: a new temporary folder, kept)."""
+    between two runs of the composed anchor (ping and pong in one process). With ``recorder_in_body``, each loop also
+    runs with the recorder in the body's process (``--recorder-in-body``; split: beside the split anchor, whose
+    recorder is a process of its own). Bags and logs go to ``workdir`` (default: a new temporary folder, kept)."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="bptsb-bench-live-"))
     work.mkdir(parents=True, exist_ok=True)
     report: dict[str, Any] = {"cpu_count": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
@@ -238,15 +250,17 @@ def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats
         agent = str(fitted_agent(work / "agent"))
     seq = report["sequence"]
     seq.append({"kind": "anchor", **anchor_run("split", anchor_seconds, progress)})
-    shapes = ("split", "composed") if composed else ("split",)
+    layouts = [(False, False)] + ([(False, True)] if recorder_in_body else []) + ([(True, False)] if composed else [])
     for round_ in range(repeats):
         for loop in loops:
-            for shape in shapes:
-                if shape == "composed":
+            for together, in_body in layouts:
+                shape = "composed" if together else "split"
+                if together:
                     seq.append({"kind": "anchor", **anchor_run(shape, anchor_seconds, progress)})
-                seq.append({"kind": "loop", **live_run(loop, seconds, work, f"{loop}_{shape}_{round_}",
+                tag = f"{loop}_{shape}{'_in_body' if in_body else ''}_{round_}"
+                seq.append({"kind": "loop", **live_run(loop, seconds, work, tag,
                                                        agent if loop.endswith("_closed") else "", params, progress,
-                                                       composed=shape == "composed")})
+                                                       composed=together, recorder_in_body=in_body)})
                 seq.append({"kind": "anchor", **anchor_run(shape, anchor_seconds, progress)})
     report["runs"] = [item for item in seq if item["kind"] == "loop"]
     report["anchors"] = [item for item in seq if item["kind"] == "anchor"]
@@ -261,7 +275,8 @@ def live_table(report: dict[str, Any]) -> str:
             "exit"]
     rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in report["runs"]:
-        name = r["loop"] + (" (composed)" if r.get("composed") else "")
+        name = r["loop"] + (f" ({shape_label(r['composed'], r['recorder_in_body'])})"
+                            if r.get("composed") or r.get("recorder_in_body") else "")
         if "error" in r:
             rows.append(f"| {name} | {r['error']} |" + " |" * (len(head) - 2))
             continue

@@ -57,6 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     live.add_argument("--live-composed", action="store_true",
                       help="also run each loop composed (bptsb launch --composed: body and brains in one process), "
                            "beside the one-process anchor")
+    live.add_argument("--live-recorder-in-body", action="store_true",
+                      help="also run each loop with the recorder in the body's process (bptsb launch "
+                           "--recorder-in-body), beside the split anchor")
     live.add_argument("--live-param", action="append", default=[], metavar="NODE:NAME:=VALUE",
                       help="a node parameter for every run (bptsb launch --param; repeatable)")
     soak.add_argument("--workdir", default="", metavar="DIR", help="bags, launch logs and timing records of the "
@@ -181,7 +184,8 @@ def _live(args: argparse.Namespace) -> int:
     if (problem := _check_workdir(workdir)) is not None:
         return problem
     report = run_live(loops, args.live_seconds, args.live_repeats, workdir, tuple(args.live_param),
-                      progress=lambda m: print(m, file=sys.stderr, flush=True), composed=args.live_composed)
+                      progress=lambda m: print(m, file=sys.stderr, flush=True), composed=args.live_composed,
+                      recorder_in_body=args.live_recorder_in_body)
     if (problem := _write(Path(args.out), report)) is not None:
         return problem
     print(live_table(report))

@@ -28,7 +28,8 @@ PACKAGE_PARENT = Path(__file__).resolve().parents[2]
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.epilog = loops_help() + (
         "\n\nEach node is a process `python -m bptsb_ros.ros.<node> --ros-args ...`; with --bag the recorder runs "
-        "too and is stopped last.\nIn lockstep the run lasts --duration seconds of sim time (body_sim exits after "
+        "too and is stopped last (--recorder-in-body: in body_sim's process).\nIn lockstep the run lasts --duration "
+        "seconds of sim time (body_sim exits after "
         "the last step); in realtime\n--duration wall seconds. Ctrl-C stops every node (SIGINT, then SIGTERM/SIGKILL "
         "after --grace). Exit status 0 only if\nevery node exited cleanly and the recording lost nothing (--allow-loss "
         "accepts a lossy one; the bag counts the losses either way).\nA lockstep body waits for the recorder, so a "
@@ -48,6 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--composed", action="store_true",
                         help="body_sim and the brains in one process on the body's executor (node composition; the "
                              "recorder stays a process of its own): the same messages, fewer process hand-offs")
+    parser.add_argument("--recorder-in-body", action="store_true",
+                        help="with --bag: the recorder runs in body_sim's process and takes the messages in the "
+                             "body's loop (as a composable recorder beside its publishers; with --composed in the one "
+                             "process): one process and one reader hand-off fewer; the body does not wait for it")
     parser.add_argument("--namespace", default="", metavar="NS",
                         help="ROS namespace of the loop (one robot of several in a domain): every node runs in it, "
                              "every topic resolves in it, /clock and /diagnostics included (remapped to NS/clock and "
@@ -177,13 +182,15 @@ def node_argv(executable: str, params: dict, extra: list[str], namespace: str = 
     return argv
 
 
-def composed_child(planned: dict[str, dict], extra: dict[str, list[str]], namespace: str, log_dir: Path) -> Child:
-    """The one process of ``--composed``: body_sim and the brains of ``planned`` (:mod:`bptsb_ros.ros.composed`),
-    their parameters in ``log_dir/composed_params.yaml``, a section per node."""
+def composed_child(planned: dict[str, dict], extra: dict[str, list[str]], namespace: str, log_dir: Path,
+                   members: set[str]) -> Child:
+    """The one process of ``--composed`` and ``--recorder-in-body``: body_sim and the nodes of ``planned`` in
+    ``members`` (:mod:`bptsb_ros.ros.composed`; the recorder last), their parameters in
+    ``log_dir/composed_params.yaml``, a section per node."""
     from bptsb_ros.live.loops import namespace_remaps
     from bptsb_ros.ros.composed import params_file_text
 
-    nodes = {name: params for name, params in planned.items() if name != "recorder"}
+    nodes = {name: params for name, params in planned.items() if name in members or name == "body_sim"}
     params_file = log_dir / "composed_params.yaml"
     write_atomic(params_file, params_file_text(nodes, extra))
     argv = [sys.executable, "-m", "bptsb_ros.ros.composed", "--nodes", ",".join(nodes), "--ros-args",
@@ -427,7 +434,7 @@ def node_plan(loop, args: argparse.Namespace, namespace: str, summary_path: Path
                   namespace=namespace)
     brain_common = dict(common)
     common.update(perturb_at=-1.0 if args.perturb_at is None else args.perturb_at, perturb_sigma=args.perturb_sigma,
-                  perturb_seed=args.perturb_seed)
+                  perturb_seed=args.perturb_seed, recorder_in_body=args.recorder_in_body)
 
     def with_stream(executable: str, params: dict) -> dict:
         if plan is None:
@@ -446,7 +453,7 @@ def node_plan(loop, args: argparse.Namespace, namespace: str, summary_path: Path
     if args.bag:
         out["recorder"] = with_stream("recorder", recorder_parameters(
             loop, args.bag, mode=args.mode, agent=args.agent, open_loop_steps=args.open_loop_steps,
-            allow_loss=args.allow_loss, namespace=namespace))
+            allow_loss=args.allow_loss, namespace=namespace, recorder_in_body=args.recorder_in_body))
     return out
 
 
@@ -473,6 +480,8 @@ def run(args: argparse.Namespace) -> int:
         namespace = normalize_namespace(args.namespace)
     except NamespaceError as err:
         return fail("launch", f"--namespace: {err}", USAGE)
+    if args.recorder_in_body and not args.bag:
+        return fail("launch", "--recorder-in-body needs --bag DIR (there is no recorder without a bag)", USAGE)
     if args.duration < 0 or args.rate_scale <= 0 or args.grace <= 0:
         return fail("launch", "--duration must be >= 0, --rate-scale and --grace > 0", USAGE)
     problem = _perturbation_problem(args)
@@ -519,14 +528,17 @@ def run(args: argparse.Namespace) -> int:
 
     children: list[Child] = []
     planned = node_plan(loop, args, namespace, summary_path, plan, max_wind)
-    if args.composed:
-        children.append(composed_child(planned, extra, namespace, log_dir))
+    members = {b.executable for b in loop.brains} if args.composed else set()
+    if args.recorder_in_body:
+        members.add("recorder")
+    if members:
+        children.append(composed_child(planned, extra, namespace, log_dir, members))
     for executable, params in planned.items():
-        if not args.composed or executable == "recorder":
+        if executable not in members and not (members and executable == "body_sim"):
             children.append(Child(executable, node_argv(executable, params, extra[executable], namespace),
                                   log_dir / f"{executable}.log"))
     body = children[0]
-    recorder = children[-1] if args.bag else None
+    recorder = children[-1] if args.bag and not args.recorder_in_body else None
 
     stop_flag: list[str] = []
 
@@ -556,7 +568,7 @@ def run(args: argparse.Namespace) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     rows = launcher.results()
-    if args.bag and recorder is not None:
+    if args.bag:
         rows = _check_recording(launcher, rows, Path(args.bag), summary_path, args.allow_loss)
     problem = _brain_problem(summary_path)
     if problem:

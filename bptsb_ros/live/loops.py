@@ -233,7 +233,8 @@ def perturbation_problem(perturb_at: float, perturb_sigma: float, *, duration: f
 def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int = 0, mode: str = "lockstep",
                     duration: float = 0.0, rate_scale: float = 1.0, recording: bool = False,
                     open_loop_steps: int = 0, summary_path: str = "", perturb_at: float = -1.0,
-                    perturb_sigma: float = 0.0, perturb_seed: int = 0, namespace: str = "") -> dict[str, ParamValue]:
+                    perturb_sigma: float = 0.0, perturb_seed: int = 0, namespace: str = "",
+                    recorder_in_body: bool = False) -> dict[str, ParamValue]:
     """ROS parameters of one node of ``loop`` (those that differ from the node's defaults).
 
     Args:
@@ -244,6 +245,8 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
         perturb_sigma: standard deviation σ [m] of that displacement, N(0, σ²) per coordinate.
         perturb_seed: seed of its standard-normal pattern.
         namespace: the loop's namespace (normalized, :func:`normalize_namespace`): the names ``body_sim`` waits on.
+        recorder_in_body: the recorder runs in the body's process (``bptsb_composed``, which serves it in the body's
+            loop): the body does not wait for its acknowledgements.
     """
     params: dict[str, ParamValue] = {"agent": agent} if agent else {"task": loop.task, "seed": seed}
     if executable == "body_sim":
@@ -259,7 +262,7 @@ def node_parameters(loop: Loop, executable: str, *, agent: str = "", seed: int =
             "wait_for_subscribers": startup_subscribers(loop, recording=recording, namespace=namespace),
             "rate_scale": rate_scale,
         })
-        if recording and mode == "lockstep":  # the recorder's acknowledgements pace the run: nothing is lost
+        if recording and mode == "lockstep" and not recorder_in_body:  # its acknowledgements pace the run
             params["wait_for_recorder"] = True
         if duration > 0:
             params["duration" if mode == "lockstep" else "wall_duration"] = duration
@@ -284,13 +287,14 @@ def log_dir_of_bag(bag: str | Path) -> Path:
 
 def recorder_parameters(loop: Loop, bag: str, *, mode: str = "lockstep", agent: str = "",
                         open_loop_steps: int = 0, allow_loss: bool = False, namespace: str = "",
-                        ) -> dict[str, ParamValue]:
+                        recorder_in_body: bool = False) -> dict[str, ParamValue]:
     """ROS parameters of the recorder of ``loop``: every loop topic to ``bag``, log times from ``/clock`` in lockstep
     (``use_sim_time``: the bag's timeline is sim time; realtime keeps system time), and the run description in the
     bag's ``custom_data`` (keys ``loop``, ``mode``, ``agent`` — ``fresh`` without one — and ``open_loop_steps``,
     which ``bptsb replay`` reads for its offline comparison). In lockstep it acknowledges the per-step topics on
     ``recorder/ack`` (``body_sim``'s ``wait_for_recorder``); ``allow_loss``: exit 0 even if messages were lost.
-    ``namespace`` (normalized): the loop's namespace, whose resolved topic names are recorded."""
+    ``namespace`` (normalized): the loop's namespace, whose resolved topic names are recorded. ``recorder_in_body``:
+    it runs in the body's process, in the body's loop (no acknowledgements: it cannot fall behind)."""
     params: dict[str, ParamValue] = {
         "bag_path": bag,
         "use_sim_time": mode == "lockstep",
@@ -298,7 +302,7 @@ def recorder_parameters(loop: Loop, bag: str, *, mode: str = "lockstep", agent: 
         "custom_data": [f"loop={loop.name}", f"mode={mode}", f"agent={agent or 'fresh'}",
                         f"open_loop_steps={open_loop_steps}"] + ([f"namespace={namespace}"] if namespace else []),
     }
-    if mode == "lockstep":
+    if mode == "lockstep" and not recorder_in_body:
         params.update(ack_topic=loop_topic(RECORDER_ACK, namespace),
                       ack_topics=topic_names(loop.step_topics(), namespace))
     if allow_loss:
@@ -347,6 +351,9 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
     "composed": ("false", "true: body_sim and the loop's brains in one process on one executor (bptsb_composed; the "
                  "same nodes, parameters and messages, fewer hand-offs between processes); the recorder stays a "
                  "process of its own"),
+    "recorder_in_body": ("false", "with bag: true runs the recorder in body_sim's process (bptsb_composed, with the "
+                         "brains too under composed:=true), where it takes the messages in the body's loop while the "
+                         "body waits for its commands: one process and one reader hand-off fewer, the same bag"),
     "rviz": ("false", "true: also start rviz2 with the package's config/bptsb.rviz (fixed frame msdn) in the loop's "
              "namespace, where rviz2 is installed (otherwise a log line and the loop runs without it)"),
 }
@@ -401,7 +408,7 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                                   "(bptsb train fits it)")
     if values.get("mode", "lockstep") not in ("lockstep", "realtime"):
         raise LaunchArgumentError(f"mode:={values['mode']}: choose lockstep or realtime")
-    for flag in ("allow_loss", "rviz", "composed"):
+    for flag in ("allow_loss", "rviz", "composed", "recorder_in_body"):
         if values.get(flag, "false").lower() not in ("true", "false"):
             raise LaunchArgumentError(f"{flag}:={values[flag]}: choose true or false")
     if values.get("log_level", "info").lower() not in LOG_LEVELS:
@@ -423,6 +430,9 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
             raise LaunchArgumentError(f"{name}:={text}: must be {rule}")
         return value
 
+    in_body = values.get("recorder_in_body", "false").lower() == "true"
+    if in_body and not values.get("bag"):
+        raise LaunchArgumentError("recorder_in_body:=true needs bag:=DIR (there is no recorder without a bag)")
     common = dict(agent=agent, seed=number("seed", int, lambda v: True, "an integer"),
                   mode=values.get("mode", "lockstep"), duration=number("duration", float, lambda v: v >= 0, ">= 0"),
                   rate_scale=number("rate_scale", float, lambda v: v > 0, "> 0"),
@@ -430,7 +440,8 @@ def resolve_arguments(loop: Loop, values: dict[str, str]) -> tuple[Loop, dict]:
                   open_loop_steps=number("open_loop_steps", int, lambda v: v >= 0, ">= 0"),
                   perturb_at=number("perturb_at", float, lambda v: True, "a number"),
                   perturb_sigma=number("perturb_sigma", float, lambda v: v >= 0, ">= 0"),
-                  perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"), namespace=namespace)
+                  perturb_seed=number("perturb_seed", int, lambda v: True, "an integer"), namespace=namespace,
+                  recorder_in_body=in_body)
     problem = perturbation_problem(common["perturb_at"], common["perturb_sigma"], duration=common["duration"],
                                    rate_scale=common["rate_scale"], mode=common["mode"])
     if problem:
@@ -485,7 +496,7 @@ def loop_node_parameters(loop_name: str, executable: str, values: dict[str, str]
         params = recorder_parameters(loop, bag, mode=common["mode"], agent=common["agent"],
                                      open_loop_steps=common["open_loop_steps"],
                                      allow_loss=values.get("allow_loss", "false").lower() == "true",
-                                     namespace=common["namespace"])
+                                     namespace=common["namespace"], recorder_in_body=common["recorder_in_body"])
     else:
         summary_path = str(log_dir_of_bag(bag) / "body_summary.json") if bag and executable == "body_sim" else ""
         params = node_parameters(loop, executable, summary_path=summary_path, **common)

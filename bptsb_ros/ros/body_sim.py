@@ -176,6 +176,8 @@ class BodySim(BodyOutputs, BodyGraph, Node):
         return time.monotonic()
 
     def spin_once(self, timeout: float) -> None:
+        if timeout > 0:
+            self.before_wait()
         self.executor_.spin_once(timeout_sec=timeout)
         self.after_spin()
 
@@ -188,6 +190,10 @@ class BodySim(BodyOutputs, BodyGraph, Node):
 
     def after_spin(self) -> None:
         """What runs after each spin: nothing, or the brains' answers where they share this executor (composed)."""
+
+    def before_wait(self) -> None:
+        """What runs before a spin that may block (waiting for a message): nothing, or a recorder hosted in this
+        process taking what is waiting (composed), in time the body would otherwise sleep."""
 
     def publisher_gone(self, source: str) -> bool:
         return self.subs[source].get_publisher_count() == 0

@@ -7,9 +7,14 @@ body's spins, the brains answer the newest message of each of their subscription
 (:meth:`BrainNode.answer_newest`). The messages still go through the middleware (rclpy has no intra-process
 transport); what composition saves is the processes' scheduling and wake-ups between them.
 
+``recorder`` last in ``--nodes`` hosts the recorder too (``bptsb launch --recorder-in-body``), as a composable
+recorder shares its publishers' process: it is on no executor; after each of the body's spins it takes every
+``batch_wait`` everything waiting (:meth:`RecorderNode.serve`), so it runs in the body's thread and cannot fall
+behind the body, whose ``wait_for_recorder`` must then be false. After the run it drains and closes the bag.
+
 ``python -m bptsb_ros.ros.composed --nodes body_sim,swg_brain --ros-args --params-file FILE [-r ...]``: FILE holds
 one section per node (``/**/body_sim: ros__parameters: ...``, :func:`params_file_text`); ``bptsb launch LOOP
---composed`` writes it and starts this. The exit code is the body's (a brain's bad parameter: 2).
+--composed`` writes it and starts this. The exit code is the body's, else the recorder's (a bad parameter: 2).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -32,6 +38,7 @@ from bptsb_ros.ros.runtime import (
 )
 
 NAME = "composed"
+RECORDER = "recorder"
 MODULES = {node.name: node.module for node in NODES}
 
 
@@ -61,22 +68,33 @@ def run_composed(executables: Sequence[str], ros_args: list[str]) -> int:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
+    from bptsb_ros.bags.errors import BagError
     from bptsb_ros.interface.params import ParameterError
 
     stop = StopFlag()
     install_stop_handlers(stop)
     rclpy.init(args=["bptsb", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[Any] = []
+    recorder: Any = None
     code = EXIT_FAILURE
     try:
         try:
             for executable in executables:
-                nodes.append(node_class(executable)(stop))
-        except ParameterError as err:
+                if executable == RECORDER:
+                    recorder = node_class(executable)()
+                    nodes.append(recorder)
+                else:
+                    nodes.append(node_class(executable)(stop))
+        except (ParameterError, BagError) as err:
             rclpy.logging.get_logger(executables[len(nodes)]).error(str(err))
             code = EXIT_BAD_PARAMETERS
         else:
-            body, brains = nodes[0], nodes[1:]
+            body = nodes[0]
+            brains = [node for node in nodes[1:] if node is not recorder]
+            if recorder is not None and body.core.recorder is not None:
+                body.get_logger().error("wait_for_recorder: the recorder runs in this process and takes in the "
+                                        "body's loop; it cannot fall behind, set wait_for_recorder:=false")
+                return EXIT_BAD_PARAMETERS
             for brain in brains:
                 brain.executor_.remove_node(brain)
                 body.executor_.add_node(brain)
@@ -84,21 +102,31 @@ def run_composed(executables: Sequence[str], ros_args: list[str]) -> int:
                     brain.get_logger().warning("cpus: in a composed process the body's cpus apply to every node; "
                                                "this node's are not used")
 
-            def answer() -> None:
+            def after_spin() -> None:
                 for brain in brains:
                     brain.answer_newest()
+                if recorder is not None:
+                    recorder.serve(time.monotonic())
 
-            body.after_spin = answer
+            body.after_spin = after_spin
+            if recorder is not None:
+                body.before_wait = lambda: recorder.serve(time.monotonic(), idle=True)
             code = body.run()
             if not stop:
                 stop.set("the body's end")
             for brain in brains:
                 brain.finish()
+            if recorder is not None:
+                recorder.drain_hosted()
+                recorded = recorder.close()
+                code = code or recorded
     except KeyboardInterrupt:
         rclpy.logging.get_logger(NAME).warning("interrupted twice: exiting without a clean stop")
         code = EXIT_FAILURE
     finally:
         ignore_stop_signals()
+        if recorder is not None and not recorder.writer.closed:
+            recorder.writer.close()  # what was recorded stays readable
         for node in reversed(nodes):
             node.destroy_node()
         rclpy.try_shutdown()
@@ -114,10 +142,11 @@ def main(args: list[str] | None = None) -> int:
     parser.add_argument("--nodes", required=True, help="comma-separated: body_sim first, then the loop's brains")
     opts = parser.parse_args(argv[:split])
     executables = [n for n in opts.nodes.split(",") if n]
-    unknown = [n for n in executables if n not in MODULES or n == "recorder"]
-    if not executables or executables[0] != "body_sim" or unknown:
-        parser.error(f"--nodes {opts.nodes}: body_sim first, then brain nodes of {', '.join(MODULES)} "
-                     "(not the recorder)")
+    unknown = [n for n in executables if n not in MODULES]
+    misplaced = RECORDER in executables[:-1]
+    if not executables or executables[0] != "body_sim" or unknown or misplaced:
+        parser.error(f"--nodes {opts.nodes}: body_sim first, then brain nodes of {', '.join(MODULES)}, then "
+                     f"optionally {RECORDER}")
     code = run_composed(executables, argv[split:])
     if args is None:
         exit_process(code)

@@ -64,8 +64,9 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
     are params files written at launch time from the arguments (:func:`loop_node_parameters`: the same
     processes and parameters as ``bptsb launch``), and the recorder runs only with ``bag:=DIR``. ``body_sim`` and
     the brains run as a process each, or with ``composed:=true`` as one ``bptsb_composed`` process that builds
-    them all (``--nodes``; a params file with a section per node; its exit code is the body's): both shapes are
-    declared, under ``UnlessCondition`` and ``IfCondition`` of ``composed``. The arguments are
+    them all (``--nodes``; a params file with a section per node; its exit code is the body's, else the hosted
+    recorder's); ``recorder_in_body:=true`` builds the recorder in that process too (with the body alone when not
+    composed). Every shape is declared, each node under the condition of its own process. The arguments are
     checked first (:func:`resolve_arguments`; closed loops require ``agent``): a bad one stops the launch before
     any node starts, with the reason and a non-zero exit. When ``body_sim`` ends the run the launch shuts down and
     exits 0; when any node exits otherwise (a brain that cannot start, a crash, a failed stop) the whole loop is
@@ -84,7 +85,7 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         RegisterEventHandler,
     )
     from launch.condition import Condition
-    from launch.conditions import IfCondition, UnlessCondition
+    from launch.conditions import UnlessCondition
     from launch.event_handlers import OnProcessExit
     from launch.events import Shutdown
     from launch.substitution import Substitution
@@ -116,18 +117,18 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         """Path of a params file with the parameters of one node, or of the ``nodes`` one process runs (a section
         each), written when the launch performs it."""
 
-        def __init__(self, executable: str, nodes: list[str] | None = None) -> None:
+        def __init__(self, executable: str, composed: bool = False) -> None:
             super().__init__()
-            self.executable, self.nodes = executable, nodes
+            self.executable, self.composed = executable, composed
 
         def describe(self) -> str:
             return f"<params of {self.executable} in {loop_name}, from the launch arguments>"
 
         def perform(self, context) -> str:
-            if self.nodes:  # the composed process: one section per node it builds
+            if self.composed:  # the composed process: one section per node it builds
                 from bptsb_ros.ros.composed import params_file_text as sections_text
 
-                text = sections_text({name: node_params(name, context) for name in self.nodes}, {})
+                text = sections_text({name: node_params(name, context) for name in composed_nodes(context)}, {})
             else:
                 text = params_file_text(self.executable, node_params(self.executable, context))
             handle, path = tempfile.mkstemp(prefix=f"bptsb_{loop_name}_{self.executable}_", suffix=".yaml")
@@ -165,6 +166,27 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
 
         def perform(self, context) -> str:
             return LaunchConfiguration("params_file").perform(context) or self.own.perform(context)
+
+    def flag(name: str, context) -> bool:
+        return LaunchConfiguration(name).perform(context).lower() == "true"
+
+    def recorder_in_body(context) -> bool:
+        return bool(LaunchConfiguration("bag").perform(context)) and flag("recorder_in_body", context)
+
+    def composed_nodes(context) -> list[str]:
+        """The nodes the ``bptsb_composed`` process builds: body_sim, the brains with ``composed:=true``, the recorder
+        last with ``recorder_in_body:=true``."""
+        return (["body_sim"] + ([b.executable for b in loop.brains] if flag("composed", context) else [])
+                + (["recorder"] if recorder_in_body(context) else []))
+
+    class ComposedNodes(Substitution):
+        """``--nodes`` of the composed process (:func:`composed_nodes`)."""
+
+        def describe(self) -> str:
+            return "<body_sim[,brains][,recorder] from composed:= and recorder_in_body:=>"
+
+        def perform(self, context) -> str:
+            return ",".join(composed_nodes(context))
 
     class Remapped(Substitution):
         """The target of ``/clock`` or ``/diagnostics`` (``key``) in the loop's namespace."""
@@ -220,22 +242,26 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         return [ExecuteProcess(cmd=["rviz2", "-d", config, "--ros-args", "-r",
                                     f"__ns:={namespace or '/'}", *remaps], name="rviz2", output="screen")]
 
-    recording = Condition(predicate=lambda context: bool(LaunchConfiguration("bag").perform(context)))
-    split, composing = UnlessCondition(LaunchConfiguration("composed")), IfCondition(LaunchConfiguration("composed"))
-    composed = ["body_sim"] + [b.executable for b in loop.brains]
-    executables = [*composed, "recorder", COMPOSED]
+    # the nodes of both shapes, each under the condition of its own process
+    recording = Condition(predicate=lambda context: bool(LaunchConfiguration("bag").perform(context))
+                          and not recorder_in_body(context))
+    split = UnlessCondition(LaunchConfiguration("composed"))
+    body_apart = Condition(predicate=lambda context: not flag("composed", context) and not recorder_in_body(context))
+    hosting = Condition(predicate=lambda context: flag("composed", context) or recorder_in_body(context))
+    executables = ["body_sim", *(b.executable for b in loop.brains), "recorder", COMPOSED]
+    conditions = {"body_sim": body_apart, "recorder": recording, COMPOSED: hosting}
 
     def own_params(name: str) -> NodeParamsFile:
-        return NodeParamsFile(name, composed if name == COMPOSED else None)
+        return NodeParamsFile(name, composed=name == COMPOSED)
 
     remappings = [(TOPICS[k].name, Remapped(k)) for k in TOPICS if TOPICS[k].name.startswith("/")]
     # the composed process is not named (a name would rename every node in it); --nodes says which it builds
     nodes = [Node(package="bptsb_ros", executable=name, output="screen",
-                  **({"arguments": ["--nodes", ",".join(composed)]} if name == COMPOSED else {"name": name}),
+                  **({"arguments": ["--nodes", ComposedNodes()]} if name == COMPOSED else {"name": name}),
                   namespace=LaunchConfiguration("namespace"), remappings=remappings,
                   parameters=[own_params(name), UserParamsFile(own_params(name))],
                   ros_arguments=["--log-level", LaunchConfiguration("log_level")],
-                  condition={"recorder": recording, COMPOSED: composing}.get(name, split),
+                  condition=conditions.get(name, split),
                   sigterm_timeout=str(STOP_GRACE_S))
              for name in executables]
     return LaunchDescription([

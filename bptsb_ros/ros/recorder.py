@@ -118,6 +118,7 @@ class RecorderNode(Node):
         self._stop_ns: int | None = None
         self._clock_topic: str | None = None  # the recorded /clock this node's sim time follows (else rclpy's)
         self._said_bad_tick = False
+        self._next_take = self._next_discovery = 0.0  # when hosted (:meth:`serve`), monotonic seconds
         self.ack = StepAck(self.config.ack_topics)
         self._ack_pub = None
         try:
@@ -372,6 +373,41 @@ class RecorderNode(Node):
         if self._loss_logs[topic] % 100 == 1:
             self.get_logger().error(f"LOST messages on {topic}: {text} (lost so far on {topic}: "
                                     f"{self.loss.by_topic().get(topic, 0)})")
+
+    def serve(self, now: float, idle: bool = False) -> None:
+        """One turn of the recorder hosted in another node's loop (``bptsb_composed`` with ``recorder``: it is on no
+        executor, the host calls this around its spins): take everything waiting (:meth:`take_ready`) when the host
+        is about to wait anyway (``idle``) or ``batch_wait`` has passed since the last take, look at the graph every
+        ``discovery_period``, and close the open chunk when ``flush_period`` is due. ``now``: monotonic seconds."""
+        if idle or now >= self._next_take:
+            self._next_take = now + self.config.batch_wait
+            self.take_ready()
+        if now >= self._next_discovery:
+            self._next_discovery = now + self.config.discovery_period
+            self._discover()
+        self.writer.flush_if_due()
+
+    def drain_hosted(self) -> None:
+        """The end of a hosted recording (:meth:`serve`): take what is still waiting or in flight until none has come
+        for ``drain_quiet`` seconds (``stop_timeout`` caps it, a drain cut short counts as a loss), as :func:`_drain`
+        does without an executor. Messages published after this call are not recorded."""
+        self.begin_stop(time.time_ns())
+        quiet, cap = self.config.drain_quiet, self.config.stop_timeout
+        started = last = time.monotonic()
+        while True:
+            before = self.received
+            self.take_ready()
+            now = time.monotonic()
+            if self.received != before:
+                last = now
+            elif now - last >= quiet:
+                return
+            if now - started >= cap:
+                self.loss.cut_short = True
+                self.get_logger().error(f"stop_timeout: still taking messages after {cap:g} s; closing the bag, the "
+                                        "recording is incomplete")
+                return
+            time.sleep(min(quiet / 4, 0.01))
 
     def begin_stop(self, stop_ns: int) -> None:
         """The stop sequence has begun (signal at ``stop_ns``, system time): stop looking for new topics and stop

@@ -1,6 +1,7 @@
 """A bag recorded by ``bptsb launch`` is read by other tools: every message of every topic deserializes with
 ``rosbags``' ``AnyReader.deserialize`` (strict about CDR: no more than 3 bytes after the content) and with
-``mcap_ros2``'s decoder (from the bag's own schemas), and both count what the bag's metadata counts."""
+``mcap_ros2``'s decoder (from the bag's own schemas), and both count what the bag's metadata counts; with the
+recorder in a process of its own and in the body's process."""
 
 from __future__ import annotations
 
@@ -16,7 +17,8 @@ pytest.importorskip("rosbags.highlevel")
 pytest.importorskip("mcap_ros2.decoder")
 
 
-def test_every_message_of_a_launched_bag_reads_with_rosbags_and_mcap_ros2(tmp_path, fresh_ros):
+@pytest.mark.parametrize("recorder", [[], ["--recorder-in-body"]], ids=["recorder_process", "recorder_in_body"])
+def test_every_message_of_a_launched_bag_reads_with_rosbags_and_mcap_ros2(tmp_path, fresh_ros, recorder):
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
     from rosbags.highlevel import AnyReader
@@ -29,7 +31,8 @@ def test_every_message_of_a_launched_bag_reads_with_rosbags_and_mcap_ros2(tmp_pa
     _, ros_env = fresh_ros
     bag = tmp_path / "bag"
     out = bptsb(["launch", "lissajous_open", "--duration", "0.5", "--perturb-at", "0.2", "--perturb-sigma", "0.01",
-                 "--bag", str(bag), "--param", "body_sim:command_timeout:=30.0"],  # a slow brain start is no fault here
+                 "--bag", str(bag), *recorder,
+                 "--param", "body_sim:command_timeout:=30.0"],  # a slow brain start is no fault here
                 ros_env)
     assert out.returncode == 0, out.stdout[-4000:]
     expected = {t.name: t.message_count for t in bag_info(bag).topics if t.message_count}

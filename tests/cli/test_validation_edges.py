@@ -807,3 +807,27 @@ def test_node_parameter_bounds(spec, value, accepted, match):
     out = _verdict(accepted, ParameterError, lambda: p.validate(value), re.escape(f"parameter 'x' {match}"))
     if accepted:
         assert out == value
+
+
+@pytest.mark.parametrize("bag, accepted", [(False, False), (True, True)])
+def test_launch_recorder_in_body_needs_a_bag(capsys, tmp_path, bag, accepted):
+    # --perturb-at -1 is refused on purpose: an accepted flag gets as far as that check, and no node starts
+    argv = ["launch", "lissajous_open", "--recorder-in-body", "--perturb-at=-1"]
+    assert cli_main(argv + (["--bag", str(tmp_path / "bag")] if bag else [])) == 2
+    err = capsys.readouterr().err.strip()
+    if accepted:
+        assert err == "bptsb launch: --perturb-at -1: must be >= 0 (sim seconds)"
+    else:
+        assert err == "bptsb launch: --recorder-in-body needs --bag DIR (there is no recorder without a bag)"
+    assert not (tmp_path / "bag").exists()
+
+
+@pytest.mark.parametrize("values, accepted", [({"recorder_in_body": "true"}, False),
+                                              ({"recorder_in_body": "true", "bag": "B"}, True),
+                                              ({"recorder_in_body": "yes", "bag": "B"}, False)])
+def test_launch_file_recorder_in_body_needs_a_bag(tmp_path, values, accepted):
+    from bptsb_ros.live.loops import LOOPS, LaunchArgumentError, resolve_arguments
+
+    values = {k: str(tmp_path / v) if k == "bag" else v for k, v in values.items()}
+    _verdict(accepted, LaunchArgumentError, lambda: resolve_arguments(LOOPS["lissajous_open"], values),
+             "recorder_in_body:=")

@@ -314,6 +314,8 @@ def test_bench_params_go_to_the_loops_that_have_the_node_and_the_table():
     assert argv[argv.index("launch") + 1] == "narma" and "feedback_brain:gain:=0.5" not in argv
     assert argv.count("--param") == 2 and "--agent" not in argv and argv[argv.index("--duration") + 1] == "2"
     assert "--composed" not in argv and "--composed" in launch_argv("narma", "b", 2.0, composed=True)
+    assert "--recorder-in-body" not in argv
+    assert "--recorder-in-body" in launch_argv("narma", "b", 2.0, recorder_in_body=True)
     run = {"loop": "narma", "steps": 1001, "steps_per_s": 250.4, "recorder_ms": 0.0, "publish_ms": 1.25,
            "commands_ms": 2.5, "compute_ms": 0.25, "other_ms": 0.0, "dropped_messages": 0, "launch_exit_code": 0,
            "ratio_to_anchor": 0.5, "cpu_us_per_step": {"body_sim": 120.4, "recorder": 80.0}}
@@ -324,6 +326,8 @@ def test_bench_params_go_to_the_loops_that_have_the_node_and_the_table():
     assert table[2] == ("| narma | 1001 | 250 | 0.50 | 0.000 | 1.250 | 2.500 | 0.250 | 0.000 | "
                         "body_sim 120, recorder 80 | 0 | 0 |")
     assert table[3].startswith("| lissajous_closed | no summary |")
+    hosted = live_table({"runs": [{**run, "composed": False, "recorder_in_body": True}], "anchors": []})
+    assert hosted.splitlines()[2].startswith("| narma (split, recorder in body) | 1001 |")
     assert table[-2:] == ["anchor (split): 501 round trips/s, p50 0.250 ms", "anchor (split): no match"]
 
 
@@ -336,14 +340,17 @@ def test_each_loop_run_is_compared_with_the_anchor_runs_of_its_shape_around_it()
            {"kind": "anchor", "shape": "composed", "round_trips_per_s": 4000.0},
            {"kind": "loop", "loop": "a", "composed": True, "steps_per_s": 1000.0},
            {"kind": "loop", "loop": "b", "steps_per_s": 100.0},
+           {"kind": "loop", "loop": "b", "recorder_in_body": True, "steps_per_s": 150.0},
            {"kind": "anchor", "shape": "split", "error": "failed"},
            {"kind": "loop", "loop": "c", "error": "no summary"}]
     report = with_ratios({"sequence": seq})
     assert seq[1]["ratio_to_anchor"] == 0.2 and seq[1]["anchor_round_trips_per_s"] == 1500.0  # 300 / mean(1000, 2000)
     assert seq[4]["ratio_to_anchor"] == 0.25  # only the composed anchor before it
     assert seq[5]["ratio_to_anchor"] == 0.05  # the split one before it; the failed one after it does not count
-    assert "ratio_to_anchor" not in seq[7]
-    assert report["ratios"] == {"a (split)": [0.2], "a (composed)": [0.25], "b (split)": [0.05]}
+    assert seq[6]["ratio_to_anchor"] == 0.075  # the recorder in the body's process: still beside the split anchor
+    assert "ratio_to_anchor" not in seq[8]
+    assert report["ratios"] == {"a (split)": [0.2], "a (composed)": [0.25], "b (split)": [0.05],
+                                "b (split, recorder in body)": [0.075]}
 
 
 def test_composed_runs_sit_between_composed_anchors(tmp_path, monkeypatch):
@@ -351,13 +358,17 @@ def test_composed_runs_sit_between_composed_anchors(tmp_path, monkeypatch):
 
     monkeypatch.setattr(live, "anchor_run", lambda shape, seconds, progress: {"shape": shape,
                                                                              "round_trips_per_s": 1000.0})
-    monkeypatch.setattr(live, "live_run", lambda loop, *a, composed=False, **k: {"loop": loop, "composed": composed,
-                                                                                 "steps_per_s": 100.0})
-    report = live.run_live(("narma",), 1.0, 1, tmp_path, progress=lambda m: None, composed=True)
-    order = [(i["kind"], i.get("shape") or ("composed" if i["composed"] else "split")) for i in report["sequence"]]
-    assert order == [("anchor", "split"), ("loop", "split"), ("anchor", "split"), ("anchor", "composed"),
+    monkeypatch.setattr(live, "live_run", lambda loop, *a, composed=False, recorder_in_body=False, **k: {
+        "loop": loop, "composed": composed, "recorder_in_body": recorder_in_body, "steps_per_s": 100.0})
+    report = live.run_live(("narma",), 1.0, 1, tmp_path, progress=lambda m: None, composed=True,
+                           recorder_in_body=True)
+    order = [(i["kind"], i.get("shape") or live.shape_label(i["composed"], i["recorder_in_body"]))
+             for i in report["sequence"]]
+    assert order == [("anchor", "split"), ("loop", "split"), ("anchor", "split"),
+                     ("loop", "split, recorder in body"), ("anchor", "split"), ("anchor", "composed"),
                      ("loop", "composed"), ("anchor", "composed")]
-    assert report["ratios"] == {"narma (split)": [0.1], "narma (composed)": [0.1]}
+    assert report["ratios"] == {"narma (split)": [0.1], "narma (split, recorder in body)": [0.1],
+                                "narma (composed)": [0.1]}
     plain = live.run_live(("narma",), 1.0, 1, tmp_path, progress=lambda m: None)
     assert [i["kind"] for i in plain["sequence"]] == ["anchor", "loop", "anchor"]
 

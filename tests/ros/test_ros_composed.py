@@ -43,27 +43,57 @@ def test_each_node_module_gives_its_one_node_class():
                                                                                            MnistBrain)
 
 
-@pytest.mark.parametrize("nodes", ["swg_brain,body_sim", "body_sim,recorder", "body_sim,no_such_brain", ""])
-def test_the_command_line_takes_body_sim_first_then_brains(nodes, capsys):
+@pytest.mark.parametrize("nodes", ["swg_brain,body_sim", "body_sim,recorder,swg_brain", "recorder,body_sim",
+                                   "body_sim,no_such_brain", ""])
+def test_the_command_line_takes_body_sim_first_then_brains_then_the_recorder(nodes, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--nodes", nodes, "--ros-args"])
     assert exc.value.code == 2
     assert "body_sim first, then brain nodes" in capsys.readouterr().err
 
 
+SHAPES = {"split": [], "composed": ["--composed"], "recorder_in_body": ["--recorder-in-body"],
+          "all_in_one": ["--composed", "--recorder-in-body"]}
+
+
+def _bag_counts(bag) -> dict[str, int]:
+    from bptsb_ros.bags.reader import bag_info
+
+    return {t.name: t.message_count for t in bag_info(bag).topics if t.name != "/diagnostics"}
+
+
 @pytest.mark.parametrize("loop", ["lissajous_open", "narma"])
 def test_a_composed_run_records_what_the_split_run_records(loop, tmp_path, ros_env):
-    bags = {}
-    for shape in ("split", "composed"):
+    """Body and brains in one process, the recorder in the body's process, or both: the same positions and the same
+    number of messages on every topic as the split run (a process per node)."""
+    bags, counts = {}, {}
+    for shape, flags in SHAPES.items():
         bag = tmp_path / shape / "bag"
-        out = bptsb(["launch", loop, "--duration", "2", "--bag", str(bag), *(["--composed"] if shape == "composed"
-                                                                             else [])], ros_env)
+        out = bptsb(["launch", loop, "--duration", "2", "--bag", str(bag), *flags], ros_env)
         assert out.returncode == 0, out.stdout[-4000:]
-        assert ("composed        ok" in out.stdout) == (shape == "composed") and "recorder        ok" in out.stdout
-        bags[shape] = bag_positions(bag)
-    (split_stamps, split_pos), (stamps, pos) = bags["split"], bags["composed"]
-    assert stamps.tolist() == [k * 10_000_000 for k in range(201)] == split_stamps.tolist()
-    assert np.abs(pos - split_pos).max() <= 1e-9
-    assert np.abs(pos - pos[0]).max() > 1e-3  # the brains drove the body
+        assert ("composed        ok" in out.stdout) == (shape != "split")
+        assert ("recorder        ok" in out.stdout) == ("--recorder-in-body" not in flags)
+        assert ("[launch]   body_sim " in out.stdout) == (shape == "split")
+        bags[shape], counts[shape] = bag_positions(bag), _bag_counts(bag)
+    split_stamps, split_pos = bags["split"]
+    assert split_stamps.tolist() == [k * 10_000_000 for k in range(201)]
+    for shape, (stamps, pos) in bags.items():
+        assert stamps.tolist() == split_stamps.tolist(), shape
+        assert np.abs(pos - split_pos).max() <= 1e-9, shape
+        assert counts[shape] == counts["split"], shape
+    assert np.abs(split_pos - split_pos[0]).max() > 1e-3  # the brains drove the body
+    assert counts["split"]["/body/positions"] == 201
     log = (tmp_path / "composed" / "bag.launch" / "composed.log").read_text()
     assert "stopped by the body's end" in log and "[body_sim]" in log
+    hosted = (tmp_path / "recorder_in_body" / "bag.launch" / "composed.log").read_text()
+    assert "[recorder]: Bag " in hosted and "[recorder]: Recording to " in hosted
+
+
+def test_a_hosted_recorder_refuses_a_body_that_waits_for_it(tmp_path, ros_env):
+    """The recorder in the body's process takes in the body's loop: a body that waits for its acknowledgements
+    would wait for a take that only comes after the wait, so that combination is refused with one line."""
+    bag = tmp_path / "bag"
+    out = bptsb(["launch", "lissajous_open", "--duration", "1", "--bag", str(bag), "--recorder-in-body",
+                 "--param", "body_sim:wait_for_recorder:=true"], ros_env)
+    assert out.returncode != 0
+    assert "wait_for_recorder: the recorder runs in this process" in out.stdout, out.stdout[-3000:]

@@ -188,6 +188,8 @@ def test_launch_description_declares_the_nodes_statically(ros_env):
     env = _tools_env(ros_env)
     code = """
 import json
+from launch import LaunchContext
+from launch.utilities import normalize_to_list_of_substitutions, perform_substitutions
 from launch.actions import DeclareLaunchArgument, RegisterEventHandler
 from launch_ros.actions import Node
 from bptsb_ros.ros.launch_description import ros_launch_description
@@ -198,11 +200,18 @@ for loop in ("lissajous_closed", "narma"):
     args = {e.name: e.default_value is not None for e in d.entities if isinstance(e, DeclareLaunchArgument)}
     defaults = {e.name: "".join(t.perform(None) for t in e.default_value or []) for e in d.entities
                 if isinstance(e, DeclareLaunchArgument)}
-    out[loop + "_defaults"] = {k: defaults[k] for k in ("namespace", "log_level", "params_file", "rviz", "composed")}
-    out[loop] = {"nodes": [n.node_executable for n in nodes],
-                 "conditions": [type(n.condition).__name__ for n in nodes],
-                 "arguments": [a if isinstance(a, str) else "".join(t.perform(None) for t in a)
-                               for a in nodes[-1]._Node__arguments or []],
+    out[loop + "_defaults"] = {k: defaults[k] for k in ("namespace", "log_level", "params_file", "rviz", "composed",
+                                                        "recorder_in_body")}
+    shapes = {}
+    for composed, bag, in_body in [("false", "", "false"), ("true", "", "false"), ("false", "b", "false"),
+                                   ("true", "b", "false"), ("false", "b", "true"), ("true", "b", "true")]:
+        context = LaunchContext()
+        context.launch_configurations.update(composed=composed, bag=bag, recorder_in_body=in_body)
+        started = [n.node_executable for n in nodes if n.condition.evaluate(context)]
+        arguments = [perform_substitutions(context, normalize_to_list_of_substitutions(a))
+                     for a in nodes[-1]._Node__arguments or []]
+        shapes[f"composed={composed} bag={bag} in_body={in_body}"] = [started, arguments]
+    out[loop] = {"nodes": [n.node_executable for n in nodes], "shapes": shapes,
                  "handlers": sum(isinstance(e, RegisterEventHandler) for e in d.entities), "has_default": args}
 print(json.dumps(out))
 """
@@ -211,15 +220,22 @@ print(json.dumps(out))
     got = json.loads(out.stdout)
     assert got["lissajous_closed"]["nodes"] == ["body_sim", "feedback_brain", "recorder", "bptsb_composed"]
     assert got["narma"]["nodes"] == ["body_sim", "task_input", "mlp_brain", "recorder", "bptsb_composed"]
-    # body and brains apart unless composed:=true, the recorder only with bag:=, the composed process only with
-    # composed:=true, building the loop's nodes in order
-    assert got["narma"]["conditions"] == ["UnlessCondition"] * 3 + ["Condition", "IfCondition"]
-    assert got["narma"]["arguments"] == ["--nodes", "body_sim,task_input,mlp_brain"]
+    # body and brains apart unless composed:=true, the recorder only with bag:= and apart unless recorder_in_body:=true,
+    # the composed process only with composed:=true or the recorder in the body's process, building its nodes in order
+    brains, composed = ["task_input", "mlp_brain"], "bptsb_composed"
+    assert got["narma"]["shapes"] == {
+        "composed=false bag= in_body=false": [["body_sim", *brains], ["--nodes", "body_sim"]],
+        "composed=true bag= in_body=false": [[composed], ["--nodes", "body_sim,task_input,mlp_brain"]],
+        "composed=false bag=b in_body=false": [["body_sim", *brains, "recorder"], ["--nodes", "body_sim"]],
+        "composed=true bag=b in_body=false": [["recorder", composed], ["--nodes", "body_sim,task_input,mlp_brain"]],
+        "composed=false bag=b in_body=true": [[*brains, composed], ["--nodes", "body_sim,recorder"]],
+        "composed=true bag=b in_body=true": [[composed], ["--nodes", "body_sim,task_input,mlp_brain,recorder"]],
+    }
     assert got["narma"]["handlers"] == 5  # one OnProcessExit per node
     assert got["lissajous_closed"]["has_default"]["agent"] is False and got["narma"]["has_default"]["agent"] is True
     for loop in ("lissajous_closed", "narma"):  # the arguments every launch file takes, with their defaults
         assert got[loop + "_defaults"] == {"namespace": "", "log_level": "info", "params_file": "", "rviz": "false",
-                                           "composed": "false"}
+                                           "composed": "false", "recorder_in_body": "false"}
 
 
 def test_ros2_launch_print_lists_the_nodes(ros_env):
@@ -338,9 +354,11 @@ def test_two_robots_in_one_domain_through_ros2_launch(tmp_path, ros_env):
 
 
 @pytest.mark.slow
-def test_composed_true_runs_the_body_and_its_brain_in_one_process(tmp_path, ros_env):
-    """``composed:=true``: body_sim and swg_brain in one ``bptsb_composed`` process (the recorder beside it), in a
-    namespace; the launch ends cleanly when the body finishes and the run equals its offline simulation."""
+@pytest.mark.parametrize("in_body", [False, True], ids=["recorder_apart", "recorder_in_body"])
+def test_composed_true_runs_the_body_and_its_brain_in_one_process(tmp_path, ros_env, in_body):
+    """``composed:=true``: body_sim and swg_brain in one ``bptsb_composed`` process (the recorder beside it, or in it
+    with ``recorder_in_body:=true``), in a namespace; the launch ends cleanly when the body finishes and the run
+    equals its offline simulation."""
     import numpy as np
     from ros_live import fresh_agent
 
@@ -351,7 +369,8 @@ def test_composed_true_runs_the_body_and_its_brain_in_one_process(tmp_path, ros_
     env = _tools_env(ros_env)
     bag = tmp_path / "bag"
     out = subprocess.run(["ros2", "launch", "bptsb_ros", "lissajous_open.launch.py", "composed:=true",
-                          "namespace:=robot3", "duration:=1", "seed:=3", f"bag:={bag}", _patient_body(tmp_path)],
+                          "namespace:=robot3", "duration:=1", "seed:=3", f"bag:={bag}", _patient_body(tmp_path),
+                          f"recorder_in_body:={str(in_body).lower()}"],
                          env=env, cwd=REPO,
                          capture_output=True, text=True, timeout=150, stdin=subprocess.DEVNULL)
     text = out.stdout + out.stderr
@@ -359,9 +378,10 @@ def test_composed_true_runs_the_body_and_its_brain_in_one_process(tmp_path, ros_
     started = [line for line in text.splitlines() if "[INFO] [launch]: process started with pid" not in line
                and "process started with pid" in line]
     assert sorted(line.split("]: process started")[0].split("[")[-1].rsplit("-", 1)[0] for line in started) == \
-        ["bptsb_composed", "recorder"], started
+        ["bptsb_composed"] + ([] if in_body else ["recorder"]), started
     composed = "\n".join(line for line in text.splitlines() if line.startswith("[bptsb_composed-"))
     assert "[robot3.body_sim]: finished after 100 steps" in composed and "[robot3.swg_brain]: stopped" in composed
+    assert ("[robot3.recorder]: Bag " in composed) == in_body
     names = {t.name for t in bag_info(bag).topics}
     assert "/robot3/body/positions" in names and all(n.startswith("/robot3/") for n in names), names
     pos = np.array([pose_array_positions(m) for *_, m in read_messages(bag, ["/robot3/body/positions"])])
@@ -501,6 +521,7 @@ def _declared_defaults(node: str) -> dict:
     ("lissajous_closed", ["--agent", "AGENT", "--open-loop-steps", "30", "--namespace", "/robot1", "--duration", "1"],
      {"agent": "AGENT", "open_loop_steps": "30", "namespace": "/robot1", "duration": "1"}),
     ("locomotion_headwind", ["--seed", "2", "--bag", "BAG"], {"seed": "2", "bag": "BAG"}),
+    ("narma", ["--bag", "BAG", "--recorder-in-body"], {"bag": "BAG", "recorder_in_body": "true"}),
 ])
 def test_bptsb_launch_and_the_launch_files_start_the_same_nodes_with_the_same_parameters(tmp_path, loop, cli,
                                                                                          values):
@@ -537,3 +558,6 @@ def test_bptsb_launch_and_the_launch_files_start_the_same_nodes_with_the_same_pa
         assert given(node, ours[node]) == given(node, theirs[node]), node
     if namespace:
         assert ours["body_sim"]["frame_id"] == f"{namespace.strip('/')}/msdn"
+    if args.bag and args.mode == "lockstep":  # a recorder process acknowledges, the body waits; one in its process not
+        hosted = "--recorder-in-body" in cli
+        assert ("wait_for_recorder" in ours["body_sim"], "ack_topic" in ours["recorder"]) == (not hosted, not hosted)
