@@ -238,7 +238,8 @@ def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats
     A, anchor, loop B, anchor, ... With ``composed``, each loop also runs composed (``bptsb launch --composed``)
     between two runs of the composed anchor (ping and pong in one process). With ``recorder_in_body``, each loop also
     runs with the recorder in the body's process (``--recorder-in-body``; split: beside the split anchor, whose
-    recorder is a process of its own). Bags and logs go to ``workdir`` (default: a new temporary folder, kept)."""
+    recorder is a process of its own); with both, also with the whole loop in one process (beside the composed
+    anchor). Bags and logs go to ``workdir`` (default: a new temporary folder, kept)."""
     work = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="bptsb-bench-live-"))
     work.mkdir(parents=True, exist_ok=True)
     report: dict[str, Any] = {"cpu_count": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
@@ -250,7 +251,8 @@ def run_live(loops: tuple[str, ...] = LIVE_LOOPS, seconds: float = 10.0, repeats
         agent = str(fitted_agent(work / "agent"))
     seq = report["sequence"]
     seq.append({"kind": "anchor", **anchor_run("split", anchor_seconds, progress)})
-    layouts = [(False, False)] + ([(False, True)] if recorder_in_body else []) + ([(True, False)] if composed else [])
+    layouts = ([(False, False)] + ([(False, True)] if recorder_in_body else []) + ([(True, False)] if composed else [])
+               + ([(True, True)] if composed and recorder_in_body else []))
     for round_ in range(repeats):
         for loop in loops:
             for together, in_body in layouts:

@@ -28,12 +28,13 @@ PACKAGE_PARENT = Path(__file__).resolve().parents[2]
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.epilog = loops_help() + (
         "\n\nEach node is a process `python -m bptsb_ros.ros.<node> --ros-args ...`; with --bag the recorder runs "
-        "too and is stopped last (--recorder-in-body: in body_sim's process).\nIn lockstep the run lasts --duration "
-        "seconds of sim time (body_sim exits after "
-        "the last step); in realtime\n--duration wall seconds. Ctrl-C stops every node (SIGINT, then SIGTERM/SIGKILL "
+        "too and is stopped last (--recorder-in-body: it runs in body_sim's process and stops with it).\nIn "
+        "lockstep the run lasts --duration seconds of sim time (body_sim exits after the last step); in realtime\n"
+        "--duration wall seconds. Ctrl-C stops every node (SIGINT, then SIGTERM/SIGKILL "
         "after --grace). Exit status 0 only if\nevery node exited cleanly and the recording lost nothing (--allow-loss "
-        "accepts a lossy one; the bag counts the losses either way).\nA lockstep body waits for the recorder, so a "
-        "lockstep recording cannot lose a message. Children get ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless it\n"
+        "accepts a lossy one; the bag counts the losses either way).\nA lockstep body waits for the recorder (or, in "
+        "its process, records between its steps), so a lockstep recording cannot lose a message. Children get "
+        "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless it\n"
         "is set, and inherit ROS_DOMAIN_ID."
     )
     parser.add_argument("loop", choices=sorted(LOOPS), metavar="LOOP", help="loop to run: " + ", ".join(LOOPS))
@@ -48,7 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep", help="timing mode")
     parser.add_argument("--composed", action="store_true",
                         help="body_sim and the brains in one process on the body's executor (node composition; the "
-                             "recorder stays a process of its own): the same messages, fewer process hand-offs")
+                             "recorder stays a process of its own unless --recorder-in-body): the same messages, "
+                             "fewer process hand-offs")
     parser.add_argument("--recorder-in-body", action="store_true",
                         help="with --bag: the recorder runs in body_sim's process and takes the messages in the "
                              "body's loop (as a composable recorder beside its publishers; with --composed in the one "
@@ -216,7 +218,8 @@ def parse_extra(items: list[str], nodes: list[str]) -> dict[str, list[str]]:
 
 
 class Launcher:
-    """Starts the children, watches them, stops them in order: body, brains, recorder last."""
+    """Starts the children, watches them, stops them in order: body, brains, recorder last (a recorder in the
+    body's process stops with the body, after it has recorded the run)."""
 
     def __init__(self, children: list[Child], body: Child, recorder: Child | None, grace: float) -> None:
         self.children = children
@@ -374,10 +377,11 @@ def _perturbation_problem(args: argparse.Namespace) -> str:
 
 
 def _check_recording(launcher: Launcher, rows: list[tuple[str, str]], bag: Path, summary_path: Path,
-                     allow_loss: bool) -> list[tuple[str, str]]:
+                     allow_loss: bool, row: str = "recorder") -> list[tuple[str, str]]:
     """Count what the recording lost (:func:`bptsb_ros.bags.loss.recording_loss`: the recorder's count and the body's
-    published messages against the bag), add it to the body summary as ``recording``, and make the recorder's row
-    say so: ``ok`` only when nothing was lost; a loss fails the run unless ``allow_loss``."""
+    published messages against the bag), add it to the body summary as ``recording``, and make the row of the
+    recorder's process (``row``: ``recorder``, or ``composed`` when it runs in the body's) say so: ``ok`` only when
+    nothing was lost; a loss fails the run unless ``allow_loss``."""
     import json
 
     from bptsb_ros.bags.errors import BagError
@@ -392,20 +396,20 @@ def _check_recording(launcher: Launcher, rows: list[tuple[str, str]], bag: Path,
     try:
         loss = recording_loss(bag, published if isinstance(published, dict) else None)
     except BagError as err:
-        launcher.failures.append(f"recorder: the bag cannot be checked for losses: {err}")
+        launcher.failures.append(f"{row}: the bag cannot be checked for losses: {err}")
         return rows
     if isinstance(summary, dict):
         summary["recording"] = {**loss.to_dict(), "allowed": allow_loss}
         write_atomic(summary_path, json.dumps(summary, indent=2) + "\n")
     if not loss.any:
         return rows
-    launcher.failures[:] = [f for f in launcher.failures if not f.startswith("recorder: failed (exit 1)")]
+    launcher.failures[:] = [f for f in launcher.failures if not f.startswith(f"{row}: failed (exit 1)")]
     if allow_loss:
         verdict = f"{loss.describe()} (allowed by --allow-loss)"
     else:
         verdict = f"failed: {loss.describe()}"
-        launcher.failures.append(f"recorder: {loss.describe()} (--allow-loss accepts a lossy recording)")
-    return [(name, verdict if name == "recorder" else v) for name, v in rows]
+        launcher.failures.append(f"{row}: {loss.describe()} (--allow-loss accepts a lossy recording)")
+    return [(name, verdict if name == row else v) for name, v in rows]
 
 
 def _brain_problem(summary_path: Path) -> str:
@@ -569,7 +573,8 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(sig, handler)
     rows = launcher.results()
     if args.bag:
-        rows = _check_recording(launcher, rows, Path(args.bag), summary_path, args.allow_loss)
+        rows = _check_recording(launcher, rows, Path(args.bag), summary_path, args.allow_loss,
+                                "composed" if args.recorder_in_body else "recorder")
     problem = _brain_problem(summary_path)
     if problem:
         launcher.failures.append(problem)

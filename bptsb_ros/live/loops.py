@@ -350,7 +350,7 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
                     "keys /** or the node names); empty: none"),
     "composed": ("false", "true: body_sim and the loop's brains in one process on one executor (bptsb_composed; the "
                  "same nodes, parameters and messages, fewer hand-offs between processes); the recorder stays a "
-                 "process of its own"),
+                 "process of its own unless recorder_in_body:=true"),
     "recorder_in_body": ("false", "with bag: true runs the recorder in body_sim's process (bptsb_composed, with the "
                          "brains too under composed:=true), where it takes the messages in the body's loop while the "
                          "body waits for its commands: one process and one reader hand-off fewer, the same bag"),

@@ -8,9 +8,10 @@ body's spins, the brains answer the newest message of each of their subscription
 transport); what composition saves is the processes' scheduling and wake-ups between them.
 
 ``recorder`` last in ``--nodes`` hosts the recorder too (``bptsb launch --recorder-in-body``), as a composable
-recorder shares its publishers' process: it is on no executor; after each of the body's spins it takes every
-``batch_wait`` everything waiting (:meth:`RecorderNode.serve`), so it runs in the body's thread and cannot fall
-behind the body, whose ``wait_for_recorder`` must then be false. After the run it drains and closes the bag.
+recorder shares its publishers' process: it is on no executor; it takes everything waiting each time the body is
+about to wait for a message, and after the body's spins and steps once ``batch_wait`` has passed since its last take
+(:meth:`RecorderNode.serve`), in the body's thread, so the body need not wait for it (its ``wait_for_recorder`` must
+be false). After the run it drains and closes the bag; a process stopped outright closes the bag marked incomplete.
 
 ``python -m bptsb_ros.ros.composed --nodes body_sim,swg_brain --ros-args --params-file FILE [-r ...]``: FILE holds
 one section per node (``/**/body_sim: ros__parameters: ...``, :func:`params_file_text`); ``bptsb launch LOOP
@@ -81,7 +82,10 @@ def run_composed(executables: Sequence[str], ros_args: list[str]) -> int:
         try:
             for executable in executables:
                 if executable == RECORDER:
-                    recorder = node_class(executable)()
+                    if nodes[0].core.recorder is not None:  # refused before the bag is made
+                        raise ParameterError("wait_for_recorder: the recorder runs in this process and takes in the "
+                                             "body's loop, which has nothing to wait for: set wait_for_recorder:=false")
+                    recorder = node_class(executable)(hosted=True)
                     nodes.append(recorder)
                 else:
                     nodes.append(node_class(executable)(stop))
@@ -91,10 +95,6 @@ def run_composed(executables: Sequence[str], ros_args: list[str]) -> int:
         else:
             body = nodes[0]
             brains = [node for node in nodes[1:] if node is not recorder]
-            if recorder is not None and body.core.recorder is not None:
-                body.get_logger().error("wait_for_recorder: the recorder runs in this process and takes in the "
-                                        "body's loop; it cannot fall behind, set wait_for_recorder:=false")
-                return EXIT_BAD_PARAMETERS
             for brain in brains:
                 brain.executor_.remove_node(brain)
                 body.executor_.add_node(brain)
@@ -111,6 +111,7 @@ def run_composed(executables: Sequence[str], ros_args: list[str]) -> int:
             body.after_spin = after_spin
             if recorder is not None:
                 body.before_wait = lambda: recorder.serve(time.monotonic(), idle=True)
+                body.after_step = lambda: recorder.serve(time.monotonic())
             code = body.run()
             if not stop:
                 stop.set("the body's end")
@@ -125,8 +126,10 @@ def run_composed(executables: Sequence[str], ros_args: list[str]) -> int:
         code = EXIT_FAILURE
     finally:
         ignore_stop_signals()
-        if recorder is not None and not recorder.writer.closed:
-            recorder.writer.close()  # what was recorded stays readable
+        if recorder is not None and not recorder.writer.closed:  # stopped outright: the bag says it is incomplete
+            recorder.loss.cut_short = True
+            recorded = recorder.close()
+            code = code or recorded
         for node in reversed(nodes):
             node.destroy_node()
         rclpy.try_shutdown()
@@ -139,7 +142,8 @@ def main(args: list[str] | None = None) -> int:
     argv = sys.argv[1:] if args is None else list(args)
     split = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
     parser = argparse.ArgumentParser(prog=f"python -m bptsb_ros.ros.{NAME}", description=__doc__.split("\n")[0])
-    parser.add_argument("--nodes", required=True, help="comma-separated: body_sim first, then the loop's brains")
+    parser.add_argument("--nodes", required=True, help="comma-separated: body_sim first, then the loop's brains, then "
+                        "optionally recorder (hosted in the body's loop)")
     opts = parser.parse_args(argv[:split])
     executables = [n for n in opts.nodes.split(",") if n]
     unknown = [n for n in executables if n not in MODULES]

@@ -24,7 +24,8 @@ from bptsb_ros.live.loops import (
     resolve_arguments,
 )
 
-#: the executable of ``composed:=true`` (body_sim and the brains in one process; its exit code is the body's)
+#: the executable of ``composed:=true`` and ``recorder_in_body:=true`` (body_sim with the brains and/or the recorder in
+#: one process; its exit code is the body's, else the hosted recorder's)
 COMPOSED = "bptsb_composed"
 
 

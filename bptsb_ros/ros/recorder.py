@@ -93,8 +93,13 @@ EXIT_LOST = 1
 class RecorderNode(Node):
     """Subscribes to the selected topics and writes every message it takes to a :class:`BagWriter`."""
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, hosted: bool = False, **kwargs: Any) -> None:
+        """``hosted``: run in another node's loop (:meth:`serve`; ``bptsb_composed``), not on an executor of its own:
+        its sim time then always follows the ``/clock`` it records, and it refuses to start (BagError) where
+        publisher GIDs cannot be taken, because its losses are counted from the publishers' sequence numbers alone
+        (the middleware's loss reports are callbacks, which only an executor runs)."""
         super().__init__("recorder", **kwargs)
+        self.hosted = hosted
         self.config = RecorderConfig.from_values(declare_parameters(self, RECORDER_PARAMS), self.get_namespace())
         self._use_sim_time = bool(self.get_parameter("use_sim_time").value)
         self.add_on_set_parameters_callback(self._keep_time_base)
@@ -111,6 +116,9 @@ class RecorderNode(Node):
         self._identities: dict[str, dict[str, PublisherId]] = {}  # topic -> GID -> publisher (from the graph)
         self._takers: list[GidTaker] = []
         self._gid_problem = gid_take_problem()
+        if hosted and self._gid_problem:
+            raise BagError(f"the recorder cannot run in the body's process here: publisher GIDs cannot be taken "
+                           f"({self._gid_problem}), so it could not count losses; run it as a process of its own")
         self.received = 0
         self.after_stop = 0  # messages published after the stop signal, not recorded
         self.loss = LossCount()
@@ -256,13 +264,15 @@ class RecorderNode(Node):
         ``/clock`` subscription is on ``topic``, it is destroyed (as ``BrainNode.feed_sim_time`` does), and the ticks
         waiting on ``topic`` are taken before every batch of another topic is written (:meth:`_on_batch`), which is
         then logged at the newest tick. Where rclpy's time source is not as expected (or listens elsewhere), nothing
-        changes."""
+        changes, unless the recorder is hosted: no executor spins rclpy's subscription there, so the recorded ticks
+        are its clock in any case."""
         source = getattr(self, "_time_source", None)
         sub = getattr(source, "_clock_sub", None)
-        if sub is None or sub.topic_name != topic:
+        if sub is not None and sub.topic_name == topic:
+            self.destroy_subscription(sub)
+            source._clock_sub = None
+        elif not self.hosted:  # rclpy's own subscription stays this node's clock
             return
-        self.destroy_subscription(sub)
-        source._clock_sub = None
         self._clock_topic = topic
 
     def _tick(self, data: bytes) -> int | None:
@@ -390,7 +400,7 @@ class RecorderNode(Node):
     def drain_hosted(self) -> None:
         """The end of a hosted recording (:meth:`serve`): take what is still waiting or in flight until none has come
         for ``drain_quiet`` seconds (``stop_timeout`` caps it, a drain cut short counts as a loss), as :func:`_drain`
-        does without an executor. Messages published after this call are not recorded."""
+        does with an executor. Messages published after this call began are not recorded."""
         self.begin_stop(time.time_ns())
         quiet, cap = self.config.drain_quiet, self.config.stop_timeout
         started = last = time.monotonic()

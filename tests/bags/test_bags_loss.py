@@ -116,6 +116,13 @@ def test_launcher_verdict_says_ok_only_without_loss(tmp_path: Path, allow: bool)
         "dropped_messages": 5, "dropped_by_topic": {"/clock": 5}, "recorder_counted": 0, "recording_complete": True,
         "allowed": allow}
     assert read_metadata(bag).custom_data["dropped_messages"] == "0"  # the bag is left as the recorder wrote it
+    # the recorder in the body's process: the loss is on that process's row, and its exit 1 is the loss
+    hosted = [("composed", "failed (exit 1)"), ("swg_brain", "ok")]
+    launcher.failures[:] = ["composed: failed (exit 1)"]
+    out = dict(_check_recording(launcher, hosted, bag, summary, allow, "composed"))
+    assert "lost 5 messages (/clock 5)" in out["composed"] and out["swg_brain"] == "ok"
+    assert launcher.failures == ([] if allow else ["composed: lost 5 messages (/clock 5) (--allow-loss accepts a "
+                                                   "lossy recording)"])
 
 
 @pytest.mark.ros

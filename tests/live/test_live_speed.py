@@ -366,9 +366,10 @@ def test_composed_runs_sit_between_composed_anchors(tmp_path, monkeypatch):
              for i in report["sequence"]]
     assert order == [("anchor", "split"), ("loop", "split"), ("anchor", "split"),
                      ("loop", "split, recorder in body"), ("anchor", "split"), ("anchor", "composed"),
-                     ("loop", "composed"), ("anchor", "composed")]
+                     ("loop", "composed"), ("anchor", "composed"), ("anchor", "composed"),
+                     ("loop", "composed, recorder in body"), ("anchor", "composed")]
     assert report["ratios"] == {"narma (split)": [0.1], "narma (split, recorder in body)": [0.1],
-                                "narma (composed)": [0.1]}
+                                "narma (composed)": [0.1], "narma (composed, recorder in body)": [0.1]}
     plain = live.run_live(("narma",), 1.0, 1, tmp_path, progress=lambda m: None)
     assert [i["kind"] for i in plain["sequence"]] == ["anchor", "loop", "anchor"]
 

@@ -97,6 +97,7 @@ def test_a_hosted_recorder_refuses_a_body_that_waits_for_it(tmp_path, ros_env):
                  "--param", "body_sim:wait_for_recorder:=true"], ros_env)
     assert out.returncode != 0
     assert "wait_for_recorder: the recorder runs in this process" in out.stdout, out.stdout[-3000:]
+    assert not bag.exists()  # refused before the recorder made the bag
 
 
 class _FakeRecorder:
@@ -156,3 +157,40 @@ def test_a_hosted_recorder_drains_until_quiet_and_counts_a_drain_cut_short():
     busy = _FakeRecorder(arrivals=[1] * 10_000, stop_timeout=0.05)  # never quiet: cut short at stop_timeout
     RecorderNode.drain_hosted(busy)
     assert busy.loss.cut_short and busy.received == busy.takes
+
+
+def test_ctrl_c_stops_a_run_with_the_recorder_in_the_body_process_and_closes_a_complete_bag(tmp_path, ros_env):
+    """A run without an end (``--duration 0``) stopped by SIGINT to ``bptsb launch``: the body's process drains
+    and closes the bag (complete, nothing lost: every tick the body sent, and every command the brain answered)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from ros_live import REPO, env_for
+
+    from bptsb_ros.bags.reader import bag_info
+
+    bag = tmp_path / "bag"
+    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--bag", str(bag),
+                             "--recorder-in-body", "--param", "body_sim:command_timeout:=30.0"],
+                            env=env_for(ros_env), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        log = tmp_path / "bag.launch" / "composed.log"
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (log.is_file() and "startup complete" in log.read_text()):
+            time.sleep(0.2)
+        time.sleep(1.0)  # some steps
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out[-4000:]
+    info = bag_info(bag)
+    counts = {t.name: t.message_count for t in info.topics}
+    assert info.dropped_messages == 0 and info.recording_complete
+    # the answer to the last tick may come after the drain on a very busy machine: at most that one is missing
+    assert counts["/clock"] > 50 and counts["/clock"] - 1 <= counts["/brain/rest_length"] <= counts["/clock"]
+    assert "composed        ok" in out
