@@ -375,8 +375,7 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     import time
     from types import SimpleNamespace
 
-    from bptsb_ros.ros.body_outputs import DIAGNOSTICS_OVERDUE
-    from bptsb_ros.ros.body_sim import BodySim
+    from bptsb_ros.ros.body_outputs import DIAGNOSTICS_OVERDUE, BodyOutputs
 
     due = lambda: time.monotonic() - 0.01  # noqa: E731 - the status is due, not overdue
     published, summaries = [], []
@@ -384,21 +383,21 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     node = SimpleNamespace(p={"diagnostics_period": 1.0}, next_diagnostics=due(), _pending_status=None,
                            _diagnostics_cost=[0.001, 0.001], core=core,
                            _status=lambda *args: published.append(args), _refresh_graph=lambda slack: None)
-    BodySim.diagnostics(node, slack=0.0005)  # 0.5 ms left, the summary took up to 1 ms: wait
+    BodyOutputs.diagnostics(node, slack=0.0005)  # 0.5 ms left, the summary took up to 1 ms: wait
     assert summaries == [] and published == []
-    BodySim.diagnostics(node, slack=1.0)  # plenty: both parts in one turn
+    BodyOutputs.diagnostics(node, slack=1.0)  # plenty: both parts in one turn
     assert len(summaries) == 1 and len(published) == 1 and node._pending_status is None
     assert node.next_diagnostics > time.monotonic()  # the next one a period on
     node.next_diagnostics, node._diagnostics_cost = due(), [0.0, 0.001]  # the summary fits, the message does not
-    BodySim.diagnostics(node, slack=0.0005)
+    BodyOutputs.diagnostics(node, slack=0.0005)
     assert len(summaries) == 2 and len(published) == 1 and node._pending_status is not None
     node._diagnostics_cost = [1.0, 1.0]
-    BodySim.diagnostics(node, slack=0.0005)  # still no time: nothing more
+    BodyOutputs.diagnostics(node, slack=0.0005)  # still no time: nothing more
     assert len(published) == 1
     node.next_diagnostics = time.monotonic() - (DIAGNOSTICS_OVERDUE + 1) * 1.0  # overdue: whatever the slack
-    BodySim.diagnostics(node, slack=0.0)
+    BodyOutputs.diagnostics(node, slack=0.0)
     assert len(published) == 2 and len(summaries) == 2 and node._pending_status is None
-    BodySim.diagnostics(node, force=True)  # the final status: at once
+    BodyOutputs.diagnostics(node, force=True)  # the final status: at once
     assert len(published) == 3 and len(summaries) == 3
 
 
