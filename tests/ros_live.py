@@ -60,6 +60,28 @@ def bptsb(args: list[str], ros_env: dict[str, str], timeout: float = 180) -> sub
     return subprocess.CompletedProcess(proc.args, proc.returncode, out)
 
 
+def interrupted_launch(args: list[str], ros_env: dict[str, str], ready: Callable[[str], bool], delay: float,
+                       timeout: float = 90) -> tuple[int, str]:
+    """Run ``bptsb launch ARGS``, read its output until a line for which ``ready`` holds, wait ``delay`` seconds, send
+    it SIGINT (Ctrl-C) and wait for it; returns its exit code and all its output (stdout and stderr together)."""
+    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", *args], env=env_for(ros_env), cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    try:
+        for line in proc.stdout:
+            lines.append(line)
+            if ready(line):
+                break
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return proc.returncode, "".join(lines) + out
+
+
 def start_node(node: str, params: dict[str, Any], ros_env: dict[str, str], log: Path) -> subprocess.Popen:
     """Start ``python -m bptsb_ros.ros.<node> --ros-args -p ...``, output to ``log``."""
     from bptsb_ros.live.loops import format_parameter

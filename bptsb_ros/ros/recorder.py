@@ -46,13 +46,14 @@ import signal
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 from typing import Any
 
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidHandle
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -398,26 +399,17 @@ class RecorderNode(Node):
         self.writer.flush_if_due()
 
     def drain_hosted(self) -> None:
-        """The end of a hosted recording (:meth:`serve`): take what is still waiting or in flight until none has come
-        for ``drain_quiet`` seconds (``stop_timeout`` caps it, a drain cut short counts as a loss), as :func:`_drain`
-        does with an executor. Messages published after this call began are not recorded."""
-        self.begin_stop(time.time_ns())
-        quiet, cap = self.config.drain_quiet, self.config.stop_timeout
-        started = last = time.monotonic()
-        while True:
+        """The end of a hosted recording (:meth:`serve`): :func:`_drain` without an executor, each wait a take of
+        everything waiting and, when that brought nothing, a short sleep. Messages published after this call began
+        are not recorded."""
+
+        def wait(timeout: float) -> None:
             before = self.received
             self.take_ready()
-            now = time.monotonic()
-            if self.received != before:
-                last = now
-            elif now - last >= quiet:
-                return
-            if now - started >= cap:
-                self.loss.cut_short = True
-                self.get_logger().error(f"stop_timeout: still taking messages after {cap:g} s; closing the bag, the "
-                                        "recording is incomplete")
-                return
-            time.sleep(min(quiet / 4, 0.01))
+            if self.received == before:
+                time.sleep(min(timeout, 0.01))
+
+        _drain(self, time.time_ns(), wait)
 
     def begin_stop(self, stop_ns: int) -> None:
         """The stop sequence has begun (signal at ``stop_ns``, system time): stop looking for new topics and stop
@@ -459,13 +451,15 @@ class RecorderNode(Node):
             taker.close()
 
 
-def _drain(executor: SingleThreadedExecutor, node: RecorderNode, stop_ns: int) -> None:
+def _drain(node: RecorderNode, stop_ns: int, wait: Callable[[float], None]) -> None:
     """Take the messages still waiting or in flight after the stop signal (at ``stop_ns``, system time).
 
-    Every executor call takes all waiting messages of a subscription (:func:`bptsb_ros.ros.take.batch_executor_class`),
-    so a backlog of thousands drains in a fraction of a second. The drain ends once no message published before the
-    signal has come for ``drain_quiet`` seconds (wall time since the last one, whatever else the executor did);
-    ``stop_timeout`` caps it, and a drain cut short is counted as a loss.
+    ``wait(timeout)`` takes what has come, waiting up to ``timeout`` [s] for it: a spin of the recorder's executor,
+    every call of which takes all waiting messages of a subscription (:func:`bptsb_ros.ros.take.batch_executor_class`),
+    so a backlog of thousands drains in a fraction of a second; or a hosted recorder's take
+    (:meth:`RecorderNode.drain_hosted`). The drain ends once no message published before the signal has come for
+    ``drain_quiet`` seconds (wall time since the last one, whatever else the wait did); ``stop_timeout`` caps it,
+    and a drain cut short is counted as a loss.
     """
     node.begin_stop(stop_ns)
     quiet, cap = node.config.drain_quiet, node.config.stop_timeout
@@ -473,7 +467,7 @@ def _drain(executor: SingleThreadedExecutor, node: RecorderNode, stop_ns: int) -
     taken = node.received
     while True:
         before = node.received
-        executor.spin_once(timeout_sec=min(quiet, 0.05))
+        wait(min(quiet, 0.05))
         now = time.monotonic()
         if node.received != before:
             last = now
@@ -534,7 +528,7 @@ def main(args: list[str] | None = None) -> int:
             while on_stop.ns is None:  # batches: one wake-up per batch_wait while messages arrive
                 take_round(spin, lambda: node.received, time.monotonic, time.sleep, node.config.batch_wait,
                            take_ready=node.take_ready)
-            _drain(executor, node, on_stop.ns)  # the loop ends only once a stop signal set it
+            _drain(node, on_stop.ns, lambda timeout: executor.spin_once(timeout_sec=timeout))  # after a stop signal
         except ExternalShutdownException:
             pass
         code = node.close()

@@ -110,7 +110,7 @@ class _FakeRecorder:
                                          "stop_timeout": 5.0, **config})
         self._next_take = self._next_discovery = 0.0
         self.takes, self.discoveries, self.flushes, self.received, self.stopped = 0, 0, 0, 0, None
-        self.arrivals = list(arrivals)  # messages each take finds
+        self.arrivals = iter(arrivals)  # messages each take finds (then none)
         self.writer = SimpleNamespace(flush_if_due=self._flush)
         self.loss = SimpleNamespace(cut_short=False)
 
@@ -119,7 +119,7 @@ class _FakeRecorder:
 
     def take_ready(self) -> None:
         self.takes += 1
-        self.received += self.arrivals.pop(0) if self.arrivals else 0
+        self.received += next(self.arrivals, 0)
 
     def _discover(self) -> None:
         self.discoveries += 1
@@ -149,45 +149,31 @@ def test_a_hosted_recorder_takes_before_every_wait_and_otherwise_every_batch_wai
 
 
 def test_a_hosted_recorder_drains_until_quiet_and_counts_a_drain_cut_short():
+    import itertools
+
     from bptsb_ros.ros.recorder import RecorderNode
 
     quiet = _FakeRecorder(arrivals=[3, 2, 0, 1])  # a late message after an empty take resets the quiet time
     RecorderNode.drain_hosted(quiet)
     assert quiet.received == 6 and quiet.stopped is not None and quiet.takes >= 5 and not quiet.loss.cut_short
-    busy = _FakeRecorder(arrivals=[1] * 10_000, stop_timeout=0.05)  # never quiet: cut short at stop_timeout
+    busy = _FakeRecorder(arrivals=itertools.repeat(1), stop_timeout=0.05)  # never quiet: cut short at stop_timeout
     RecorderNode.drain_hosted(busy)
     assert busy.loss.cut_short and busy.received == busy.takes
 
 
 def test_ctrl_c_stops_a_run_with_the_recorder_in_the_body_process_and_closes_a_complete_bag(tmp_path, ros_env):
-    """A run without an end (``--duration 0``) stopped by SIGINT to ``bptsb launch``: the body's process drains
-    and closes the bag (complete, nothing lost: every tick the body sent, and every command the brain answered)."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    from ros_live import REPO, env_for
+    """A run without an end (``--duration 0``) stopped by SIGINT to ``bptsb launch`` a second after it started
+    stepping: the body's process drains and closes the bag (complete, nothing lost: every tick the body sent, and
+    every command the brain answered)."""
+    from ros_live import interrupted_launch
 
     from bptsb_ros.bags.reader import bag_info
 
     bag = tmp_path / "bag"
-    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--bag", str(bag),
-                             "--recorder-in-body", "--param", "body_sim:command_timeout:=30.0"],
-                            env=env_for(ros_env), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        log = tmp_path / "bag.launch" / "composed.log"
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not (log.is_file() and "startup complete" in log.read_text()):
-            time.sleep(0.2)
-        time.sleep(1.0)  # some steps
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 0, out[-4000:]
+    code, out = interrupted_launch(["lissajous_open", "--bag", str(bag), "--recorder-in-body", "--param",
+                                    "body_sim:command_timeout:=30.0"], ros_env,
+                                   lambda line: "startup complete" in line, 1.0)
+    assert code == 0, out[-4000:]
     info = bag_info(bag)
     counts = {t.name: t.message_count for t in info.topics}
     assert info.dropped_messages == 0 and info.recording_complete

@@ -9,31 +9,17 @@ import sys
 import time
 
 import pytest
-from ros_live import REPO, env_for
+from ros_live import REPO, env_for, interrupted_launch
 
 
 @pytest.mark.slow
 def test_ctrl_c_during_startup_is_a_clean_stop(tmp_path, ros_env):
-    proc = subprocess.Popen([sys.executable, "-m", "bptsb_ros.cli", "launch", "lissajous_open", "--duration", "5",
-                             "--bag", str(tmp_path / "bag"), "--grace", "20"],
-                            env=env_for(ros_env), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    lines = []
-    try:
-        for line in proc.stdout:  # the launcher announces the loop right before it starts the nodes
-            lines.append(line)
-            if line.startswith("[launch] lissajous_open:"):
-                break
-        time.sleep(0.3)  # the nodes are now importing torch and rclpy (that takes seconds here)
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=90)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    out = "".join(lines) + out
+    # the launcher announces the loop right before it starts the nodes; 0.3 s later they are importing torch and rclpy
+    code, out = interrupted_launch(["lissajous_open", "--duration", "5", "--bag", str(tmp_path / "bag"), "--grace",
+                                    "20"], ros_env, lambda line: line.startswith("[launch] lissajous_open:"), 0.3)
     assert "startup complete" not in out, "the stop came too late to test a stop during startup"
     assert "Traceback" not in out and "KeyboardInterrupt" not in out, out
-    assert proc.returncode == 0, out
+    assert code == 0, out
     for node in ("body_sim", "swg_brain", "recorder"):
         assert f"[launch]   {node:<15} ok" in out, out
 
