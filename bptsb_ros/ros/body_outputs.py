@@ -144,6 +144,12 @@ class BodyOutputs:
         return {key: key in every or step % n == (2 * i + 2) % n for i, key in enumerate(SLOW_OUTPUTS)}
 
     def diagnostics(self, force: bool = False, error: str = "", slack: float = math.inf) -> None:
+        """The per-step housekeeping after each step: the loop status when it is due (:meth:`_loop_status`), then
+        :meth:`after_step`."""
+        self._loop_status(force, error, slack)
+        self.after_step()
+
+    def _loop_status(self, force: bool, error: str, slack: float) -> None:
         """Publish the loop status every ``diagnostics_period`` (or now when ``force`` or ``error``).
 
         The work (the summary with its percentiles, then the message) takes a good fraction of a millisecond, more
@@ -173,6 +179,10 @@ class BodyOutputs:
             self._status(*self.core.status(self.core.summary(), error))
         self._pending_status = None
         self.next_diagnostics = now + self.p["diagnostics_period"]
+
+    def after_step(self) -> None:
+        """What runs after each step's :meth:`diagnostics`: nothing, or a recorder hosted in this process taking what
+        is waiting once its ``batch_wait`` has passed (composed: a body that never waits still records as it goes)."""
 
     def _status(self, level: str, message: str, values: list[tuple[str, str]], name: str = "loop") -> None:
         """Publish one DiagnosticStatus ``<node>: <name>`` stamped with the sim time of the last step."""

@@ -12,7 +12,6 @@ semantics in :mod:`bptsb_ros.live.sim_control`), each call reported on ``/diagno
 from __future__ import annotations
 
 import gc
-import math
 import sys
 import time
 from typing import Any
@@ -191,15 +190,6 @@ class BodySim(BodyOutputs, BodyGraph, Node):
 
     def after_spin(self) -> None:
         """What runs after each spin: nothing, or the brains' answers where they share this executor (composed)."""
-
-    def diagnostics(self, force: bool = False, error: str = "", slack: float = math.inf) -> None:
-        """The loop's per-step housekeeping (:meth:`BodyOutputs.diagnostics`), then :meth:`after_step`."""
-        super().diagnostics(force, error, slack)
-        self.after_step()
-
-    def after_step(self) -> None:
-        """What runs after each step's diagnostics: nothing, or a recorder hosted in this process taking what is
-        waiting once its ``batch_wait`` has passed (composed: a body that never waits still records as it goes)."""
 
     def before_wait(self) -> None:
         """What runs before a spin that may block (waiting for a message): nothing, or a recorder hosted in this

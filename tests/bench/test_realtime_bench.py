@@ -383,6 +383,9 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     node = SimpleNamespace(p={"diagnostics_period": 1.0}, next_diagnostics=due(), _pending_status=None,
                            _diagnostics_cost=[0.001, 0.001], core=core,
                            _status=lambda *args: published.append(args), _refresh_graph=lambda slack: None)
+    node._loop_status = lambda force=False, error="", slack=0.0: BodyOutputs._loop_status(node, force, error, slack)
+    node.after_step = lambda: steps.append(1)
+    steps = []
     BodyOutputs.diagnostics(node, slack=0.0005)  # 0.5 ms left, the summary took up to 1 ms: wait
     assert summaries == [] and published == []
     BodyOutputs.diagnostics(node, slack=1.0)  # plenty: both parts in one turn
@@ -399,6 +402,7 @@ def test_the_loop_status_waits_for_slack_in_two_parts_and_not_forever():
     assert len(published) == 2 and len(summaries) == 2 and node._pending_status is None
     BodyOutputs.diagnostics(node, force=True)  # the final status: at once
     assert len(published) == 3 and len(summaries) == 3
+    assert len(steps) == 6  # after every call, whether the status went out or not (a hosted recorder's turn)
 
 
 @pytest.mark.ros
