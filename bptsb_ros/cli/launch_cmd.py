@@ -185,14 +185,14 @@ def node_argv(executable: str, params: dict, extra: list[str], namespace: str = 
 
 
 def composed_child(planned: dict[str, dict], extra: dict[str, list[str]], namespace: str, log_dir: Path,
-                   members: set[str]) -> Child:
-    """The one process of ``--composed`` and ``--recorder-in-body``: body_sim and the nodes of ``planned`` in
-    ``members`` (:mod:`bptsb_ros.ros.composed`; the recorder last), their parameters in
-    ``log_dir/composed_params.yaml``, a section per node."""
+                   members: list[str]) -> Child:
+    """The one process of ``--composed`` and ``--recorder-in-body``: the nodes ``members`` of ``planned``, body_sim
+    first and the recorder last (:func:`~bptsb_ros.live.loops.body_process_nodes`; :mod:`bptsb_ros.ros.composed`),
+    their parameters in ``log_dir/composed_params.yaml``, a section per node."""
     from bptsb_ros.live.loops import namespace_remaps
     from bptsb_ros.ros.composed import params_file_text
 
-    nodes = {name: params for name, params in planned.items() if name in members or name == "body_sim"}
+    nodes = {name: planned[name] for name in members}
     params_file = log_dir / "composed_params.yaml"
     write_atomic(params_file, params_file_text(nodes, extra))
     argv = [sys.executable, "-m", "bptsb_ros.ros.composed", "--nodes", ",".join(nodes), "--ros-args",
@@ -462,7 +462,7 @@ def node_plan(loop, args: argparse.Namespace, namespace: str, summary_path: Path
 
 
 def run(args: argparse.Namespace) -> int:
-    from bptsb_ros.live.loops import agent_loop, log_dir_of_bag
+    from bptsb_ros.live.loops import agent_loop, body_process_nodes, log_dir_of_bag
 
     loop = LOOPS[args.loop]
     plan = None
@@ -532,13 +532,12 @@ def run(args: argparse.Namespace) -> int:
 
     children: list[Child] = []
     planned = node_plan(loop, args, namespace, summary_path, plan, max_wind)
-    members = {b.executable for b in loop.brains} if args.composed else set()
-    if args.recorder_in_body:
-        members.add("recorder")
-    if members:
-        children.append(composed_child(planned, extra, namespace, log_dir, members))
+    members = body_process_nodes(loop, composed=args.composed, recorder_in_body=args.recorder_in_body)
+    hosted = members if len(members) > 1 else []  # body_sim alone is a node process like the others
+    if hosted:
+        children.append(composed_child(planned, extra, namespace, log_dir, hosted))
     for executable, params in planned.items():
-        if executable not in members and not (members and executable == "body_sim"):
+        if executable not in hosted:
             children.append(Child(executable, node_argv(executable, params, extra[executable], namespace),
                                   log_dir / f"{executable}.log"))
     body = children[0]

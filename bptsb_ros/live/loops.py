@@ -28,7 +28,8 @@ from bptsb_ros.interface.params import ParamValue, params_sections_text, yaml_va
 from bptsb_ros.interface.topics import BODY_OUTPUTS, COMMAND_SOURCES, RECORDER_ACK, TOPICS, absolute, feedback_state_key
 from bptsb_ros.live.body_params import SLOW_OUTPUTS
 
-__all__ = ["LOOPS", "BrainSpec", "Loop", "ParamValue", "agent_loop", "feedback_state_key", "format_parameter",
+__all__ = ["LOOPS", "BrainSpec", "Loop", "ParamValue", "agent_loop", "body_process_nodes", "feedback_state_key",
+           "format_parameter",
            "log_dir_of_bag", "node_parameters", "recorder_parameters", "topic_names"]
 
 
@@ -186,6 +187,14 @@ def namespace_remaps(namespace: str) -> list[tuple[str, str]]:
 def topic_names(keys: list[str], namespace: str = "") -> list[str]:
     """Resolved names of topic keys in ``namespace`` (normalized, :func:`loop_topic`)."""
     return [loop_topic(k, namespace) for k in keys]
+
+
+def body_process_nodes(loop: Loop, *, composed: bool, recorder_in_body: bool) -> list[str]:
+    """The nodes ``body_sim``'s process builds, in order: ``body_sim``, the loop's brains with ``composed``, the
+    recorder last with ``recorder_in_body``. More than one: that process is ``bptsb_composed --nodes ...``; the other
+    nodes of the loop are processes of their own."""
+    return (["body_sim"] + ([b.executable for b in loop.brains] if composed else [])
+            + (["recorder"] if recorder_in_body else []))
 
 
 def startup_subscribers(loop: Loop, *, recording: bool, namespace: str = "") -> list[str]:

@@ -15,6 +15,7 @@ from bptsb_ros.live.loops import (
     LOOPS,
     LaunchArgumentError,
     NamespaceError,
+    body_process_nodes,
     launch_arguments,
     loop_node_parameters,
     loop_topic,
@@ -175,10 +176,8 @@ def ros_launch_description(loop_name: str):  # -> launch.LaunchDescription
         return bool(LaunchConfiguration("bag").perform(context)) and flag("recorder_in_body", context)
 
     def composed_nodes(context) -> list[str]:
-        """The nodes the ``bptsb_composed`` process builds: body_sim, the brains with ``composed:=true``, the recorder
-        last with ``recorder_in_body:=true``."""
-        return (["body_sim"] + ([b.executable for b in loop.brains] if flag("composed", context) else [])
-                + (["recorder"] if recorder_in_body(context) else []))
+        """The nodes the ``bptsb_composed`` process builds (:func:`body_process_nodes` of the launch arguments)."""
+        return body_process_nodes(loop, composed=flag("composed", context), recorder_in_body=recorder_in_body(context))
 
     class ComposedNodes(Substitution):
         """``--nodes`` of the composed process (:func:`composed_nodes`)."""
