@@ -8,10 +8,11 @@ body's spins, the brains answer the newest message of each of their subscription
 transport); what composition saves is the processes' scheduling and wake-ups between them.
 
 ``recorder`` last in ``--nodes`` hosts the recorder too (``bptsb launch --recorder-in-body``), as a composable
-recorder shares its publishers' process: it is on no executor; it takes everything waiting each time the body is
-about to wait for a message, and after the body's spins and steps once ``batch_wait`` has passed since its last take
-(:meth:`RecorderNode.serve`), in the body's thread, so the body need not wait for it (its ``wait_for_recorder`` must
-be false). After the run it drains and closes the bag; a process stopped outright closes the bag marked incomplete.
+recorder shares its publishers' process: it takes everything waiting each time the body is about to wait for a
+message, and after the body's spins and steps once ``batch_wait`` has passed since its last take, when it also spins
+its own executor without waiting (parameters, timers, loss reports; :meth:`RecorderNode.serve`), all in the body's
+thread, so the body need not wait for it (its ``wait_for_recorder`` must be false). After the run it drains and
+closes the bag; a process stopped outright closes the bag marked incomplete.
 
 ``python -m bptsb_ros.ros.composed --nodes body_sim,swg_brain --ros-args --params-file FILE [-r ...]``: FILE holds
 one section per node (``/**/body_sim: ros__parameters: ...``, :func:`params_file_text`); ``bptsb launch LOOP
@@ -86,6 +87,7 @@ def run_composed(executables: Sequence[str], ros_args: list[str]) -> int:
                         raise ParameterError("wait_for_recorder: the recorder runs in this process and takes in the "
                                              "body's loop, which has nothing to wait for: set wait_for_recorder:=false")
                     recorder = node_class(executable)(hosted=True)
+                    recorder.host()
                     nodes.append(recorder)
                 else:
                     nodes.append(node_class(executable)(stop))

@@ -46,7 +46,6 @@ import signal
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
 from typing import Any
 
 import rclpy
@@ -88,6 +87,9 @@ from bptsb_ros.ros.take import GidTaker, TakenInfo, batch_executor_class, gid_ta
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 #: most messages taken from one subscription in one executor call (then the other subscriptions and timers)
 BATCH = 200
+#: zero-timeout spins of a hosted recorder's executor per turn of service (:meth:`RecorderNode.serve`): each handles
+#: at most one ready entity (a parameter request, a timer, a loss report)
+HOSTED_SPINS = 3
 EXIT_LOST = 1
 
 
@@ -95,10 +97,9 @@ class RecorderNode(Node):
     """Subscribes to the selected topics and writes every message it takes to a :class:`BagWriter`."""
 
     def __init__(self, hosted: bool = False, **kwargs: Any) -> None:
-        """``hosted``: run in another node's loop (:meth:`serve`; ``bptsb_composed``), not on an executor of its own:
-        its sim time then always follows the ``/clock`` it records, and it refuses to start (BagError) where
-        publisher GIDs cannot be taken, because its losses are counted from the publishers' sequence numbers alone
-        (the middleware's loss reports are callbacks, which only an executor runs)."""
+        """``hosted``: run in another node's loop (:meth:`serve`; ``bptsb_composed``): its executor (the batch one of
+        the recorder process) is spun by :meth:`serve` instead of a loop of its own, and its sim time always follows
+        the ``/clock`` it records."""
         super().__init__("recorder", **kwargs)
         self.hosted = hosted
         self.config = RecorderConfig.from_values(declare_parameters(self, RECORDER_PARAMS), self.get_namespace())
@@ -117,9 +118,6 @@ class RecorderNode(Node):
         self._identities: dict[str, dict[str, PublisherId]] = {}  # topic -> GID -> publisher (from the graph)
         self._takers: list[GidTaker] = []
         self._gid_problem = gid_take_problem()
-        if hosted and self._gid_problem:
-            raise BagError(f"the recorder cannot run in the body's process here: publisher GIDs cannot be taken "
-                           f"({self._gid_problem}), so it could not count losses; run it as a process of its own")
         self.received = 0
         self.after_stop = 0  # messages published after the stop signal, not recorded
         self.loss = LossCount()
@@ -127,7 +125,8 @@ class RecorderNode(Node):
         self._stop_ns: int | None = None
         self._clock_topic: str | None = None  # the recorded /clock this node's sim time follows (else rclpy's)
         self._said_bad_tick = False
-        self._next_take = self._next_discovery = 0.0  # when hosted (:meth:`serve`), monotonic seconds
+        self._next_take = self._next_service = 0.0  # when hosted (:meth:`serve`), monotonic seconds
+        self.executor_: Any = None  # when hosted: the executor :meth:`serve` spins
         self.ack = StepAck(self.config.ack_topics)
         self._ack_pub = None
         try:
@@ -386,30 +385,28 @@ class RecorderNode(Node):
                                     f"{self.loss.by_topic().get(topic, 0)})")
 
     def serve(self, now: float, idle: bool = False) -> None:
-        """One turn of the recorder hosted in another node's loop (``bptsb_composed`` with ``recorder``: it is on no
-        executor, the host calls this around its spins): take everything waiting (:meth:`take_ready`) when the host
-        is about to wait anyway (``idle``) or ``batch_wait`` has passed since the last take, look at the graph every
-        ``discovery_period``, and close the open chunk when ``flush_period`` is due. ``now``: monotonic seconds."""
+        """One turn of the recorder hosted in another node's loop (``bptsb_composed`` with ``recorder``; the host calls
+        this around its spins): take everything waiting (:meth:`take_ready`) when the host is about to wait anyway
+        (``idle``) or ``batch_wait`` has passed since the last take; and every ``batch_wait`` spin its own executor
+        (:meth:`host`) without waiting, a few calls, for its parameter services, its discovery and flush timers and the
+        middleware's loss reports. ``now``: monotonic seconds."""
         if idle or now >= self._next_take:
             self._next_take = now + self.config.batch_wait
             self.take_ready()
-        if now >= self._next_discovery:
-            self._next_discovery = now + self.config.discovery_period
-            self._discover()
-        self.writer.flush_if_due()
+        if now >= self._next_service:
+            self._next_service = now + self.config.batch_wait
+            for _ in range(HOSTED_SPINS):
+                self.executor_.spin_once(timeout_sec=0.0)
+
+    def host(self) -> None:
+        """Give the hosted recorder its executor (the recorder process's batch executor), spun by :meth:`serve`."""
+        self.executor_ = batch_executor_class()(context=self.context)
+        self.executor_.add_node(self)
 
     def drain_hosted(self) -> None:
-        """The end of a hosted recording (:meth:`serve`): :func:`_drain` without an executor, each wait a take of
-        everything waiting and, when that brought nothing, a short sleep. Messages published after this call began
-        are not recorded."""
-
-        def wait(timeout: float) -> None:
-            before = self.received
-            self.take_ready()
-            if self.received == before:
-                time.sleep(min(timeout, 0.01))
-
-        _drain(self, time.time_ns(), wait)
+        """The end of a hosted recording: :func:`_drain` on its own executor, as the recorder process drains. Messages
+        published after this call began are not recorded."""
+        _drain(self.executor_, self, time.time_ns())
 
     def begin_stop(self, stop_ns: int) -> None:
         """The stop sequence has begun (signal at ``stop_ns``, system time): stop looking for new topics and stop
@@ -451,15 +448,13 @@ class RecorderNode(Node):
             taker.close()
 
 
-def _drain(node: RecorderNode, stop_ns: int, wait: Callable[[float], None]) -> None:
+def _drain(executor: Any, node: RecorderNode, stop_ns: int) -> None:
     """Take the messages still waiting or in flight after the stop signal (at ``stop_ns``, system time).
 
-    ``wait(timeout)`` takes what has come, waiting up to ``timeout`` [s] for it: a spin of the recorder's executor,
-    every call of which takes all waiting messages of a subscription (:func:`bptsb_ros.ros.take.batch_executor_class`),
-    so a backlog of thousands drains in a fraction of a second; or a hosted recorder's take
-    (:meth:`RecorderNode.drain_hosted`). The drain ends once no message published before the signal has come for
-    ``drain_quiet`` seconds (wall time since the last one, whatever else the wait did); ``stop_timeout`` caps it,
-    and a drain cut short is counted as a loss.
+    Every executor call takes all waiting messages of a subscription (:func:`bptsb_ros.ros.take.batch_executor_class`),
+    so a backlog of thousands drains in a fraction of a second. The drain ends once no message published before the
+    signal has come for ``drain_quiet`` seconds (wall time since the last one, whatever else the executor did);
+    ``stop_timeout`` caps it, and a drain cut short is counted as a loss.
     """
     node.begin_stop(stop_ns)
     quiet, cap = node.config.drain_quiet, node.config.stop_timeout
@@ -467,7 +462,7 @@ def _drain(node: RecorderNode, stop_ns: int, wait: Callable[[float], None]) -> N
     taken = node.received
     while True:
         before = node.received
-        wait(min(quiet, 0.05))
+        executor.spin_once(timeout_sec=min(quiet, 0.05))
         now = time.monotonic()
         if node.received != before:
             last = now
@@ -528,7 +523,7 @@ def main(args: list[str] | None = None) -> int:
             while on_stop.ns is None:  # batches: one wake-up per batch_wait while messages arrive
                 take_round(spin, lambda: node.received, time.monotonic, time.sleep, node.config.batch_wait,
                            take_ready=node.take_ready)
-            _drain(node, on_stop.ns, lambda timeout: executor.spin_once(timeout_sec=timeout))  # after a stop signal
+            _drain(executor, node, on_stop.ns)  # the loop ends only once a stop signal set it
         except ExternalShutdownException:
             pass
         code = node.close()

@@ -101,28 +101,30 @@ def test_a_hosted_recorder_refuses_a_body_that_waits_for_it(tmp_path, ros_env):
 
 
 class _FakeRecorder:
-    """The state :meth:`RecorderNode.serve` and :meth:`RecorderNode.drain_hosted` use, with counters."""
+    """The state :meth:`RecorderNode.serve` and :meth:`RecorderNode.drain_hosted` use, with counters: its executor's
+    every spin brings the next of ``arrivals`` (then none, after a wait of up to 10 ms)."""
 
     def __init__(self, arrivals=(), **config) -> None:
         from types import SimpleNamespace
 
-        self.config = SimpleNamespace(**{"batch_wait": 0.02, "discovery_period": 0.1, "drain_quiet": 0.05,
-                                         "stop_timeout": 5.0, **config})
-        self._next_take = self._next_discovery = 0.0
-        self.takes, self.discoveries, self.flushes, self.received, self.stopped = 0, 0, 0, 0, None
-        self.arrivals = iter(arrivals)  # messages each take finds (then none)
-        self.writer = SimpleNamespace(flush_if_due=self._flush)
+        self.config = SimpleNamespace(**{"batch_wait": 0.02, "drain_quiet": 0.05, "stop_timeout": 5.0, **config})
+        self._next_take = self._next_service = 0.0
+        self.takes, self.spins, self.received, self.stopped = 0, 0, 0, None
+        self.arrivals = iter(arrivals)
+        self.executor_ = SimpleNamespace(spin_once=self._spin)
         self.loss = SimpleNamespace(cut_short=False)
 
-    def _flush(self) -> None:
-        self.flushes += 1
+    def _spin(self, timeout_sec: float) -> None:
+        import time
+
+        self.spins += 1
+        got = next(self.arrivals, 0)
+        self.received += got
+        if not got:
+            time.sleep(min(timeout_sec, 0.01))
 
     def take_ready(self) -> None:
         self.takes += 1
-        self.received += next(self.arrivals, 0)
-
-    def _discover(self) -> None:
-        self.discoveries += 1
 
     def begin_stop(self, stop_ns: int) -> None:
         self.stopped = stop_ns
@@ -133,19 +135,19 @@ class _FakeRecorder:
         return SimpleNamespace(error=lambda text: None)
 
 
-def test_a_hosted_recorder_takes_before_every_wait_and_otherwise_every_batch_wait():
-    from bptsb_ros.ros.recorder import RecorderNode
+def test_a_hosted_recorder_takes_before_every_wait_and_spins_its_executor_every_batch_wait():
+    from bptsb_ros.ros.recorder import HOSTED_SPINS, RecorderNode
 
     fake = _FakeRecorder()
     turns = [(0.0, False), (0.005, False), (0.006, True), (0.02, False), (0.027, False), (0.05, True), (0.1, False)]
     seen = []
     for now, idle in turns:
         RecorderNode.serve(fake, now, idle=idle)
-        seen.append((fake.takes, fake.discoveries))
-    # takes at 0 (due), 0.006 (idle), 0.027 (0.006 + 0.02 passed), 0.05 (idle), 0.1 (0.05 + 0.02 passed); the graph
-    # at 0 and 0.1
-    assert seen == [(1, 1), (1, 1), (2, 1), (2, 1), (3, 1), (4, 1), (5, 2)]
-    assert fake.flushes == len(turns)  # a chunk due to close is closed in any turn
+        seen.append((fake.takes, fake.spins // HOSTED_SPINS))
+    # takes at 0 (due), 0.006 (idle), 0.027 (0.006 + 0.02 passed), 0.05 (idle), 0.1 (0.05 + 0.02 passed); its
+    # executor (parameters, timers, loss reports) at 0, 0.02, 0.05 and 0.1, whether the host waits or not
+    assert seen == [(1, 1), (1, 1), (2, 1), (2, 2), (3, 2), (4, 3), (5, 4)]
+    assert fake.spins % HOSTED_SPINS == 0
 
 
 def test_a_hosted_recorder_drains_until_quiet_and_counts_a_drain_cut_short():
@@ -153,12 +155,12 @@ def test_a_hosted_recorder_drains_until_quiet_and_counts_a_drain_cut_short():
 
     from bptsb_ros.ros.recorder import RecorderNode
 
-    quiet = _FakeRecorder(arrivals=[3, 2, 0, 1])  # a late message after an empty take resets the quiet time
+    quiet = _FakeRecorder(arrivals=[3, 2, 0, 1])  # a late message after an empty spin resets the quiet time
     RecorderNode.drain_hosted(quiet)
-    assert quiet.received == 6 and quiet.stopped is not None and quiet.takes >= 5 and not quiet.loss.cut_short
+    assert quiet.received == 6 and quiet.stopped is not None and quiet.spins >= 5 and not quiet.loss.cut_short
     busy = _FakeRecorder(arrivals=itertools.repeat(1), stop_timeout=0.05)  # never quiet: cut short at stop_timeout
     RecorderNode.drain_hosted(busy)
-    assert busy.loss.cut_short and busy.received == busy.takes
+    assert busy.loss.cut_short and busy.received == busy.spins
 
 
 def test_ctrl_c_stops_a_run_with_the_recorder_in_the_body_process_and_closes_a_complete_bag(tmp_path, ros_env):
