@@ -231,7 +231,7 @@ class BodySim(BodyOutputs, BodyGraph, Node):
         self.get_logger().info(self.core.end_text(summary, diverged, self.stop.reason))
         self.diagnostics(force=True)
         summary["published_messages"] = dict(self.core.published)  # the final diagnostics included
-        wait_acked(self.get_logger(), list(self.pubs.values()), self.p["final_ack_timeout"])
+        wait_acked(self.get_logger(), list(self.pubs.values()), self.p["final_ack_timeout"], "final_ack_timeout")
         if self.p["summary_path"]:
             write_summary(self.p["summary_path"], summary)
         if self.core.step_times is not None:

@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 from rclpy.clock import ClockType
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -36,7 +35,7 @@ from bptsb_ros.ros import messages as m
 from bptsb_ros.ros.cdr_in import stamp_ns
 from bptsb_ros.ros.declare_params import declare_parameters
 from bptsb_ros.ros.raw_out import RawTemplate, TemplateError
-from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle, executor_kind, make_executor
+from bptsb_ros.ros.runtime import EXIT_OK, StopFlag, Throttle, executor_kind, make_executor, wait_acked
 
 COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
     Param("qos_depth", DEFAULT_QOS_DEPTH, "history depth of every topic (reliable)", "int", minimum=1),
@@ -56,6 +55,8 @@ COMMON_PARAMS: tuple[Param, ...] = SOURCE_PARAMS + (
 )
 #: ``use_sim_time`` of a brain unless given (rclpy's own default, false, is wrong for a node driven by /clock)
 USE_SIM_TIME_DEFAULT = True
+#: seconds a brain waits at its end for its subscribers to acknowledge its last messages
+FINAL_ACK_TIMEOUT = 1.0
 
 
 def topic_params(keys: Sequence[str]) -> tuple[Param, ...]:
@@ -286,8 +287,5 @@ class BrainNode(Node):
         dropped = sum(latch.dropped for latch in self.latches)
         self.get_logger().info(f"stopped by {self.stop.reason}: published {self.sent} messages, compute mean "
                                f"{mean:.3f} ms, max {worst:.3f} ms; {dropped} stale messages dropped (fell behind)")
-        for pub in self.outputs:
-            if pub.get_subscription_count() and not pub.wait_for_all_acked(Duration(seconds=1)):
-                self.get_logger().warning(f"subscribers of {pub.topic_name} did not acknowledge every message "
-                                          "within 1 s; the last ones may be lost")
+        wait_acked(self.get_logger(), self.outputs, FINAL_ACK_TIMEOUT)
         return EXIT_OK

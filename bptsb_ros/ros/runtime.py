@@ -251,19 +251,21 @@ def log_line(logger: Any, level: str, text: str) -> None:
         logger.info(text)
 
 
-def wait_acked(logger: Any, pubs: Sequence[Any], timeout: float) -> None:
+def wait_acked(logger: Any, pubs: Sequence[Any], timeout: float, setting: str = "") -> None:
     """Wait (up to ``timeout`` [s] in all; 0: not at all) until the reliable subscribers of ``pubs`` acknowledged
     every message, polling the publishers in turn, 10 ms each, so one dead subscriber cannot use up the time of the
-    others; a warning names the publishers still pending."""
+    others; a publisher whose subscribers have all left (their process ended first) has nobody left to wait for; a
+    warning names the publishers still pending (and ``setting``, the parameter that sets ``timeout``)."""
     from rclpy.duration import Duration
 
     started, poll = time.monotonic(), Duration(nanoseconds=10_000_000)
-    pending = [pub for pub in pubs if pub.get_subscription_count() > 0] if timeout > 0 else []
+    pending = list(pubs) if timeout > 0 else []
     while pending and time.monotonic() < started + timeout:
-        pending = [pub for pub in pending if not pub.wait_for_all_acked(poll)]
+        pending = [pub for pub in pending if pub.get_subscription_count() > 0 and not pub.wait_for_all_acked(poll)]
     if pending:
+        limit = f"{setting} {timeout:g} s" if setting else f"of {timeout:g} s"
         logger.warning(f"subscribers of {', '.join(pub.topic_name for pub in pending)} did not acknowledge every "
-                       f"message within {time.monotonic() - started:.2f} s (final_ack_timeout {timeout:g} s)")
+                       f"message within {time.monotonic() - started:.2f} s ({limit}); the last ones may be lost")
 
 
 def make_executor(kind: str, context: Any) -> Any:

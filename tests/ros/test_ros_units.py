@@ -285,3 +285,52 @@ def test_executor_parameter_makes_the_executor_it_names():
             executor.shutdown()
     finally:
         rclpy.shutdown(context=context)
+
+
+class FakePublisher:
+    """A publisher whose subscribers acknowledge after ``acks_after`` polls (None: never) and leave after
+    ``leaves_after`` polls (None: never)."""
+
+    def __init__(self, topic: str, subscribers: int, acks_after: int | None, leaves_after: int | None = None):
+        self.topic_name, self.subscribers, self.polls = topic, subscribers, 0
+        self.acks_after, self.leaves_after = acks_after, leaves_after
+
+    def get_subscription_count(self) -> int:
+        gone = self.leaves_after is not None and self.polls >= self.leaves_after
+        return 0 if gone else self.subscribers
+
+    def wait_for_all_acked(self, timeout) -> bool:
+        self.polls += 1
+        return self.acks_after is not None and self.polls >= self.acks_after
+
+
+class Warnings:
+    def __init__(self):
+        self.lines: list[str] = []
+
+    def warning(self, text: str) -> None:
+        self.lines.append(text)
+
+
+def test_wait_acked_warns_only_of_subscribers_still_there_and_silent():
+    from bptsb_ros.ros.runtime import wait_acked
+
+    log = Warnings()
+    quick, slow = FakePublisher("/a", 1, acks_after=1), FakePublisher("/b", 2, acks_after=3)
+    wait_acked(log, [quick, slow], 1.0)
+    assert log.lines == [] and (quick.polls, slow.polls) == (1, 3)
+    # a subscriber that never acknowledges is named; one whose subscribers left (their process ended first) is not,
+    # and it is no longer polled once they are gone
+    silent, left, unread = (FakePublisher("/silent", 1, None), FakePublisher("/left", 1, None, leaves_after=2),
+                            FakePublisher("/unread", 0, None))
+    wait_acked(log, [silent, left, unread], 0.05)
+    assert len(log.lines) == 1 and "/silent" in log.lines[0] and "/left" not in log.lines[0]
+    assert "/unread" not in log.lines[0] and left.polls == 2 and unread.polls == 0 and silent.polls > 2
+    assert "(of 0.05 s)" in log.lines[0]
+    wait_acked(log, [FakePublisher("/c", 1, None)], 0.02, "final_ack_timeout")
+    assert "(final_ack_timeout 0.02 s)" in log.lines[1]
+    log.lines.pop()
+    # timeout 0: no wait at all, no warning
+    never = FakePublisher("/never", 1, None)
+    wait_acked(log, [never], 0.0)
+    assert never.polls == 0 and len(log.lines) == 1
