@@ -259,7 +259,7 @@ def wait_acked(logger: Any, pubs: Sequence[Any], timeout: float, setting: str = 
     from rclpy.duration import Duration
 
     started, poll = time.monotonic(), Duration(nanoseconds=10_000_000)
-    pending = list(pubs) if timeout > 0 else []
+    pending = [pub for pub in pubs if pub.get_subscription_count() > 0] if timeout > 0 else []
     while pending and time.monotonic() < started + timeout:
         pending = [pub for pub in pending if pub.get_subscription_count() > 0 and not pub.wait_for_all_acked(poll)]
     if pending:
