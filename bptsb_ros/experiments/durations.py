@@ -47,6 +47,9 @@ class SeedsDuration:
     one-seed paper run trains several)"""
     share: float = 1.0
     """the part of the one-seed paper run's work one seed of this run does (0.2: one of its five trainings)"""
+    upper_bound: bool = False
+    """the measured time is only an upper bound (an attempt killed before it recorded its time was counted until
+    the next attempt began; ``bptsb report`` says the same of the run)"""
 
 
 #: the most seeds an entry may plan (a bound a user would never need to exceed)
@@ -68,15 +71,19 @@ def _seeds(entry: Any, where: str) -> SeedsDuration:
     n = entry.get("n") if isinstance(entry, dict) else None
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_SEEDS:
         raise DurationsError(f"{DURATIONS_FILE}: {where}.n must be a whole number of seeds in 1..{MAX_SEEDS}")
-    if set(entry) - {"n", "seconds", "measured", "args", "share"}:
-        raise DurationsError(f"{DURATIONS_FILE}: {where} may give only n, seconds, measured, args and share")
-    args, share = entry.get("args", ""), entry.get("share", 1.0)
+    if set(entry) - {"n", "seconds", "measured", "args", "share", "upper_bound"}:
+        raise DurationsError(f"{DURATIONS_FILE}: {where} may give only n, seconds, measured, args, share and "
+                             "upper_bound")
+    args, share, bound = entry.get("args", ""), entry.get("share", 1.0), entry.get("upper_bound", False)
     if not isinstance(args, str):
         raise DurationsError(f"{DURATIONS_FILE}: {where}.args must be the further reproduce arguments as text")
     if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 < share <= 1:
         raise DurationsError(f"{DURATIONS_FILE}: {where}.share must be a number in (0, 1]")
     measured = _duration(entry, where) if {"seconds", "measured"} & set(entry) else None
-    return SeedsDuration(n, measured, args.strip(), float(share))
+    if not isinstance(bound, bool) or (bound and measured is None):
+        raise DurationsError(f"{DURATIONS_FILE}: {where}.upper_bound must be true or false, and true only beside a "
+                             "measured time")
+    return SeedsDuration(n, measured, args.strip(), float(share), bound)
 
 
 def parse_durations(data: Any) -> tuple[dict[str, dict[str, Duration]], dict[str, SeedsDuration]]:
@@ -137,19 +144,21 @@ def reproduce_table(rows: Iterable[tuple[str, str, bool]], times: dict[str, dict
                     seeds: dict[str, SeedsDuration] | None = None) -> list[str]:
     """The lines of ``bptsb reproduce --list``: one row per (experiment, paper figure, parallel) with the measured
     time of each scale (``—`` where none is recorded), the paper run's seed count and its time over those seeds
-    (``≈`` marks an estimate, :func:`seeds_seconds`), then the total over all experiments; columns padded to their
-    widest cell, the paper figure last and whole."""
+    (``≈`` marks an estimate, :func:`seeds_seconds`; ``≤`` a measured upper bound), then the total over all
+    experiments; columns padded to their widest cell, the paper figure last and whole."""
     seeds = seeds or {}
     head = ("experiment", *SCALES, "seeds", "paper × seeds", "paper figure")
     body = []
-    total, estimated = 0.0, False
+    total, estimated, bounded = 0.0, False, False
     for name, ref, parallel in rows:
         cells = [format_seconds(times[name][s].seconds) if name in times else "—" for s in SCALES]
         if name in seeds and name in times:
             seconds, measured = seeds_seconds(times[name]["paper"].seconds, seeds[name], parallel)
             total += seconds
             estimated |= not measured
-            cells += [str(seeds[name].n), ("" if measured else "≈ ") + format_seconds(seconds)]
+            bounded |= seeds[name].upper_bound
+            mark = "≤ " if seeds[name].upper_bound else "" if measured else "≈ "
+            cells += [str(seeds[name].n), mark + format_seconds(seconds)]
         else:
             cells += ["—", "—"]
         body.append((name, *cells, ref))
@@ -161,7 +170,9 @@ def reproduce_table(rows: Iterable[tuple[str, str, bool]], times: dict[str, dict
 
     lines = [line(head), line(tuple("-" * w for w in widths)), *map(line, body)]
     if seeds:
-        lines.append(f"all experiments at paper scale over their seeds: {'≈ ' if estimated else ''}"
-                     f"{format_seconds(total)} on 2 cores" + (" (≈: estimated from the one-seed time)"
-                                                              if estimated else ""))
+        notes = [*(["≈: estimated from the one-seed time"] if estimated else []),
+                 *(["≤: at most, a killed attempt counted until the run resumed"] if bounded else [])]
+        prefix = "≈ " if estimated else "≤ " if bounded else ""
+        lines.append(f"all experiments at paper scale over their seeds: {prefix}"
+                     f"{format_seconds(total)} on 2 cores" + (f" ({'; '.join(notes)})" if notes else ""))
     return lines

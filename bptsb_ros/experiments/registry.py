@@ -17,6 +17,7 @@ import json
 import math
 import platform
 import shutil
+import stat
 import subprocess
 import sys
 import time
@@ -38,6 +39,7 @@ from bptsb_ros.experiments.result import (
     Row,
     write_result,
 )
+from bptsb_ros.experiments.seed_dirs import SEEDS_MARKER
 from bptsb_ros.files.run_dir_lock import LOCK_NAME, dir_is_empty, hold_run_dir
 from bptsb_ros.files.safe_write import UnsafeFileError, write_atomic
 from bptsb_ros.jobs.runner import Placement
@@ -499,16 +501,20 @@ def _write_attempts(out: Path, attempts: list[dict[str, Any]]) -> None:
 
 
 def _newest_mtime(out: Path, *, after: float, before: float) -> float:
-    """The newest modification time in [after, before] of a file under ``out`` (``after`` if there is none);
-    the run's bookkeeping files, which every attempt rewrites, do not count."""
+    """The newest modification time in [after, before] of a file under ``out`` (``after`` if there is none).
+    Only what the experiment wrote counts: not the run's bookkeeping files (marker, attempts, lock, the seeds
+    marker), which the next attempt rewrites before it times the killed one, and not folders, whose times change
+    when the next attempt adds its lock inside."""
     newest = after
     for path in out.rglob("*"):
+        if path.name in (ATTEMPTS_FILE, RUN_MARKER, LOCK_NAME, SEEDS_MARKER):
+            continue
         try:
-            mtime = path.stat().st_mtime
+            st = path.stat()
         except OSError:
             continue
-        if after <= mtime <= before and path.name not in (ATTEMPTS_FILE, RUN_MARKER, LOCK_NAME):
-            newest = max(newest, mtime)
+        if stat.S_ISREG(st.st_mode) and after <= st.st_mtime <= before:
+            newest = max(newest, st.st_mtime)
     return newest
 
 

@@ -136,7 +136,7 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
         held, failed, split, untestable = verdict_counts(r)
         seeds = f"{len(r['seeds'])} ({_seed_range(r['seeds'])})" if "seeds" in r else f"1 ({r['seed']})"
         lines.append(f"| [{r['experiment']}](#{_anchor(r)}) | {md_text(r['paper_ref'])} | {r['scale']} | "
-                     f"{seeds} | {held} | {failed} | {split} | {untestable} | {_duration(r['wall_s'])} |")
+                     f"{seeds} | {held} | {failed} | {split} | {untestable} | {_wall_text(r, '≤ ')} |")
     lines += code_versions_lines([r for _, r in results])
     missing = missing_experiments(r["experiment"] for _, r in results)
     if missing:
@@ -238,7 +238,7 @@ def _aggregate_lines(r: dict[str, Any]) -> list[str]:
 
     n = len(r["seeds"])
     lines = ["", f"## {r['experiment']} ({r['scale']}, {n} seeds: {_seed_range(r['seeds'])})", "",
-             f"Paper: {md_text(r['paper_ref'])}. Wall time {_duration(r['wall_s'])} for the {n} seeds."]
+             f"Paper: {md_text(r['paper_ref'])}. Wall time {_wall_text(r, 'at most ')} for the {n} seeds."]
     lines += _provenance_lines(r.get("provenance") or {})
     lines += _judged_lines(r)
     lines += _settings_lines(r.get("settings") or {})
@@ -276,7 +276,7 @@ def _judged_lines(r: dict[str, Any]) -> list[str]:
 
 def _single_lines(r: dict[str, Any]) -> list[str]:
     lines = ["", f"## {r['experiment']} ({r['scale']}, seed {r['seed']})", "",
-             f"Paper: {md_text(r['paper_ref'])}. Wall time {_duration(r['wall_s'])}."]
+             f"Paper: {md_text(r['paper_ref'])}. Wall time {_wall_text(r, 'at most ')}."]
     lines += _provenance_lines(r.get("provenance") or {})
     lines += _settings_lines(r.get("settings") or {})
     if r["rows"]:
@@ -322,13 +322,38 @@ def _provenance_lines(prov: dict[str, Any]) -> list[str]:
 def _attempts_line(attempts: list[Any]) -> str:
     """``provenance.attempts`` in words: how many, and each one's wall time (the wall time sums them)."""
     parts = []
-    for att in attempts:
+    for i, att in enumerate(attempts):
         if not isinstance(att, dict) or not isinstance(att.get("wall_s"), (int, float)):
             parts.append(str(att))
             continue
-        note = " (killed; at least, from the files it wrote)" if att.get("wall_s_estimated") else ""
+        note = ""
+        if att.get("wall_s_estimated"):
+            note = (" (killed; at most: counted until the next attempt began)" if _reaches_next(attempts, i)
+                    else " (killed; at least, from the files it wrote)")
         parts.append(f"{_duration(att['wall_s'])}{note}")
     return f"{len(attempts)} ({' + '.join(parts)})" if len(attempts) > 1 else (parts[0] if parts else "none")
+
+
+def _reaches_next(attempts: list[Any], i: int) -> bool:
+    """Whether the estimated time of killed attempt ``i`` runs (to 1 s) up to the start of the next attempt: the
+    estimate then measured no file of its own but the next attempt's bookkeeping (earlier versions counted
+    the seeds marker, which a resumed ``--seeds`` run rewrites first), so it is only an upper bound."""
+    if i + 1 >= len(attempts) or not isinstance(attempts[i + 1], dict):
+        return False
+    start, nxt = attempts[i].get("started_unix"), attempts[i + 1].get("started_unix")
+    if not all(isinstance(v, (int, float)) for v in (start, nxt)):
+        return False
+    return attempts[i]["wall_s"] >= nxt - start - 1.0
+
+
+def _wall_text(r: dict[str, Any], upper: str) -> str:
+    """The run's wall time, prefixed by ``upper`` where an attempt's time is only an upper bound
+    (:func:`_reaches_next`)."""
+    attempts = (r.get("provenance") or {}).get("attempts")
+    bounded = isinstance(attempts, list) and any(
+        isinstance(att, dict) and att.get("wall_s_estimated") and isinstance(att.get("wall_s"), (int, float))
+        and _reaches_next(attempts, i) for i, att in enumerate(attempts))
+    return f"{upper if bounded else ''}{_duration(r['wall_s'])}"
 
 
 def _jobs_line(batch: object) -> str:

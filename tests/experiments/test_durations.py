@@ -67,6 +67,8 @@ def test_a_measured_seed_run_and_its_arguments_are_read_as_given():
     lambda d: d["toy"].update(seeds={"n": 3, "args": 7}),
     lambda d: d["toy"].update(seeds={"n": 3, "workers": 2}),
     lambda d: d["toy"].update(seeds=3),
+    lambda d: d["toy"].update(seeds={"n": 3, "upper_bound": True}),  # a bound of no measured time
+    lambda d: d["toy"].update(seeds={"n": 3, "seconds": 10, "measured": "then", "upper_bound": "yes"}),
 ])
 def test_a_broken_entry_is_one_error_naming_it(break_it):
     data = _valid()
@@ -126,6 +128,25 @@ def test_the_total_is_measured_only_when_every_seed_run_is():
     lines = reproduce_table([("toy", "Fig. 1", True)], times, seeds)
     assert lines[2].split()[7:10] == ["5", "1.0", "h"]
     assert lines[-1] == "all experiments at paper scale over their seeds: 1.0 h on 2 cores"
+
+
+def test_an_upper_bound_is_marked_in_its_row_and_the_total():
+    data = _valid()
+    data["toy"]["seeds"] = {"n": 5, "seconds": 7200, "measured": "then", "upper_bound": True}
+    data["other"] = {**_valid()["toy"], "seeds": {"n": 2, "seconds": 1800, "measured": "then", "upper_bound": False}}
+    times, seeds = parse_durations(data)
+    assert seeds["toy"].upper_bound is True and seeds["other"].upper_bound is False
+    lines = reproduce_table([("toy", "Fig. 1", True), ("other", "Fig. 2", True)], times, seeds)
+    assert lines[2].split()[7:11] == ["5", "≤", "2.0", "h"] and lines[3].split()[7:10] == ["2", "30", "min"]
+    assert lines[-1] == "all experiments at paper scale over their seeds: ≤ 2.5 h on 2 cores (≤: at most, a killed " \
+                        "attempt counted until the run resumed)"
+    del data["other"]
+    data["toy"]["seeds"] = {"n": 5}  # an estimate beside the bound: the total is an estimate
+    data["bound"] = {**_valid()["toy"], "seeds": {"n": 2, "seconds": 1800, "measured": "then", "upper_bound": True}}
+    times, seeds = parse_durations(data)
+    assert reproduce_table([("toy", "Fig. 1", False), ("bound", "Fig. 2", True)], times, seeds)[-1] == \
+        "all experiments at paper scale over their seeds: ≈ 6.3 h on 2 cores (≈: estimated from the one-seed time; " \
+        "≤: at most, a killed attempt counted until the run resumed)"
 
 
 def test_reproduce_list_prints_the_table(capsys):

@@ -238,6 +238,28 @@ def test_report_lists_versions_and_attempts_in_words():
     assert "- attempts: 30 s" in _provenance_lines({"attempts": [{"wall_s": 30.0}]})
 
 
+def test_an_estimate_that_reaches_the_next_attempt_is_an_upper_bound():
+    from bptsb_ros.experiments.report import _provenance_lines, _wall_text
+
+    def run(first_wall: float) -> dict:
+        # the first attempt, killed, started at 1000; the next one began 500 s later
+        return {"wall_s": first_wall + 30.0, "provenance": {"attempts": [
+            {"started_unix": 1000.0, "wall_s": first_wall, "wall_s_estimated": True},
+            {"started_unix": 1500.0, "wall_s": 30.0}]}}
+
+    reaches, short = run(499.5), run(300.0)
+    assert "- attempts: 2 (8.3 min (killed; at most: counted until the next attempt began) + 30 s)" in \
+        _provenance_lines(reaches["provenance"])
+    assert "- attempts: 2 (5.0 min (killed; at least, from the files it wrote) + 30 s)" in \
+        _provenance_lines(short["provenance"])
+    assert _wall_text(reaches, "≤ ") == "≤ 8.8 min" and _wall_text(short, "≤ ") == "5.5 min"
+    # a time that was measured (not estimated) is exact even when it reaches the next start
+    exact = run(500.0)
+    del exact["provenance"]["attempts"][0]["wall_s_estimated"]
+    assert _wall_text(exact, "≤ ") == "8.8 min"
+    assert _wall_text({"wall_s": 30.0}, "≤ ") == "30 s"
+
+
 def test_a_phase_is_one_line_naming_the_experiment(tmp_path):
     from bptsb_ros.experiments.registry import Context
     from bptsb_ros.experiments.result import ExperimentResult

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -323,6 +324,29 @@ def test_a_failed_seed_loses_nothing_and_resume_finishes_it(toy_seeds, tmp_path)
     assert sorted(p.name for p in out.glob("ran-*")) == ["ran-3", "ran-7", "ran-8"]
     assert more["claims"][1]["not_testable_in"] == 2  # 7 and 8: too large to tell
     assert more["claims"][0]["holds_in"] == [4, 7] and more["claims"][0]["verdict"] == "split"
+
+
+def test_a_killed_multi_seed_attempt_counts_until_the_last_file_its_seeds_wrote(toy_seeds, tmp_path):
+    import os
+
+    from bptsb_ros.experiments.registry import ATTEMPTS_FILE
+
+    out = tmp_path / "run"
+    FAIL_ONCE.add(2)
+    with pytest.raises(SeedsError):
+        run_seeds(toy_seeds, [0, 1, 2], out_dir=out, workers=0, log=lambda m: None)
+    # as if killed: the attempt recorded its start, never its time; everything it wrote is dated into its first
+    # 40 s, seed 1's result last (the resume rewrites the seeds marker and adds locks in the folders: they do not count)
+    start = time.time() - 1000.0
+    (out / ATTEMPTS_FILE).write_text(json.dumps([{"started": "x", "started_unix": start, "resume": False}]))
+    for path in [out, *out.rglob("*")]:
+        os.utime(path, (start + 20.0, start + 20.0))
+    os.utime(out / "seed-1" / "result.json", (start + 40.0, start + 40.0))
+    os.utime(out / "seed-0", (start + 60.0, start + 60.0))  # a folder tidied after the kill: not the attempt's work
+    _, data = run_seeds(toy_seeds, [0, 1, 2], out_dir=out, workers=0, resume=True, log=lambda m: None)
+    killed, this = data["provenance"]["attempts"]
+    assert killed["wall_s"] == pytest.approx(40.0, abs=0.01) and killed["wall_s_estimated"] is True
+    assert data["wall_s"] == pytest.approx(40.0 + this["wall_s"], abs=0.011)
 
 
 def test_resume_needs_the_same_settings_and_force_only_replaces_a_run(toy_seeds, tmp_path):
