@@ -503,8 +503,8 @@ def _write_attempts(out: Path, attempts: list[dict[str, Any]]) -> None:
 def _newest_mtime(out: Path, *, after: float, before: float) -> float:
     """The newest modification time in [after, before] of a file under ``out`` (``after`` if there is none).
     Only what the experiment wrote counts: not the run's bookkeeping files (marker, attempts, lock, the seeds
-    marker), which the next attempt rewrites before it times the killed one, and not folders, whose times change
-    when the next attempt adds its lock inside."""
+    marker), which the next attempt rewrites before it times the killed one, and not folders, whose times also
+    change when anything is removed from them (a tidy-up after the kill is not the attempt's work)."""
     newest = after
     for path in out.rglob("*"):
         if path.name in (ATTEMPTS_FILE, RUN_MARKER, LOCK_NAME, SEEDS_MARKER):

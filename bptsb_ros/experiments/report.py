@@ -136,7 +136,8 @@ def build_report(runs_dir: str | Path, out: str | Path, warn: Callable[[str], No
         held, failed, split, untestable = verdict_counts(r)
         seeds = f"{len(r['seeds'])} ({_seed_range(r['seeds'])})" if "seeds" in r else f"1 ({r['seed']})"
         lines.append(f"| [{r['experiment']}](#{_anchor(r)}) | {md_text(r['paper_ref'])} | {r['scale']} | "
-                     f"{seeds} | {held} | {failed} | {split} | {untestable} | {_wall_text(r, '≤ ')} |")
+                     f"{seeds} | {held} | {failed} | {split} | {untestable} | {_wall_text(r, 'table')} |")
+    lines += _wall_legend([r for _, r in results])
     lines += code_versions_lines([r for _, r in results])
     missing = missing_experiments(r["experiment"] for _, r in results)
     if missing:
@@ -238,7 +239,7 @@ def _aggregate_lines(r: dict[str, Any]) -> list[str]:
 
     n = len(r["seeds"])
     lines = ["", f"## {r['experiment']} ({r['scale']}, {n} seeds: {_seed_range(r['seeds'])})", "",
-             f"Paper: {md_text(r['paper_ref'])}. Wall time {_wall_text(r, 'at most ')} for the {n} seeds."]
+             f"Paper: {md_text(r['paper_ref'])}. Wall time {_wall_text(r, 'text')} for the {n} seeds."]
     lines += _provenance_lines(r.get("provenance") or {})
     lines += _judged_lines(r)
     lines += _settings_lines(r.get("settings") or {})
@@ -276,7 +277,7 @@ def _judged_lines(r: dict[str, Any]) -> list[str]:
 
 def _single_lines(r: dict[str, Any]) -> list[str]:
     lines = ["", f"## {r['experiment']} ({r['scale']}, seed {r['seed']})", "",
-             f"Paper: {md_text(r['paper_ref'])}. Wall time {_wall_text(r, 'at most ')}."]
+             f"Paper: {md_text(r['paper_ref'])}. Wall time {_wall_text(r, 'text')}."]
     lines += _provenance_lines(r.get("provenance") or {})
     lines += _settings_lines(r.get("settings") or {})
     if r["rows"]:
@@ -326,34 +327,64 @@ def _attempts_line(attempts: list[Any]) -> str:
         if not isinstance(att, dict) or not isinstance(att.get("wall_s"), (int, float)):
             parts.append(str(att))
             continue
-        note = ""
-        if att.get("wall_s_estimated"):
-            note = (" (killed; at most: counted until the next attempt began)" if _reaches_next(attempts, i)
-                    else " (killed; at least, from the files it wrote)")
+        note = {"upper": f" (killed; at most: {UPPER_BOUND_WHY})", None: "",
+                "lower": " (killed; at least, from the files it wrote)"}[_estimate_kind(attempts, i)]
         parts.append(f"{_duration(att['wall_s'])}{note}")
     return f"{len(attempts)} ({' + '.join(parts)})" if len(attempts) > 1 else (parts[0] if parts else "none")
 
 
-def _reaches_next(attempts: list[Any], i: int) -> bool:
-    """Whether the estimated time of killed attempt ``i`` runs (to 1 s) up to the start of the next attempt: the
-    estimate then measured no file of its own but the next attempt's bookkeeping (earlier versions counted
-    the seeds marker, which a resumed ``--seeds`` run rewrites first), so it is only an upper bound."""
-    if i + 1 >= len(attempts) or not isinstance(attempts[i + 1], dict):
-        return False
-    start, nxt = attempts[i].get("started_unix"), attempts[i + 1].get("started_unix")
-    if not all(isinstance(v, (int, float)) for v in (start, nxt)):
-        return False
-    return attempts[i]["wall_s"] >= nxt - start - 1.0
+#: why a killed attempt's estimated time is only an upper bound (:func:`_estimate_kind`); ``--list`` says the same
+UPPER_BOUND_WHY = "counted until the run resumed"
 
 
-def _wall_text(r: dict[str, Any], upper: str) -> str:
-    """The run's wall time, prefixed by ``upper`` where an attempt's time is only an upper bound
-    (:func:`_reaches_next`)."""
+def _is_seconds(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _estimate_kind(attempts: list[Any], i: int) -> str | None:
+    """What the time of attempt ``i`` is: None when measured (or unreadable), ``"upper"`` when it was estimated for
+    a killed attempt and runs (to 1 s) up to the start of the next attempt (the estimate then found no file of its
+    own after some point but the next attempt's bookkeeping: earlier versions counted the seeds marker, which a
+    resumed ``--seeds`` run rewrites first, so it is only an upper bound), else ``"lower"`` (to the newest file it
+    wrote: a lower bound)."""
+    att = attempts[i]
+    if not isinstance(att, dict) or not att.get("wall_s_estimated") or not _is_seconds(att.get("wall_s")):
+        return None
+    nxt = attempts[i + 1] if i + 1 < len(attempts) else None
+    if not isinstance(nxt, dict) or not all(_is_seconds(v) for v in (att.get("started_unix"), nxt.get("started_unix"))):
+        return "lower"
+    return "upper" if att["wall_s"] >= nxt["started_unix"] - att["started_unix"] - 1.0 else "lower"
+
+
+#: how a run's total wall time is marked, by the kinds of estimate among its attempts (:func:`_estimate_kind`)
+WALL_MARKS = {"table": {frozenset({"upper"}): "≤ ", frozenset({"lower"}): "≥ ", frozenset({"upper", "lower"}): "~ "},
+              "text": {frozenset({"upper"}): "at most ", frozenset({"lower"}): "at least ",
+                       frozenset({"upper", "lower"}): "about "}}
+
+
+def _wall_kinds(r: dict[str, Any]) -> frozenset[str]:
     attempts = (r.get("provenance") or {}).get("attempts")
-    bounded = isinstance(attempts, list) and any(
-        isinstance(att, dict) and att.get("wall_s_estimated") and isinstance(att.get("wall_s"), (int, float))
-        and _reaches_next(attempts, i) for i, att in enumerate(attempts))
-    return f"{upper if bounded else ''}{_duration(r['wall_s'])}"
+    if not isinstance(attempts, list):
+        return frozenset()
+    return frozenset(k for i in range(len(attempts)) if (k := _estimate_kind(attempts, i)) is not None)
+
+
+def _wall_text(r: dict[str, Any], style: str) -> str:
+    """The run's wall time, marked (``style``: ``table`` or ``text``, :data:`WALL_MARKS`) where an attempt's time is
+    only a bound: at most where every estimate is an upper bound, at least where every one is a lower bound, about
+    where both kinds add up."""
+    return f"{WALL_MARKS[style].get(_wall_kinds(r), '')}{_duration(r['wall_s'])}"
+
+
+def _wall_legend(results: list[dict[str, Any]]) -> list[str]:
+    """A line under the summary table explaining the marks its wall times carry (none when none does)."""
+    kinds = {_wall_kinds(r) for r in results} - {frozenset()}
+    if not kinds:
+        return []
+    words = {frozenset({"upper"}): f"≤ at most (a killed attempt {UPPER_BOUND_WHY})",
+             frozenset({"lower"}): "≥ at least (a killed attempt timed to the newest file it wrote)",
+             frozenset({"upper", "lower"}): "~ about (killed attempts, some timed at most, some at least)"}
+    return ["", "Wall time: " + "; ".join(words[k] for k in words if k in kinds) + "."]
 
 
 def _jobs_line(batch: object) -> str:

@@ -263,7 +263,7 @@ def wait_acked(logger: Any, pubs: Sequence[Any], timeout: float, setting: str = 
     while pending and time.monotonic() < started + timeout:
         pending = [pub for pub in pending if pub.get_subscription_count() > 0 and not pub.wait_for_all_acked(poll)]
     if pending:
-        limit = f"{setting} {timeout:g} s" if setting else f"of {timeout:g} s"
+        limit = f"{setting} {timeout:g} s" if setting else f"limit {timeout:g} s"
         logger.warning(f"subscribers of {', '.join(pub.topic_name for pub in pending)} did not acknowledge every "
                        f"message within {time.monotonic() - started:.2f} s ({limit}); the last ones may be lost")
 

@@ -160,3 +160,27 @@ def test_reproduce_list_prints_the_table(capsys):
             row = next(line for line in out.splitlines() if line.startswith(exp.name + " "))
             assert row.endswith(exp.paper_ref), row
     assert "None" not in out
+
+
+def test_each_measured_seed_run_time_is_its_committed_run():
+    """A multi-seed time in durations.yaml is the wall time of the committed run its text names, and it is marked an
+    upper bound exactly where that run's page says "at most"."""
+    import json
+    import re
+
+    from conftest import REPO_ROOT
+
+    from bptsb_ros.experiments.report import _wall_kinds
+
+    checked = 0
+    for name, plan in seed_plan().items():
+        if plan.measured is None:
+            continue
+        found = re.match(r"the run (\S+-paper) over seeds ", plan.measured.measured)
+        assert found, f"{name}: the seeds time names no committed run"
+        run = json.loads((REPO_ROOT / "reproduction" / "runs" / found.group(1) / "result.json").read_text())
+        assert run["experiment"] == name and run["seeds"] == list(range(plan.n)), name
+        assert run["wall_s"] == pytest.approx(plan.measured.seconds, abs=0.005), name
+        assert plan.upper_bound == (_wall_kinds(run) == frozenset({"upper"})), name
+        checked += 1
+    assert checked >= 15

@@ -239,25 +239,42 @@ def test_report_lists_versions_and_attempts_in_words():
 
 
 def test_an_estimate_that_reaches_the_next_attempt_is_an_upper_bound():
-    from bptsb_ros.experiments.report import _provenance_lines, _wall_text
+    from bptsb_ros.experiments.report import _provenance_lines, _wall_legend, _wall_text
 
-    def run(first_wall: float) -> dict:
-        # the first attempt, killed, started at 1000; the next one began 500 s later
-        return {"wall_s": first_wall + 30.0, "provenance": {"attempts": [
-            {"started_unix": 1000.0, "wall_s": first_wall, "wall_s_estimated": True},
-            {"started_unix": 1500.0, "wall_s": 30.0}]}}
+    def run(*walls: float, estimated: tuple[bool, ...] = (True, False)) -> dict:
+        # attempts started 500 s apart; an estimated time of ~500 s reached the next start
+        attempts = [{"started_unix": 1000.0 + 500.0 * i, "wall_s": w} for i, w in enumerate(walls)]
+        for att, est in zip(attempts, estimated, strict=False):
+            if est:
+                att["wall_s_estimated"] = True
+        return {"wall_s": sum(walls), "provenance": {"attempts": attempts}}
 
-    reaches, short = run(499.5), run(300.0)
-    assert "- attempts: 2 (8.3 min (killed; at most: counted until the next attempt began) + 30 s)" in \
+    reaches, short = run(499.5, 30.0), run(300.0, 30.0)
+    assert "- attempts: 2 (8.3 min (killed; at most: counted until the run resumed) + 30 s)" in \
         _provenance_lines(reaches["provenance"])
     assert "- attempts: 2 (5.0 min (killed; at least, from the files it wrote) + 30 s)" in \
         _provenance_lines(short["provenance"])
-    assert _wall_text(reaches, "≤ ") == "≤ 8.8 min" and _wall_text(short, "≤ ") == "5.5 min"
-    # a time that was measured (not estimated) is exact even when it reaches the next start
-    exact = run(500.0)
-    del exact["provenance"]["attempts"][0]["wall_s_estimated"]
-    assert _wall_text(exact, "≤ ") == "8.8 min"
-    assert _wall_text({"wall_s": 30.0}, "≤ ") == "30 s"
+    assert _wall_text(reaches, "table") == "≤ 8.8 min" and _wall_text(reaches, "text") == "at most 8.8 min"
+    assert _wall_text(short, "table") == "≥ 5.5 min" and _wall_text(short, "text") == "at least 5.5 min"
+    # an upper and a lower bound added up: neither
+    mixed = run(499.5, 300.0, 30.0, estimated=(True, True, False))
+    assert _wall_text(mixed, "table") == "~ 13.8 min" and _wall_text(mixed, "text") == "about 13.8 min"
+    # a measured time is exact even where it reaches the next start; a last attempt, a next entry that is no
+    # attempt or a start that is no number leave an estimate a lower bound
+    assert _wall_text(run(500.0, 30.0, estimated=(False,)), "table") == "8.8 min"
+    assert _wall_text(run(30.0, 499.5, estimated=(False, True)), "table") == "≥ 8.8 min"
+    broken = run(499.5, 30.0)
+    broken["provenance"]["attempts"][1]["started_unix"] = True
+    assert _wall_text(broken, "table") == "≥ 8.8 min"
+    broken["provenance"]["attempts"][1] = "damaged"
+    assert _wall_text(broken, "table") == "≥ 8.8 min"
+    assert _wall_text({"wall_s": 30.0}, "table") == "30 s"
+    # the summary table's legend names the marks it uses, and only those
+    assert _wall_legend([{"wall_s": 30.0}, run(500.0, 30.0, estimated=(False,))]) == []
+    assert _wall_legend([reaches, {"wall_s": 1.0}]) == \
+        ["", "Wall time: ≤ at most (a killed attempt counted until the run resumed)."]
+    legend = _wall_legend([reaches, short, mixed])[1]
+    assert legend.startswith("Wall time: ≤ at most") and "; ≥ at least" in legend and "; ~ about" in legend
 
 
 def test_a_phase_is_one_line_naming_the_experiment(tmp_path):

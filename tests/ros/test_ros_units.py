@@ -326,7 +326,7 @@ def test_wait_acked_warns_only_of_subscribers_still_there_and_silent():
     wait_acked(log, [silent, left, unread], 0.05)
     assert len(log.lines) == 1 and "/silent" in log.lines[0] and "/left" not in log.lines[0]
     assert "/unread" not in log.lines[0] and left.polls == 2 and unread.polls == 0 and silent.polls > 2
-    assert "(of 0.05 s)" in log.lines[0]
+    assert "(limit 0.05 s)" in log.lines[0]
     wait_acked(log, [FakePublisher("/c", 1, None)], 0.02, "final_ack_timeout")
     assert "(final_ack_timeout 0.02 s)" in log.lines[1]
     log.lines.pop()
