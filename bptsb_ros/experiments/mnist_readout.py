@@ -7,7 +7,10 @@ trained through the body (BPTSB). Five systems: only brain (two linear layers, 7
 N_mov 17 / 65 (33 / 129 masses), multiple-circle N_mov 17 / 65 (37 / 101 masses): 340 / 1,300 states each for
 N_mov 17 / 65. Batch 50, 100 epochs at paper scale (the paper); Adam (the
 paper gives no learning rates for this experiment; SGD with the drawing task's rates diverges). Trainings are
-independent jobs in a process pool; each batch of images is one simulation.
+independent jobs in a process pool; each batch of images is one simulation. Each training writes its state after
+every epoch (:func:`training_checkpoint`): a paper-scale run interrupted and
+started again with ``--resume`` loses at most one epoch of each training (a seed of the committed paper run
+took 110 min on two cores).
 
 Claims: the supplement's sentences on its table, each comparison between systems that learned (:func:`claims`).
 """
@@ -15,6 +18,7 @@ Claims: the supplement's sentences on its table, each comparison between systems
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -114,18 +118,32 @@ def systems() -> list[tuple[str | None, int, int, str, float]]:
              "only brain" if shape is None else body_label(shape, n), paper) for shape, n, paper in SYSTEMS]
 
 
+#: where a run keeps each system's training state while it trains (``RUN_DIR/TRAINING/<system>.pt``): a run
+#: interrupted and started again with ``--resume`` continues every training after its last finished epoch
+TRAINING = "training"
+
+
+def training_checkpoint(run_dir: Path, system: str) -> Path:
+    """The epoch checkpoint of the system named ``system`` (a result row's name) in ``run_dir``."""
+    slug = re.sub(r"[^A-Za-z0-9]+", "-", system).strip("-")
+    return run_dir / TRAINING / f"{slug}.pt"
+
+
 def train_readout_job(shape: str | None, nodes: int, seed: int, train_x: np.ndarray, train_y: np.ndarray,
                       test_x: np.ndarray, test_y: np.ndarray, epochs: int, progress: bool = False,
-                      guard_factor: float = 0.0, guard_window: int = WINDOW) -> dict[str, Any]:
+                      guard_factor: float = 0.0, guard_window: int = WINDOW, checkpoint: str | None = None,
+                      identity: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train one readout system; its test accuracy after every epoch. ``progress``: epoch lines to stderr;
-    ``guard_factor``, ``guard_window``: the update guard's spike rule (``train_readout``)."""
+    ``guard_factor``, ``guard_window``: the update guard's spike rule; ``checkpoint``, ``identity``: the
+    training's state after every epoch, continued from on a rerun (``train_readout``)."""
     from bptsb_ros.tasks.readout import ReadoutSpec, ReadoutSystem, accuracy, train_readout
 
     model = ReadoutSystem(ReadoutSpec(shape=shape, nodes=nodes), seed)
     log = train_readout(model, train_x, train_y, epochs=epochs, batch=BATCH, seed=seed, test=(test_x, test_y),
                         reject_factor=guard_factor, reject_window=guard_window,
                         log=job_log(progress, (model.spec.name, "only brain" if model.system is None else
-                                               body_label(shape, model.system.body.n_movable))))
+                                               body_label(shape, model.system.body.n_movable))),
+                        checkpoint=checkpoint, identity=identity)
     return {"accuracy": accuracy(model, test_x, test_y), "train_accuracy": accuracy(model, train_x, train_y),
             "epoch_accuracy": log.epoch_accuracy, "losses": log.losses, "train_s": log.wall_s,
             "n_features": model.n_features, "guard": log.guard}
@@ -146,7 +164,9 @@ def run(ctx: Context) -> None:
     chosen = systems()
     jobs = [dict(shape=shape, nodes=nodes, seed=ctx.seed, train_x=data.train_x, train_y=data.train_y,
                  test_x=data.test_x, test_y=data.test_y, epochs=epochs, guard_factor=ctx.settings["guard_factor"],
-                 guard_window=ctx.settings["guard_window"]) for shape, _, nodes, _, _ in chosen]
+                 guard_window=ctx.settings["guard_window"], checkpoint=str(training_checkpoint(ctx.out_dir, name)),
+                 identity={"experiment": ctx.result.experiment, "scale": ctx.scale, "data": data.key})
+            for shape, _, nodes, name, _ in chosen]
     ctx.log(f"mnist-readout: {len(jobs)} systems, {epochs} epochs on {len(data.train_y)} images")
     results = run_jobs(ctx, train_readout_job, jobs, costs=[nodes for _, _, nodes, _, _ in chosen])
     acc = {}

@@ -323,7 +323,8 @@ def execute_experiment(name: str, *, scale: str = "smoke", seed: int = 0, out_di
     ``data_dir`` and ``split`` are passed to experiments that read a data set (MNIST). A non-empty ``out_dir``
     (an earlier run) is kept unless ``force``, which removes it first, and only if it is an earlier run (it holds
     :data:`RUN_MARKER`); a failed run writes no result.json. ``resume`` continues such an unfinished run in place
-    (experiments whose trainings are sweep jobs keep the finished jobs). ``settings`` overrides the experiment's
+    (experiments whose trainings are sweep jobs keep the finished jobs; mnist-readout's trainings continue after
+    their last epoch). ``settings`` overrides the experiment's
     packaged settings (``--set`` texts ``key=value`` or a mapping; SettingsError before anything is touched).
     """
     exp = get_experiment(name)

@@ -9,8 +9,9 @@ Everything is batched: one batch of images is one simulation.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,9 +19,17 @@ import torch
 from torch import nn
 
 from bptsb_ros.brains.fnn import LinearInputLayer
+from bptsb_ros.files.safe_write import atomic_writer
 from bptsb_ros.tasks.drawing import N_PIXELS, ImageToBody, SystemSpec, iterate_batches
-from bptsb_ros.training.guard import WINDOW
+from bptsb_ros.training.guard import RESET_AFTER, WINDOW
 from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
+from bptsb_ros.training.resume_checks import (
+    ResumeStateError,
+    check_guard,
+    check_modules,
+    check_torch_optimizer,
+    check_whole,
+)
 
 N_CLASSES = 10
 #: Adam learning rates for the readout experiment. The paper gives none for it; plain SGD with the drawing
@@ -113,7 +122,8 @@ class ReadoutLog:
 
 def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs: int, batch: int = 50,
                   seed: int = 0, test: tuple[np.ndarray, np.ndarray] | None = None, reject_factor: float = 0.0,
-                  reject_window: int = WINDOW, log: Callable[[str], None] | None = None) -> ReadoutLog:
+                  reject_window: int = WINDOW, log: Callable[[str], None] | None = None,
+                  checkpoint: str | Path | None = None, identity: Mapping[str, Any] | None = None) -> ReadoutLog:
     """Softmax cross-entropy through the body (BPTSB), every update through the
     :class:`~bptsb_ros.training.guard.UpdateGuard` (see :func:`train_drawing`): a non-finite loss or gradient
     is undone, and with ``reject_factor`` > 0 also a loss above ``reject_factor`` × the mean of the last
@@ -121,8 +131,15 @@ def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs:
     MNIST none, and the time-series rule (10 × the mean of the last 5) rejects ordinary hard minibatches once the
     loss is small (it froze both N_mov 65 readouts of a 50-epoch run).
 
+    ``checkpoint``: a file the training's state is written to after every epoch (the model, the optimiser, the
+    guard, the batch order's generator, the test accuracies so far, the time spent; read back with
+    ``weights_only``), and continued from when it exists: the epochs after it are the ones an uninterrupted run
+    would have made, bit for bit. ``identity``: what the training must match to continue from the file (e.g. the
+    seed, the data, the epochs); a file saved with another identity is refused, never overwritten.
+
     Raises:
         FloatingPointError: a non-finite loss or gradient the guard cannot undo.
+        ValueError: ``checkpoint`` holds another training's state.
     """
     opt = make_optimizer(model)
     loop = UpdateLoop(opt, GuardRules(factor=reject_factor, window=reject_window), log=log)
@@ -130,8 +147,15 @@ def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs:
     objective = _ReadoutBatches(model, opt, torch.as_tensor(x), torch.as_tensor(y))
     out = ReadoutLog(losses=loop.losses)
     t0 = time.perf_counter()
-    updates = 0
-    for epoch in range(epochs):
+    updates, done, spent = 0, 0, 0.0
+    ident = {**dict(identity or {}), "model": model.spec.name, "epochs": epochs, "batch": batch, "seed": seed,
+             "n_train": len(y), "n_test": 0 if test is None else len(test[1]), "reject_factor": reject_factor,
+             "reject_window": reject_window}
+    if checkpoint is not None and Path(checkpoint).exists():
+        done, updates, spent = _resume(Path(checkpoint), ident, model, opt, loop, gen, out)
+        if log:
+            log(f"{model.spec.name}: continuing after epoch {done}/{epochs} from {checkpoint}")
+    for epoch in range(done, epochs):
         objective.batches = iterate_batches(len(y), batch, gen)  # the epoch's permutation, drawn as it starts
         objective.first = updates
         try:
@@ -144,9 +168,99 @@ def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs:
             out.epoch_accuracy.append(accuracy(model, *test))
             if log:
                 log(f"{model.spec.name}: epoch {epoch + 1}/{epochs} test accuracy {100 * out.epoch_accuracy[-1]:.2f} %")
-    out.wall_s = time.perf_counter() - t0
+        if checkpoint is not None:
+            _save_epoch(Path(checkpoint), ident, epoch + 1, updates, spent + time.perf_counter() - t0, model, opt,
+                        loop, gen, out)
+    out.wall_s = spent + time.perf_counter() - t0
     out.guard = loop.guard.summary()
     return out
+
+
+#: the layout of a readout training's epoch checkpoint (raised when it changes)
+CHECKPOINT_FORMAT = 1
+
+
+def _save_epoch(path: Path, identity: dict[str, Any], epochs_done: int, updates: int, spent_s: float,
+                model: ReadoutSystem, opt: torch.optim.Optimizer, loop: UpdateLoop, gen: np.random.Generator,
+                out: ReadoutLog) -> None:
+    """The training's state after ``epochs_done`` epochs, written atomically (plain data and tensors)."""
+    payload = {"format": CHECKPOINT_FORMAT, "identity": identity, "epochs_done": epochs_done, "updates": updates,
+               "spent_s": spent_s, "model": model.state_dict(), "optimizer": opt.state_dict(),
+               "guard": loop.guard.state_dict(), "batch_order": gen.bit_generator.state,
+               "epoch_accuracy": list(out.epoch_accuracy)}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_writer(path) as f:
+        torch.save(payload, f)
+
+
+def _resume(path: Path, identity: dict[str, Any], model: ReadoutSystem, opt: torch.optim.Optimizer,
+            loop: UpdateLoop, gen: np.random.Generator, out: ReadoutLog) -> tuple[int, int, float]:
+    """Load the epoch checkpoint ``path`` into the training; (epochs done, updates done, seconds spent). The file
+    is untrusted: it must be a state this very training could have saved (:func:`_check_state`) before any of it
+    is used."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - a damaged or foreign file: one line naming it, the file kept
+        raise ValueError(f"{path}: not a readable readout checkpoint ({type(err).__name__}); move it away to "
+                         "train afresh") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not a readout checkpoint of format {CHECKPOINT_FORMAT}; move it away to train "
+                         "afresh")
+    saved = state.get("identity")
+    saved = saved if isinstance(saved, dict) else {}
+    differ = sorted(str(k) for k in set(identity) | set(saved) if saved.get(k) != identity.get(k))
+    if differ:
+        k = differ[0]
+        raise ValueError(f"{path} holds another training ({k} {saved.get(k)!r}, not {identity.get(k)!r}); move it "
+                         "away or write elsewhere")
+    try:
+        done, updates, spent = _check_state(state, identity, model, opt, loop)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        loop.guard.load_state_dict(state["guard"])
+        gen.bit_generator.state = state["batch_order"]
+    except (ResumeStateError, ValueError, TypeError, KeyError) as err:
+        raise ValueError(f"{path}: {str(err).splitlines()[0] if str(err) else type(err).__name__}; move it away to "
+                         "train afresh") from None
+    out.epoch_accuracy[:] = [float(a) for a in state["epoch_accuracy"]]
+    return done, updates, spent
+
+
+def _check_state(state: dict[str, Any], identity: dict[str, Any], model: ReadoutSystem, opt: torch.optim.Optimizer,
+                 loop: UpdateLoop) -> tuple[int, int, float]:
+    """The checks of :mod:`bptsb_ros.training.resume_checks` on a readout checkpoint, against the training built
+    afresh: the model's entries, shapes, fixed buffers, finiteness and k, d, l ≥ 0; the optimiser's groups, rates
+    and moments; the guard's history (one loss per update) and counters; one update per batch of every epoch
+    done; one test accuracy in [0, 1] per epoch done."""
+    for key in ("epochs_done", "updates", "spent_s", "model", "optimizer", "guard", "batch_order", "epoch_accuracy"):
+        if key not in state:
+            raise ResumeStateError(f"the checkpoint lacks {key!r}")
+    done = check_whole(state["epochs_done"], "epochs_done", 0, identity["epochs"])
+    per_epoch = -(-identity["n_train"] // identity["batch"])
+    updates = check_whole(state["updates"], "updates", done * per_epoch, done * per_epoch)
+    spent = state["spent_s"]
+    if isinstance(spent, bool) or not isinstance(spent, (int, float)) or not 0 <= spent < float("inf"):
+        raise ResumeStateError(f"spent_s is {spent!r}, not a time ≥ 0")
+    # the brain is also the system's (one module, two names): its second name is trained too, not a fixed buffer
+    trained = [f"model.{name}" for name, _ in model.named_parameters(remove_duplicate=False)]
+    check_modules({"model": state["model"]}, {"model": model}, "model", fitted=trained)
+    for key, value in state["model"].items():
+        if key.split(".")[-2:] in (["body", "k"], ["body", "d"], ["body", "l"]) and bool((value < 0).any()):
+            raise ResumeStateError(f"model.{key} has a negative value; k, d and l are ≥ 0")
+    rates0 = [float(g["lr"]) for g in opt.param_groups]
+    params = [p for g in opt.param_groups for p in g["params"]]
+    check_torch_optimizer(state["optimizer"], opt, rates0, updates, "optimizer")
+    guard = loop.guard
+    check_guard(state["guard"], "guard", patience=guard.patience, reset_after=RESET_AFTER, params=params,
+                updates=updates, check_optimizer=lambda s, w: check_torch_optimizer(s, opt, rates0, updates, w))
+    acc, tested = state["epoch_accuracy"], done if identity["n_test"] else 0
+    if not isinstance(acc, list) or len(acc) != tested or not all(
+            isinstance(a, (int, float)) and not isinstance(a, bool) and 0 <= a <= 1 for a in acc):
+        raise ResumeStateError(f"epoch_accuracy is not {tested} accuracies in [0, 1] (one per epoch tested)")
+    order = state["batch_order"]
+    if not isinstance(order, dict) or order.get("bit_generator") != "PCG64":
+        raise ResumeStateError("batch_order is not the state of a PCG64 generator")
+    return done, updates, float(spent)
 
 
 class _ReadoutBatches:

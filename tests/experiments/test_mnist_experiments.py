@@ -434,6 +434,35 @@ def test_mnist_readout_smoke(tiny_mnist, tmp_path):
         assert int(np.count_nonzero(~build_shape(shape, entry["nodes"]).fixed)) == n_mov
 
 
+def test_an_interrupted_readout_run_resumes_each_training_from_its_epoch_checkpoint(tiny_mnist, tmp_path, capfd):
+    """Every readout training leaves its state after each epoch in RUN_DIR/training; a run that stopped before its
+    result (planted: the result removed, the run marked unfinished) continues with --resume from those states,
+    trains no epoch again, and comes to the same rows."""
+    import torch
+
+    from bptsb_ros.experiments.mnist_readout import systems, training_checkpoint
+
+    data, _, _ = tiny_mnist
+    out = tmp_path / "ro"
+    args = ["reproduce", "mnist-readout", "--scale", "smoke", "--data", str(data), "--workers", "0", "--out", str(out)]
+    assert main(args) == 0
+    first = read_result(out / "result.json")
+    for *_, name, _ in systems():
+        state = torch.load(training_checkpoint(out, name), weights_only=True)
+        assert state["epochs_done"] == 1 and state["identity"]["seed"] == 0
+        assert state["identity"]["data"] == f"{first['provenance']['data']}; n_train 50; n_test 30"
+    (out / "result.json").unlink()
+    capfd.readouterr()
+    assert main([*args, "--resume"]) == 0
+    err = capfd.readouterr().err
+    for name in ("only brain", "double-circle (N_mov 17)", "multiple-circle (N_mov 65)"):
+        assert f"{name}: continuing after epoch 1/1 from" in err
+        assert f"{name}: epoch 1/1 test accuracy" not in err
+    again = read_result(out / "result.json")
+    assert again["rows"] == first["rows"]
+    assert [c["holds"] for c in again["claims"]] == [c["holds"] for c in first["claims"]]
+
+
 def test_a_run_with_progress_prints_each_trainings_epochs(tiny_mnist, tmp_path, capfd):
     """Without --no-progress every training says which epoch it finished (from inside its job); with it, not."""
     data, _, _ = tiny_mnist
