@@ -20,6 +20,7 @@ from torch import nn
 
 from bptsb_ros.brains.fnn import LinearInputLayer
 from bptsb_ros.files.safe_write import atomic_writer
+from bptsb_ros.files.untrusted_yaml import bounded_repr
 from bptsb_ros.tasks.drawing import N_PIXELS, ImageToBody, SystemSpec, iterate_batches
 from bptsb_ros.training.guard import RESET_AFTER, WINDOW
 from bptsb_ros.training.loop import GuardRules, LoopStopped, Measured, UpdateLoop
@@ -139,7 +140,8 @@ def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs:
 
     Raises:
         FloatingPointError: a non-finite loss or gradient the guard cannot undo.
-        ValueError: ``checkpoint`` holds another training's state.
+        ValueError: ``checkpoint`` is unreadable, another training's or not a state this training could have saved
+            (one line naming the file and the entry; the file is kept).
     """
     opt = make_optimizer(model)
     loop = UpdateLoop(opt, GuardRules(factor=reject_factor, window=reject_window), log=log)
@@ -211,8 +213,8 @@ def _resume(path: Path, identity: dict[str, Any], model: ReadoutSystem, opt: tor
     differ = sorted(str(k) for k in set(identity) | set(saved) if saved.get(k) != identity.get(k))
     if differ:
         k = differ[0]
-        raise ValueError(f"{path} holds another training ({k} {saved.get(k)!r}, not {identity.get(k)!r}); move it "
-                         "away or write elsewhere")
+        raise ValueError(f"{path} holds another training ({k} {bounded_repr(saved.get(k), 80)}, not "
+                         f"{bounded_repr(identity.get(k), 80)}); move it away or write elsewhere")
     try:
         done, updates, spent = _check_state(state, identity, model, opt, loop)
         model.load_state_dict(state["model"])
