@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from bptsb_ros import __version__
 from bptsb_ros.brains.fnn import LinearInputLayer
 from bptsb_ros.files.safe_write import atomic_writer
 from bptsb_ros.files.untrusted_yaml import bounded_repr
@@ -150,7 +151,8 @@ def train_readout(model: ReadoutSystem, x: np.ndarray, y: np.ndarray, *, epochs:
     out = ReadoutLog(losses=loop.losses)
     t0 = time.perf_counter()
     updates, done, spent = 0, 0, 0.0
-    ident = {**dict(identity or {}), "model": model.spec.name, "epochs": epochs, "batch": batch, "seed": seed,
+    ident = {**dict(identity or {}), "model": model.spec.name, "spec": repr(model.spec), "version": __version__,
+             "epochs": epochs, "batch": batch, "seed": seed,
              "n_train": len(y), "n_test": 0 if test is None else len(test[1]), "reject_factor": reject_factor,
              "reject_window": reject_window}
     if checkpoint is not None and Path(checkpoint).exists():
@@ -205,35 +207,55 @@ def _resume(path: Path, identity: dict[str, Any], model: ReadoutSystem, opt: tor
     except Exception as err:  # noqa: BLE001 - a damaged or foreign file: one line naming it, the file kept
         raise ValueError(f"{path}: not a readable readout checkpoint ({type(err).__name__}); move it away to "
                          "train afresh") from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: not a readout checkpoint of format {CHECKPOINT_FORMAT}; move it away to train "
-                         "afresh")
-    saved = state.get("identity")
-    saved = saved if isinstance(saved, dict) else {}
-    differ = sorted(str(k) for k in set(identity) | set(saved) if saved.get(k) != identity.get(k))
-    if differ:
-        k = differ[0]
-        raise ValueError(f"{path} holds another training ({k} {bounded_repr(saved.get(k), 80)}, not "
-                         f"{bounded_repr(identity.get(k), 80)}); move it away or write elsewhere")
     try:
+        _check_identity(state, identity)
         done, updates, spent = _check_state(state, identity, model, opt, loop)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         loop.guard.load_state_dict(state["guard"])
         gen.bit_generator.state = state["batch_order"]
-    except (ResumeStateError, ValueError, TypeError, KeyError) as err:
-        raise ValueError(f"{path}: {str(err).splitlines()[0] if str(err) else type(err).__name__}; move it away to "
-                         "train afresh") from None
+    except _OtherTraining as err:
+        raise ValueError(f"{path} holds another training ({err}); move it away or write elsewhere") from None
+    except Exception as err:  # noqa: BLE001 - whatever the checks missed is still one line, the file kept
+        first = str(err).splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ValueError(f"{path}: {first}; move it away to train afresh") from None
     out.epoch_accuracy[:] = [float(a) for a in state["epoch_accuracy"]]
     return done, updates, spent
+
+
+class _OtherTraining(Exception):
+    """The checkpoint was saved by a training of another identity (the message: the first entry that differs)."""
+
+
+def _check_identity(state: Any, identity: dict[str, Any]) -> None:
+    if not isinstance(state, dict) or not _same(state.get("format"), CHECKPOINT_FORMAT):
+        raise ResumeStateError(f"not a readout checkpoint of format {CHECKPOINT_FORMAT}")
+    saved = state.get("identity")
+    saved = saved if isinstance(saved, dict) else {}
+    differ = sorted(str(k) for k in set(identity) | set(saved) if not _same(saved.get(k), identity.get(k)))
+    if differ:
+        k = differ[0]
+        raise _OtherTraining(f"{k} {bounded_repr(saved.get(k), 80)}, not {bounded_repr(identity.get(k), 80)}")
+
+
+def _same(a: Any, b: Any) -> bool:
+    """``a == b`` for plain data, False where the comparison is not a plain True (a tensor, say)."""
+    try:
+        return type(a) is type(b) and bool(a == b) is True
+    except Exception:  # noqa: BLE001 - an ambiguous comparison is a difference
+        return False
+
+
+#: Adam's per-parameter state (``torch.optim.Adam`` after a step; ``max_exp_avg_sq`` with ``amsgrad``)
+_ADAM_STATE = {"step", "exp_avg", "exp_avg_sq"}
 
 
 def _check_state(state: dict[str, Any], identity: dict[str, Any], model: ReadoutSystem, opt: torch.optim.Optimizer,
                  loop: UpdateLoop) -> tuple[int, int, float]:
     """The checks of :mod:`bptsb_ros.training.resume_checks` on a readout checkpoint, against the training built
     afresh: the model's entries, shapes, fixed buffers, finiteness and k, d, l ≥ 0; the optimiser's groups, rates
-    and moments; the guard's history (one loss per update) and counters; one update per batch of every epoch
-    done; one test accuracy in [0, 1] per epoch done."""
+    and moments; the guard's history (one loss per update), events, counters and saved parameters; one update per
+    batch of every epoch done; one test accuracy in [0, 1] per epoch done; a PCG64 generator state."""
     for key in ("epochs_done", "updates", "spent_s", "model", "optimizer", "guard", "batch_order", "epoch_accuracy"):
         if key not in state:
             raise ResumeStateError(f"the checkpoint lacks {key!r}")
@@ -241,28 +263,63 @@ def _check_state(state: dict[str, Any], identity: dict[str, Any], model: Readout
     per_epoch = -(-identity["n_train"] // identity["batch"])
     updates = check_whole(state["updates"], "updates", done * per_epoch, done * per_epoch)
     spent = state["spent_s"]
-    if isinstance(spent, bool) or not isinstance(spent, (int, float)) or not 0 <= spent < float("inf"):
-        raise ResumeStateError(f"spent_s is {spent!r}, not a time ≥ 0")
+    if not isinstance(spent, float) or not 0 <= spent < float("inf"):
+        raise ResumeStateError(f"spent_s is {bounded_repr(spent, 40)}, not a time ≥ 0 [s]")
     # the brain is also the system's (one module, two names): its second name is trained too, not a fixed buffer
     trained = [f"model.{name}" for name, _ in model.named_parameters(remove_duplicate=False)]
-    check_modules({"model": state["model"]}, {"model": model}, "model", fitted=trained)
-    for key, value in state["model"].items():
-        if key.split(".")[-2:] in (["body", "k"], ["body", "d"], ["body", "l"]) and bool((value < 0).any()):
-            raise ResumeStateError(f"model.{key} has a negative value; k, d and l are ≥ 0")
-    rates0 = [float(g["lr"]) for g in opt.param_groups]
+    try:
+        check_modules(state, {"model": model}, "", fitted=trained)
+    except ResumeStateError as err:  # entries named from the checkpoint's top: model.readout.weight
+        raise ResumeStateError(str(err).removeprefix(".")) from None
     params = [p for g in opt.param_groups for p in g["params"]]
-    check_torch_optimizer(state["optimizer"], opt, rates0, updates, "optimizer")
-    guard = loop.guard
-    check_guard(state["guard"], "guard", patience=guard.patience, reset_after=RESET_AFTER, params=params,
-                updates=updates, check_optimizer=lambda s, w: check_torch_optimizer(s, opt, rates0, updates, w))
+    body = model.system.body if model.system is not None else None
+    kdl = {i: n for i, p in enumerate(params) for n in "kdl" if body is not None and p is getattr(body, n)}
+    for name in kdl.values():
+        _non_negative(state["model"][f"system.body.{name}"], f"model.system.body.{name}")
+    rates0 = [float(g["lr"]) for g in opt.param_groups]
+
+    def check_optimizer(saved: Any, where: str) -> None:
+        check_torch_optimizer(saved, opt, rates0, updates, where)
+        if isinstance(opt, torch.optim.Adam):
+            for index, entry in saved["state"].items():
+                want = _ADAM_STATE | ({"max_exp_avg_sq"} if opt.param_groups[0].get("amsgrad") else set())
+                if set(entry) != want:
+                    raise ResumeStateError(f"{where}.state[{index}] holds {sorted(entry)}, not Adam's {sorted(want)}")
+
+    check_optimizer(state["optimizer"], "optimizer")
+    check_guard(state["guard"], "guard", patience=loop.guard.patience, reset_after=RESET_AFTER, params=params,
+                updates=updates, check_optimizer=check_optimizer)
+    for i, name in kdl.items():
+        _non_negative(state["guard"]["saved"]["params"][i], f"guard.saved.params[{i}] (the body's {name})")
     acc, tested = state["epoch_accuracy"], done if identity["n_test"] else 0
     if not isinstance(acc, list) or len(acc) != tested or not all(
-            isinstance(a, (int, float)) and not isinstance(a, bool) and 0 <= a <= 1 for a in acc):
+            isinstance(a, float) and 0 <= a <= 1 for a in acc):
         raise ResumeStateError(f"epoch_accuracy is not {tested} accuracies in [0, 1] (one per epoch tested)")
-    order = state["batch_order"]
-    if not isinstance(order, dict) or order.get("bit_generator") != "PCG64":
-        raise ResumeStateError("batch_order is not the state of a PCG64 generator")
-    return done, updates, float(spent)
+    _check_pcg64(state["batch_order"])
+    return done, updates, spent
+
+
+def _non_negative(value: torch.Tensor, where: str) -> None:
+    if bool((value < 0).any()):
+        raise ResumeStateError(f"{where} has a negative value; k, d and l are ≥ 0")
+
+
+def _check_pcg64(order: Any) -> None:
+    """A numpy PCG64 bit generator's state: ``{"bit_generator": "PCG64", "state": {"state", "inc"},
+    "has_uint32", "uinteger"}`` with 128-bit state and increment, and a buffered 32-bit word."""
+    where = "batch_order"
+    if not isinstance(order, dict) or order.get("bit_generator") != "PCG64" or set(order) != {
+            "bit_generator", "state", "has_uint32", "uinteger"}:
+        raise ResumeStateError(f"{where} is not the state of a PCG64 generator")
+    inner = order["state"]
+    if not isinstance(inner, dict) or set(inner) != {"state", "inc"}:
+        raise ResumeStateError(f"{where}.state is not a PCG64 state (state and inc)")
+    for key in ("state", "inc"):
+        value = inner[key]
+        if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value < 2**128:
+            raise ResumeStateError(f"{where}.state.{key} is not a 128-bit whole number")
+    check_whole(order["has_uint32"], f"{where}.has_uint32", 0, 1)
+    check_whole(order["uinteger"], f"{where}.uinteger", 0, 2**32 - 1)
 
 
 class _ReadoutBatches:

@@ -12,7 +12,8 @@ What is checked, against the training built afresh from the same config:
 * **ranges**: the update counter is within 0 … the training's updates, and the loss history holds one entry per
   update; every learning rate is > 0 and at most the config's (the guard and the schedule only ever divide it);
   the body's k, d, l are ≥ 0; Adam's step counts are within 0 … the update counter and its second moments ≥ 0; the
-  guard's counters are within their rules.
+  guard's counters are within their rules and its rejection events are the guard's (their entries, finite losses,
+  an update within the history, rates > 0); a whole number beyond 2⁶² is refused before it is used.
 
 Every failure is a :class:`ResumeStateError`: one line naming the entry and what is wrong with it.
 """
@@ -72,6 +73,8 @@ def check_whole(value: Any, where: str, lo: int, hi: int) -> int:
     """``value`` is a whole number (an int, or a float / 0-d tensor holding one) in ``lo`` … ``hi``."""
     if isinstance(value, torch.Tensor) and value.numel() == 1:
         value = value.item()
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 2**62:
+        raise ResumeStateError(f"{where} is {_shown(value)}, outside {lo} … {hi}")
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
             or value != int(value):
         raise ResumeStateError(f"{where} is {_shown(value)}, not a whole number")
@@ -161,6 +164,9 @@ def check_torch_optimizer(saved: Any, fresh: torch.optim.Optimizer, rates0: Sequ
         name = f"{where}.param_groups[{i}]"
         if not isinstance(got, Mapping):
             raise ResumeStateError(f"{name} is not a mapping")
+        missing = set(want) - set(got)
+        if missing:
+            raise ResumeStateError(f"{name} lacks {_names(missing)}")
         for key, value in want.items():
             if key == "lr":
                 check_rate(got.get("lr"), f"{name}.lr ({want.get('name', i)})", rates0[i])
@@ -198,8 +204,10 @@ def check_guard(saved: Any, where: str, *, patience: int, reset_after: int, para
     check_finite(history, f"{where}.history")
     if updates is not None and len(history) != updates:
         raise ResumeStateError(f"{where}.history holds {len(history)} losses, not one per update ({updates})")
-    if not isinstance(saved["events"], list) or not all(isinstance(e, Mapping) for e in saved["events"]):
+    if not isinstance(saved["events"], list):
         raise ResumeStateError(f"{where}.events is not a list of events")
+    for i, event in enumerate(saved["events"]):
+        check_event(event, f"{where}.events[{i}]", len(history) if updates is None else updates)
     check_whole(saved["count"], f"{where}.count", 0, patience - 1)
     check_whole(saved["good_in_a_row"], f"{where}.good_in_a_row", 0, reset_after - 1)
     if not isinstance(saved["stepped"], bool):
@@ -214,6 +222,42 @@ def check_guard(saved: Any, where: str, *, patience: int, reset_after: int, para
         check_finite(value, f"{where}.saved.params[{i}]")
     if check_optimizer is not None:
         check_optimizer(snap.get("optimizer"), f"{where}.saved.optimizer")
+
+
+#: an update guard's rejection event: its entries and what each holds (``UpdateGuard._reject``); "detail" may be absent
+_EVENT = {"update": "whole", "loss": "number or None", "reason": "text", "reference": "number or None",
+          "count": "whole", "divided": "bool", "rates": "rates", "detail": "text"}
+
+
+def check_event(event: Any, where: str, updates: int) -> None:
+    """One rejection event of a guard: the guard's entries (``detail`` optional), the update it rejected within
+    0 … ``updates`` − 1, finite losses, a count ≥ 1, text of at most 300 characters, rates > 0 by name."""
+    if not isinstance(event, Mapping):
+        raise ResumeStateError(f"{where} is not a mapping")
+    missing, extra = set(_EVENT) - {"detail"} - set(event), set(event) - set(_EVENT)
+    if missing or extra:
+        what = f"lacks {_names(missing)}" if missing else f"has unknown entries {_names(extra)}"
+        raise ResumeStateError(f"{where} {what}")
+    for key, kind in _EVENT.items():
+        if key not in event:
+            continue
+        value, at = event[key], f"{where}.{key}"
+        if kind == "whole":
+            check_whole(value, at, 0 if key == "update" else 1, updates - 1 if key == "update" else 2**62)
+        elif kind == "number or None":
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                      or not math.isfinite(value)):
+                raise ResumeStateError(f"{at} is {_shown(value)}, not a finite number or null")
+        elif kind == "text":
+            if not isinstance(value, str) or len(value) > 300:
+                raise ResumeStateError(f"{at} is not a text of at most 300 characters")
+        elif kind == "bool":
+            if not isinstance(value, bool):
+                raise ResumeStateError(f"{at} is {_shown(value)}, not true or false")
+        elif not isinstance(value, Mapping) or not all(
+                isinstance(r, (int, float)) and not isinstance(r, bool) and math.isfinite(r) and r > 0
+                for r in value.values()):
+            raise ResumeStateError(f"{at} is not a mapping of learning rates > 0")
 
 
 def check_resume_checkpoint(payload: Mapping[str, Any], agent: Any, task: Any, optimizer: torch.optim.Optimizer,

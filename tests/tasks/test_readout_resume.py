@@ -77,6 +77,64 @@ def test_a_training_resumed_from_its_epoch_checkpoint_ends_bit_for_bit_where_an_
     assert all(torch.equal(a, b) for a, b in zip(whole.state_dict().values(), again_model.state_dict().values()))
 
 
+def _equal(a, b, where: str = "") -> None:
+    """Two saved states are equal entry by entry, tensors bit for bit (the time spent aside)."""
+    if isinstance(a, torch.Tensor):
+        assert isinstance(b, torch.Tensor) and a.dtype == b.dtype and torch.equal(a, b), where
+    elif isinstance(a, dict):
+        assert isinstance(b, dict) and set(a) == set(b), where
+        for key in a:
+            if key != "spent_s":
+                _equal(a[key], b[key], f"{where}.{key}")
+    elif isinstance(a, (list, tuple)):
+        assert type(a) is type(b) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _equal(x, y, f"{where}[{i}]")
+    else:
+        assert a == b and type(a) is type(b), where
+
+
+@pytest.mark.parametrize(("shape", "rule"), [("double_circle", {"reject_factor": 1.0001, "reject_window": 2}),
+                                             (None, {"reject_factor": 1.0001, "reject_window": 3})])
+def test_the_state_one_epoch_after_a_resume_is_the_uninterrupted_trainings_state_after_that_epoch(tmp_path, shape,
+                                                                                                   rule):
+    """Every entry of the saved state (parameters, Adam's moments and rates, the guard's history, events,
+    counters and saved parameters, the generator) one epoch after resuming from each epoch of a guarded training
+    equals the uninterrupted training's after that epoch: nothing the next updates read is lost in between. The
+    planted rule rejects updates and divides the rates on these images."""
+    torch.set_num_threads(1)
+    x, y = _images()
+    kw = dict(epochs=4, batch=2, seed=0, test=(x, y), **rule)
+    name = "double_circle-9" if shape else "only brain"
+    whole = tmp_path / "whole.pt"
+    per_epoch: dict[int, bytes] = {}
+
+    def keep(line: str) -> None:  # epoch e's line comes before its save: the file then holds epoch e − 1's state
+        if ": epoch " in line and whole.exists():
+            per_epoch[int(line.split(": epoch ")[1].split("/")[0]) - 1] = whole.read_bytes()
+
+    ref = train_readout(_model(shape), x, y, checkpoint=whole, log=keep, **kw)
+    per_epoch[4] = whole.read_bytes()
+    assert ref.guard["divisions"] > 0 and sorted(per_epoch) == [1, 2, 3, 4]
+    for cut in (1, 2, 3):
+        part = tmp_path / f"from-{cut}.pt"
+        part.write_bytes(per_epoch[cut])
+        stop = f"{name}: epoch {cut + 2}/4" if cut < 3 else "never"
+        try:
+            train_readout(_model(shape), x, y, checkpoint=part, log=_stop_at(stop), **kw)
+        except Interrupted:
+            pass
+        after = torch.load(part, weights_only=True)
+        assert after["epochs_done"] == cut + 1
+        _equal(after, torch.load(tmp_path / "whole.pt", weights_only=True) if cut == 3 else
+               _load_bytes(per_epoch[cut + 1], tmp_path / "expected.pt"), f"resumed after epoch {cut}")
+
+
+def _load_bytes(data: bytes, path):
+    path.write_bytes(data)
+    return torch.load(path, weights_only=True)
+
+
 def test_without_a_checkpoint_nothing_is_written_and_the_training_is_the_same(tmp_path):
     x, y = _images()
     kw = dict(epochs=2, batch=3, seed=1, test=(x, y))
@@ -93,7 +151,9 @@ def test_a_checkpoint_of_another_training_is_refused_and_kept(tmp_path):
     before = ckpt.read_bytes()
     for kw, named in (({"seed": 2, "identity": {"data": "set A"}}, "seed 1, not 2"),
                       ({"seed": 1, "identity": {"data": "set B"}}, "data 'set A', not 'set B'"),
-                      ({"seed": 1, "identity": {"data": "set A"}, "batch": 2}, "batch 3, not 2")):
+                      ({"seed": 1, "identity": {"data": "set A"}, "batch": 2}, "batch 3, not 2"),
+                      ({"seed": 1, "identity": {"data": torch.tensor([1, 2])}},
+                       "data 'set A', not tensor\\(\\[1, 2\\]\\)")):
         args = {"epochs": 1, "batch": 3, **kw}
         with pytest.raises(ValueError, match=f"{ckpt} holds another training \\({named}\\)"):
             train_readout(_model(), x, y, checkpoint=ckpt, **args)
@@ -146,23 +206,37 @@ def _drop(key: str):
     return lambda state: state.pop(key)
 
 
+#: a sound rejection event (as UpdateGuard writes one)
+EVENT = {"update": 1, "loss": 2.5, "reason": "loss spike", "reference": 1.0, "count": 1, "divided": False,
+         "rates": {"0": 0.01}}
 # (an edit of a sound checkpoint after epoch 1 of 2, the entry the one-line refusal names)
 TAMPERED = [
     (_set(("epochs_done",), 5), "epochs_done is 5, outside 0 … 2"),
     (_set(("updates",), 1), "updates is 1, outside 2 … 2"),
     (_set(("spent_s",), -1.0), "spent_s is -1.0, not a time ≥ 0"),
     (_drop("guard"), "lacks 'guard'"),
-    (_set(("model", "readout.weight"), lambda w: w * float("nan")), "model.model.readout.weight holds a value that is "
-                                                                    "not finite"),
-    (_set(("model", "readout.weight"), lambda w: w[:, :-1]), "model.model.readout.weight has shape"),
+    (_set(("model", "readout.weight"), lambda w: w * float("nan")),
+     "model.readout.weight holds a value that is not finite"),
+    (_set(("model", "readout.weight"), lambda w: w[:, :-1]), "model.readout.weight has shape"),
     (_set(("model", "system.body.k"), lambda k: -k), "model.system.body.k has a negative value"),
-    (_set(("model", "system.body.mass"), lambda m: 2 * m), "model.model.system.body.mass differs from the one"),
+    (_set(("model", "system.body.mass"), lambda m: 2 * m), "model.system.body.mass differs from the one"),
     (_set(("optimizer", "param_groups", 0, "lr"), lambda r: 100 * r), "above the config's"),
     (_set(("optimizer", "state", 0, "exp_avg_sq"), lambda v: -v - 1), "exp_avg_sq has a negative value"),
     (_set(("guard", "history"), lambda h: h[:-1]), "guard.history holds 1 losses, not one per update (2)"),
     (_set(("epoch_accuracy",), [1.5]), "epoch_accuracy is not 1 accuracies in [0, 1]"),
     (_set(("batch_order", "bit_generator"), "MT19937"), "batch_order is not the state of a PCG64 generator"),
-    (_set(("batch_order", "state"), "x"), "move it away to train afresh"),
+    (_set(("batch_order", "state"), "x"), "batch_order.state is not a PCG64 state"),
+    (_set(("batch_order", "has_uint32"), 10**400), "batch_order.has_uint32 is 1000000"),
+    (_set(("epochs_done",), 10**400), "epochs_done is 1000000"),
+    (_set(("spent_s",), 10**400), "spent_s is 1000000"),
+    (_set(("format",), torch.tensor([1, 1])), "not a readout checkpoint of format 1"),
+    (_set(("optimizer", "param_groups", 0), lambda g: {k: v for k, v in g.items() if k != "betas"}), "lacks 'betas'"),
+    (_set(("optimizer", "state", 0), lambda st: {"step": st["step"]}), "holds ['step'], not Adam's"),
+    (_set(("guard", "events"), [{}]), "guard.events[0] lacks"),
+    (_set(("guard", "events"), [{**EVENT, "loss": float("nan")}]), "guard.events[0].loss is nan, not a finite"),
+    (_set(("guard", "events"), [{**EVENT, "update": 7}]), "guard.events[0].update is 7, outside 0 … 1"),
+    (_set(("guard", "events"), [{**EVENT, "rates": {"0": -1.0}}]), "guard.events[0].rates is not a mapping of"),
+    (_set(("guard", "saved", "params", 4), lambda k: -k - 1), "guard.saved.params[4] (the body's k) has a negative"),
 ]
 
 

@@ -179,6 +179,8 @@ def test_resume_state_round_trips_through_a_weights_only_checkpoint(tmp_path):
     twin_opt.load_state_dict(opt.state_dict())
     twin = UpdateGuard(twin_opt)
     twin.load_state_dict(state)
+    # every entry comes back (history, events, counters, stepped, the saved parameters and optimiser state)
+    assert _same_state(twin.state_dict(), guard.state_dict()) and guard.good_in_a_row == 1 and guard.stepped
     for g, ps, o in ((guard, params, opt), (twin, twin_params, twin_opt)):
         assert _update(g, ps, o, 4, 100.0).reason == "loss spike"  # both undo update 3 the same way
     assert all(torch.equal(p, q) for p, q in zip(params, twin_params)) and twin.history == guard.history
